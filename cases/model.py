@@ -1,0 +1,296 @@
+"""The model language: an immutable kinematic tree of rigid bodies (DESIGN.md, "The data flow").
+
+A model is plain data. Every backend reads the same fields and derives its own kinematics from them.
+
+Frames and conventions
+----------------------
+* Body ``i`` is attached to its parent (another body, or the fixed world when ``parent`` is None) by a
+  one-degree-of-freedom joint. The joint frame sits at the fixed placement ``(rotation, translation)``
+  expressed in the parent's body frame; the body frame is the joint frame moved by the joint:
+  ``X_body = X_parent * (rotation, translation) * motion(q_i)`` with ``motion`` a rotation by ``q_i`` about
+  ``axis`` (revolute) or a translation by ``q_i * axis`` (prismatic). ``axis`` is a unit vector in the joint frame.
+* ``com`` (centre of mass) and ``inertia`` (3x3 rotational inertia about the COM) are in the body frame.
+  A point mass has ``inertia = 0``.
+* Coordinate ``q_i`` belongs to body ``i`` in the order the bodies are given; ``topological_order`` lists the
+  bodies parents-first for the recursions.
+* ``input_map`` is ``B`` of ``M qdd + h = B u`` (n x m, DESIGN.md conventions; default identity).
+* Gravity is a vector in the world frame (m/s^2); the potential is ``V = -sum m_i gravity . p_com_i``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+JOINT_TYPES = ("revolute", "prismatic")
+
+
+class ModelError(ValueError):
+    """A model violates one or more preconditions; the message lists every violation, one per line."""
+
+    def __init__(self, model_name: str, problems: Sequence[str]):
+        self.problems = tuple(problems)
+        lines = "\n".join(f"  - {p}" for p in self.problems)
+        super().__init__(f"model '{model_name}' is invalid ({len(self.problems)} problem(s)):\n{lines}")
+
+
+def _frozen(values, shape, dtype=float) -> np.ndarray:
+    arr = np.array(values, dtype=dtype).reshape(shape)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Body:
+    """One rigid body and the joint that attaches it to its parent (see the module docstring for frames)."""
+
+    name: str
+    parent: str | None
+    joint: str
+    axis: np.ndarray
+    mass: float
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True)
+class TaskPoint:
+    """A named point fixed in a body: ``offset`` is expressed in that body's frame."""
+
+    name: str
+    body: str
+    offset: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A validated, immutable multibody model. Build it with :func:`build_model`, never directly."""
+
+    name: str
+    bodies: tuple[Body, ...]
+    gravity: np.ndarray
+    input_map: np.ndarray
+    task_points: tuple[TaskPoint, ...]
+    constraints: tuple = ()
+    parent_index: tuple[int, ...] = ()
+    topological_order: tuple[int, ...] = ()
+
+    @property
+    def n(self) -> int:
+        """Number of generalized coordinates (one per joint)."""
+        return len(self.bodies)
+
+    @property
+    def m(self) -> int:
+        """Number of inputs (columns of the input map B)."""
+        return self.input_map.shape[1]
+
+    def body_index(self, name: str) -> int:
+        for i, body in enumerate(self.bodies):
+            if body.name == name:
+                return i
+        raise KeyError(f"model '{self.name}' has no body '{name}'; bodies: {[b.name for b in self.bodies]}")
+
+    def task_point(self, name: str | None = None) -> TaskPoint:
+        """The named task point, or the first (default) one."""
+        if name is None:
+            return self.task_points[0]
+        for tp in self.task_points:
+            if tp.name == name:
+                return tp
+        raise KeyError(f"model '{self.name}' has no task point '{name}'; "
+                       f"task points: {[t.name for t in self.task_points]}")
+
+    def digest(self) -> str:
+        """A stable hash of everything that determines the physics and the task points (for caches keyed by
+        model); the model's name is left out, so a renamed copy shares cache entries."""
+        h = hashlib.sha256()
+        for b in self.bodies:
+            h.update(repr((b.name, b.parent, b.joint)).encode())
+            for arr in (b.axis, b.com, b.inertia, b.rotation, b.translation):
+                h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+            h.update(np.float64(b.mass).tobytes())
+        for arr in (self.gravity, self.input_map):
+            h.update(repr(arr.shape).encode())
+            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+        for tp in self.task_points:
+            h.update(repr((tp.name, tp.body)).encode())
+            h.update(np.ascontiguousarray(tp.offset, dtype="<f8").tobytes())
+        h.update(repr(self.constraints).encode())
+        return h.hexdigest()
+
+    def __hash__(self) -> int:
+        return hash(self.digest())
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Model) and self.digest() == other.digest()
+
+
+def _finite(problems: list[str], where: str, arr: np.ndarray) -> bool:
+    if not np.all(np.isfinite(arr)):
+        problems.append(f"{where} has non-finite entries (NaN or inf): {arr.tolist()}")
+        return False
+    return True
+
+
+def _as_array(problems: list[str], where: str, value, shape) -> np.ndarray | None:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        problems.append(f"{where} is not numeric: {value!r}")
+        return None
+    if arr.shape != shape:
+        problems.append(f"{where} has shape {arr.shape}, expected {shape}")
+        return None
+    return arr if _finite(problems, where, arr) else None
+
+
+def _check_inertia(problems: list[str], where: str, inertia: np.ndarray) -> None:
+    scale = max(np.abs(inertia).max(), 1e-300)
+    tol = 1e-9 * scale
+    if np.abs(inertia - inertia.T).max() > tol:
+        problems.append(f"{where} inertia about its COM is not symmetric: {inertia.tolist()}")
+        return
+    eig = np.linalg.eigvalsh(inertia)
+    if eig[0] < -tol:
+        problems.append(f"{where} inertia about its COM is not positive semi-definite: eigenvalues {eig.tolist()} "
+                        "(a point mass uses the zero matrix)")
+        return
+    a, b, c = eig
+    if c > a + b + tol:
+        problems.append(f"{where} inertia about its COM violates the triangle inequality: principal moments "
+                        f"{eig.tolist()}, the largest exceeds the sum of the other two")
+
+
+def _validate_body(problems: list[str], body: Body) -> Body | None:
+    where = f"body '{body.name}'"
+    n_before = len(problems)
+    if body.joint not in JOINT_TYPES:
+        problems.append(f"{where} has joint type {body.joint!r}; valid types: {list(JOINT_TYPES)}")
+    axis = _as_array(problems, f"{where} joint axis", body.axis, (3,))
+    if axis is not None:
+        norm = np.linalg.norm(axis)
+        if norm < 1e-12:
+            problems.append(f"{where} has a zero joint axis {axis.tolist()}")
+        elif abs(norm - 1.0) > 1e-6:
+            problems.append(f"{where} joint axis {axis.tolist()} has norm {norm:.6g}; give a unit vector "
+                            "(for a prismatic joint the axis length would rescale q)")
+        else:
+            axis = axis / norm
+    try:
+        mass = float(body.mass)
+    except (TypeError, ValueError):
+        problems.append(f"{where} mass is not a number: {body.mass!r}")
+        mass = float("nan")
+    if not np.isfinite(mass):
+        problems.append(f"{where} has a non-finite mass {mass}")
+    elif mass <= 0.0:
+        problems.append(f"{where} has a non-positive mass {mass}")
+    com = _as_array(problems, f"{where} centre of mass", body.com, (3,))
+    inertia = _as_array(problems, f"{where} inertia", body.inertia, (3, 3))
+    if inertia is not None:
+        _check_inertia(problems, where, inertia)
+    rotation = _as_array(problems, f"{where} joint placement rotation", body.rotation, (3, 3))
+    if rotation is not None:
+        err = np.abs(rotation.T @ rotation - np.eye(3)).max()
+        if err > 1e-9 or np.linalg.det(rotation) < 0:
+            problems.append(f"{where} joint placement rotation is not a proper rotation "
+                            f"(|R^T R - I| = {err:.2e}, det = {np.linalg.det(rotation):.6f})")
+    translation = _as_array(problems, f"{where} joint placement translation", body.translation, (3,))
+    if len(problems) > n_before:
+        return None
+    return Body(name=body.name, parent=body.parent, joint=body.joint, axis=_frozen(axis, 3), mass=mass,
+                com=_frozen(com, 3), inertia=_frozen(0.5 * (inertia + inertia.T), (3, 3)),
+                rotation=_frozen(rotation, (3, 3)), translation=_frozen(translation, 3))
+
+
+def _topology(problems: list[str], bodies: Sequence[Body]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """Parent indices (-1 for the world) and a parents-first order; reports unknown parents and cycles."""
+    index: dict[str, int] = {}
+    for i, b in enumerate(bodies):
+        if b.name in index:
+            problems.append(f"body name '{b.name}' is used more than once")
+        index.setdefault(b.name, i)
+    parent = []
+    for b in bodies:
+        if b.parent is None:
+            parent.append(-1)
+        elif b.parent not in index:
+            problems.append(f"body '{b.name}' names an unknown parent '{b.parent}'; "
+                            f"bodies: {[x.name for x in bodies]} (None means the world)")
+            parent.append(-1)
+        else:
+            parent.append(index[b.parent])
+    order: list[int] = []
+    placed = [False] * len(bodies)
+    for _ in range(len(bodies)):
+        for i, p in enumerate(parent):
+            if not placed[i] and (p < 0 or placed[p]):
+                placed[i] = True
+                order.append(i)
+    stuck = [bodies[i].name for i in range(len(bodies)) if not placed[i]]
+    if stuck:
+        problems.append(f"the parent links form a cycle through bodies {stuck}; a kinematic tree needs every "
+                        "chain of parents to end at the world")
+    return tuple(parent), tuple(order)
+
+
+def _input_map(problems: list[str], input_map, n: int) -> np.ndarray:
+    """B as an (n, m) float array (a length-n vector is one input); problems are appended, not raised."""
+    if input_map is None:
+        return np.eye(n)
+    try:
+        B = np.array(input_map, dtype=float)
+    except (TypeError, ValueError):
+        problems.append(f"input map B is not a numeric (n, m) array: {input_map!r}")
+        return np.zeros((n, 0))
+    if B.ndim == 1 and B.shape[0] == n:
+        B = B.reshape(n, 1)
+    if B.ndim != 2 or B.shape[0] != n:
+        problems.append(f"input map B has shape {B.shape}, expected ({n}, m) for {n} joints")
+    else:
+        _finite(problems, "input map B", B)
+    return B
+
+
+def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
+                task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = ()) -> Model:
+    """Validate the description and return an immutable :class:`Model`.
+
+    Every violated precondition is collected and reported together in one :class:`ModelError`.
+    Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body.
+    """
+    bodies = list(bodies)
+    problems: list[str] = []
+    if not bodies:
+        problems.append("a model needs at least one body")
+    valid = [_validate_body(problems, b) for b in bodies]
+    parent, order = _topology(problems, bodies)
+    g = _as_array(problems, "gravity", gravity, (3,))
+    n = len(bodies)
+    B = _input_map(problems, input_map, n)
+    names = {b.name for b in bodies}
+    if task_points is None:
+        last = valid[-1] if valid else None
+        task_points = [TaskPoint("tip", last.name, last.com)] if last is not None else []
+    tps = []
+    for tp in task_points:
+        offset = _as_array(problems, f"task point '{tp.name}' offset", tp.offset, (3,))
+        if tp.body not in names:
+            problems.append(f"task point '{tp.name}' is on an unknown body '{tp.body}'")
+        elif offset is not None:
+            tps.append(TaskPoint(tp.name, tp.body, _frozen(offset, 3)))
+    constraints = tuple(constraints)
+    if constraints:
+        problems.append("constraints are not supported yet (the constraint issue adds them)")
+    if problems:
+        raise ModelError(name, problems)
+    B = B.copy()
+    B.setflags(write=False)
+    return Model(name=name, bodies=tuple(valid), gravity=_frozen(g, 3), input_map=B,
+                 task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order)

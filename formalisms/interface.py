@@ -1,0 +1,122 @@
+"""The one interface every formalism implements (DESIGN.md, "The data flow").
+
+A formalism is a pure function ``split(model, q, qd, u) -> Split`` of an immutable model and a state.
+The split is article eq. (9): ``qdd = qdd_drift + qdd_ctrl`` with ``qdd_drift`` the pointwise ZTCF sample
+(eq. 10, u = 0) and ``qdd_ctrl`` the control contribution, computed directly (``M^-1 B u``), never as
+``total - drift``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from cases.model import Model
+
+
+class Unsupported:
+    """Marker for a quantity a formalism declares it cannot produce; the harness reports "not compared"."""
+
+    _instance = None
+
+    def __new__(cls):
+        if cls._instance is None:
+            cls._instance = super().__new__(cls)
+        return cls._instance
+
+    def __repr__(self) -> str:
+        return "UNSUPPORTED"
+
+
+UNSUPPORTED = Unsupported()
+
+
+class StateError(ValueError):
+    """A state (q, qd, u) does not fit the model: wrong length or non-finite entries."""
+
+
+@dataclass(frozen=True)
+class Split:
+    """What every formalism returns for one state.
+
+    drift, ctrl, total   joint accelerations (n,): eq. (10), ``M^-1 B u``, and the full solve of eq. (2).
+    lam, lam_drift       constraint multipliers with and without input (eq. 12, 14); None when unconstrained.
+    power_ctrl           ``u . (B^T qd)`` (W); ``power_ctrl_per_coord[i] = (B u)_i qd_i``.
+    power_constr         ``(Jc^T lam) . qd``, None when unconstrained; per coordinate likewise.
+    cond_M               2-norm condition number of the mass matrix this formalism solved with.
+    accel_scale          ``||M^-1|| (||C qd|| + ||g|| + ||B u||)``: the size of the accelerations the summed
+                         terms could produce; the harness scales tolerances by it (DESIGN.md, tolerances).
+    extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
+                         moment the parent exerts on each body, about the body-frame origin (for a revolute
+                         joint the joint origin; for a prismatic one the point on the moving side).
+    """
+
+    drift: np.ndarray
+    ctrl: np.ndarray
+    total: np.ndarray
+    lam: np.ndarray | None | Unsupported
+    lam_drift: np.ndarray | None | Unsupported
+    power_ctrl: float
+    power_ctrl_per_coord: np.ndarray
+    power_constr: float | None | Unsupported
+    power_constr_per_coord: np.ndarray | None | Unsupported
+    cond_M: float
+    accel_scale: float
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+    def quantity(self, name: str):
+        """A compared quantity by name (``drift``, ``ctrl``, ``total``, ``lam``, ``power_ctrl``, ...)."""
+        return getattr(self, name)
+
+
+@dataclass(frozen=True)
+class Formalism:
+    """A named formulation of rigid-body dynamics behind the shared ``split`` contract."""
+
+    name: str
+    summary: str
+    split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]
+
+
+def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (q, qd, u) as float arrays, or raise :class:`StateError` naming what does not fit."""
+    out = []
+    for label, value, size in (("q", q, model.n), ("qd", qd, model.n), ("u", u, model.m)):
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise StateError(f"{label} is not a numeric vector: {value!r}") from None
+        if arr.ndim != 1:
+            raise StateError(f"{label} must be a 1-D vector of length {size}, got an array of shape {arr.shape}")
+        if arr.size != size:
+            raise StateError(f"{label} has {arr.size} entries but model '{model.name}' needs {size}")
+        if not np.all(np.isfinite(arr)):
+            raise StateError(f"{label} has non-finite entries: {arr.tolist()}")
+        out.append(arr)
+    return out[0], out[1], out[2]
+
+
+def joint_power(tau: np.ndarray, qd: np.ndarray) -> tuple[float, np.ndarray]:
+    """Power of a generalized force on the joint velocities: total ``tau . qd`` and per coordinate."""
+    per = tau * qd
+    return float(per.sum()), per
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    arr = np.array(arr, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
+def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None) -> Split:
+    """Assemble the :class:`Split` of an unconstrained model (no multipliers, no constraint power)."""
+    n = len(qd)
+    for label, value in (("drift", drift), ("ctrl", ctrl), ("total", total)):
+        if np.shape(value) != (n,):
+            raise ValueError(f"a formalism returned {label} of shape {np.shape(value)}, expected ({n},)")
+    p, per = joint_power(tau_ctrl, qd)
+    return Split(drift=_readonly(drift), ctrl=_readonly(ctrl), total=_readonly(total), lam=None, lam_drift=None,
+                 power_ctrl=p, power_ctrl_per_coord=_readonly(per), power_constr=None, power_constr_per_coord=None,
+                 cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}))
