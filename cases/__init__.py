@@ -1,0 +1,87 @@
+"""Scene descriptions: the model language, parameterized case factories, and the URDF loader.
+
+    >>> import cases
+    >>> cases.names()
+    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda']
+    >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
+
+``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
+package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do, when called).
+"""
+
+from __future__ import annotations
+
+from cases.factories import REGISTRY, CaseError, CaseInfo
+from cases.model import Body, Model, ModelError, TaskPoint, build_model
+from cases.urdf import UrdfError, from_urdf
+
+
+def names() -> list[str]:
+    """The registered case names, in registry order."""
+    return list(REGISTRY)
+
+
+def catalog() -> list[CaseInfo]:
+    """One :class:`CaseInfo` per case (``name``, ``summary``, ``parameters`` = {name: default}), in registry order."""
+    return [CaseInfo(c.name, c.summary, dict(c.parameters), c.factory) for c in REGISTRY.values()]
+
+
+def _describe(params: dict) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in params.items()) if params else "(none: this case takes no parameters)"
+
+
+def _convert(case: str, key: str, value, default):
+    """``value`` as the type of ``default`` (int or float); strings are parsed; bools are refused."""
+    kind = type(default)
+    if isinstance(value, bool):
+        raise CaseError(f"case '{case}': parameter {key} must be {kind.__name__}, got the bool {value!r}")
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            return kind(text)
+        except ValueError:
+            if kind is int:
+                try:
+                    as_float = float(text)
+                except ValueError:
+                    as_float = None
+                if as_float is not None and as_float.is_integer():
+                    return int(as_float)
+            raise CaseError(f"case '{case}': parameter {key}={value!r} is not a valid {kind.__name__} "
+                            f"(default {default!r})") from None
+    if kind is int:
+        try:
+            as_int = int(value)
+        except (TypeError, ValueError, OverflowError):
+            as_int = None
+        if as_int is None or as_int != value:
+            raise CaseError(f"case '{case}': parameter {key}={value!r} is not an integer (default {default!r})")
+        return as_int
+    if kind is float:
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise CaseError(f"case '{case}': parameter {key}={value!r} is not a number "
+                            f"(default {default!r})") from None
+    return value
+
+
+def load(name: str, **params) -> Model:
+    """Build the case ``name`` with ``params`` overriding its defaults.
+
+    Values may be strings (from a CLI ``--param k=v``); they are converted by the type of the parameter's default.
+    An unknown case or parameter, or a value that does not convert, raises :class:`CaseError` listing what is valid.
+    """
+    info = REGISTRY.get(name)
+    if info is None:
+        raise CaseError(f"unknown case '{name}'; valid cases: {', '.join(REGISTRY)}")
+    unknown = [k for k in params if k not in info.parameters]
+    if unknown:
+        raise CaseError(f"case '{name}' has no parameter(s) {', '.join(map(repr, unknown))}; valid parameters "
+                        f"with defaults: {_describe(info.parameters)}")
+    kwargs = {k: _convert(name, k, v, info.parameters[k]) for k, v in params.items()}
+    return info.factory(**kwargs)
+
+
+__all__ = ["Body", "CaseError", "CaseInfo", "Model", "ModelError", "TaskPoint", "UrdfError", "build_model",
+           "catalog", "from_urdf", "load", "names"]

@@ -1,0 +1,205 @@
+"""Parameterized case factories, registered by name (the registry behind :func:`cases.load`).
+
+Every factory takes only keyword parameters with numeric defaults (the catalog reads them from the signature)
+and returns a validated :class:`~cases.model.Model`. Conventions are those of :mod:`cases.model`.
+
+Planar cases (``double_pendulum``, ``n_link_pendulum``, ``acrobot``) move in the x-y plane: revolute axes z,
+links hanging along -y at q = 0, gravity (0, -g, 0), and every angle is relative to the previous link, measured
+from hanging straight down (article section 3). A point at distance ``l`` along a link whose absolute angle is
+``phi`` is at ``(l sin phi, -l cos phi)`` from the link's joint.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from cases.model import Body, Model, TaskPoint, build_model
+
+
+class CaseError(ValueError):
+    """An unknown case, an unknown parameter, or a parameter value a case cannot use."""
+
+
+@dataclass(frozen=True)
+class CaseInfo:
+    """One catalog entry: the case name, a one-line summary, and its parameters with their defaults."""
+
+    name: str
+    summary: str
+    parameters: dict
+    factory: Callable[..., Model]
+
+
+REGISTRY: dict[str, CaseInfo] = {}
+
+
+def register(func: Callable[..., Model]) -> Callable[..., Model]:
+    """Register ``func`` under its own name; its keyword defaults become the case's parameters."""
+    params = {}
+    for p in inspect.signature(func).parameters.values():
+        if p.default is inspect.Parameter.empty:
+            raise TypeError(f"case factory {func.__name__}: parameter '{p.name}' needs a default")
+        params[p.name] = p.default
+    summary = (inspect.getdoc(func) or "").strip().splitlines()[0] if func.__doc__ else ""
+    REGISTRY[func.__name__] = CaseInfo(func.__name__, summary, params, func)
+    return func
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+
+
+def _rot(axis, angle: float) -> np.ndarray:
+    """Rotation matrix of ``angle`` (rad) about ``axis`` (Rodrigues)."""
+    k = np.asarray(axis, dtype=float)
+    k = k / np.linalg.norm(k)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def _inertia(principal, rotation) -> np.ndarray:
+    """``R diag(principal) R^T``: a full (off-diagonal) inertia tensor about the COM."""
+    R = np.asarray(rotation, dtype=float)
+    return R @ np.diag(principal) @ R.T
+
+
+_Z = (0.0, 0.0, 1.0)
+
+
+def _require(cond: bool, message: str) -> None:
+    if not cond:
+        raise CaseError(message)
+
+
+# ---------------------------------------------------------------------------------------------- planar
+
+
+@register
+def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 1.0,
+                    g: float = 9.81) -> Model:
+    """Planar double pendulum of article section 3: point masses at the link ends, relative angles from hanging down.
+
+    q = (theta1, theta2): theta1 of link 1 from the downward vertical, theta2 of link 2 relative to link 1.
+    Mass 1 at (l1 sin t1, -l1 cos t1), mass 2 (task point ``tip``) at eq. (4).
+    """
+    bodies = [
+        Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0)),
+        Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), translation=(0.0, -l1, 0.0)),
+    ]
+    return build_model("double_pendulum", bodies, gravity=(0.0, -g, 0.0),
+                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0))])
+
+
+@register
+def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81) -> Model:  # noqa: E741
+    """Planar chain of n equal point masses at the link ends, relative angles from hanging down (n >= 1).
+
+    Body ``link{i}`` (i = 1..n) is placed at the previous link's end; task point ``tip`` is the last mass.
+    """
+    _require(isinstance(n, (int, np.integer)) and not isinstance(n, bool),
+             f"n_link_pendulum: n must be an integer, got {n!r}")
+    _require(n >= 1, f"n_link_pendulum: n must be at least 1 (number of links), got {n}")
+    bodies = []
+    for i in range(1, n + 1):
+        bodies.append(Body(f"link{i}", None if i == 1 else f"link{i - 1}", "revolute", _Z, m,
+                           com=(0.0, -l, 0.0), translation=(0.0, 0.0, 0.0) if i == 1 else (0.0, -l, 0.0)))
+    return build_model("n_link_pendulum", bodies, gravity=(0.0, -g, 0.0),
+                       task_points=[TaskPoint("tip", f"link{n}", (0.0, -l, 0.0))])
+
+
+@register
+def acrobot(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 2.0, lc1: float = 0.5,
+            lc2: float = 1.0, I1: float = 0.083, I2: float = 0.33, g: float = 9.81) -> Model:  # noqa: N803
+    """Spong's acrobot: two links with distributed inertia, only the elbow actuated (B = [[0], [1]]).
+
+    Link i has its COM at distance lci along the link and rotational inertia Ii about the COM and the joint
+    axis z (defaults: Spong 1995, uniform rods). The COM inertia tensor is that of a slender rod along the link
+    (y): diag(Ii, 0, Ii), which is positive semi-definite and satisfies the triangle inequality.
+    Task point ``tip``: the end of link 2.
+    """
+    bodies = [
+        Body("link1", None, "revolute", _Z, m1, com=(0.0, -lc1, 0.0), inertia=np.diag([I1, 0.0, I1])),
+        Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -lc2, 0.0), inertia=np.diag([I2, 0.0, I2]),
+             translation=(0.0, -l1, 0.0)),
+    ]
+    return build_model("acrobot", bodies, gravity=(0.0, -g, 0.0), input_map=[[0.0], [1.0]],
+                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0))])
+
+
+# --------------------------------------------------------------------------------------------- spatial
+
+_S2 = np.sqrt(0.5)
+
+
+@register
+def spatial_arm() -> Model:
+    """A fixed 3-D 6-joint arm (5 revolute + 1 prismatic) with skewed axes, rotated placements and full inertias.
+
+    Deterministic, hard-coded numbers (masses 0.6-4 kg, links 0.1-0.35 m). Joint axes are pairwise
+    non-parallel at q = 0 (one of them is (1, 1, 0)/sqrt 2 in its joint frame), every placement but the first
+    has a non-identity rotation, every COM inertia is ``R diag(principal) R^T`` with off-diagonal terms, and
+    the task point ``tip`` is offset from the last body's origin. Gravity (0, 0, -9.81).
+    """
+    bodies = [
+        Body("base", None, "revolute", (0.0, 0.0, 1.0), 4.0,
+             com=(0.01, -0.02, 0.06),
+             inertia=_inertia((0.020, 0.024, 0.016), _rot((1.0, 2.0, 3.0), 0.4)),
+             rotation=np.eye(3), translation=(0.0, 0.0, 0.10)),
+        Body("shoulder", "base", "revolute", (0.0, 0.0, 1.0), 3.0,
+             com=(0.12, 0.01, -0.02),
+             inertia=_inertia((0.006, 0.030, 0.028), _rot((0.0, 1.0, 1.0), 0.3)),
+             rotation=_rot((1.0, 0.0, 0.0), -np.pi / 2), translation=(0.02, 0.0, 0.15)),
+        Body("upper_arm", "shoulder", "revolute", (_S2, _S2, 0.0), 2.5,
+             com=(0.15, -0.01, 0.02),
+             inertia=_inertia((0.004, 0.021, 0.019), _rot((2.0, -1.0, 1.0), 0.7)),
+             rotation=_rot((0.0, 0.0, 1.0), 0.3), translation=(0.30, 0.0, 0.03)),
+        Body("slider", "upper_arm", "prismatic", (1.0, 0.0, 0.0), 1.5,
+             com=(0.08, 0.015, -0.01),
+             inertia=_inertia((0.002, 0.009, 0.008), _rot((1.0, 1.0, -1.0), 0.5)),
+             rotation=_rot((0.0, 1.0, 0.0), 0.2), translation=(0.25, 0.05, 0.0)),
+        Body("wrist1", "slider", "revolute", (0.0, 1.0, 0.0), 1.0,
+             com=(0.0, 0.04, 0.03),
+             inertia=_inertia((0.0015, 0.0012, 0.0020), _rot((3.0, 1.0, 2.0), 0.9)),
+             rotation=_rot((1.0, 0.0, 1.0), 0.6), translation=(0.18, 0.0, -0.02)),
+        Body("wrist2", "wrist1", "revolute", (0.0, 0.0, 1.0), 0.6,
+             com=(0.02, -0.01, 0.05),
+             inertia=_inertia((0.0008, 0.0010, 0.0006), _rot((-1.0, 2.0, 0.5), 1.1)),
+             rotation=_rot((1.0, -1.0, 0.0), 0.8), translation=(0.0, 0.10, 0.04)),
+    ]
+    return build_model("spatial_arm", bodies, gravity=(0.0, 0.0, -9.81),
+                       task_points=[TaskPoint("tip", "wrist2", (0.03, -0.02, 0.12))])
+
+
+# ------------------------------------------------------------------------------------------------- URDF
+
+PANDA_URDF = "cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf"
+
+
+def panda_urdf_path():
+    """Path of the Franka Panda URDF shipped by the ``example-robot-data`` package (v6 has no python module)."""
+    import importlib.metadata
+
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError as exc:
+        raise ImportError("the 'panda' case needs the Franka Panda URDF from the 'example-robot-data' package: "
+                          "pip install example-robot-data") from exc
+    path = dist.locate_file(PANDA_URDF)
+    if not path.exists():
+        raise FileNotFoundError(f"the 'panda' case: example-robot-data {dist.version} is installed but has no "
+                                f"'{path}'; reinstall it (pip install --force-reinstall example-robot-data)")
+    return path
+
+
+@register
+def panda() -> Model:
+    """Franka Emika Panda from example-robot-data's URDF via Pinocchio: 7 arm joints + 2 finger joints (mimic ignored).
+
+    Joint order is Pinocchio's; the default task point is ``panda_hand_tcp``.
+    """
+    from cases.urdf import from_urdf
+
+    return from_urdf(panda_urdf_path(), name="panda")
