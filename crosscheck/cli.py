@@ -1,0 +1,197 @@
+"""The ``crosscheck`` command line: cases, formalisms, gate, eval.
+
+Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import cases
+from cases.model import ModelError
+from crosscheck import backends
+from crosscheck.gate import CaseSpec, run_gate
+from crosscheck.report import render
+from formalisms import UnknownFormalism
+from formalisms.interface import StateError
+
+DEFAULT_REPORT = "reports/gate.md"
+
+
+class UsageError(Exception):
+    """Bad input from the command line: reported in one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).replace("\n  - ", "; ").split())
+
+
+def _vector(text: str, label: str) -> list[float]:
+    parts = [p for p in text.replace(",", " ").split() if p]
+    try:
+        return [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"--{label} takes comma-separated numbers, got '{text}'") from None
+
+
+def _params(pairs: list[str]) -> tuple[tuple[str, str], ...]:
+    out = []
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--param takes KEY=VALUE, got '{pair}'")
+        out.append((key, value))
+    return tuple(out)
+
+
+def _specs(args) -> list[CaseSpec]:
+    params = _params(args.param)
+    names = args.case or ([] if args.model else cases.names())
+    if params and len(names) != 1:
+        raise UsageError("--param needs exactly one --case")
+    for name in names:
+        if name not in cases.names():
+            raise UsageError(f"unknown case '{name}'; valid cases: {', '.join(cases.names())}")
+    specs = [CaseSpec(name, params) for name in names]
+    specs += [CaseSpec(Path(path).stem, urdf=path) for path in args.model]
+    return specs
+
+
+def _backends(selected: list[str] | None):
+    return [backends.get(name) for name in (selected or backends.names())]
+
+
+def cmd_cases(args) -> int:
+    for info in cases.catalog():
+        params = ", ".join(f"{k}={v}" for k, v in info.parameters.items()) or "no parameters"
+        print(f"{info.name:18s} {info.summary}\n{'':18s} parameters: {params}")
+    return 0
+
+
+def cmd_formalisms(args) -> int:
+    for name in backends.names():
+        tag = " (external reference)" if name == backends.REFERENCE_NAME else ""
+        print(f"{name:16s} {backends.get(name).summary}{tag}")
+    return 0
+
+
+def cmd_gate(args) -> int:
+    if args.samples < 1:
+        raise UsageError("--samples must be at least 1")
+    specs = _specs(args)
+    chosen = _backends(args.formalism)
+    for spec in specs:  # build every model first so bad input fails before any work
+        spec.build()
+
+    def progress(case, done):
+        if done == args.samples:
+            print(f"  {case}: {done} states evaluated", file=sys.stderr)
+
+    result = run_gate(specs, chosen, args.samples, args.seed, progress)
+    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
+    report = Path(args.report)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    report.write_text(render(result, command))
+    for case in result.cases:
+        bad = sum(s.failed for s in case.states)
+        worst = max((s.worst_ratio for s in case.states), default=0.0)
+        status = "FAIL" if bad else "ok"
+        print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, "
+              f"worst error/tolerance {worst:.3g}")
+    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
+    return 0 if result.passed else 1
+
+
+def _jsonable(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if value is None or isinstance(value, (int, float, str, list)):
+        return value
+    return repr(value)
+
+
+def cmd_eval(args) -> int:
+    if args.case and args.model:
+        raise UsageError("give either --case or --model, not both")
+    if not args.case and not args.model:
+        raise UsageError("eval needs --case NAME or --model PATH")
+    spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
+                                     param=args.param))[0]
+    model = spec.build()
+    q = _vector(args.q, "q")
+    qd = _vector(args.qd, "qd") if args.qd is not None else [0.0] * model.n
+    u = _vector(args.u, "u") if args.u is not None else [0.0] * model.m
+    out = {}
+    for backend in _backends(args.formalism):
+        split = backend.split(model, q, qd, u)
+        out[backend.name] = {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
+    if args.json:
+        print(json.dumps({"case": spec.name, "params": dict(spec.params), "q": q, "qd": qd, "u": u,
+                          "formalisms": out}, indent=1))
+        return 0
+    print(f"case {spec.name}: q = {q}, qd = {qd}, u = {u}")
+    for name, values in out.items():
+        print(f"{name}:")
+        for key in ("drift", "ctrl", "total", "power_ctrl", "cond_M"):
+            print(f"  {key:10s} {values[key]}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="crosscheck", description="Cross-formalism verification of rigid multibody dynamics.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub.add_parser("cases", help="list the built-in cases and their parameters").set_defaults(run=cmd_cases)
+    sub.add_parser("formalisms", help="list the formalisms and the reference").set_defaults(run=cmd_formalisms)
+
+    gate = sub.add_parser("gate", help="sample states per case, compare every backend, write a report")
+    gate.add_argument("--case", action="append", default=[], help="a built-in case (repeatable; default: all)")
+    gate.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (one --case)")
+    gate.add_argument("--model", action="append", default=[], metavar="PATH", help="a URDF file (repeatable)")
+    gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
+    gate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
+    gate.add_argument("--report", default=DEFAULT_REPORT, help=f"markdown report path (default {DEFAULT_REPORT})")
+    gate.set_defaults(run=cmd_gate)
+
+    ev = sub.add_parser("eval", help="evaluate the backends at one state")
+    ev.add_argument("--case", help="a built-in case")
+    ev.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (repeatable)")
+    ev.add_argument("--model", metavar="PATH", help="a URDF file instead of --case")
+    ev.add_argument("--q", required=True, help="joint positions, comma-separated")
+    ev.add_argument("--qd", help="joint velocities (default zeros)")
+    ev.add_argument("--u", help="inputs, one per column of B (default zeros)")
+    ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
+    ev.add_argument("--json", action="store_true", help="print JSON")
+    ev.set_defaults(run=cmd_eval)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+        args.argv = argv
+        return args.run(args)
+    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
+            FileNotFoundError) as exc:
+        print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

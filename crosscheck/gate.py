@@ -1,0 +1,122 @@
+"""The equivalence gate: sample states per case, evaluate every backend, compare, collect verdicts."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import cases
+from cases.model import Model
+from crosscheck import tolerance as tolerance_policy
+from crosscheck.compare import DISAGREE, Comparison, compare
+from crosscheck.sampling import State, sample_states
+from formalisms.interface import Formalism, Split
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """How to build one case: a built-in factory with parameters, or a URDF file."""
+
+    name: str
+    params: tuple[tuple[str, str], ...] = ()
+    urdf: str | None = None
+
+    def build(self) -> Model:
+        if self.urdf is not None:
+            return cases.from_urdf(self.urdf, name=self.name)
+        return cases.load(self.name, **dict(self.params))
+
+    def cli_args(self) -> str:
+        """The command-line arguments that select this case."""
+        if self.urdf is not None:
+            return f"--model {self.urdf}"
+        return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params])
+
+
+@dataclass
+class StateOutcome:
+    """All backends at one state: their splits, any errors they raised, and one comparison per quantity."""
+
+    state: State
+    splits: dict[str, Split]
+    errors: dict[str, str]
+    comparisons: dict[str, Comparison]
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.errors) or any(c.verdict == DISAGREE for c in self.comparisons.values())
+
+    @property
+    def worst_ratio(self) -> float:
+        return max((c.worst_ratio for c in self.comparisons.values()), default=0.0)
+
+
+@dataclass
+class CaseOutcome:
+    """One case's states and timings (first call includes one-off preparation such as symbolic derivation)."""
+
+    spec: CaseSpec
+    model: Model
+    states: list[StateOutcome]
+    first_call_s: dict[str, float] = field(default_factory=dict)
+    per_state_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def failed(self) -> bool:
+        return any(s.failed for s in self.states)
+
+
+@dataclass
+class GateResult:
+    seed: int
+    samples: int
+    backends: tuple[str, ...]
+    cases: list[CaseOutcome]
+
+    @property
+    def passed(self) -> bool:
+        return not any(c.failed for c in self.cases)
+
+
+def evaluate(model: Model, state: State, backends: Sequence[Formalism],
+             clock: dict[str, list[float]] | None = None) -> StateOutcome:
+    """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table."""
+    splits: dict[str, Split] = {}
+    errors: dict[str, str] = {}
+    for backend in backends:
+        start = time.perf_counter()
+        try:
+            splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
+        except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
+            errors[backend.name] = f"{type(exc).__name__}: {exc}"
+        if clock is not None:
+            clock.setdefault(backend.name, []).append(time.perf_counter() - start)
+    comparisons = {}
+    if splits:
+        at = tolerance_policy.scales(splits.values())
+        for quantity in tolerance_policy.QUANTITIES:
+            values = {name: split.quantity(quantity) for name, split in splits.items()}
+            comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
+    return StateOutcome(state, splits, errors, comparisons)
+
+
+def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
+             progress: Callable[[str, int], None] | None = None) -> CaseOutcome:
+    model = spec.build()
+    clock: dict[str, list[float]] = {}
+    outcomes = []
+    for state in sample_states(model, samples, seed, spec.name):
+        outcomes.append(evaluate(model, state, backends, clock))
+        if progress:
+            progress(spec.name, state.index + 1)
+    first = {name: times[0] for name, times in clock.items()}
+    rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
+    return CaseOutcome(spec, model, outcomes, first, rest)
+
+
+def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
+             progress: Callable[[str, int], None] | None = None) -> GateResult:
+    """Run the gate over the cases; the result passes when no state shows a disagreement or an error."""
+    outcomes = [run_case(spec, backends, samples, seed, progress) for spec in specs]
+    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes)

@@ -1,0 +1,128 @@
+"""The gate and the command line: exit codes, reports, reproduce commands, and a gate that can fail."""
+
+from __future__ import annotations
+
+import json
+import shlex
+
+import numpy as np
+import pytest
+
+import formalisms.euler_lagrange as el
+from crosscheck import backends, cli
+from crosscheck.compare import DISAGREE
+from crosscheck.gate import CaseSpec, run_gate
+
+DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"]
+
+
+def _gate(tmp_path, *args):
+    report = tmp_path / "gate.md"
+    code = cli.main(["gate", *args, "--report", str(report)])
+    return code, report.read_text() if report.exists() else ""
+
+
+def _without_timing(report: str) -> str:
+    return report.split("## Timing")[0]
+
+
+def test_gate_passes_and_is_reproducible(tmp_path):
+    code, first = _gate(tmp_path, "--case", "double_pendulum", "--case", "acrobot", "--samples", "15", "--seed", "3")
+    assert code == 0
+    assert "**PASS**" in first and "| acrobot | 2 | total | 15 | 0 |" in first
+    _, second = _gate(tmp_path, "--case", "double_pendulum", "--case", "acrobot", "--samples", "15", "--seed", "3")
+    assert _without_timing(first) == _without_timing(second)
+    _, other_seed = _gate(tmp_path, "--case", "double_pendulum", "--case", "acrobot", "--samples", "15", "--seed", "4")
+    assert _without_timing(first) != _without_timing(other_seed)
+
+
+@pytest.fixture
+def dropped_coriolis(monkeypatch):
+    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
+    correct = el.terms
+
+    def broken(model, q, qd):
+        M, Cqd, g = correct(model, q, qd)
+        return M, np.zeros_like(Cqd), g
+
+    monkeypatch.setattr(el, "terms", broken)
+
+
+def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis, capsys):
+    code, report = _gate(tmp_path, "--case", "double_pendulum", "--samples", "10")
+    assert code == 1
+    assert "**FAIL**" in report and "## Disagreements" in report
+    assert "outlier **euler_lagrange**" in report
+    # ctrl does not involve C qd: it must still agree, so the report localizes the bug to drift and total
+    assert "| double_pendulum | 2 | ctrl | 10 | 0 |" in report
+    assert "| double_pendulum | 2 | drift | 0 | 10 |" in report
+    # every listed disagreement has a reproduce command that runs and shows the discrepancy
+    command = next(line for line in report.splitlines() if "reproduce: `" in line).split("`")[1]
+    argv = shlex.split(command)[1:] + ["--json"]
+    capsys.readouterr()
+    assert cli.main(argv) == 0
+    out = json.loads(capsys.readouterr().out)["formalisms"]
+    assert not np.allclose(out["euler_lagrange"]["drift"], out["pinocchio"]["drift"])
+    np.testing.assert_allclose(out["newton_euler"]["drift"], out["pinocchio"]["drift"], rtol=1e-12)
+
+
+def test_two_backends_disagree_without_a_vote(dropped_coriolis):
+    chosen = [backends.get("euler_lagrange"), backends.get("pinocchio")]
+    result = run_gate([CaseSpec("double_pendulum")], chosen, samples=5, seed=0)
+    assert not result.passed
+    comp = result.cases[0].states[0].comparisons["drift"]
+    assert comp.verdict == DISAGREE and comp.outlier is None
+
+
+def test_eval_json_matches_article_closed_form(capsys):
+    assert cli.main(["eval", "--case", "double_pendulum", *DP_STATE, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["case"] == "double_pendulum"
+    assert set(data["formalisms"]) == set(backends.names())
+    t1, t2, w1, w2, tau = np.pi / 4, np.pi / 6, 2.0, -1.0, np.array([5.0, -2.0])
+    c = np.sin(t2)
+    M = np.array([[3 + 2 * np.cos(t2), 1 + np.cos(t2)], [1 + np.cos(t2), 1.0]])
+    h = np.array([-2 * c * w1 * w2 - c * w2 ** 2 + 2 * 9.81 * np.sin(t1) + 9.81 * np.sin(t1 + t2),
+                  c * w1 ** 2 + 9.81 * np.sin(t1 + t2)])
+    for name, values in data["formalisms"].items():
+        assert values["lam"] is None and values["lam_drift"] is None
+        np.testing.assert_allclose(values["total"], np.linalg.solve(M, tau - h), rtol=1e-12, err_msg=name)
+        np.testing.assert_allclose(values["ctrl"], np.linalg.solve(M, tau), rtol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["gate", "--case", "no_such_case"], "unknown case 'no_such_case'; valid cases: double_pendulum"),
+    (["eval", "--case", "double_pendulum", "--q=0.1"], "q has 1 entries but model 'double_pendulum' needs 2"),
+    (["eval", "--case", "double_pendulum", "--q=0.1,nan"], "q has non-finite entries"),
+    (["eval", "--case", "double_pendulum", "--q=0.1,abc"], "--q takes comma-separated numbers"),
+    (["eval", "--case", "double_pendulum", "--param", "m1=-1", "--q=0,0"], "non-positive mass -1.0"),
+    (["eval", "--case", "double_pendulum", "--param", "mass=2", "--q=0,0"], "has no parameter(s) 'mass'; valid parameters"),
+    (["eval", "--case", "double_pendulum", "--q=0,0", "--formalism", "hamilton"], "valid: euler_lagrange"),
+    (["eval", "--model", "/no/such/robot.urdf", "--q=0"], "/no/such/robot.urdf"),
+    (["gate", "--samples", "0"], "--samples must be at least 1"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_bad_input_exits_2_with_one_line(argv, fragment, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("crosscheck: error: ")
+    assert fragment in err
+    assert "Traceback" not in err
+
+
+def test_listing_commands(capsys):
+    assert cli.main(["cases"]) == 0
+    listing = capsys.readouterr().out
+    for name in ("double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda"):
+        assert name in listing
+    assert cli.main(["formalisms"]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in ("euler_lagrange", "newton_euler", "pinocchio"))
+
+
+def test_unparsable_urdf_exits_2(tmp_path, capsys):
+    path = tmp_path / "broken.urdf"
+    path.write_text("<robot name='x'><link name='a'></robot>")
+    assert cli.main(["gate", "--model", str(path), "--samples", "1", "--report", str(tmp_path / "r.md")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err
