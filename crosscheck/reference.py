@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 
 from cases.model import Model
-from formalisms.interface import Formalism, Split, check_state, unconstrained_split
+from formalisms.interface import Formalism, Split, check_state, conditioning, unconstrained_split
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -115,9 +115,9 @@ def split(model: Model, q, qd, u) -> Split:
     M[np.ix_(order, order)] = M_p
     ctrl = Minv @ tau_ctrl
     Cqd, g = ours(Cqd_p), ours(g_p)
-    accel_scale = np.linalg.norm(Minv, 2) * (np.linalg.norm(Cqd) + np.linalg.norm(g) + np.linalg.norm(tau_ctrl))
+    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
     return unconstrained_split(drift=ours(drift_p), ctrl=ctrl, total=ours(total_p), tau_ctrl=tau_ctrl, qd=qd,
-                               cond_M=np.linalg.cond(M, 2), accel_scale=accel_scale,
+                               cond_M=cond_M, accel_scale=accel_scale,
                                extras={"M": M, "Cqd": Cqd, "g": g})
 
 

@@ -77,7 +77,7 @@ def render(result: GateResult, command: str) -> str:
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
                                                      for q, (k, f) in TOLERANCES.items()),
-             "  (acceleration scale = cond(M) ||M^-1|| (||C qd|| + ||g|| + ||B u||), median over backends)", "",
+             "  (acceleration scale = cond(M) ||M^-1|| H, H the size of the forces summed; median over backends)", "",
              "## Summary", "",
              "| case | n | quantity | agree | DISAGREE | not compared | worst error/tolerance | at state |",
              "|---|---|---|---|---|---|---|---|"]

@@ -2,8 +2,8 @@
 
 For accelerations, solving ``M x = b`` in floating point gives ``|dx| <~ eps ||M^-1|| (H + cond(M) ||b||)``
 with H the size of the summed terms; both parts are bounded by ``eps * cond(M) * accel_scale`` where
-``accel_scale = ||M^-1|| (||C qd|| + ||g|| + ||B u||)`` (formalisms.interface.Split). Power is a sum of
-products, so its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``.
+``accel_scale = ||M^-1|| H`` (formalisms.interface.conditioning defines H). Power is a sum of products, so
+its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``.
 
 The scales are the median over the backends' own reports, so one backend misreporting its conditioning
 cannot loosen the tolerance for the others. The factors below are data: each is a safety margin over the

@@ -31,10 +31,7 @@ import scipy.linalg
 import symengine as sp
 
 from cases.model import Model
-from formalisms.interface import Formalism, check_state, unconstrained_split
-
-# Bump when the derivation or the generated code changes, so stale cache entries are not loaded.
-_CODEGEN_VERSION = "2"
+from formalisms.interface import Formalism, check_state, conditioning, unconstrained_split
 
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
@@ -276,6 +273,9 @@ def _ordered_assignments(*groups) -> list[str]:
     return lines
 
 
+_DERIVATION_HASH = hashlib.sha256(Path(__file__).read_bytes()).digest()
+
+
 def _cache_dir() -> Path:
     root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
@@ -283,8 +283,12 @@ def _cache_dir() -> Path:
 
 
 def cached_source(model: Model) -> str:
-    """The generated source, from the disk cache when present (keyed by model digest and codegen version)."""
-    key = hashlib.sha256(f"{model.digest()}:{_CODEGEN_VERSION}".encode()).hexdigest()[:32]
+    """The generated source, from the disk cache when present.
+
+    Keyed by the model digest and a hash of this module's own source, so a change to the derivation can
+    never be hidden by code generated before it.
+    """
+    key = hashlib.sha256(model.digest().encode() + _DERIVATION_HASH).hexdigest()[:32]
     path = _cache_dir() / f"{key}.py"
     if path.exists():
         return path.read_text()
@@ -326,13 +330,12 @@ def split(model: Model, q, qd, u):
                          f"q = {q.tolist()}: eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
     Bu = model.input_map @ u
     h = Cqd + g
-    eig = np.linalg.eigvalsh(M)
-    scale = (np.linalg.norm(Cqd) + np.linalg.norm(g) + np.linalg.norm(Bu)) / eig[0]
+    cond_M, accel_scale = conditioning(model, M, Cqd, g, Bu, qd)
     return unconstrained_split(
         drift=scipy.linalg.cho_solve(factor, -h),
         ctrl=scipy.linalg.cho_solve(factor, Bu),
         total=scipy.linalg.cho_solve(factor, Bu - h),
-        tau_ctrl=Bu, qd=qd, cond_M=eig[-1] / eig[0], accel_scale=scale)
+        tau_ctrl=Bu, qd=qd, cond_M=cond_M, accel_scale=accel_scale)
 
 
 FORMALISM = Formalism(

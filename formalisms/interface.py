@@ -46,8 +46,8 @@ class Split:
     power_ctrl           ``u . (B^T qd)`` (W); ``power_ctrl_per_coord[i] = (B u)_i qd_i``.
     power_constr         ``(Jc^T lam) . qd``, None when unconstrained; per coordinate likewise.
     cond_M               2-norm condition number of the mass matrix this formalism solved with.
-    accel_scale          ``||M^-1|| (||C qd|| + ||g|| + ||B u||)``: the size of the accelerations the summed
-                         terms could produce; the harness scales tolerances by it (DESIGN.md, tolerances).
+    accel_scale          the size of the accelerations the summed terms could produce (see
+                         :func:`conditioning`); the harness scales tolerances by it (DESIGN.md, tolerances).
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).
@@ -96,6 +96,23 @@ def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndar
             raise StateError(f"{label} has non-finite entries: {arr.tolist()}")
         out.append(arr)
     return out[0], out[1], out[2]
+
+
+def conditioning(model: Model, M: np.ndarray, Cqd: np.ndarray, g: np.ndarray, tau: np.ndarray,
+                 qd: np.ndarray) -> tuple[float, float]:
+    """``(cond(M), accel_scale)`` from a formalism's own M, C qd, g and applied force ``tau``.
+
+    ``accel_scale = ||M^-1||_2 * H`` with H the size of the generalized forces summed in ``B u - C qd - g``.
+    The computed ``C qd`` and ``g`` can cancel to zero while their terms do not (a folded arm, zero
+    gravity), so H also carries configuration-robust magnitudes of those terms: ``||M|| |qd|^2`` for the
+    velocity products and ``|gravity| sqrt(m_total ||M||)`` (a mass times a lever arm) for gravity.
+    1-norms, so tiny vectors do not underflow.
+    """
+    eig = np.linalg.eigvalsh(M)
+    m_total = sum(b.mass for b in model.bodies)
+    H = (np.abs(Cqd).sum() + np.abs(g).sum() + np.abs(tau).sum() + eig[-1] * float(qd @ qd)
+         + np.abs(model.gravity).sum() * np.sqrt(m_total * eig[-1]))
+    return float(eig[-1] / eig[0]), float(H / eig[0])
 
 
 def joint_power(tau: np.ndarray, qd: np.ndarray) -> tuple[float, np.ndarray]:

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import Formalism, Split, StateError, check_state, unconstrained_split
+from formalisms.interface import Formalism, Split, StateError, check_state, conditioning, unconstrained_split
 
 
 def _joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
@@ -167,12 +167,11 @@ def split(model: Model, q, qd, u) -> Split:
     drift = scipy.linalg.cho_solve(factor, -h)
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)
     total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
-    sv = np.linalg.svd(M, compute_uv=False)                  # ||M||_2 = sv[0], ||M^-1||_2 = 1 / sv[-1]
-    accel_scale = (np.linalg.norm(c_qd) + np.linalg.norm(g) + np.linalg.norm(tau_ctrl)) / sv[-1]
+    cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
     extras = {"joint_reactions": _reactions(model, kin, qd, total),
               "joint_reactions_drift": _reactions(model, kin, qd, drift)}
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
-                               cond_M=sv[0] / sv[-1], accel_scale=accel_scale, extras=extras)
+                               cond_M=cond_M, accel_scale=accel_scale, extras=extras)
 
 
 FORMALISM = Formalism(
