@@ -31,39 +31,17 @@ def _describe(params: dict) -> str:
 
 
 def _convert(case: str, key: str, value, default):
-    """``value`` as the type of ``default`` (int or float); strings are parsed; bools are refused."""
+    """``value`` (a number or a CLI string) as the type of ``default``; an int must be integral; no bools."""
     kind = type(default)
-    if isinstance(value, bool):
-        raise CaseError(f"case '{case}': parameter {key} must be {kind.__name__}, got the bool {value!r}")
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            return kind(text)
-        except ValueError:
-            if kind is int:
-                try:
-                    as_float = float(text)
-                except ValueError:
-                    as_float = None
-                if as_float is not None and as_float.is_integer():
-                    return int(as_float)
-            raise CaseError(f"case '{case}': parameter {key}={value!r} is not a valid {kind.__name__} "
-                            f"(default {default!r})") from None
-    if kind is int:
-        try:
-            as_int = int(value)
-        except (TypeError, ValueError, OverflowError):
-            as_int = None
-        if as_int is None or as_int != value:
-            raise CaseError(f"case '{case}': parameter {key}={value!r} is not an integer (default {default!r})")
-        return as_int
-    if kind is float:
-        try:
-            return float(value)
-        except (TypeError, ValueError):
-            raise CaseError(f"case '{case}': parameter {key}={value!r} is not a number "
-                            f"(default {default!r})") from None
-    return value
+    try:
+        converted = kind(float(value)) if kind is int else kind(value)
+        valid = not isinstance(value, bool) and (kind is not int or float(value) == converted)
+    except (TypeError, ValueError, OverflowError):
+        valid = False
+    if not valid:
+        raise CaseError(f"case '{case}': parameter {key}={value!r} is not a valid {kind.__name__} "
+                        f"(default {default!r})")
+    return converted
 
 
 def load(name: str, **params) -> Model:

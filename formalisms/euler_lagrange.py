@@ -13,8 +13,9 @@ The derivation is staged: every pose entry and every derivative of one is a name
 derivatives go through a memoized chain rule (forward-mode differentiation done symbolically), so the
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
 project with sympy's API, because pure-Python sympy takes minutes on a 9-joint arm.
-Compilation: common-subexpression elimination, then plain Python source evaluated with ``math``. The source is cached on disk keyed by the model digest, so a second process loads
-it instead of re-deriving. Solving: Cholesky factorization of M, never an explicit inverse.
+Compilation: common-subexpression elimination, then plain Python source evaluated with ``math``. The source
+is cached on disk keyed by the model digest and a hash of this module, so a second process loads it instead
+of re-deriving. Solving: Cholesky factorization of M, never an explicit inverse.
 """
 
 from __future__ import annotations
@@ -32,7 +33,6 @@ import symengine as sp
 
 from cases.model import Model
 from formalisms.interface import Formalism, check_state, conditioning, unconstrained_split
-
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 

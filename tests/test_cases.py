@@ -104,8 +104,10 @@ def test_string_parameters_convert_by_the_default_type():
         cases.load("n_link_pendulum", n="three")
     with pytest.raises(CaseError, match="not a valid int"):
         cases.load("n_link_pendulum", n="2.5")
-    with pytest.raises(CaseError, match="not an integer"):
+    with pytest.raises(CaseError, match="n=2.5 is not a valid int"):
         cases.load("n_link_pendulum", n=2.5)
+    with pytest.raises(CaseError, match="n=True is not a valid int"):
+        cases.load("n_link_pendulum", n=True)
     with pytest.raises(CaseError, match="l1='long'.*float"):
         cases.load("double_pendulum", l1="long")
 
