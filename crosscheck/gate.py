@@ -97,6 +97,8 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
         at = tolerance_policy.scales(splits.values())
         for quantity in tolerance_policy.QUANTITIES:
             values = {name: split.quantity(quantity) for name, split in splits.items()}
+            if quantity in tolerance_policy.EXACT:
+                values["exact"] = tolerance_policy.EXACT[quantity]
             comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
     return StateOutcome(state, splits, errors, comparisons)
 

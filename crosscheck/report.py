@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
-from crosscheck.tolerance import QUANTITIES, TOLERANCES
+from crosscheck.tolerance import EXACT, QUANTITIES, TOLERANCES
 
 MAX_LISTED_FAILURES = 20
 
@@ -58,6 +58,8 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[
                   f"(tolerance {comp.tolerance:.3g}){blame}", "",
                   "  | backend | value |", "  |---|---|"]
         lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.splits.items()]
+        if quantity in EXACT:
+            lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")
         lines.append("")
     if state.splits:
         first = next(iter(state.splits.values()))

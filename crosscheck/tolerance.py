@@ -24,11 +24,15 @@ TOLERANCES: dict[str, tuple[str, float]] = {
     "drift": ("acceleration", 100.0),
     "ctrl": ("acceleration", 100.0),
     "total": ("acceleration", 100.0),
+    "additivity": ("acceleration", 100.0),
     "power_ctrl": ("power", 100.0),
 }
 
 #: The quantities the gate compares, in report order.
 QUANTITIES = tuple(TOLERANCES)
+
+#: Quantities with a value known exactly, which joins the vote as the voter ``exact``.
+EXACT = {"additivity": 0.0}
 
 
 @dataclass(frozen=True)

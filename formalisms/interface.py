@@ -66,8 +66,13 @@ class Split:
     accel_scale: float
     extras: Mapping[str, Any] = field(default_factory=dict)
 
+    @property
+    def additivity(self) -> np.ndarray:
+        """``drift + ctrl - total``: zero up to rounding, because the split of eq. (9) is exact (4.2)."""
+        return self.drift + self.ctrl - self.total
+
     def quantity(self, name: str):
-        """A compared quantity by name (``drift``, ``ctrl``, ``total``, ``lam``, ``power_ctrl``, ...)."""
+        """A compared quantity by name (``drift``, ``ctrl``, ``total``, ``additivity``, ``power_ctrl``, ...)."""
         return getattr(self, name)
 
 

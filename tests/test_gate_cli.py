@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 
@@ -9,9 +10,11 @@ import numpy as np
 import pytest
 
 import formalisms.euler_lagrange as el
+import formalisms.newton_euler as ne
 from crosscheck import backends, cli
 from crosscheck.compare import DISAGREE
 from crosscheck.gate import CaseSpec, run_gate
+from formalisms.interface import Formalism
 
 DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"]
 
@@ -126,3 +129,21 @@ def test_unparsable_urdf_exits_2(tmp_path, capsys):
     assert cli.main(["gate", "--model", str(path), "--samples", "1", "--report", str(tmp_path / "r.md")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(path) in err
+
+
+def test_a_split_that_does_not_add_up_is_named():
+    """total solved with the wrong sign of the input: drift and ctrl are right, the total is not, and the
+    additivity check (drift + ctrl - total = 0, exact) names the backend along with the total comparison."""
+    correct = ne.split
+
+    def broken(model, q, qd, u):
+        s = correct(model, q, qd, u)
+        wrong_total = s.drift - s.ctrl
+        return dataclasses.replace(s, total=wrong_total)
+
+    backend = Formalism(name="newton_euler", summary="total with the input's sign flipped", split=broken)
+    chosen = [backends.get("euler_lagrange"), backend, backends.get("pinocchio")]
+    result = run_gate([CaseSpec("acrobot")], chosen, samples=5, seed=0)
+    comps = [s.comparisons for s in result.cases[0].states]
+    assert all(c["additivity"].verdict == DISAGREE and c["additivity"].outlier == "newton_euler" for c in comps)
+    assert all(c["drift"].verdict != DISAGREE and c["ctrl"].verdict != DISAGREE for c in comps)
