@@ -67,6 +67,8 @@ def _inertia(principal, rotation) -> np.ndarray:
 
 
 _Z = (0.0, 0.0, 1.0)
+#: Task directions of the planar cases: the x-y plane they move in (article 6.3.4, x_task = [x_2, y_2]).
+_PLANE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 
 def _require(cond: bool, message: str) -> None:
@@ -90,7 +92,7 @@ def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float
         Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), translation=(0.0, -l1, 0.0)),
     ]
     return build_model("double_pendulum", bodies, gravity=(0.0, -g, 0.0),
-                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0))])
+                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])
 
 
 @register
@@ -107,7 +109,7 @@ def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81)
         bodies.append(Body(f"link{i}", None if i == 1 else f"link{i - 1}", "revolute", _Z, m,
                            com=(0.0, -l, 0.0), translation=(0.0, 0.0, 0.0) if i == 1 else (0.0, -l, 0.0)))
     return build_model("n_link_pendulum", bodies, gravity=(0.0, -g, 0.0),
-                       task_points=[TaskPoint("tip", f"link{n}", (0.0, -l, 0.0))])
+                       task_points=[TaskPoint("tip", f"link{n}", (0.0, -l, 0.0), _PLANE)])
 
 
 @register
@@ -126,7 +128,7 @@ def acrobot(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 2.0, 
              translation=(0.0, -l1, 0.0)),
     ]
     return build_model("acrobot", bodies, gravity=(0.0, -g, 0.0), input_map=[[0.0], [1.0]],
-                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0))])
+                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])
 
 
 # --------------------------------------------------------------------------------------------- spatial

@@ -60,11 +60,18 @@ class Body:
 
 @dataclass(frozen=True)
 class TaskPoint:
-    """A named point fixed in a body: ``offset`` is expressed in that body's frame."""
+    """A named point fixed in a body: ``offset`` is expressed in that body's frame.
+
+    ``directions`` (k x 3, orthonormal rows, world frame) select the task coordinates ``x_task = D p`` of the
+    point's world position ``p`` (article 6.3.2); the default is all three. A planar mechanism uses the rows of its
+    plane (article 6.3.4: ``x_task = [x_2, y_2]``), since a direction the point can never move in makes the
+    task-space inertia singular everywhere.
+    """
 
     name: str
     body: str
     offset: np.ndarray
+    directions: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,7 +127,9 @@ class Model:
             h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
         for tp in self.task_points:
             h.update(repr((tp.name, tp.body)).encode())
-            h.update(np.ascontiguousarray(tp.offset, dtype="<f8").tobytes())
+            for arr in (tp.offset, tp.directions):
+                h.update(repr(arr.shape).encode())
+                h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
         h.update(repr(self.constraints).encode())
         return h.hexdigest()
 
@@ -258,6 +267,24 @@ def _input_map(problems: list[str], input_map, n: int) -> np.ndarray:
     return B
 
 
+def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str]) -> TaskPoint | None:
+    where = f"task point '{tp.name}'"
+    n_before = len(problems)
+    offset = _as_array(problems, f"{where} offset", tp.offset, (3,))
+    if tp.body not in body_names:
+        problems.append(f"{where} is on an unknown body '{tp.body}'")
+    D = np.eye(3) if tp.directions is None else np.array(tp.directions, dtype=float)
+    if D.ndim != 2 or D.shape[1] != 3 or not 1 <= D.shape[0] <= 3:
+        problems.append(f"{where} directions have shape {D.shape}; give 1 to 3 rows of world 3-vectors")
+    elif _finite(problems, f"{where} directions", D):
+        err = np.abs(D @ D.T - np.eye(D.shape[0])).max()
+        if err > 1e-9:
+            problems.append(f"{where} directions are not orthonormal rows (|D D^T - I| = {err:.2e}): {D.tolist()}")
+    if len(problems) > n_before:
+        return None
+    return TaskPoint(tp.name, tp.body, _frozen(offset, 3), _frozen(D, D.shape))
+
+
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
                 task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = ()) -> Model:
     """Validate the description and return an immutable :class:`Model`.
@@ -278,13 +305,7 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if task_points is None:
         last = valid[-1] if valid else None
         task_points = [TaskPoint("tip", last.name, last.com)] if last is not None else []
-    tps = []
-    for tp in task_points:
-        offset = _as_array(problems, f"task point '{tp.name}' offset", tp.offset, (3,))
-        if tp.body not in names:
-            problems.append(f"task point '{tp.name}' is on an unknown body '{tp.body}'")
-        elif offset is not None:
-            tps.append(TaskPoint(tp.name, tp.body, _frozen(offset, 3)))
+    tps = [tp for tp in (_validate_task_point(problems, tp, names) for tp in task_points) if tp is not None]
     constraints = tuple(constraints)
     if constraints:
         problems.append("constraints are not supported yet (the constraint issue adds them)")

@@ -48,6 +48,12 @@ class Split:
     cond_M               2-norm condition number of the mass matrix this formalism solved with.
     accel_scale          the size of the accelerations the summed terms could produce (see
                          :func:`conditioning`); the harness scales tolerances by it (DESIGN.md, tolerances).
+    task_drift           classical acceleration (second time derivative of position, not spatial) of the model's
+                         default task point ``model.task_point()`` at the drift, in its task coordinates
+                         ``x_task = D p`` (eq. 23); UNSUPPORTED from a formalism without point kinematics.
+    conditions           condition numbers of the method-specific matrices this formalism inverted, by name
+                         (operational space: ``"task"`` = cond(J M^-1 J^T)); the harness declares the state a
+                         BREAKDOWN of this formalism above the limits in ``crosscheck.tolerance``.
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).
@@ -65,6 +71,8 @@ class Split:
     cond_M: float
     accel_scale: float
     extras: Mapping[str, Any] = field(default_factory=dict)
+    task_drift: np.ndarray | Unsupported = UNSUPPORTED
+    conditions: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def additivity(self) -> np.ndarray:
@@ -132,7 +140,8 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None) -> Split:
+def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None,
+                        task_drift=UNSUPPORTED, conditions=None) -> Split:
     """Assemble the :class:`Split` of an unconstrained model (no multipliers, no constraint power)."""
     n = len(qd)
     for label, value in (("drift", drift), ("ctrl", ctrl), ("total", total)):
@@ -141,4 +150,6 @@ def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale
     p, per = joint_power(tau_ctrl, qd)
     return Split(drift=_readonly(drift), ctrl=_readonly(ctrl), total=_readonly(total), lam=None, lam_drift=None,
                  power_ctrl=p, power_ctrl_per_coord=_readonly(per), power_constr=None, power_constr_per_coord=None,
-                 cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}))
+                 cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}),
+                 task_drift=task_drift if isinstance(task_drift, Unsupported) else _readonly(task_drift),
+                 conditions={k: float(v) for k, v in (conditions or {}).items()})

@@ -125,3 +125,22 @@ def test_digest_is_stable_and_tracks_the_physics():
     assert build_model("ok", moved).digest() != d1
     assert build_model("ok", _good_bodies(), gravity=(0.0, 0.0, -9.8)).digest() != d1
     assert build_model("ok", _good_bodies(), input_map=[[1.0], [0.0]]).digest() != d1
+
+
+def test_task_directions_default_to_all_three_and_are_validated():
+    m = build_model("ok", _good_bodies())
+    np.testing.assert_array_equal(m.task_point().directions, np.eye(3))
+    planar = build_model("ok", _good_bodies(),
+                         task_points=[TaskPoint("tip", "b", (0.0, 0.0, 0.0), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))])
+    assert planar.task_point().directions.shape == (2, 3)
+    assert planar.digest() != build_model("ok", _good_bodies(),
+                                          task_points=[TaskPoint("tip", "b", (0.0, 0.0, 0.0))]).digest()
+    with pytest.raises(ModelError) as info:
+        build_model("bad", _good_bodies(), task_points=[
+            TaskPoint("skew", "b", (0.0, 0.0, 0.0), ((1.0, 0.0, 0.0), (1.0, 1.0, 0.0))),
+            TaskPoint("flat", "b", (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
+            TaskPoint("many", "b", (0.0, 0.0, 0.0), np.eye(4)[:, :3])])
+    text = str(info.value)
+    assert "task point 'skew' directions are not orthonormal rows" in text
+    assert "task point 'flat' directions have shape (3,)" in text
+    assert "task point 'many' directions have shape (4, 3)" in text
