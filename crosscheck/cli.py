@@ -6,6 +6,7 @@ Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or u
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shlex
 import sys
@@ -16,6 +17,7 @@ import numpy as np
 import cases
 from cases.model import ModelError
 from crosscheck import backends
+from crosscheck import tolerance as policy
 from crosscheck.gate import CaseSpec, run_gate
 from crosscheck.report import render
 from formalisms import UnknownFormalism
@@ -105,15 +107,18 @@ def cmd_gate(args) -> int:
     report.write_text(render(result, command))
     for case in result.cases:
         bad = sum(s.failed for s in case.states)
+        broken = sum(bool(s.breakdowns) for s in case.states)
         worst = max((s.worst_ratio for s in case.states), default=0.0)
         status = "FAIL" if bad else "ok"
-        print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, "
+        print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {broken} breakdown, "
               f"worst error/tolerance {worst:.3g}")
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
 
 
 def _jsonable(value):
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, dict):
@@ -136,18 +141,19 @@ def cmd_eval(args) -> int:
     q = _vector(args.q, "q")
     qd = _vector(args.qd, "qd") if args.qd is not None else [0.0] * model.n
     u = _vector(args.u, "u") if args.u is not None else [0.0] * model.m
-    out = {}
-    for backend in _backends(args.formalism):
-        split = backend.split(model, q, qd, u)
-        out[backend.name] = {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
+    splits = {backend.name: backend.split(model, q, qd, u) for backend in _backends(args.formalism)}
+    out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
+           for name, split in splits.items()}
     if args.json:
         print(json.dumps({"case": spec.name, "params": dict(spec.params), "q": q, "qd": qd, "u": u,
                           "formalisms": out}, indent=1))
         return 0
     print(f"case {spec.name}: q = {q}, qd = {qd}, u = {u}")
     for name, values in out.items():
-        print(f"{name}:")
-        for key in ("drift", "ctrl", "total", "power_ctrl", "cond_M"):
+        broken = policy.breakdown(splits[name])
+        print(f"{name}:" + (" BREAKDOWN (" + ", ".join(f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}"
+                                                      for k, v in broken.items()) + ")" if broken else ""))
+        for key in ("drift", "ctrl", "total", "task_drift", "power_ctrl", "cond_M", "conditions"):
             print(f"  {key:10s} {values[key]}")
     return 0
 

@@ -36,12 +36,14 @@ class CaseSpec:
 
 @dataclass
 class StateOutcome:
-    """All backends at one state: their splits, any errors they raised, and one comparison per quantity."""
+    """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
+    -> value above its limit; left out of the comparisons) and one comparison per quantity."""
 
     state: State
     splits: dict[str, Split]
     errors: dict[str, str]
     comparisons: dict[str, Comparison]
+    breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def failed(self) -> bool:
@@ -81,7 +83,11 @@ class GateResult:
 
 def evaluate(model: Model, state: State, backends: Sequence[Formalism],
              clock: dict[str, list[float]] | None = None) -> StateOutcome:
-    """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table."""
+    """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table.
+
+    A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
+    out of the comparisons and of the tolerance scales: its answer is not trusted, and it is not a bug.
+    """
     splits: dict[str, Split] = {}
     errors: dict[str, str] = {}
     for backend in backends:
@@ -92,15 +98,17 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
             errors[backend.name] = f"{type(exc).__name__}: {exc}"
         if clock is not None:
             clock.setdefault(backend.name, []).append(time.perf_counter() - start)
+    breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
+    trusted = {name: split for name, split in splits.items() if name not in breakdowns}
     comparisons = {}
-    if splits:
-        at = tolerance_policy.scales(splits.values())
+    if trusted:
+        at = tolerance_policy.scales(trusted.values(), model, state.q, state.qd)
         for quantity in tolerance_policy.QUANTITIES:
-            values = {name: split.quantity(quantity) for name, split in splits.items()}
+            values = {name: split.quantity(quantity) for name, split in trusted.items()}
             if quantity in tolerance_policy.EXACT:
                 values["exact"] = tolerance_policy.EXACT[quantity]
             comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
-    return StateOutcome(state, splits, errors, comparisons)
+    return StateOutcome(state, splits, errors, comparisons, breakdowns)
 
 
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,

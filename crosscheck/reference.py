@@ -30,6 +30,7 @@ _UNALIGNED = {"revolute": pin.JointModelRevoluteUnaligned, "prismatic": pin.Join
 class _Compiled:
     model: pin.Model
     order: np.ndarray  # order[k] = our coordinate index of Pinocchio's k-th velocity
+    task_frame: int    # frame id of the model's default task point
 
 
 _CACHE: dict[str, _Compiled] = {}
@@ -60,7 +61,10 @@ def _build(model: Model) -> _Compiled:
     order = np.empty(model.n, dtype=int)
     for i, jid in joint_id.items():
         order[pm.joints[jid].idx_v] = i
-    return _Compiled(pm, order)
+    tp = model.task_point()
+    task_frame = pm.addFrame(pin.Frame(f"task:{tp.name}", joint_id[model.body_index(tp.body)],
+                                       pin.SE3(np.eye(3), np.array(tp.offset)), pin.FrameType.OP_FRAME))
+    return _Compiled(pm, order, task_frame)
 
 
 def _compiled(model: Model) -> _Compiled:
@@ -86,7 +90,8 @@ def _sym(upper: np.ndarray) -> np.ndarray:
 
 
 def split(model: Model, q, qd, u) -> Split:
-    """Drift / control / total accelerations from Pinocchio (ABA twice, ``M^-1 B u`` from computeMinverse)."""
+    """Drift / control / total accelerations from Pinocchio (ABA twice, ``M^-1 B u`` from computeMinverse);
+    task drift from the classical acceleration of a frame at the default task point (getFrameClassicalAcceleration)."""
     q, qd, u = check_state(model, q, qd, u)
     if model.constraints:
         raise NotImplementedError("the Pinocchio reference handles unconstrained models only (no KKT solve yet)")
@@ -99,6 +104,8 @@ def split(model: Model, q, qd, u) -> Split:
 
     total_p = np.array(pin.aba(pm, data, qp, vp, tp))
     drift_p = np.array(pin.aba(pm, data, qp, vp, zero))
+    pin.forwardKinematics(pm, data, qp, vp, drift_p)
+    task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
     Minv_p = _sym(np.array(pin.computeMinverse(pm, data, qp)))
     M_p = _sym(np.array(pin.crba(pm, data, qp)))
     g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
@@ -118,7 +125,8 @@ def split(model: Model, q, qd, u) -> Split:
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
     return unconstrained_split(drift=ours(drift_p), ctrl=ctrl, total=ours(total_p), tau_ctrl=tau_ctrl, qd=qd,
                                cond_M=cond_M, accel_scale=accel_scale,
-                               extras={"M": M, "Cqd": Cqd, "g": g})
+                               extras={"M": M, "Cqd": Cqd, "g": g},
+                               task_drift=model.task_point().directions @ np.array(task_accel))
 
 
 REFERENCE = Formalism(

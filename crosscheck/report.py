@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
-from crosscheck.tolerance import EXACT, QUANTITIES, TOLERANCES
+from formalisms.interface import Unsupported
+from crosscheck.tolerance import BREAKDOWN_LIMITS, EXACT, QUANTITIES, TOLERANCES
 
 MAX_LISTED_FAILURES = 20
 
@@ -34,12 +35,42 @@ def _summary_rows(case: CaseOutcome) -> list[str]:
         worst_state, worst = max(comps, key=lambda sc: sc[1].worst_ratio, default=(None, None))
         ratio = f"{worst.worst_ratio:.3g}" if worst else "-"
         where = f"#{worst_state.state.index}" if worst_state else "-"
+        unsupported = sorted({name for _, c in comps for name in c.not_compared})
         rows.append(f"| {case.spec.name} | {case.model.n} | {quantity} | {counts[AGREE]} | {counts[DISAGREE]} | "
-                    f"{counts[NOT_COMPARED]} | {ratio} | {where} |")
+                    f"{counts[NOT_COMPARED]} | {ratio} | {where} | {', '.join(unsupported) or '-'} |")
     errors = sum(bool(s.errors) for s in case.states)
     if errors:
-        rows.append(f"| {case.spec.name} | {case.model.n} | backend errors | - | {errors} | - | - | - |")
+        rows.append(f"| {case.spec.name} | {case.model.n} | backend errors | - | {errors} | - | - | - | - |")
     return rows
+
+
+def _breakdowns(result: GateResult) -> list[tuple[CaseOutcome, StateOutcome, str, str, float]]:
+    """Every (case, state, backend, condition, value) above its breakdown limit, in run order."""
+    return [(case, state, backend, name, value)
+            for case in result.cases for state in case.states
+            for backend, conditions in state.breakdowns.items() for name, value in conditions.items()]
+
+
+def _breakdown_section(result: GateResult) -> list[str]:
+    found = _breakdowns(result)
+    if not found:
+        return []
+    groups: dict[tuple[str, str, str], list] = {}
+    for case, state, backend, name, value in found:
+        groups.setdefault((case.spec.name, backend, name), []).append((state.state.index, value))
+    lines = ["## Breakdowns (ill-conditioned methods: reported, not failures)", "",
+             "| case | backend | condition | limit | states | largest | at state |", "|---|---|---|---|---|---|---|"]
+    for (case_name, backend, name), hits in groups.items():
+        index, value = max(hits, key=lambda h: h[1] if h[1] == h[1] else float("inf"))
+        lines.append(f"| {case_name} | {backend} | cond {name} | {BREAKDOWN_LIMITS[name]:.3g} | {len(hits)} | "
+                     f"{value:.3g} | #{index} |")
+    lines.append("")
+    for case, state, backend, name, value in found[:MAX_LISTED_FAILURES]:
+        lines.append(f"- {case.spec.name} #{state.state.index}: {backend} cond {name} = {value:.3g}; "
+                     f"reproduce: `{reproduce_command(case, state)}`")
+    if len(found) > MAX_LISTED_FAILURES:
+        lines.append(f"- ... and {len(found) - MAX_LISTED_FAILURES} more.")
+    return lines + [""]
 
 
 def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[str]:
@@ -49,6 +80,9 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[
              f"- reproduce: `{reproduce_command(case, state)}`", ""]
     for name, message in state.errors.items():
         lines.append(f"- **{name} raised** `{message}`")
+    for name, conditions in state.breakdowns.items():
+        lines.append(f"- {name}: BREAKDOWN, not compared (" + ", ".join(
+            f"cond {k} = {v:.3g} > {BREAKDOWN_LIMITS[k]:.3g}" for k, v in conditions.items()) + ")")
     for quantity, comp in state.comparisons.items():
         if comp.verdict == NOT_COMPARED:
             lines.append(f"- {quantity}: NOT COMPARED ({', '.join(comp.not_compared) or 'fewer than two values'})")
@@ -57,7 +91,8 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[
         lines += [f"- **{quantity}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
                   f"(tolerance {comp.tolerance:.3g}){blame}", "",
                   "  | backend | value |", "  |---|---|"]
-        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.splits.items()]
+        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.splits.items()
+                  if name not in state.breakdowns and not isinstance(split.quantity(quantity), Unsupported)]
         if quantity in EXACT:
             lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")
         lines.append("")
@@ -72,20 +107,25 @@ def render(result: GateResult, command: str) -> str:
     verdict = "PASS" if result.passed else "FAIL"
     n_states = sum(len(c.states) for c in result.cases)
     failed = [(c, s) for c in result.cases for s in c.states if s.failed]
+    broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
     lines = ["# crosscheck gate report", "",
              f"**{verdict}**: {len(failed)} of {n_states} states disagree or fail "
              f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
-             f"({', '.join(result.backends)}).", "",
+             f"({', '.join(result.backends)}); {broken} state(s) with a backend in BREAKDOWN.", "",
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
                                                      for q, (k, f) in TOLERANCES.items()),
-             "  (acceleration scale = cond(M) ||M^-1|| H, H the size of the forces summed; median over backends)", "",
+             "  (acceleration scale = cond(M) ||M^-1|| H, H the size of the forces summed; median over backends;",
+             "  task scale = L (acceleration scale + |qd|_1^2), L the task point's lever arm)",
+             "- BREAKDOWN limits: " + ", ".join(f"cond {k} > {v:.3g}" for k, v in BREAKDOWN_LIMITS.items()), "",
              "## Summary", "",
-             "| case | n | quantity | agree | DISAGREE | not compared | worst error/tolerance | at state |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| case | n | quantity | agree | DISAGREE | not compared | worst error/tolerance | at state | "
+             "not supplied by |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for case in result.cases:
         lines += _summary_rows(case)
     lines.append("")
+    lines += _breakdown_section(result)
     if failed:
         lines += ["## Disagreements", ""]
         for case, state in failed[:MAX_LISTED_FAILURES]:

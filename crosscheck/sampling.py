@@ -32,12 +32,18 @@ def case_rng(seed: int, case: str) -> np.random.Generator:
 
 
 def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]:
-    """``count`` states: q uniform over one turn (revolute) or +-0.5 m (prismatic), qd and u uniform."""
+    """``count`` states: q uniform over one turn (revolute) or +-0.5 m (prismatic), qd and u uniform.
+
+    State 0 has the home configuration ``q = 0`` (qd and u still random): serial chains are often singular
+    there (the stretched double pendulum of article 6.3.4), so every gate run visits one such boundary state.
+    """
     rng = case_rng(seed, case)
     span = np.array([ANGLE_RANGE if b.joint == "revolute" else DISPLACEMENT_RANGE for b in model.bodies])
     states = []
     for i in range(count):
         q = rng.uniform(-span, span)
+        if i == 0:
+            q = np.zeros(model.n)
         qd = rng.uniform(-RATE_RANGE, RATE_RANGE, model.n)
         u = rng.uniform(-INPUT_RANGE, INPUT_RANGE, model.m)
         states.append(State(i, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist())))

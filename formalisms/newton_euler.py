@@ -59,17 +59,14 @@ def _placements(model: Model, q: np.ndarray):
     return P, r, W
 
 
-def _recursion(model: Model, kin, qd: np.ndarray, qdd: np.ndarray, gravity: bool):
-    """Both passes of the recursive Newton–Euler algorithm (6.1.3).
-
-    Returns the joint loads ``f, n`` (n x 3 each): the force and the moment about body ``i``'s origin that the
-    parent exerts on body ``i``, in body frame ``i``. Eq. (18) and (19) solved for the inboard load.
-    """
-    P, r, W = kin
+def _forward(model: Model, kin, qd: np.ndarray, qdd: np.ndarray):
+    """Forward pass, base to tip: angular velocity ``w``, angular acceleration ``wd`` and the classical
+    acceleration ``a`` of each body-frame origin (n x 3 each, body frame)."""
+    P, r, _ = kin
     nb = model.n
     w, wd, a = np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3))
     zero = np.zeros(3)
-    for i in model.topological_order:                       # forward pass, base to tip
+    for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
         w_p, wd_p, a_p = (zero, zero, zero) if p < 0 else (w[p], wd[p], a[p])
         E = P[i].T                                          # body <- parent
@@ -83,8 +80,17 @@ def _recursion(model: Model, kin, qd: np.ndarray, qdd: np.ndarray, gravity: bool
             w[i] = w_in
             wd[i] = E @ wd_p
             a[i] = a_origin + 2.0 * _cross(w[i], s) + b.axis * qdd[i]
-    f, n = np.zeros((nb, 3)), np.zeros((nb, 3))
-    for i in reversed(model.topological_order):              # backward pass, tip to base
+    return w, wd, a
+
+
+def _backward(model: Model, kin, motion, gravity: bool):
+    """Backward pass, tip to base: the joint loads ``f, n`` (n x 3 each), the force and the moment about body
+    ``i``'s origin that the parent exerts on body ``i``, in body frame ``i``. Eq. (18) and (19) solved for the
+    inboard load."""
+    P, r, W = kin
+    w, wd, a = motion
+    f, n = np.zeros((model.n, 3)), np.zeros((model.n, 3))
+    for i in reversed(model.topological_order):
         b = model.bodies[i]
         a_c = a[i] + _cross(wd[i], b.com) + _cross(w[i], _cross(w[i], b.com))
         F = b.mass * a_c                                     # eq. (18): m a_c
@@ -98,6 +104,20 @@ def _recursion(model: Model, kin, qd: np.ndarray, qdd: np.ndarray, gravity: bool
             f[p] += fp
             n[p] += P[i] @ n[i] + _cross(r[i], fp)
     return f, n
+
+
+def _recursion(model: Model, kin, qd: np.ndarray, qdd: np.ndarray, gravity: bool):
+    """Both passes of the recursive Newton–Euler algorithm (6.1.3): the joint loads ``f, n``."""
+    return _backward(model, kin, _forward(model, kin, qd, qdd), gravity)
+
+
+def _task_acceleration(model: Model, kin, motion) -> np.ndarray:
+    """Classical acceleration of the default task point in its task coordinates ``D p`` (eq. 23):
+    ``a + wd x r + w x (w x r)`` of the point ``r`` fixed in its body, rotated to the world."""
+    tp = model.task_point()
+    i = model.body_index(tp.body)
+    w, wd, a = (x[i] for x in motion)
+    return tp.directions @ (kin[2][i] @ (a + _cross(wd, tp.offset) + _cross(w, _cross(w, tp.offset))))
 
 
 def _joint_torques(model: Model, f: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -149,7 +169,8 @@ def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9): ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl = M^-1 B u`` solved
     directly, ``total = M^-1 (B u - h)`` solved on its own, with ``h = C qd + g`` from the RNEA at ``qdd = 0``.
 
-    extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)``.
+    extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)``;
+    ``task_drift`` is the default task point's classical acceleration from the forward pass at the drift.
     """
     if model.constraints:
         raise NotImplementedError(f"model '{model.name}': the Newton–Euler backend does not handle constraints "
@@ -168,10 +189,12 @@ def split(model: Model, q, qd, u) -> Split:
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)
     total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
     cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
+    drift_motion = _forward(model, kin, qd, drift)
     extras = {"joint_reactions": _reactions(model, kin, qd, total),
-              "joint_reactions_drift": _reactions(model, kin, qd, drift)}
+              "joint_reactions_drift": np.hstack(_backward(model, kin, drift_motion, gravity=True))}
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
-                               cond_M=cond_M, accel_scale=accel_scale, extras=extras)
+                               cond_M=cond_M, accel_scale=accel_scale, extras=extras,
+                               task_drift=_task_acceleration(model, kin, drift_motion))
 
 
 FORMALISM = Formalism(

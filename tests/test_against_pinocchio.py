@@ -4,6 +4,10 @@ Parametrized over formalism x case, at Hypothesis-drawn states: q in [-pi, pi] f
 for prismatic joints, qd in [-5, 5], u in [-20, 20]. drift, ctrl and total must agree within
 ``1e-10 * accel_scale`` (interface.conditioning: ||M^-1|| times the size of the summed forces, the size of the accelerations the
 summed terms could produce, taken from the reference); ``power_ctrl`` must equal ``u . (B^T qd)`` computed here.
+``task_drift``, where a formalism supplies it, must match Pinocchio's classical frame acceleration at zero torque
+within ``1e-10 * L (accel_scale + |qd|_1^2)`` (crosscheck.tolerance, task scale). A state where the formalism
+reports a BREAKDOWN (crosscheck.tolerance.breakdown, e.g. a singular task Jacobian) is not compared: that it is
+flagged there instead is tested with the backend.
 A new formalism in ``formalisms.names()`` is picked up automatically.
 
 Run time: the first Euler–Lagrange evaluation of ``panda`` derives and compiles it (about 8 s); later runs load
@@ -22,6 +26,8 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from crosscheck import reference
+from crosscheck import tolerance as policy
+from formalisms.interface import Unsupported
 
 CASES = {
     "double_pendulum": {},
@@ -72,6 +78,8 @@ def test_split_agrees_with_pinocchio(formalism, case, data):
     q, qd, u = data.draw(state_strategy(model), label="q, qd, u")
     ref = reference.split(model, q, qd, u)
     got = formalisms.get(formalism).split(model, q, qd, u)
+    if policy.breakdown(got):
+        return
     tol = REL_TOL * accel_scale(model, ref, u)
     for quantity in ("drift", "ctrl", "total"):
         a, b = np.asarray(got.quantity(quantity)), np.asarray(ref.quantity(quantity))
@@ -81,6 +89,14 @@ def test_split_agrees_with_pinocchio(formalism, case, data):
                             f"(tolerance {tol:.3e} = {REL_TOL:g} * accel_scale {tol / REL_TOL:.3e})\n"
                             f"  q = {q.tolist()}\n  qd = {qd.tolist()}\n  u = {u.tolist()}\n"
                             f"  {formalism}: {a.tolist()}\n  pinocchio: {b.tolist()}")
+
+    if not isinstance(got.task_drift, Unsupported):
+        at = policy.scales([ref], model, q, qd)
+        task_tol = REL_TOL * at.lever * (at.accel_scale + at.rate_sq) + 1e-290
+        err = np.abs(np.asarray(got.task_drift) - ref.task_drift).max()
+        assert err <= task_tol, (f"{formalism} vs pinocchio on {case}: task_drift differs by {err:.3e} "
+                                 f"(tolerance {task_tol:.3e})\n  q = {q.tolist()}\n  qd = {qd.tolist()}\n"
+                                 f"  {formalism}: {got.task_drift.tolist()}\n  pinocchio: {ref.task_drift.tolist()}")
 
     tau_ctrl = model.input_map @ u
     expected_power = float(tau_ctrl @ qd)

@@ -9,11 +9,15 @@ import shlex
 import numpy as np
 import pytest
 
+import cases
 import formalisms.euler_lagrange as el
 import formalisms.newton_euler as ne
 from crosscheck import backends, cli
 from crosscheck.compare import DISAGREE
 from crosscheck.gate import CaseSpec, run_gate
+from crosscheck.report import render
+from crosscheck.sampling import sample_states
+from crosscheck.tolerance import BREAKDOWN_LIMITS
 from formalisms.interface import Formalism
 
 DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"]
@@ -56,9 +60,10 @@ def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis
     assert code == 1
     assert "**FAIL**" in report and "## Disagreements" in report
     assert "outlier **euler_lagrange**" in report
-    # ctrl does not involve C qd: it must still agree, so the report localizes the bug to drift and total
+    # ctrl does not involve C qd: it must still agree, so the report localizes the bug to drift and total.
+    # State #0 is the home configuration theta2 = 0, where C qd = 0 (eq. 7), so the fault hides there.
     assert "| double_pendulum | 2 | ctrl | 10 | 0 |" in report
-    assert "| double_pendulum | 2 | drift | 0 | 10 |" in report
+    assert "| double_pendulum | 2 | drift | 1 | 9 |" in report
     # every listed disagreement has a reproduce command that runs and shows the discrepancy
     command = next(line for line in report.splitlines() if "reproduce: `" in line).split("`")[1]
     argv = shlex.split(command)[1:] + ["--json"]
@@ -73,7 +78,7 @@ def test_two_backends_disagree_without_a_vote(dropped_coriolis):
     chosen = [backends.get("euler_lagrange"), backends.get("pinocchio")]
     result = run_gate([CaseSpec("double_pendulum")], chosen, samples=5, seed=0)
     assert not result.passed
-    comp = result.cases[0].states[0].comparisons["drift"]
+    comp = result.cases[0].states[1].comparisons["drift"]  # state #0 is home, where C qd = 0
     assert comp.verdict == DISAGREE and comp.outlier is None
 
 
@@ -147,3 +152,43 @@ def test_a_split_that_does_not_add_up_is_named():
     comps = [s.comparisons for s in result.cases[0].states]
     assert all(c["additivity"].verdict == DISAGREE and c["additivity"].outlier == "newton_euler" for c in comps)
     assert all(c["drift"].verdict != DISAGREE and c["ctrl"].verdict != DISAGREE for c in comps)
+
+
+@pytest.mark.parametrize("condition", [1e30, float("inf"), float("nan")])
+def test_a_backend_in_breakdown_is_reported_not_compared(condition):
+    """A backend reporting a condition number above its limit (or NaN) is left out of the comparisons, so its
+    garbage cannot fail the gate, and the report lists the state with the condition number."""
+    correct = ne.split
+
+    def ill_conditioned(model, q, qd, u):
+        s = correct(model, q, qd, u)
+        nan = np.full(model.n, np.nan)
+        return dataclasses.replace(s, drift=nan, total=nan, conditions={"task": condition})
+
+    backend = Formalism(name="newton_euler", summary="singular at every state", split=ill_conditioned)
+    chosen = [backends.get("euler_lagrange"), backend, backends.get("pinocchio")]
+    result = run_gate([CaseSpec("acrobot")], chosen, samples=3, seed=0)
+    assert result.passed
+    for state in result.cases[0].states:
+        assert set(state.breakdowns) == {"newton_euler"}
+        assert all("newton_euler" not in pair for c in state.comparisons.values() for pair in c.pairs)
+    report = render(result, "cmd")
+    assert "3 state(s) with a backend in BREAKDOWN" in report
+    assert f"| acrobot | newton_euler | cond task | {BREAKDOWN_LIMITS['task']:.3g} | 3 | {condition:.3g} |" in report
+    assert report.count("acrobot #") == 3 and "reproduce: `crosscheck eval --case acrobot" in report
+
+
+def test_a_condition_below_its_limit_is_compared():
+    def conditioned(model, q, qd, u):
+        return dataclasses.replace(ne.split(model, q, qd, u), conditions={"task": BREAKDOWN_LIMITS["task"] / 2})
+
+    chosen = [backends.get("euler_lagrange"), Formalism("newton_euler", "", conditioned), backends.get("pinocchio")]
+    state = run_gate([CaseSpec("acrobot")], chosen, samples=1, seed=0).cases[0].states[0]
+    assert not state.breakdowns and ("euler_lagrange", "newton_euler") in state.comparisons["drift"].pairs
+
+
+def test_state_zero_is_the_home_configuration():
+    model = cases.load("spatial_arm")
+    states = sample_states(model, 3, seed=5, case="spatial_arm")
+    assert states[0].q == (0.0,) * model.n and any(states[0].qd) and any(states[1].q)
+    assert sample_states(model, 3, seed=5, case="spatial_arm") == states
