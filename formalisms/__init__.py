@@ -13,6 +13,7 @@ from formalisms.interface import UNSUPPORTED, Formalism, Split, StateError
 _MODULES = {
     "euler_lagrange": "formalisms.euler_lagrange",
     "newton_euler": "formalisms.newton_euler",
+    "screw": "formalisms.screw",
 }
 
 

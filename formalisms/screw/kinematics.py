@@ -1,0 +1,156 @@
+"""Product-of-exponentials kinematics on the model's tree (article 6.2.2, eq. 20), in screw language.
+
+Frames (``cases.model``): body ``i``'s frame is its joint frame moved by the joint,
+``X_i = X_parent * (rotation, translation) * motion(q_i)``, so the joint moves body ``i`` about (revolute) or
+along (prismatic) ``axis`` through the body-frame origin. Hence, with ``{s}`` the world (space) frame:
+
+* home configuration ``M_i = T_{s,i}(0) = M_parent (rotation, translation)``;
+* body screw axis ``B_i = (axis, 0)`` (revolute) or ``(0, axis)`` (prismatic), in body frame ``i``, and
+  ``motion(q_i) = exp([B_i] q_i)``;
+* space screw axis ``S_i = Ad_{M_i} B_i``, in the world frame at ``q = 0``.
+
+Eq. (20) on a tree: ``T_i(q) = P_i(q) M_i`` with ``P_i = P_parent(i) exp([S_i] q_i)`` the product of the
+exponentials of ``i`` and its ancestors, root first. The space Jacobian of body ``i`` has column
+``S_j(q) = Ad_{P_parent(j)} S_j`` for each ``j`` that is ``i`` or an ancestor of ``i``, and zero elsewhere.
+
+Quantities of all bodies are stacked along a leading body axis, in model order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cases.model import Model
+from formalisms.screw import lie
+
+
+@dataclass(frozen=True)
+class Screws:
+    """The configuration-independent screw description of a model.
+
+    home        (n, 4, 4)  ``M_i``, world <- body ``i`` at ``q = 0``
+    body_axes   (n, 6)     ``B_i`` in body frame ``i``
+    space_axes  (n, 6)     ``S_i = Ad_{M_i} B_i`` in the world frame
+    support     (n, n)     ``support[i, j] = 1`` when body ``j`` is ``i`` or an ancestor of ``i`` (joint ``j``
+                           moves body ``i``), else 0; row ``i`` masks the columns of body ``i``'s Jacobian
+    """
+
+    home: np.ndarray
+    body_axes: np.ndarray
+    space_axes: np.ndarray
+    support: np.ndarray
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """The PoE kinematics at one configuration ``q``.
+
+    poses       (n, 4, 4)  ``T_i(q)``, world <- body ``i`` (eq. 20)
+    to_body     (n, 6, 6)  ``Ad_{T_i^-1}``: maps a twist from the world frame to body frame ``i``
+    columns     (n, 6)     ``S_j(q) = Ad_{P_parent(j)} S_j``: joint ``j``'s screw axis in the world frame at ``q``
+    """
+
+    model: Model
+    screws: Screws
+    poses: np.ndarray
+    to_body: np.ndarray
+    columns: np.ndarray
+
+
+def screws(model: Model) -> Screws:
+    """Home configurations, body and space screw axes, and the support mask of ``model``."""
+    n = model.n
+    home = np.empty((n, 4, 4))
+    body_axes = np.zeros((n, 6))
+    support = np.zeros((n, n))
+    for i in model.topological_order:
+        b, p = model.bodies[i], model.parent_index[i]
+        placement = np.eye(4)
+        placement[:3, :3], placement[:3, 3] = b.rotation, b.translation
+        home[i] = placement if p < 0 else home[p] @ placement
+        start = 0 if b.joint == "revolute" else 3
+        body_axes[i, start:start + 3] = b.axis
+        if p >= 0:
+            support[i] = support[p]
+        support[i, i] = 1.0
+    space_axes = (lie.Ad(home) @ body_axes[..., None])[..., 0]
+    return Screws(home, body_axes, space_axes, support)
+
+
+def forward_kinematics(model: Model, q: np.ndarray) -> Kinematics:
+    """Eq. (20) on the tree: ``T_i(q) = (prod over j in root..i of exp([S_j] q_j)) M_i``, and the Jacobian
+    columns ``S_j(q) = Ad_{P_parent(j)} S_j``. ``q`` is a float vector of length ``model.n``."""
+    sc = screws(model)
+    factors = lie.exp6(sc.space_axes, q)                  # exp([S_j] q_j), all joints at once
+    products = np.empty_like(factors)                     # P_i = P_parent(i) exp([S_i] q_i)
+    before = np.empty_like(factors)                       # P_parent(i) (identity at a root)
+    for i in model.topological_order:
+        p = model.parent_index[i]
+        before[i] = np.eye(4) if p < 0 else products[p]
+        products[i] = before[i] @ factors[i]
+    columns = (lie.Ad(before) @ sc.space_axes[..., None])[..., 0]
+    poses = products @ sc.home
+    return Kinematics(model, sc, poses, lie.Ad(lie.inv(poses)), columns)
+
+
+def _joint_rates(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
+    """``S_j(q) rate_j`` per joint: (n, 6) for rates (n,), or (n, k, 6) for k columns of rates (n, k)."""
+    rates = np.asarray(rates, dtype=float)
+    if rates.ndim == 1:
+        return kin.columns * rates[:, None]
+    return kin.columns[:, None, :] * rates[:, :, None]
+
+
+def _accumulate(kin: Kinematics, per_joint: np.ndarray) -> np.ndarray:
+    """Sum per-joint terms over each body's supporting joints: ``out_i = sum_{j <= i} per_joint_j``."""
+    n = len(per_joint)
+    return (kin.screws.support @ per_joint.reshape(n, -1)).reshape(per_joint.shape)
+
+
+def space_jacobian(kin: Kinematics, body: int) -> np.ndarray:
+    """``J_s,i`` (6 x n): column ``j`` is ``S_j(q)`` if joint ``j`` moves body ``i``, else 0 (article 6.2.2)."""
+    return kin.columns.T * kin.screws.support[body]
+
+
+def body_jacobian(kin: Kinematics, body: int) -> np.ndarray:
+    """``J_b,i = Ad_{T_i^-1} J_s,i`` (6 x n), in body frame ``i``."""
+    return kin.to_body[body] @ space_jacobian(kin, body)
+
+
+def twists(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
+    """Space twists ``V_s,i = J_s,i qd`` of every body, (n, 6); for qd of shape (n, k), one per column (n, k, 6).
+
+    ``V_s = (w, v)``: ``w`` the angular velocity and ``v`` the velocity of the body-fixed point at the world
+    origin, both in the world frame (``[V_s] = Tdot T^-1``).
+    """
+    return _accumulate(kin, _joint_rates(kin, qd))
+
+
+def bias_accelerations(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
+    """``Jdot_s,i qd = sum_{j <= i} ad_{V_s,parent(j)} S_j(q) qd_j`` (article 6.2.2), (n, 6) or (n, k, 6).
+
+    Each column moves with everything inboard of it: ``d/dt S_j(q) = [V_s,parent(j), S_j(q)]``.
+    Since ``[S_j, S_j] = 0``, ``V_s,parent(j)`` may be replaced by ``V_s,j``, which is what is used.
+    """
+    rates = _joint_rates(kin, qd)
+    return _accumulate(kin, lie.bracket(_accumulate(kin, rates), rates))
+
+
+def spatial_accelerations(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """``Vdot_s,i = J_s,i qdd + Jdot_s,i qd`` (article 6.2.2): the time derivative of the space twists,
+    (n, 6), or (n, k, 6) for columns."""
+    return _accumulate(kin, _joint_rates(kin, qdd)) + bias_accelerations(kin, qd)
+
+
+def point_acceleration(kin: Kinematics, body: int, offset: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """Classical acceleration (world frame) of the point ``offset`` fixed in ``body`` (body-frame coordinates).
+
+    With the body's space twist ``V = (w, v)``, spatial acceleration ``Vdot = (wd, vd)`` and the point's world
+    position ``p``: ``pddot = ([Vdot] + [V]^2) (p, 1) = vd + wd x p + w x (v + w x p)``, since ``Tdot = [V] T``.
+    """
+    V = twists(kin, qd)[body]
+    Vdot = spatial_accelerations(kin, qd, qdd)[body]
+    X = lie.hat6(Vdot) + lie.hat6(V) @ lie.hat6(V)
+    return (X @ kin.poses[body] @ np.r_[offset, 1.0])[:3]
