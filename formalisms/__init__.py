@@ -14,6 +14,7 @@ _MODULES = {
     "euler_lagrange": "formalisms.euler_lagrange",
     "newton_euler": "formalisms.newton_euler",
     "screw": "formalisms.screw",
+    "operational_space": "formalisms.operational_space",
 }
 
 

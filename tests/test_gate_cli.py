@@ -65,7 +65,8 @@ def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis
     assert "| double_pendulum | 2 | ctrl | 10 | 0 |" in report
     assert "| double_pendulum | 2 | drift | 1 | 9 |" in report
     # every listed disagreement has a reproduce command that runs and shows the discrepancy
-    command = next(line for line in report.splitlines() if "reproduce: `" in line).split("`")[1]
+    disagreements = report.split("## Disagreements")[1]
+    command = next(line for line in disagreements.splitlines() if "reproduce: `" in line).split("`")[1]
     argv = shlex.split(command)[1:] + ["--json"]
     capsys.readouterr()
     assert cli.main(argv) == 0
