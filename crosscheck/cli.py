@@ -82,9 +82,10 @@ def cmd_cases(args) -> int:
 
 
 def cmd_formalisms(args) -> int:
+    width = max(map(len, backends.names()))
     for name in backends.names():
         tag = " (external reference)" if name == backends.REFERENCE_NAME else ""
-        print(f"{name:16s} {backends.get(name).summary}{tag}")
+        print(f"{name:{width}s}  {backends.get(name).summary}{tag}")
     return 0
 
 

@@ -126,7 +126,16 @@ def test_listing_commands(capsys):
         assert name in listing
     assert cli.main(["formalisms"]) == 0
     listing = capsys.readouterr().out
-    assert all(name in listing for name in ("euler_lagrange", "newton_euler", "pinocchio"))
+    assert all(name in listing for name in
+               ("euler_lagrange", "newton_euler", "screw", "operational_space", "pinocchio"))
+
+
+def test_eval_marks_a_backend_in_breakdown(capsys):
+    """The stretched double pendulum (theta2 = 0) is a task singularity (article 6.3.4)."""
+    assert cli.main(["eval", "--case", "double_pendulum", "--q=0.3,0", "--qd=1,2", "--u=1,1"]) == 0
+    out = capsys.readouterr().out
+    assert "operational_space: BREAKDOWN (cond task = inf > 1e+03)" in out
+    assert "newton_euler:\n" in out and "newton_euler: BREAKDOWN" not in out
 
 
 def test_unparsable_urdf_exits_2(tmp_path, capsys):

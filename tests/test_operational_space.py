@@ -316,6 +316,17 @@ def test_breakdown_is_flagged_before_the_error_exceeds_the_tolerance():
     assert not missed, f"error above tolerance without BREAKDOWN (limit {limit:g}): {missed}; {hint}"
     unflagged = max(r[3] for r in rows if not r[4])
     assert unflagged < 0.5, f"unflagged states come within {unflagged:.2g} of the tolerance (limit {limit:g}); {hint}"
+    # the flag is needed: the error does grow past the tolerance with cond(A), decade by decade
+    by_decade: dict[int, list[float]] = {}
+    for _, _, cond, ratio, _ in rows:
+        if np.isfinite(cond):
+            by_decade.setdefault(int(np.floor(np.log10(cond))), []).append(ratio)
+    print("\ncond(A) decade | states | worst error/tolerance")
+    for decade, ratios in sorted(by_decade.items()):
+        print(f"1e{decade:<13d} | {len(ratios):6d} | {max(ratios):.3g}")
+    worst_by_decade = {decade: max(ratios) for decade, ratios in by_decade.items()}
+    decades = sorted(worst_by_decade)
+    assert worst_by_decade[decades[-1]] > 1.0 > worst_by_decade[decades[0]] * 100
 
 
 # ----------------------------------------------------------------------------------------------------------
