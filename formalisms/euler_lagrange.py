@@ -32,7 +32,7 @@ import scipy.linalg
 import symengine as sp
 
 from cases.model import Model
-from formalisms.interface import Formalism, check_state, conditioning, unconstrained_split
+from formalisms.interface import Formalism, check_state, conditioning, factor_mass_matrix, unconstrained_split
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 
@@ -323,11 +323,7 @@ def split(model: Model, q, qd, u):
         raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
     q, qd, u = check_state(model, q, qd, u)
     M, Cqd, g = terms(model, q, qd)
-    try:
-        factor = scipy.linalg.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise ValueError(f"Euler–Lagrange: the mass matrix of model '{model.name}' is not positive definite at "
-                         f"q = {q.tolist()}: eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
+    factor = factor_mass_matrix(model, M, q)
     Bu = model.input_map @ u
     h = Cqd + g
     cond_M, accel_scale = conditioning(model, M, Cqd, g, Bu, qd)

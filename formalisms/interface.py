@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 import numpy as np
+import scipy.linalg
 
 from cases.model import Model
 
@@ -109,6 +110,26 @@ def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndar
             raise StateError(f"{label} has non-finite entries: {arr.tolist()}")
         out.append(arr)
     return out[0], out[1], out[2]
+
+
+def joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
+    """The arguments as float vectors of length n (e.g. ``q, qd, qdd`` of an inverse-dynamics call), or a
+    :class:`StateError` naming the sizes."""
+    out = [np.asarray(v, dtype=float).reshape(-1) for v in vectors]
+    if any(v.size != model.n for v in out):
+        raise StateError(f"model '{model.name}' needs {model.n} joint values per vector; got sizes "
+                         f"{[v.size for v in out]}")
+    return out
+
+
+def factor_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray):
+    """Cholesky factor of ``M`` (``scipy.linalg.cho_factor``); a mass matrix that is not positive definite (e.g. a
+    point mass on its own joint axis) is a ValueError naming the model, the configuration and the eigenvalues."""
+    try:
+        return scipy.linalg.cho_factor(M)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = {q.tolist()} "
+                         f"(Cholesky failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
 
 
 def conditioning(model: Model, M: np.ndarray, Cqd: np.ndarray, g: np.ndarray, tau: np.ndarray,

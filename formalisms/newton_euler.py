@@ -19,16 +19,8 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import Formalism, Split, StateError, check_state, conditioning, unconstrained_split
-
-
-def _joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
-    """The arguments as float vectors of length n, or a :class:`StateError` naming the sizes."""
-    out = [np.asarray(v, dtype=float).reshape(-1) for v in vectors]
-    if any(v.size != model.n for v in out):
-        raise StateError(f"model '{model.name}' needs {model.n} joint values per vector; got sizes "
-                         f"{[v.size for v in out]}")
-    return out
+from formalisms.interface import (Formalism, Split, check_state, conditioning, factor_mass_matrix, joint_vectors,
+                                  unconstrained_split)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -127,7 +119,7 @@ def _joint_torques(model: Model, f: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarray:
     """RNEA: the generalized force ``M qdd + C qd (+ g)`` of eq. (2), from eq. (18) and (19) body by body."""
-    q, qd, qdd = _joint_vectors(model, q, qd, qdd)
+    q, qd, qdd = joint_vectors(model, q, qd, qdd)
     f, n = _recursion(model, _placements(model, q), qd, qdd, gravity)
     return _joint_torques(model, f, n)
 
@@ -137,7 +129,7 @@ def mass_matrix(model: Model, q) -> np.ndarray:
 
     The placements are computed once and shared by the columns; the result is symmetrized to remove rounding.
     """
-    (q,) = _joint_vectors(model, q)
+    (q,) = joint_vectors(model, q)
     kin, zero = _placements(model, q), np.zeros(model.n)
     M = np.empty((model.n, model.n))
     for j, e in enumerate(np.eye(model.n)):
@@ -149,20 +141,12 @@ def joint_reactions(model: Model, q, qd, qdd) -> np.ndarray:
     """Full joint loads (6.1.5), gravity included: row ``i`` = ``[force(3), moment(3)]`` the parent exerts on
     body ``i`` through joint ``i``, moment about the body-frame origin (the joint origin on body ``i``'s side),
     both in body frame ``i``. The actuated component (along the axis) is included."""
-    q, qd, qdd = _joint_vectors(model, q, qd, qdd)
+    q, qd, qdd = joint_vectors(model, q, qd, qdd)
     return _reactions(model, _placements(model, q), qd, qdd)
 
 
 def _reactions(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     return np.hstack(_recursion(model, kin, qd, qdd, gravity=True))
-
-
-def _factor(model: Model, M: np.ndarray):
-    try:
-        return scipy.linalg.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite (Cholesky failed); "
-                         f"eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
 
 
 def split(model: Model, q, qd, u) -> Split:
@@ -183,7 +167,7 @@ def split(model: Model, q, qd, u) -> Split:
 
     h, c_qd, g = bias(qd, True), bias(qd, False), bias(zero, True)
     M = mass_matrix(model, q)
-    factor = _factor(model, M)
+    factor = factor_mass_matrix(model, M, q)
     tau_ctrl = model.input_map @ u
     drift = scipy.linalg.cho_solve(factor, -h)
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)

@@ -64,7 +64,8 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import Formalism, Split, check_state, conditioning, unconstrained_split
+from formalisms.interface import (Formalism, Split, check_state, conditioning, factor_mass_matrix,
+                                  unconstrained_split)
 
 EPS = float(np.finfo(float).eps)
 
@@ -267,14 +268,9 @@ def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl) -> tuple[TaskSpace, TaskSpac
     return principal, reported
 
 
-def _inverse_mass_matrix(model: Model, M: np.ndarray) -> np.ndarray:
-    """``M^-1`` from a Cholesky factor; a mass matrix that is not positive definite is an error naming the model."""
-    try:
-        factor = scipy.linalg.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite (Cholesky failed); "
-                         f"eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
-    Minv = scipy.linalg.cho_solve(factor, np.eye(model.n))
+def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``M^-1`` from a Cholesky factor (symmetrized)."""
+    Minv = scipy.linalg.cho_solve(factor_mass_matrix(model, M, q), np.eye(model.n))
     return 0.5 * (Minv + Minv.T)
 
 
@@ -285,7 +281,7 @@ def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
     J, Jdot_qd = _task_kinematics(model, kin, point)
-    return _task_space(J, Jdot_qd, _inverse_mass_matrix(model, M), Cqd, g, model.input_map @ u)[1]
+    return _task_space(J, Jdot_qd, _inverse_mass_matrix(model, M, q), Cqd, g, model.input_map @ u)[1]
 
 
 def split(model: Model, q, qd, u) -> Split:
@@ -302,7 +298,7 @@ def split(model: Model, q, qd, u) -> Split:
     q, qd, u = check_state(model, q, qd, u)
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
-    Minv, tau_ctrl, h = _inverse_mass_matrix(model, M), model.input_map @ u, Cqd + g
+    Minv, tau_ctrl, h = _inverse_mass_matrix(model, M, q), model.input_map @ u, Cqd + g
     ts, reported = _task_space(*_task_kinematics(model, kin, None), Minv, Cqd, g, tau_ctrl)
     null = Minv @ ts.N.T
     drift = ts.J_bar @ (ts.xdd_drift - ts.Jdot_qd) - null @ h

@@ -34,17 +34,10 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import UNSUPPORTED, Formalism, Split, check_state, conditioning, unconstrained_split
+from formalisms.interface import (UNSUPPORTED, Formalism, Split, check_state, conditioning, factor_mass_matrix,
+                                  unconstrained_split)
 from formalisms.screw import dynamics, kinematics
 from formalisms.screw.kinematics import Kinematics
-
-
-def _factor(model: Model, M: np.ndarray):
-    try:
-        return scipy.linalg.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite (Cholesky failed); "
-                         f"eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
 
 
 def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
@@ -87,7 +80,7 @@ def split(model: Model, q, qd, u) -> Split:
     q, qd, u = check_state(model, q, qd, u)
     kin = kinematics.forward_kinematics(model, q)
     M, h, c_qd, g = dynamics.terms(kin, qd)
-    factor = _factor(model, M)
+    factor = factor_mass_matrix(model, M, q)
     tau_ctrl = model.input_map @ u
     drift = scipy.linalg.cho_solve(factor, -h)
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)

@@ -27,18 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from cases.model import Model
-from formalisms.interface import StateError
+from formalisms.interface import joint_vectors
 from formalisms.screw import kinematics, lie
 from formalisms.screw.kinematics import Kinematics
-
-
-def _joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
-    """The arguments as float vectors of length n, or a :class:`StateError` naming the sizes."""
-    out = [np.asarray(v, dtype=float).reshape(-1) for v in vectors]
-    if any(v.size != model.n for v in out):
-        raise StateError(f"model '{model.name}' needs {model.n} joint values per vector; got sizes "
-                         f"{[v.size for v in out]}")
-    return out
 
 
 def spatial_inertias(model: Model) -> np.ndarray:
@@ -107,7 +98,7 @@ def joint_torques(kin: Kinematics, F: np.ndarray) -> np.ndarray:
 
 def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarray:
     """The generalized force ``M qdd + C qd (+ g)`` of eq. (2), from the wrench balance of eq. (27)."""
-    q, qd, qdd = _joint_vectors(model, q, qd, qdd)
+    q, qd, qdd = joint_vectors(model, q, qd, qdd)
     kin = kinematics.forward_kinematics(model, q)
     F = wrenches(kin, qd[:, None], qdd[:, None], np.array([float(gravity)]))
     return joint_torques(kin, F)[:, 0]
@@ -131,7 +122,7 @@ def terms(kin: Kinematics, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
 
 def mass_matrix(model: Model, q) -> np.ndarray:
     """``M(q)`` of eq. (2): column ``j`` is eq. (27) with ``qd = 0``, no gravity and ``qdd = e_j``, all in one pass."""
-    (q,) = _joint_vectors(model, q)
+    (q,) = joint_vectors(model, q)
     kin, n = kinematics.forward_kinematics(model, q), model.n
     M = joint_torques(kin, wrenches(kin, np.zeros((n, n)), np.eye(n), np.zeros(n)))
     return 0.5 * (M + M.T)
