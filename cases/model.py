@@ -305,6 +305,10 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if task_points is None:
         last = valid[-1] if valid else None
         task_points = [TaskPoint("tip", last.name, last.com)] if last is not None else []
+    task_points = list(task_points)
+    if not task_points:
+        problems.append("a model needs at least one task point (the task drift and the operational-space backend "
+                        "use the first); leave task_points out for the default, the COM of the last body")
     tps = [tp for tp in (_validate_task_point(problems, tp, names) for tp in task_points) if tp is not None]
     constraints = tuple(constraints)
     if constraints:

@@ -144,3 +144,5 @@ def test_task_directions_default_to_all_three_and_are_validated():
     assert "task point 'skew' directions are not orthonormal rows" in text
     assert "task point 'flat' directions have shape (3,)" in text
     assert "task point 'many' directions have shape (4, 3)" in text
+    with pytest.raises(ModelError, match="a model needs at least one task point"):
+        build_model("none", _good_bodies(), task_points=[])

@@ -34,18 +34,15 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import (UNSUPPORTED, Formalism, Split, check_state, conditioning, factor_mass_matrix,
+from formalisms.interface import (Formalism, Split, check_state, conditioning, factor_mass_matrix,
                                   unconstrained_split)
 from formalisms.screw import dynamics, kinematics
 from formalisms.screw.kinematics import Kinematics
 
 
 def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
-    """``D a`` for the default task point at the drift (eq. 23, classical acceleration); UNSUPPORTED for a model
-    without task points."""
+    """``D a`` for the default task point at the drift (eq. 23, classical acceleration)."""
     model = kin.model
-    if not model.task_points:
-        return UNSUPPORTED
     tp = model.task_point()
     a = kinematics.point_acceleration(kin, model.body_index(tp.body), tp.offset, qd, drift)
     return tp.directions @ a
