@@ -1,9 +1,9 @@
 """Tests of the Euler–Lagrange backend (article 4.7.1) against references written independently here.
 
-* The double pendulum's closed forms, article eqs. (6), (7), (8), and the 2x2 inverse of 4.7.2, typed in below
-  from the article (not read from any project code): the 4.7.3 sanity check, ``terms()`` at drawn parameters
-  and states, the chapter's gravity-compensation and inverse/forward round-trip experiments, and the symbolic
-  output of ``derive``.
+* The double pendulum's closed forms, article eqs. (6), (7), (8), and the 2x2 inverse of 4.7.2, typed in from
+  the article in ``closed_forms.py`` (not read from any project code): the 4.7.3 sanity check, ``terms()`` at
+  drawn parameters and states, the chapter's gravity-compensation and inverse/forward round-trip experiments,
+  and the symbolic output of ``derive``.
 * Spong's acrobot mass matrix (closed form, angles from hanging down).
 * For the 3-D ``spatial_arm``: a mass matrix and gravity vector assembled here from geometric Jacobians of this
   file's own forward kinematics (scipy rotation vectors, not the backend's Rodrigues / symbolic chain rule):
@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import cases
+from closed_forms import article_Cqd, article_g, article_M, inv2, pendulum_terms
 from formalisms import euler_lagrange as el
 
 EPS = np.finfo(float).eps
@@ -34,34 +35,8 @@ PI = math.pi
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Article section 3.4 closed forms, written out here
+# Helpers on top of the article's closed forms (eqs. (6), (7), (8) and the 4.7.2 inverse: closed_forms.py)
 # ----------------------------------------------------------------------------------------------------------
-
-def article_M(t2, m1=1.0, m2=1.0, l1=1.0, l2=1.0):
-    """Eq. (6)."""
-    M11 = (m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * math.cos(t2)
-    M12 = m2 * l2**2 + m2 * l1 * l2 * math.cos(t2)
-    M22 = m2 * l2**2
-    return np.array([[M11, M12], [M12, M22]])
-
-
-def article_Cqd(t2, t1d, t2d, m2=1.0, l1=1.0, l2=1.0):
-    """Eq. (7), c = m2 l1 l2 sin(theta2)."""
-    c = m2 * l1 * l2 * math.sin(t2)
-    return np.array([-2 * c * t1d * t2d - c * t2d**2, c * t1d**2])
-
-
-def article_g(t1, t2, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
-    """Eq. (8)."""
-    return np.array([(m1 + m2) * g * l1 * math.sin(t1) + m2 * g * l2 * math.sin(t1 + t2),
-                     m2 * g * l2 * math.sin(t1 + t2)])
-
-
-def inv2(M):
-    """The 2x2 inverse of article 4.7.2: (1/det M) [[M22, -M12], [-M21, M11]]."""
-    det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
-    return np.array([[M[1, 1], -M[0, 1]], [-M[1, 0], M[0, 0]]]) / det
-
 
 def summand_size(qd, tau, qdd=(0.0, 0.0), m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
     """A bound on the magnitudes of the terms summed into M qdd + C qd + g and tau: what rounding scales with.
@@ -76,10 +51,7 @@ def summand_size(qd, tau, qdd=(0.0, 0.0), m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81
 
 def article_split(q, qd, tau, **p):
     """drift, ctrl, total of article 4.7.2 and the scale ||M^-1|| * summand_size (cf. interface accel_scale)."""
-    geo = {k: p[k] for k in ("m1", "m2", "l1", "l2") if k in p}
-    M = article_M(q[1], **geo)
-    Cqd = article_Cqd(q[1], qd[0], qd[1], **{k: v for k, v in geo.items() if k != "m1"})
-    g = article_g(q[0], q[1], **p)
+    M, Cqd, g = pendulum_terms(q, qd, **p)
     Minv = inv2(M)
     scale = np.linalg.norm(Minv, 2) * summand_size(qd, tau, **p)
     return -Minv @ (Cqd + g), Minv @ tau, Minv @ (np.asarray(tau) - Cqd - g), scale
@@ -154,10 +126,7 @@ def test_terms_match_closed_forms_at_drawn_parameters_and_states(p, q, qd):
     model = cases.load("double_pendulum", **p)
     q, qd = np.array(q), np.array(qd)
     M, Cqd, g = el.terms(model, q, qd)
-    geo = {k: p[k] for k in ("m1", "m2", "l1", "l2")}
-    M_ref = article_M(q[1], **geo)
-    Cqd_ref = article_Cqd(q[1], qd[0], qd[1], m2=p["m2"], l1=p["l1"], l2=p["l2"])
-    g_ref = article_g(q[0], q[1], **p)
+    M_ref, Cqd_ref, g_ref = pendulum_terms(q, qd, **p)
     # rounding: each entry is a short sum of products of magnitude at most the bounds below; C qd is built
     # from derivatives of M entries (each up to m_scale per radian) times qd^2, and they cancel, e.g. at t2 = 0
     m_scale = (p["m1"] + p["m2"]) * (p["l1"] + p["l2"]) ** 2
@@ -349,9 +318,8 @@ def test_spatial_arm_gravity_compensation():
        qdd=st.tuples(st.floats(-20.0, 20.0), st.floats(-20.0, 20.0)))
 def test_inverse_forward_round_trip(p, q, qd, qdd):
     q, qd, qdd = np.array(q), np.array(qd), np.array(qdd)
-    geo = {k: p[k] for k in ("m1", "m2", "l1", "l2")}
-    M = article_M(q[1], **geo)
-    tau = M @ qdd + article_Cqd(q[1], *qd, m2=p["m2"], l1=p["l1"], l2=p["l2"]) + article_g(*q, **p)
+    M, Cqd, g = pendulum_terms(q, qd, **p)
+    tau = M @ qdd + Cqd + g
     s = el.split(cases.load("double_pendulum", **p), q, qd, tau)
     # relative to the accelerations the summed terms could produce (interface accel_scale, computed here)
     scale = np.linalg.norm(inv2(M), 2) * summand_size(qd, tau, qdd, **p)

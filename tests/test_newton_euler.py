@@ -1,6 +1,7 @@
 """Tests of the Newton–Euler backend (article 6.1) against references written independently here:
-the double-pendulum closed forms (article eqs. 4, 6-8) and, for a 3-D tree, the Euler–Lagrange residual of a
-kinetic + potential energy computed from poses by 4x4 homogeneous transforms and matrix exponentials.
+the double-pendulum closed forms (article eqs. 6-8 and the 4.7.2 inverse, from closed_forms.py; eq. 4
+differentiated here) and, for a 3-D tree, the Euler–Lagrange residual of a kinetic + potential energy computed
+from poses by 4x4 homogeneous transforms and matrix exponentials.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cases.model import Body, build_model
+from closed_forms import inv2, pendulum_terms
 from formalisms import newton_euler as ne
 from formalisms.interface import StateError, conditioning
 
@@ -30,23 +32,6 @@ def double_pendulum(m1=1.0, m2=1.0, l1=1.0, l2=1.0):
         Body("link1", None, "revolute", axis=z, mass=m1, com=(0.0, -l1, 0.0)),
         Body("link2", "link1", "revolute", axis=z, mass=m2, com=(0.0, -l2, 0.0), translation=(0.0, -l1, 0.0)),
     ], gravity=(0.0, -G, 0.0))
-
-
-def pendulum_terms(t, td, m1=1.0, m2=1.0, l1=1.0, l2=1.0):
-    """M, C qd, g of article eqs. (6), (7), (8)."""
-    c2 = np.cos(t[1])
-    M = np.array([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, m2 * l2**2 + m2 * l1 * l2 * c2],
-                  [m2 * l2**2 + m2 * l1 * l2 * c2, m2 * l2**2]])
-    c = m2 * l1 * l2 * np.sin(t[1])
-    Cqd = np.array([-2 * c * td[0] * td[1] - c * td[1] ** 2, c * td[0] ** 2])
-    s12 = np.sin(t[0] + t[1])
-    g = np.array([(m1 + m2) * G * l1 * np.sin(t[0]) + m2 * G * l2 * s12, m2 * G * l2 * s12])
-    return M, Cqd, g
-
-
-def inv2(M):
-    """The 2x2 inverse of article 4.7.2."""
-    return np.array([[M[1, 1], -M[0, 1]], [-M[1, 0], M[0, 0]]]) / (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0])
 
 
 def point_accelerations(t, td, tdd, l1=1.0, l2=1.0):
@@ -68,7 +53,7 @@ THETA, THETAD, TAU = np.array([np.pi / 4, np.pi / 6]), np.array([2.0, -1.0]), np
 
 
 def test_double_pendulum_split_matches_article_closed_form():
-    M, Cqd, g = pendulum_terms(THETA, THETAD)
+    M, Cqd, g = pendulum_terms(THETA, THETAD, g=G)
     Minv = inv2(M)
     drift, ctrl, total = -Minv @ (Cqd + g), Minv @ TAU, Minv @ (TAU - Cqd - g)
     s = ne.split(double_pendulum(), THETA, THETAD, TAU)
@@ -88,7 +73,7 @@ def test_double_pendulum_split_matches_article_closed_form():
 @pytest.mark.parametrize("which", ["joint_reactions", "joint_reactions_drift"])
 def test_double_pendulum_joint_reactions_match_point_mass_newton(which):
     """6.1.5: joint 2 carries m2 (a2 - g); joint 1 carries everything outboard. Moments about the joint origins."""
-    M, Cqd, g = pendulum_terms(THETA, THETAD)
+    M, Cqd, g = pendulum_terms(THETA, THETAD, g=G)
     tau = TAU if which == "joint_reactions" else np.zeros(2)
     qdd = inv2(M) @ (tau - Cqd - g)
     a1, a2 = point_accelerations(THETA, THETAD, qdd)
@@ -114,7 +99,7 @@ def test_double_pendulum_gravity_compensation_and_spd_sweep():
     for t1 in np.linspace(-np.pi, np.pi, 9):
         for t2 in np.linspace(-np.pi, np.pi, 9):
             t = np.array([t1, t2])
-            M, _, g = pendulum_terms(t, np.zeros(2), m1=1.3, m2=0.7, l1=0.9, l2=1.4)
+            M, _, g = pendulum_terms(t, np.zeros(2), m1=1.3, m2=0.7, l1=0.9, l2=1.4, g=G)
             assert np.abs(ne.split(model, t, np.zeros(2), g).total).max() < 1e-12
             Mne = ne.mass_matrix(model, t)
             np.testing.assert_array_equal(Mne, Mne.T)
@@ -329,7 +314,7 @@ def test_3d_joint_reactions_equal_subtree_momentum_rates():
 def test_ctrl_is_solved_directly_not_total_minus_drift():
     """Where the drift dwarfs the control, ``total - drift`` loses every digit of ctrl; M^-1 tau keeps them."""
     t, td, tau = np.array([0.3, 1.1]), np.array([3e4, -2e4]), np.array([1e-6, 2e-6])
-    M, Cqd, g = pendulum_terms(t, td)
+    M, Cqd, g = pendulum_terms(t, td, g=G)
     s = ne.split(double_pendulum(), t, td, tau)
     np.testing.assert_allclose(s.ctrl, inv2(M) @ tau, rtol=1e-12, atol=0)
     np.testing.assert_array_equal(ne.split(double_pendulum(), t, td, np.zeros(2)).ctrl, np.zeros(2))

@@ -1,8 +1,8 @@
 """Tests of the operational-space backend (article 6.3, eqs. 22-23) against references written independently here:
-the double-pendulum closed forms (article eqs. 5-8), forward kinematics by 4x4 homogeneous transforms with
-scipy's rotation vectors, finite differences along trajectories, and the Pinocchio reference for M and for the
-accuracy-versus-conditioning study (6.3.4: near a singularity the method must report BREAKDOWN before its error
-exceeds the harness tolerance).
+the double-pendulum closed forms (article eqs. 5-8, from closed_forms.py), forward kinematics by 4x4 homogeneous
+transforms with scipy's rotation vectors, finite differences along trajectories, and the Pinocchio reference for M
+and for the accuracy-versus-conditioning study (6.3.4: near a singularity the method must report BREAKDOWN before
+its error exceeds the harness tolerance).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import cases
+from closed_forms import endpoint_jacobian, pendulum_terms
 from crosscheck import backends, reference, report
 from crosscheck import tolerance as policy
 from crosscheck.gate import CaseSpec, run_gate
@@ -33,26 +34,9 @@ def model_of(name, **params):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Independent references: article closed forms, homogeneous-transform kinematics, difference stencils
+# Independent references: homogeneous-transform kinematics, difference stencils (article closed forms:
+# closed_forms.py)
 # ----------------------------------------------------------------------------------------------------------
-
-def pendulum_terms(t, td, m1, m2, l1, l2, g=9.81):
-    """M, C qd, g of article eqs. (6), (7), (8)."""
-    c2 = np.cos(t[1])
-    M = np.array([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, m2 * l2**2 + m2 * l1 * l2 * c2],
-                  [m2 * l2**2 + m2 * l1 * l2 * c2, m2 * l2**2]])
-    c = m2 * l1 * l2 * np.sin(t[1])
-    Cqd = np.array([-2 * c * td[0] * td[1] - c * td[1] ** 2, c * td[0] ** 2])
-    s12 = np.sin(t[0] + t[1])
-    grav = np.array([(m1 + m2) * g * l1 * np.sin(t[0]) + m2 * g * l2 * s12, m2 * g * l2 * s12])
-    return M, Cqd, grav
-
-
-def endpoint_jacobian(t, l1, l2):
-    """Article eq. (5)."""
-    c1, s1, c12, s12 = np.cos(t[0]), np.sin(t[0]), np.cos(t[0] + t[1]), np.sin(t[0] + t[1])
-    return np.array([[l1 * c1 + l2 * c12, l2 * c12], [l1 * s1 + l2 * s12, l2 * s12]])
-
 
 def homogeneous(R, p):
     T = np.eye(4)

@@ -1,8 +1,9 @@
 """Tests of the screw / product-of-exponentials backend (article 6.2, eqs. 20, 21, 27).
 
 References written independently here: closed-form SE(3) exponentials, finite differences of the poses along
-trajectories, the double-pendulum closed forms (article eqs. 4-8, 21), a direct composition of the model's
-placements and joint motions (scipy's matrix exponential), and, across formalisms, Newton–Euler's joint reactions.
+trajectories, the double-pendulum closed forms (article eqs. 4 and 21 here, eqs. 5-8 from closed_forms.py), a direct
+composition of the model's placements and joint motions (scipy's matrix exponential), and, across formalisms,
+Newton–Euler's joint reactions.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from hypothesis import strategies as st
 
 import cases
 import formalisms
+from closed_forms import endpoint_jacobian, pendulum_terms
 from crosscheck import backends, report
 from crosscheck.gate import CaseSpec, run_gate
 from formalisms import newton_euler as ne
@@ -175,8 +177,7 @@ def test_double_pendulum_space_jacobian_gives_article_eq_5(ls, state):
     V = J_s @ [w1, w2]
     p = (kin.poses[1] @ [0.0, -l2, 0.0, 1.0])[:3]
     p_dot = V[3:] + np.cross(V[:3], p)
-    J5 = np.array([[l1 * np.cos(t1) + l2 * np.cos(t1 + t2), l2 * np.cos(t1 + t2)],
-                   [l1 * np.sin(t1) + l2 * np.sin(t1 + t2), l2 * np.sin(t1 + t2)]])
+    J5 = endpoint_jacobian((t1, t2), l1, l2)  # eq. (5)
     np.testing.assert_allclose(p_dot[:2], J5 @ [w1, w2], rtol=0, atol=1e-13)
     assert p_dot[2] == 0.0
     np.testing.assert_allclose(p, [l1 * np.sin(t1) + l2 * np.sin(t1 + t2),                      # eq. (4)
@@ -188,12 +189,7 @@ def test_double_pendulum_inverse_dynamics_matches_eqs_6_to_8(ms, ls, state):
     (m1, m2), (l1, l2), (t1, t2, w1, w2) = ms, ls, state
     model = cases.load("double_pendulum", m1=m1, m2=m2, l1=l1, l2=l2)
     q, qd, zero = np.array([t1, t2]), np.array([w1, w2]), np.zeros(2)
-    c2, c = np.cos(t2), m2 * l1 * l2 * np.sin(t2)
-    M = np.array([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, m2 * l2**2 + m2 * l1 * l2 * c2],
-                  [m2 * l2**2 + m2 * l1 * l2 * c2, m2 * l2**2]])                                    # eq. (6)
-    Cqd = np.array([-2 * c * w1 * w2 - c * w2**2, c * w1**2])                                       # eq. (7)
-    s12 = np.sin(t1 + t2)
-    g = np.array([(m1 + m2) * G * l1 * np.sin(t1) + m2 * G * l2 * s12, m2 * G * l2 * s12])          # eq. (8)
+    M, Cqd, g = pendulum_terms(q, qd, m1, m2, l1, l2, g=G)  # eqs. (6), (7), (8)
     scale = 1e-13 * (1 + np.abs(M).max() * (1 + qd @ qd) + np.abs(g).max())
     np.testing.assert_allclose(dynamics.mass_matrix(model, q), M, rtol=0, atol=scale)
     np.testing.assert_allclose(dynamics.inverse_dynamics(model, q, qd, zero, gravity=False), Cqd, rtol=0, atol=scale)

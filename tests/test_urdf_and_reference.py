@@ -18,6 +18,7 @@ import cases
 from cases import Body, ModelError, UrdfError, build_model, from_urdf
 from crosscheck.reference import REFERENCE, split, to_pinocchio
 from formalisms.interface import conditioning
+from closed_forms import inv2, pendulum_terms
 
 PANDA_LINKS = [f"panda_link{i}" for i in range(1, 8)] + ["panda_leftfinger", "panda_rightfinger"]
 
@@ -246,27 +247,10 @@ def test_missing_and_unparsable_files_name_the_path(tmp_path):
 # ------------------------------------------------------------------------------- reference vs closed forms
 
 
-def _article_terms(t1, t2, d1, d2, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
-    """Article eqs. (6), (7), (8) written out."""
-    c2 = np.cos(t2)
-    M = np.array([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, m2 * l2**2 + m2 * l1 * l2 * c2],
-                  [m2 * l2**2 + m2 * l1 * l2 * c2, m2 * l2**2]])
-    c = m2 * l1 * l2 * np.sin(t2)
-    Cqd = np.array([-2 * c * d1 * d2 - c * d2**2, c * d1**2])
-    grav = np.array([(m1 + m2) * g * l1 * np.sin(t1) + m2 * g * l2 * np.sin(t1 + t2),
-                     m2 * g * l2 * np.sin(t1 + t2)])
-    return M, Cqd, grav
-
-
-def _inv2(M):
-    det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
-    return np.array([[M[1, 1], -M[0, 1]], [-M[1, 0], M[0, 0]]]) / det
-
-
 def test_reference_split_matches_article_4_7_3():
     q, qd, tau = np.array([np.pi / 4, np.pi / 6]), np.array([2.0, -1.0]), np.array([5.0, -2.0])
-    M, Cqd, grav = _article_terms(*q, *qd)
-    Minv = _inv2(M)
+    M, Cqd, grav = pendulum_terms(q, qd)
+    Minv = inv2(M)
     s = split(cases.load("double_pendulum"), q, qd, tau)
     _close(s.drift, -Minv @ (Cqd + grav), 1e-12)
     _close(s.ctrl, Minv @ tau, 1e-12)
@@ -286,7 +270,7 @@ def test_reference_with_other_parameters_and_random_states():
     rng = np.random.default_rng(5)
     for _ in range(10):
         q, qd, tau = rng.uniform(-3, 3, 2), rng.uniform(-3, 3, 2), rng.uniform(-5, 5, 2)
-        M, Cqd, grav = _article_terms(*q, *qd, **p)
+        M, Cqd, grav = pendulum_terms(q, qd, **p)
         s = REFERENCE.split(model, q, qd, tau)
         _close(s.drift, np.linalg.solve(M, -(Cqd + grav)), 1e-11)
         _close(s.ctrl, np.linalg.solve(M, tau), 1e-11)
@@ -300,10 +284,10 @@ def test_reference_respects_our_coordinate_order_when_bodies_are_listed_child_fi
         Body("link1", None, "revolute", z, 1.0, com=(0, -1.0, 0)),
     ], gravity=(0, -9.81, 0))
     q, qd, tau = np.array([np.pi / 6, np.pi / 4]), np.array([-1.0, 2.0]), np.array([-2.0, 5.0])  # (theta2, theta1)
-    M, Cqd, grav = _article_terms(q[1], q[0], qd[1], qd[0])
+    M, Cqd, grav = pendulum_terms(q[::-1], qd[::-1])
     s = split(reordered, q, qd, tau)
-    _close(s.drift, (-_inv2(M) @ (Cqd + grav))[::-1], 1e-12)
-    _close(s.ctrl, (_inv2(M) @ tau[::-1])[::-1], 1e-12)
+    _close(s.drift, (-inv2(M) @ (Cqd + grav))[::-1], 1e-12)
+    _close(s.ctrl, (inv2(M) @ tau[::-1])[::-1], 1e-12)
 
 
 def test_reference_is_pure():
