@@ -9,7 +9,7 @@ The split is article eq. (9): ``qdd = qdd_drift + qdd_ctrl`` with ``qdd_drift`` 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -52,6 +52,8 @@ class Split:
     task_drift           classical acceleration (second time derivative of position, not spatial) of the model's
                          default task point ``model.task_point()`` at the drift, in its task coordinates
                          ``x_task = D p`` (eq. 23); UNSUPPORTED from a formalism without point kinematics.
+    kinetic_energy       ``T = 1/2 qd^T M qd`` (J) at the state, from this formalism's own bookkeeping; chart- and
+                         frame-invariant (article 9.1); UNSUPPORTED when a formalism does not report it.
     conditions           condition numbers of the method-specific matrices this formalism inverted, by name
                          (operational space: ``"task"`` = cond(J M^-1 J^T)); the harness declares the state a
                          BREAKDOWN of this formalism above the limits in ``crosscheck.tolerance``.
@@ -74,6 +76,7 @@ class Split:
     extras: Mapping[str, Any] = field(default_factory=dict)
     task_drift: np.ndarray | Unsupported = UNSUPPORTED
     conditions: Mapping[str, float] = field(default_factory=dict)
+    kinetic_energy: float | Unsupported = UNSUPPORTED
 
     @property
     def additivity(self) -> np.ndarray:
@@ -85,13 +88,34 @@ class Split:
         return getattr(self, name)
 
 
+class Chart(Protocol):
+    """A coordinate chart ``q = psi(p)`` of the configuration manifold (article 6.4.6, 9.1; DESIGN.md, charts).
+
+    ``psi`` is written once against the scalar operations every symbolic library shares, so a formalism
+    evaluates it in its own language (numbers, casadi, SymEngine) and differentiates it itself: it takes the
+    chart coordinates as a sequence of scalars and the library's ``sin`` and ``cos``, and returns the joint
+    coordinates as a list. ``key`` is a stable digest of the chart's definition, for caches.
+    """
+
+    name: str
+    key: str
+
+    def psi(self, p: Sequence, sin: Callable, cos: Callable) -> list: ...
+
+
 @dataclass(frozen=True)
 class Formalism:
-    """A named formulation of rigid-body dynamics behind the shared ``split`` contract."""
+    """A named formulation of rigid-body dynamics behind the shared ``split`` contract.
+
+    ``split_chart(model, chart, p, pd, tau_p)``, when present, evaluates the same split directly in the chart
+    ``q = psi(p)``: state ``(p, pd)``, the generalized force ``tau_p`` a covector in that chart, and the
+    returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
+    """
 
     name: str
     summary: str
     split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]
+    split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
 
 
 def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -162,7 +186,7 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
 
 
 def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None,
-                        task_drift=UNSUPPORTED, conditions=None) -> Split:
+                        task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED) -> Split:
     """Assemble the :class:`Split` of an unconstrained model (no multipliers, no constraint power)."""
     n = len(qd)
     for label, value in (("drift", drift), ("ctrl", ctrl), ("total", total)):
@@ -173,4 +197,5 @@ def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale
                  power_ctrl=p, power_ctrl_per_coord=_readonly(per), power_constr=None, power_constr_per_coord=None,
                  cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}),
                  task_drift=task_drift if isinstance(task_drift, Unsupported) else _readonly(task_drift),
-                 conditions={k: float(v) for k, v in (conditions or {}).items()})
+                 conditions={k: float(v) for k, v in (conditions or {}).items()},
+                 kinetic_energy=kinetic_energy if isinstance(kinetic_energy, Unsupported) else float(kinetic_energy))

@@ -10,6 +10,8 @@ for every backend, so they are written out from the article's equations only:
 * ``article_g``          eq. (8)  gravity terms
 * ``pendulum_terms``     eqs. (6), (7), (8) together
 * ``inv2``               the 2x2 inverse of section 4.7.2
+* ``absolute_terms``     (M, C qd, g) in absolute angles ``phi = (theta1, theta1 + theta2)`` (section 6.4.6),
+                         from the Lagrangian written directly in phi (derivation in its docstring)
 
 Not a test module (no ``test_`` prefix): the test files import it as ``from closed_forms import ...``, which works
 because pytest's default ("prepend") import mode puts this directory on ``sys.path`` (there is no
@@ -62,3 +64,21 @@ def inv2(M):
     (the article writes M12^2: M is symmetric)."""
     det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
     return np.array([[M[1, 1], -M[0, 1]], [-M[1, 0], M[0, 0]]]) / det
+
+
+def absolute_terms(phi, phid, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
+    """(M, C qd, g) of the double pendulum in absolute angles phi = (theta1, theta1 + theta2) (article 6.4.6).
+
+    Written from the Lagrangian in phi, not by transforming eqs. (6)-(8): the masses sit at
+    (l1 sin phi1, -l1 cos phi1) and that plus (l2 sin phi2, -l2 cos phi2), so with d = phi1 - phi2
+        T = 1/2 (m1 + m2) l1^2 phi1d^2 + 1/2 m2 l2^2 phi2d^2 + m2 l1 l2 cos(d) phi1d phi2d,
+        V = -(m1 + m2) g l1 cos phi1 - m2 g l2 cos phi2,
+    and Lagrange's equations give M = [[(m1 + m2) l1^2, m2 l1 l2 cos d], [m2 l1 l2 cos d, m2 l2^2]],
+    C qd = m2 l1 l2 sin(d) [phi2d^2, -phi1d^2], g = [(m1 + m2) g l1 sin phi1, m2 g l2 sin phi2].
+    """
+    d = phi[0] - phi[1]
+    k = m2 * l1 * l2
+    M = np.array([[(m1 + m2) * l1**2, k * np.cos(d)], [k * np.cos(d), m2 * l2**2]])
+    Cqd = k * np.sin(d) * np.array([phid[1] ** 2, -phid[0] ** 2])
+    grav = np.array([(m1 + m2) * g * l1 * np.sin(phi[0]), m2 * g * l2 * np.sin(phi[1])])
+    return M, Cqd, grav

@@ -1,0 +1,222 @@
+"""Coordinate charts ``q = psi(p)`` and the maps that carry a state and its answers into them (article 6.4.6,
+9.1; DESIGN.md, charts).
+
+A chart is a named diffeomorphism with its Jacobian ``Dpsi`` and the term ``(d/dt Dpsi) pd``. Under it
+
+    qd  = Dpsi pd                          velocities are vectors,
+    tau_p = Dpsi^T tau_q                   generalized forces are covectors,
+    pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)   accelerations pick up the chart's own velocity-product term.
+
+The physics is the same in every chart; a formalism that evaluates in p (``Formalism.split_chart``) receives the
+chart object and evaluates ``psi`` in its own symbolic language, so its Jacobians are its own. The harness uses
+the analytic Jacobians written here to map every joint-chart answer into p and compare.
+
+Built-in charts: ``identity``; ``absolute`` (planar serial chains: ``phi_i = theta_1 + ... + theta_i``, 6.4.6);
+``affine`` (``q = A p + b``, a random well-conditioned A, seeded per case); ``nonlinear``
+(``q_i = p_i + a sin(p_{i+1})``, last coordinate unchanged: ``Dpsi`` is unit upper triangular, so the chart is
+a global diffeomorphism for every a, inverted by back substitution).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from cases.model import Model
+from crosscheck.sampling import case_rng
+
+
+class ChartError(ValueError):
+    """A chart that does not apply to a model, or an unknown chart name."""
+
+
+@dataclass(frozen=True)
+class Chart:
+    """Base of the built-in charts: the generic ``psi`` and its numeric inverse, Jacobian and Jacobian rate."""
+
+    name: str
+
+    @property
+    def key(self) -> str:
+        """A stable digest of the definition (name and parameters), for caches keyed by chart."""
+        return hashlib.sha256(repr((type(self).__name__, self._params())).encode()).hexdigest()[:16]
+
+    def _params(self) -> tuple:
+        return ()
+
+    def psi(self, p: Sequence, sin: Callable = math.sin, cos: Callable = math.cos) -> list:
+        raise NotImplementedError
+
+    def q_of(self, p) -> np.ndarray:
+        """``q = psi(p)`` in floating point."""
+        return np.array(self.psi(list(np.asarray(p, dtype=float)), math.sin, math.cos), dtype=float)
+
+    def p_of(self, q) -> np.ndarray:
+        """The inverse ``p = psi^-1(q)``."""
+        raise NotImplementedError
+
+    def jacobian(self, p) -> np.ndarray:
+        """``Dpsi(p) = dq/dp`` (n x n)."""
+        raise NotImplementedError
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        """``(d/dt Dpsi) pd``: the acceleration ``q`` has when ``pdd = 0`` (n)."""
+        raise NotImplementedError
+
+
+def _number(x: float) -> float | int:
+    """Integral coefficients as ints, so a symbolic library keeps them exact (1*p stays p, -1*p stays -p)."""
+    return int(x) if float(x).is_integer() else float(x)
+
+
+@dataclass(frozen=True)
+class AffineChart(Chart):
+    """``q = A p + b``: constant Jacobian, no rate term. ``identity`` and ``absolute`` are instances."""
+
+    A: np.ndarray = field(default_factory=lambda: np.eye(1))
+    b: np.ndarray = field(default_factory=lambda: np.zeros(1))
+
+    def _params(self) -> tuple:
+        return (np.asarray(self.A).tolist(), np.asarray(self.b).tolist())
+
+    def psi(self, p, sin=math.sin, cos=math.cos) -> list:
+        n, out = len(p), []
+        for i in range(n):
+            terms = [p[j] if self.A[i, j] == 1.0 else _number(self.A[i, j]) * p[j]
+                     for j in range(n) if self.A[i, j] != 0.0]
+            if self.b[i] != 0.0:
+                terms.append(_number(self.b[i]))
+            q_i = terms[0]
+            for t in terms[1:]:
+                q_i = q_i + t
+            out.append(q_i)
+        return out
+
+    def p_of(self, q) -> np.ndarray:
+        return np.linalg.solve(self.A, np.asarray(q, dtype=float) - self.b)
+
+    def jacobian(self, p) -> np.ndarray:
+        return np.array(self.A, dtype=float)
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        return np.zeros(len(pd))
+
+
+@dataclass(frozen=True)
+class NonlinearChart(Chart):
+    """``q_i = p_i + a sin(p_{i+1})`` for i < n-1, ``q_{n-1} = p_{n-1}``."""
+
+    a: float = 0.5
+
+    def _params(self) -> tuple:
+        return (float(self.a),)
+
+    def psi(self, p, sin=math.sin, cos=math.cos) -> list:
+        n = len(p)
+        return [p[i] + self.a * sin(p[i + 1]) if i + 1 < n else p[i] for i in range(n)]
+
+    def p_of(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        p = q.copy()
+        for i in range(len(q) - 2, -1, -1):
+            p[i] = q[i] - self.a * math.sin(p[i + 1])
+        return p
+
+    def jacobian(self, p) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        return np.eye(len(p)) + np.diag(self.a * np.cos(p[1:]), 1)
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        p, pd = np.asarray(p, dtype=float), np.asarray(pd, dtype=float)
+        return np.append(-self.a * np.sin(p[1:]) * pd[1:] ** 2, 0.0)
+
+
+def identity(n: int) -> AffineChart:
+    return AffineChart("identity", np.eye(n), np.zeros(n))
+
+
+def is_planar_serial(model: Model) -> bool:
+    """A single chain of revolute joints whose axes are all parallel in the world (the chain is planar)."""
+    if any(model.parent_index[i] != i - 1 for i in range(model.n)):
+        return False
+    if any(b.joint != "revolute" for b in model.bodies):
+        return False
+    R, axes = np.eye(3), []
+    for body in model.bodies:  # joint rotations are about the axis itself, so the axis direction needs the
+        R = R @ body.rotation  # fixed placements only
+        axes.append(R @ body.axis)
+    return all(np.linalg.norm(np.cross(axes[0], a)) < 1e-12 for a in axes)
+
+
+def absolute(model: Model) -> AffineChart:
+    """Absolute angles ``phi_i = theta_1 + ... + theta_i`` (article 6.4.6): ``q = psi(phi)`` with
+    ``theta_1 = phi_1``, ``theta_i = phi_i - phi_{i-1}``."""
+    if not is_planar_serial(model):
+        raise ChartError(f"chart 'absolute' needs a planar serial chain of revolute joints with parallel axes; "
+                         f"model '{model.name}' is not one")
+    n = model.n
+    return AffineChart("absolute", np.eye(n) - np.eye(n, k=-1), np.zeros(n))
+
+
+def random_affine(model: Model, seed: int, case: str, max_cond: float = 10.0) -> AffineChart:
+    """``q = A p + b`` with ``A = I + G / sqrt(n)`` (G standard normal) redrawn until cond(A) <= max_cond, and b
+    uniform in +-1; seeded by (seed, case), so the same gate run always uses the same chart."""
+    rng = case_rng(seed, case + "/affine")
+    n = model.n
+    while True:
+        A = np.eye(n) + rng.standard_normal((n, n)) / np.sqrt(n)
+        if np.linalg.cond(A) <= max_cond:
+            return AffineChart("affine", A, rng.uniform(-1.0, 1.0, n))
+
+
+def nonlinear(model: Model, a: float = 0.5) -> NonlinearChart:
+    return NonlinearChart("nonlinear", a)
+
+
+def names() -> list[str]:
+    return ["identity", "absolute", "affine", "nonlinear"]
+
+
+def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Chart:
+    """The built-in chart ``name`` for ``model`` (``affine`` is drawn from ``seed`` and the case name)."""
+    case = model.name if case is None else case
+    makers = {"identity": lambda: identity(model.n), "absolute": lambda: absolute(model),
+              "affine": lambda: random_affine(model, seed, case), "nonlinear": lambda: nonlinear(model)}
+    if name not in makers:
+        raise ChartError(f"unknown chart '{name}'; valid charts: {', '.join(makers)}")
+    return makers[name]()
+
+
+def sampled(model: Model, seed: int, case: str) -> list[Chart]:
+    """The charts the gate checks for a model: every built-in one but identity (the joint chart itself), with
+    ``absolute`` only for a planar serial chain."""
+    return [get(name, model, seed, case) for name in names()
+            if name != "identity" and (name != "absolute" or is_planar_serial(model))]
+
+
+def velocity_to_chart(chart: Chart, p, qd) -> np.ndarray:
+    """``pd = Dpsi^-1 qd``."""
+    return np.linalg.solve(chart.jacobian(p), np.asarray(qd, dtype=float))
+
+
+def acceleration_to_chart(chart: Chart, p, pd, qdd, with_rate: bool = True) -> np.ndarray:
+    """``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``; ``with_rate=False`` for a part of the acceleration that is
+    linear in the input (the control contribution), which carries no velocity term."""
+    qdd = np.asarray(qdd, dtype=float)
+    if with_rate:
+        qdd = qdd - chart.jacobian_rate(p, pd)
+    return np.linalg.solve(chart.jacobian(p), qdd)
+
+
+def force_to_chart(chart: Chart, p, tau_q) -> np.ndarray:
+    """``tau_p = Dpsi^T tau_q``: a generalized force is a covector."""
+    return chart.jacobian(p).T @ np.asarray(tau_q, dtype=float)
+
+
+def force_from_chart(chart: Chart, p, tau_p) -> np.ndarray:
+    """``tau_q = Dpsi^-T tau_p``."""
+    return np.linalg.solve(chart.jacobian(p).T, np.asarray(tau_p, dtype=float))
