@@ -1,21 +1,33 @@
-"""Euler–Lagrange formalism (article 4.7.1): the dynamics from the energies, derived symbolically.
+"""Euler–Lagrange formalism (article 4.7.1): the dynamics from the energies, derived symbolically, in the joint
+coordinates or in any chart ``q = psi(p)`` (article 6.4.6, 9.1; DESIGN.md, charts).
 
-Derivation (symbolic, from the model data alone):
-  1. Body poses ``R_i(q)``, ``p_i(q)`` by composing the fixed joint placements and the joint motions.
+Derivation (symbolic, from the model data and the chart alone), in coordinates ``p`` with rates ``pd``:
+  0. The joint coordinates as functions of the chart's: ``q_k = psi_k(p)``, each a named intermediate, so the
+     Jacobian entries ``Dpsi_kj = dq_k/dp_j`` are named intermediates of the chain rule too. In the joint chart
+     (``chart=None``, or a chart whose ``psi`` is literally the identity) ``q_k`` *is* the coordinate ``p_k``,
+     and every step below is the joint-coordinate derivation (same expressions, same code path).
+  1. Body poses ``R_i``, ``p_i`` by composing the fixed joint placements and the joint motions; ``sin q_k`` and
+     ``cos q_k`` are named intermediates with seeded derivatives ``d sin(q_k)/dp_j = cos(q_k) Dpsi_kj``.
   2. Kinetic energy ``T = sum_i 1/2 m_i |c_i_dot|^2 + 1/2 tr(R_i_dot J_i R_i_dot^T)`` with ``c_i`` the COM,
-     ``R_i_dot = sum_k dR_i/dq_k qd_k`` and ``J_i = 1/2 tr(I_i) 1 - I_i`` (the rotational energy
-     ``1/2 w^T I w`` written with the rotation matrix's rate, so no angular velocity is formed).
+     ``R_i_dot = sum_j dR_i/dp_j pd_j`` (so the joint rates enter as ``qd = Dpsi pd``: the Lagrangian with
+     ``q = psi(p)`` substituted) and ``J_i = 1/2 tr(I_i) 1 - I_i`` (the rotational energy ``1/2 w^T I w``
+     written with the rotation matrix's rate, so no angular velocity is formed).
      Potential energy ``V = -sum_i m_i gravity . c_i``.
-  3. ``M = d^2 T / d qd^2`` (section 4.7.1 step 1), ``g = dV/dq`` (step 2, eq. 8) and the velocity-product
-     vector from the Christoffel symbols of the first kind (step 3):
-     ``(C qd)_i = sum_jk 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) qd_j qd_k``.
+  3. ``M = d^2 T / d pd^2`` (section 4.7.1 step 1, eq. 6), ``g = dV/dp`` (step 2, eq. 8) and the velocity-product
+     vector from the Christoffel symbols of the first kind of the metric M in these coordinates (step 3, eq. 7;
+     the connection of eq. 24): ``(C pd)_i = sum_jk 1/2 (dM_ij/dp_k + dM_ik/dp_j - dM_jk/dp_i) pd_j pd_k``.
+In a chart these are the chart's own M_p, C_p pd and g_p (different entries, article 6.4.6), never the joint
+ones mapped; the accelerations they give are the chart's ``pdd``, equal to the joint ones mapped by
+``qdd = Dpsi pdd + (d/dt Dpsi) pd`` (9.1), which is what the tests check.
 The derivation is staged: every pose entry and every derivative of one is a named intermediate, and
 derivatives go through a memoized chain rule (forward-mode differentiation done symbolically), so the
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
 project with sympy's API, because pure-Python sympy takes minutes on a 9-joint arm.
-Compilation: common-subexpression elimination, then plain Python source evaluated with ``math``. The source
-is cached on disk keyed by the model digest and a hash of this module, so a second process loads it instead
-of re-deriving. Solving: Cholesky factorization of M, never an explicit inverse.
+Compilation: plain Python source evaluated with ``math``, the staged definitions in order with repeated
+subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); it returns M, C pd, g and the
+kinetic energy T at the state. The source is cached on disk keyed by the model digest, the
+chart's key (``"identity"`` for the joint chart) and a hash of this module, so a second process loads it
+instead of re-deriving. Solving: Cholesky factorization of M, never an explicit inverse.
 """
 
 from __future__ import annotations
@@ -26,15 +38,18 @@ import math
 import os
 import tempfile
 from pathlib import Path
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import scipy.linalg
 import symengine as sp
 
 from cases.model import Model
-from formalisms.interface import Formalism, check_state, conditioning, factor_mass_matrix, unconstrained_split
+from formalisms.interface import (Chart, Formalism, chart_vectors, check_state, conditioning,
+                                  factor_mass_matrix, unconstrained_split)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
+JOINT_CHART = "identity"  # the cache key of the joint chart q = p
 
 
 def _exact(x: float) -> sp.Expr:
@@ -55,15 +70,19 @@ def _skew(a: sp.DenseMatrix) -> sp.DenseMatrix:
 class _Staged:
     """Named intermediate expressions with a memoized chain rule: forward-mode differentiation, symbolically.
 
-    Every pose entry, and every derivative of one, becomes a symbol whose definition uses only earlier
-    symbols. ``diff(expr, k)`` is the total derivative of ``expr`` by ``q_k`` through all of them, so
-    differentiating T twice and M once never expands the kinematic chain (which grows exponentially).
+    ``coordinates`` are the symbols the derivation differentiates by (the chart's ``p``); ``joint[k]`` is the
+    joint coordinate ``q_k`` as a function of them (the coordinate itself in the joint chart, else a named
+    intermediate ``psi_k(p)``, set by :meth:`set_joint`). Every pose entry, and every derivative of one, becomes
+    a symbol whose definition uses only earlier symbols. ``diff(expr, j)`` is the total derivative of ``expr``
+    by ``p_j`` through all of them, so differentiating T twice and M once never expands the kinematic chain
+    (which grows exponentially), and the chart's Jacobian ``Dpsi_kj = diff(q_k, j)`` is a named intermediate.
     """
 
-    def __init__(self, q: list[sp.Symbol]):
-        self.q = q
+    def __init__(self, coordinates: list[sp.Symbol]):
+        self.coordinates = coordinates
+        self.joint: list[sp.Expr] = list(coordinates)
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
-        self._coordinate = {s: k for k, s in enumerate(q)}
+        self._coordinate = {s: k for k, s in enumerate(coordinates)}
         self._depends: dict[sp.Symbol, frozenset[int]] = {}
         self._derivative: dict[tuple[sp.Symbol, int], sp.Expr] = {}
         self._count = 0
@@ -76,21 +95,34 @@ class _Staged:
         s = sp.Symbol(f"w{self._count}")
         self._count += 1
         self.definitions[s] = expr
-        self._depends[s] = frozenset().union(*(
-            self._depends.get(f, frozenset({self._coordinate[f]}) if f in self._coordinate else frozenset())
-            for f in expr.free_symbols))
+        self._depends[s] = self.dependencies(expr)
         return s
 
+    def dependencies(self, expr) -> frozenset[int]:
+        """The indices of the coordinates ``expr`` depends on, through the intermediates."""
+        return frozenset().union(*(
+            self._depends.get(f, frozenset({self._coordinate[f]}) if f in self._coordinate else frozenset())
+            for f in sp.sympify(expr).free_symbols))
+
+    def set_joint(self, psi: Sequence) -> None:
+        """The joint coordinates ``q_k = psi_k(p)``, each named (a coordinate or a number stays itself)."""
+        self.joint = [self.name(e) for e in psi]
+
     def angle(self, k: int) -> tuple[sp.Symbol, sp.Symbol]:
-        """Symbols for ``sin(q_k)`` and ``cos(q_k)`` with their derivatives seeded."""
-        s, c = self.name(sp.sin(self.q[k])), self.name(sp.cos(self.q[k]))
-        self._derivative[(s, k)], self._derivative[(c, k)] = c, -s
+        """Symbols for ``sin(q_k)`` and ``cos(q_k)`` with their derivatives seeded: ``d sin(q_k)/dp_j =
+        cos(q_k) dq_k/dp_j`` and ``d cos(q_k)/dp_j = -sin(q_k) dq_k/dp_j`` (in the joint chart ``dq_k/dp_k = 1``:
+        ``cos(q_k)`` and ``-sin(q_k)``)."""
+        q = self.joint[k]
+        s, c = self.name(sp.sin(q)), self.name(sp.cos(q))
+        for j in sorted(self.dependencies(q)):
+            dq = self.diff(q, j)
+            self._derivative[(s, j)], self._derivative[(c, j)] = c * dq, -s * dq
         return s, c
 
     def diff(self, expr: sp.Expr, k: int) -> sp.Expr:
-        """Total derivative ``d expr / d q_k``: sum and product rules in one pass, chain rule at symbols."""
+        """Total derivative ``d expr / d p_k``: sum and product rules in one pass, chain rule at symbols."""
         memo: dict = {}
-        qk = self.q[k]
+        pk = self.coordinates[k]
 
         def d(e):
             if e in memo:
@@ -98,7 +130,7 @@ class _Staged:
             if e.is_Number:
                 r = ZERO
             elif e.is_Symbol:
-                r = ONE if e == qk else (
+                r = ONE if e == pk else (
                     self._derivative_of(e, k) if k in self._depends.get(e, ()) else ZERO)
             elif e.is_Add:
                 r = sp.Add(*[d(a) for a in e.args])
@@ -107,21 +139,26 @@ class _Staged:
                 r = sp.Add(*[sp.Mul(*a[:i], da, *a[i + 1:]) for i in range(len(a)) if (da := d(a[i])) != 0])
             elif e.is_Pow and e.exp.is_Number:
                 r = e.exp * e.base ** (e.exp - 1) * d(e.base)
+            elif isinstance(e, sp.sin):  # only in a chart's psi: sin/cos of a joint coordinate are seeded symbols
+                r = sp.cos(e.args[0]) * d(e.args[0])
+            elif isinstance(e, sp.cos):
+                r = -sp.sin(e.args[0]) * d(e.args[0])
             else:
-                r = e.diff(qk)  # sin/cos of a coordinate only appear inside seeded definitions
+                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} (a chart's psi may use +, -, *, /, "
+                                "integer powers, sin and cos)")
             memo[e] = r
             return r
 
-        return d(expr)
+        return d(sp.sympify(expr))
 
     def _derivative_of(self, s: sp.Symbol, k: int) -> sp.Expr:
         if (s, k) not in self._derivative:
             self._derivative[(s, k)] = self.name(self.diff(self.definitions[s], k))
         return self._derivative[(s, k)]
 
-    def rate(self, m: sp.DenseMatrix, qd) -> sp.DenseMatrix:
-        """Time derivative along the motion: ``sum_k d(m)/dq_k qd_k``."""
-        return m.applyfunc(lambda e: sp.Add(*[self.diff(e, k) * qd[k] for k in range(len(qd))]))
+    def rate(self, m: sp.DenseMatrix, pd) -> sp.DenseMatrix:
+        """Time derivative along the motion: ``sum_j d(m)/dp_j pd_j``."""
+        return m.applyfunc(lambda e: sp.Add(*[self.diff(e, k) * pd[k] for k in range(len(pd))]))
 
     def needed(self, exprs) -> list[tuple[sp.Symbol, sp.Expr]]:
         """The definitions the expressions use, transitively, in an order that evaluates (creation order)."""
@@ -142,7 +179,7 @@ def _joint_rotation(axis: sp.DenseMatrix, s: sp.Symbol, c: sp.Symbol) -> sp.Dens
 
 
 def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatrix]]:
-    """World rotation and origin of every body frame as staged functions of q (module docstring, step 1)."""
+    """World rotation and origin of every body frame as staged functions of p (module docstring, step 1)."""
     poses: list = [None] * model.n
     for i in model.topological_order:
         body = model.bodies[i]
@@ -154,124 +191,227 @@ def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatr
         if body.joint == "revolute":
             R, p = R_joint * _joint_rotation(axis, *st.angle(i)), p_joint
         else:
-            R, p = R_joint, p_joint + R_joint * axis * st.q[i]
+            R, p = R_joint, p_joint + R_joint * axis * st.joint[i]
         poses[i] = (R.applyfunc(st.name), p.applyfunc(st.name))
     return poses
 
 
-def _energies(model: Model, st: _Staged, qd) -> tuple[sp.Expr, sp.Expr]:
-    """Kinetic energy T(q, qd) and potential energy V(q) of the whole tree (module docstring, step 2)."""
+def _energies(model: Model, st: _Staged, pd) -> tuple[sp.Expr, sp.Expr]:
+    """Kinetic energy T(p, pd) and potential energy V(p) of the whole tree (module docstring, step 2)."""
     T, V = ZERO, ZERO
     gravity = _matrix(model.gravity)
     for body, (R, p) in zip(model.bodies, _poses(model, st)):
         c = (p + R * _matrix(body.com)).applyfunc(st.name)
-        c_dot = st.rate(c, qd)
+        c_dot = st.rate(c, pd)
         T += HALF * _exact(body.mass) * (c_dot.T * c_dot)[0]
         if np.any(body.inertia):
             J = _matrix(0.5 * np.trace(body.inertia) * np.eye(3) - body.inertia)
-            R_dot = st.rate(R, qd)
+            R_dot = st.rate(R, pd)
             RJR = R_dot * J * R_dot.T
             T += HALF * (RJR[0, 0] + RJR[1, 1] + RJR[2, 2])
         V -= _exact(body.mass) * (gravity.T * c)[0]
     return T, V
 
 
-def derive(model: Model):
-    """Symbolic ``M(q)``, ``C(q, qd) qd`` and ``g(q)`` from the energies (article 4.7.1, eqs. 6–8).
+# ----------------------------------------------------------------------------------------------------------
+# Charts
+# ----------------------------------------------------------------------------------------------------------
 
-    Returns (M, Cqd, g, q, qd, staged): the expressions use the staged intermediates, whose definitions
-    ``staged.needed(...)`` lists in evaluation order.
-    """
+def _psi(model: Model, chart: Chart, p: list) -> list:
+    """``chart.psi`` evaluated on SymEngine symbols (the chart is written against generic scalar operations)."""
+    if not callable(getattr(chart, "psi", None)):
+        raise TypeError(f"Euler–Lagrange: {chart!r} is not a chart (no psi(p, sin, cos))")
+    q = list(chart.psi(list(p), sp.sin, sp.cos))
+    name = getattr(chart, "name", "?")
+    if len(q) != model.n:
+        raise ValueError(f"chart '{name}' returns {len(q)} joint coordinates but model '{model.name}' has "
+                         f"{model.n}")
+    q = [sp.sympify(e) for e in q]
+    stray = set().union(*(e.free_symbols for e in q)) - set(p)
+    if stray:
+        raise ValueError(f"chart '{name}': psi uses symbols {sorted(map(str, stray))} that are not coordinates")
+    return q
+
+
+_JOINT_CHART_MEMO: dict[tuple[int, str], bool] = {}
+
+
+def chart_key(model: Model, chart: Chart | None) -> str:
+    """The cache key of a chart: ``"identity"`` for ``None`` and for a chart whose ``psi`` returns its
+    coordinates unchanged (the joint chart, whatever it is called), else ``chart.key``."""
+    if chart is None:
+        return JOINT_CHART
+    if not callable(getattr(chart, "psi", None)):
+        raise TypeError(f"Euler–Lagrange: {chart!r} is not a chart (no psi(p, sin, cos))")
+    key = getattr(chart, "key", None)
+    if not isinstance(key, str) or not key:
+        raise TypeError(f"Euler–Lagrange: chart {chart!r} has no key (a stable digest of its definition)")
+    memo = (model.n, key)
+    if memo not in _JOINT_CHART_MEMO:
+        p = list(sp.symbols(f"p0:{model.n}"))
+        _JOINT_CHART_MEMO[memo] = _psi(model, chart, p) == p
+    return JOINT_CHART if _JOINT_CHART_MEMO[memo] else key
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Derivation
+# ----------------------------------------------------------------------------------------------------------
+
+class Derivation(NamedTuple):
+    """The symbolic dynamics in one chart. ``M``, ``Cqd`` (= C pd), ``g``, ``T``, ``V`` use the staged
+    intermediates (``staged.needed(...)`` lists their definitions in evaluation order); ``coordinates`` and
+    ``rates`` are the symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p)."""
+
+    M: sp.DenseMatrix
+    Cqd: sp.DenseMatrix
+    g: sp.DenseMatrix
+    T: sp.Expr
+    V: sp.Expr
+    coordinates: list
+    rates: list
+    joint: list
+    staged: _Staged
+
+
+def derivation(model: Model, chart: Chart | None = None) -> Derivation:
+    """Symbolic ``M``, ``C pd``, ``g`` (article 4.7.1, eqs. 6–8) and the energies T, V in the chart ``q = psi(p)``
+    (article 6.4.6: the Lagrangian with q = psi(p) substituted, then the same three steps); ``chart=None`` (or
+    an identity chart) is the joint chart, derived with the coordinates themselves as q (module docstring)."""
     n = model.n
-    q = list(sp.symbols(f"q0:{n}"))
-    qd = list(sp.symbols(f"qd0:{n}"))
-    st = _Staged(q)
-    T, V = _energies(model, st, qd)
-    dT = [T.diff(v) for v in qd]
+    joint_chart = chart_key(model, chart) == JOINT_CHART
+    letter = "q" if joint_chart else "p"
+    x = list(sp.symbols(f"{letter}0:{n}"))
+    xd = list(sp.symbols(f"{letter}d0:{n}"))
+    st = _Staged(x)
+    if not joint_chart:
+        st.set_joint(_psi(model, chart, x))
+    T, V = _energies(model, st, xd)
+    dT = [T.diff(v) for v in xd]
     M = sp.zeros(n, n)
     for i in range(n):
         for j in range(i, n):
-            M[i, j] = M[j, i] = sp.expand(dT[i].diff(qd[j]))
+            M[i, j] = M[j, i] = sp.expand(dT[i].diff(xd[j]))
     dM = {(i, j, k): st.name(st.diff(M[i, j], k)) for i in range(n) for j in range(i, n) for k in range(n)}
 
     def dm(i, j, k):
         return dM[(min(i, j), max(i, j), k)]
 
     Cqd = sp.DenseMatrix([
-        sp.Add(*[HALF * (dm(i, j, k) + dm(i, k, j) - dm(j, k, i)) * qd[j] * qd[k]
+        sp.Add(*[HALF * (dm(i, j, k) + dm(i, k, j) - dm(j, k, i)) * xd[j] * xd[k]
                  for j in range(n) for k in range(n)])
         for i in range(n)])
     g = sp.DenseMatrix([st.diff(V, i) for i in range(n)])
-    return M, Cqd, g, q, qd, st
+    return Derivation(M, Cqd, g, T, V, x, xd, list(st.joint), st)
 
 
-def _py(e) -> str:
-    """Python source for a symbolic expression; floats print with ``repr`` so they round-trip exactly."""
+def derive(model: Model, chart: Chart | None = None):
+    """``(M, Cqd, g, coordinates, rates, staged)`` of :func:`derivation` (the tuple this module always returned)."""
+    d = derivation(model, chart)
+    return d.M, d.Cqd, d.g, d.coordinates, d.rates, d.staged
+
+
+def _is_atom(e) -> bool:
+    return e.is_Symbol or e.is_Number
+
+
+def _py_atom(e) -> str:
+    """Python source for a symbol or number; floats print with ``repr`` so they round-trip exactly."""
     if e.is_Symbol:
         return str(e)
     if e.is_Integer:
         return str(int(e))
-    if e.is_Number:
-        return repr(float(e))
-    if e.is_Add:
-        return "(" + " + ".join(_py(a) for a in e.args) + ")"
-    if e.is_Mul:
-        return "(" + "*".join(_py(a) for a in e.args) + ")"
-    if e.is_Pow:
-        return f"({_py(e.args[0])}**{_py(e.args[1])})"
-    if isinstance(e, (sp.sin, sp.cos)):
-        return f"{type(e).__name__}({_py(e.args[0])})"
-    raise TypeError(f"Euler–Lagrange codegen: unexpected expression {e!r}")
+    return repr(float(e))
 
 
-def generate_source(model: Model) -> str:
-    """Python source of ``evaluate(q, qd) -> (M_upper, Cqd, g)``: staged definitions, CSE, outputs."""
-    M, Cqd, g, q, qd, st = derive(model)
+class _Source:
+    """Python assignment lines for staged definitions, with common subexpression elimination by tree matching.
+
+    A non-atomic subexpression that occurs more than once anywhere in the expressions (the same node, found by
+    hash) is computed once into a temporary ``x<k>``, emitted just before its first use. This is linear in the
+    size of the expressions; the staging has already named the chain's structure, so matching subsets of sums
+    and products as well (SymEngine's ``cse``) shortens the code little, and is quadratic: 7 s of the 9 s of
+    a cold 9-joint arm, and beyond 15 minutes for that arm in a chart that couples all coordinates.
+    """
+
+    def __init__(self, exprs):
+        counts: dict = {}
+        for e in exprs:
+            stack = [e]
+            while stack:
+                x = stack.pop()
+                if _is_atom(x):
+                    continue
+                seen = x in counts
+                counts[x] = counts.get(x, 0) + 1
+                if not seen:
+                    stack.extend(x.args)
+        self._shared = {x for x, c in counts.items() if c > 1}
+        self._names: dict = {}
+        self.lines: list[str] = []
+
+    def ref(self, e) -> str:
+        """Source for ``e`` as an operand: a temporary when it is shared (emitted on first use), else inline."""
+        if _is_atom(e):
+            return _py_atom(e)
+        if e in self._names:
+            return self._names[e]
+        text = self._inline(e)
+        if e in self._shared:
+            name = f"x{len(self._names)}"
+            self.lines.append(f"    {name} = {text}")
+            self._names[e] = name
+            return name
+        return text
+
+    def assign(self, symbol, e) -> None:
+        """``symbol = e``; a shared ``e`` is thereafter read from ``symbol``."""
+        text = self.ref(e) if _is_atom(e) or e in self._names else self._inline(e)
+        self.lines.append(f"    {symbol} = {text}")
+        if not _is_atom(e) and e in self._shared:
+            self._names.setdefault(e, str(symbol))
+
+    def _inline(self, e) -> str:
+        if e.is_Add:
+            return "(" + " + ".join(self.ref(a) for a in e.args) + ")"
+        if e.is_Mul:
+            return "(" + "*".join(self.ref(a) for a in e.args) + ")"
+        if e.is_Pow:
+            return f"({self.ref(e.args[0])}**{self.ref(e.args[1])})"
+        if isinstance(e, (sp.sin, sp.cos)):
+            return f"{type(e).__name__}({self.ref(e.args[0])})"
+        raise TypeError(f"Euler–Lagrange codegen: unexpected expression {e!r}")
+
+
+def generate_source(model: Model, chart: Chart | None = None) -> str:
+    """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T)`` in the chart: the staged definitions in
+    creation order (each reads only earlier ones), shared subexpressions as temporaries, then the outputs
+    (the arguments are named ``q, qd`` in the joint chart and ``p, pd`` in any other)."""
+    d = derivation(model, chart)
     n = model.n
-    upper = [M[i, j] for i in range(n) for j in range(i, n)]
-    outputs = upper + list(Cqd) + list(g)
-    definitions = st.needed(outputs)
-    exprs = [e for _, e in definitions] + outputs
-    replacements, reduced = sp.cse(exprs)
-    named, reduced = reduced[: len(definitions)], reduced[len(definitions):]
-    # cse hoists shared subexpressions of all definitions first; each definition then follows in order.
-    lines = [f"# Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}), generated by crosscheck",
-             "def evaluate(q, qd):",
-             f"    {', '.join(map(str, q))}, = q",
-             f"    {', '.join(map(str, qd))}, = qd"]
-    lines += _ordered_assignments(replacements, list(zip((s for s, _ in definitions), named)))
-    m_up, rest = reduced[: len(upper)], reduced[len(upper):]
-    lines.append(f"    M_upper = ({', '.join(_py(e) for e in m_up)},)")
-    lines.append(f"    Cqd = ({', '.join(_py(e) for e in rest[:n])},)")
-    lines.append(f"    g = ({', '.join(_py(e) for e in rest[n:])},)")
-    lines.append("    return M_upper, Cqd, g")
-    return "\n".join(lines) + "\n"
+    upper = [d.M[i, j] for i in range(n) for j in range(i, n)]
+    outputs = {"M_upper": upper, "Cqd": list(d.Cqd), "g": list(d.g)}
+    definitions = d.staged.needed(upper + outputs["Cqd"] + outputs["g"] + [d.T])
+    code = _Source([e for _, e in definitions] + [e for v in outputs.values() for e in v] + [d.T])
+    key = chart_key(model, chart)
+    where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
+    x, xd = ("q", "qd") if key == JOINT_CHART else ("p", "pd")
+    for s, e in definitions:
+        code.assign(s, e)
+    for label, exprs in outputs.items():
+        code.lines.append(f"    {label} = ({', '.join(code.ref(e) for e in exprs)},)")
+    code.lines.append(f"    T = {code.ref(d.T)}")
+    return "\n".join([
+        f"# Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by crosscheck",
+        f"def evaluate({x}, {xd}):",
+        f"    {', '.join(map(str, d.coordinates))}, = {x}",
+        f"    {', '.join(map(str, d.rates))}, = {xd}",
+        *code.lines,
+        "    return M_upper, Cqd, g, T"]) + "\n"
 
 
-def _ordered_assignments(*groups) -> list[str]:
-    """Assignment lines for all (symbol, expr) pairs, each after everything it reads (a topological sort)."""
-    pending = {s: e for group in groups for s, e in group}
-    done: set = set()
-    lines: list[str] = []
-
-    def emit(s):
-        stack = [(s, False)]
-        while stack:
-            sym, expanded = stack.pop()
-            if sym in done:
-                continue
-            if expanded:
-                done.add(sym)
-                lines.append(f"    {sym} = {_py(pending[sym])}")
-                continue
-            stack.append((sym, True))
-            stack.extend((f, False) for f in pending[sym].free_symbols if f in pending and f not in done)
-
-    for group in groups:
-        for s, _ in group:
-            emit(s)
-    return lines
-
+# ----------------------------------------------------------------------------------------------------------
+# Caches: on disk (generated source) and in process (compiled function), keyed by (model, chart, this module)
+# ----------------------------------------------------------------------------------------------------------
 
 _DERIVATION_HASH = hashlib.sha256(Path(__file__).read_bytes()).digest()
 
@@ -282,17 +422,22 @@ def _cache_dir() -> Path:
     return Path(root) / "euler_lagrange"
 
 
-def cached_source(model: Model) -> str:
+def cache_key(model: Model, chart: Chart | None = None) -> str:
+    """The disk-cache key: a digest of (model digest, chart key or ``"identity"``, hash of this module)."""
+    parts = (model.digest(), chart_key(model, chart))
+    return hashlib.sha256("\0".join(parts).encode() + b"\0" + _DERIVATION_HASH).hexdigest()[:32]
+
+
+def cached_source(model: Model, chart: Chart | None = None) -> str:
     """The generated source, from the disk cache when present.
 
-    Keyed by the model digest and a hash of this module's own source, so a change to the derivation can
-    never be hidden by code generated before it.
+    Keyed by the model digest, the chart's key and a hash of this module's own source, so a change to the
+    derivation can never be hidden by code generated before it, and one chart's code is never served for another.
     """
-    key = hashlib.sha256(model.digest().encode() + _DERIVATION_HASH).hexdigest()[:32]
-    path = _cache_dir() / f"{key}.py"
+    path = _cache_dir() / f"{cache_key(model, chart)}.py"
     if path.exists():
         return path.read_text()
-    source = generate_source(model)
+    source = generate_source(model, chart)
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as fh:
         fh.write(source)
@@ -300,42 +445,117 @@ def cached_source(model: Model) -> str:
     return source
 
 
+class _ChartRef:
+    """A chart as an in-process cache key: equal and hashed by its key (chart objects may hold arrays, which
+    do not hash)."""
+
+    __slots__ = ("chart", "key")
+
+    def __init__(self, chart: Chart, key: str):
+        self.chart, self.key = chart, key
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _ChartRef) and other.key == self.key
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+
+def _ref(model: Model, chart: Chart | None) -> _ChartRef | None:
+    key = chart_key(model, chart)
+    return None if key == JOINT_CHART else _ChartRef(chart, key)
+
+
 @functools.lru_cache(maxsize=64)
-def _compiled(model: Model):
+def _compiled(model: Model, ref: _ChartRef | None = None):
+    """``evaluate`` compiled from the cached source; keyed by (model, chart key) (None: the joint chart)."""
+    chart = None if ref is None else ref.chart
+    where = "" if ref is None else f" in chart '{chart.name}'"
     namespace = {"sin": math.sin, "cos": math.cos}
-    exec(compile(cached_source(model), f"<euler_lagrange {model.name}>", "exec"), namespace)
+    exec(compile(cached_source(model, chart), f"<euler_lagrange {model.name}{where}>", "exec"), namespace)
     return namespace["evaluate"]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Numbers
+# ----------------------------------------------------------------------------------------------------------
+
+class Terms(NamedTuple):
+    """The numeric dynamics at a state, in the chart it was evaluated in."""
+
+    M: np.ndarray      # mass matrix (n x n)
+    Cqd: np.ndarray    # velocity-product vector C pd
+    g: np.ndarray      # dV/dp
+    T: float           # kinetic energy at the state (J)
+
+
+def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> Terms:
+    """``M``, ``C xd``, ``g`` and ``T`` at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint chart)."""
+    n = model.n
+    M_upper, Cqd, g, T = _compiled(model, _ref(model, chart))(
+        np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())
+    M = np.zeros((n, n))
+    M[np.triu_indices(n)] = M_upper
+    M = M + np.triu(M, 1).T
+    return Terms(M, np.array(Cqd, dtype=float), np.array(g, dtype=float), float(T))
 
 
 def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Numeric ``M(q)``, ``C(q, qd) qd`` and ``g(q)`` of eq. (2) from the compiled derivation."""
-    n = model.n
-    M_upper, Cqd, g = _compiled(model)(q.tolist(), qd.tolist())
-    M = np.zeros((n, n))
-    M[np.triu_indices(n)] = M_upper
-    M = M + np.triu(M, 1).T
-    return M, np.array(Cqd), np.array(g)
+    M, Cqd, g, _ = evaluate_terms(model, q, qd)
+    return M, Cqd, g
+
+
+def _solve(model: Model, M, Cqd, g, tau, x, xd, T, where: str = ""):
+    """The split of eq. (9) from the terms: drift ``-M^-1 (C xd + g)`` (eq. 10), ctrl ``M^-1 tau``, total
+    ``M^-1 (tau - C xd - g)``, each solved on its own with the Cholesky factor of M (never an inverse)."""
+    try:
+        factor = factor_mass_matrix(model, M, x)
+    except ValueError as err:
+        if not where:
+            raise
+        raise ValueError(f"{err} [{where}: the configuration above is the chart coordinate p; the chart's mass "
+                         "matrix Dpsi^T M Dpsi is singular wherever Dpsi is]") from None
+    h = Cqd + g
+    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau, xd)
+    return unconstrained_split(
+        drift=scipy.linalg.cho_solve(factor, -h),
+        ctrl=scipy.linalg.cho_solve(factor, tau),
+        total=scipy.linalg.cho_solve(factor, tau - h),
+        tau_ctrl=tau, qd=xd, cond_M=cond_M, accel_scale=accel_scale, kinetic_energy=T)
 
 
 def split(model: Model, q, qd, u):
-    """Drift ``-M^-1 (C qd + g)`` (eq. 10), control ``M^-1 B u`` and total ``M^-1 (B u - C qd - g)`` (eq. 9)."""
+    """Drift ``-M^-1 (C qd + g)`` (eq. 10), control ``M^-1 B u`` and total ``M^-1 (B u - C qd - g)`` (eq. 9);
+    power ``u . B^T qd`` and the kinetic energy ``T`` from the derived energy. Unconstrained models only."""
     if model.constraints:
         raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
     q, qd, u = check_state(model, q, qd, u)
-    M, Cqd, g = terms(model, q, qd)
-    factor = factor_mass_matrix(model, M, q)
-    Bu = model.input_map @ u
-    h = Cqd + g
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, Bu, qd)
-    return unconstrained_split(
-        drift=scipy.linalg.cho_solve(factor, -h),
-        ctrl=scipy.linalg.cho_solve(factor, Bu),
-        total=scipy.linalg.cho_solve(factor, Bu - h),
-        tau_ctrl=Bu, qd=qd, cond_M=cond_M, accel_scale=accel_scale)
+    M, Cqd, g, T = evaluate_terms(model, q, qd)
+    return _solve(model, M, Cqd, g, model.input_map @ u, q, qd, T)
+
+
+def split_chart(model: Model, chart: Chart, p, pd, tau_p):
+    """The split of eq. (9) evaluated in the chart ``q = psi(p)`` (article 6.4.6, 9.1), from the chart's own
+    derivation (module docstring: the Lagrangian in p, eqs. 6–8 in p): drift ``M_p^-1 (-C_p pd - g_p)`` (eq. 10),
+    ctrl ``M_p^-1 tau_p``, total ``M_p^-1 (tau_p - C_p pd - g_p)``, accelerations ``pdd`` in the chart.
+
+    ``tau_p`` is the generalized force in the chart, a covector (``Dpsi^T B u`` for an input u); the control
+    power is ``tau_p . pd`` (= ``u . B^T qd``, chart-invariant) and the kinetic energy T is the chart's own
+    (chart-invariant, 9.1). The task acceleration is not computed here (UNSUPPORTED).
+    """
+    if model.constraints:
+        raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
+    key = chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
+    p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
+    M, Cqd, g, T = evaluate_terms(model, p, pd, chart)
+    return _solve(model, M, Cqd, g, tau_p, p, pd, T, where=f"chart '{chart.name}' ({key})")
 
 
 FORMALISM = Formalism(
     name="euler_lagrange",
-    summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq",
+    summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq; "
+            "re-derived in any chart q = psi(p) (6.4.6)",
     split=split,
+    split_chart=split_chart,
 )

@@ -136,6 +136,24 @@ def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndar
     return out[0], out[1], out[2]
 
 
+def chart_vectors(model: Model, **vectors) -> list[np.ndarray]:
+    """The named arguments (e.g. ``p``, ``pd``, ``tau_p`` of ``split_chart``) as finite float vectors with one entry
+    per coordinate, or a :class:`StateError` naming the one that does not fit."""
+    out = []
+    for label, value in vectors.items():
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise StateError(f"{label} is not a numeric vector: {value!r}") from None
+        if arr.ndim != 1 or arr.size != model.n:
+            raise StateError(f"{label} has shape {arr.shape} ({arr.size} entries) but model '{model.name}' needs "
+                             f"{model.n} values (one per coordinate)")
+        if not np.all(np.isfinite(arr)):
+            raise StateError(f"{label} has non-finite entries: {arr.tolist()}")
+        out.append(arr)
+    return out
+
+
 def joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
     """The arguments as float vectors of length n (e.g. ``q, qd, qdd`` of an inverse-dynamics call), or a
     :class:`StateError` naming the sizes."""
