@@ -15,6 +15,7 @@ _MODULES = {
     "newton_euler": "formalisms.newton_euler",
     "screw": "formalisms.screw",
     "operational_space": "formalisms.operational_space",
+    "geometric": "formalisms.geometric",
 }
 
 

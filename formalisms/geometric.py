@@ -1,0 +1,494 @@
+"""Coordinate-free geometric mechanics (article 6.4, eqs. 24-25, 29): the kinetic-energy metric, its Levi-Civita
+connection and the intrinsic drift field, evaluated in any chart ``q = psi(p)``.
+
+The configuration manifold ``Q`` carries the Riemannian metric of the kinetic energy (6.4.3). In a chart ``p`` (the
+joint chart ``p = q``, or any ``q = psi(p)`` from the harness) this backend builds everything itself, in casadi SX:
+
+* Kinematics from ``cases.model``: ``X_body = X_parent * (rotation, translation) * motion(q_i)``, a revolute
+  motion the Rodrigues rotation by ``q_i`` about the unit ``axis``, a prismatic one the translation ``q_i axis``;
+  ``q = psi(p)`` is substituted, so the body rotations ``R_i``, origins ``o_i`` and centres of mass
+  ``c_i = o_i + R_i com_i`` are expressions of ``p``.
+* Energies: ``T(p, pd) = sum_i 1/2 m_i |c_i'|^2 + 1/2 w_i^T I_i w_i`` with ``c_i' = Jc_i pd`` (``Jc_i = dc_i/dp``,
+  i.e. ``jtimes(c_i, p, pd)``) and the body angular velocity ``w_i = vee(R_i^T R_i')``, ``R_i' = (dR_i/dp) pd``
+  (``I_i`` about the COM, body frame); ``V(p) = -sum_i m_i gravity . c_i``.
+* The metric (6.4.3) ``M_p = d^2 T / dpd^2``: since ``c_i'`` and ``w_i = Jw_i pd`` are linear in pd, the Hessian is
+  ``sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i`` exactly, and it is formed that way (``casadi.hessian`` of T gives the
+  same matrix with 50 % more operations once dM is differentiated from it; the tests check ``M pd = dT/dpd`` and
+  ``T = 1/2 pd^T M pd`` against the automatic differentiation of T). Its partial derivatives
+  ``dM[k] = d M_p / dp_k`` (of the upper triangle; M is symmetric) and the differential ``dV/dp`` by automatic
+  differentiation.
+
+The connection is computed numerically at the point, by one formula shared with the generic-metric tools
+(:func:`christoffel_of`, :func:`curvature_of`):
+
+    Gamma_{l,jk} = 1/2 (d_j M_lk + d_k M_lj - d_l M_jk)        (first kind)
+    Gamma^i_jk   = M^{il} Gamma_{l,jk}                          (second kind: a Cholesky solve, no inverse)
+
+and eq. (25), the intrinsic drift field on TQ, with ``grad V = M^-1 dV/dp`` (the index raised by the metric):
+
+    f_drift(p, pd) = (pd, -Gamma(pd, pd) - grad V),     Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k.
+
+Eq. (24) with the control covector ``tau_p`` (``B u`` in the joint chart, ``Dpsi^T B u`` in a chart) raised by the
+metric, ``G u = M^-1 tau_p``, gives the split (eq. 9): ``drift`` as above, ``ctrl = M^-1 tau_p``, and ``total``
+solved on its own, ``M^-1 (tau_p - dV/dp) - Gamma(pd, pd)``, never as a sum of the other two.
+``M Gamma(pd, pd)`` is the first-kind contraction, the chart's ``C qd`` of eq. (7); ``dV/dp`` is its ``g``.
+
+Because nothing is transformed from another chart, :func:`split_chart` is a genuine check of chart invariance
+(6.4.6, 9.1): the accelerations it returns are ``pdd``, which the harness compares with the joint answer mapped by
+``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``. Kinetic energy, power and the task acceleration (physical) are the same
+in every chart.
+
+Task drift (eq. 23): for ``model.task_point()`` with directions ``D``, ``x(p) = D (o_b + R_b offset)``; the classical
+acceleration at the drift is ``J drift + Jdot pd`` with ``J = dx/dp`` and ``Jdot pd = jtimes(jtimes(x, p, pd), p, pd)``.
+
+Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J and Jdot pd in a single
+call through casadi's buffer interface (built once and cached by the model digest and the chart key: about 1 s for
+the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one LAPACK solve with all right-hand sides
+and small numpy contractions.
+
+Public API: :func:`split`, :func:`split_chart` (the :class:`Formalism` contract); the geometric objects of a mechanism
+:func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`, :func:`drift_field`,
+:func:`energy_rate` (all in the joint chart or any ``chart``); the same machinery for any metric,
+:func:`christoffel_of` and :func:`curvature_of`; the shared formula :func:`christoffel_symbols`.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from dataclasses import dataclass
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+import scipy.linalg
+
+from cases.model import Model
+from formalisms.interface import (Formalism, Split, chart_vectors, check_state, conditioning, factor_mass_matrix,
+                                  unconstrained_split)
+
+JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
+
+
+# ------------------------------------------------------------------------------------------------ the connection
+
+
+def christoffel_first_kind(dM: np.ndarray) -> np.ndarray:
+    """``Gamma_{l,jk} = 1/2 (d_j M_lk + d_k M_lj - d_l M_jk)`` as an (n, n, n) array indexed ``[l, j, k]``, from the
+    metric derivatives ``dM[k, i, j] = d M_ij / dx_k``. Linear in ``dM``: applied to ``d_m dM`` it gives
+    ``d_m Gamma_{l,jk}`` (used by :func:`curvature_of`)."""
+    return 0.5 * (dM.transpose(1, 0, 2) + dM.transpose(1, 2, 0) - dM)
+
+
+def christoffel_symbols(M: np.ndarray, dM: np.ndarray, factor=None, covectors=()) -> tuple:
+    """The Levi-Civita connection of the metric ``M`` at a point: ``(Gamma, first, raised)`` with
+    ``Gamma[i, j, k] = Gamma^i_jk`` (second kind, the index raised by a Cholesky solve with ``factor`` =
+    ``cho_factor(M)``, computed when not given), ``first[l, j, k] = Gamma_{l,jk}`` (:func:`christoffel_first_kind`)
+    and ``raised`` the list ``M^-1 c`` of the given ``covectors`` (solved with the same factor, in the same LAPACK
+    call: separate right-hand sides, so each is its own solve). The one formula behind both the mechanism path and
+    :func:`christoffel_of`."""
+    n = M.shape[0]
+    first = christoffel_first_kind(dM)
+    if factor is None:
+        factor = _cholesky(M)
+    rhs = np.empty((n, n * n + len(covectors)), order="F")
+    rhs[:, :n * n] = first.reshape(n, n * n)
+    for j, c in enumerate(covectors):
+        rhs[:, n * n + j] = c
+    x = _cho_solve(factor, rhs)
+    return x[:, :n * n].reshape(n, n, n), first, [x[:, n * n + j] for j in range(len(covectors))]
+
+
+def _cho_solve(factor, rhs: np.ndarray) -> np.ndarray:
+    """``M^-1 rhs`` from ``factor = cho_factor(M)``: LAPACK potrs directly (scipy's cho_solve wrapper costs ~30 us
+    of argument checking per call, more than the solve)."""
+    c, lower = factor
+    x, info = _POTRS(c, rhs, lower=int(bool(lower)))
+    if info != 0:
+        raise ValueError(f"LAPACK potrs failed (info = {info})")
+    return x
+
+
+_POTRS = scipy.linalg.lapack.get_lapack_funcs("potrs", (np.zeros(1),))
+
+
+def _cholesky(M: np.ndarray):
+    try:
+        return scipy.linalg.cho_factor(M)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"the metric is not positive definite (Cholesky failed); eigenvalues "
+                         f"{np.linalg.eigvalsh(M).tolist()}") from None
+
+
+# ------------------------------------------------------------------------------------- generic metric machinery
+
+
+def _metric_derivatives(metric_fn: Callable, x, order: int) -> list[np.ndarray]:
+    """``[G, dG, d2G]`` (up to ``order``) of ``metric_fn`` at the numeric point ``x``: ``dG[k, i, j] = d_k G_ij``,
+    ``d2G[m, k, i, j] = d_m d_k G_ij``, by casadi AD of the symbolic metric."""
+    x = np.asarray(x, dtype=float).reshape(-1)
+    n = x.size
+    if n == 0 or not np.all(np.isfinite(x)):
+        raise ValueError(f"the point must be a non-empty finite vector, got {x.tolist()}")
+    X = ca.SX.sym("x", n)
+    G = ca.SX(metric_fn(X))
+    if G.shape != (n, n):
+        raise ValueError(f"metric_fn returned a {G.shape[0]}x{G.shape[1]} matrix at a point of {n} coordinates; "
+                         f"expected {n}x{n}")
+    outs = [G]
+    dG = ca.jacobian(ca.vec(G), X)  # (n^2, n); column k is vec(d_k G)
+    if order >= 1:
+        outs += [ca.reshape(dG[:, k], n, n) for k in range(n)]
+    if order >= 2:
+        for m in range(n):
+            outs += [ca.reshape(ca.jacobian(dG[:, k], X)[:, m], n, n) for k in range(n)]
+    values = [np.array(v.full()) for v in ca.Function("metric", [X], outs).call([ca.DM(x)])]
+    result = [values[0]]
+    if order >= 1:
+        result.append(np.stack(values[1:1 + n]))
+    if order >= 2:
+        result.append(np.stack(values[1 + n:]).reshape(n, n, n, n))
+    G_num = result[0]
+    if not np.allclose(G_num, G_num.T, rtol=1e-12, atol=1e-12 * np.abs(G_num).max()):
+        raise ValueError(f"metric_fn is not symmetric at x = {x.tolist()}: {G_num.tolist()}")
+    return result
+
+
+def christoffel_of(metric_fn: Callable, x) -> np.ndarray:
+    """Christoffel symbols of the second kind of a Riemannian metric at the point ``x``: ``Gamma[i, j, k] =
+    Gamma^i_jk`` (symmetric in j, k), with the same formula as the mechanism path (:func:`christoffel_symbols`).
+
+    ``metric_fn`` maps a casadi SX column of n coordinates to an n x n SX matrix (symmetric, positive definite at
+    ``x``); ``x`` is numeric. Example: polar coordinates on the plane, ``lambda x: ca.diag(ca.vertcat(1, x[0]**2))``.
+    """
+    G, dG = _metric_derivatives(metric_fn, x, 1)
+    return christoffel_symbols(G, dG)[0]
+
+
+def curvature_of(metric_fn: Callable, x) -> np.ndarray:
+    """The Riemann curvature tensor ``R[i, j, k, l] = R^i_jkl`` of the metric at ``x`` (n, n, n, n), in the
+    convention ``R(d_k, d_l) d_j = R^i_jkl d_i``:
+
+        R^i_jkl = d_k Gamma^i_lj - d_l Gamma^i_kj + Gamma^i_km Gamma^m_lj - Gamma^i_lm Gamma^m_kj,
+
+    so the sectional curvature of the coordinate plane (k, l) is ``g_ki R^i_lkl / (g_kk g_ll - g_kl^2)``: the unit
+    sphere ``diag(1, sin^2 theta)`` in (theta, phi) has ``R^theta_{phi theta phi} = sin^2 theta``, curvature 1.
+
+    Numeric at the point from the metric's first and second derivatives (casadi AD): ``d_m Gamma^i_jk =
+    M^-1 (d_m Gamma_{.,jk} - (d_m M) Gamma^._jk)``, the first-kind part by :func:`christoffel_first_kind` (linear in
+    dM) applied to ``d_m dM``. A test tool for small metrics (it builds n^2 second-derivative blocks).
+    """
+    G, dG, d2G = _metric_derivatives(metric_fn, x, 2)
+    n = G.shape[0]
+    factor = _cholesky(G)
+    Gamma = christoffel_symbols(G, dG, factor)[0]
+    dGamma = np.empty((n, n, n, n))  # dGamma[m, i, j, k] = d_m Gamma^i_jk
+    for m in range(n):
+        rhs = christoffel_first_kind(d2G[m]) - np.einsum("il,ljk->ijk", dG[m], Gamma)
+        dGamma[m] = _cho_solve(factor, rhs.reshape(n, n * n)).reshape(n, n, n)
+    return (np.einsum("kilj->ijkl", dGamma) - np.einsum("likj->ijkl", dGamma)
+            + np.einsum("ikm,mlj->ijkl", Gamma, Gamma) - np.einsum("ilm,mkj->ijkl", Gamma, Gamma))
+
+
+# ------------------------------------------------------------------------------------ the mechanism, symbolically
+
+
+def _rodrigues(axis: np.ndarray, s, c):
+    """Rotation by the angle with sine ``s`` and cosine ``c`` about the unit ``axis`` (SX 3x3)."""
+    x, y, z = axis
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return ca.DM(np.eye(3)) + s * ca.DM(K) + (1 - c) * ca.DM(K @ K)
+
+
+def _joint_coordinates(model: Model, chart, p: ca.SX) -> list:
+    """``q = psi(p)`` as SX scalars (``p`` itself in the joint chart)."""
+    n = model.n
+    ps = [p[i] for i in range(n)]
+    if chart is None:
+        return ps
+    q = list(chart.psi(ps, ca.sin, ca.cos))
+    if len(q) != n:
+        raise ValueError(f"chart '{getattr(chart, 'name', chart)}' maps {n} coordinates to {len(q)} joint values; "
+                         f"model '{model.name}' has {n} joints")
+    return [ca.SX(qi) for qi in q]
+
+
+def _frames(model: Model, q: list) -> tuple[list, list]:
+    """World rotations ``R_i`` and origins ``o_i`` of every body frame (SX), parents first."""
+    R: list = [None] * model.n
+    o: list = [None] * model.n
+    for i in model.topological_order:
+        body, parent = model.bodies[i], model.parent_index[i]
+        if parent < 0:
+            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
+        else:
+            Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
+            oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
+        if body.joint == "revolute":
+            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(q[i]), ca.cos(q[i]))), oj
+        else:
+            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * q[i]
+    return R, o
+
+
+class _Evaluator:
+    """A casadi Function ``(p, pd) -> one dense column`` called through casadi's buffer interface: the arguments
+    are copied into fixed numpy buffers and the result out of one, so a call costs microseconds instead of the
+    ~80 us of a regular Function call with its conversions. One buffer per Function, so calls are serialized."""
+
+    def __init__(self, name: str, p: ca.SX, pd: ca.SX, out: ca.SX):
+        self.function = ca.Function(name, [p, pd], [ca.densify(out)], {"cse": True})
+        self._p, self._pd, self._out = np.zeros(p.numel()), np.zeros(pd.numel()), np.zeros(out.numel())
+        self._buffer, self._trigger = self.function.buffer()
+        self._buffer.set_arg(0, memoryview(self._p))
+        self._buffer.set_arg(1, memoryview(self._pd))
+        self._buffer.set_res(0, memoryview(self._out))
+        self._lock = threading.Lock()
+
+    def __call__(self, p: np.ndarray, pd: np.ndarray) -> np.ndarray:
+        with self._lock:
+            self._p[:] = p
+            self._pd[:] = pd
+            self._trigger()
+            return self._out.copy()
+
+
+class _Compiled:
+    """The casadi pieces of one (model, chart). ``evaluate(p, pd)`` returns one flat vector
+    ``[M_upper, dM_upper (column k = d/dp_k of M_upper), dV/dp, T, vec J, Jdot pd]`` (``M_upper``: the upper
+    triangle of M, row by row; vec column-major) from a single SX Function call; the index arrays below read M, dM
+    (``[k, i, j]``), dV, T, J and Jdot pd out of it. ``energy`` (``[T, V, dE/dp, dE/dpd]``) is built on first use."""
+
+    def __init__(self, n: int, k: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX):
+        self.n, self.k, self.p, self.pd, self.T, self.V = n, k, p, pd, T, V
+        rows, cols = np.triu_indices(n)
+        nu = rows.size
+        upper = np.empty((n, n), dtype=np.intp)  # position of M[i, j] in M_upper
+        upper[rows, cols] = upper[cols, rows] = np.arange(nu)
+        self.M_index = upper                                                  # flat[M_index] = M
+        self.dM_index = nu + nu * np.arange(n)[:, None, None] + upper[None]   # flat[dM_index] = dM, [k, i, j]
+        at = nu + n * nu
+        self.dV_slice, self.T_index = slice(at, at + n), at + n
+        self.J_index = at + n + 1 + np.arange(k * n).reshape(n, k).T          # vec(J) is column-major
+        self.Jdot_slice = slice(at + n + 1 + k * n, at + n + 1 + k * n + k)
+        self.evaluate = _Evaluator("geometric", p, pd, out)
+        self._energy: _Evaluator | None = None
+
+    @property
+    def energy(self) -> _Evaluator:
+        """``(p, pd) -> [T, V, dE/dp, dE/dpd]`` with ``E = T + V`` (automatic differentiation of the energies)."""
+        if self._energy is None:
+            E = self.T + self.V
+            self._energy = _Evaluator("geometric_energy", self.p, self.pd,
+                                      ca.vertcat(self.T, self.V, ca.gradient(E, self.p), ca.gradient(E, self.pd)))
+        return self._energy
+
+
+def _compile(model: Model, chart) -> _Compiled:
+    """Kinematics, energies, metric and task map of ``model`` in ``chart`` as one SX Function (module docstring).
+
+    The metric is the Hessian of T in pd, taken in closed form: ``c_i' = Jc_i pd`` and ``w_i = Jw_i pd`` are linear in
+    pd (``Jc_i = dc_i/dp``, ``Jw_i = dw_i/dpd``), so ``d^2 T / dpd^2 = sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i``
+    exactly; AD of that sum gives the same matrix as ``casadi.hessian(T, pd)`` (the tests check ``M pd = dT/dpd`` and
+    ``T = 1/2 pd^T M pd`` against the AD of T) with a third fewer operations once ``dM`` is differentiated from it.
+    ``dM`` is taken of the upper triangle only (M is symmetric).
+    """
+    n = model.n
+    p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
+    R, o = _frames(model, _joint_coordinates(model, chart, p))
+    T, V, M = ca.SX(0), ca.SX(0), ca.SX.zeros(n, n)
+    gravity = ca.DM(model.gravity)
+    for i, body in enumerate(model.bodies):
+        c = o[i] + ca.mtimes(R[i], ca.DM(body.com))
+        # c' and R' are jtimes(., p, pd) = (d./dp) pd, written as the Jacobian times pd so that pd enters linearly
+        # at the end and the Jacobians are reused by the metric
+        Jc = ca.jacobian(c, p)
+        c_dot = ca.mtimes(Jc, pd)
+        R_dot = ca.reshape(ca.mtimes(ca.jacobian(ca.vec(R[i]), p), pd), 3, 3)
+        W = ca.mtimes(R[i].T, R_dot)  # skew: hat(w) of the body-frame angular velocity
+        w = ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+        T += 0.5 * body.mass * ca.dot(c_dot, c_dot)
+        M += body.mass * ca.mtimes(Jc.T, Jc)
+        if np.any(body.inertia):
+            inertia = ca.DM(body.inertia)
+            T += 0.5 * ca.dot(w, ca.mtimes(inertia, w))
+            Jw = ca.jacobian(w, pd)
+            M += ca.mtimes(Jw.T, ca.mtimes(inertia, Jw))
+        V -= body.mass * ca.dot(gravity, c)
+    rows, cols = np.triu_indices(n)
+    M_upper = ca.vertcat(*[M[int(r), int(c)] for r, c in zip(rows, cols)])
+    dM_upper = ca.jacobian(M_upper, p)  # column k = d M_upper / dp_k (so vec(dM_upper) is [k, upper entry])
+    dV = ca.gradient(V, p)
+    tp = model.task_point()
+    b = model.body_index(tp.body)
+    x = ca.mtimes(ca.DM(tp.directions), o[b] + ca.mtimes(R[b], ca.DM(tp.offset)))
+    J = ca.jacobian(x, p)
+    Jdot_pd = ca.jtimes(ca.jtimes(x, p, pd), p, pd)
+    out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd)
+    return _Compiled(n=n, k=x.shape[0], p=p, pd=pd, T=T, V=V, out=out)
+
+
+_LOCK = threading.Lock()
+_COMPILED: dict[tuple[str, str], _Compiled] = {}
+_DIGESTS: dict[int, tuple[weakref.ref, str]] = {}  # id(model) -> (the model, its digest): digest() costs ~70 us
+
+
+def _model_digest(model: Model) -> str:
+    entry = _DIGESTS.get(id(model))
+    if entry is not None and entry[0]() is model:
+        return entry[1]
+    digest = model.digest()  # the model's arrays are read-only, so its digest never changes
+    key = id(model)
+    _DIGESTS[key] = (weakref.ref(model, lambda _, key=key: _DIGESTS.pop(key, None)), digest)
+    return digest
+
+
+def _compiled(model: Model, chart) -> _Compiled:
+    """The cached casadi Functions of ``(model, chart)``, keyed by the model digest and ``chart.key``."""
+    key = (_model_digest(model), JOINT_CHART if chart is None else str(chart.key))
+    found = _COMPILED.get(key)
+    if found is None:
+        with _LOCK:
+            found = _COMPILED.get(key)
+            if found is None:
+                found = _COMPILED[key] = _compile(model, chart)
+    return found
+
+
+# --------------------------------------------------------------------------------------------- evaluation
+
+
+@dataclass(frozen=True)
+class _Point:
+    """The numeric pieces at one state ``(p, pd)`` in one chart."""
+
+    M: np.ndarray
+    dM: np.ndarray  # dM[k, i, j] = d M_ij / dp_k
+    dV: np.ndarray
+    T: float
+    J: np.ndarray
+    Jdot_pd: np.ndarray
+
+
+def _evaluate(model: Model, chart, p: np.ndarray, pd: np.ndarray) -> _Point:
+    c = _compiled(model, chart)
+    flat = c.evaluate(p, pd)
+    return _Point(M=flat[c.M_index], dM=flat[c.dM_index], dV=flat[c.dV_slice], T=float(flat[c.T_index]),
+                  J=flat[c.J_index], Jdot_pd=flat[c.Jdot_slice])
+
+
+def _check_unconstrained(model: Model) -> None:
+    if model.constraints:
+        raise NotImplementedError(f"model '{model.name}': the geometric backend does not handle constraints yet; "
+                                  "constraints arrive with the constraint issue")
+
+
+def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
+    pt = _evaluate(model, chart, p, pd)
+    factor = factor_mass_matrix(model, pt.M, p)
+    # grad V (dV raised by the metric), G u (the control covector raised) and M^-1 (tau - dV), each its own solve
+    Gamma, first, (grad_V, ctrl, forced) = christoffel_symbols(pt.M, pt.dM, factor, (pt.dV, tau, tau - pt.dV))
+    gamma_pdpd = (Gamma @ pd) @ pd                           # Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k
+    Cqd = (first @ pd) @ pd                                  # M Gamma(pd, pd): the chart's C qd (eq. 7)
+    drift = -gamma_pdpd - grad_V                             # eq. (25)
+    total = forced - gamma_pdpd                              # eq. (24) solved on its own, not drift + ctrl
+    cond_M, accel_scale = conditioning(model, pt.M, Cqd, pt.dV, tau, pd)
+    task_drift = pt.J @ drift + pt.Jdot_pd
+    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=pd, cond_M=cond_M,
+                               accel_scale=accel_scale, task_drift=task_drift, kinetic_energy=pt.T,
+                               extras={"chart": JOINT_CHART if chart is None else getattr(chart, "name", "chart")})
+
+
+# ------------------------------------------------------------------------------------------------- public API
+
+
+def split(model: Model, q, qd, u) -> Split:
+    """The drift-control split (eq. 9) in the joint chart from eqs. (24)-(25): ``drift = -Gamma(qd, qd) - grad V``,
+    ``ctrl = M^-1 B u``, ``total = M^-1 (B u - dV/dq) - Gamma(qd, qd)`` (module docstring)."""
+    _check_unconstrained(model)
+    q, qd, u = check_state(model, q, qd, u)
+    return _split(model, None, q, qd, model.input_map @ u)
+
+
+def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
+    """The same split evaluated directly in the chart ``q = psi(p)``: the metric and potential are pulled back
+    through ``psi`` symbolically and the connection computed in p (nothing is transformed from another chart).
+
+    ``tau_p`` is the generalized force in the chart (a covector, ``Dpsi^T B u``); the accelerations returned are
+    ``pdd``; ``power_ctrl = tau_p . pd`` (per coordinate ``tau_p_i pd_i``). ``chart=None`` is the joint chart.
+    """
+    _check_unconstrained(model)
+    p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
+    return _split(model, chart, p, pd, tau_p)
+
+
+def metric(model: Model, p, chart=None) -> np.ndarray:
+    """The kinetic-energy metric ``M_p = d^2 T / dpd^2`` (n x n) at ``p`` in ``chart`` (joint chart when None)."""
+    (p,) = chart_vectors(model, p=p)
+    return _evaluate(model, chart, p, np.zeros(model.n)).M
+
+
+def metric_derivatives(model: Model, p, chart=None) -> np.ndarray:
+    """The partial derivatives of the metric, ``dM[k, i, j] = d M_ij / dp_k`` (n, n, n), by automatic
+    differentiation (so ``Mdot = sum_k dM[k] pd_k``)."""
+    (p,) = chart_vectors(model, p=p)
+    return _evaluate(model, chart, p, np.zeros(model.n)).dM
+
+
+def christoffel(model: Model, p, chart=None) -> np.ndarray:
+    """The Levi-Civita connection of the kinetic-energy metric at ``p``: ``Gamma[i, j, k] = Gamma^i_jk`` (n, n, n),
+    symmetric in (j, k); ``Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k`` is the drift's velocity-product term."""
+    (p,) = chart_vectors(model, p=p)
+    pt = _evaluate(model, chart, p, np.zeros(model.n))
+    return christoffel_symbols(pt.M, pt.dM, factor_mass_matrix(model, pt.M, p))[0]
+
+
+def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
+    """``(T, V)``: kinetic and potential energy at ``(p, pd)`` in ``chart``."""
+    p, pd = chart_vectors(model, p=p, pd=pd)
+    values = _compiled(model, chart).energy(p, pd)
+    return float(values[0]), float(values[1])
+
+
+def drift_field(model: Model, p, pd, chart=None) -> np.ndarray:
+    """The intrinsic drift field of eq. (25) on TQ in ``chart``: ``(pd, -Gamma(pd, pd) - grad V)``, shape (2n,)."""
+    _check_unconstrained(model)
+    p, pd = chart_vectors(model, p=p, pd=pd)
+    s = _split(model, chart, p, pd, np.zeros(model.n))
+    return np.concatenate([pd, s.drift])
+
+
+@dataclass(frozen=True)
+class EnergyRate:
+    """The time derivative of the total energy ``E = T + V`` along ``(p, pd, pdd)`` (article section 9).
+
+    rate       ``dE/dt = dE/dp . pd + dE/dpd . pdd`` (automatic differentiation); zero under the drift, ``tau . pd``
+               under the total.
+    magnitude  ``sum_i |dE/dp_i pd_i| + sum_i |dE/dpd_i pdd_i|``: the size of the summed terms, to scale a tolerance.
+    momentum   ``dT/dpd = M pd`` (the generalized momentum, a covector).
+    """
+
+    rate: float
+    magnitude: float
+    momentum: np.ndarray
+
+
+def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
+    """:class:`EnergyRate` of ``E = T + V`` at ``(p, pd)`` with acceleration ``pdd``, in ``chart``."""
+    p, pd, pdd = chart_vectors(model, p=p, pd=pd, pdd=pdd)
+    n = model.n
+    values = _compiled(model, chart).energy(p, pd)
+    dE_dp, dE_dpd = values[2:2 + n], values[2 + n:]
+    terms = np.concatenate([dE_dp * pd, dE_dpd * pdd])
+    momentum = np.array(dE_dpd)
+    momentum.setflags(write=False)
+    return EnergyRate(rate=float(terms.sum()), magnitude=float(np.abs(terms).sum()), momentum=momentum)
+
+
+FORMALISM = Formalism(
+    name="geometric",
+    summary="Geometric mechanics: kinetic-energy metric, Levi-Civita connection, intrinsic drift field "
+            "(article 6.4, eqs. 24-25), any chart",
+    split=split,
+    split_chart=split_chart,
+)
