@@ -126,7 +126,8 @@ def split(model: Model, q, qd, u) -> Split:
     return unconstrained_split(drift=ours(drift_p), ctrl=ctrl, total=ours(total_p), tau_ctrl=tau_ctrl, qd=qd,
                                cond_M=cond_M, accel_scale=accel_scale,
                                extras={"M": M, "Cqd": Cqd, "g": g},
-                               task_drift=model.task_point().directions @ np.array(task_accel))
+                               task_drift=model.task_point().directions @ np.array(task_accel),
+                               kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)))
 
 
 REFERENCE = Formalism(

@@ -149,11 +149,27 @@ def _reactions(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray
     return np.hstack(_recursion(model, kin, qd, qdd, gravity=True))
 
 
+def _reactions_in_world(model: Model, kin, reactions: np.ndarray) -> np.ndarray:
+    """Body-frame joint loads ``[f, n]`` re-expressed in the world frame, the moment taken about the world origin:
+    ``[W f, W n + o x W f]`` with ``o`` the body-frame origin in the world. A change of world frame maps these
+    rows as wrenches (article 7.4), while the body-frame rows do not change."""
+    P, r, W = kin
+    out = np.empty_like(reactions)
+    origin = [None] * model.n
+    for i in model.topological_order:
+        p = model.parent_index[i]
+        origin[i] = r[i] if p < 0 else origin[p] + W[p] @ r[i]
+        f, n = W[i] @ reactions[i, :3], W[i] @ reactions[i, 3:]
+        out[i] = np.concatenate([f, n + _cross(origin[i], f)])
+    return out
+
+
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9): ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl = M^-1 B u`` solved
     directly, ``total = M^-1 (B u - h)`` solved on its own, with ``h = C qd + g`` from the RNEA at ``qdd = 0``.
 
-    extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)``;
+    extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)`` (body
+    frames), ``joint_reactions_world`` (the former in the world frame, moments about the world origin);
     ``task_drift`` is the default task point's classical acceleration from the forward pass at the drift.
     """
     if model.constraints:
@@ -174,11 +190,14 @@ def split(model: Model, q, qd, u) -> Split:
     total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
     cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
     drift_motion = _forward(model, kin, qd, drift)
-    extras = {"joint_reactions": _reactions(model, kin, qd, total),
-              "joint_reactions_drift": np.hstack(_backward(model, kin, drift_motion, gravity=True))}
+    reactions = _reactions(model, kin, qd, total)
+    extras = {"joint_reactions": reactions,
+              "joint_reactions_drift": np.hstack(_backward(model, kin, drift_motion, gravity=True)),
+              "joint_reactions_world": _reactions_in_world(model, kin, reactions)}
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
                                cond_M=cond_M, accel_scale=accel_scale, extras=extras,
-                               task_drift=_task_acceleration(model, kin, drift_motion))
+                               task_drift=_task_acceleration(model, kin, drift_motion),
+                               kinetic_energy=0.5 * qd @ M @ qd)
 
 
 FORMALISM = Formalism(

@@ -307,7 +307,7 @@ def split(model: Model, q, qd, u) -> Split:
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
                                accel_scale=accel_scale, extras={"task": reported}, task_drift=reported.xdd_drift,
-                               conditions={"task": ts.cond})
+                               conditions={"task": ts.cond}, kinetic_energy=0.5 * qd @ M @ qd)
 
 
 FORMALISM = Formalism(

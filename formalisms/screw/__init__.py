@@ -48,6 +48,12 @@ def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
     return tp.directions @ a
 
 
+def _kinetic_energy(model: Model, twists_body: np.ndarray) -> float:
+    """``T = sum_i 1/2 V_b,i^T G_i V_b,i`` with ``G_i`` the spatial inertia in body frame ``i``."""
+    G = dynamics.spatial_inertias(model)
+    return 0.5 * float(np.einsum("ia,iab,ib->", twists_body, G, twists_body))
+
+
 def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarray) -> dict[str, np.ndarray]:
     """The twists, accelerations and wrenches listed in the module docstring."""
     V_s = kinematics.twists(kin, qd)
@@ -83,9 +89,10 @@ def split(model: Model, q, qd, u) -> Split:
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)
     total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
     cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
+    extras = _extras(kin, qd, total, drift)
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
-                               accel_scale=accel_scale, extras=_extras(kin, qd, total, drift),
-                               task_drift=_task_drift(kin, qd, drift))
+                               accel_scale=accel_scale, extras=extras, task_drift=_task_drift(kin, qd, drift),
+                               kinetic_energy=_kinetic_energy(model, extras["twists_body"]))
 
 
 FORMALISM = Formalism(
