@@ -163,8 +163,9 @@ def absolute(model: Model) -> AffineChart:
 
 
 def random_affine(model: Model, seed: int, case: str, max_cond: float = 10.0) -> AffineChart:
-    """``q = A p + b`` with ``A = I + G / sqrt(n)`` (G standard normal) redrawn until cond(A) <= max_cond, and b
-    uniform in +-1; seeded by (seed, case), so the same gate run always uses the same chart."""
+    """``q = A p + b`` with ``A = I + G / sqrt(n)`` (G standard normal: dense, every joint coordinate mixes all the
+    chart coordinates) redrawn until cond(A) <= max_cond, and b uniform in +-1; seeded by (seed, case), so a gate
+    run always uses the same chart."""
     rng = case_rng(seed, case + "/affine")
     n = model.n
     while True:

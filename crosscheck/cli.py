@@ -16,9 +16,9 @@ import numpy as np
 
 import cases
 from cases.model import ModelError
-from crosscheck import backends
+from crosscheck import backends, charts, frames
 from crosscheck import tolerance as policy
-from crosscheck.gate import CaseSpec, run_gate
+from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.report import render
 from formalisms import UnknownFormalism
 from formalisms.interface import StateError
@@ -101,7 +101,10 @@ def cmd_gate(args) -> int:
         if done == args.samples:
             print(f"  {case}: {done} states evaluated", file=sys.stderr)
 
-    result = run_gate(specs, chosen, args.samples, args.seed, progress)
+    if args.frames < 0:
+        raise UsageError("--frames must be 0 (off) or more")
+    checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation)
+    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
@@ -110,9 +113,11 @@ def cmd_gate(args) -> int:
         bad = sum(s.failed for s in case.states)
         broken = sum(bool(s.breakdowns) for s in case.states)
         worst = max((s.worst_ratio for s in case.states), default=0.0)
+        checked = [c.worst_ratio for s in case.states for c in s.checks.values()]
         status = "FAIL" if bad else "ok"
         print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {broken} breakdown, "
-              f"worst error/tolerance {worst:.3g}")
+              f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
+              f"{max(checked, default=0.0):.3g}")
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
 
@@ -131,6 +136,48 @@ def _jsonable(value):
     return repr(value)
 
 
+def _length(values: list[float], size: int, label: str) -> np.ndarray:
+    if len(values) != size:
+        raise UsageError(f"--{label} has {len(values)} entries; this model needs {size}")
+    return np.array(values)
+
+
+def _inputs(args, model, chart, p) -> tuple[np.ndarray, np.ndarray]:
+    """(u, tau_p): the actuator inputs and the generalized force in the chart, from ``--u`` or ``--tau``."""
+    if args.u is not None and args.tau is not None:
+        raise UsageError("give either --u (actuator inputs) or --tau (generalized force in the chart), not both")
+    if args.tau is None:
+        u = _length(_vector(args.u, "u"), model.m, "u") if args.u is not None else np.zeros(model.m)
+        return u, charts.force_to_chart(chart, p, model.input_map @ u)
+    tau_p = _length(_vector(args.tau, "tau"), model.n, "tau")
+    tau_q = charts.force_from_chart(chart, p, tau_p)
+    u, *_ = np.linalg.lstsq(model.input_map, tau_q, rcond=None)
+    off = float(np.abs(model.input_map @ u - tau_q).max())
+    if off > 1e-9 * (1.0 + float(np.abs(tau_q).max())):
+        raise UsageError(f"--tau is not a force the inputs can produce: in joint coordinates it is {tau_q.tolist()}, "
+                         f"and the nearest B u misses it by {off:.3g} (the model has {model.m} inputs for "
+                         f"{model.n} joints)")
+    return u, tau_p
+
+
+def _chart_splits(model, chart, p, pd, u, tau_p, chosen) -> dict[str, tuple[str, object]]:
+    """Per backend: (how it was evaluated, split in the chart). Joint-chart answers are mapped into the chart."""
+    q = chart.q_of(p)
+    qd = chart.jacobian(p) @ pd
+    out = {}
+    for backend in chosen:
+        if chart.name == "identity":
+            out[backend.name] = ("joint chart", backend.split(model, q, qd, u))
+        elif backend.split_chart is not None:
+            out[backend.name] = (f"in chart {chart.name}", backend.split_chart(model, chart, p, pd, tau_p))
+        else:
+            split = backend.split(model, q, qd, u)
+            mapped = {name: charts.acceleration_to_chart(chart, p, pd, getattr(split, name), with_rate=name != "ctrl")
+                      for name in ("drift", "ctrl", "total")}
+            out[backend.name] = ("joint chart, mapped by Dpsi^-1", dataclasses.replace(split, **mapped))
+    return out
+
+
 def cmd_eval(args) -> int:
     if args.case and args.model:
         raise UsageError("give either --case or --model, not both")
@@ -139,24 +186,38 @@ def cmd_eval(args) -> int:
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
                                      param=args.param))[0]
     model = spec.build()
-    q = _vector(args.q, "q")
-    qd = _vector(args.qd, "qd") if args.qd is not None else [0.0] * model.n
-    u = _vector(args.u, "u") if args.u is not None else [0.0] * model.m
-    splits = {backend.name: backend.split(model, q, qd, u) for backend in _backends(args.formalism)}
+    if args.frame is not None:
+        model = frames.move_scene(model, _frame(args.frame, args.seed, spec.name))
+    chart = charts.get(args.chart or "identity", model, args.seed, spec.name)
+    p = _length(_vector(args.q, "q"), model.n, "q")
+    pd = _length(_vector(args.qd, "qd"), model.n, "qd") if args.qd is not None else np.zeros(model.n)
+    u, tau_p = _inputs(args, model, chart, p)
+    splits = _chart_splits(model, chart, p, pd, u, tau_p, _backends(args.formalism))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
-           for name, split in splits.items()}
+           for name, (_, split) in splits.items()}
     if args.json:
-        print(json.dumps({"case": spec.name, "params": dict(spec.params), "q": q, "qd": qd, "u": u,
-                          "formalisms": out}, indent=1))
+        print(json.dumps({"case": spec.name, "params": dict(spec.params), "chart": chart.name,
+                          "frame": args.frame, "q": p.tolist(), "qd": pd.tolist(), "u": u.tolist(),
+                          "tau": tau_p.tolist(), "formalisms": out}, indent=1))
         return 0
-    print(f"case {spec.name}: q = {q}, qd = {qd}, u = {u}")
+    where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
+    print(f"case {model.name}{where}: q = {p.tolist()}, qd = {pd.tolist()}, u = {u.tolist()}, "
+          f"generalized force = {tau_p.tolist()}")
     for name, values in out.items():
-        broken = policy.breakdown(splits[name])
-        print(f"{name}:" + (" BREAKDOWN (" + ", ".join(f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}"
-                                                      for k, v in broken.items()) + ")" if broken else ""))
-        for key in ("drift", "ctrl", "total", "task_drift", "power_ctrl", "cond_M", "conditions"):
-            print(f"  {key:10s} {values[key]}")
+        how, split = splits[name]
+        broken = policy.breakdown(split)
+        print(f"{name} ({how}):" + (" BREAKDOWN (" + ", ".join(
+            f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}" for k, v in broken.items()) + ")"
+            if broken else ""))
+        for key in ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "cond_M", "conditions"):
+            print(f"  {key:14s} {values[key]}")
     return 0
+
+
+def _frame(name: str, seed: int, case: str) -> frames.Frame:
+    if not (name.startswith("g") and name[1:].isdigit()):
+        raise UsageError(f"--frame takes a sampled frame name g0, g1, ... (as in the gate report), got '{name}'")
+    return frames.sampled(seed, case, int(name[1:]) + 1)[-1]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -173,15 +234,22 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     gate.add_argument("--report", default=DEFAULT_REPORT, help=f"markdown report path (default {DEFAULT_REPORT})")
+    gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
+    gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
+    gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
     gate.set_defaults(run=cmd_gate)
 
     ev = sub.add_parser("eval", help="evaluate the backends at one state")
     ev.add_argument("--case", help="a built-in case")
     ev.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (repeatable)")
     ev.add_argument("--model", metavar="PATH", help="a URDF file instead of --case")
-    ev.add_argument("--q", required=True, help="joint positions, comma-separated")
-    ev.add_argument("--qd", help="joint velocities (default zeros)")
-    ev.add_argument("--u", help="inputs, one per column of B (default zeros)")
+    ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default), comma-separated")
+    ev.add_argument("--qd", help="velocities in the chart (default zeros)")
+    ev.add_argument("--u", help="actuator inputs, one per column of B (default zeros)")
+    ev.add_argument("--tau", help="instead of --u: the generalized force in the chart (a covector, n entries)")
+    ev.add_argument("--chart", choices=charts.names(), help="evaluate in this chart q = psi(p) (default identity)")
+    ev.add_argument("--frame", help="move the scene by the gate's sampled frame g0, g1, ... (with --seed)")
+    ev.add_argument("--seed", type=int, default=0, help="seed of the gate run (the affine chart, the frames)")
     ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     ev.add_argument("--json", action="store_true", help="print JSON")
     ev.set_defaults(run=cmd_eval)
@@ -195,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
         args.argv = argv
         return args.run(args)
     except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
-            FileNotFoundError) as exc:
+            charts.ChartError, FileNotFoundError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
 

@@ -18,7 +18,8 @@ class Comparison:
 
     ``pairs`` maps (backend_a, backend_b) to the max-norm difference divided by the tolerance.
     ``outlier`` is the backend whose removal makes all others agree while it disagrees with each of them;
-    None when everything agrees or no single backend explains the disagreement.
+    None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
+    kept for a disagreement only, for the report.
     """
 
     quantity: str
@@ -28,6 +29,7 @@ class Comparison:
     pairs: dict[tuple[str, str], float] = field(default_factory=dict)
     outlier: str | None = None
     not_compared: tuple[str, ...] = ()
+    values: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _as_vector(value) -> np.ndarray:
@@ -44,7 +46,7 @@ def compare(quantity: str, values: dict[str, object], tol: float) -> Comparison:
              for a, b in combinations(present, 2)}
     worst = max(pairs.values())
     if not worst <= 1.0:  # also catches NaN
-        return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped)
+        return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped, present)
     return Comparison(quantity, AGREE, tol, worst, pairs, None, skipped)
 
 

@@ -1,4 +1,9 @@
-"""The equivalence gate: sample states per case, evaluate every backend, compare, collect verdicts."""
+"""The equivalence gate: sample states per case, evaluate every backend, compare, collect verdicts.
+
+Besides the cross-backend comparison at each state, the gate checks by default (:class:`Checks`) that the
+answers do not depend on the chart (every built-in chart that applies; ``crosscheck.invariance``), on the world
+frame (state ``i`` in sampled frame ``i mod frames``) or break conservation (``crosscheck.conservation``).
+"""
 
 from __future__ import annotations
 
@@ -8,10 +13,21 @@ from typing import Callable, Sequence
 
 import cases
 from cases.model import Model
+from crosscheck import charts as chart_catalog
+from crosscheck import conservation, frames, invariance
 from crosscheck import tolerance as tolerance_policy
 from crosscheck.compare import DISAGREE, Comparison, compare
 from crosscheck.sampling import State, sample_states
 from formalisms.interface import Formalism, Split
+
+
+@dataclass(frozen=True)
+class Checks:
+    """Which invariance and conservation checks the gate runs besides the cross-backend comparison."""
+
+    charts: bool = True
+    frames: int = 2
+    conservation: bool = True
 
 
 @dataclass(frozen=True)
@@ -44,10 +60,17 @@ class StateOutcome:
     errors: dict[str, str]
     comparisons: dict[str, Comparison]
     breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
+    checks: dict[str, Comparison] = field(default_factory=dict)
 
     @property
     def failed(self) -> bool:
-        return bool(self.errors) or any(c.verdict == DISAGREE for c in self.comparisons.values())
+        return bool(self.errors) or any(c.verdict == DISAGREE for c in self.comparisons.values()) or any(
+            c.verdict == DISAGREE for c in self.checks.values())
+
+    @property
+    def trusted(self) -> dict[str, Split]:
+        """The splits of the backends that are not in BREAKDOWN."""
+        return {name: split for name, split in self.splits.items() if name not in self.breakdowns}
 
     @property
     def worst_ratio(self) -> float:
@@ -63,6 +86,8 @@ class CaseOutcome:
     states: list[StateOutcome]
     first_call_s: dict[str, float] = field(default_factory=dict)
     per_state_s: dict[str, float] = field(default_factory=dict)
+    charts: tuple[str, ...] = ()
+    frames: tuple[frames.Frame, ...] = ()
 
     @property
     def failed(self) -> bool:
@@ -75,6 +100,7 @@ class GateResult:
     samples: int
     backends: tuple[str, ...]
     cases: list[CaseOutcome]
+    checks: Checks = Checks()
 
     @property
     def passed(self) -> bool:
@@ -111,22 +137,43 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
     return StateOutcome(state, splits, errors, comparisons, breakdowns)
 
 
+def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism], case_charts, frame,
+                moved: Model | None, do_conservation: bool) -> None:
+    """Add the chart, frame and conservation checks at ``outcome``'s state to it (errors included)."""
+    state, trusted = outcome.state, outcome.trusted
+    for chart in case_charts:
+        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, backends, outcome.errors))
+    if moved is not None:
+        there = evaluate(moved, state, backends)
+        outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
+        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted))
+    if do_conservation and trusted:
+        outcome.checks.update(conservation.checks(model, state, trusted))
+
+
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None) -> CaseOutcome:
+             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
     model = spec.build()
+    case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
+    case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
+    moved = [frames.move_scene(model, frame) for frame in case_frames]
     clock: dict[str, list[float]] = {}
     outcomes = []
     for state in sample_states(model, samples, seed, spec.name):
-        outcomes.append(evaluate(model, state, backends, clock))
+        outcome = evaluate(model, state, backends, clock)
+        k = state.index % len(moved) if moved else None
+        add_checks(model, outcome, backends, case_charts, case_frames[k] if moved else None,
+                    moved[k] if moved else None, checks.conservation)
+        outcomes.append(outcome)
         if progress:
             progress(spec.name, state.index + 1)
     first = {name: times[0] for name, times in clock.items()}
     rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
-    return CaseOutcome(spec, model, outcomes, first, rest)
+    return CaseOutcome(spec, model, outcomes, first, rest, tuple(c.name for c in case_charts), tuple(case_frames))
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None) -> GateResult:
+             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> GateResult:
     """Run the gate over the cases; the result passes when no state shows a disagreement or an error."""
-    outcomes = [run_case(spec, backends, samples, seed, progress) for spec in specs]
-    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes)
+    outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
+    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks)

@@ -5,7 +5,10 @@ Same seed, same report byte for byte, apart from the timing section at the end.
 
 from __future__ import annotations
 
-from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED
+import numpy as np
+
+from crosscheck import charts
+from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, Comparison
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
 from formalisms.interface import Unsupported
 from crosscheck.tolerance import BREAKDOWN_LIMITS, EXACT, QUANTITIES, TOLERANCES
@@ -14,7 +17,8 @@ MAX_LISTED_FAILURES = 20
 
 
 def _vec(x) -> str:
-    return "[" + ", ".join(f"{v:.10g}" for v in x) + "]" if hasattr(x, "__len__") else f"{x:.10g}"
+    """A number, or an array flattened row by row, with 10 significant digits."""
+    return "[" + ", ".join(f"{v:.10g}" for v in np.ravel(x)) + "]" if hasattr(x, "__len__") else f"{x:.10g}"
 
 
 def _arg(values) -> str:
@@ -25,6 +29,23 @@ def reproduce_command(case: CaseOutcome, state: StateOutcome) -> str:
     """A command that evaluates every backend at exactly this state (floats round-trip through repr)."""
     s = state.state
     return (f"crosscheck eval {case.spec.cli_args()} --q={_arg(s.q)} --qd={_arg(s.qd)} --u={_arg(s.u)}")
+
+
+def check_reproduce_command(case: CaseOutcome, state: StateOutcome, family: str, seed: int) -> str:
+    """The eval command for a failing chart or frame check: the state expressed in that chart (p, pd and the
+    generalized force), or the moved scene."""
+    s = state.state
+    if family.startswith("chart "):
+        chart = charts.get(family.split(" ", 1)[1], case.model, seed, case.spec.name)
+        p = chart.p_of(np.array(s.q))
+        pd = charts.velocity_to_chart(chart, p, np.array(s.qd))
+        tau = charts.force_to_chart(chart, p, case.model.input_map @ np.array(s.u))
+        return (f"crosscheck eval {case.spec.cli_args()} --chart {chart.name} --seed {seed} --q={_arg(p)} "
+                f"--qd={_arg(pd)} --tau={_arg(tau)}")
+    if family.startswith("frame") and case.frames:
+        frame = case.frames[s.index % len(case.frames)]
+        return f"{reproduce_command(case, state)} --frame {frame.name} --seed {seed}"
+    return reproduce_command(case, state)
 
 
 def _summary_rows(case: CaseOutcome) -> list[str]:
@@ -42,6 +63,57 @@ def _summary_rows(case: CaseOutcome) -> list[str]:
     if errors:
         rows.append(f"| {case.spec.name} | {case.model.n} | backend errors | - | {errors} | - | - | - | - |")
     return rows
+
+
+def check_family(key: str) -> str:
+    """The report row a check belongs to: ``chart affine``, ``frame``, ``frame law``, or a conservation check."""
+    return key if key.startswith("conservation") else key.split(":")[0]
+
+
+def _check_groups(case: CaseOutcome) -> dict[str, list[tuple[StateOutcome, str, Comparison]]]:
+    groups: dict[str, list] = {}
+    for state in case.states:
+        for key, comp in state.checks.items():
+            groups.setdefault(check_family(key), []).append((state, key, comp))
+    return groups
+
+
+def _checks_section(result: GateResult) -> list[str]:
+    rows, totals = [], {}
+    for case in result.cases:
+        for family, found in _check_groups(case).items():
+            states = len({s.state.index for s, _, _ in found})
+            bad = sum(c.verdict == DISAGREE for _, _, c in found)
+            state, key, worst = max(found, key=lambda f: f[2].worst_ratio if f[2].worst_ratio == f[2].worst_ratio
+                                    else float("inf"))
+            rows.append(f"| {case.spec.name} | {family} | {states} | {len(found)} | {bad} | "
+                        f"{worst.worst_ratio:.3g} | {worst.tolerance:.3g} | "
+                        f"{key.split(': ', 1)[-1] if key != family else '-'} | "
+                        f"#{state.state.index} |")
+            t = totals.setdefault(family, [0, 0, 0, 0.0, 0])
+            t[0] += 1
+            t[1] += states
+            t[2] += len(found)
+            t[3] = max(t[3], worst.worst_ratio)
+            t[4] += bad
+    if not rows:
+        return []
+    c = result.checks
+    lines = ["## Invariance and conservation checks", "",
+             f"Charts: {'every built-in chart that applies (identity is the joint chart)' if c.charts else 'off'}; "
+             f"frames: {c.frames} sampled rigid transforms per case (state i in frame i mod {c.frames}); "
+             f"conservation: {'on' if c.conservation else 'off'}.", ""]
+    lines += [f"- {family}: {states} states in {cases} case(s), {comps} comparisons, {bad} DISAGREE, "
+              f"worst error/tolerance {worst:.3g}" for family, (cases, states, comps, worst, bad) in totals.items()]
+    lines += ["", "| case | check | states | comparisons | DISAGREE | worst error/tolerance | tolerance at worst | "
+              "quantity | at state |", "|---|---|---|---|---|---|---|---|---|"] + rows + [""]
+    charts_used = [f"{case.spec.name}: {', '.join(case.charts) or '-'}" for case in result.cases]
+    frames_used = [f"{case.spec.name}: " + "; ".join(
+        f"{f.name} = (R = {_vec(f.rotation.ravel())}, t = {_vec(f.translation)})" for f in case.frames)
+        for case in result.cases if case.frames]
+    lines += ["Charts per case: " + "; ".join(charts_used) + ".", ""]
+    lines += [f"- frames {line}" for line in frames_used] + [""]
+    return lines
 
 
 def _breakdowns(result: GateResult) -> list[tuple[CaseOutcome, StateOutcome, str, str, float]]:
@@ -73,7 +145,7 @@ def _breakdown_section(result: GateResult) -> list[str]:
     return lines + [""]
 
 
-def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[str]:
+def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: int) -> list[str]:
     s = state.state
     lines = [f"### {heading}", "",
              f"- q = `{_vec(s.q)}`", f"- qd = `{_vec(s.qd)}`", f"- u = `{_vec(s.u)}`",
@@ -96,6 +168,15 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str) -> list[
         if quantity in EXACT:
             lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")
         lines.append("")
+    for key, comp in state.checks.items():
+        if comp.verdict != DISAGREE:
+            continue
+        blame = f", outlier **{comp.outlier}**" if comp.outlier else ""
+        lines += [f"- **{key}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
+                  f"(tolerance {comp.tolerance:.3g}){blame}; reproduce: "
+                  f"`{check_reproduce_command(case, state, check_family(key), seed)}`", "",
+                  "  | voter | value |", "  |---|---|"]
+        lines += [f"  | {name} | `{_vec(value)}` |" for name, value in comp.values.items()] + [""]
     if state.splits:
         first = next(iter(state.splits.values()))
         lines.append(f"- cond(M) = {first.cond_M:.3g}, acceleration scale = {first.accel_scale:.3g}")
@@ -125,18 +206,19 @@ def render(result: GateResult, command: str) -> str:
     for case in result.cases:
         lines += _summary_rows(case)
     lines.append("")
+    lines += _checks_section(result)
     lines += _breakdown_section(result)
     if failed:
         lines += ["## Disagreements", ""]
         for case, state in failed[:MAX_LISTED_FAILURES]:
-            lines += _state_detail(case, state, f"{case.spec.name}, state #{state.state.index}")
+            lines += _state_detail(case, state, f"{case.spec.name}, state #{state.state.index}", result.seed)
         if len(failed) > MAX_LISTED_FAILURES:
             lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
     lines += ["## Worst state per case", ""]
     for case in result.cases:
         worst = max(case.states, key=lambda s: s.worst_ratio, default=None)
         if worst is not None:
-            lines += _state_detail(case, worst, f"{case.spec.name}, state #{worst.state.index}")
+            lines += _state_detail(case, worst, f"{case.spec.name}, state #{worst.state.index}", result.seed)
     lines += ["## Timing (varies run to run)", "", "| case | backend | first call (s, includes preparation) | "
               "per state (ms) |", "|---|---|---|---|"]
     for case in result.cases:

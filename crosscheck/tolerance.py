@@ -6,6 +6,7 @@ with H the size of the summed terms; both parts are bounded by ``eps * cond(M) *
 its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task acceleration ``J qdd + Jdot qd`` (eq. 23) maps
 the joint error through J, whose columns are at most a lever arm L long (1 for a prismatic joint), and adds
 the rounding of ``Jdot qd``, of size ``L |qd|^2``: its scale is ``L (cond(M) accel_scale + |qd|_1^2)``.
+The kinetic energy ``1/2 qd^T M qd`` carries the error of M's entries, ``eps ||M|| |qd|^2 <= 2 eps cond(M) T``.
 
 The scales are the median over the backends' own reports, so one backend misreporting its conditioning
 cannot loosen the tolerance for the others. The factors below are data: each is a safety margin over the
@@ -19,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from formalisms.interface import Unsupported
+
 EPS = float(np.finfo(float).eps)
 
 #: quantity -> (scale kind, factor). tol = factor * eps * scale.
@@ -29,6 +32,7 @@ TOLERANCES: dict[str, tuple[str, float]] = {
     "additivity": ("acceleration", 100.0),
     "power_ctrl": ("power", 100.0),
     "task_drift": ("task", 100.0),
+    "kinetic_energy": ("energy", 100.0),
 }
 
 #: The quantities the gate compares, in report order.
@@ -63,6 +67,7 @@ class Scales:
     power_scale: float
     lever: float = 0.0
     rate_sq: float = 0.0
+    energy: float = 0.0
 
     def of(self, kind: str) -> float:
         if kind == "acceleration":
@@ -71,6 +76,8 @@ class Scales:
             return self.power_scale
         if kind == "task":
             return self.lever * (self.cond_M * self.accel_scale + self.rate_sq)
+        if kind == "energy":
+            return self.cond_M * self.energy
         raise KeyError(f"unknown tolerance scale kind '{kind}'")
 
 
@@ -93,9 +100,11 @@ def scales(splits, model=None, q=None, qd=None) -> Scales:
     state (``q``, ``qd``)."""
     splits = list(splits)
     task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2}
+    energies = [s.kinetic_energy for s in splits if not isinstance(s.kinetic_energy, Unsupported)]
     return Scales(cond_M=float(np.median([s.cond_M for s in splits])),
                   accel_scale=float(np.median([s.accel_scale for s in splits])),
-                  power_scale=float(np.median([np.abs(s.power_ctrl_per_coord).sum() for s in splits])), **task)
+                  power_scale=float(np.median([np.abs(s.power_ctrl_per_coord).sum() for s in splits])),
+                  energy=float(np.median(energies)) if energies else 0.0, **task)
 
 
 def tolerance(quantity: str, at: Scales) -> float:

@@ -47,13 +47,13 @@ def test_gate_passes_and_is_reproducible(tmp_path):
 @pytest.fixture
 def dropped_coriolis(monkeypatch):
     """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
-    correct = el.terms
+    correct = el.evaluate_terms
 
-    def broken(model, q, qd):
-        M, Cqd, g = correct(model, q, qd)
-        return M, np.zeros_like(Cqd), g
+    def broken(model, x, xd, chart=None):
+        terms = correct(model, x, xd, chart)
+        return terms._replace(Cqd=np.zeros_like(terms.Cqd))
 
-    monkeypatch.setattr(el, "terms", broken)
+    monkeypatch.setattr(el, "evaluate_terms", broken)
 
 
 def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis, capsys):
@@ -100,7 +100,7 @@ def test_eval_json_matches_article_closed_form(capsys):
 
 @pytest.mark.parametrize("argv, fragment", [
     (["gate", "--case", "no_such_case"], "unknown case 'no_such_case'; valid cases: double_pendulum"),
-    (["eval", "--case", "double_pendulum", "--q=0.1"], "q has 1 entries but model 'double_pendulum' needs 2"),
+    (["eval", "--case", "double_pendulum", "--q=0.1"], "--q has 1 entries; this model needs 2"),
     (["eval", "--case", "double_pendulum", "--q=0.1,nan"], "q has non-finite entries"),
     (["eval", "--case", "double_pendulum", "--q=0.1,abc"], "--q takes comma-separated numbers"),
     (["eval", "--case", "double_pendulum", "--param", "m1=-1", "--q=0,0"], "non-positive mass -1.0"),
@@ -133,8 +133,8 @@ def test_eval_marks_a_backend_in_breakdown(capsys):
     """The stretched double pendulum (theta2 = 0) is a task singularity (article 6.3.4)."""
     assert cli.main(["eval", "--case", "double_pendulum", "--q=0.3,0", "--qd=1,2", "--u=1,1"]) == 0
     out = capsys.readouterr().out
-    assert "operational_space: BREAKDOWN (cond task = inf > 1e+03)" in out
-    assert "newton_euler:\n" in out and "newton_euler: BREAKDOWN" not in out
+    assert "operational_space (joint chart): BREAKDOWN (cond task = inf > 1e+03)" in out
+    assert "newton_euler (joint chart):\n" in out and "newton_euler (joint chart): BREAKDOWN" not in out
 
 
 def test_unparsable_urdf_exits_2(tmp_path, capsys):

@@ -1,0 +1,92 @@
+"""Frame changes (article 7.4; DESIGN.md, frames): the whole scene moved by a rigid transform g.
+
+Moving the scene by ``g = (R, t)`` (world points ``x -> R x + t``) changes nothing physical: the root bodies'
+placements become ``g * placement``, gravity rotates with the scene (``R gravity``), and the task directions
+rotate too (``D R^T``), so the task is the same task on the moved scene. Under it
+
+    joint accelerations, inputs, multipliers, power, kinetic energy   are invariant,
+    twists (w, v) in the world frame                                  map by Ad_g,
+    wrenches (moment, force) in the world frame                       map by Ad_g^-T,
+    world-frame task accelerations                                    rotate by R,
+
+while quantities in body frames do not change. The adjoints here are the harness's own, written from their
+block form, so a frame check never uses the code it checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+import cases
+from cases.model import Model
+from crosscheck.sampling import case_rng
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A rigid transform ``g``: rotation R (3x3) and translation t (3), with a label for reports."""
+
+    name: str
+    rotation: np.ndarray
+    translation: np.ndarray
+
+    @property
+    def matrix(self) -> np.ndarray:
+        g = np.eye(4)
+        g[:3, :3], g[:3, 3] = self.rotation, self.translation
+        return g
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly distributed rotation (a normalized Gaussian quaternion)."""
+    w, x, y, z = (quat := rng.standard_normal(4)) / np.linalg.norm(quat)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def sampled(seed: int, case: str, count: int = 2, reach: float = 1.0) -> list[Frame]:
+    """``count`` rigid transforms, uniform rotations and translations in +-``reach`` m, seeded by (seed, case)."""
+    rng = case_rng(seed, case + "/frames")
+    return [Frame(f"g{k}", random_rotation(rng), rng.uniform(-reach, reach, 3)) for k in range(count)]
+
+
+def rotate_gravity(frame: Frame, gravity: np.ndarray) -> np.ndarray:
+    """Gravity is a world vector: it turns with the scene."""
+    return frame.rotation @ gravity
+
+
+def move_scene(model: Model, frame: Frame) -> Model:
+    """The same scene moved by ``frame``: root placements ``g * placement``, gravity and task directions rotated."""
+    R, t = frame.rotation, frame.translation
+    bodies = [dataclasses.replace(b, rotation=R @ b.rotation, translation=R @ b.translation + t)
+              if b.parent is None else b for b in model.bodies]
+    task_points = [dataclasses.replace(tp, directions=tp.directions @ R.T) for tp in model.task_points]
+    return cases.build_model(f"{model.name}@{frame.name}", bodies, gravity=rotate_gravity(frame, model.gravity),
+                             input_map=model.input_map, task_points=task_points, constraints=model.constraints)
+
+
+def twist_map(frame: Frame) -> np.ndarray:
+    """``Ad_g`` for twists ``(w, v)``: ``w' = R w``, ``v' = t x (R w) + R v``."""
+    R, T = frame.rotation, _hat(frame.translation)
+    return np.block([[R, np.zeros((3, 3))], [T @ R, R]])
+
+
+def wrench_map(frame: Frame) -> np.ndarray:
+    """``Ad_g^-T`` for wrenches ``(moment, force)``: ``f' = R f``, ``n' = R n + t x (R f)`` (the moment about the
+    moved origin), so that the power ``F' . V' = F . V`` is unchanged."""
+    R, T = frame.rotation, _hat(frame.translation)
+    return np.block([[R, T @ R], [np.zeros((3, 3)), R]])
+
+
+def force_moment_map(frame: Frame) -> np.ndarray:
+    """:func:`wrench_map` for rows ordered ``(force, moment)`` (the Newton–Euler joint reactions)."""
+    swap = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
+    return swap @ wrench_map(frame) @ swap

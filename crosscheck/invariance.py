@@ -1,0 +1,131 @@
+"""Chart and frame invariance checks at one state (article 6.4.6, 7.4, 9.1; DESIGN.md, charts and frames).
+
+Each check is a :class:`~crosscheck.compare.Comparison` keyed ``"<family> <name>: <quantity>"``, so the gate,
+the outlier vote and the report treat it like any cross-backend comparison.
+
+Chart invariance. The state ``(q, qd, u)`` is expressed in the chart: ``p = psi^-1(q)``, ``pd = Dpsi^-1 qd``
+and the generalized force ``tau_p = Dpsi^T B u`` (a covector). Every backend with ``split_chart`` evaluates in p
+directly; every joint-chart answer is mapped by ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)`` (the control part,
+linear in u, by ``Dpsi^-1`` alone). All must agree; power and kinetic energy must equal the joint-chart ones.
+
+Frame invariance. Every backend evaluates the scene moved by g (``crosscheck.frames``) at the same state. Joint
+quantities (accelerations, power, kinetic energy, task accelerations in the rotated task directions) must equal
+the unmoved ones; extras transform by their law in :data:`FRAME_LAWS` (world twists by ``Ad_g``, world wrenches by
+``Ad_g^-T``, body-frame quantities unchanged).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from cases.model import Model
+from crosscheck import charts, frames
+from crosscheck import tolerance as policy
+from crosscheck.compare import Comparison, compare
+from crosscheck.sampling import State
+from formalisms.interface import Formalism, Split
+
+EPS = policy.EPS
+
+#: Quantities checked for invariance under a chart change and under a frame change.
+INVARIANT = ("drift", "ctrl", "total", "additivity", "power_ctrl", "kinetic_energy", "task_drift")
+
+#: extra name -> how its rows transform under a frame change: the name of the 6x6 map in ``crosscheck.frames``
+#: (looked up when used), or None for a quantity that does not change (body-frame rows).
+FRAME_LAWS: dict[str, str | None] = {
+    "twists_space": "twist_map",
+    "accelerations_space": "twist_map",
+    "wrenches_space": "wrench_map",
+    "twists_body": None,
+    "wrenches_body": None,
+    "wrenches_body_drift": None,
+    "joint_reactions": None,
+    "joint_reactions_drift": None,
+    "joint_reactions_world": "force_moment_map",
+}
+
+
+def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str):
+    """A joint-chart answer expressed in the chart."""
+    if quantity in ("drift", "total"):
+        return charts.acceleration_to_chart(chart, p, pd, split.quantity(quantity))
+    if quantity == "ctrl":
+        return charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
+    if quantity == "additivity":
+        return (charts.acceleration_to_chart(chart, p, pd, split.drift)
+                + charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
+                - charts.acceleration_to_chart(chart, p, pd, split.total))
+    return split.quantity(quantity)          # power, kinetic energy, task accelerations: physical, no map
+
+
+def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence[float]) -> float:
+    """The largest of the tolerances the contributing scales give, each multiplied by its gain (the norm of the
+    map that carried it into the chart)."""
+    return max(g * policy.tolerance(quantity, s) for s, g in zip(scales, gains))
+
+
+def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping[str, Split],
+                 backends: Sequence[Formalism], errors: dict[str, str]) -> dict[str, Comparison]:
+    """Chart invariance at ``state``: the chart-capable ``backends`` evaluated in p against every trusted
+    joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``."""
+    q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
+    p = chart.p_of(q)
+    pd = charts.velocity_to_chart(chart, p, qd)
+    tau_p = charts.force_to_chart(chart, p, model.input_map @ u)
+    native: dict[str, Split] = {}
+    for backend in backends:
+        if backend.split_chart is None:
+            continue
+        label = f"{backend.name}@{chart.name}"
+        try:
+            native[label] = backend.split_chart(model, chart, p, pd, tau_p)
+        except Exception as exc:  # a backend failing in a valid chart is a failure, reported, never a crash
+            errors[label] = f"{type(exc).__name__}: {exc}"
+    if not native or not joint:
+        return {}
+    gain = float(np.linalg.norm(np.linalg.inv(chart.jacobian(p)), 2))
+    at = [policy.scales(native.values(), model, q, qd), policy.scales(joint.values(), model, q, qd)]
+    out = {}
+    for quantity in INVARIANT:
+        values = {name: _mapped(chart, p, pd, split, quantity) for name, split in joint.items()}
+        values.update({name: split.quantity(quantity) for name, split in native.items()})
+        gains = (1.0, gain) if quantity in ("drift", "ctrl", "total", "additivity") else (1.0, 1.0)
+        out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, _tolerance(quantity, at, gains))
+    return out
+
+
+def _extra_rows(value) -> np.ndarray | None:
+    arr = np.asarray(value, dtype=float) if isinstance(value, np.ndarray) else None
+    return arr if arr is not None and arr.ndim == 2 and arr.shape[1] == 6 else None
+
+
+def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapping[str, Split],
+                 moved: Mapping[str, Split]) -> dict[str, Comparison]:
+    """Frame invariance at ``state``: each backend's split of the moved scene (``moved``) against the unmoved
+    splits (``original``), for the joint quantities (all backends vote together) and, per backend, for each
+    extra with a law in :data:`FRAME_LAWS` (the prediction from the unmoved extra against the moved one)."""
+    q, qd = np.array(state.q), np.array(state.qd)
+    both = [name for name in original if name in moved]
+    if not both:
+        return {}
+    at = [policy.scales([original[n] for n in both], model, q, qd),
+          policy.scales([moved[n] for n in both], model, q, qd)]
+    out = {}
+    for quantity in INVARIANT:
+        values = {name: original[name].quantity(quantity) for name in both}
+        values.update({f"{name}@{frame.name}": moved[name].quantity(quantity) for name in both})
+        out[f"frame: {quantity}"] = compare(quantity, values, _tolerance(quantity, at, (1.0, 1.0)))
+    reach = 1.0 + float(np.linalg.norm(frame.translation))
+    for name in both:
+        for key, law in FRAME_LAWS.items():
+            before, after = (_extra_rows(s.extras.get(key)) for s in (original[name], moved[name]))
+            if before is None or after is None:
+                continue
+            predicted = before if law is None else before @ getattr(frames, law)(frame).T
+            size = max(float(np.abs(before).max()), float(np.abs(after).max()), np.finfo(float).tiny)
+            tol = 100.0 * EPS * at[0].cond_M * reach * size
+            out[f"frame law: {name} {key}"] = compare(key, {f"{name} (Ad-mapped)" if law else name: predicted,
+                                                        f"{name}@{frame.name}": after}, tol)
+    return out

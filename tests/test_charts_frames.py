@@ -1,0 +1,158 @@
+"""Charts, frames and the gate's invariance and conservation checks, including the faults they must catch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import cases
+from crosscheck import backends, charts, frames
+from crosscheck.compare import DISAGREE
+from crosscheck.gate import CaseSpec, Checks, run_gate
+from crosscheck.report import render
+
+PANDA = cases.load("panda")
+DP = cases.load("double_pendulum")
+ARM = cases.load("spatial_arm")
+
+vectors = st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6).map(np.array)
+
+
+def _all_charts(model):
+    return [charts.get(name, model, 0, model.name) for name in charts.names()
+            if name != "absolute" or charts.is_planar_serial(model)]
+
+
+def _central(f, x, h=1e-6):
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+@given(vectors, vectors)
+def test_each_chart_inverts_and_its_jacobian_and_rate_are_the_derivatives_of_psi(p, pd):
+    for chart in _all_charts(ARM):
+        np.testing.assert_allclose(chart.p_of(chart.q_of(p)), p, rtol=0, atol=1e-12)
+        D = chart.jacobian(p)
+        for j in range(ARM.n):
+            e = np.eye(ARM.n)[j]
+            np.testing.assert_allclose(D[:, j], _central(lambda s: chart.q_of(p + s * e), 0.0), atol=1e-8)
+        rate = _central(lambda s: chart.jacobian(p + s * pd) @ pd, 0.0)
+        np.testing.assert_allclose(chart.jacobian_rate(p, pd), rate, atol=1e-7)
+
+
+def test_absolute_chart_is_the_articles_and_only_for_planar_serial_chains():
+    chart = charts.get("absolute", DP)
+    theta = chart.q_of(np.array([0.3, 1.0]))         # phi = (theta1, theta1 + theta2)
+    np.testing.assert_allclose(theta, [0.3, 0.7], rtol=0, atol=1e-15)
+    with pytest.raises(charts.ChartError, match="planar serial chain"):
+        charts.get("absolute", ARM)
+    with pytest.raises(charts.ChartError, match="valid charts"):
+        charts.get("polar", DP)
+
+
+@given(vectors, vectors)
+def test_forces_map_as_covectors_so_power_is_chart_invariant(p, pd):
+    tau_q = np.linspace(-2.0, 3.0, ARM.n)
+    for chart in _all_charts(ARM):
+        qd = chart.jacobian(p) @ pd
+        assert charts.force_to_chart(chart, p, tau_q) @ pd == pytest.approx(tau_q @ qd, abs=1e-10)
+        np.testing.assert_allclose(charts.force_from_chart(chart, p, charts.force_to_chart(chart, p, tau_q)), tau_q,
+                                   atol=1e-12)
+
+
+def test_twists_and_wrenches_keep_their_pairing_under_a_frame_change():
+    rng = np.random.default_rng(5)
+    for frame in frames.sampled(0, "x", 4):
+        V, F = rng.standard_normal(6), rng.standard_normal(6)
+        assert (frames.wrench_map(frame) @ F) @ (frames.twist_map(frame) @ V) == pytest.approx(F @ V, abs=1e-12)
+        np.testing.assert_allclose(frame.rotation @ frame.rotation.T, np.eye(3), atol=1e-14)
+        assert np.linalg.det(frame.rotation) == pytest.approx(1.0)
+
+
+def test_a_moved_scene_keeps_the_task_and_turns_gravity():
+    frame = frames.sampled(0, "arm", 1)[0]
+    moved = frames.move_scene(ARM, frame)
+    np.testing.assert_allclose(moved.gravity, frame.rotation @ ARM.gravity)
+    np.testing.assert_allclose(moved.task_point().directions, ARM.task_point().directions @ frame.rotation.T)
+    assert moved.digest() != ARM.digest()
+
+
+def _run(case, samples=6, **checks):
+    result = run_gate([CaseSpec(case)], [backends.get(n) for n in backends.names()], samples, 0,
+                      checks=Checks(**checks))
+    bad = {key for s in result.cases[0].states for key, c in s.checks.items() if c.verdict == DISAGREE}
+    return result, bad
+
+
+@pytest.mark.parametrize("case", ["double_pendulum", "acrobot", "spatial_arm"])
+def test_the_correct_backends_pass_every_chart_frame_and_conservation_check(case):
+    result, bad = _run(case)
+    assert result.passed and not bad, bad
+    families = {key.split(":")[0] for s in result.cases[0].states for key in s.checks}
+    expected = {"chart affine", "chart nonlinear", "frame", "frame law", "conservation"}
+    assert expected <= families
+    assert ("chart absolute" in families) == (case != "spatial_arm")
+    report = render(result, "test")
+    assert "## Invariance and conservation checks" in report and "chart nonlinear" in report
+
+
+def test_fault_chart_without_its_rate_term_is_caught(monkeypatch):
+    monkeypatch.setattr(charts.NonlinearChart, "jacobian_rate", lambda self, p, pd: np.zeros(len(pd)))
+    result, bad = _run("double_pendulum", frames=0, conservation=False)
+    assert not result.passed
+    assert {key.split(":")[0] for key in bad} == {"chart nonlinear"}
+    assert any(key.endswith(": drift") for key in bad)
+
+
+def test_fault_forces_mapped_by_the_jacobian_instead_of_its_transpose_is_caught(monkeypatch):
+    monkeypatch.setattr(charts, "force_to_chart", lambda chart, p, tau: chart.jacobian(p) @ np.asarray(tau))
+    result, bad = _run("spatial_arm", frames=0, conservation=False)
+    assert not result.passed
+    assert any(key.startswith("chart affine") and key.endswith("ctrl") for key in bad)
+    assert any(key.startswith("chart nonlinear") and key.endswith("power_ctrl") for key in bad)
+
+
+def test_fault_gravity_not_rotated_with_the_frame_is_caught(monkeypatch):
+    monkeypatch.setattr(frames, "rotate_gravity", lambda frame, gravity: gravity)
+    result, bad = _run("spatial_arm", charts=False, conservation=False)
+    assert not result.passed
+    assert {"frame: drift", "frame: total"} <= bad
+
+
+def test_fault_wrench_mapped_by_Ad_instead_of_its_inverse_transpose_is_caught(monkeypatch):  # noqa: N802
+    monkeypatch.setattr(frames, "wrench_map", frames.twist_map)
+    result, bad = _run("spatial_arm", charts=False, conservation=False)
+    assert not result.passed
+    assert bad == {"frame law: screw wrenches_space", "frame law: newton_euler joint_reactions_world"}
+    report = render(result, "test")
+    assert "--frame g" in report
+
+
+def test_a_failing_chart_check_reports_a_command_that_reproduces_it_in_the_chart(monkeypatch, capsys):
+    from crosscheck import cli
+    monkeypatch.setattr(charts.NonlinearChart, "jacobian_rate", lambda self, p, pd: np.zeros(len(pd)))
+    result, _ = _run("double_pendulum", samples=3, frames=0, conservation=False)
+    report = render(result, "test")
+    line = next(x for x in report.splitlines() if "--chart nonlinear" in x)
+    command = line.split("`")[1]
+    assert command.startswith("crosscheck eval --case double_pendulum --chart nonlinear --seed 0 --q=")
+    monkeypatch.undo()
+    assert cli.main(command.split()[1:]) == 0
+    out = capsys.readouterr().out
+    assert "in chart nonlinear" in out and "geometric (in chart nonlinear)" in out
+
+
+def test_eval_in_a_chart_takes_the_generalized_force_there_and_refuses_one_the_inputs_cannot_make(capsys):
+    from crosscheck import cli
+    # absolute angles of the double pendulum; tau_p = Dpsi^T tau_q = (tau1 - tau2, tau2) for tau_q = (5, -2)
+    assert cli.main(["eval", "--case", "double_pendulum", "--chart", "absolute", "--q=0.785,1.309", "--qd=2,1",
+                     "--tau=7,-2", "--json"]) == 0
+    import json
+    out = json.loads(capsys.readouterr().out)
+    assert out["u"] == pytest.approx([5.0, -2.0])
+    geo, ne = out["formalisms"]["geometric"], out["formalisms"]["newton_euler"]
+    np.testing.assert_allclose(geo["total"], ne["total"], rtol=1e-12)
+    # the acrobot has one input, at the elbow: a shoulder torque is not a force its input can produce
+    assert cli.main(["eval", "--case", "acrobot", "--chart", "absolute", "--q=0.1,0.2", "--tau=1,0"]) == 2
+    assert "is not a force the inputs can produce" in capsys.readouterr().err
