@@ -8,14 +8,16 @@
       HYPOTHESIS_PROFILE=fuzz .venv/bin/pytest tests
 
 Tests that pin their own ``@settings(max_examples=...)`` keep that count under either profile.
-The Euler–Lagrange disk cache is deliberately left alone: it is keyed by the model digest and the codegen
-version, so sharing it between runs cannot change an answer (the cache test points it at a tmp dir itself).
+The shared Euler–Lagrange disk cache is keyed by the model digest, the chart and a hash of the derivation's
+source, so sharing it between runs cannot change an answer; the Euler–Lagrange test modules still derive afresh
+(fixture ``fresh_derivation_cache``).
 """
 
 from __future__ import annotations
 
 import os
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -35,3 +37,16 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+@pytest.fixture(scope="module")
+def fresh_derivation_cache(tmp_path_factory):
+    """Euler–Lagrange derivations of one test module go to a scratch disk cache: (1) the module tests the current
+    derivation, never code a stale cache entry serves; (2) drawn parameters make a new model (a new entry) per
+    example, and a fuzzing run must not leave thousands of files in the user's cache."""
+    import formalisms.euler_lagrange as el
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("CROSSCHECK_CACHE", str(tmp_path_factory.mktemp("el_cache")))
+        el._compiled.cache_clear()
+        yield
+    el._compiled.cache_clear()

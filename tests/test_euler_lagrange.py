@@ -101,17 +101,7 @@ def test_terms_at_the_article_state():
     assert_close(g, article_g(*Q473), 1e-13, "g eq. (8)")
 
 
-# Every test in this module derives afresh into a scratch disk cache. (1) The shared cache is keyed by the model
-# digest and a codegen version, not by the derivation's code, so an edit to `derive` that forgets to bump the
-# version would be masked by stale entries: here it cannot be. (2) Drawn parameters make a new model (a new
-# entry) per example, and a fuzzing run must not leave thousands of files in the user's cache.
-@pytest.fixture(scope="module", autouse=True)
-def fresh_derivation_cache(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("CROSSCHECK_CACHE", str(tmp_path_factory.mktemp("el_cache")))
-        el._compiled.cache_clear()
-        yield
-    el._compiled.cache_clear()
+pytestmark = pytest.mark.usefixtures("fresh_derivation_cache")  # conftest.py: derive afresh, into a scratch cache
 
 
 angle = st.floats(-PI, PI)

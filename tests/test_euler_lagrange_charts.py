@@ -35,14 +35,7 @@ EPS = np.finfo(float).eps
 PI = math.pi
 
 
-@pytest.fixture(scope="module", autouse=True)
-def fresh_derivation_cache(tmp_path_factory):
-    """Derive into a scratch cache, so the tests test the current code and leave no files in the user's cache."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("CROSSCHECK_CACHE", str(tmp_path_factory.mktemp("el_chart_cache")))
-        el._compiled.cache_clear()
-        yield
-    el._compiled.cache_clear()
+pytestmark = pytest.mark.usefixtures("fresh_derivation_cache")  # conftest.py: derive afresh, into a scratch cache
 
 
 def assert_close(got, expected, atol, what=""):

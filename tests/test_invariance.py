@@ -1,4 +1,4 @@
-"""Charts, frames and the gate's invariance and conservation checks, including the faults they must catch."""
+"""Charts, frames and the gate's chart, frame and conservation checks, including the faults they must catch."""
 
 from __future__ import annotations
 
@@ -156,3 +156,27 @@ def test_eval_in_a_chart_takes_the_generalized_force_there_and_refuses_one_the_i
     # the acrobot has one input, at the elbow: a shoulder torque is not a force its input can produce
     assert cli.main(["eval", "--case", "acrobot", "--chart", "absolute", "--q=0.1,0.2", "--tau=1,0"]) == 2
     assert "is not a force the inputs can produce" in capsys.readouterr().err
+
+
+def test_fault_a_drift_that_does_work_is_caught_by_the_energy_rate_and_named(monkeypatch):
+    """Euler–Lagrange with its velocity-product term dropped: its drift changes the energy."""
+    import formalisms.euler_lagrange as el
+    correct = el.evaluate_terms
+
+    def broken(model, x, xd, chart=None):
+        terms = correct(model, x, xd, chart)
+        return terms._replace(Cqd=np.zeros_like(terms.Cqd))
+
+    monkeypatch.setattr(el, "evaluate_terms", broken)
+    result, bad = _run("spatial_arm", charts=False, frames=0)
+    assert "conservation: energy rate at drift" in bad
+    outliers = {s.checks["conservation: energy rate at drift"].outlier for s in result.cases[0].states}
+    assert outliers == {"euler_lagrange"}
+
+
+def test_fault_a_christoffel_symbol_with_the_wrong_sign_breaks_the_skew_identity(monkeypatch):
+    from formalisms import geometric
+    monkeypatch.setattr(geometric, "christoffel_first_kind",
+                        lambda dM: 0.5 * (dM.transpose(1, 0, 2) + dM.transpose(1, 2, 0) + dM))
+    result, bad = _run("spatial_arm", charts=False, frames=0)
+    assert {"conservation: Mdot - 2C skew-symmetric", "conservation: C qd = M Gamma(qd, qd)"} <= bad
