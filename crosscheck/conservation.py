@@ -8,7 +8,8 @@ put through one energy bookkeeping, the geometric formalism's ``energy_rate`` (a
 
 Christoffel identities. For the Christoffel-consistent ``C`` (``C_ij = sum_k Gamma_ijk qd_k``, first kind)
 ``Mdot - 2C`` is skew-symmetric, and ``C qd = M Gamma(qd, qd)`` equals the velocity-product vector that the
-Euler–Lagrange derivation (Christoffel symbols of the first kind, symbolically) and Pinocchio (RNEA) compute.
+Euler–Lagrange derivation (Christoffel symbols of the first kind, symbolically) and Pinocchio (RNEA) compute,
+when those backends are among the ones evaluated.
 """
 
 from __future__ import annotations
@@ -69,7 +70,9 @@ def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: policy.Sc
     Mdot = np.einsum("kij,k->ij", geometric.metric_derivatives(model, q), qd)
     N = Mdot - 2.0 * C
     size = FACTOR * EPS * at.cond_M * (np.abs(Mdot).max() + np.abs(C).max() + np.finfo(float).tiny)
-    Cqd = {"geometric": C @ qd, "euler_lagrange": euler_lagrange.terms(model, q, qd)[1]}
+    Cqd = {"geometric": C @ qd}
+    if "euler_lagrange" in splits:
+        Cqd["euler_lagrange"] = euler_lagrange.terms(model, q, qd)[1]
     if "pinocchio" in splits and "Cqd" in splits["pinocchio"].extras:
         Cqd["pinocchio"] = splits["pinocchio"].extras["Cqd"]
     return {"conservation: Mdot - 2C skew-symmetric": compare("N + N^T", {"N + N^T": (N + N.T).ravel(),

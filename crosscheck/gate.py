@@ -137,13 +137,16 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
     return StateOutcome(state, splits, errors, comparisons, breakdowns)
 
 
-def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism], case_charts, frame,
-                moved: Model | None, do_conservation: bool) -> None:
-    """Add the chart, frame and conservation checks at ``outcome``'s state to it (errors included)."""
+def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
+               case_charts: Sequence[chart_catalog.Chart], scene: tuple[frames.Frame, Model] | None,
+               do_conservation: bool) -> None:
+    """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
+    checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there."""
     state, trusted = outcome.state, outcome.trusted
     for chart in case_charts:
         outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, backends, outcome.errors))
-    if moved is not None:
+    if scene is not None:
+        frame, moved = scene
         there = evaluate(moved, state, backends)
         outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
         outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted))
@@ -156,14 +159,13 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     model = spec.build()
     case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
     case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
-    moved = [frames.move_scene(model, frame) for frame in case_frames]
+    scenes = [(frame, frames.move_scene(model, frame)) for frame in case_frames]
     clock: dict[str, list[float]] = {}
     outcomes = []
     for state in sample_states(model, samples, seed, spec.name):
         outcome = evaluate(model, state, backends, clock)
-        k = state.index % len(moved) if moved else None
-        add_checks(model, outcome, backends, case_charts, case_frames[k] if moved else None,
-                    moved[k] if moved else None, checks.conservation)
+        scene = scenes[state.index % len(scenes)] if scenes else None
+        add_checks(model, outcome, backends, case_charts, scene, checks.conservation)
         outcomes.append(outcome)
         if progress:
             progress(spec.name, state.index + 1)
