@@ -506,16 +506,10 @@ def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.n
     return M, Cqd, g
 
 
-def _solve(model: Model, M, Cqd, g, tau, x, xd, T, where: str = ""):
+def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None):
     """The split of eq. (9) from the terms: drift ``-M^-1 (C xd + g)`` (eq. 10), ctrl ``M^-1 tau``, total
     ``M^-1 (tau - C xd - g)``, each solved on its own with the Cholesky factor of M (never an inverse)."""
-    try:
-        factor = factor_mass_matrix(model, M, x)
-    except ValueError as err:
-        if not where:
-            raise
-        raise ValueError(f"{err} [{where}: the configuration above is the chart coordinate p; the chart's mass "
-                         "matrix Dpsi^T M Dpsi is singular wherever Dpsi is]") from None
+    factor = factor_mass_matrix(model, M, x, chart)
     h = Cqd + g
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau, xd)
     return unconstrained_split(
@@ -546,10 +540,10 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     """
     if model.constraints:
         raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
-    key = chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
+    chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     M, Cqd, g, T = evaluate_terms(model, p, pd, chart)
-    return _solve(model, M, Cqd, g, tau_p, p, pd, T, where=f"chart '{chart.name}' ({key})")
+    return _solve(model, M, Cqd, g, tau_p, p, pd, T, chart=chart.name)
 
 
 FORMALISM = Formalism(

@@ -385,7 +385,7 @@ def _check_unconstrained(model: Model) -> None:
 
 def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
     pt = _evaluate(model, chart, p, pd)
-    factor = factor_mass_matrix(model, pt.M, p)
+    factor = factor_mass_matrix(model, pt.M, p, None if chart is None else getattr(chart, "name", "chart"))
     # grad V (dV raised by the metric), G u (the control covector raised) and M^-1 (tau - dV), each its own solve
     Gamma, first, (grad_V, ctrl, forced) = christoffel_symbols(pt.M, pt.dM, factor, (pt.dV, tau, tau - pt.dV))
     gamma_pdpd = (Gamma @ pd) @ pd                           # Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k

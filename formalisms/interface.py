@@ -164,13 +164,16 @@ def joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
     return out
 
 
-def factor_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray):
+def factor_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray, chart: str | None = None):
     """Cholesky factor of ``M`` (``scipy.linalg.cho_factor``); a mass matrix that is not positive definite (e.g. a
-    point mass on its own joint axis) is a ValueError naming the model, the configuration and the eigenvalues."""
+    point mass on its own joint axis) is a ValueError naming the model, the configuration and the eigenvalues.
+    With ``chart`` (its name), ``M`` and ``q`` are the chart's ``M_p = Dpsi^T M Dpsi`` and ``p``."""
     try:
         return scipy.linalg.cho_factor(M)
     except np.linalg.LinAlgError:
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = {q.tolist()} "
+        where = f"q = {q.tolist()}" if chart is None else (
+            f"p = {q.tolist()} in chart '{chart}' (M_p = Dpsi^T M Dpsi is singular wherever Dpsi is)")
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} "
                          f"(Cholesky failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
 
 

@@ -418,3 +418,15 @@ def test_a_chart_of_the_wrong_dimension_is_refused():
 
     with pytest.raises(ValueError, match="chart 'short' maps 2 coordinates to 1 joint values"):
         geo.split_chart(PENDULUM, Short(), [0.1, 0.2], [0.0, 0.0], [0.0, 0.0])
+
+
+def test_a_singular_chart_is_reported_with_the_chart():
+    """``q = (p0, 2 p0)`` is no chart (its Jacobian is singular), so the pulled-back metric is singular."""
+    class Collapsed:
+        name, key = "collapsed", "collapsed-geometric-test"
+
+        def psi(self, p, sin, cos):
+            return [p[0], 2 * p[0]]
+
+    with pytest.raises(ValueError, match=r"at p = \[0.1, 0.2\] in chart 'collapsed' \(M_p = Dpsi\^T M Dpsi"):
+        geo.split_chart(PENDULUM, Collapsed(), [0.1, 0.2], [0.0, 0.0], [0.0, 0.0])
