@@ -39,6 +39,19 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+@pytest.fixture
+def dropped_coriolis(monkeypatch):
+    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
+    import formalisms.euler_lagrange as el
+    correct = el.evaluate_terms
+
+    def broken(model, x, xd, chart=None):
+        terms = correct(model, x, xd, chart)
+        return terms._replace(Cqd=terms.Cqd * 0.0)
+
+    monkeypatch.setattr(el, "evaluate_terms", broken)
+
+
 @pytest.fixture(scope="module")
 def fresh_derivation_cache(tmp_path_factory):
     """Euler–Lagrange derivations of one test module go to a scratch disk cache: (1) the module tests the current

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import cases
-import formalisms.euler_lagrange as el
 import formalisms.newton_euler as ne
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
@@ -42,18 +41,6 @@ def test_gate_passes_and_is_reproducible(tmp_path):
     assert _without_timing(first) == _without_timing(second)
     _, other_seed = _gate(tmp_path, "--case", "double_pendulum", "--case", "acrobot", "--samples", "15", "--seed", "4")
     assert _without_timing(first) != _without_timing(other_seed)
-
-
-@pytest.fixture
-def dropped_coriolis(monkeypatch):
-    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
-    correct = el.evaluate_terms
-
-    def broken(model, x, xd, chart=None):
-        terms = correct(model, x, xd, chart)
-        return terms._replace(Cqd=np.zeros_like(terms.Cqd))
-
-    monkeypatch.setattr(el, "evaluate_terms", broken)
 
 
 def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis, capsys):

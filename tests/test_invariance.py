@@ -158,16 +158,8 @@ def test_eval_in_a_chart_takes_the_generalized_force_there_and_refuses_one_the_i
     assert "is not a force the inputs can produce" in capsys.readouterr().err
 
 
-def test_fault_a_drift_that_does_work_is_caught_by_the_energy_rate_and_named(monkeypatch):
-    """Euler–Lagrange with its velocity-product term dropped: its drift changes the energy."""
-    import formalisms.euler_lagrange as el
-    correct = el.evaluate_terms
-
-    def broken(model, x, xd, chart=None):
-        terms = correct(model, x, xd, chart)
-        return terms._replace(Cqd=np.zeros_like(terms.Cqd))
-
-    monkeypatch.setattr(el, "evaluate_terms", broken)
+def test_fault_a_drift_that_does_work_is_caught_by_the_energy_rate_and_named(dropped_coriolis):
+    """Euler–Lagrange with its velocity-product term dropped (conftest.py): its drift changes the energy."""
     result, bad = _run("spatial_arm", charts=False, frames=0)
     assert "conservation: energy rate at drift" in bad
     outliers = {s.checks["conservation: energy rate at drift"].outlier for s in result.cases[0].states}
