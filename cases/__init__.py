@@ -2,7 +2,7 @@
 
     >>> import cases
     >>> cases.names()
-    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda']
+    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum', 'double_pendulum_absolute_loop']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
@@ -11,7 +11,9 @@ package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do,
 
 from __future__ import annotations
 
+from cases import constrained  # registers the constrained cases
 from cases.factories import REGISTRY, CaseError, CaseInfo
+from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
 
@@ -61,5 +63,6 @@ def load(name: str, **params) -> Model:
     return info.factory(**kwargs)
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "Model", "ModelError", "TaskPoint", "UrdfError", "build_model",
+__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "constrained", "Model", "ModelError", "PointOnCircle", "PointOnLine",
+           "PointsCoincide", "TaskPoint", "UrdfError", "build_model",
            "catalog", "from_urdf", "load", "names"]

@@ -15,6 +15,9 @@ Frames and conventions
   bodies parents-first for the recursions.
 * ``input_map`` is ``B`` of ``M qdd + h = B u`` (n x m, DESIGN.md conventions; default identity).
 * Gravity is a vector in the world frame (m/s^2); the potential is ``V = -sum m_i gravity . p_com_i``.
+* A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
+  from two prismatic joints and a revolute one. Every joint must still move some mass.
+* ``constraints`` are declarations from :mod:`cases.constraints`; ``Model.k`` counts their rows (``phi`` in R^k).
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
+
+from cases import constraints as constraint_decl
 
 JOINT_TYPES = ("revolute", "prismatic")
 
@@ -93,6 +98,11 @@ class Model:
         return len(self.bodies)
 
     @property
+    def k(self) -> int:
+        """Number of constraint rows (``phi(q)`` in R^k); 0 for an unconstrained model."""
+        return sum(c.size for c in self.constraints)
+
+    @property
     def m(self) -> int:
         """Number of inputs (columns of the input map B)."""
         return self.input_map.shape[1]
@@ -130,7 +140,8 @@ class Model:
             for arr in (tp.offset, tp.directions):
                 h.update(repr(arr.shape).encode())
                 h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
-        h.update(repr(self.constraints).encode())
+        for c in self.constraints:
+            h.update(constraint_decl.digest_bytes(c))
         return h.hexdigest()
 
     def __hash__(self) -> int:
@@ -198,12 +209,15 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
         mass = float("nan")
     if not np.isfinite(mass):
         problems.append(f"{where} has a non-finite mass {mass}")
-    elif mass <= 0.0:
-        problems.append(f"{where} has a non-positive mass {mass}")
+    elif mass < 0.0:
+        problems.append(f"{where} has a negative mass {mass}")
     com = _as_array(problems, f"{where} centre of mass", body.com, (3,))
     inertia = _as_array(problems, f"{where} inertia", body.inertia, (3, 3))
     if inertia is not None:
         _check_inertia(problems, where, inertia)
+        if mass == 0.0 and np.abs(inertia).max() > 0.0:
+            problems.append(f"{where} has zero mass but a non-zero inertia {inertia.tolist()}; a massless body "
+                            "(a carriage) has zero inertia")
     rotation = _as_array(problems, f"{where} joint placement rotation", body.rotation, (3, 3))
     if rotation is not None:
         err = np.abs(rotation.T @ rotation - np.eye(3)).max()
@@ -285,6 +299,25 @@ def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str
     return TaskPoint(tp.name, tp.body, _frozen(offset, 3), _frozen(D, D.shape))
 
 
+def _moving_mass(problems: list[str], bodies: Sequence[Body], parent: Sequence[int]) -> None:
+    """Every joint must move some mass, or its row of M is zero (a massless carriage at the tip)."""
+    subtree = [b.mass for b in bodies]
+    for i in sorted(range(len(bodies)), key=lambda j: -_depth(parent, j)):
+        if parent[i] >= 0:
+            subtree[parent[i]] += subtree[i]
+    for b, carried in zip(bodies, subtree):
+        if carried == 0.0:
+            problems.append(f"joint of body '{b.name}' moves no mass (the body and all its descendants are "
+                            "massless), so the mass matrix is singular; give the body or a descendant a mass")
+
+
+def _depth(parent: Sequence[int], i: int) -> int:
+    depth = 0
+    while parent[i] >= 0:
+        i, depth = parent[i], depth + 1
+    return depth
+
+
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
                 task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = ()) -> Model:
     """Validate the description and return an immutable :class:`Model`.
@@ -310,9 +343,11 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
         problems.append("a model needs at least one task point (the task drift and the operational-space backend "
                         "use the first); leave task_points out for the default, the COM of the last body")
     tps = [tp for tp in (_validate_task_point(problems, tp, names) for tp in task_points) if tp is not None]
-    constraints = tuple(constraints)
-    if constraints:
-        problems.append("constraints are not supported yet (the constraint issue adds them)")
+    if not problems:
+        _moving_mass(problems, valid, parent)
+    constraints = tuple(constraint_decl.validate(problems, c, names) for c in constraints)
+    if len({c.name for c in constraints if c is not None}) < len(constraints):
+        problems.append(f"constraint names repeat: {[c.name for c in constraints if c is not None]}")
     if problems:
         raise ModelError(name, problems)
     B = B.copy()

@@ -4,11 +4,18 @@ A formalism is a pure function ``split(model, q, qd, u) -> Split`` of an immutab
 The split is article eq. (9): ``qdd = qdd_drift + qdd_ctrl`` with ``qdd_drift`` the pointwise ZTCF sample
 (eq. 10, u = 0) and ``qdd_ctrl`` the control contribution, computed directly (``M^-1 B u``), never as
 ``total - drift``.
+
+With constraints (article 5.2-5.4) ``M qdd + h = B u + Jc^T lam`` and ``Jc qdd + Jcdot qd = 0`` (eq. 12, 13): total
+and lam solve the KKT system, drift and lam_drift solve it with u = 0 (eq. 14), and ctrl is ``B_c B u`` with the
+constraint-consistent input map ``B_c = M^-1 [I - Jc^T (Jc M^-1 Jc^T)^-1 Jc M^-1]`` (eq. 17), computed directly.
+Redundant constraints make ``S = Jc M^-1 Jc^T`` singular: every backend then treats the eigen-directions of S
+below ``CONSTRAINT_RCOND`` times its largest eigenvalue as redundant and returns the minimum-norm multipliers
+(the generalized constraint force ``Jc^T lam`` and the accelerations stay unique).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
@@ -32,6 +39,10 @@ class Unsupported:
 
 
 UNSUPPORTED = Unsupported()
+
+
+#: Relative eigenvalue of ``S = Jc M^-1 Jc^T`` below which a constraint direction counts as redundant (module doc).
+CONSTRAINT_RCOND = 1e-10
 
 
 class StateError(ValueError):
@@ -60,6 +71,14 @@ class Split:
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).
+
+    Constrained models only (None otherwise), each from the formalism's own kinematics:
+    constraint_value     ``phi(q)`` (k,), the declarations' functions (``cases.constraints``).
+    constraint_jacobian  ``Jc = dphi/dq`` (k x n).
+    constraint_bias      ``Jcdot qd`` (k,), so that ``H_t = {qdd : Jc qdd = -Jcdot qd}`` (eq. 16).
+    constraint_force     ``Jc^T lam`` (n,), the generalized constraint force; ``constraint_force_drift`` likewise.
+    constraint_rank      rank of ``S = Jc M^-1 Jc^T`` (eigenvalues above ``CONSTRAINT_RCOND`` times the largest).
+    lam_scale            the size of the multipliers the summed terms could produce (see :func:`constrained_split`).
     """
 
     drift: np.ndarray
@@ -77,11 +96,28 @@ class Split:
     task_drift: np.ndarray | Unsupported = UNSUPPORTED
     conditions: Mapping[str, float] = field(default_factory=dict)
     kinetic_energy: float | Unsupported = UNSUPPORTED
+    constraint_value: np.ndarray | None = None
+    constraint_jacobian: np.ndarray | None = None
+    constraint_bias: np.ndarray | None = None
+    constraint_force: np.ndarray | None = None
+    constraint_force_drift: np.ndarray | None = None
+    constraint_rank: int | None = None
+    lam_scale: float = 0.0
 
     @property
     def additivity(self) -> np.ndarray:
-        """``drift + ctrl - total``: zero up to rounding, because the split of eq. (9) is exact (4.2)."""
+        """``drift + ctrl - total``: zero up to rounding, because the split of eq. (9) is exact (4.2, 5.3)."""
         return self.drift + self.ctrl - self.total
+
+    @property
+    def admissibility_drift(self) -> np.ndarray | None:
+        """``Jc qdd_drift + Jcdot qd``: the drift's distance from ``H_t`` (eq. 16); zero up to rounding."""
+        return None if self.constraint_jacobian is None else self.constraint_jacobian @ self.drift + self.constraint_bias
+
+    @property
+    def admissibility_total(self) -> np.ndarray | None:
+        """``Jc qdd + Jcdot qd`` for the total acceleration (eq. 13)."""
+        return None if self.constraint_jacobian is None else self.constraint_jacobian @ self.total + self.constraint_bias
 
     def quantity(self, name: str):
         """A compared quantity by name (``drift``, ``ctrl``, ``total``, ``additivity``, ``power_ctrl``, ...)."""
@@ -220,3 +256,83 @@ def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale
                  task_drift=task_drift if isinstance(task_drift, Unsupported) else _readonly(task_drift),
                  conditions={k: float(v) for k, v in (conditions or {}).items()},
                  kinetic_energy=kinetic_energy if isinstance(kinetic_energy, Unsupported) else float(kinetic_energy))
+
+
+@dataclass(frozen=True)
+class ConstraintConditioning:
+    """Conditioning of ``S = Jc M^-1 Jc^T`` at one state (see :func:`constraint_conditioning`)."""
+
+    cond_S: float        # largest / smallest eigenvalue of S (inf when S is singular)
+    cond_kept: float     # largest / smallest eigenvalue kept above CONSTRAINT_RCOND (what a solve amplifies)
+    rank: int
+    inconsistency: float  # relative size of the KKT right-hand sides in S's redundant directions (0 when none)
+    lam_scale: float
+    force_scale: float   # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
+
+
+def constraint_conditioning(M: np.ndarray, Jc: np.ndarray, bias: np.ndarray, forces: Sequence[np.ndarray],
+                            accel_scale: float) -> ConstraintConditioning:
+    """Conditioning of the constrained problem from a formalism's own ``M``, ``Jc``, ``Jcdot qd``; ``forces`` are
+    the right-hand sides ``B u - h`` (total) and ``-h`` (drift).
+
+    The multipliers solve ``S lam = r`` with ``r = -Jcdot qd - Jc M^-1 f``. ``lam_scale = ||S^+|| (|Jcdot qd|_1 +
+    ||Jc|| accel_scale)`` bounds their size from the magnitudes summed into r. When S is singular (redundant or
+    degenerate constraints), ``inconsistency`` is ``max |U_0^T r| / |r|`` over the right-hand sides, with U_0 the
+    redundant eigen-directions: non-zero means ``H_t`` is empty (the constraints cannot all hold, e.g. a four-bar
+    at its change point moving off both branches) and no acceleration is the answer.
+    """
+    L = np.linalg.cholesky(M)
+    X = np.linalg.solve(L, Jc.T)
+    S = X.T @ X
+    w, U = np.linalg.eigh(S)
+    w_max = max(float(w[-1]), np.finfo(float).tiny)
+    kept = w > CONSTRAINT_RCOND * w_max
+    rank = int(kept.sum())
+    Minv_norm = 1.0 / float(np.linalg.eigvalsh(M)[0])
+    jc_norm = float(np.linalg.norm(Jc, 2))
+    lam_scale = (np.abs(bias).sum() + jc_norm * accel_scale) / float(w[kept][0]) if rank else 0.0
+    inconsistency = 0.0
+    if rank < len(w):
+        for f in forces:
+            r = -bias - Jc @ np.linalg.solve(L.T, np.linalg.solve(L, f))
+            size = np.linalg.norm(r)
+            if size > 0.0:
+                inconsistency = max(inconsistency, float(np.linalg.norm(U[:, ~kept].T @ r) / size))
+    return ConstraintConditioning(cond_S=float(w_max / w[0]) if w[0] > 0.0 else np.inf,
+                                  cond_kept=float(w_max / w[kept][0]) if rank else 1.0, rank=rank,
+                                  inconsistency=inconsistency, lam_scale=float(lam_scale),
+                                  force_scale=Minv_norm * jc_norm * float(lam_scale))
+
+
+def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, drift, ctrl, total, lam, lam_drift,
+                      extras=None, task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED) -> Split:
+    """Assemble the :class:`Split` of a constrained model from a formalism's own solve (eq. 12-17) and its own
+    ``M``, ``C qd``, ``g``, ``phi``, ``Jc``, ``Jcdot qd``.
+
+    Adds the constraint force ``Jc^T lam`` (and at the drift), the constraint power ``(Jc^T lam) . qd`` and per
+    coordinate (5.5), and the conditions ``"constraint"`` (cond S: the multipliers are not unique above its limit)
+    and ``"constraint_consistency"`` (non-zero when ``H_t`` is empty). ``accel_scale`` includes the accelerations
+    the constraint force can produce.
+    """
+    n, k = len(qd), model.k
+    Jc, bias, phi = (np.asarray(x, dtype=float) for x in (Jc, bias, phi))
+    lam, lam_drift = np.asarray(lam, dtype=float).reshape(-1), np.asarray(lam_drift, dtype=float).reshape(-1)
+    for label, value, shape in (("Jc", Jc, (k, n)), ("Jcdot qd", bias, (k,)), ("phi", phi, (k,)),
+                                ("lam", lam, (k,)), ("lam_drift", lam_drift, (k,))):
+        if value.shape != shape:
+            raise ValueError(f"a formalism returned {label} of shape {value.shape}, expected {shape}")
+    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
+    cc = constraint_conditioning(M, Jc, bias, (tau_ctrl - Cqd - g, -Cqd - g), accel_scale)
+    base = unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
+                               accel_scale=accel_scale + cc.force_scale, extras=extras, task_drift=task_drift,
+                               conditions={**(conditions or {}), "constraint": cc.cond_S,
+                                           "constraint_consistency": cc.inconsistency},
+                               kinetic_energy=kinetic_energy)
+    force, force_drift = Jc.T @ lam, Jc.T @ lam_drift
+    p_constr, per = joint_power(force, qd)
+    return replace(base, lam=_readonly(lam), lam_drift=_readonly(lam_drift), power_constr=p_constr,
+                   power_constr_per_coord=_readonly(per), constraint_value=_readonly(phi),
+                   constraint_jacobian=_readonly(Jc), constraint_bias=_readonly(bias),
+                   constraint_force=_readonly(force), constraint_force_drift=_readonly(force_drift),
+                   constraint_rank=cc.rank, lam_scale=cc.lam_scale,
+                   conditions={**base.conditions, "constraint_kept": cc.cond_kept})

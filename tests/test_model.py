@@ -51,7 +51,7 @@ def test_every_problem_is_reported_in_one_error():
     err = info.value
     text = str(err)
     expected = {
-        "neg_mass": "non-positive mass",
+        "neg_mass": "negative mass",
         "unsym": "not symmetric",
         "not_psd": "not positive semi-definite",
         "triangle": "triangle inequality",

@@ -382,4 +382,4 @@ def test_massless_moving_link_is_reported_with_the_file(tmp_path):
     with pytest.raises(ModelError) as info:
         from_urdf(path)
     msg = str(info.value)
-    assert "body 'b'" in msg and "non-positive mass" in msg and str(path) in msg
+    assert "body 'b'" in msg and "zero mass but a non-zero inertia" in msg and str(path) in msg
