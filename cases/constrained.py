@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from cases.constraints import XY_PLANE, PointOnCircle, PointsCoincide
-from cases.factories import _PLANE, _Z, _require, register
+from cases.factories import _PLANE, _Z, _require, planar_disk, register
 from cases.model import Body, Model, TaskPoint, build_model
 
 _X, _Y = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
@@ -109,26 +109,28 @@ def cartesian_pendulum(m: float = 1.0, L: float = 1.0, g: float = 9.81) -> Model
                        task_points=[TaskPoint("bob", "bob", _ORIGIN, _PLANE)])
 
 
-def _free_planar_body(name: str, mass: float, length: float) -> list[Body]:
+def _free_planar_body(name: str, mass: float, length: float, izz: float) -> list[Body]:
     """A free planar body as three joints: massless x and y carriages, then the link on a revolute z joint
-    (absolute angle from hanging down), its point mass at distance ``length`` along it."""
+    (absolute angle from hanging down), its mass at distance ``length`` along it with moment ``izz`` about z."""
     return [Body(f"{name}_x", None, "prismatic", _X, 0.0), Body(f"{name}_y", f"{name}_x", "prismatic", _Y, 0.0),
-            Body(name, f"{name}_y", "revolute", _Z, mass, com=(0.0, -length, 0.0))]
+            Body(name, f"{name}_y", "revolute", _Z, mass, com=(0.0, -length, 0.0), inertia=planar_disk(izz))]
 
 
 @register
 def double_pendulum_absolute_loop(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 1.0,
-                                  g: float = 9.81) -> Model:
-    """The article's double pendulum built from two free planar bodies joined by loop constraints (4 rows).
+                                  g: float = 9.81, I1: float = 0.1, I2: float = 0.1) -> Model:  # noqa: N803
+    """The double pendulum built from two free planar bodies joined by loop constraints (4 rows).
 
     q = (x1, y1, phi1, x2, y2, phi2): each link's pivot position and absolute angle. Constraints: link 1's pivot
-    is pinned to the origin, link 2's pivot to link 1's end. The inputs are the joint torques of
-    ``double_pendulum`` (tau1 at the shoulder, tau2 at the elbow), whose generalized forces on the absolute
-    angles are (tau1 - tau2, tau2). At every admissible state it must give the joint-coordinate model's
-    accelerations: theta1 = phi1, theta2 = phi2 - phi1.
+    is pinned to the origin, link 2's pivot to link 1's end. A free body needs a rotational inertia (a free point
+    mass has no orientation, so its angle would have zero mass), hence ``I1``, ``I2`` about z; with the same values
+    ``double_pendulum(I1=.., I2=..)`` is the same machine in joint coordinates. The inputs are its joint torques
+    (tau1 at the shoulder, tau2 at the elbow), whose generalized forces on the absolute angles are
+    (tau1 - tau2, tau2). At every admissible state the accelerations must match: theta1 = phi1,
+    theta2 = phi2 - phi1.
     """
-    _positive("double_pendulum_absolute_loop", m1=m1, m2=m2, l1=l1, l2=l2)
-    bodies = _free_planar_body("link1", m1, l1) + _free_planar_body("link2", m2, l2)
+    _positive("double_pendulum_absolute_loop", m1=m1, m2=m2, l1=l1, l2=l2, I1=I1, I2=I2)
+    bodies = _free_planar_body("link1", m1, l1, I1) + _free_planar_body("link2", m2, l2, I2)
     B = np.zeros((6, 2))
     B[2] = (1.0, -1.0)
     B[5] = (0.0, 1.0)

@@ -71,6 +71,11 @@ _Z = (0.0, 0.0, 1.0)
 _PLANE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 
+def planar_disk(izz: float) -> np.ndarray:
+    """COM inertia of a thin disk in the x-y plane with moment ``izz`` about z: diag(izz/2, izz/2, izz)."""
+    return np.diag([izz / 2.0, izz / 2.0, izz])
+
+
 def _require(cond: bool, message: str) -> None:
     if not cond:
         raise CaseError(message)
@@ -81,15 +86,17 @@ def _require(cond: bool, message: str) -> None:
 
 @register
 def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 1.0,
-                    g: float = 9.81) -> Model:
+                    g: float = 9.81, I1: float = 0.0, I2: float = 0.0) -> Model:  # noqa: N803
     """Planar double pendulum of article section 3: point masses at the link ends, relative angles from hanging down.
 
     q = (theta1, theta2): theta1 of link 1 from the downward vertical, theta2 of link 2 relative to link 1.
-    Mass 1 at (l1 sin t1, -l1 cos t1), mass 2 (task point ``tip``) at eq. (4).
+    Mass 1 at (l1 sin t1, -l1 cos t1), mass 2 (task point ``tip``) at eq. (4). ``I1``, ``I2`` (default 0, the
+    article's point masses) give each mass a rotational inertia about z (:func:`planar_disk`).
     """
     bodies = [
-        Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0)),
-        Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), translation=(0.0, -l1, 0.0)),
+        Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0), inertia=planar_disk(I1)),
+        Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), inertia=planar_disk(I2),
+             translation=(0.0, -l1, 0.0)),
     ]
     return build_model("double_pendulum", bodies, gravity=(0.0, -g, 0.0),
                        task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])

@@ -16,7 +16,7 @@ import numpy as np
 
 import cases
 from cases.model import ModelError
-from crosscheck import backends, charts, frames
+from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.report import render
@@ -178,6 +178,43 @@ def _chart_splits(model, chart, p, pd, u, tau_p, chosen) -> dict[str, tuple[str,
     return out
 
 
+#: eval accepts a constrained state when |phi| and |Jc qd| are below this times the model's length scale squared
+#: (times 1 + |qd|_1 for the velocity): loose enough for states pasted from a report, tight against a wrong one.
+ADMISSIBLE = 1e-9
+
+
+def _constraint_rows(model) -> list[str]:
+    return [c.name if c.size == 1 else f"{c.name}[{i}]" for c in model.constraints for i in range(c.size)]
+
+
+def _admissible(model, chart, p, pd, project: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(p, pd) when the state satisfies the constraints (article 5.1: phi(q) = 0 and Jc qd = 0); with ``project``
+    the state moved onto the manifold and its tangent space; otherwise a UsageError saying how far off it is."""
+    from crosscheck.reference import constraint_kinematics
+
+    q, qd = chart.q_of(p), chart.jacobian(p) @ pd
+    phi, Jc, _ = constraint_kinematics(model, q, qd)
+    vel = Jc @ qd
+    scale = sampling.length_scale(model) ** 2
+    tol_q, tol_v = ADMISSIBLE * scale, ADMISSIBLE * scale * (1.0 + float(np.abs(qd).sum()))
+    if np.abs(phi).max() <= tol_q and np.abs(vel).max() <= tol_v:
+        return p, pd
+    if not project:
+        rows = _constraint_rows(model)
+        worst_q, worst_v = rows[int(np.abs(phi).argmax())], rows[int(np.abs(vel).argmax())]
+        raise UsageError(f"the state is not admissible for model '{model.name}' (article 5.1): |phi(q)|_inf = "
+                         f"{np.abs(phi).max():.3g} (row {worst_q}; allowed {tol_q:.1g}), |Jc qd|_inf = "
+                         f"{np.abs(vel).max():.3g} (row {worst_v}; allowed {tol_v:.1g}); give a state on the "
+                         "constraint manifold or pass --project to move it there (q by Gauss–Newton, qd onto the "
+                         "tangent space)")
+    q = sampling.project_configuration(model, q)
+    qd = sampling.project_velocity(model, q, qd)
+    p = chart.p_of(q)
+    pd = charts.velocity_to_chart(chart, p, qd)
+    print(f"projected onto the constraint manifold: q = {p.tolist()}, qd = {pd.tolist()}", file=sys.stderr)
+    return p, pd
+
+
 def cmd_eval(args) -> int:
     if args.case and args.model:
         raise UsageError("give either --case or --model, not both")
@@ -191,6 +228,8 @@ def cmd_eval(args) -> int:
     chart = charts.get(args.chart or "identity", model, args.seed, spec.name)
     p = _length(_vector(args.q, "q"), model.n, "q")
     pd = _length(_vector(args.qd, "qd"), model.n, "qd") if args.qd is not None else np.zeros(model.n)
+    if model.constraints:
+        p, pd = _admissible(model, chart, p, pd, args.project)
     u, tau_p = _inputs(args, model, chart, p)
     splits = _chart_splits(model, chart, p, pd, u, tau_p, _backends(args.formalism))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
@@ -209,8 +248,12 @@ def cmd_eval(args) -> int:
         print(f"{name} ({how}):" + (" BREAKDOWN (" + ", ".join(
             f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}" for k, v in broken.items()) + ")"
             if broken else ""))
-        for key in ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "cond_M", "conditions"):
-            print(f"  {key:14s} {values[key]}")
+        keys = ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "cond_M", "conditions")
+        if model.constraints:
+            keys += ("lam", "lam_drift", "constraint_force", "power_constr", "power_constr_per_coord",
+                     "constraint_rank")
+        for key in keys:
+            print(f"  {key:22s} {values[key]}")
     return 0
 
 
@@ -251,6 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--frame", help="move the scene by the gate's sampled frame g0, g1, ... (with --seed)")
     ev.add_argument("--seed", type=int, default=0, help="seed of the gate run (the affine chart, the frames)")
     ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
+    ev.add_argument("--project", action="store_true",
+                    help="constrained case: move the state onto the constraint manifold first (else it is refused)")
     ev.add_argument("--json", action="store_true", help="print JSON")
     ev.set_defaults(run=cmd_eval)
     return parser
@@ -263,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         args.argv = argv
         return args.run(args)
     except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
-            charts.ChartError, FileNotFoundError) as exc:
+            charts.ChartError, sampling.ProjectionError, FileNotFoundError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
 

@@ -2,7 +2,9 @@
 
 Moving the scene by ``g = (R, t)`` (world points ``x -> R x + t``) changes nothing physical: the root bodies'
 placements become ``g * placement``, gravity rotates with the scene (``R gravity``), and the task directions
-rotate too (``D R^T``), so the task is the same task on the moved scene. Under it
+rotate too (``D R^T``), so the task is the same task on the moved scene. The constraints' world data move with it
+(centres, line origins and ground points by g, planes, directions and normals by ``D R^T``), so every ``phi`` is
+the same function of q. Under it
 
     joint accelerations, inputs, multipliers, power, kinetic energy   are invariant,
     twists (w, v) in the world frame                                  map by Ad_g,
@@ -69,8 +71,22 @@ def move_scene(model: Model, frame: Frame) -> Model:
     bodies = [dataclasses.replace(b, rotation=R @ b.rotation, translation=R @ b.translation + t)
               if b.parent is None else b for b in model.bodies]
     task_points = [dataclasses.replace(tp, directions=tp.directions @ R.T) for tp in model.task_points]
+    constraints = [move_constraint(c, frame) for c in model.constraints]
     return cases.build_model(f"{model.name}@{frame.name}", bodies, gravity=rotate_gravity(frame, model.gravity),
-                             input_map=model.input_map, task_points=task_points, constraints=model.constraints)
+                             input_map=model.input_map, task_points=task_points, constraints=constraints)
+
+
+def move_constraint(c, frame: Frame):
+    """A constraint declaration on the moved scene: world points by g, world direction rows by ``D R^T``."""
+    R, t = frame.rotation, frame.translation
+    if isinstance(c, cases.PointOnCircle):
+        return dataclasses.replace(c, center=R @ c.center + t, plane=c.plane @ R.T)
+    if isinstance(c, cases.PointsCoincide):
+        ground = c.offset_b if c.body_b is not None else R @ c.offset_b + t
+        return dataclasses.replace(c, offset_b=ground, directions=c.directions @ R.T)
+    if isinstance(c, cases.PointOnLine):
+        return dataclasses.replace(c, origin=R @ c.origin + t, normals=c.normals @ R.T)
+    return c                                   # a joint coupling involves no world data
 
 
 def twist_map(frame: Frame) -> np.ndarray:

@@ -69,8 +69,15 @@ class StateOutcome:
 
     @property
     def trusted(self) -> dict[str, Split]:
-        """The splits of the backends that are not in BREAKDOWN."""
-        return {name: split for name, split in self.splits.items() if name not in self.breakdowns}
+        """The splits of the backends not wholly in BREAKDOWN (a narrower breakdown, e.g. non-unique multipliers,
+        leaves out only its quantities: ``tolerance.BREAKDOWN_SCOPE``)."""
+        return {name: split for name, split in self.splits.items()
+                if not tolerance_policy.whole(self.breakdowns.get(name, {}))}
+
+    def voters(self, quantity: str) -> dict[str, Split]:
+        """The trusted splits that vote on ``quantity``."""
+        return {name: split for name, split in self.trusted.items()
+                if quantity not in tolerance_policy.left_out(self.breakdowns.get(name, {}))}
 
     @property
     def worst_ratio(self) -> float:
@@ -112,7 +119,8 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
     """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table.
 
     A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
-    out of the comparisons and of the tolerance scales: its answer is not trusted, and it is not a bug.
+    out of the comparisons (all, or the quantities the condition concerns) and of the tolerance scales: its answer
+    is not trusted there, and it is not a bug.
     """
     splits: dict[str, Split] = {}
     errors: dict[str, str] = {}
@@ -125,16 +133,15 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
         if clock is not None:
             clock.setdefault(backend.name, []).append(time.perf_counter() - start)
     breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
-    trusted = {name: split for name, split in splits.items() if name not in breakdowns}
-    comparisons = {}
-    if trusted:
-        at = tolerance_policy.scales(trusted.values(), model, state.q, state.qd)
-        for quantity in tolerance_policy.QUANTITIES:
-            values = {name: split.quantity(quantity) for name, split in trusted.items()}
+    outcome = StateOutcome(state, splits, errors, {}, breakdowns)
+    if outcome.trusted:
+        at = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
+        for quantity in tolerance_policy.quantities(model):
+            values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
             if quantity in tolerance_policy.EXACT:
                 values["exact"] = tolerance_policy.EXACT[quantity]
-            comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
-    return StateOutcome(state, splits, errors, comparisons, breakdowns)
+            outcome.comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
+    return outcome
 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],

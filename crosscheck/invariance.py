@@ -32,6 +32,21 @@ EPS = policy.EPS
 #: Quantities checked for invariance under a chart change and under a frame change.
 INVARIANT = ("drift", "ctrl", "total", "additivity", "power_ctrl", "kinetic_energy", "task_drift")
 
+#: With constraints, also: the multipliers and phi are invariant (phi(psi(p)) and the moved declarations are the
+#: same functions), the constraint force ``Jc^T lam`` is a covector (``Dpsi^T`` into a chart, invariant under a
+#: frame change), and the constraint power is invariant (article 5.5: only the total is coordinate-free).
+CONSTRAINED_INVARIANT = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr",
+                         "constraint_value")
+
+
+def _invariant(model: Model) -> tuple[str, ...]:
+    return INVARIANT + (CONSTRAINED_INVARIANT if model.constraints else ())
+
+
+def _votes(split: Split, quantity: str) -> bool:
+    """Whether ``split`` votes on ``quantity`` (not left out by a narrow BREAKDOWN, e.g. non-unique multipliers)."""
+    return quantity not in policy.left_out(policy.breakdown(split))
+
 #: extra name -> how its rows transform under a frame change: the name of the 6x6 map in ``crosscheck.frames``
 #: (looked up when used), or None for a quantity that does not change (body-frame rows).
 FRAME_LAWS: dict[str, str | None] = {
@@ -57,7 +72,9 @@ def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str):
         return (charts.acceleration_to_chart(chart, p, pd, split.drift)
                 + charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
                 - charts.acceleration_to_chart(chart, p, pd, split.total))
-    return split.quantity(quantity)          # power, kinetic energy, task accelerations: physical, no map
+    if quantity in ("constraint_force", "constraint_force_drift"):
+        return charts.force_to_chart(chart, p, split.quantity(quantity))
+    return split.quantity(quantity)          # power, energy, task accelerations, multipliers, phi: no map
 
 
 def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence[float]) -> float:
@@ -88,9 +105,10 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     gain = float(np.linalg.norm(np.linalg.inv(chart.jacobian(p)), 2))
     at = [policy.scales(native.values(), model, q, qd), policy.scales(joint.values(), model, q, qd)]
     out = {}
-    for quantity in INVARIANT:
-        values = {name: _mapped(chart, p, pd, split, quantity) for name, split in joint.items()}
-        values.update({name: split.quantity(quantity) for name, split in native.items()})
+    for quantity in _invariant(model):
+        values = {name: _mapped(chart, p, pd, split, quantity) for name, split in joint.items()
+                  if _votes(split, quantity)}
+        values.update({name: split.quantity(quantity) for name, split in native.items() if _votes(split, quantity)})
         gains = (1.0, gain) if quantity in ("drift", "ctrl", "total", "additivity") else (1.0, 1.0)
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, _tolerance(quantity, at, gains))
     return out
@@ -113,9 +131,10 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     at = [policy.scales([original[n] for n in both], model, q, qd),
           policy.scales([moved[n] for n in both], model, q, qd)]
     out = {}
-    for quantity in INVARIANT:
-        values = {name: original[name].quantity(quantity) for name in both}
-        values.update({f"{name}@{frame.name}": moved[name].quantity(quantity) for name in both})
+    for quantity in _invariant(model):
+        values = {name: original[name].quantity(quantity) for name in both if _votes(original[name], quantity)}
+        values.update({f"{name}@{frame.name}": moved[name].quantity(quantity) for name in both
+                       if _votes(moved[name], quantity)})
         out[f"frame: {quantity}"] = compare(quantity, values, _tolerance(quantity, at, (1.0, 1.0)))
     reach = 1.0 + float(np.linalg.norm(frame.translation))
     for name in both:

@@ -4,6 +4,15 @@
 checks the same physics the formalisms see. :func:`split` is the shared ``split`` contract on top of
 Pinocchio's ABA / CRBA / RNEA; :data:`REFERENCE` wraps it as a :class:`~formalisms.interface.Formalism`.
 
+Constraints: :func:`constraint_kinematics` forms ``phi``, ``Jc`` and ``Jcdot qd`` of the declarations
+(``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations, and
+the constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynamics(q, v, tau, J, gamma)``) for
+total / lam and drift / lam_drift. The harness's sampler uses the same kinematics to put states on the
+constraint manifold, so admissibility is decided outside the five formalisms. At a degenerate state (``S = Jc
+M^-1 Jc^T`` singular up to ``CONSTRAINT_RCOND``) Pinocchio's Cholesky-based KKT solve has no answer: the reference
+adds a tiny damping (1e-12 relative) and keeps the multipliers' part in the range of S, the minimum-norm
+multipliers the formalisms return (``Jc^T lam`` and the accelerations do not change).
+
 Joint order: Pinocchio needs parents before children, so joints are added in ``model.topological_order``;
 states and results are permuted in and out, so callers always use our coordinate order.
 """
@@ -16,8 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import Formalism, Split, check_state, conditioning, unconstrained_split
+from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
+                                  unconstrained_split)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -31,6 +42,7 @@ class _Compiled:
     model: pin.Model
     order: np.ndarray  # order[k] = our coordinate index of Pinocchio's k-th velocity
     task_frame: int    # frame id of the model's default task point
+    points: dict       # (body name, offset tuple) -> frame id of each constrained body point
 
 
 _CACHE: dict[str, _Compiled] = {}
@@ -64,7 +76,23 @@ def _build(model: Model) -> _Compiled:
     tp = model.task_point()
     task_frame = pm.addFrame(pin.Frame(f"task:{tp.name}", joint_id[model.body_index(tp.body)],
                                        pin.SE3(np.eye(3), np.array(tp.offset)), pin.FrameType.OP_FRAME))
-    return _Compiled(pm, order, task_frame)
+    points = {}
+    for c in model.constraints:
+        for body, offset in _constrained_points(c):
+            if body is not None and (body, tuple(offset)) not in points:
+                points[(body, tuple(offset))] = pm.addFrame(pin.Frame(
+                    f"constraint:{c.name}:{len(points)}", joint_id[model.body_index(body)],
+                    pin.SE3(np.eye(3), np.array(offset)), pin.FrameType.OP_FRAME))
+    return _Compiled(pm, order, task_frame, points)
+
+
+def _constrained_points(c) -> list:
+    """The (body, offset) points a declaration constrains; body None is a world point."""
+    if isinstance(c, PointsCoincide):
+        return [(c.body_a, c.offset_a), (c.body_b, c.offset_b)]
+    if isinstance(c, (PointOnCircle, PointOnLine)):
+        return [(c.body, c.offset)]
+    return []
 
 
 def _compiled(model: Model) -> _Compiled:
@@ -89,12 +117,69 @@ def _sym(upper: np.ndarray) -> np.ndarray:
     return np.triu(upper) + np.triu(upper, 1).T
 
 
+def _point_kinematics(c: _Compiled, data, body, offset, n: int):
+    """World position, linear Jacobian (3 x n, Pinocchio order) and classical acceleration at qdd = 0 of a
+    body point; a world point (body None) is fixed. Needs forwardKinematics(q, v, 0) and computeJointJacobians."""
+    if body is None:
+        return np.array(offset, dtype=float), np.zeros((3, n)), np.zeros(3)
+    fid = c.points[(body, tuple(offset))]
+    pos = np.array(data.oMf[fid].translation)
+    J = np.array(pin.getFrameJacobian(c.model, data, fid, pin.LOCAL_WORLD_ALIGNED)).reshape(6, n)[:3]
+    acc = np.array(pin.getFrameClassicalAcceleration(c.model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear)
+    return pos, J, acc
+
+
+def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray):
+    """phi, Jc (Pinocchio order) and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
+    n = model.n
+    if isinstance(con, JointCoupling):
+        row = np.zeros(n)
+        for name, coeff in zip(con.joints, con.coefficients):
+            row[model.body_index(name)] += coeff
+        return np.array([row @ q - con.offset]), row[c.order][None, :], np.zeros(1)
+    if isinstance(con, PointsCoincide):
+        pa, Ja, aa = _point_kinematics(c, data, con.body_a, con.offset_a, n)
+        pb, Jb, ab = _point_kinematics(c, data, con.body_b, con.offset_b, n)
+        D = con.directions
+        return D @ (pa - pb), D @ (Ja - Jb), D @ (aa - ab)
+    p, J, a = _point_kinematics(c, data, con.body, con.offset, n)
+    if isinstance(con, PointOnLine):
+        return con.normals @ (p - con.origin), con.normals @ J, con.normals @ a
+    P = con.plane
+    d = P @ (p - con.center)
+    return (np.array([d @ d - con.radius**2]), (2.0 * d @ P @ J)[None, :],
+            np.array([2.0 * np.sum((P @ J @ v_p) ** 2) + 2.0 * d @ P @ a]))
+
+
+def _constraint_terms(model: Model, c: _Compiled, data, q: np.ndarray, qd: np.ndarray):
+    """phi, Jc (Pinocchio's coordinate order), Jcdot qd; leaves data with the kinematics at (q, qd, 0)."""
+    qp, vp = q[c.order], qd[c.order]
+    pin.forwardKinematics(c.model, data, qp, vp, np.zeros(model.n))
+    pin.computeJointJacobians(c.model, data, qp)
+    pin.updateFramePlacements(c.model, data)
+    rows = [_rows(model, c, data, con, q, vp) for con in model.constraints]
+    return (np.concatenate([r[0] for r in rows]), np.vstack([r[1] for r in rows]),
+            np.concatenate([r[2] for r in rows]))
+
+
+def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``phi(q)`` (k,), ``Jc = dphi/dq`` (k x n, our coordinate order) and ``Jcdot qd`` (k,) from Pinocchio's
+    kinematics; the harness's view of the constraints (admissibility, projection onto the manifold)."""
+    q, qd = (np.asarray(x, dtype=float) for x in (q, qd))
+    c = _compiled(model)
+    phi, Jc_p, bias = _constraint_terms(model, c, c.model.createData(), q, qd)
+    Jc = np.empty_like(Jc_p)
+    Jc[:, c.order] = Jc_p
+    return phi, Jc, bias
+
+
 def split(model: Model, q, qd, u) -> Split:
     """Drift / control / total accelerations from Pinocchio (ABA twice, ``M^-1 B u`` from computeMinverse);
-    task drift from the classical acceleration of a frame at the default task point (getFrameClassicalAcceleration)."""
+    task drift from the classical acceleration of a frame at the default task point (getFrameClassicalAcceleration).
+    A constrained model goes through :func:`_constrained_split` (Pinocchio's KKT forward dynamics)."""
     q, qd, u = check_state(model, q, qd, u)
     if model.constraints:
-        raise NotImplementedError("the Pinocchio reference handles unconstrained models only (no KKT solve yet)")
+        return _constrained_split(model, q, qd, u)
     c = _compiled(model)
     pm, order = c.model, c.order
     data = pm.createData()  # fresh Data: the result cannot depend on call history
@@ -130,6 +215,61 @@ def split(model: Model, q, qd, u) -> Split:
                                kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)))
 
 
+def _to_ours(order: np.ndarray, vec_p: np.ndarray) -> np.ndarray:
+    out = np.empty(len(order))
+    out[order] = vec_p
+    return out
+
+
+def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias, damping):
+    """Pinocchio's constrained forward dynamics (KKT): ``M a + b = tau + J^T lambda_c``, ``J a + gamma = 0``."""
+    a = np.array(pin.forwardDynamics(c.model, data, q_p, v_p, tau_p, Jc_p, bias, damping))
+    return a, np.array(data.lambda_c)
+
+
+def _constrained_split(model: Model, q, qd, u) -> Split:
+    """Eq. (12)-(17) with Pinocchio: total / lam and drift / lam_drift from ``pinocchio.forwardDynamics`` with
+    our ``Jc`` and ``gamma = Jcdot qd``; ctrl = B_c B u with ``M^-1`` from computeMinverse (eq. 17)."""
+    c = _compiled(model)
+    pm, order = c.model, c.order
+    data = pm.createData()
+    phi, Jc_p, bias = _constraint_terms(model, c, data, q, qd)
+    tau_ctrl = model.input_map @ u
+    qp, vp = q[order], qd[order]
+    M_p = _sym(np.array(pin.crba(pm, data, qp)))
+    g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
+    Cqd_p = np.array(pin.rnea(pm, data, qp, vp, np.zeros(model.n))) - g_p
+    Minv_p = _sym(np.array(pin.computeMinverse(pm, data, qp)))
+    S = Jc_p @ Minv_p @ Jc_p.T
+    S_pinv, range_S = _pinv_sym(S)
+    damping = 0.0 if range_S.shape[1] == len(S) else 1e-12 * max(np.linalg.norm(S, 2), np.finfo(float).tiny)
+    total_p, lam = _kkt(c, data, qp, vp, tau_ctrl[order], Jc_p, bias, damping)
+    drift_p, lam_drift = _kkt(c, data, qp, vp, np.zeros(model.n), Jc_p, bias, damping)
+    if damping:              # the minimum-norm multipliers: drop the part in S's null space (Jc^T lam unchanged)
+        lam, lam_drift = range_S @ (range_S.T @ lam), range_S @ (range_S.T @ lam_drift)
+    B_c = Minv_p - Minv_p @ Jc_p.T @ S_pinv @ Jc_p @ Minv_p
+    pin.forwardKinematics(pm, data, qp, vp, drift_p)
+    task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
+    M, Jc = np.empty_like(M_p), np.empty_like(Jc_p)
+    M[np.ix_(order, order)] = M_p
+    Jc[:, order] = Jc_p
+    return constrained_split(
+        model, M=M, Cqd=_to_ours(order, Cqd_p), g=_to_ours(order, g_p), tau_ctrl=tau_ctrl, qd=qd, phi=phi, Jc=Jc,
+        bias=bias, drift=_to_ours(order, drift_p), ctrl=_to_ours(order, B_c @ tau_ctrl[order]),
+        total=_to_ours(order, total_p), lam=lam, lam_drift=lam_drift,
+        extras={"M": M, "Cqd": _to_ours(order, Cqd_p), "g": _to_ours(order, g_p)},
+        task_drift=model.task_point().directions @ np.array(task_accel),
+        kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)))
+
+
+def _pinv_sym(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-inverse of a symmetric positive semi-definite matrix, eigenvalues below CONSTRAINT_RCOND dropped, and
+    an orthonormal basis of its range (the kept eigenvectors)."""
+    w, U = np.linalg.eigh(S)
+    keep = w > CONSTRAINT_RCOND * max(w[-1], np.finfo(float).tiny)
+    return (U[:, keep] / w[keep]) @ U[:, keep].T, U[:, keep]
+
+
 REFERENCE = Formalism(
     name="pinocchio",
     summary="External reference: Pinocchio's ABA (total, drift), computeMinverse (ctrl), CRBA/RNEA (conditioning), "
@@ -137,4 +277,4 @@ REFERENCE = Formalism(
     split=split,
 )
 
-__all__ = ["REFERENCE", "split", "to_pinocchio"]
+__all__ = ["REFERENCE", "constraint_kinematics", "split", "to_pinocchio"]

@@ -11,7 +11,7 @@ from crosscheck import charts
 from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, Comparison
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
 from formalisms.interface import Unsupported
-from crosscheck.tolerance import BREAKDOWN_LIMITS, EXACT, QUANTITIES, TOLERANCES
+from crosscheck.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE, EXACT, TOLERANCES, quantities
 
 MAX_LISTED_FAILURES = 20
 
@@ -50,7 +50,7 @@ def check_reproduce_command(case: CaseOutcome, state: StateOutcome, family: str,
 
 def _summary_rows(case: CaseOutcome) -> list[str]:
     rows = []
-    for quantity in QUANTITIES:
+    for quantity in quantities(case.model):
         comps = [(s, s.comparisons[quantity]) for s in case.states if quantity in s.comparisons]
         counts = {v: sum(c.verdict == v for _, c in comps) for v in (AGREE, DISAGREE, NOT_COMPARED)}
         worst_state, worst = max(comps, key=lambda sc: sc[1].worst_ratio, default=(None, None))
@@ -116,11 +116,68 @@ def _checks_section(result: GateResult) -> list[str]:
     return lines
 
 
+def _condition(state: StateOutcome, backend: str, name: str, value: float) -> str:
+    """``cond NAME = v > limit``, with the rank of ``Jc M^-1 Jc^T`` for the constraint condition (5.6)."""
+    text = f"cond {name} = {value:.3g} > {BREAKDOWN_LIMITS[name]:.3g}"
+    split = state.splits.get(backend)
+    if name == "constraint" and split is not None and split.constraint_rank is not None:
+        text += f" (rank {split.constraint_rank} of {len(split.constraint_bias)})"
+    return text
+
+
+def _scope(name: str) -> str:
+    return ", ".join(BREAKDOWN_SCOPE[name]) if name in BREAKDOWN_SCOPE else "all"
+
+
 def _breakdowns(result: GateResult) -> list[tuple[CaseOutcome, StateOutcome, str, str, float]]:
     """Every (case, state, backend, condition, value) above its breakdown limit, in run order."""
     return [(case, state, backend, name, value)
             for case in result.cases for state in case.states
             for backend, conditions in state.breakdowns.items() for name, value in conditions.items()]
+
+
+def _transfer(per_coord: np.ndarray) -> float:
+    """Rate at which the constraint moves energy between coordinates: the power it injects into the coordinates
+    that gain (``sum_i max(P_i, 0)``), equal to what it takes from the others when the total is zero (5.5)."""
+    return float(np.clip(per_coord, 0.0, None).sum())
+
+
+def _coordinates(model, per_coord: np.ndarray, sign: float) -> str:
+    """The joints (by body name) the constraint feeds (sign +1) or drains (sign -1), largest first."""
+    order = np.argsort(-sign * per_coord)
+    picked = [f"{model.bodies[i].name} ({per_coord[i]:+.3g} W)" for i in order if sign * per_coord[i] > 0.0]
+    return ", ".join(picked[:2]) or "-"
+
+
+def _power_audit(result: GateResult) -> list[str]:
+    """Section 5.5: the constraint power is zero in total but moves energy between coordinates."""
+    rows = []
+    for case in result.cases:
+        audited = []
+        for state in case.states:
+            voters = state.voters("power_constr_per_coord")
+            if case.model.constraints and voters:
+                per = np.median([split.power_constr_per_coord for split in voters.values()], axis=0)
+                ctrl = float(np.median([abs(split.power_ctrl) for split in voters.values()]))
+                audited.append((state, per, ctrl))
+        if not audited:
+            continue
+        total = max(abs(float(per.sum())) for _, per, _ in audited)
+        state, per, ctrl = max(audited, key=lambda a: _transfer(a[1]))
+        rows.append(f"| {case.spec.name} | {len(audited)} | {total:.3g} | {_transfer(per):.4g} | "
+                    f"#{state.state.index} | {_coordinates(case.model, per, -1.0)} | "
+                    f"{_coordinates(case.model, per, 1.0)} | {ctrl:.4g} |")
+    if not rows:
+        return []
+    return ["## Constraint power audit (article 5.5)", "",
+            "The constraint does no net work, `P_constr = (Jc^T lam) . qd = 0` at admissible states (compared against "
+            "0 above as power_constr), but per coordinate `P_constr,i = [Jc^T lam]_i qd_i` it moves energy from some "
+            "joints to others. Per case: the largest |P_constr| over the states, and the state where the constraint "
+            "moves energy fastest (the power it injects into the gaining coordinates), with the joints it drains and "
+            "feeds and the input power |P_ctrl| there for comparison. Median over the backends; per-coordinate power "
+            "depends on the coordinates (5.5), so these are joint-chart numbers.", "",
+            "| case | states | max abs P_constr (W) | largest transfer (W) | at state | from | to | abs P_ctrl there (W) |",
+            "|---|---|---|---|---|---|---|---|"] + rows + [""]
 
 
 def _breakdown_section(result: GateResult) -> list[str]:
@@ -131,14 +188,15 @@ def _breakdown_section(result: GateResult) -> list[str]:
     for case, state, backend, name, value in found:
         groups.setdefault((case.spec.name, backend, name), []).append((state.state.index, value))
     lines = ["## Breakdowns (ill-conditioned methods: reported, not failures)", "",
-             "| case | backend | condition | limit | states | largest | at state |", "|---|---|---|---|---|---|---|"]
+             "| case | backend | condition | limit | not compared | states | largest | at state |",
+             "|---|---|---|---|---|---|---|---|"]
     for (case_name, backend, name), hits in groups.items():
         index, value = max(hits, key=lambda h: h[1] if h[1] == h[1] else float("inf"))
-        lines.append(f"| {case_name} | {backend} | cond {name} | {BREAKDOWN_LIMITS[name]:.3g} | {len(hits)} | "
-                     f"{value:.3g} | #{index} |")
+        lines.append(f"| {case_name} | {backend} | cond {name} | {BREAKDOWN_LIMITS[name]:.3g} | {_scope(name)} | "
+                     f"{len(hits)} | {value:.3g} | #{index} |")
     lines.append("")
     for case, state, backend, name, value in found[:MAX_LISTED_FAILURES]:
-        lines.append(f"- {case.spec.name} #{state.state.index}: {backend} cond {name} = {value:.3g}; "
+        lines.append(f"- {case.spec.name} #{state.state.index}: {backend} {_condition(state, backend, name, value)}; "
                      f"reproduce: `{reproduce_command(case, state)}`")
     if len(found) > MAX_LISTED_FAILURES:
         lines.append(f"- ... and {len(found) - MAX_LISTED_FAILURES} more.")
@@ -153,8 +211,8 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: in
     for name, message in state.errors.items():
         lines.append(f"- **{name} raised** `{message}`")
     for name, conditions in state.breakdowns.items():
-        lines.append(f"- {name}: BREAKDOWN, not compared (" + ", ".join(
-            f"cond {k} = {v:.3g} > {BREAKDOWN_LIMITS[k]:.3g}" for k, v in conditions.items()) + ")")
+        lines.append(f"- {name}: BREAKDOWN, not compared: " + "; ".join(
+            f"{_scope(k)} ({_condition(state, name, k, v)})" for k, v in conditions.items()))
     for quantity, comp in state.comparisons.items():
         if comp.verdict == NOT_COMPARED:
             lines.append(f"- {quantity}: NOT COMPARED ({', '.join(comp.not_compared) or 'fewer than two values'})")
@@ -163,8 +221,8 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: in
         lines += [f"- **{quantity}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
                   f"(tolerance {comp.tolerance:.3g}){blame}", "",
                   "  | backend | value |", "  |---|---|"]
-        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.splits.items()
-                  if name not in state.breakdowns and not isinstance(split.quantity(quantity), Unsupported)]
+        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.voters(quantity).items()
+                  if not isinstance(split.quantity(quantity), Unsupported)]
         if quantity in EXACT:
             lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")
         lines.append("")
@@ -207,6 +265,7 @@ def render(result: GateResult, command: str) -> str:
         lines += _summary_rows(case)
     lines.append("")
     lines += _checks_section(result)
+    lines += _power_audit(result)
     lines += _breakdown_section(result)
     if failed:
         lines += ["## Disagreements", ""]

@@ -1,4 +1,10 @@
-"""Seeded random states for the gate: same seed and case, same states, on every machine."""
+"""Seeded random states for the gate: same seed and case, same states, on every machine.
+
+A constrained model's states are admissible (DESIGN.md; article 5.1): q is projected onto the constraint manifold
+``phi(q) = 0`` by Gauss–Newton and qd onto the tangent space ``Jc qd = 0``, both with the Pinocchio reference's
+constraint kinematics (``crosscheck.reference.constraint_kinematics``), so admissibility is decided outside the five
+formalisms under test.
+"""
 
 from __future__ import annotations
 
@@ -8,12 +14,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.model import Model
+from formalisms.interface import CONSTRAINT_RCOND
 
 #: Sampling ranges: revolute angles (rad), prismatic displacements (m), joint rates (rad/s or m/s), inputs.
 ANGLE_RANGE = np.pi
 DISPLACEMENT_RANGE = 0.5
 RATE_RANGE = 3.0
 INPUT_RANGE = 10.0
+#: Projection onto the constraint manifold: |phi|_inf below PHI_TOL (times the model's length scale squared).
+PHI_TOL = 1e-13
+NEWTON_STEPS = 60
+#: Random restarts before a constrained case is declared unsampleable.
+RESTARTS = 20
+
+
+class ProjectionError(ValueError):
+    """A configuration could not be brought onto the constraint manifold."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +52,7 @@ def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]
 
     State 0 has the home configuration ``q = 0`` (qd and u still random): serial chains are often singular
     there (the stretched double pendulum of article 6.3.4), so every gate run visits one such boundary state.
+    A constrained model's q and qd are then made admissible (module doc); state 0 starts its projection at q = 0.
     """
     rng = case_rng(seed, case)
     span = np.array([ANGLE_RANGE if b.joint == "revolute" else DISPLACEMENT_RANGE for b in model.bodies])
@@ -46,5 +63,60 @@ def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]
             q = np.zeros(model.n)
         qd = rng.uniform(-RATE_RANGE, RATE_RANGE, model.n)
         u = rng.uniform(-INPUT_RANGE, INPUT_RANGE, model.m)
+        if model.constraints:
+            q, qd = admissible(model, q, qd, rng, span)
         states.append(State(i, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist())))
     return states
+
+
+def length_scale(model: Model) -> float:
+    """A length for the model's constraint residuals: 1 m plus every placement and offset in it."""
+    lengths = [np.linalg.norm(b.translation) + np.linalg.norm(b.com) for b in model.bodies]
+    return 1.0 + float(sum(lengths))
+
+
+def project_configuration(model: Model, q) -> np.ndarray:
+    """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps (halved until |phi| shrinks),
+    iterated down to rounding; :class:`ProjectionError` saying how far it got when it ends above ``PHI_TOL``."""
+    from crosscheck.reference import constraint_kinematics
+
+    q = np.array(q, dtype=float)
+    zero, tol = np.zeros(model.n), PHI_TOL * length_scale(model) ** 2
+    phi, Jc, _ = constraint_kinematics(model, q, zero)
+    for _ in range(NEWTON_STEPS):
+        step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
+        while t > 1e-6:
+            phi_new, Jc_new, _ = constraint_kinematics(model, q + t * step, zero)
+            if np.abs(phi_new).max() < np.abs(phi).max():
+                break
+            t *= 0.5
+        else:               # no step reduces |phi| any more: converged to rounding, or stuck
+            break
+        q, phi, Jc = q + t * step, phi_new, Jc_new
+    if np.abs(phi).max() <= tol:
+        return q
+    raise ProjectionError(f"model '{model.name}': Gauss–Newton did not reach the constraint manifold from the start "
+                          f"configuration in {NEWTON_STEPS} steps: |phi|_inf = {np.abs(phi).max():.3e} > {tol:.1e} "
+                          f"at q = {q.tolist()}; check that the constraints can hold together")
+
+
+def project_velocity(model: Model, q, qd) -> np.ndarray:
+    """``qd`` minus its component off the tangent space: ``(I - Jc^+ Jc) qd`` (so that ``Jc qd = 0``)."""
+    from crosscheck.reference import constraint_kinematics
+
+    _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.n))
+    qd = np.asarray(qd, dtype=float)
+    return qd - np.linalg.pinv(Jc, rcond=np.sqrt(CONSTRAINT_RCOND)) @ (Jc @ qd)
+
+
+def admissible(model: Model, q, qd, rng: np.random.Generator, span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An admissible state from a sampled one: q projected (restarting from fresh random configurations when the
+    projection fails), then qd projected onto the tangent space."""
+    error = None
+    for _ in range(RESTARTS):
+        try:
+            q = project_configuration(model, q)
+            return q, project_velocity(model, q, qd)
+        except ProjectionError as exc:
+            error, q = exc, rng.uniform(-span, span)
+    raise ProjectionError(f"{error} (and {RESTARTS - 1} random restarts failed as well)")

@@ -76,6 +76,7 @@ class Split:
     constraint_value     ``phi(q)`` (k,), the declarations' functions (``cases.constraints``).
     constraint_jacobian  ``Jc = dphi/dq`` (k x n).
     constraint_bias      ``Jcdot qd`` (k,), so that ``H_t = {qdd : Jc qdd = -Jcdot qd}`` (eq. 16).
+    constraint_velocity  ``Jc qd`` (k,): zero at an admissible state (5.1).
     constraint_force     ``Jc^T lam`` (n,), the generalized constraint force; ``constraint_force_drift`` likewise.
     constraint_rank      rank of ``S = Jc M^-1 Jc^T`` (eigenvalues above ``CONSTRAINT_RCOND`` times the largest).
     lam_scale            the size of the multipliers the summed terms could produce (see :func:`constrained_split`).
@@ -99,6 +100,7 @@ class Split:
     constraint_value: np.ndarray | None = None
     constraint_jacobian: np.ndarray | None = None
     constraint_bias: np.ndarray | None = None
+    constraint_velocity: np.ndarray | None = None
     constraint_force: np.ndarray | None = None
     constraint_force_drift: np.ndarray | None = None
     constraint_rank: int | None = None
@@ -333,6 +335,7 @@ def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, d
     return replace(base, lam=_readonly(lam), lam_drift=_readonly(lam_drift), power_constr=p_constr,
                    power_constr_per_coord=_readonly(per), constraint_value=_readonly(phi),
                    constraint_jacobian=_readonly(Jc), constraint_bias=_readonly(bias),
+                   constraint_velocity=_readonly(Jc @ qd),
                    constraint_force=_readonly(force), constraint_force_drift=_readonly(force_drift),
                    constraint_rank=cc.rank, lam_scale=cc.lam_scale,
                    conditions={**base.conditions, "constraint_kept": cc.cond_kept})
