@@ -81,7 +81,8 @@ def slider_crank(crank: float = 0.5, rod: float = 1.5, offset: float = 0.1, m_cr
 
     The slider's line is y = offset; the rod's end is pinned to the slider (a 2-row loop closure), one degree of
     freedom. q = (crank angle, rod angle relative to the crank, slider x). The dead centres (crank and rod
-    aligned) are input singularities, not constraint ones: the loop Jacobian keeps full rank there.
+    aligned) are input singularities, not constraint ones: the loop Jacobian keeps full rank there. Task point:
+    the slider, along x (the only direction it moves in).
     """
     _positive("slider_crank", crank=crank, rod=rod, m_crank=m_crank, m_rod=m_rod, m_slider=m_slider)
     _require(rod > crank + abs(offset),
@@ -91,7 +92,7 @@ def slider_crank(crank: float = 0.5, rod: float = 1.5, offset: float = 0.1, m_cr
               Body("slider", None, "prismatic", _X, m_slider, translation=(0.0, offset, 0.0))]
     pin = PointsCoincide("wrist_pin", "rod", (0.0, -rod, 0.0), "slider", _ORIGIN, XY_PLANE)
     return build_model("slider_crank", bodies, gravity=(0.0, -g, 0.0), constraints=[pin],
-                       task_points=[TaskPoint("slider", "slider", _ORIGIN, _PLANE)])
+                       task_points=[TaskPoint("slider", "slider", _ORIGIN, (_X,))])
 
 
 @register

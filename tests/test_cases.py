@@ -15,7 +15,8 @@ import pytest
 import cases
 from cases import CaseError, Model
 
-ALL = ["double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda"]
+ALL = ["double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda", "double_pendulum_circle", "four_bar",
+       "slider_crank", "cartesian_pendulum", "double_pendulum_absolute_loop"]
 
 
 def _rodrigues(axis, angle):
@@ -56,7 +57,8 @@ def test_names_and_catalog():
     assert cases.names() == ALL
     cat = {c.name: c for c in cases.catalog()}
     assert list(cat) == ALL
-    assert cat["double_pendulum"].parameters == {"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81}
+    assert cat["double_pendulum"].parameters == {"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "I1": 0.0,
+                                                 "I2": 0.0}
     assert cat["n_link_pendulum"].parameters == {"n": 5, "m": 1.0, "l": 1.0, "g": 9.81}
     assert set(cat["acrobot"].parameters) == {"m1", "m2", "l1", "l2", "lc1", "lc2", "I1", "I2", "g"}
     assert cat["spatial_arm"].parameters == {} and cat["panda"].parameters == {}

@@ -2,8 +2,8 @@
 
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is
 read with ``ast`` (never imported, so nothing it would import is loaded) and every import is checked against an
-allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, ``cases.model``, and a
-formalism's own sub-modules when it is a package. A new dependency must be added here, with a reason.
+allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, the model language
+(``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new dependency must be added here, with a reason.
 Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their argument is a
 string literal, and refused when it is not (they could load anything).
 """
@@ -26,7 +26,7 @@ SHARED = {"formalisms/__init__.py", "formalisms/interface.py"}
 # third-party libraries a formalism may use: numerics and symbolics only
 THIRD_PARTY = {"numpy", "scipy", "sympy", "symengine", "casadi"}
 # project modules a formalism may use: the model types and the shared interface
-PROJECT = {"formalisms.interface", "cases.model"}
+PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",
              "pin": "the external reference (Pinocchio) is kept apart from the five formalisms",
