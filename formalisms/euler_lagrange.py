@@ -16,6 +16,12 @@ Derivation (symbolic, from the model data and the chart alone), in coordinates `
   3. ``M = d^2 T / d pd^2`` (section 4.7.1 step 1, eq. 6), ``g = dV/dp`` (step 2, eq. 8) and the velocity-product
      vector from the Christoffel symbols of the first kind of the metric M in these coordinates (step 3, eq. 7;
      the connection of eq. 24): ``(C pd)_i = sum_jk 1/2 (dM_ij/dp_k + dM_ik/dp_j - dM_jk/dp_i) pd_j pd_k``.
+  4. Constraints (article 5.1, 5.7 steps 1-2): ``phi(p)`` row by row as :mod:`cases.constraints` fixes it, from the
+     same staged point positions ``p(body, offset) = p_i + R_i offset`` as the energies (a joint coupling from
+     ``q = psi(p)``), ``Jc = dphi/dp`` and ``Jcdot pd = d/dt (Jc pd)`` at ``pdd = 0``, i.e.
+     ``sum_jk d^2 phi/dp_j dp_k pd_j pd_k`` (eq. 13), all by the same chain rule. In a chart this is
+     ``phi(psi(p))``, so its Jacobian is ``Jc Dpsi`` without forming either, and its multipliers are the joint
+     chart's.
 In a chart these are the chart's own M_p, C_p pd and g_p (different entries, article 6.4.6), never the joint
 ones mapped; the accelerations they give are the chart's ``pdd``, equal to the joint ones mapped by
 ``qdd = Dpsi pdd + (d/dt Dpsi) pd`` (9.1), which is what the tests check.
@@ -24,10 +30,14 @@ derivatives go through a memoized chain rule (forward-mode differentiation done 
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
 project with sympy's API, because pure-Python sympy takes minutes on a 9-joint arm.
 Compilation: plain Python source evaluated with ``math``, the staged definitions in order with repeated
-subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); it returns M, C pd, g and the
-kinetic energy T at the state. The source is cached on disk keyed by the model digest, the
-chart's key (``"identity"`` for the joint chart) and a hash of this module, so a second process loads it
-instead of re-deriving. Solving: Cholesky factorization of M, never an explicit inverse.
+subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); one call returns M, C pd, g, the
+kinetic energy T and the constraint terms phi, Jc, Jcdot pd at the state. The source is cached on disk keyed by
+the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart) and a hash
+of this module, so a second process loads it instead of re-deriving.
+Solving: Cholesky factorization of M, never an explicit inverse. With constraints, the KKT system of article 5.6
+as one block matrix, scaled by the Cholesky factor and the eigen-directions of ``S = Jc M^-1 Jc^T`` kept above
+``CONSTRAINT_RCOND`` (rank-revealing: redundant constraints give the minimum-norm multipliers, :func:`_kkt`), and
+the control part from the constraint-consistent input map of eq. (17) (:func:`_constrained_input_map`).
 """
 
 from __future__ import annotations
@@ -44,9 +54,10 @@ import numpy as np
 import scipy.linalg
 import symengine as sp
 
+from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Chart, Formalism, chart_vectors, check_state, conditioning,
-                                  factor_mass_matrix, unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, Chart, Formalism, chart_vectors, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, unconstrained_split)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -196,11 +207,11 @@ def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatr
     return poses
 
 
-def _energies(model: Model, st: _Staged, pd) -> tuple[sp.Expr, sp.Expr]:
+def _energies(model: Model, st: _Staged, poses, pd) -> tuple[sp.Expr, sp.Expr]:
     """Kinetic energy T(p, pd) and potential energy V(p) of the whole tree (module docstring, step 2)."""
     T, V = ZERO, ZERO
     gravity = _matrix(model.gravity)
-    for body, (R, p) in zip(model.bodies, _poses(model, st)):
+    for body, (R, p) in zip(model.bodies, poses):
         c = (p + R * _matrix(body.com)).applyfunc(st.name)
         c_dot = st.rate(c, pd)
         T += HALF * _exact(body.mass) * (c_dot.T * c_dot)[0]
@@ -211,6 +222,41 @@ def _energies(model: Model, st: _Staged, pd) -> tuple[sp.Expr, sp.Expr]:
             T += HALF * (RJR[0, 0] + RJR[1, 1] + RJR[2, 2])
         V -= _exact(body.mass) * (gravity.T * c)[0]
     return T, V
+
+
+def _point(model: Model, st: _Staged, poses, body: str, offset) -> sp.DenseMatrix:
+    """World position ``p(body, offset) = p_i + R_i offset`` of a body point (cases.constraints), named."""
+    R, p = poses[model.body_index(body)]
+    return (p + R * _matrix(offset)).applyfunc(st.name)
+
+
+def _constraint_rows(model: Model, st: _Staged, poses) -> list:
+    """``phi(p)``, the rows of every declaration in order, exactly as :mod:`cases.constraints` fixes them."""
+    rows: list = []
+    for c in model.constraints:
+        if isinstance(c, PointOnCircle):
+            d = _matrix(c.plane) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.center))
+            rows.append((d.T * d)[0] - _exact(c.radius**2))
+        elif isinstance(c, PointsCoincide):
+            b = _matrix(c.offset_b) if c.body_b is None else _point(model, st, poses, c.body_b, c.offset_b)
+            rows.extend(_matrix(c.directions) * (_point(model, st, poses, c.body_a, c.offset_a) - b))
+        elif isinstance(c, PointOnLine):
+            rows.extend(_matrix(c.normals) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.origin)))
+        else:  # JointCoupling: sum_j c_j q_j - offset, with q = psi(p)
+            rows.append(sp.Add(*[_exact(a) * st.joint[model.body_index(j)]
+                                 for j, a in zip(c.joints, c.coefficients)]) - _exact(c.offset))
+    return rows
+
+
+def _constraints(model: Model, st: _Staged, poses, pd) -> tuple[list, list, list]:
+    """``phi``, ``Jc = dphi/dp`` (rows) and ``Jcdot pd = d/dt (Jc pd)`` at ``pdd = 0`` (eqs. 13, 16; module
+    docstring, step 4); the entries of phi and Jc are named intermediates, so Jc's derivatives are memoized."""
+    n = model.n
+    phi = [st.name(e) for e in _constraint_rows(model, st, poses)]
+    Jc = [[st.name(st.diff(e, j)) for j in range(n)] for e in phi]
+    velocity = [sp.Add(*[row[j] * pd[j] for j in range(n)]) for row in Jc]
+    bias = [sp.Add(*[st.diff(v, k) * pd[k] for k in range(n)]) for v in velocity]
+    return phi, Jc, bias
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -258,15 +304,19 @@ def chart_key(model: Model, chart: Chart | None) -> str:
 # ----------------------------------------------------------------------------------------------------------
 
 class Derivation(NamedTuple):
-    """The symbolic dynamics in one chart. ``M``, ``Cqd`` (= C pd), ``g``, ``T``, ``V`` use the staged
-    intermediates (``staged.needed(...)`` lists their definitions in evaluation order); ``coordinates`` and
-    ``rates`` are the symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p)."""
+    """The symbolic dynamics in one chart. ``M``, ``Cqd`` (= C pd), ``g``, ``T``, ``V`` and the constraint terms
+    ``phi`` (k), ``Jc`` (k rows of n) and ``bias`` (= Jcdot pd, k) use the staged intermediates
+    (``staged.needed(...)`` lists their definitions in evaluation order); ``coordinates`` and ``rates`` are the
+    symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p)."""
 
     M: sp.DenseMatrix
     Cqd: sp.DenseMatrix
     g: sp.DenseMatrix
     T: sp.Expr
     V: sp.Expr
+    phi: list
+    Jc: list
+    bias: list
     coordinates: list
     rates: list
     joint: list
@@ -274,9 +324,10 @@ class Derivation(NamedTuple):
 
 
 def derivation(model: Model, chart: Chart | None = None) -> Derivation:
-    """Symbolic ``M``, ``C pd``, ``g`` (article 4.7.1, eqs. 6–8) and the energies T, V in the chart ``q = psi(p)``
-    (article 6.4.6: the Lagrangian with q = psi(p) substituted, then the same three steps); ``chart=None`` (or
-    an identity chart) is the joint chart, derived with the coordinates themselves as q (module docstring)."""
+    """Symbolic ``M``, ``C pd``, ``g`` (article 4.7.1, eqs. 6–8), the energies T, V and the constraint terms
+    ``phi``, ``Jc``, ``Jcdot pd`` (article 5.7, eq. 13) in the chart ``q = psi(p)`` (article 6.4.6: the Lagrangian
+    and phi with q = psi(p) substituted, then the same steps); ``chart=None`` (or an identity chart) is the joint
+    chart, derived with the coordinates themselves as q (module docstring)."""
     n = model.n
     joint_chart = chart_key(model, chart) == JOINT_CHART
     letter = "q" if joint_chart else "p"
@@ -285,7 +336,8 @@ def derivation(model: Model, chart: Chart | None = None) -> Derivation:
     st = _Staged(x)
     if not joint_chart:
         st.set_joint(_psi(model, chart, x))
-    T, V = _energies(model, st, xd)
+    poses = _poses(model, st)
+    T, V = _energies(model, st, poses, xd)
     dT = [T.diff(v) for v in xd]
     M = sp.zeros(n, n)
     for i in range(n):
@@ -301,7 +353,7 @@ def derivation(model: Model, chart: Chart | None = None) -> Derivation:
                  for j in range(n) for k in range(n)])
         for i in range(n)])
     g = sp.DenseMatrix([st.diff(V, i) for i in range(n)])
-    return Derivation(M, Cqd, g, T, V, x, xd, list(st.joint), st)
+    return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses, xd), x, xd, list(st.joint), st)
 
 
 def derive(model: Model, chart: Chart | None = None):
@@ -383,14 +435,16 @@ class _Source:
 
 
 def generate_source(model: Model, chart: Chart | None = None) -> str:
-    """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T)`` in the chart: the staged definitions in
-    creation order (each reads only earlier ones), shared subexpressions as temporaries, then the outputs
-    (the arguments are named ``q, qd`` in the joint chart and ``p, pd`` in any other)."""
+    """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T, phi, Jc, bias)`` in the chart (``Jc`` row by row,
+    the constraint tuples empty without constraints): the staged definitions in creation order (each reads only
+    earlier ones), shared subexpressions as temporaries, then the outputs (the arguments are named ``q, qd`` in the
+    joint chart and ``p, pd`` in any other)."""
     d = derivation(model, chart)
     n = model.n
     upper = [d.M[i, j] for i in range(n) for j in range(i, n)]
-    outputs = {"M_upper": upper, "Cqd": list(d.Cqd), "g": list(d.g)}
-    definitions = d.staged.needed(upper + outputs["Cqd"] + outputs["g"] + [d.T])
+    outputs = {"M_upper": upper, "Cqd": list(d.Cqd), "g": list(d.g), "phi": d.phi,
+               "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
+    definitions = d.staged.needed([e for v in outputs.values() for e in v] + [d.T])
     code = _Source([e for _, e in definitions] + [e for v in outputs.values() for e in v] + [d.T])
     key = chart_key(model, chart)
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
@@ -398,7 +452,7 @@ def generate_source(model: Model, chart: Chart | None = None) -> str:
     for s, e in definitions:
         code.assign(s, e)
     for label, exprs in outputs.items():
-        code.lines.append(f"    {label} = ({', '.join(code.ref(e) for e in exprs)},)")
+        code.lines.append(f"    {label} = ({''.join(code.ref(e) + ', ' for e in exprs)})")
     code.lines.append(f"    T = {code.ref(d.T)}")
     return "\n".join([
         f"# Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by crosscheck",
@@ -406,7 +460,7 @@ def generate_source(model: Model, chart: Chart | None = None) -> str:
         f"    {', '.join(map(str, d.coordinates))}, = {x}",
         f"    {', '.join(map(str, d.rates))}, = {xd}",
         *code.lines,
-        "    return M_upper, Cqd, g, T"]) + "\n"
+        "    return M_upper, Cqd, g, T, phi, Jc, bias"]) + "\n"
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -489,15 +543,31 @@ class Terms(NamedTuple):
     T: float           # kinetic energy at the state (J)
 
 
-def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> Terms:
-    """``M``, ``C xd``, ``g`` and ``T`` at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint chart)."""
+class ConstraintTerms(NamedTuple):
+    """The numeric constraint terms at a state, in the chart it was evaluated in (empty without constraints)."""
+
+    phi: np.ndarray    # phi (k), the declarations' rows
+    Jc: np.ndarray     # dphi/dp (k x n); in a chart Jc Dpsi
+    bias: np.ndarray   # Jcdot pd (k), so that Jc pdd + bias = 0 (eq. 13)
+
+
+def evaluate(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> tuple[Terms, ConstraintTerms]:
+    """The dynamics and the constraint terms at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint
+    chart), from one call of the compiled derivation."""
     n = model.n
-    M_upper, Cqd, g, T = _compiled(model, _ref(model, chart))(
+    M_upper, Cqd, g, T, phi, Jc, bias = _compiled(model, _ref(model, chart))(
         np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())
     M = np.zeros((n, n))
     M[np.triu_indices(n)] = M_upper
     M = M + np.triu(M, 1).T
-    return Terms(M, np.array(Cqd, dtype=float), np.array(g, dtype=float), float(T))
+    return (Terms(M, np.array(Cqd, dtype=float), np.array(g, dtype=float), float(T)),
+            ConstraintTerms(np.array(phi, dtype=float), np.array(Jc, dtype=float).reshape(len(phi), n),
+                            np.array(bias, dtype=float)))
+
+
+def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> Terms:
+    """``M``, ``C xd``, ``g`` and ``T`` at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint chart)."""
+    return evaluate(model, x, xd, chart)[0]
 
 
 def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -519,12 +589,78 @@ def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None):
         tau_ctrl=tau, qd=xd, cond_M=cond_M, accel_scale=accel_scale, kinetic_energy=T)
 
 
+class _Scaled(NamedTuple):
+    """The constrained problem in the Cholesky frame of ``M = U^T U``: ``A = Jc U^-1``, so ``S = Jc M^-1 Jc^T =
+    A A^T``, and the eigen-directions ``V`` (columns) and eigenvalues ``w`` (ascending) of S that are kept: those
+    above ``CONSTRAINT_RCOND`` times the largest (interface); the others are redundant."""
+
+    U: np.ndarray
+    A: np.ndarray
+    V: np.ndarray
+    w: np.ndarray
+
+
+def _scaled(model: Model, M, Jc, x, chart: str | None) -> _Scaled:
+    """:class:`_Scaled` from M (factored by :func:`factor_mass_matrix`, with its errors) and Jc."""
+    c, lower = factor_mass_matrix(model, M, x, chart)
+    U = np.tril(c).T if lower else np.triu(c)
+    A = scipy.linalg.solve_triangular(U, Jc.T, trans="T").T
+    w, V = np.linalg.eigh(A @ A.T)
+    keep = w > CONSTRAINT_RCOND * max(float(w[-1]), np.finfo(float).tiny)
+    return _Scaled(U, A, V[:, keep], w[keep])
+
+
+def _kkt(sc: _Scaled, forces: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve the KKT system of article 5.6, ``[[M, -Jc^T], [Jc, 0]] [qdd; lam] = [f; -Jcdot qd]`` (eq. 12:
+    ``M qdd + h = B u + Jc^T lam``; eq. 13), for each column ``f`` of ``forces``; returns qdd (n x columns) and
+    lam (k x columns).
+
+    Rank-revealing by scaling: in the unknowns ``y = U qdd`` and ``mu = s V^T lam`` (``s^2`` the largest
+    eigenvalue of S) the block matrix becomes ``[[I, -Ah^T], [Ah, 0]]`` with ``Ah = V^T A / s``, whose rows are
+    the kept eigen-directions of S (row norms ``sqrt(w_i) / s`` in ``[sqrt(CONSTRAINT_RCOND), 1]``), so it is
+    regular and well scaled. The multipliers ``lam = V mu / s`` lie in the kept directions: for a consistent
+    system the unique qdd and the minimum-norm multipliers (a duplicated row gets half each); for an inconsistent
+    one (``H_t`` empty) the equations along the redundant directions are dropped: a finite answer, the
+    least-squares one where those directions are exactly redundant.
+    """
+    n, r = sc.A.shape[1], sc.V.shape[1]
+    s = math.sqrt(sc.w[-1]) if r else 1.0
+    Ah = sc.V.T @ sc.A / s
+    K = np.block([[np.eye(n), -Ah.T], [Ah, np.zeros((r, r))]])
+    rhs = np.vstack([scipy.linalg.solve_triangular(sc.U, forces, trans="T"),
+                     np.repeat(-(sc.V.T @ bias)[:, None] / s, forces.shape[1], axis=1)])
+    sol = np.linalg.solve(K, rhs)
+    return scipy.linalg.solve_triangular(sc.U, sol[:n]), sc.V @ sol[n:] / s
+
+
+def _constrained_input_map(sc: _Scaled) -> np.ndarray:
+    """``B_c = M^-1 [I - Jc^T S^+ Jc M^-1]`` with ``S = Jc M^-1 Jc^T`` (article eq. 17), ``S^+`` the
+    pseudo-inverse over its kept eigen-directions (``V diag(1/w) V^T``); in the Cholesky frame
+    ``U^-1 (I - A^T S^+ A) U^-T``."""
+    AW = sc.A.T @ (sc.V / np.sqrt(sc.w))
+    P = np.eye(sc.U.shape[0]) - AW @ AW.T
+    return scipy.linalg.solve_triangular(sc.U, scipy.linalg.solve_triangular(sc.U, P).T)  # U^-1 (U^-1 P)^T, P = P^T
+
+
+def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau, x, xd, chart: str | None = None):
+    """The constrained split (article 5.3-5.6): total and lam from the KKT system with the input, drift and
+    lam_drift with u = 0 (eq. 14), both by :func:`_kkt`; ctrl ``B_c tau`` (eq. 17) directly, never total - drift."""
+    M, Cqd, g, T = dynamics
+    sc = _scaled(model, M, cons.Jc, x, chart)
+    h = Cqd + g
+    qdd, lam = _kkt(sc, np.column_stack([tau - h, -h]), cons.bias)
+    return constrained_split(model, M=M, Cqd=Cqd, g=g, tau_ctrl=tau, qd=xd, phi=cons.phi, Jc=cons.Jc,
+                             bias=cons.bias, drift=qdd[:, 1], ctrl=_constrained_input_map(sc) @ tau,
+                             total=qdd[:, 0], lam=lam[:, 0], lam_drift=lam[:, 1], kinetic_energy=T)
+
+
 def split(model: Model, q, qd, u):
     """Drift ``-M^-1 (C qd + g)`` (eq. 10), control ``M^-1 B u`` and total ``M^-1 (B u - C qd - g)`` (eq. 9);
-    power ``u . B^T qd`` and the kinetic energy ``T`` from the derived energy. Unconstrained models only."""
-    if model.constraints:
-        raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
+    power ``u . B^T qd`` and the kinetic energy ``T`` from the derived energy. With constraints, the KKT solves of
+    article 5.6 with and without the input (eqs. 12-14) and ctrl ``B_c B u`` (eq. 17): :func:`_solve_constrained`."""
     q, qd, u = check_state(model, q, qd, u)
+    if model.constraints:
+        return _solve_constrained(model, *evaluate(model, q, qd), model.input_map @ u, q, qd)
     M, Cqd, g, T = evaluate_terms(model, q, qd)
     return _solve(model, M, Cqd, g, model.input_map @ u, q, qd, T)
 
@@ -532,16 +668,18 @@ def split(model: Model, q, qd, u):
 def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     """The split of eq. (9) evaluated in the chart ``q = psi(p)`` (article 6.4.6, 9.1), from the chart's own
     derivation (module docstring: the Lagrangian in p, eqs. 6–8 in p): drift ``M_p^-1 (-C_p pd - g_p)`` (eq. 10),
-    ctrl ``M_p^-1 tau_p``, total ``M_p^-1 (tau_p - C_p pd - g_p)``, accelerations ``pdd`` in the chart.
+    ctrl ``M_p^-1 tau_p``, total ``M_p^-1 (tau_p - C_p pd - g_p)``, accelerations ``pdd`` in the chart. With
+    constraints, the same KKT solves and ``B_c`` (eqs. 12-17) with the chart's ``phi(psi(p))``, its Jacobian
+    ``Jc_p = Jc Dpsi`` and ``Jcdot_p pd``: the multipliers are the joint chart's.
 
     ``tau_p`` is the generalized force in the chart, a covector (``Dpsi^T B u`` for an input u); the control
     power is ``tau_p . pd`` (= ``u . B^T qd``, chart-invariant) and the kinetic energy T is the chart's own
     (chart-invariant, 9.1). The task acceleration is not computed here (UNSUPPORTED).
     """
-    if model.constraints:
-        raise NotImplementedError("Euler–Lagrange: constraints arrive with the constraint issue")
     chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
+    if model.constraints:
+        return _solve_constrained(model, *evaluate(model, p, pd, chart), tau_p, p, pd, chart=chart.name)
     M, Cqd, g, T = evaluate_terms(model, p, pd, chart)
     return _solve(model, M, Cqd, g, tau_p, p, pd, T, chart=chart.name)
 
@@ -549,7 +687,7 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
 FORMALISM = Formalism(
     name="euler_lagrange",
     summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq; "
-            "re-derived in any chart q = psi(p) (6.4.6)",
+            "re-derived in any chart q = psi(p) (6.4.6); constraints by a scaled, rank-revealing KKT solve (5.6)",
     split=split,
     split_chart=split_chart,
 )

@@ -41,10 +41,43 @@ in every chart.
 Task drift (eq. 23): for ``model.task_point()`` with directions ``D``, ``x(p) = D (o_b + R_b offset)``; the classical
 acceleration at the drift is ``J drift + Jdot pd`` with ``J = dx/dp`` and ``Jdot pd = jtimes(jtimes(x, p, pd), p, pd)``.
 
-Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J and Jdot pd in a single
-call through casadi's buffer interface (built once and cached by the model digest and the chart key: about 1 s for
-the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one LAPACK solve with all right-hand sides
-and small numpy contractions.
+Constraints (article 5, eqs. 12-17; 6.4.5 "constraints restrict motion to submanifolds of Q"; 7.2 reaction
+covectors). ``phi(p)`` is each declaration's function (``cases.constraints``) of this backend's own point positions
+``o_b + R_b offset`` through the chart, so ``phi(psi(p))`` is the same function in every chart and the multipliers
+are chart-invariant. ``Jc = dphi/dp`` and ``Jcdot pd = (d(Jc pd)/dp) pd`` by automatic differentiation, in the same
+Function. Eq. (24) with the reaction covector ``Jc^T lam`` reads, as covectors (index lowered, so a singular metric,
+e.g. point masses on massless carriages, needs no inverse):
+
+    M (pdd + Gamma(pd, pd)) + dV/dp = tau + Jc^T lam,        Jc pdd = -Jcdot pd   (eqs. 12, 13)
+
+with ``M Gamma(pd, pd)`` the first-kind contraction. It is solved by the null-space (tangent-space) method, not a
+KKT block solve: the admissible accelerations ``H_t`` (eq. 16) are ``pdd_p + D`` with the constraint distribution
+``D = ker Jc`` and ``pdd_p = Jc^+ (-Jcdot pd)``; with ``Z`` an orthonormal basis of ``D`` (the right singular
+vectors of ``Jc`` beyond its rank) and ``f = tau - M Gamma(pd, pd) - dV/dp``,
+
+    pdd = pdd_p + Z (Z^T M Z)^-1 Z^T (f - M pdd_p),      lam = (Jc^T)^+ (M pdd - f)   (minimum norm),
+
+i.e. the metric-orthogonal projection of the free motion onto ``H_t``: ``Z^T`` of eq. (12) removes ``Jc^T lam``.
+``total``/``lam`` use ``tau``, ``drift``/``lam_drift`` ``tau = 0`` (eq. 14), each its own solve. ``ctrl`` is
+``Z (Z^T M Z)^-1 Z^T tau``, which is the constraint-consistent input map of eq. (17) applied to ``tau``:
+``P = Z (Z^T M Z)^-1 Z^T M`` and ``I - M^-1 Jc^T S^+ Jc`` (``S = Jc M^-1 Jc^T``) are both the M-orthogonal
+projector onto ``D`` (each is idempotent, fixes ``D`` and has an M-orthogonal kernel: ``range M^-1 Jc^T``), so
+``B_c = (I - M^-1 Jc^T S^+ Jc) M^-1 = P M^-1 = Z (Z^T M Z)^-1 Z^T``; the right-hand side needs no ``M^-1`` and so
+holds for a singular metric as long as ``Z^T M Z`` (the metric on ``D``) is positive definite.
+
+Rank: ``Jc``'s singular values above ``sqrt(CONSTRAINT_RCOND)`` times the largest count (:data:`SINGULAR_VALUE_RTOL`).
+The eigenvalues of ``S`` are the squared singular values of ``Jc M^-1/2``, so this is the interface's relative
+threshold on ``S`` exactly when M is a multiple of the identity (cartesian pendulum) and within a factor
+``sqrt(cond M)`` of it otherwise; the singular values of ``Jc`` itself are used because M may be singular.
+Redundant rows (a duplicated constraint) and a rank drop (a four-bar at its change point) never raise: the
+pseudo-inverses give the minimum-norm multipliers, unique ``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and
+finite least-squares numbers when it is (the harness flags BREAKDOWN from ``constrained_split``'s conditions).
+
+Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
+constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
+digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one
+LAPACK solve with all right-hand sides and small numpy contractions (with constraints: one SVD of Jc, and the factor
+is that of ``Z^T M Z``).
 
 Public API: :func:`split`, :func:`split_chart` (the :class:`Formalism` contract); the geometric objects of a mechanism
 :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`, :func:`drift_field`,
@@ -64,10 +97,14 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, chart_vectors, check_state, conditioning, factor_mass_matrix,
-                                  unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, chart_vectors, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, unconstrained_split)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
+
+#: Relative singular value of ``Jc`` below which a constraint direction counts as redundant: the square root of the
+#: interface's relative eigenvalue threshold on ``S = Jc M^-1 Jc^T`` (module docstring, "Rank").
+SINGULAR_VALUE_RTOL = float(np.sqrt(CONSTRAINT_RCOND))
 
 
 # ------------------------------------------------------------------------------------------------ the connection
@@ -231,6 +268,36 @@ def _frames(model: Model, q: list) -> tuple[list, list]:
     return R, o
 
 
+def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
+    """World position ``o_b + R_b offset`` of the point ``offset`` (body frame) of ``body`` (SX 3-vector)."""
+    b = model.body_index(body)
+    return o[b] + ca.mtimes(R[b], ca.DM(offset))
+
+
+def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
+    """``phi`` of one declaration, exactly as tabled in ``cases.constraints`` (dispatched on the declaration's type
+    name: a formalism imports only ``cases.model``)."""
+    kind = type(c).__name__
+    if kind == "PointOnCircle":
+        d = ca.mtimes(ca.DM(c.plane), _point(model, R, o, c.body, c.offset) - ca.DM(c.center))
+        return ca.dot(d, d) - c.radius ** 2
+    if kind == "PointsCoincide":
+        other = ca.DM(c.offset_b) if c.body_b is None else _point(model, R, o, c.body_b, c.offset_b)
+        return ca.mtimes(ca.DM(c.directions), _point(model, R, o, c.body_a, c.offset_a) - other)
+    if kind == "PointOnLine":
+        return ca.mtimes(ca.DM(c.normals), _point(model, R, o, c.body, c.offset) - ca.DM(c.origin))
+    if kind == "JointCoupling":
+        terms = [coefficient * q[model.body_index(j)] for j, coefficient in zip(c.joints, c.coefficients)]
+        return ca.sum1(ca.vertcat(*terms)) - c.offset
+    raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {kind}, which the geometric backend does not "
+                     "know")
+
+
+def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
+    """``phi(p)`` (k,): the rows of every declaration in order, of the joint values ``q = psi(p)`` and the frames."""
+    return ca.vertcat(*[_constraint_rows(model, c, q, R, o) for c in model.constraints])
+
+
 class _Evaluator:
     """A casadi Function ``(p, pd) -> one dense column`` called through casadi's buffer interface: the arguments
     are copied into fixed numpy buffers and the result out of one, so a call costs microseconds instead of the
@@ -255,11 +322,12 @@ class _Evaluator:
 
 class _Compiled:
     """The casadi pieces of one (model, chart). ``evaluate(p, pd)`` returns one flat vector
-    ``[M_upper, dM_upper (column k = d/dp_k of M_upper), dV/dp, T, vec J, Jdot pd]`` (``M_upper``: the upper
-    triangle of M, row by row; vec column-major) from a single SX Function call; the index arrays below read M, dM
-    (``[k, i, j]``), dV, T, J and Jdot pd out of it. ``energy`` (``[T, V, dE/dp, dE/dpd]``) is built on first use."""
+    ``[M_upper, dM_upper (column k = d/dp_k of M_upper), dV/dp, T, vec J, Jdot pd, phi, vec Jc, Jcdot pd]``
+    (``M_upper``: the upper triangle of M, row by row; vec column-major; ``k`` task rows, ``kc`` constraint rows)
+    from a single SX Function call; the index arrays below read M, dM (``[k, i, j]``), dV, T, J, Jdot pd, phi, Jc and
+    Jcdot pd out of it. ``energy`` (``[T, V, dE/dp, dE/dpd]``) is built on first use."""
 
-    def __init__(self, n: int, k: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX):
+    def __init__(self, n: int, k: int, kc: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX):
         self.n, self.k, self.p, self.pd, self.T, self.V = n, k, p, pd, T, V
         rows, cols = np.triu_indices(n)
         nu = rows.size
@@ -271,6 +339,10 @@ class _Compiled:
         self.dV_slice, self.T_index = slice(at, at + n), at + n
         self.J_index = at + n + 1 + np.arange(k * n).reshape(n, k).T          # vec(J) is column-major
         self.Jdot_slice = slice(at + n + 1 + k * n, at + n + 1 + k * n + k)
+        at = self.Jdot_slice.stop
+        self.phi_slice = slice(at, at + kc)
+        self.Jc_index = at + kc + np.arange(kc * n).reshape(n, kc).T
+        self.Jc_bias_slice = slice(at + kc + kc * n, at + 2 * kc + kc * n)
         self.evaluate = _Evaluator("geometric", p, pd, out)
         self._energy: _Evaluator | None = None
 
@@ -285,7 +357,8 @@ class _Compiled:
 
 
 def _compile(model: Model, chart) -> _Compiled:
-    """Kinematics, energies, metric and task map of ``model`` in ``chart`` as one SX Function (module docstring).
+    """Kinematics, energies, metric, task map and constraints of ``model`` in ``chart`` as one SX Function (module
+    docstring).
 
     The metric is the Hessian of T in pd, taken in closed form: ``c_i' = Jc_i pd`` and ``w_i = Jw_i pd`` are linear in
     pd (``Jc_i = dc_i/dp``, ``Jw_i = dw_i/dpd``), so ``d^2 T / dpd^2 = sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i``
@@ -295,7 +368,8 @@ def _compile(model: Model, chart) -> _Compiled:
     """
     n = model.n
     p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
-    R, o = _frames(model, _joint_coordinates(model, chart, p))
+    q = _joint_coordinates(model, chart, p)
+    R, o = _frames(model, q)
     T, V, M = ca.SX(0), ca.SX(0), ca.SX.zeros(n, n)
     gravity = ca.DM(model.gravity)
     for i, body in enumerate(model.bodies):
@@ -320,12 +394,14 @@ def _compile(model: Model, chart) -> _Compiled:
     dM_upper = ca.jacobian(M_upper, p)  # column k = d M_upper / dp_k (so vec(dM_upper) is [k, upper entry])
     dV = ca.gradient(V, p)
     tp = model.task_point()
-    b = model.body_index(tp.body)
-    x = ca.mtimes(ca.DM(tp.directions), o[b] + ca.mtimes(R[b], ca.DM(tp.offset)))
+    x = ca.mtimes(ca.DM(tp.directions), _point(model, R, o, tp.body, tp.offset))
     J = ca.jacobian(x, p)
     Jdot_pd = ca.jtimes(ca.jtimes(x, p, pd), p, pd)
-    out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd)
-    return _Compiled(n=n, k=x.shape[0], p=p, pd=pd, T=T, V=V, out=out)
+    phi = _constraint_function(model, q, R, o) if model.constraints else ca.SX(0, 1)
+    Jc = ca.jacobian(phi, p)
+    Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
+    out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd, phi, ca.vec(Jc), Jc_bias)
+    return _Compiled(n=n, k=x.shape[0], kc=phi.shape[0], p=p, pd=pd, T=T, V=V, out=out)
 
 
 _LOCK = threading.Lock()
@@ -368,24 +444,28 @@ class _Point:
     T: float
     J: np.ndarray
     Jdot_pd: np.ndarray
+    phi: np.ndarray      # (k,) constraint values; empty when unconstrained
+    Jc: np.ndarray       # (k, n) dphi/dp
+    Jc_bias: np.ndarray  # (k,) Jcdot pd
 
 
 def _evaluate(model: Model, chart, p: np.ndarray, pd: np.ndarray) -> _Point:
     c = _compiled(model, chart)
     flat = c.evaluate(p, pd)
     return _Point(M=flat[c.M_index], dM=flat[c.dM_index], dV=flat[c.dV_slice], T=float(flat[c.T_index]),
-                  J=flat[c.J_index], Jdot_pd=flat[c.Jdot_slice])
+                  J=flat[c.J_index], Jdot_pd=flat[c.Jdot_slice], phi=flat[c.phi_slice], Jc=flat[c.Jc_index],
+                  Jc_bias=flat[c.Jc_bias_slice])
 
 
-def _check_unconstrained(model: Model) -> None:
-    if model.constraints:
-        raise NotImplementedError(f"model '{model.name}': the geometric backend does not handle constraints yet; "
-                                  "constraints arrive with the constraint issue")
+def _chart_name(chart) -> str:
+    return JOINT_CHART if chart is None else getattr(chart, "name", "chart")
 
 
 def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
     pt = _evaluate(model, chart, p, pd)
-    factor = factor_mass_matrix(model, pt.M, p, None if chart is None else getattr(chart, "name", "chart"))
+    if model.constraints:
+        return _constrained_split(model, chart, pt, p, pd, tau)
+    factor = factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart))
     # grad V (dV raised by the metric), G u (the control covector raised) and M^-1 (tau - dV), each its own solve
     Gamma, first, (grad_V, ctrl, forced) = christoffel_symbols(pt.M, pt.dM, factor, (pt.dV, tau, tau - pt.dV))
     gamma_pdpd = (Gamma @ pd) @ pd                           # Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k
@@ -396,7 +476,80 @@ def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) 
     task_drift = pt.J @ drift + pt.Jdot_pd
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=pd, cond_M=cond_M,
                                accel_scale=accel_scale, task_drift=task_drift, kinetic_energy=pt.T,
-                               extras={"chart": JOINT_CHART if chart is None else getattr(chart, "name", "chart")})
+                               extras={"chart": _chart_name(chart)})
+
+
+# ------------------------------------------------------------------------------------------------ constraints
+
+
+@dataclass(frozen=True)
+class _Distribution:
+    """The constraint distribution ``D = ker Jc`` at a point, from the SVD ``Jc = U diag(s) V^T``: the kept
+    (non-redundant) directions ``U_r, s_r, V_r`` and ``Z``, an orthonormal basis of ``D`` (the other columns of V)."""
+
+    U: np.ndarray  # (k, r)
+    s: np.ndarray  # (r,)
+    V: np.ndarray  # (n, r)
+    Z: np.ndarray  # (n, n - r)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``Jc^+ b``: the minimum-norm least-squares solution of ``Jc x = b``."""
+        return self.V @ ((self.U.T @ b) / self.s)
+
+    def solve_transposed(self, c: np.ndarray) -> np.ndarray:
+        """``(Jc^T)^+ c``: the minimum-norm least-squares solution of ``Jc^T lam = c``."""
+        return self.U @ ((self.V.T @ c) / self.s)
+
+
+def _distribution(Jc: np.ndarray) -> _Distribution:
+    """SVD of ``Jc`` with the rank from :data:`SINGULAR_VALUE_RTOL` (module docstring, "Rank")."""
+    U, s, Vt = np.linalg.svd(Jc)
+    r = int(np.count_nonzero(s > SINGULAR_VALUE_RTOL * s[0])) if s.size and s[0] > 0.0 else 0
+    return _Distribution(U=U[:, :r], s=s[:r], V=Vt[:r].T, Z=Vt[r:].T)
+
+
+def _reduced_metric_factor(model: Model, chart, M: np.ndarray, Z: np.ndarray, p: np.ndarray):
+    """Cholesky factor of ``Z^T M Z``, the metric restricted to the constraint distribution; not positive definite
+    means the constraints leave a motion without kinetic energy free (a ValueError naming it)."""
+    Mz = Z.T @ M @ Z
+    try:
+        return scipy.linalg.cho_factor(Mz), Mz
+    except np.linalg.LinAlgError:
+        raise ValueError(f"model '{model.name}': the metric restricted to the constraint distribution, Z^T M Z, is not "
+                         f"positive definite at p = {p.tolist()} in chart '{_chart_name(chart)}' (a free motion "
+                         f"without kinetic energy); eigenvalues {np.linalg.eigvalsh(Mz).tolist()}") from None
+
+
+def _condition(Mz: np.ndarray) -> float:
+    """2-norm condition number of the (symmetric positive definite) reduced metric ``Z^T M Z``; 1 when D = {0}."""
+    if not Mz.size:
+        return 1.0
+    eig = np.linalg.eigvalsh(Mz)
+    return float(eig[-1] / eig[0])
+
+
+def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
+    """Eqs. (12)-(17) by the null-space method (module docstring, "Constraints"): one particular admissible
+    acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the three projections onto ``D``:
+    ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
+    Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``."""
+    dist = _distribution(pt.Jc)
+    factor, Mz = _reduced_metric_factor(model, chart, pt.M, dist.Z, p)
+    Cqd = (christoffel_first_kind(pt.dM) @ pd) @ pd          # M Gamma(pd, pd), the chart's C qd (eq. 7)
+    f0 = -Cqd - pt.dV                                        # eq. (24) as a covector, tau = 0
+    f = tau + f0
+    pdd_p = dist.solve(-pt.Jc_bias)                          # a point of H_t (eq. 16)
+    rhs = dist.Z.T @ np.column_stack([f - pt.M @ pdd_p, f0 - pt.M @ pdd_p, tau])
+    # separate right-hand sides (three solves); no step at all when the constraints leave no freedom (D = {0})
+    steps = dist.Z @ _cho_solve(factor, rhs) if dist.Z.shape[1] else np.zeros((len(pd), 3))
+    total, drift, ctrl = pdd_p + steps[:, 0], pdd_p + steps[:, 1], steps[:, 2]
+    lam = dist.solve_transposed(pt.M @ total - f)            # eq. (12): M pdd + h = tau + Jc^T lam
+    lam_drift = dist.solve_transposed(pt.M @ drift - f0)     # eq. (14)
+    return constrained_split(model, M=pt.M, Cqd=Cqd, g=pt.dV, tau_ctrl=tau, qd=pd, phi=pt.phi, Jc=pt.Jc,
+                             bias=pt.Jc_bias, drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
+                             extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
+                             conditions={"reduced_metric": _condition(Mz)},
+                             kinetic_energy=pt.T)
 
 
 # ------------------------------------------------------------------------------------------------- public API
@@ -404,8 +557,8 @@ def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) 
 
 def split(model: Model, q, qd, u) -> Split:
     """The drift-control split (eq. 9) in the joint chart from eqs. (24)-(25): ``drift = -Gamma(qd, qd) - grad V``,
-    ``ctrl = M^-1 B u``, ``total = M^-1 (B u - dV/dq) - Gamma(qd, qd)`` (module docstring)."""
-    _check_unconstrained(model)
+    ``ctrl = M^-1 B u``, ``total = M^-1 (B u - dV/dq) - Gamma(qd, qd)``; with constraints the same equations
+    projected onto the constraint distribution (eqs. 12-17, module docstring)."""
     q, qd, u = check_state(model, q, qd, u)
     return _split(model, None, q, qd, model.input_map @ u)
 
@@ -416,8 +569,9 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
 
     ``tau_p`` is the generalized force in the chart (a covector, ``Dpsi^T B u``); the accelerations returned are
     ``pdd``; ``power_ctrl = tau_p . pd`` (per coordinate ``tau_p_i pd_i``). ``chart=None`` is the joint chart.
+    With constraints, ``phi(psi(p))`` is differentiated in p, so ``Jc`` is the chart's ``Jc_q Dpsi`` and ``lam`` is
+    the joint chart's.
     """
-    _check_unconstrained(model)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     return _split(model, chart, p, pd, tau_p)
 
@@ -451,8 +605,8 @@ def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
 
 
 def drift_field(model: Model, p, pd, chart=None) -> np.ndarray:
-    """The intrinsic drift field of eq. (25) on TQ in ``chart``: ``(pd, -Gamma(pd, pd) - grad V)``, shape (2n,)."""
-    _check_unconstrained(model)
+    """The intrinsic drift field of eq. (25) on TQ in ``chart``: ``(pd, -Gamma(pd, pd) - grad V)``, shape (2n,); with
+    constraints the constrained drift of eq. (14) (the free one projected onto ``H_t``)."""
     p, pd = chart_vectors(model, p=p, pd=pd)
     s = _split(model, chart, p, pd, np.zeros(model.n))
     return np.concatenate([pd, s.drift])

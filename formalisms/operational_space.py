@@ -45,6 +45,26 @@ smallest eigenvalue is not positive, not finite, or below ``k eps lambda_max``, 
 a k x k matrix, so indistinguishable from zero) ``cond`` is ``inf`` and every task-space quantity and joint
 acceleration is NaN: no crash, and no plausible-looking garbage.
 
+Constraints (article 5, eqs. 12-17; in operational space they are the ``F_constr`` of eq. 22, article 7.2): ``phi``,
+``Jc`` and ``Jcdot qd`` come from the same point kinematics as the task, the world position, ``J_v`` and classical
+bias of each constrained point, combined row by row as ``cases.constraints`` fixes them (a circle:
+``d = P (p - c)``, ``phi = d.d - R^2``, ``Jc = 2 d^T P J_v``, ``Jcdot qd = 2 |P J_v qd|^2 + 2 d^T P (Jdot_v qd)``).
+The constraint is treated as a second operational space with its own inertia (Khatib's constraint space):
+``Lambda_c = S^+`` with ``S = Jc M^-1 Jc^T``, the pseudo-inverse from S's eigendecomposition without the
+eigen-directions below ``CONSTRAINT_RCOND`` times the largest eigenvalue (redundant or degenerate rows give the
+minimum-norm multipliers). With ``a`` the free accelerations recomposed as above, eq. (13) gives
+
+    lam = Lambda_c (-Jcdot qd - Jc a)    (total: a = M^-1 (B u - h); drift, eq. 14: a = -M^-1 h)
+    lam_ctrl = -Lambda_c Jc M^-1 B u      (the reaction to the input alone, eq. 15's lam - lam_0)
+
+and the generalized constraint forces ``Jc^T lam`` enter eq. (22) as ``F_constr = J_bar^T Jc^T lam`` beside
+``F_ctrl``: the same recomposition with ``tau + Jc^T lam`` for ``tau`` returns ``qdd = a + M^-1 Jc^T lam``. For the
+control part that is eq. (17), ``ctrl = B_c B u = M^-1 [I - Jc^T Lambda_c Jc M^-1] B u``, computed directly from
+``M^-1 B u`` (never ``total - drift``). Degenerate but consistent rows still give a unique ``qdd`` and ``Jc^T lam``;
+inconsistent ones (``H_t`` empty, eq. 16) finite least-squares numbers, which the harness flags from the conditions
+``constrained_split`` adds. A singular task space keeps its meaning: every acceleration is NaN there, with or
+without constraints.
+
 Numerics: near a singularity ``Lambda``, ``mu``, ``p`` and ``F_ctrl`` grow like ``1 / lambda_min(A)`` along the
 lost direction. In the model's task coordinates their rounding lands in every component, ``A``'s large
 eigenvalue turns it into an ``eps cond(A)`` error of ``xdd``, and ``J_bar`` (norm ~ ``sqrt(cond(A))``) amplifies it
@@ -64,8 +84,8 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, check_state, conditioning, factor_mass_matrix,
-                                  unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
+                                  factor_mass_matrix, unconstrained_split)
 
 EPS = float(np.finfo(float).eps)
 
@@ -95,7 +115,9 @@ class TaskSpace:
     """The task-space quantities of eq. (22) at one state, for one task point (k task coordinates).
 
     J (k, n), Jdot_qd (k,) classical bias, A = J M^-1 J^T (k, k), Lambda = A^-1, mu, p (k,), J_bar (n, k),
-    N (n, n), F_ctrl = J_bar^T B u (k,), xdd_drift (eq. 23), xdd_ctrl, xdd_total (k,), cond = cond_2(A).
+    N (n, n), F_ctrl = J_bar^T B u (k,), F_constr and F_constr_drift = J_bar^T Jc^T lam (k,) with and without input
+    (zero without constraints), xdd_drift = A (F_constr_drift - mu - p) (eq. 23), xdd_ctrl = A (F_ctrl + J_bar^T
+    Jc^T lam_ctrl), xdd_total = A (F_ctrl + F_constr - mu - p) (k,), cond = cond_2(A).
     Everything but J, Jdot_qd and A is NaN where ``cond`` is inf (A numerically singular).
     """
 
@@ -108,6 +130,8 @@ class TaskSpace:
     J_bar: np.ndarray
     N: np.ndarray
     F_ctrl: np.ndarray
+    F_constr: np.ndarray
+    F_constr_drift: np.ndarray
     xdd_drift: np.ndarray
     xdd_ctrl: np.ndarray
     xdd_total: np.ndarray
@@ -222,14 +246,23 @@ def joint_space_terms(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.n
     return _terms(model, _kinematics(model, q, qd))
 
 
+def _point_kinematics(model: Model, kin: Kinematics, body: str | None,
+                      offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World position ``p`` (3,), linear Jacobian ``J_v`` (3, n) and classical bias ``Jdot_v qd`` (3,) of the point
+    ``offset`` fixed in ``body``; with ``body = None`` the fixed world point ``offset`` (zero Jacobian and bias)."""
+    if body is None:
+        return np.asarray(offset, dtype=float), np.zeros((3, model.n)), np.zeros(3)
+    i = np.array([model.body_index(body)])
+    p = kin.o[i] + kin.R[i] @ offset
+    Jv = point_jacobian(kin, i, p)[0]
+    return p[0], Jv[0], point_bias(kin, i, p, Jv @ kin.qd)[0]
+
+
 def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[np.ndarray, np.ndarray]:
     """``J = D J_v(p)`` (k, n) and the classical ``Jdot qd = D (point bias)`` (k,) of a task point."""
     tp = model.task_point(point)
-    body = np.array([model.body_index(tp.body)])
-    p = kin.o[body] + kin.R[body] @ tp.offset
-    Jv = point_jacobian(kin, body, p)[0]
-    bias = point_bias(kin, body, p, Jv[0][None] @ kin.qd)
-    return tp.directions @ Jv[0], tp.directions @ bias[0]
+    _, Jv, bias = _point_kinematics(model, kin, tp.body, tp.offset)
+    return tp.directions @ Jv, tp.directions @ bias
 
 
 def _cond(eig: np.ndarray) -> float:
@@ -240,9 +273,11 @@ def _cond(eig: np.ndarray) -> float:
     return float(eig[-1] / eig[0])
 
 
-def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl) -> tuple[TaskSpace, TaskSpace]:
+def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpace, TaskSpace]:
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
+    ``tau_constr`` (3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone and
+    at the total (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
     Returns the :class:`TaskSpace` in those axes and rotated back to the task coordinates (``J``, ``Jdot qd`` and
     ``A`` there as assembled). All NaN, ``cond`` inf, where ``A`` is numerically singular."""
     n, k = Minv.shape[0], J.shape[0]
@@ -258,14 +293,122 @@ def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl) -> tuple[TaskSpace, TaskSpac
     p = (Minv_JT.T @ g) / eig                              # Lambda J M^-1 g
     J_bar = Minv_JT / eig                                  # M^-1 J^T Lambda
     F_ctrl = J_bar.T @ tau_ctrl
+    F_constr_drift, F_constr_ctrl, F_constr = tau_constr @ J_bar
     principal = TaskSpace(J=Jp, Jdot_qd=bias, A=np.diag(eig), Lambda=np.diag(1.0 / eig), mu=mu, p=p, J_bar=J_bar,
-                          N=np.eye(n) - J_bar @ Jp, F_ctrl=F_ctrl, xdd_drift=eig * (-mu - p), xdd_ctrl=eig * F_ctrl,
-                          xdd_total=eig * (F_ctrl - mu - p), cond=cond)
+                          N=np.eye(n) - J_bar @ Jp, F_ctrl=F_ctrl, F_constr=F_constr, F_constr_drift=F_constr_drift,
+                          xdd_drift=eig * (F_constr_drift - mu - p), xdd_ctrl=eig * (F_ctrl + F_constr_ctrl),
+                          xdd_total=eig * (F_ctrl + F_constr - mu - p), cond=cond)
     Lambda = V @ principal.Lambda @ V.T
     reported = TaskSpace(J=J, Jdot_qd=Jdot_qd, A=A, Lambda=0.5 * (Lambda + Lambda.T), mu=V @ mu, p=V @ p,
-                         J_bar=J_bar @ V.T, N=principal.N, F_ctrl=V @ F_ctrl, xdd_drift=V @ principal.xdd_drift,
+                         J_bar=J_bar @ V.T, N=principal.N, F_ctrl=V @ F_ctrl, F_constr=V @ F_constr,
+                         F_constr_drift=V @ F_constr_drift, xdd_drift=V @ principal.xdd_drift,
                          xdd_ctrl=V @ principal.xdd_ctrl, xdd_total=V @ principal.xdd_total, cond=cond)
     return principal, reported
+
+
+def _recompose(ts: TaskSpace, Minv: np.ndarray, h: np.ndarray, tau_ctrl: np.ndarray,
+               tau_constr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The joint accelerations from the principal-axes task space plus the dynamically consistent null space
+    (module docstring): ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl
+    + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam
+    - h)``, with the constraint forces ``tau_constr`` of :func:`_task_space`."""
+    null = Minv @ ts.N.T
+    f_drift, f_ctrl, f_total = tau_constr
+    return (ts.J_bar @ (ts.xdd_drift - ts.Jdot_qd) + null @ (f_drift - h),
+            ts.J_bar @ ts.xdd_ctrl + null @ (tau_ctrl + f_ctrl),
+            ts.J_bar @ (ts.xdd_total - ts.Jdot_qd) + null @ (tau_ctrl + f_total - h))
+
+
+def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PointOnCircle: ``d = P (p - c)``, ``phi = d.d - R^2``, ``Jc = 2 d^T P J_v``,
+    ``Jcdot qd = 2 |P J_v qd|^2 + 2 d^T P (Jdot_v qd)``."""
+    p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    d, PJ = c.plane @ (p - c.center), c.plane @ Jv
+    v = PJ @ kin.qd
+    return np.array([d @ d - c.radius**2]), (2.0 * d @ PJ)[None], np.array([2.0 * v @ v + 2.0 * d @ (c.plane @ bias)])
+
+
+def _coincide(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PointsCoincide: ``D (p_a - p_b)``, ``D (J_a - J_b)``, ``D (Jdot_a qd - Jdot_b qd)`` (body_b None: a world
+    point, zero Jacobian and bias)."""
+    pa, Ja, ba = _point_kinematics(model, kin, c.body_a, c.offset_a)
+    pb, Jb, bb = _point_kinematics(model, kin, c.body_b, c.offset_b)
+    D = c.directions
+    return D @ (pa - pb), D @ (Ja - Jb), D @ (ba - bb)
+
+
+def _line(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PointOnLine: ``N (p - origin)``, ``N J_v``, ``N Jdot_v qd``."""
+    p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    return c.normals @ (p - c.origin), c.normals @ Jv, c.normals @ bias
+
+
+def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """JointCoupling: ``sum_j c_j q_j - offset``, a constant row, zero bias."""
+    row = np.zeros(model.n)
+    row[[model.body_index(name) for name in c.joints]] = c.coefficients
+    return np.array([row @ q - c.offset]), row[None], np.zeros(1)
+
+
+#: The declarations of ``cases.constraints`` by class name (a formalism does not import the scene package).
+_DECLARATIONS = {"PointOnCircle": _circle, "PointsCoincide": _coincide, "PointOnLine": _line,
+                 "JointCoupling": _coupling}
+
+
+def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``phi`` (k,), ``Jc`` (k, n) and ``Jcdot qd`` (k,) of every declaration, in model order, from the point
+    kinematics (module docstring, constraints)."""
+    rows = []
+    for c in model.constraints:
+        kind = type(c).__name__
+        if kind not in _DECLARATIONS:
+            raise TypeError(f"model '{model.name}': the operational-space backend does not know the constraint "
+                            f"{kind} ({c.name!r}); known: {sorted(_DECLARATIONS)}")
+        rows.append(_DECLARATIONS[kind](model, kin, q, c))
+    phi, Jc, bias = (np.concatenate(column) for column in zip(*rows))
+    return phi, Jc, bias
+
+
+def _constraint_inertia(Jc: np.ndarray, Minv: np.ndarray) -> np.ndarray:
+    """``Lambda_c = S^+``, ``S = Jc M^-1 Jc^T``: the constraint-space inertia, from S's eigendecomposition without
+    the eigen-directions below ``CONSTRAINT_RCOND`` times the largest eigenvalue (minimum-norm multipliers)."""
+    S = Jc @ Minv @ Jc.T
+    w, U = np.linalg.eigh(0.5 * (S + S.T))
+    keep = w > CONSTRAINT_RCOND * max(w[-1], np.finfo(float).tiny)
+    return (U[:, keep] / w[keep]) @ U[:, keep].T
+
+
+@dataclass(frozen=True)
+class ConstraintSpace:
+    """The constraint space at one state (eqs. 12-17; k constraint rows, module docstring).
+
+    phi (k,), Jc (k, n), bias = Jcdot qd (k,), Lambda = S^+ (k, k) the constraint-space inertia; the multipliers
+    lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved directly) and lam
+    (eq. 12), each (k,).
+    """
+
+    phi: np.ndarray
+    Jc: np.ndarray
+    bias: np.ndarray
+    Lambda: np.ndarray
+    lam_drift: np.ndarray
+    lam_ctrl: np.ndarray
+    lam: np.ndarray
+
+    @property
+    def forces(self) -> np.ndarray:
+        """The generalized constraint forces ``Jc^T lam`` (3, n): at the drift, of the input alone, at the total."""
+        return np.stack([self.lam_drift, self.lam_ctrl, self.lam]) @ self.Jc
+
+
+def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.ndarray, free) -> ConstraintSpace:
+    """Eq. (13) solved for the multipliers in constraint space, ``lam = Lambda_c (-Jcdot qd - Jc a)``, from the free
+    accelerations ``free = (a_drift, a_ctrl, a_total)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u - h)``)."""
+    phi, Jc, bias = _constraint_rows(model, kin, q)
+    Lambda = _constraint_inertia(Jc, Minv)
+    a_drift, a_ctrl, a_total = free
+    return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, lam_drift=Lambda @ (-bias - Jc @ a_drift),
+                           lam_ctrl=-Lambda @ (Jc @ a_ctrl), lam=Lambda @ (-bias - Jc @ a_total))
 
 
 def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -274,45 +417,75 @@ def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarr
     return 0.5 * (Minv + Minv.T)
 
 
-def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
-    """The :class:`TaskSpace` of eq. (22) for the task point named ``point`` (default: ``model.task_point()``),
-    in its task coordinates ``x_task = D p``."""
-    q, qd, u = check_state(model, q, qd, u)
+@dataclass(frozen=True)
+class _Solution:
+    """One state solved: the joint-space terms, the reported task space, (drift, ctrl, total), the constraint space
+    (None without constraints)."""
+
+    M: np.ndarray
+    Cqd: np.ndarray
+    g: np.ndarray
+    tau_ctrl: np.ndarray
+    task: TaskSpace
+    accelerations: tuple[np.ndarray, np.ndarray, np.ndarray]
+    constraint: ConstraintSpace | None
+
+
+def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: str | None) -> _Solution:
+    """The free split through the task space of ``point``; with constraints, their multipliers from it and the split
+    again with the constraint forces as ``F_constr`` (module docstring, constraints)."""
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
+    Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), model.input_map @ u
     J, Jdot_qd = _task_kinematics(model, kin, point)
-    return _task_space(J, Jdot_qd, _inverse_mass_matrix(model, M, q), Cqd, g, model.input_map @ u)[1]
+
+    def through_task_space(tau_constr):
+        ts, reported = _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
+        return reported, _recompose(ts, Minv, Cqd + g, tau_ctrl, tau_constr)
+
+    task, accelerations = through_task_space(np.zeros((3, model.n)))
+    constraint = None
+    if model.constraints:
+        constraint = _constraint_space(model, kin, q, Minv, accelerations)
+        task, accelerations = through_task_space(constraint.forces)
+    return _Solution(M, Cqd, g, tau_ctrl, task, accelerations, constraint)
+
+
+def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
+    """The :class:`TaskSpace` of eq. (22) for the task point named ``point`` (default: ``model.task_point()``),
+    in its task coordinates ``x_task = D p``; with constraints, ``F_constr`` included."""
+    q, qd, u = check_state(model, q, qd, u)
+    return _solve(model, q, qd, u, point).task
 
 
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split (eq. 9) recomposed from task space (module docstring), in the principal axes:
     ``drift = J_bar (xdd_drift - Jdot qd) - M^-1 N^T h``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T B u`` (directly),
-    ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``.
+    ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``. With constraints the same with the constraint
+    forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u).
 
     ``task_drift`` is eq. (23) for ``model.task_point()``; ``conditions = {"task": cond_2(A)}``;
-    ``extras = {"task": TaskSpace}`` in the task coordinates. NaN accelerations where A is numerically singular.
+    ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
+    (``Lambda_c``). NaN accelerations where A is numerically singular.
     """
-    if model.constraints:
-        raise NotImplementedError(f"model '{model.name}': the operational-space backend does not handle "
-                                  "constraints yet; constraints arrive with the constraint issue")
     q, qd, u = check_state(model, q, qd, u)
-    kin = _kinematics(model, q, qd)
-    M, Cqd, g = _terms(model, kin)
-    Minv, tau_ctrl, h = _inverse_mass_matrix(model, M, q), model.input_map @ u, Cqd + g
-    ts, reported = _task_space(*_task_kinematics(model, kin, None), Minv, Cqd, g, tau_ctrl)
-    null = Minv @ ts.N.T
-    drift = ts.J_bar @ (ts.xdd_drift - ts.Jdot_qd) - null @ h
-    ctrl = ts.J_bar @ ts.xdd_ctrl + null @ tau_ctrl
-    total = ts.J_bar @ (ts.xdd_total - ts.Jdot_qd) + null @ (tau_ctrl - h)
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
-    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
-                               accel_scale=accel_scale, extras={"task": reported}, task_drift=reported.xdd_drift,
-                               conditions={"task": ts.cond}, kinetic_energy=0.5 * qd @ M @ qd)
+    s = _solve(model, q, qd, u, None)
+    drift, ctrl, total = s.accelerations
+    common = dict(drift=drift, ctrl=ctrl, total=total, tau_ctrl=s.tau_ctrl, qd=qd, task_drift=s.task.xdd_drift,
+                  conditions={"task": s.task.cond}, kinetic_energy=0.5 * qd @ s.M @ qd)
+    c = s.constraint
+    if c is None:
+        cond_M, accel_scale = conditioning(model, s.M, s.Cqd, s.g, s.tau_ctrl, qd)
+        return unconstrained_split(cond_M=cond_M, accel_scale=accel_scale, extras={"task": s.task}, **common)
+    return constrained_split(model, M=s.M, Cqd=s.Cqd, g=s.g, phi=c.phi, Jc=c.Jc, bias=c.bias, lam=c.lam,
+                             lam_drift=c.lam_drift, extras={"task": s.task, "constraint_inertia": c.Lambda},
+                             **common)
 
 
 FORMALISM = Formalism(
     name="operational_space",
     summary="Operational space (article 6.3, eqs. 22-23): Kane-projected M, C qd, g; task-space Lambda, mu, p; "
-            "joint answer recomposed from task space plus the dynamically consistent null space",
+            "joint answer recomposed from task space plus the dynamically consistent null space; constraints as a "
+            "constraint space (Lambda_c = S^+, eqs. 12-17) whose forces enter eq. 22 as F_constr",
     split=split,
 )

@@ -43,13 +43,13 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 def dropped_coriolis(monkeypatch):
     """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
     import formalisms.euler_lagrange as el
-    correct = el.evaluate_terms
+    correct = el.evaluate
 
     def broken(model, x, xd, chart=None):
-        terms = correct(model, x, xd, chart)
-        return terms._replace(Cqd=terms.Cqd * 0.0)
+        terms, constraint_terms = correct(model, x, xd, chart)
+        return terms._replace(Cqd=terms.Cqd * 0.0), constraint_terms
 
-    monkeypatch.setattr(el, "evaluate_terms", broken)
+    monkeypatch.setattr(el, "evaluate", broken)
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ its error exceeds the harness tolerance).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import itertools
 
@@ -348,7 +347,7 @@ def test_spatial_bias_fails_the_gate_and_is_named(spatial_bias):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Contract: bad input, constraints, other task points, ctrl computed directly, the registry entry
+# Contract: bad input, other task points, ctrl computed directly, the registry entry
 # ----------------------------------------------------------------------------------------------------------
 
 def test_ctrl_is_solved_directly_not_total_minus_drift():
@@ -381,8 +380,6 @@ def test_bad_input_is_rejected_at_the_boundary():
         op.task_space(model, [0.0, np.inf], [0.0, 0.0], [0.0, 0.0])
     with pytest.raises(StateError, match="qd has 3 entries"):
         op.joint_space_terms(model, [0.0, 0.0], [0.0, 0.0, 1.0])
-    with pytest.raises(NotImplementedError, match="constraint issue"):
-        op.split(dataclasses.replace(model, constraints=("placeholder",)), [0.1, 0.2], [0.0, 0.0], [0.0, 0.0])
 
 
 def test_registry_entry():
