@@ -96,6 +96,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
+from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, chart_vectors, check_state, conditioning,
                                   constrained_split, factor_mass_matrix, unconstrained_split)
@@ -275,22 +276,20 @@ def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
 
 
 def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
-    """``phi`` of one declaration, exactly as tabled in ``cases.constraints`` (dispatched on the declaration's type
-    name: a formalism imports only ``cases.model``)."""
-    kind = type(c).__name__
-    if kind == "PointOnCircle":
+    """``phi`` of one declaration, exactly as tabled in ``cases.constraints``."""
+    if isinstance(c, PointOnCircle):
         d = ca.mtimes(ca.DM(c.plane), _point(model, R, o, c.body, c.offset) - ca.DM(c.center))
         return ca.dot(d, d) - c.radius ** 2
-    if kind == "PointsCoincide":
+    if isinstance(c, PointsCoincide):
         other = ca.DM(c.offset_b) if c.body_b is None else _point(model, R, o, c.body_b, c.offset_b)
         return ca.mtimes(ca.DM(c.directions), _point(model, R, o, c.body_a, c.offset_a) - other)
-    if kind == "PointOnLine":
+    if isinstance(c, PointOnLine):
         return ca.mtimes(ca.DM(c.normals), _point(model, R, o, c.body, c.offset) - ca.DM(c.origin))
-    if kind == "JointCoupling":
+    if isinstance(c, JointCoupling):
         terms = [coefficient * q[model.body_index(j)] for j, coefficient in zip(c.joints, c.coefficients)]
         return ca.sum1(ca.vertcat(*terms)) - c.offset
-    raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {kind}, which the geometric backend does not "
-                     "know")
+    raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {type(c).__name__}, which the geometric "
+                     "backend does not know")
 
 
 def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:

@@ -83,6 +83,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
                                   factor_mass_matrix, unconstrained_split)
@@ -350,9 +351,8 @@ def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     return np.array([row @ q - c.offset]), row[None], np.zeros(1)
 
 
-#: The declarations of ``cases.constraints`` by class name (a formalism does not import the scene package).
-_DECLARATIONS = {"PointOnCircle": _circle, "PointsCoincide": _coincide, "PointOnLine": _line,
-                 "JointCoupling": _coupling}
+#: The rows of each declaration of ``cases.constraints``, by its type.
+_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
 
 
 def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -360,11 +360,10 @@ def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.n
     kinematics (module docstring, constraints)."""
     rows = []
     for c in model.constraints:
-        kind = type(c).__name__
-        if kind not in _DECLARATIONS:
+        if type(c) not in _DECLARATIONS:
             raise TypeError(f"model '{model.name}': the operational-space backend does not know the constraint "
-                            f"{kind} ({c.name!r}); known: {sorted(_DECLARATIONS)}")
-        rows.append(_DECLARATIONS[kind](model, kin, q, c))
+                            f"{type(c).__name__} ({c.name!r}); known: {[t.__name__ for t in _DECLARATIONS]}")
+        rows.append(_DECLARATIONS[type(c)](model, kin, q, c))
     phi, Jc, bias = (np.concatenate(column) for column in zip(*rows))
     return phi, Jc, bias
 
