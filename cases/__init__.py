@@ -2,7 +2,8 @@
 
     >>> import cases
     >>> cases.names()
-    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum', 'double_pendulum_absolute_loop']
+    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'double_pendulum_circle', 'four_bar',
+     'slider_crank', 'cartesian_pendulum', 'double_pendulum_absolute_loop']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
@@ -63,6 +64,6 @@ def load(name: str, **params) -> Model:
     return info.factory(**kwargs)
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "constrained", "Model", "ModelError", "PointOnCircle", "PointOnLine",
-           "PointsCoincide", "TaskPoint", "UrdfError", "build_model",
-           "catalog", "from_urdf", "load", "names"]
+__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "Model", "ModelError", "PointOnCircle", "PointOnLine",
+           "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_urdf", "load",
+           "names"]

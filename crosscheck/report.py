@@ -221,7 +221,8 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: in
         lines += [f"- **{quantity}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
                   f"(tolerance {comp.tolerance:.3g}){blame}", "",
                   "  | backend | value |", "  |---|---|"]
-        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |" for name, split in state.voters(quantity).items()
+        lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |"
+                  for name, split in state.voters(quantity).items()
                   if not isinstance(split.quantity(quantity), Unsupported)]
         if quantity in EXACT:
             lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")

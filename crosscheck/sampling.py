@@ -101,12 +101,16 @@ def project_configuration(model: Model, q) -> np.ndarray:
 
 
 def project_velocity(model: Model, q, qd) -> np.ndarray:
-    """``qd`` minus its component off the tangent space: ``(I - Jc^+ Jc) qd`` (so that ``Jc qd = 0``)."""
+    """``qd`` minus its component off the tangent space: ``(I - Jc^+ Jc) qd`` (so that ``Jc qd = 0``), applied twice:
+    the first pass leaves a residual of the rounding of the removed part, which can dwarf a small remaining qd."""
     from crosscheck.reference import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.n))
+    pinv = np.linalg.pinv(Jc, rcond=np.sqrt(CONSTRAINT_RCOND))
     qd = np.asarray(qd, dtype=float)
-    return qd - np.linalg.pinv(Jc, rcond=np.sqrt(CONSTRAINT_RCOND)) @ (Jc @ qd)
+    for _ in range(2):
+        qd = qd - pinv @ (Jc @ qd)
+    return qd
 
 
 def admissible(model: Model, q, qd, rng: np.random.Generator, span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,10 +9,10 @@ the rounding of ``Jdot qd``, of size ``L |qd|^2``: its scale is ``L (cond(M) acc
 The kinetic energy ``1/2 qd^T M qd`` carries the error of M's entries, ``eps ||M|| |qd|^2 <= 2 eps cond(M) T``.
 
 Constrained models (article 5.2-5.5). The multipliers solve ``S lam = r`` with ``S = Jc M^-1 Jc^T``; their scale is
-``lam_scale = ||S^+|| (|Jcdot qd| + ||Jc|| accel_scale)`` (``formalisms.interface.constraint_conditioning``), and
-both they and the accelerations are amplified by ``cond(S)`` (the part kept above ``CONSTRAINT_RCOND``), so the
-acceleration scale carries that factor too (1 without constraints). ``Jc^T lam`` and its power add ``||Jc^T||`` and
-``|qd|_1``. The constraint kinematics (``phi``, ``Jc``, ``Jcdot qd``, ``Jc qd``) are sums of products of lengths: their
+``lam_scale = ||S^+|| (|Jcdot qd| + ||Jc|| accel_scale)`` (``formalisms.interface.constraint_conditioning``), which
+already carries S's amplification (``||S^+||``, over the directions kept above ``CONSTRAINT_RCOND``); the
+acceleration scale adds what the constraint force can produce, ``||M^-1|| ||Jc|| lam_scale``. ``Jc^T lam`` and its
+power add ``||Jc^T||`` and ``|qd|_1``. The constraint kinematics (``phi``, ``Jc``, ``Jcdot qd``, ``Jc qd``) are sums of products of lengths: their
 scale is ``L^2 (n + 1) + max|Jc| (1 + |q|_1)`` with L the model's length scale, times ``|qd|_1`` per time derivative.
 Quantities with an exact value (``EXACT``) vote against it: a drift off ``H_t``, constraint power at an admissible
 state, an inadmissible sampled state.
@@ -126,8 +126,8 @@ class Scales:
     rate: float = 0.0
 
     def of(self, kind: str) -> float:
-        acceleration = self.cond_M * self.cond_S * self.accel_scale
-        multiplier = self.cond_M * self.cond_S * self.lam_scale
+        acceleration = self.cond_M * self.accel_scale
+        multiplier = self.cond_M * self.lam_scale
         scale = {
             "acceleration": acceleration,
             "power": self.power_scale,

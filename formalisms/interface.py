@@ -114,12 +114,16 @@ class Split:
     @property
     def admissibility_drift(self) -> np.ndarray | None:
         """``Jc qdd_drift + Jcdot qd``: the drift's distance from ``H_t`` (eq. 16); zero up to rounding."""
-        return None if self.constraint_jacobian is None else self.constraint_jacobian @ self.drift + self.constraint_bias
+        if self.constraint_jacobian is None:
+            return None
+        return self.constraint_jacobian @ self.drift + self.constraint_bias
 
     @property
     def admissibility_total(self) -> np.ndarray | None:
         """``Jc qdd + Jcdot qd`` for the total acceleration (eq. 13)."""
-        return None if self.constraint_jacobian is None else self.constraint_jacobian @ self.total + self.constraint_bias
+        if self.constraint_jacobian is None:
+            return None
+        return self.constraint_jacobian @ self.total + self.constraint_bias
 
     def quantity(self, name: str):
         """A compared quantity by name (``drift``, ``ctrl``, ``total``, ``additivity``, ``power_ctrl``, ...)."""

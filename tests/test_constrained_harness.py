@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import cases
-from cases import Body, JointCoupling, ModelError, PointOnCircle, PointOnLine, PointsCoincide, TaskPoint, build_model
+from cases import Body, JointCoupling, ModelError, PointOnCircle, PointOnLine, PointsCoincide, build_model
 from crosscheck import frames, reference, sampling
 from crosscheck.cli import main
 from tests.closed_forms import article_Cqd, article_g, article_M

@@ -170,7 +170,8 @@ def test_a_backend_in_breakdown_is_reported_not_compared(condition):
         assert all("newton_euler" not in pair for c in state.comparisons.values() for pair in c.pairs)
     report = render(result, "cmd")
     assert "3 state(s) with a backend in BREAKDOWN" in report
-    assert f"| acrobot | newton_euler | cond task | {BREAKDOWN_LIMITS['task']:.3g} | all | 3 | {condition:.3g} |" in report
+    limit = BREAKDOWN_LIMITS["task"]
+    assert f"| acrobot | newton_euler | cond task | {limit:.3g} | all | 3 | {condition:.3g} |" in report
     assert report.count("acrobot #") == 3 and "reproduce: `crosscheck eval --case acrobot" in report
 
 

@@ -3,7 +3,8 @@
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is
 read with ``ast`` (never imported, so nothing it would import is loaded) and every import is checked against an
 allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, the model language
-(``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new dependency must be added here, with a reason.
+(``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new
+dependency must be added here, with a reason.
 Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their argument is a
 string literal, and refused when it is not (they could load anything).
 """

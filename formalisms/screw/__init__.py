@@ -1,13 +1,16 @@
 """Screw theory / product of exponentials formalism (article 6.2): twists and wrenches on SE(3).
 
 Modules: :mod:`~formalisms.screw.lie` (SE(3) and se(3): exponentials, logarithms, adjoints),
-:mod:`~formalisms.screw.kinematics` (eq. 20 on the tree, space and body Jacobians, twists, bias accelerations)
-and :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq. 27, ``M``, ``h``). This module holds the
-forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10).
+:mod:`~formalisms.screw.kinematics` (eq. 20 on the tree, space and body Jacobians, twists, bias accelerations,
+point kinematics), :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq. 27, ``M``, ``h``) and
+:mod:`~formalisms.screw.constraints` (``phi``, ``Jc``, ``Jcdot qd``, constraint wrenches and Gauss's principle,
+article 5). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
 
 ``M``, ``h = C qd + g``, ``C qd`` and ``g`` come from one vectorized pass of the wrench recursion (eq. 27); one
 Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)`` (eq. 10, the ZTCF), ``ctrl = M^-1 B u`` and
-``total = M^-1 (B u - h)``, each solved on its own.
+``total = M^-1 (B u - h)``, each solved on its own. With constraints, total / lam and drift / lam_drift (eq. 14)
+come from Gauss's principle in the Udwadia–Kalaba form on the same factor, and ``ctrl = B_c B u`` (eq. 17)
+directly.
 
 extras (numpy arrays, row ``i`` = body ``i`` in model order; twists ``(w, v)``, wrenches ``(moment, force)``):
 
@@ -18,14 +21,22 @@ extras (numpy arrays, row ``i`` = body ``i`` in model order; twists ``(w, v)``, 
                            the velocity of the body-frame origin).
 ``accelerations_space``    (n, 6) ``Vdot_s,i = J_s,i qdd + Jdot_s,i qd`` at ``qdd = total``, world frame.
 ``wrenches_body``          (n, 6) at ``qdd = total``: the wrench the parent exerts on body ``i`` through joint ``i``
-                           (gravity included), about body ``i``'s origin, in body frame ``i``.
-``wrenches_body_drift``    (n, 6) the same at ``qdd = drift``.
+                           (gravity and the constraint wrenches included), about body ``i``'s origin, in body
+                           frame ``i``.
+``wrenches_body_drift``    (n, 6) the same at ``qdd = drift`` (with the drift's constraint wrenches).
 ``wrenches_space``         (n, 6) ``F_s,i = Ad_{T_i^-1}^T F_b,i``: ``wrenches_body`` expressed in the world frame
                            (moment about the world origin), so that ``F_s . V_s = F_b . V_b``.
 
+Constrained models also report (article 7.2, "constraint wrenches"; eq. 27's ``W_constr``):
+
+``constraint_wrenches_space``        (n, 6) the wrench all constraint forces of ``lam`` exert on body ``i``, world
+                                     frame, moment about the world origin (:mod:`~formalisms.screw.constraints`);
+                                     ``sum_i J_s,i^T W_i = Jc^T lam``.
+``constraint_wrenches_space_drift``  (n, 6) the same for ``lam_drift``.
+
 Under a change of world frame by ``g`` (the scene moved rigidly, gravity rotated with it) the space twists and
-accelerations map by ``Ad_g``, ``wrenches_space`` by ``Ad_g^-T``, ``poses`` by ``g T``; the body quantities do
-not change (article 7.4).
+accelerations map by ``Ad_g``, ``wrenches_space`` and the constraint wrenches by ``Ad_g^-T``, ``poses`` by
+``g T``; the body quantities do not change (article 7.4).
 """
 
 from __future__ import annotations
@@ -34,9 +45,9 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, check_state, conditioning, factor_mass_matrix,
+from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, factor_mass_matrix,
                                   unconstrained_split)
-from formalisms.screw import dynamics, kinematics
+from formalisms.screw import constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 
 
@@ -54,12 +65,17 @@ def _kinetic_energy(model: Model, twists_body: np.ndarray) -> float:
     return 0.5 * float(np.einsum("ia,iab,ib->", twists_body, G, twists_body))
 
 
-def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarray) -> dict[str, np.ndarray]:
-    """The twists, accelerations and wrenches listed in the module docstring."""
+def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarray,
+            constraint_wrenches: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """The twists, accelerations and wrenches listed in the module docstring; ``constraint_wrenches`` (space frame,
+    at the total and at the drift) are applied to the bodies in the wrench recursion and reported."""
     V_s = kinematics.twists(kin, qd)
-    F = dynamics.wrenches(kin, np.column_stack([qd, qd]), np.column_stack([total, drift]), np.ones(2))
+    external = None
+    if constraint_wrenches is not None:                       # F_b = Ad_{T_i}^T F_s
+        external = np.einsum("iba,ikb->ika", lie.Ad(kin.poses), np.stack(constraint_wrenches, axis=1))
+    F = dynamics.wrenches(kin, np.column_stack([qd, qd]), np.column_stack([total, drift]), np.ones(2), external)
     F_body = F[:, 0]
-    return {
+    extras = {
         "poses": kin.poses,
         "twists_space": V_s,
         "twists_body": (kin.to_body @ V_s[..., None])[..., 0],
@@ -68,23 +84,26 @@ def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarra
         "wrenches_body_drift": F[:, 1],
         "wrenches_space": (np.swapaxes(kin.to_body, 1, 2) @ F_body[..., None])[..., 0],
     }
+    if constraint_wrenches is not None:
+        extras["constraint_wrenches_space"], extras["constraint_wrenches_space_drift"] = constraint_wrenches
+    return extras
 
 
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9) in screw coordinates: ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl =
-    M^-1 B u`` solved directly, ``total = M^-1 (B u - h)`` solved on its own; ``M`` and ``h`` from eq. (27).
+    M^-1 B u`` solved directly, ``total = M^-1 (B u - h)`` solved on its own; ``M`` and ``h`` from eq. (27). A
+    constrained model goes through :func:`_constrained_split`.
 
     ``task_drift`` is the classical acceleration of ``model.task_point()`` at the drift, from the body's space
     twist and spatial acceleration (eq. 23). extras: see the module docstring.
     """
-    if model.constraints:
-        raise NotImplementedError(f"model '{model.name}': the screw backend does not handle constraints yet; "
-                                  "constraints arrive with the constraint issue")
     q, qd, u = check_state(model, q, qd, u)
     kin = kinematics.forward_kinematics(model, q)
     M, h, c_qd, g = dynamics.terms(kin, qd)
     factor = factor_mass_matrix(model, M, q)
     tau_ctrl = model.input_map @ u
+    if model.constraints:
+        return _constrained_split(kin, q, qd, M, factor, h, c_qd, g, tau_ctrl)
     drift = scipy.linalg.cho_solve(factor, -h)
     ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)
     total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
@@ -93,6 +112,20 @@ def split(model: Model, q, qd, u) -> Split:
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
                                accel_scale=accel_scale, extras=extras, task_drift=_task_drift(kin, qd, drift),
                                kinetic_energy=_kinetic_energy(model, extras["twists_body"]))
+
+
+def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) -> Split:  # noqa: N803
+    """Eq. (12)-(17) by Gauss's principle (:class:`constraints.Gauss`): total / lam with the input, drift /
+    lam_drift without it (eq. 14), ``ctrl = B_c B u`` (eq. 17) directly; the constraint wrenches of both."""
+    model = kin.model
+    rows = constraints.terms(kin, q, qd)
+    gauss = constraints.Gauss.build(factor, rows.jacobian, rows.bias)
+    (total, lam), (drift, lam_drift) = gauss.solve(tau_ctrl - h), gauss.solve(-h)
+    extras = _extras(kin, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
+    return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd, phi=rows.phi, Jc=rows.jacobian,
+                             bias=rows.bias, drift=drift, ctrl=gauss.input_map(tau_ctrl), total=total, lam=lam,
+                             lam_drift=lam_drift, extras=extras, task_drift=_task_drift(kin, qd, drift),
+                             kinetic_energy=_kinetic_energy(model, extras["twists_body"]))
 
 
 FORMALISM = Formalism(

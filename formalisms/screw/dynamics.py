@@ -8,10 +8,11 @@ Every quantity of body ``i`` is expressed in body frame ``i`` about the body-fra
 * backward pass, tip to base, the wrench balance of eq. (27) solved for the wrench ``F_i = (moment, force)``
   the parent exerts on body ``i`` through joint ``i``::
 
-      F_i = G_i Vdot_i - ad_{V_i}^T (G_i V_i) - W_gravity,i + sum_children Ad_{T_c,i}^T F_c
+      F_i = G_i Vdot_i - ad_{V_i}^T (G_i V_i) - W_gravity,i - W_ext,i + sum_children Ad_{T_c,i}^T F_c
 
   with ``G_i`` the 6x6 spatial inertia about the body-frame origin, ``W_gravity,i = (c_i x m_i g_i, m_i g_i)``
-  the weight applied at the COM (``g_i`` gravity in body frame ``i``; no accelerating-base trick) and
+  the weight applied at the COM (``g_i`` gravity in body frame ``i``; no accelerating-base trick), ``W_ext,i``
+  any other wrench applied to the body (the constraint wrenches ``W_constr`` of eq. 27) and
   ``T_c,i = T_c^-1 T_i`` (child <- parent), whose adjoint transposed carries the child's wrench to the parent.
 
 Sign convention: the article writes eq. (27) as ``I Vdot + ad*_V (I V) + W_g = W_ctrl + ...`` with the coadjoint
@@ -70,8 +71,11 @@ def _wrench_to_parent(Ad_child_parent: np.ndarray, F_child: np.ndarray) -> np.nd
     return F_child @ Ad_child_parent
 
 
-def wrenches(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray, gravity: np.ndarray) -> np.ndarray:
-    """Eq. (27) for ``k`` columns: ``qd``, ``qdd`` (n, k) and ``gravity`` (k,) weights (1 on, 0 off).
+def wrenches(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray, gravity: np.ndarray,
+             external: np.ndarray | None = None) -> np.ndarray:
+    """Eq. (27) for ``k`` columns: ``qd``, ``qdd`` (n, k) and ``gravity`` (k,) weights (1 on, 0 off);
+    ``external`` (n, k, 6), when given, are further wrenches applied to the bodies, ``(moment about body i's
+    origin, force)`` in body frame ``i``.
 
     Returns (n, k, 6): for each body ``i`` and column, the wrench ``(moment, force)`` the parent exerts on body
     ``i`` through joint ``i``, about body ``i``'s origin in body frame ``i``.
@@ -83,6 +87,8 @@ def wrenches(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray, gravity: np.ndarr
     G = spatial_inertias(model)[:, None]
     F = ((G @ Vdot[..., None])[..., 0] - lie.coad(V, (G @ V[..., None])[..., 0])
          - gravity[None, :, None] * gravity_wrenches(model, kin)[:, None, :])
+    if external is not None:
+        F = F - external
     Ad_cp = _child_to_parent(kin)
     for i in reversed(model.topological_order):                # backward pass, tip to base
         p = model.parent_index[i]

@@ -13,6 +13,9 @@ Eq. (20) on a tree: ``T_i(q) = P_i(q) M_i`` with ``P_i = P_parent(i) exp([S_i] q
 exponentials of ``i`` and its ancestors, root first. The space Jacobian of body ``i`` has column
 ``S_j(q) = Ad_{P_parent(j)} S_j`` for each ``j`` that is ``i`` or an ancestor of ``i``, and zero elsewhere.
 
+A point fixed in body ``i`` at world position ``p`` moves with the body's space twist ``(w, v)``: velocity
+``v + w x p`` (so ``dp/dq = [-[p] | I] J_s,i``) and classical acceleration ``vd + wd x p + w x (v + w x p)``.
+
 Quantities of all bodies are stacked along a leading body axis, in model order.
 """
 
@@ -144,13 +147,32 @@ def spatial_accelerations(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray) -> n
     return _accumulate(kin, _joint_rates(kin, qdd)) + bias_accelerations(kin, qd)
 
 
-def point_acceleration(kin: Kinematics, body: int, offset: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """Classical acceleration (world frame) of the point ``offset`` fixed in ``body`` (body-frame coordinates).
+def classical_acceleration(V: np.ndarray, Vdot: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Classical acceleration (the second time derivative of the position, world frame) of the point at world
+    position ``p`` moving with a body of space twist ``V = (w, v)`` and spatial acceleration ``Vdot = (wd, vd)``.
 
-    With the body's space twist ``V = (w, v)``, spatial acceleration ``Vdot = (wd, vd)`` and the point's world
-    position ``p``: ``pddot = ([Vdot] + [V]^2) (p, 1) = vd + wd x p + w x (v + w x p)``, since ``Tdot = [V] T``.
+    The point's velocity is ``pdot = v + w x p`` (``Tdot = [V] T``); differentiating once more,
+    ``pddot = vd + wd x p + w x pdot = ([Vdot] + [V]^2) (p, 1)``: the spatial acceleration alone (``vd + wd x p``)
+    misses the ``w x pdot`` term.
     """
-    V = twists(kin, qd)[body]
-    Vdot = spatial_accelerations(kin, qd, qdd)[body]
-    X = lie.hat6(Vdot) + lie.hat6(V) @ lie.hat6(V)
-    return (X @ kin.poses[body] @ np.r_[offset, 1.0])[:3]
+    pdot = V[3:] + lie.cross(V[:3], p)
+    return Vdot[3:] + lie.cross(Vdot[:3], p) + lie.cross(V[:3], pdot)
+
+
+def point_position(kin: Kinematics, body: int, offset: np.ndarray) -> np.ndarray:
+    """World position ``T_i (offset, 1)`` of the point ``offset`` fixed in ``body`` (body-frame coordinates)."""
+    return kin.poses[body, :3, :3] @ offset + kin.poses[body, :3, 3]
+
+
+def point_jacobian(kin: Kinematics, body: int, p: np.ndarray) -> np.ndarray:
+    """``dp/dq`` (3 x n) of the body-fixed point at world position ``p``: column ``j`` is the velocity
+    ``v_j + w_j x p = v_j - [p] w_j`` the space twist ``S_j(q)`` gives the point."""
+    Js = space_jacobian(kin, body)
+    return Js[3:] - lie.hat3(p) @ Js[:3]
+
+
+def point_acceleration(kin: Kinematics, body: int, offset: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """Classical acceleration (world frame) of the point ``offset`` fixed in ``body`` (body-frame coordinates),
+    from the body's space twist and spatial acceleration (:func:`classical_acceleration`)."""
+    return classical_acceleration(twists(kin, qd)[body], spatial_accelerations(kin, qd, qdd)[body],
+                                  point_position(kin, body, offset))

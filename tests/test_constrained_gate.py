@@ -1,0 +1,150 @@
+"""The gate on constrained cases (article 5): every backend agrees at admissible states, degenerate states are
+BREAKDOWN rather than failures, the report shows the power audit, and injected constraint faults are caught and
+named."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import cases
+import formalisms.euler_lagrange as el
+import formalisms.operational_space as osc
+from cases import build_model
+from crosscheck import backends, sampling
+from crosscheck.compare import AGREE, DISAGREE
+from crosscheck.gate import CaseSpec, Checks, evaluate, run_case, run_gate
+from crosscheck.report import render
+from crosscheck.sampling import State
+from crosscheck.tolerance import CONSTRAINED_QUANTITIES
+
+CONSTRAINED = ["double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
+               "double_pendulum_absolute_loop"]
+ALL = [backends.get(name) for name in backends.names()]
+
+
+def _failures(outcome) -> list[str]:
+    """One line per disagreement or error of a case outcome, for assertion messages."""
+    lines = []
+    for state in outcome.states:
+        lines += [f"#{state.state.index} {name} raised {message}" for name, message in state.errors.items()]
+        lines += [f"#{state.state.index} {key}: {c.worst_ratio:.3g} outlier {c.outlier}"
+                  for key, c in {**state.comparisons, **state.checks}.items() if c.verdict == DISAGREE]
+    return lines
+
+
+def _verdicts(outcome, quantity: str) -> list[str]:
+    return [s.comparisons[quantity].verdict for s in outcome.states if quantity in s.comparisons]
+
+
+@pytest.mark.parametrize("case", CONSTRAINED)
+def test_every_backend_agrees_on_every_constrained_quantity_and_check(case):
+    outcome = run_case(CaseSpec(case), ALL, 12, 0)
+    assert not outcome.failed, "\n".join(_failures(outcome)[:20])
+    for quantity in CONSTRAINED_QUANTITIES:
+        assert _verdicts(outcome, quantity).count(AGREE) >= 11, quantity     # compared, not skipped
+    for state in outcome.states:
+        assert set(state.trusted) == {b.name for b in ALL}
+
+
+def test_the_report_shows_the_constraint_power_audit():
+    result = run_gate([CaseSpec("double_pendulum_circle")], ALL, 6, 0, checks=Checks(charts=False, frames=0))
+    text = render(result, "crosscheck gate --case double_pendulum_circle")
+    assert "## Constraint power audit (article 5.5)" in text
+    row = next(line for line in text.splitlines() if line.startswith("| double_pendulum_circle | 6 |"))
+    cells = [c.strip() for c in row.split("|")]
+    assert float(cells[3]) < 1e-9 and float(cells[4]) > 0.0       # no net work, but energy moved between joints
+    assert "| double_pendulum_circle | 2 | lam |" in text
+
+
+# ------------------------------------------------------------------------------------- degenerate constraints
+
+
+def _duplicated(case: str):
+    model = cases.load(case)
+    again = [dataclasses.replace(c, name=c.name + "_again") for c in model.constraints]
+    return build_model(case + "_twice", model.bodies, gravity=model.gravity, input_map=model.input_map,
+                       task_points=model.task_points, constraints=list(model.constraints) + again)
+
+
+@pytest.mark.parametrize("case", ["double_pendulum_circle", "slider_crank"])
+def test_a_duplicated_constraint_is_a_multiplier_breakdown_not_a_failure(case):
+    model = _duplicated(case)
+    for state in sampling.sample_states(model, 5, 2, case):
+        outcome = evaluate(model, state, ALL)
+        assert not outcome.failed, _failures(type("o", (), {"states": [outcome]})())
+        assert set(outcome.breakdowns) == {b.name for b in ALL}
+        assert all(set(b) == {"constraint"} for b in outcome.breakdowns.values())
+        assert outcome.comparisons["lam"].verdict != AGREE              # non-unique: not compared
+        for quantity in ("total", "drift", "ctrl", "constraint_force", "constraint_force_drift", "power_constr"):
+            assert outcome.comparisons[quantity].verdict == AGREE, quantity
+            assert len(outcome.comparisons[quantity].pairs) >= 15, quantity   # all six backends voted
+
+
+def test_the_four_bar_at_its_change_point_is_breakdown_on_either_velocity_never_a_crash():
+    model = cases.load("four_bar")
+    q = (np.pi / 2, 0.0, np.pi / 2)                     # all links collinear: the loop Jacobian has rank 1
+    consistent = State(0, q, (1.0, -1.0, 1.0), (0.5, -0.3, 0.2))     # along the parallelogram branch
+    off_branch = State(1, q, (0.0, 1.0, 2.0), (0.5, -0.3, 0.2))      # admissible, but H_t is empty
+    a = evaluate(model, consistent, ALL)
+    assert not a.errors and not a.failed
+    assert all("constraint" in b for b in a.breakdowns.values())
+    assert a.comparisons["total"].verdict == AGREE and a.comparisons["constraint_force"].verdict == AGREE
+    b = evaluate(model, off_branch, ALL)
+    assert not b.errors and not b.failed
+    assert all(b.breakdowns[name].get("constraint_consistency", 0.0) > 1e-8 for name in b.breakdowns)
+    assert not b.trusted                                 # every backend's whole answer is untrusted there
+
+
+# -------------------------------------------------------------------------------------------- injected faults
+
+
+def _caught(case: str, quantity: str, samples: int = 6) -> dict[str, object]:
+    """Run the gate on ``case`` and return, for the states where ``quantity`` disagreed, its outliers."""
+    outcome = run_case(CaseSpec(case), ALL, samples, 0, checks=Checks(charts=False, frames=0, conservation=False))
+    return {s.state.index: s.comparisons[quantity].outlier for s in outcome.states
+            if s.comparisons[quantity].verdict == DISAGREE}
+
+
+def test_fault_multiplier_sign_flipped_in_one_backend_is_caught_and_named(monkeypatch):
+    correct = osc.constrained_split
+
+    def flipped(model, *, lam, lam_drift, **rest):     # the backend's convention: M qdd + h = B u - Jc^T lam
+        return correct(model, lam=-np.asarray(lam), lam_drift=-np.asarray(lam_drift), **rest)
+
+    monkeypatch.setattr(osc, "constrained_split", flipped)
+    found = _caught("double_pendulum_circle", "lam")
+    assert len(found) == 6 and set(found.values()) == {"operational_space"}
+
+
+def test_fault_dropped_jcdot_qd_is_caught_and_named(monkeypatch):
+    correct = el.evaluate
+
+    def dropped(model, x, xd, chart=None):
+        terms, cons = correct(model, x, xd, chart)
+        return terms, cons._replace(bias=np.zeros_like(cons.bias))
+
+    monkeypatch.setattr(el, "evaluate", dropped)
+    for quantity in ("drift", "total", "constraint_bias"):
+        found = _caught("double_pendulum_circle", quantity)
+        assert len(found) >= 5 and set(found.values()) == {"euler_lagrange"}, quantity
+
+
+def test_fault_constraint_input_map_with_m_instead_of_its_inverse_is_caught_and_named(monkeypatch):
+    def with_m(sc):                                     # B_c = M [I - Jc^T (Jc M Jc^T)^+ Jc M]
+        M, Jc = sc.U.T @ sc.U, sc.A @ sc.U
+        return M - M @ Jc.T @ np.linalg.pinv(Jc @ M @ Jc.T) @ Jc @ M
+
+    monkeypatch.setattr(el, "_constrained_input_map", with_m)
+    found = _caught("slider_crank", "ctrl")
+    assert len(found) == 6 and set(found.values()) == {"euler_lagrange"}
+    assert len(_caught("slider_crank", "additivity")) == 6
+
+
+def test_fault_inadmissible_sampled_velocity_is_caught_by_the_admissibility_and_power_checks(monkeypatch):
+    monkeypatch.setattr(sampling, "project_velocity", lambda model, q, qd: np.asarray(qd, dtype=float))
+    for quantity in ("constraint_velocity", "power_constr"):
+        found = _caught("double_pendulum_circle", quantity)
+        assert len(found) >= 5 and set(found.values()) == {"exact"}, quantity

@@ -1,0 +1,373 @@
+"""Constrained dynamics in the screw backend (article 5, eq. 12-17; 6.2; 7.2: constraint wrenches, eq. 27), against
+references written here:
+
+* the cartesian pendulum's multiplier in closed form (``cases.constrained.cartesian_pendulum``);
+* the double pendulum with its tip on a circle (article 5.6) at an admissible state found by inverse kinematics,
+  against the 3x3 KKT system of 5.6 from the article's closed forms (closed_forms.py), ``Jc`` and ``Jcdot qd``
+  differentiated by hand from eq. (4);
+* the absolute-coordinate double pendulum against the same machine in joint coordinates (accelerations, and
+  multipliers equal to the joint forces of the joint model's wrench recursion);
+* a gear on the article's double pendulum against its KKT system;
+* redundant rows and a four-bar at its change point;
+* the constraint wrenches: ``sum_i J_s,i^T W_i = Jc^T lam``, their power, their frame law (``Ad_g^-T``), and the
+  joint wrenches with them applied (axis components = ``B u``);
+* across formalisms, on spatial models with every declaration: the Newton–Euler backend (same ``phi``, ``Jc``,
+  ``Jcdot qd``, accelerations, multipliers, and world-frame joint loads), and finite differences of ``phi``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import cases
+from cases.model import Body, build_model
+from closed_forms import article_Cqd, article_g, article_M, endpoint_jacobian
+from crosscheck import frames
+from crosscheck.sampling import sample_states
+from formalisms import newton_euler as ne
+from formalisms import screw
+from formalisms.screw import dynamics, kinematics
+
+G = 9.81
+CONSTRAINED_CASES = ("double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
+                     "double_pendulum_absolute_loop")
+
+
+def assert_small(value, scale, rel=1e-12, what=""):
+    assert np.abs(value).max() <= rel * max(scale, 1.0), f"{what}: {np.abs(value).max():.3e} (scale {scale:.3e})"
+
+
+def kkt(M, f, Jc, bias):
+    """Article 5.6: [[M, -Jc^T], [Jc, 0]] [qdd, lam] = [f, -Jcdot qd]."""
+    Jc = np.atleast_2d(Jc)
+    k = Jc.shape[0]
+    x = np.linalg.solve(np.block([[M, -Jc.T], [Jc, np.zeros((k, k))]]), np.r_[f, -np.atleast_1d(bias)])
+    return x[:len(f)], x[len(f):]
+
+
+def joint_screw_loads(model, s):
+    """``B_i^T F_b,i``: the component of each joint wrench along its joint screw (the joint torque / force)."""
+    axes = np.array([np.r_[b.axis, 0.0, 0.0, 0.0] if b.joint == "revolute" else np.r_[0.0, 0.0, 0.0, b.axis]
+                     for b in model.bodies])
+    return (np.einsum("ia,ia->i", axes, s.extras["wrenches_body"]),
+            np.einsum("ia,ia->i", axes, s.extras["wrenches_body_drift"]))
+
+
+def wrench_generalized_force(model, q, W):
+    """``sum_i J_s,i^T W_i``: the generalized force of the space wrenches ``W`` (n, 6) on the bodies."""
+    kin = kinematics.forward_kinematics(model, q)
+    return sum(kinematics.space_jacobian(kin, i).T @ W[i] for i in range(model.n))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Cartesian pendulum and the article's circle (5.6)
+# ----------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("m, L, angle, rate, u", [
+    (1.0, 1.0, 0.3, 0.0, (0.0, 0.0)),
+    (1.0, 1.0, -1.2, 2.5, (3.0, -1.0)),
+    (2.5, 0.7, 2.8, -1.7, (-4.0, 6.0)),
+])
+def test_cartesian_pendulum_multiplier_closed_form(m, L, angle, rate, u):  # noqa: N803
+    model = cases.load("cartesian_pendulum", m=m, L=L)
+    p = L * np.array([np.sin(angle), -np.cos(angle)])
+    v = rate * L * np.array([np.cos(angle), np.sin(angle)])
+    u, gravity = np.array(u), np.array([0.0, -G])
+    s = screw.split(model, p, v, u)
+    for lam, force in ((s.lam, u), (s.lam_drift, np.zeros(2))):
+        assert lam == pytest.approx([-m * (v @ v + p @ (gravity + force / m)) / (2.0 * L**2)], rel=1e-13, abs=1e-13)
+    np.testing.assert_allclose(s.total, gravity + u / m + 2.0 * s.lam[0] * p / m, rtol=0, atol=1e-12)
+    # the rod's pull on the bob, at the bob: moment p x f about the world origin, force 2 lam p
+    f = 2.0 * s.lam[0] * np.r_[p, 0.0]
+    np.testing.assert_allclose(s.extras["constraint_wrenches_space"][1], np.r_[np.cross(np.r_[p, 0.0], f), f],
+                               rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(s.extras["constraint_wrenches_space"][0], np.zeros(6))   # the carriage
+
+
+CENTER, RADIUS = np.array([1.0, -1.0]), 0.5
+
+
+def tip(t):
+    """Eq. (4): x2 = sin t1 + sin(t1 + t2), y2 = -cos t1 - cos(t1 + t2) (unit links)."""
+    return np.array([np.sin(t[0]) + np.sin(t[0] + t[1]), -np.cos(t[0]) - np.cos(t[0] + t[1])])
+
+
+def tip_bias(t, td):
+    w = td[0] + td[1]
+    return np.array([-np.sin(t[0]) * td[0] ** 2 - np.sin(t[0] + t[1]) * w**2,
+                     np.cos(t[0]) * td[0] ** 2 + np.cos(t[0] + t[1]) * w**2])
+
+
+def circle_state(beta: float, speed: float):
+    """The tip at angle ``beta`` on the circle, elbow down (t2 < 0 here, the other branch from the Newton–Euler
+    tests), moving along the circle at ``speed``; with ``Jc`` and ``Jcdot qd`` by hand."""
+    target = CENTER + RADIUS * np.array([np.cos(beta), np.sin(beta)])
+    t2 = -np.arccos((target @ target - 2.0) / 2.0)
+    t1 = np.arctan2(target[0], -target[1]) - np.arctan2(np.sin(t2), 1.0 + np.cos(t2))
+    t = np.array([t1, t2])
+    d, J = tip(t) - CENTER, endpoint_jacobian(t)
+    Jc = 2.0 * d @ J
+    td = speed * np.array([Jc[1], -Jc[0]]) / np.linalg.norm(Jc)
+    return t, td, Jc, 2.0 * (J @ td) @ (J @ td) + 2.0 * d @ tip_bias(t, td)
+
+
+@pytest.mark.parametrize("beta, speed, tau", [(0.4, 0.0, (2.0, -1.0)), (2.0, 1.5, (-3.0, 4.0)),
+                                              (-2.5, -2.2, (0.5, 0.0))])
+def test_circle_matches_article_kkt(beta, speed, tau):
+    t, td, Jc, bias = circle_state(beta, speed)
+    np.testing.assert_allclose((tip(t) - CENTER) @ (tip(t) - CENTER), RADIUS**2, rtol=1e-14)
+    tau = np.array(tau)
+    M, h = article_M(t[1]), article_Cqd(t[1], *td) + article_g(*t)
+    total, lam = kkt(M, tau - h, Jc, bias)
+    drift, lam0 = kkt(M, -h, Jc, bias)
+    Minv = np.linalg.inv(M)
+    B_c = Minv @ (np.eye(2) - np.outer(Jc, Jc) @ Minv / (Jc @ Minv @ Jc))     # eq. (17)
+
+    s = screw.split(cases.load("double_pendulum_circle"), t, td, tau)
+    scale = max(1.0, np.abs(total).max(), np.abs(drift).max())
+    np.testing.assert_allclose(s.constraint_jacobian, [Jc], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(s.constraint_bias, [bias], rtol=0, atol=1e-13 * max(1.0, abs(bias)))
+    for name, expected in (("total", total), ("drift", drift), ("ctrl", B_c @ tau)):
+        np.testing.assert_allclose(getattr(s, name), expected, rtol=0, atol=1e-12 * scale, err_msg=name)
+    np.testing.assert_allclose(s.lam, lam, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(s.lam_drift, lam0, rtol=1e-12, atol=1e-12)
+    assert_small(s.drift + s.ctrl - s.total, scale, 1e-14, "additivity")
+    for qdd in (s.total, s.drift):
+        assert_small(Jc @ qdd + bias, np.abs(Jc).max() * scale, 1e-14, "H_t residual")
+    assert_small(Jc @ s.ctrl, np.abs(Jc).max() * scale, 1e-14, "Jc ctrl")
+    assert_small(np.array([s.power_constr]), np.abs(Jc * lam[0]).max() * np.abs(td).max(), 1e-13, "power_constr")
+    np.testing.assert_allclose(s.task_drift, endpoint_jacobian(t) @ drift + tip_bias(t, td), rtol=0,
+                               atol=1e-12 * scale)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Absolute coordinates vs joint coordinates; a gear
+# ----------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("t, td, tau", [((0.3, 0.5), (0.7, -1.1), (1.0, -0.5)),
+                                        ((-2.0, 1.2), (-2.5, 3.0), (0.0, 4.0))])
+def test_absolute_loop_matches_joint_coordinates(t, td, tau):
+    params = dict(m1=0.7, m2=1.4, l1=1.1, l2=0.6, I1=0.3, I2=0.02)
+    loop = cases.load("double_pendulum_absolute_loop", **params)
+    joint = cases.load("double_pendulum", **params)
+    t, td, tau = (np.array(x) for x in (t, td, tau))
+    phi, phid = np.array([t[0], t.sum()]), np.array([td[0], td.sum()])
+    l1 = params["l1"]
+    q = np.r_[0.0, 0.0, phi[0], l1 * np.sin(phi[0]), -l1 * np.cos(phi[0]), phi[1]]
+    qd = np.r_[0.0, 0.0, phid[0], l1 * phid[0] * np.cos(phi[0]), l1 * phid[0] * np.sin(phi[0]), phid[1]]
+    s, ref = screw.split(loop, q, qd, tau), screw.split(joint, t, td, tau)
+    scale = max(1.0, np.abs(ref.total).max())
+    for name in ("total", "drift", "ctrl"):
+        a = getattr(s, name)
+        np.testing.assert_allclose([a[2], a[5] - a[2]], getattr(ref, name), rtol=0, atol=1e-12 * scale, err_msg=name)
+    # the multipliers are the joint forces of the joint model, in the world: shoulder, then elbow
+    np.testing.assert_allclose(s.lam, ref.extras["wrenches_space"][:, 3:5].reshape(-1), rtol=0,
+                               atol=1e-12 * np.abs(s.lam).max())
+    drift_forces = np.einsum("iab,ib->ia", ref.extras["poses"][:, :3, :3], ref.extras["wrenches_body_drift"][:, 3:])
+    np.testing.assert_allclose(s.lam_drift, drift_forces[:, :2].reshape(-1), rtol=0,
+                               atol=1e-12 * np.abs(s.lam_drift).max())
+    assert s.kinetic_energy == pytest.approx(ref.kinetic_energy, rel=1e-13, abs=1e-15)
+
+
+def test_joint_coupling_matches_kkt_and_acts_as_a_wrench_pair():
+    """The gear's torques act as a couple on each link and its opposite on the parent: the joint wrenches along
+    their axes carry only the actuation, and the wrenches add up to Jc^T lam."""
+    base = cases.load("double_pendulum")
+    model = build_model("geared", base.bodies, gravity=base.gravity, task_points=base.task_points,
+                        constraints=[cases.JointCoupling("gear", ("link1", "link2"), (1.0, -2.0), 0.1)])
+    t, td, tau = np.array([0.7, 0.3]), np.array([1.4, 0.7]), np.array([2.0, -3.0])
+    Jc = np.array([1.0, -2.0])
+    M, h = article_M(t[1]), article_Cqd(t[1], *td) + article_g(*t)
+    total, lam = kkt(M, tau - h, Jc, 0.0)
+    s = screw.split(model, t, td, tau)
+    np.testing.assert_allclose(s.total, total, rtol=0, atol=1e-12 * np.abs(total).max())
+    np.testing.assert_allclose(s.lam, lam, rtol=1e-12)
+    W = s.extras["constraint_wrenches_space"]
+    np.testing.assert_allclose(W[:, 3:], 0.0, atol=0)                              # couples, no force
+    np.testing.assert_allclose(W[:, 2], [lam[0] * (1.0 + 2.0), -2.0 * lam[0]], rtol=1e-14)
+    np.testing.assert_allclose(wrench_generalized_force(model, t, W), Jc * lam[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(joint_screw_loads(model, s)[0], tau, rtol=0, atol=1e-12 * np.abs(lam).max())
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Degenerate constraints
+# ----------------------------------------------------------------------------------------------------------
+
+def test_duplicated_constraint_gives_the_same_motion_and_half_multipliers():
+    single = cases.load("double_pendulum_circle")
+    (circle,) = single.constraints
+    double = build_model("circle_twice", single.bodies, gravity=single.gravity, task_points=single.task_points,
+                         constraints=[circle, dataclasses.replace(circle, name="again")])
+    t, td, _, _ = circle_state(-0.7, 2.0)
+    tau = np.array([-1.0, 2.5])
+    one, two = screw.split(single, t, td, tau), screw.split(double, t, td, tau)
+    scale = max(1.0, np.abs(one.total).max())
+    for name in ("total", "drift", "ctrl", "constraint_force", "constraint_force_drift"):
+        np.testing.assert_allclose(getattr(two, name), getattr(one, name), rtol=0, atol=1e-12 * scale, err_msg=name)
+    np.testing.assert_allclose(two.lam, [one.lam[0] / 2] * 2, rtol=1e-12)
+    np.testing.assert_allclose(two.lam_drift, [one.lam_drift[0] / 2] * 2, rtol=1e-12)
+    np.testing.assert_allclose(two.extras["constraint_wrenches_space"], one.extras["constraint_wrenches_space"],
+                               rtol=0, atol=1e-12 * np.abs(one.extras["constraint_wrenches_space"]).max())
+    assert two.constraint_rank == 1
+
+
+CHANGE_POINT = np.array([np.pi / 2, 0.0, np.pi / 2])
+
+
+def test_four_bar_change_point_never_raises():
+    """Rank 1 at the change point. At rest (consistent) the motion matches the one independent row; moving
+    through it (possibly inconsistent) the numbers are finite, and the split stays additive."""
+    model = cases.load("four_bar")
+    u = np.array([1.0, -2.0, 0.5])
+    s = screw.split(model, CHANGE_POINT, np.zeros(3), u)
+    assert s.constraint_rank == 1 and s.conditions["constraint_consistency"] < 1e-12
+    U = np.linalg.svd(s.constraint_jacobian)[0]
+    row = U[:, 0] @ s.constraint_jacobian
+    M = ne.mass_matrix(model, CHANGE_POINT)
+    h = dynamics.inverse_dynamics(model, CHANGE_POINT, np.zeros(3), np.zeros(3))
+    expected, mu = kkt(M, u - h, row, 0.0)
+    np.testing.assert_allclose(s.total, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(s.constraint_force, row * mu[0], rtol=0, atol=1e-12 * abs(mu[0]))
+    assert np.linalg.norm(s.lam) == pytest.approx(abs(mu[0]), rel=1e-12)
+    for qd in (np.array([1.0, -1.0, 1.0]), np.array([0.5, 0.0, 0.0])):
+        s = screw.split(model, CHANGE_POINT, qd, u)
+        assert all(np.all(np.isfinite(x)) for x in (s.total, s.drift, s.ctrl, s.lam, s.lam_drift))
+        assert_small(s.drift + s.ctrl - s.total, np.abs(s.total).max(), 1e-13, "additivity")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Constraint wrenches on the registered cases
+# ----------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("case", CONSTRAINED_CASES)
+def test_constraint_wrenches_are_the_generalized_constraint_force(case):
+    """``sum_i J_s,i^T W_i = Jc^T lam`` (and at the drift), ``sum_i W_i . V_s,i = power_constr`` (0 on the
+    manifold), and the joint wrenches with them applied carry ``B u`` along their screws (0 at the drift)."""
+    model = cases.load(case)
+    for state in sample_states(model, 3, 5, case):
+        q, qd, u = (np.array(x) for x in (state.q, state.qd, state.u))
+        s = screw.split(model, q, qd, u)
+        scale = max(1.0, np.abs(s.constraint_force).max(), np.abs(s.constraint_force_drift).max())
+        for key, force in (("constraint_wrenches_space", s.constraint_force),
+                           ("constraint_wrenches_space_drift", s.constraint_force_drift)):
+            np.testing.assert_allclose(wrench_generalized_force(model, q, s.extras[key]), force, rtol=0,
+                                       atol=1e-12 * scale)
+        power = np.einsum("ia,ia->", s.extras["constraint_wrenches_space"], s.extras["twists_space"])
+        assert power == pytest.approx(s.power_constr, abs=1e-12 * scale * max(1.0, np.abs(qd).max()))
+        assert_small(np.array([s.power_constr]), scale * np.abs(qd).max(), 1e-10, "power on the manifold")
+        loads, loads_drift = joint_screw_loads(model, s)
+        np.testing.assert_allclose(loads, model.input_map @ u, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(loads_drift, 0.0, rtol=0, atol=1e-12 * scale)
+
+
+def test_constraint_wrenches_follow_the_frame_law():
+    """Moving the scene by g: multipliers unchanged, constraint wrenches mapped by ``Ad_g^-T``."""
+    model = cases.load("slider_crank")
+    state = sample_states(model, 1, 2, "slider_crank")[0]
+    q, qd, u = (np.array(x) for x in (state.q, state.qd, state.u))
+    for frame in frames.sampled(4, "slider_crank"):
+        before, after = screw.split(model, q, qd, u), screw.split(frames.move_scene(model, frame), q, qd, u)
+        np.testing.assert_allclose(after.lam, before.lam, rtol=1e-11, atol=1e-11)
+        for key in ("constraint_wrenches_space", "constraint_wrenches_space_drift", "wrenches_space"):
+            W = before.extras[key]
+            np.testing.assert_allclose(after.extras[key], W @ frames.wrench_map(frame).T, rtol=0,
+                                       atol=1e-11 * np.abs(W).max(), err_msg=key)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Spatial models: the screw backend against Newton–Euler and finite differences
+# ----------------------------------------------------------------------------------------------------------
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+def _body(name, parent, joint, axis, mass, com, translation=(0.0, 0.0, 0.0), rotation=np.eye(3)):
+    return Body(name, parent, joint, _unit(axis), mass, com=com, inertia=mass * np.diag([0.05, 0.03, 0.04]),
+                rotation=rotation, translation=translation)
+
+
+TILT = np.array([[np.cos(0.5), 0.0, np.sin(0.5)], [0.0, 1.0, 0.0], [-np.sin(0.5), 0.0, np.cos(0.5)]])
+BODIES = [
+    _body("a1", None, "revolute", (0, 1, 0), 1.0, (0.2, 0.0, 0.0), (0.0, 0.0, 0.3)),
+    _body("a2", "a1", "revolute", (0, 0, 1), 0.7, (0.25, 0.0, 0.0), (0.5, 0.0, 0.0), TILT),
+    _body("a3", "a2", "revolute", (1, 1, 1), 0.4, (0.1, 0.0, 0.05), (0.4, 0.0, 0.0)),
+    _body("b1", None, "prismatic", (0, 0, 1), 1.5, (0.0, 0.0, 0.0), (1.0, 0.3, 0.0)),
+    _body("b2", "b1", "revolute", (1, 0, 0), 0.5, (0.0, 0.15, 0.0), (0.0, 0.0, 0.1), TILT.T),
+]
+Q0 = np.array([0.3, 0.8, -0.4, 0.2, 1.1])
+B_3D = np.eye(5)[:, [0, 2, 3]] - 0.4 * np.eye(5)[:, [1, 4, 4]]
+
+
+def spatial_model(kind: str):
+    """``loop``: chain a's tip joined to chain b in 3 directions, b's point placed where a's point is at Q0
+    (2 degrees of freedom); ``every``: all four declarations, a world pin among them (4 rows, 1 degree of
+    freedom; Q0 is not on its manifold)."""
+    tip_a = np.array([0.3, 0.0, 0.0])
+    if kind == "loop":
+        kin = kinematics.forward_kinematics(build_model("probe", BODIES), Q0)
+        p = kinematics.point_position(kin, 2, tip_a)
+        T = kin.poses[4]
+        constraints = [cases.PointsCoincide("tips", "a3", tip_a, "b2", T[:3, :3].T @ (p - T[:3, 3]))]
+    else:
+        constraints = [
+            cases.PointOnCircle("circle", "a3", tip_a, (0.9, 0.2, 0.1), 0.3, TILT[:2]),
+            cases.PointOnLine("line", "b2", (0.0, 0.2, 0.0), (1.0, 0.0, 0.5), [_unit((0, 1, -1))]),
+            cases.JointCoupling("gear", ("a1", "b2"), (0.5, 1.0), -0.3),
+            cases.PointsCoincide("pin", "a2", (0.2, 0.0, 0.0), None, (0.6, 0.0, 0.2), [[1.0, 0.0, 0.0]]),
+        ]
+    return build_model(f"spatial_{kind}", BODIES, gravity=(0.3, -9.0, 1.0), input_map=B_3D, constraints=constraints)
+
+
+def spatial_states(model, count=4, seed=0):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        if model.name == "spatial_loop":               # on the manifold, a velocity in the null space of Jc
+            Jc = screw.split(model, Q0, np.zeros(5), np.zeros(3)).constraint_jacobian
+            yield Q0, rng.standard_normal(2) @ np.linalg.svd(Jc)[2][3:] * 2.0, rng.uniform(-4, 4, 3)
+        else:                                          # anywhere: the backends must agree off the manifold too
+            yield Q0 + 0.5 * rng.standard_normal(5), 2.0 * rng.standard_normal(5), rng.uniform(-4, 4, 3)
+
+
+@pytest.mark.parametrize("kind", ["loop", "every"])
+def test_spatial_screw_agrees_with_newton_euler(kind):
+    """Two solves (Gauss's principle here, the Schur complement there) of the same rows: they agree to rounding
+    amplified by cond(S)."""
+    model = spatial_model(kind)
+    for q, qd, u in spatial_states(model):
+        a, b = screw.split(model, q, qd, u), ne.split(model, q, qd, u)
+        gain = 1e-14 * max(1.0, b.conditions["constraint_kept"])
+        scale = max(1.0, np.abs(b.total).max(), np.abs(b.drift).max())
+        for name in ("constraint_value", "constraint_jacobian", "constraint_bias"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0,
+                                       atol=1e-13 * max(1.0, np.abs(getattr(b, name)).max()), err_msg=name)
+        for name in ("total", "drift", "ctrl", "task_drift"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=gain * scale, err_msg=name)
+        for name in ("lam", "lam_drift", "constraint_force"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0,
+                                       atol=gain * max(1.0, np.abs(getattr(b, name)).max()), err_msg=name)
+        assert a.kinetic_energy == pytest.approx(b.kinetic_energy, rel=1e-12)
+        assert a.constraint_rank == b.constraint_rank
+        if kind == "loop":   # both apply the loop force at the points: the same joint loads, (moment, force) order
+            world = b.extras["joint_reactions_world"]
+            np.testing.assert_allclose(a.extras["wrenches_space"], np.hstack([world[:, 3:], world[:, :3]]), rtol=0,
+                                       atol=1e-11 * np.abs(world).max())
+            assert a.constraint_rank == 3
+            assert_small(a.admissibility_total, scale, 1e-12, "H_t residual")
+
+
+def test_spatial_constraint_kinematics_by_finite_differences():
+    model = spatial_model("every")
+    step = 1e-6
+    rows = lambda x, v: screw.split(model, x, v, np.zeros(3))  # noqa: E731
+    for q, qd, _ in spatial_states(model, 2, seed=1):
+        s = rows(q, qd)
+        Jc = np.column_stack([(rows(q + step * e, qd).constraint_value - rows(q - step * e, qd).constraint_value)
+                              / (2 * step) for e in np.eye(5)])
+        bias = (rows(q + step * qd, qd).constraint_jacobian - rows(q - step * qd, qd).constraint_jacobian) @ qd / (2 * step)
+        np.testing.assert_allclose(s.constraint_jacobian, Jc, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(s.constraint_bias, bias, rtol=0, atol=1e-7 * max(1.0, np.abs(bias).max()))
