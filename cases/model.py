@@ -22,6 +22,7 @@ Frames and conventions
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
@@ -125,7 +126,11 @@ class Model:
 
     def digest(self) -> str:
         """A stable hash of everything that determines the physics and the task points (for caches keyed by
-        model); the model's name is left out, so a renamed copy shares cache entries."""
+        model); the model's name is left out, so a renamed copy shares cache entries. Computed once per model."""
+        return self._digest
+
+    @functools.cached_property
+    def _digest(self) -> str:
         h = hashlib.sha256()
         for b in self.bodies:
             h.update(repr((b.name, b.parent, b.joint)).encode())

@@ -42,12 +42,22 @@ def compare(quantity: str, values: dict[str, object], tol: float) -> Comparison:
     skipped = tuple(k for k, v in values.items() if isinstance(v, Unsupported))
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, tol, 0.0, not_compared=skipped)
-    pairs = {(a, b): float(np.max(np.abs(present[a] - present[b]))) / tol
-             for a, b in combinations(present, 2)}
+    pairs = dict(zip(combinations(present, 2), (_pairwise(list(present.values())) / tol).tolist()))
     worst = max(pairs.values())
     if not worst <= 1.0:  # also catches NaN
         return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped, present)
     return Comparison(quantity, AGREE, tol, worst, pairs, None, skipped)
+
+
+def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
+    """Max-norm differences of every pair (in ``itertools.combinations`` order), in one array operation; a scalar
+    (the exact voter) is compared with every entry."""
+    size = max(v.size for v in vectors)
+    if any(v.size not in (1, size) for v in vectors):
+        raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
+    V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
+    i, j = np.triu_indices(len(vectors), 1)
+    return np.abs(V[i] - V[j]).max(axis=1)
 
 
 def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | None:

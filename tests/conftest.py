@@ -39,6 +39,15 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def single_threaded_blas():
+    """One BLAS thread, as the command line runs (``crosscheck.cli.BLAS_THREADS``): the matrices are tiny."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
 @pytest.fixture
 def dropped_coriolis(monkeypatch):
     """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
