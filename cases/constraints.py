@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cases.validation import as_array, frozen, orthonormal_rows
+
 #: The x-y plane of the planar cases (rows), the default plane of a circle.
 XY_PLANE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
@@ -100,43 +102,18 @@ class JointCoupling:
 CONSTRAINT_TYPES = (PointOnCircle, PointsCoincide, PointOnLine, JointCoupling)
 
 
-def _frozen(arr) -> np.ndarray:
-    out = np.array(arr, dtype=float)
-    out.setflags(write=False)
-    return out
+def _array(problems: list[str], where: str, value, shape) -> np.ndarray | None:
+    arr = as_array(problems, where, value, shape)
+    return None if arr is None else frozen(arr, shape)
 
 
-def _vector(problems: list[str], where: str, value, shape) -> np.ndarray | None:
+def _number(problems: list[str], where: str, value) -> float:
+    """``value`` as a float; NaN (and a problem) when it is not a number."""
     try:
-        arr = np.array(value, dtype=float)
+        return float(value)
     except (TypeError, ValueError):
-        problems.append(f"{where} is not numeric: {value!r}")
-        return None
-    if arr.shape != shape:
-        problems.append(f"{where} has shape {arr.shape}, expected {shape}")
-        return None
-    if not np.all(np.isfinite(arr)):
-        problems.append(f"{where} has non-finite entries: {arr.tolist()}")
-        return None
-    return _frozen(arr)
-
-
-def _rows(problems: list[str], where: str, value, counts: tuple[int, ...]) -> np.ndarray | None:
-    """Orthonormal rows of world 3-vectors, as many as one of ``counts``."""
-    try:
-        D = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        problems.append(f"{where} are not numeric: {value!r}")
-        return None
-    if D.ndim != 2 or D.shape[1] != 3 or D.shape[0] not in counts or not np.all(np.isfinite(D)):
-        problems.append(f"{where} have shape {D.shape}; give {' or '.join(map(str, counts))} finite rows of world "
-                        "3-vectors")
-        return None
-    err = np.abs(D @ D.T - np.eye(D.shape[0])).max()
-    if err > 1e-9:
-        problems.append(f"{where} are not orthonormal rows (|D D^T - I| = {err:.2e}): {D.tolist()}")
-        return None
-    return _frozen(D)
+        problems.append(f"{where} is not a number: {value!r}")
+        return float("nan")
 
 
 def _body(problems: list[str], where: str, name, bodies: set[str]) -> None:
@@ -154,9 +131,10 @@ def validate(problems: list[str], c, bodies: set[str]):
     before = len(problems)
     if isinstance(c, PointOnCircle):
         _body(problems, where, c.body, bodies)
-        out = PointOnCircle(c.name, c.body, _vector(problems, f"{where} offset", c.offset, (3,)),
-                            _vector(problems, f"{where} center", c.center, (3,)), float(c.radius),
-                            _rows(problems, f"{where} plane rows", c.plane, (2,)))
+        out = PointOnCircle(c.name, c.body, _array(problems, f"{where} offset", c.offset, (3,)),
+                            _array(problems, f"{where} center", c.center, (3,)),
+                            _number(problems, f"{where} radius", c.radius),
+                            orthonormal_rows(problems, f"{where} plane rows", c.plane, (2,)))
         if not (np.isfinite(out.radius) and out.radius > 0.0):
             problems.append(f"{where} has radius {c.radius!r}; a circle needs a positive finite radius")
     elif isinstance(c, PointsCoincide):
@@ -165,25 +143,27 @@ def validate(problems: list[str], c, bodies: set[str]):
             _body(problems, where, c.body_b, bodies)
         if c.body_b == c.body_a:
             problems.append(f"{where} joins body {c.body_a!r} to itself; a loop closure joins two bodies")
-        out = PointsCoincide(c.name, c.body_a, _vector(problems, f"{where} offset_a", c.offset_a, (3,)), c.body_b,
-                             _vector(problems, f"{where} offset_b", c.offset_b, (3,)),
-                             _rows(problems, f"{where} directions", c.directions, (1, 2, 3)))
+        out = PointsCoincide(c.name, c.body_a, _array(problems, f"{where} offset_a", c.offset_a, (3,)), c.body_b,
+                             _array(problems, f"{where} offset_b", c.offset_b, (3,)),
+                             orthonormal_rows(problems, f"{where} directions", c.directions, (1, 2, 3)))
     elif isinstance(c, PointOnLine):
         _body(problems, where, c.body, bodies)
-        out = PointOnLine(c.name, c.body, _vector(problems, f"{where} offset", c.offset, (3,)),
-                          _vector(problems, f"{where} origin", c.origin, (3,)),
-                          _rows(problems, f"{where} normals", c.normals, (1, 2)))
+        out = PointOnLine(c.name, c.body, _array(problems, f"{where} offset", c.offset, (3,)),
+                          _array(problems, f"{where} origin", c.origin, (3,)),
+                          orthonormal_rows(problems, f"{where} normals", c.normals, (1, 2)))
     else:
-        joints, coefficients = tuple(c.joints), tuple(float(x) for x in c.coefficients)
+        joints = tuple(c.joints)
+        coefficients = tuple(_number(problems, f"{where} coefficient", x) for x in c.coefficients)
+        offset = _number(problems, f"{where} offset", c.offset)
         for j in joints:
             _body(problems, where, j, bodies)
         if not joints or len(joints) != len(coefficients) or len(set(joints)) != len(joints):
             problems.append(f"{where} needs distinct joints and one coefficient each; got joints {list(joints)} "
                             f"and coefficients {list(coefficients)}")
-        elif not all(np.isfinite(coefficients)) or not any(coefficients) or not np.isfinite(c.offset):
+        elif not all(np.isfinite(coefficients)) or not any(coefficients) or not np.isfinite(offset):
             problems.append(f"{where} has coefficients {list(coefficients)} and offset {c.offset!r}; give finite "
                             "numbers, not all coefficients zero")
-        out = JointCoupling(c.name, joints, coefficients, float(c.offset))
+        out = JointCoupling(c.name, joints, coefficients, offset)
     return out if len(problems) == before else None
 
 

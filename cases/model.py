@@ -30,6 +30,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from cases import constraints as constraint_decl
+from cases.validation import as_array, finite, frozen, orthonormal_rows
 
 JOINT_TYPES = ("revolute", "prismatic")
 
@@ -41,12 +42,6 @@ class ModelError(ValueError):
         self.problems = tuple(problems)
         lines = "\n".join(f"  - {p}" for p in self.problems)
         super().__init__(f"model '{model_name}' is invalid ({len(self.problems)} problem(s)):\n{lines}")
-
-
-def _frozen(values, shape, dtype=float) -> np.ndarray:
-    arr = np.array(values, dtype=dtype).reshape(shape)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True)
@@ -156,25 +151,6 @@ class Model:
         return isinstance(other, Model) and self.digest() == other.digest()
 
 
-def _finite(problems: list[str], where: str, arr: np.ndarray) -> bool:
-    if not np.all(np.isfinite(arr)):
-        problems.append(f"{where} has non-finite entries (NaN or inf): {arr.tolist()}")
-        return False
-    return True
-
-
-def _as_array(problems: list[str], where: str, value, shape) -> np.ndarray | None:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        problems.append(f"{where} is not numeric: {value!r}")
-        return None
-    if arr.shape != shape:
-        problems.append(f"{where} has shape {arr.shape}, expected {shape}")
-        return None
-    return arr if _finite(problems, where, arr) else None
-
-
 def _check_inertia(problems: list[str], where: str, inertia: np.ndarray) -> None:
     scale = max(np.abs(inertia).max(), 1e-300)
     tol = 1e-9 * scale
@@ -197,7 +173,7 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
     n_before = len(problems)
     if body.joint not in JOINT_TYPES:
         problems.append(f"{where} has joint type {body.joint!r}; valid types: {list(JOINT_TYPES)}")
-    axis = _as_array(problems, f"{where} joint axis", body.axis, (3,))
+    axis = as_array(problems, f"{where} joint axis", body.axis, (3,))
     if axis is not None:
         norm = np.linalg.norm(axis)
         if norm < 1e-12:
@@ -216,25 +192,25 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
         problems.append(f"{where} has a non-finite mass {mass}")
     elif mass < 0.0:
         problems.append(f"{where} has a negative mass {mass}")
-    com = _as_array(problems, f"{where} centre of mass", body.com, (3,))
-    inertia = _as_array(problems, f"{where} inertia", body.inertia, (3, 3))
+    com = as_array(problems, f"{where} centre of mass", body.com, (3,))
+    inertia = as_array(problems, f"{where} inertia", body.inertia, (3, 3))
     if inertia is not None:
         _check_inertia(problems, where, inertia)
         if mass == 0.0 and np.abs(inertia).max() > 0.0:
             problems.append(f"{where} has zero mass but a non-zero inertia {inertia.tolist()}; a massless body "
                             "(a carriage) has zero inertia")
-    rotation = _as_array(problems, f"{where} joint placement rotation", body.rotation, (3, 3))
+    rotation = as_array(problems, f"{where} joint placement rotation", body.rotation, (3, 3))
     if rotation is not None:
         err = np.abs(rotation.T @ rotation - np.eye(3)).max()
         if err > 1e-9 or np.linalg.det(rotation) < 0:
             problems.append(f"{where} joint placement rotation is not a proper rotation "
                             f"(|R^T R - I| = {err:.2e}, det = {np.linalg.det(rotation):.6f})")
-    translation = _as_array(problems, f"{where} joint placement translation", body.translation, (3,))
+    translation = as_array(problems, f"{where} joint placement translation", body.translation, (3,))
     if len(problems) > n_before:
         return None
-    return Body(name=body.name, parent=body.parent, joint=body.joint, axis=_frozen(axis, 3), mass=mass,
-                com=_frozen(com, 3), inertia=_frozen(0.5 * (inertia + inertia.T), (3, 3)),
-                rotation=_frozen(rotation, (3, 3)), translation=_frozen(translation, 3))
+    return Body(name=body.name, parent=body.parent, joint=body.joint, axis=frozen(axis, 3), mass=mass,
+                com=frozen(com, 3), inertia=frozen(0.5 * (inertia + inertia.T), (3, 3)),
+                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3))
 
 
 def _topology(problems: list[str], bodies: Sequence[Body]) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -282,26 +258,21 @@ def _input_map(problems: list[str], input_map, n: int) -> np.ndarray:
     if B.ndim != 2 or B.shape[0] != n:
         problems.append(f"input map B has shape {B.shape}, expected ({n}, m) for {n} joints")
     else:
-        _finite(problems, "input map B", B)
+        finite(problems, "input map B", B)
     return B
 
 
 def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str]) -> TaskPoint | None:
     where = f"task point '{tp.name}'"
     n_before = len(problems)
-    offset = _as_array(problems, f"{where} offset", tp.offset, (3,))
+    offset = as_array(problems, f"{where} offset", tp.offset, (3,))
     if tp.body not in body_names:
         problems.append(f"{where} is on an unknown body '{tp.body}'")
-    D = np.eye(3) if tp.directions is None else np.array(tp.directions, dtype=float)
-    if D.ndim != 2 or D.shape[1] != 3 or not 1 <= D.shape[0] <= 3:
-        problems.append(f"{where} directions have shape {D.shape}; give 1 to 3 rows of world 3-vectors")
-    elif _finite(problems, f"{where} directions", D):
-        err = np.abs(D @ D.T - np.eye(D.shape[0])).max()
-        if err > 1e-9:
-            problems.append(f"{where} directions are not orthonormal rows (|D D^T - I| = {err:.2e}): {D.tolist()}")
+    D = orthonormal_rows(problems, f"{where} directions", np.eye(3) if tp.directions is None else tp.directions,
+                         (1, 2, 3))
     if len(problems) > n_before:
         return None
-    return TaskPoint(tp.name, tp.body, _frozen(offset, 3), _frozen(D, D.shape))
+    return TaskPoint(tp.name, tp.body, frozen(offset, 3), D)
 
 
 def _moving_mass(problems: list[str], bodies: Sequence[Body], parent: Sequence[int]) -> None:
@@ -336,7 +307,7 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
         problems.append("a model needs at least one body")
     valid = [_validate_body(problems, b) for b in bodies]
     parent, order = _topology(problems, bodies)
-    g = _as_array(problems, "gravity", gravity, (3,))
+    g = as_array(problems, "gravity", gravity, (3,))
     n = len(bodies)
     B = _input_map(problems, input_map, n)
     names = {b.name for b in bodies}
@@ -357,5 +328,5 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
         raise ModelError(name, problems)
     B = B.copy()
     B.setflags(write=False)
-    return Model(name=name, bodies=tuple(valid), gravity=_frozen(g, 3), input_map=B,
+    return Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
                  task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order)
