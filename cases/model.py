@@ -322,8 +322,9 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if not problems:
         _moving_mass(problems, valid, parent)
     constraints = tuple(constraint_decl.validate(problems, c, names) for c in constraints)
-    if len({c.name for c in constraints if c is not None}) < len(constraints):
-        problems.append(f"constraint names repeat: {[c.name for c in constraints if c is not None]}")
+    declared = [c.name for c in constraints if c is not None]
+    if len(set(declared)) < len(declared):
+        problems.append(f"constraint names repeat: {declared}; give each constraint its own name")
     if problems:
         raise ModelError(name, problems)
     B = B.copy()
