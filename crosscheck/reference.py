@@ -10,8 +10,8 @@ the constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynami
 total / lam and drift / lam_drift. The harness's sampler uses the same kinematics to put states on the
 constraint manifold, so admissibility is decided outside the five formalisms. At a degenerate state (``S = Jc
 M^-1 Jc^T`` singular up to ``CONSTRAINT_RCOND``) Pinocchio's Cholesky-based KKT solve has no answer: the reference
-adds a tiny damping (1e-12 relative) and keeps the multipliers' part in the range of S, the minimum-norm
-multipliers the formalisms return (``Jc^T lam`` and the accelerations do not change).
+gives it the independent combinations of the rows (S's eigen-directions above the threshold, as the formalisms
+keep them) and maps the multipliers back, which gives the minimum-norm multipliers the formalisms return.
 
 Joint order: Pinocchio needs parents before children, so joints are added in ``model.topological_order``;
 states and results are permuted in and out, so callers always use our coordinate order.
@@ -221,9 +221,9 @@ def _to_ours(order: np.ndarray, vec_p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias, damping):
+def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias):
     """Pinocchio's constrained forward dynamics (KKT): ``M a + b = tau + J^T lambda_c``, ``J a + gamma = 0``."""
-    a = np.array(pin.forwardDynamics(c.model, data, q_p, v_p, tau_p, Jc_p, bias, damping))
+    a = np.array(pin.forwardDynamics(c.model, data, q_p, v_p, tau_p, Jc_p, bias, 0.0))
     return a, np.array(data.lambda_c)
 
 
@@ -241,12 +241,15 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     Cqd_p = np.array(pin.rnea(pm, data, qp, vp, np.zeros(model.n))) - g_p
     Minv_p = _sym(np.array(pin.computeMinverse(pm, data, qp)))
     S = Jc_p @ Minv_p @ Jc_p.T
-    S_pinv, range_S = _pinv_sym(S)
-    damping = 0.0 if range_S.shape[1] == len(S) else 1e-12 * max(np.linalg.norm(S, 2), np.finfo(float).tiny)
-    total_p, lam = _kkt(c, data, qp, vp, tau_ctrl[order], Jc_p, bias, damping)
-    drift_p, lam_drift = _kkt(c, data, qp, vp, np.zeros(model.n), Jc_p, bias, damping)
-    if damping:              # the minimum-norm multipliers: drop the part in S's null space (Jc^T lam unchanged)
-        lam, lam_drift = range_S @ (range_S.T @ lam), range_S @ (range_S.T @ lam_drift)
+    S_pinv, rows = _pinv_sym(S)
+    if rows.shape[1] == len(S):     # regular: the rows as declared
+        rows = np.eye(len(S))
+    # singular S: Pinocchio's KKT on the independent combinations of the rows, the redundant directions dropped as
+    # the formalisms drop them; lam = rows lam_r is then the minimum-norm multiplier
+    J_r, bias_r = rows.T @ Jc_p, rows.T @ bias
+    total_p, lam_r = _kkt(c, data, qp, vp, tau_ctrl[order], J_r, bias_r)
+    drift_p, lam_drift_r = _kkt(c, data, qp, vp, np.zeros(model.n), J_r, bias_r)
+    lam, lam_drift = rows @ lam_r, rows @ lam_drift_r
     B_c = Minv_p - Minv_p @ Jc_p.T @ S_pinv @ Jc_p @ Minv_p
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear

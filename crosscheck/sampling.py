@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.model import Model
-from formalisms.interface import CONSTRAINT_RCOND
 
 #: Sampling ranges: revolute angles (rad), prismatic displacements (m), joint rates (rad/s or m/s), inputs.
 ANGLE_RANGE = np.pi
@@ -24,6 +23,9 @@ INPUT_RANGE = 10.0
 #: Projection onto the constraint manifold: |phi|_inf below PHI_TOL (times the model's length scale squared).
 PHI_TOL = 1e-13
 NEWTON_STEPS = 60
+#: Singular values of Jc kept by the velocity projection: all but rounding noise, so that qd satisfies every row,
+#: however nearly redundant (removing one direction too many still leaves an admissible velocity).
+VELOCITY_RCOND = 1e-13
 #: Random restarts before a constrained case is declared unsampleable.
 RESTARTS = 20
 
@@ -106,7 +108,7 @@ def project_velocity(model: Model, q, qd) -> np.ndarray:
     from crosscheck.reference import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.n))
-    pinv = np.linalg.pinv(Jc, rcond=np.sqrt(CONSTRAINT_RCOND))
+    pinv = np.linalg.pinv(Jc, rcond=VELOCITY_RCOND)
     qd = np.asarray(qd, dtype=float)
     for _ in range(2):
         qd = qd - pinv @ (Jc @ qd)

@@ -83,6 +83,7 @@ def quantities(model) -> tuple[str, ...]:
 BREAKDOWN_LIMITS: dict[str, float] = {
     "task": 1e3,                      # cond(J M^-1 J^T), operational space (article 6.3.4)
     "constraint": 1e8,                # cond(Jc M^-1 Jc^T): redundant or degenerate constraints (5.6)
+    "constraint_kept": 1e8,           # the same over the directions kept: nearly (not exactly) redundant rows
     "constraint_consistency": 1e-8,   # share of the KKT right-hand side S cannot reach: H_t is empty (5.4)
 }
 

@@ -45,8 +45,7 @@ Constraints (article 5, eqs. 12-17; 6.4.5 "constraints restrict motion to subman
 covectors). ``phi(p)`` is each declaration's function (``cases.constraints``) of this backend's own point positions
 ``o_b + R_b offset`` through the chart, so ``phi(psi(p))`` is the same function in every chart and the multipliers
 are chart-invariant. ``Jc = dphi/dp`` and ``Jcdot pd = (d(Jc pd)/dp) pd`` by automatic differentiation, in the same
-Function. Eq. (24) with the reaction covector ``Jc^T lam`` reads, as covectors (index lowered, so a singular metric,
-e.g. point masses on massless carriages, needs no inverse):
+Function. Eq. (24) with the reaction covector ``Jc^T lam`` reads, as covectors (index lowered):
 
     M (pdd + Gamma(pd, pd)) + dV/dp = tau + Jc^T lam,        Jc pdd = -Jcdot pd   (eqs. 12, 13)
 
@@ -62,14 +61,13 @@ i.e. the metric-orthogonal projection of the free motion onto ``H_t``: ``Z^T`` o
 ``Z (Z^T M Z)^-1 Z^T tau``, which is the constraint-consistent input map of eq. (17) applied to ``tau``:
 ``P = Z (Z^T M Z)^-1 Z^T M`` and ``I - M^-1 Jc^T S^+ Jc`` (``S = Jc M^-1 Jc^T``) are both the M-orthogonal
 projector onto ``D`` (each is idempotent, fixes ``D`` and has an M-orthogonal kernel: ``range M^-1 Jc^T``), so
-``B_c = (I - M^-1 Jc^T S^+ Jc) M^-1 = P M^-1 = Z (Z^T M Z)^-1 Z^T``; the right-hand side needs no ``M^-1`` and so
-holds for a singular metric as long as ``Z^T M Z`` (the metric on ``D``) is positive definite.
+``B_c = (I - M^-1 Jc^T S^+ Jc) M^-1 = P M^-1 = Z (Z^T M Z)^-1 Z^T``.
 
-Rank: ``Jc``'s singular values above ``sqrt(CONSTRAINT_RCOND)`` times the largest count (:data:`SINGULAR_VALUE_RTOL`).
-The eigenvalues of ``S`` are the squared singular values of ``Jc M^-1/2``, so this is the interface's relative
-threshold on ``S`` exactly when M is a multiple of the identity (cartesian pendulum) and within a factor
-``sqrt(cond M)`` of it otherwise; the singular values of ``Jc`` itself are used because M may be singular.
-Redundant rows (a duplicated constraint) and a rank drop (a four-bar at its change point) never raise: the
+Rank: the interface's convention. The eigen-directions ``U_r`` of the constraint-space inverse inertia
+``S = Jc M^-1 Jc^T`` above ``CONSTRAINT_RCOND`` times its largest eigenvalue are the independent constraints; the
+distribution is ``ker U_r^T Jc`` and the multipliers lie in ``range U_r``. (Deciding the rank from Jc's own singular
+values instead would drop a nearly redundant direction that the metric does not, at a four-bar near its change
+point, and move the accelerations far from the other backends'.) Redundant rows (a duplicated constraint) and a rank drop (a four-bar at its change point) never raise: the
 pseudo-inverses give the minimum-norm multipliers, unique ``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and
 finite least-squares numbers when it is (the harness flags BREAKDOWN from ``constrained_split``'s conditions).
 
@@ -103,9 +101,6 @@ from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, chart_vect
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
-#: Relative singular value of ``Jc`` below which a constraint direction counts as redundant: the square root of the
-#: interface's relative eigenvalue threshold on ``S = Jc M^-1 Jc^T`` (module docstring, "Rank").
-SINGULAR_VALUE_RTOL = float(np.sqrt(CONSTRAINT_RCOND))
 
 
 # ------------------------------------------------------------------------------------------------ the connection
@@ -483,28 +478,35 @@ def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) 
 
 @dataclass(frozen=True)
 class _Distribution:
-    """The constraint distribution ``D = ker Jc`` at a point, from the SVD ``Jc = U diag(s) V^T``: the kept
-    (non-redundant) directions ``U_r, s_r, V_r`` and ``Z``, an orthonormal basis of ``D`` (the other columns of V)."""
+    """The constraint distribution ``D = ker (rows^T Jc)`` at a point: ``rows`` (k x r) the independent constraint
+    directions (module docstring, "Rank"), the SVD ``rows^T Jc = U diag(s) V^T`` (full row rank r) and ``Z``, an
+    orthonormal basis of ``D`` (the other right singular vectors)."""
 
-    U: np.ndarray  # (k, r)
-    s: np.ndarray  # (r,)
-    V: np.ndarray  # (n, r)
-    Z: np.ndarray  # (n, n - r)
+    rows: np.ndarray  # (k, r)
+    U: np.ndarray     # (r, r)
+    s: np.ndarray     # (r,)
+    V: np.ndarray     # (n, r)
+    Z: np.ndarray     # (n, n - r)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """``Jc^+ b``: the minimum-norm least-squares solution of ``Jc x = b``."""
-        return self.V @ ((self.U.T @ b) / self.s)
+        """The minimum-norm solution of the independent rows of ``Jc x = b``."""
+        return self.V @ ((self.U.T @ (self.rows.T @ b)) / self.s)
 
     def solve_transposed(self, c: np.ndarray) -> np.ndarray:
-        """``(Jc^T)^+ c``: the minimum-norm least-squares solution of ``Jc^T lam = c``."""
-        return self.U @ ((self.V.T @ c) / self.s)
+        """The minimum-norm least-squares solution of ``Jc^T lam = c`` with lam in the independent directions."""
+        return self.rows @ (self.U @ ((self.V.T @ c) / self.s))
 
 
-def _distribution(Jc: np.ndarray) -> _Distribution:
-    """SVD of ``Jc`` with the rank from :data:`SINGULAR_VALUE_RTOL` (module docstring, "Rank")."""
-    U, s, Vt = np.linalg.svd(Jc)
-    r = int(np.count_nonzero(s > SINGULAR_VALUE_RTOL * s[0])) if s.size and s[0] > 0.0 else 0
-    return _Distribution(U=U[:, :r], s=s[:r], V=Vt[:r].T, Z=Vt[r:].T)
+def _distribution(Jc: np.ndarray, factor) -> _Distribution:
+    """The independent directions of ``S = Jc M^-1 Jc^T`` (``factor``: M's Cholesky factor from
+    ``factor_mass_matrix``) and the SVD of those rows (module docstring, "Rank")."""
+    c, lower = factor
+    X = scipy.linalg.solve_triangular(c, Jc.T, lower=lower, trans="N" if lower else "T")   # L^-1 Jc^T, M = L L^T
+    w, E = np.linalg.eigh(X.T @ X)
+    rows = E[:, w > CONSTRAINT_RCOND * max(float(w[-1]), np.finfo(float).tiny)] if w.size else E
+    U, s, Vt = np.linalg.svd(rows.T @ Jc)
+    r = rows.shape[1]
+    return _Distribution(rows=rows, U=U, s=s[:r], V=Vt[:r].T, Z=Vt[r:].T)
 
 
 def _reduced_metric_factor(model: Model, chart, M: np.ndarray, Z: np.ndarray, p: np.ndarray):
@@ -532,7 +534,7 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
     acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the three projections onto ``D``:
     ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
     Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``."""
-    dist = _distribution(pt.Jc)
+    dist = _distribution(pt.Jc, factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart)))
     factor, Mz = _reduced_metric_factor(model, chart, pt.M, dist.Z, p)
     Cqd = (christoffel_first_kind(pt.dM) @ pd) @ pd          # M Gamma(pd, pd), the chart's C qd (eq. 7)
     f0 = -Cqd - pt.dV                                        # eq. (24) as a covector, tau = 0

@@ -98,6 +98,21 @@ def test_the_four_bar_at_its_change_point_is_breakdown_on_either_velocity_never_
     assert not b.trusted                                 # every backend's whole answer is untrusted there
 
 
+@pytest.mark.parametrize("offset", [1e-3, 3e-5, 1e-6])
+def test_the_four_bar_near_its_change_point_agrees_or_is_flagged_before_it_goes_wrong(offset):
+    """Nearly redundant rows: every backend keeps the direction S keeps (the same convention, also in the geometric
+    backend's tangent-space method and in the reference), so the answers agree; past cond 1e8 the state is flagged."""
+    model = cases.load("four_bar")
+    q = sampling.project_configuration(model, [np.pi / 2 + offset, 0.0, np.pi / 2 + offset])
+    qd = sampling.project_velocity(model, q, [0.3, 1.0, 2.0])
+    outcome = evaluate(model, State(0, tuple(q), tuple(qd), (0.5, -0.3, 0.2)), ALL)
+    assert not outcome.errors and not outcome.failed
+    totals = np.array([split.total for split in outcome.splits.values()])
+    assert np.ptp(totals, axis=0).max() < 1e-8 * (1.0 + np.abs(totals).max())
+    flagged = {name for name, b in outcome.breakdowns.items() if b.keys() & {"constraint_kept", "constraint_consistency"}}
+    assert flagged == (set(outcome.splits) if offset < 1e-4 else set())   # near: nearly redundant, or H_t empty
+
+
 # -------------------------------------------------------------------------------------------- injected faults
 
 
