@@ -58,11 +58,26 @@ def _joint_model(joint: str, axis: np.ndarray):
     return _UNALIGNED[joint](np.array(axis, dtype=float))
 
 
+def _depth_first(model: Model) -> list[int]:
+    """The bodies in depth-first pre-order (each subtree contiguous, children in the model's order). Pinocchio's
+    algorithms that walk subtree ranges (computeMinverse, CRBA) need joints added in this order; a merely
+    parents-first order gave a wrong M^-1 on branched trees."""
+    children: dict[int, list[int]] = {}
+    for i in model.topological_order:
+        children.setdefault(int(model.parent_index[i]), []).append(i)
+    order, stack = [], list(reversed(children.get(-1, [])))
+    while stack:
+        i = stack.pop()
+        order.append(i)
+        stack.extend(reversed(children.get(i, [])))
+    return order
+
+
 def _build(model: Model) -> _Compiled:
     pm = pin.Model()
     pm.name = model.name
     joint_id = {}
-    for i in model.topological_order:
+    for i in _depth_first(model):
         b = model.bodies[i]
         parent = 0 if model.parent_index[i] < 0 else joint_id[model.parent_index[i]]
         placement = pin.SE3(np.array(b.rotation), np.array(b.translation))

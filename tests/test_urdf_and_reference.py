@@ -290,6 +290,28 @@ def test_reference_respects_our_coordinate_order_when_bodies_are_listed_child_fi
     _close(s.ctrl, (inv2(M) @ tau[::-1])[::-1], 1e-12)
 
 
+def test_reference_on_a_branched_tree_whose_parents_first_order_is_not_depth_first():
+    """b0 carries b1 and b2, b1 carries b3: listed parents first, b3 follows its uncle b2. Pinocchio's subtree
+    algorithms (computeMinverse) need each subtree contiguous; this order once gave a wrong M^-1 (ctrl off by O(1))."""
+    z, x = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)
+    tree = build_model("branched", [
+        Body("b0", None, "revolute", z, 2.0, com=(0.3, 0, 0), inertia=np.diag([0.01, 0.02, 0.02])),
+        Body("b1", "b0", "revolute", x, 1.0, com=(0, 0.2, 0), translation=(0.5, 0, 0),
+             inertia=np.diag([0.02, 0.01, 0.02])),
+        Body("b2", "b0", "prismatic", z, 0.5, com=(0.1, 0, 0), translation=(-0.4, 0.1, 0)),
+        Body("b3", "b1", "revolute", z, 0.7, com=(0.2, 0, 0.1), translation=(0, 0.4, 0),
+             inertia=np.diag([0.01, 0.01, 0.005])),
+    ], gravity=(0, -9.81, 0))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, qd, u = rng.uniform(-1, 1, 4), rng.uniform(-2, 2, 4), rng.uniform(-5, 5, 4)
+        s = split(tree, q, qd, u)
+        M = s.extras["M"]
+        np.testing.assert_allclose(M, M.T, atol=0)
+        _close(s.ctrl, np.linalg.solve(M, u), 1e-10)
+        _close(s.drift, -np.linalg.solve(M, s.extras["Cqd"] + s.extras["g"]), 1e-10)
+
+
 def test_reference_is_pure():
     dp, arm = cases.load("double_pendulum"), cases.load("spatial_arm")
     args_dp = (np.array([0.3, -0.2]), np.array([1.0, 0.5]), np.array([0.1, 0.2]))
