@@ -103,6 +103,18 @@ class Model:
         """Number of inputs (columns of the input map B)."""
         return self.input_map.shape[1]
 
+    @property
+    def length_scale(self) -> float:
+        """A length for the model's residuals and floors: 1 m plus every placement and COM offset in it."""
+        return 1.0 + float(sum(np.linalg.norm(b.translation) + np.linalg.norm(b.com) for b in self.bodies))
+
+    @property
+    def inertia_scale(self) -> float:
+        """``sum_k (m_k L^2 + tr I_k)`` with L the length scale: the size of M's entries (about its largest
+        eigenvalue, up to a factor of the number of joints)."""
+        L = self.length_scale
+        return float(sum(b.mass * L**2 + np.trace(b.inertia) for b in self.bodies))
+
     def body_index(self, name: str) -> int:
         for i, body in enumerate(self.bodies):
             if body.name == name:
@@ -181,8 +193,8 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
         elif abs(norm - 1.0) > 1e-6:
             problems.append(f"{where} joint axis {axis.tolist()} has norm {norm:.6g}; give a unit vector "
                             "(for a prismatic joint the axis length would rescale q)")
-        else:
-            axis = axis / norm
+        elif abs(norm - 1.0) > 4 * np.finfo(float).eps:  # a unit vector to rounding stays bit for bit: dividing
+            axis = axis / norm                            # by its computed norm can move a last bit (not idempotent)
     try:
         mass = float(body.mass)
     except (TypeError, ValueError):

@@ -38,6 +38,9 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
     """
     at_drift, at_total, tol = {}, {}, 0.0
     for name, split in splits.items():
+        if not (np.all(np.isfinite(split.drift)) and np.all(np.isfinite(split.total))):
+            at_drift[name] = at_total[name] = np.nan   # an overflowed answer fails here too, it does not crash
+            continue
         drift = geometric.energy_rate(model, q, qd, split.drift)
         total = geometric.energy_rate(model, q, qd, split.total)
         at_drift[name], at_total[name] = drift.rate, total.rate - split.power_ctrl

@@ -13,6 +13,18 @@ M^-1 Jc^T`` singular up to ``CONSTRAINT_RCOND``) Pinocchio's Cholesky-based KKT 
 gives it the independent combinations of the rows (S's eigen-directions above the threshold, as the formalisms
 keep them) and maps the multipliers back, which gives the minimum-norm multipliers the formalisms return.
 
+Joint loads and task inertia (the compared ``joint_wrenches`` and ``task_inertia``): ``data.f[j]`` after
+``pinocchio.rnea(q, v, a)`` is the spatial force ``(linear, angular)`` the parent transmits to body ``j`` through
+joint ``j``, in joint ``j``'s local frame (which is our body frame: the inertia is appended at the joint frame),
+moment about its origin; RNEA's accelerating base (``a_gf = a - g``) puts the weight in it exactly, so ``data.f``
+at ``a = total`` (``drift``) is ``joint_wrenches`` (``joint_wrenches_drift``), rows read back in our coordinate
+order. With constraints the point forces of ``lam`` (``lam_drift``), which no KKT solve reports per body, are
+applied as RNEA's external forces ``fext`` (local frame, moment about the joint origin), as the formalisms apply
+them; a joint coupling's ``c_j lam`` is not a point force, so RNEA leaves it in the coupled joint's own load, the
+convention of ``Split.joint_wrenches``. ``task_inertia`` is ``(J M^-1 J^T)^-1`` with J the task frame's
+``LOCAL_WORLD_ALIGNED`` linear Jacobian in the task directions and ``M^-1`` by Cholesky on CRBA's M, with
+``conditions["task_inertia"]`` = cond(J M^-1 J^T) (NaN and inf where that is numerically singular).
+
 Joint order: Pinocchio needs parents before children, so joints are added in ``model.topological_order``;
 states and results are permuted in and out, so callers always use our coordinate order.
 """
@@ -24,11 +36,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
-                                  unconstrained_split)
+from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, redundant_below,
+                                  singular_below, unconstrained_split)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -128,8 +141,14 @@ def to_pinocchio(model: Model) -> pin.Model:
 
 
 def _sym(upper: np.ndarray) -> np.ndarray:
-    """Pinocchio fills only the upper triangle of M (crba) and M^-1 (computeMinverse)."""
+    """Pinocchio fills only the upper triangle of M (crba)."""
     return np.triu(upper) + np.triu(upper, 1).T
+
+
+def _inverse(M: np.ndarray) -> np.ndarray:
+    """``M^-1`` by Cholesky on CRBA's M: backward stable, where computeMinverse lost 256 eps on a single rotor (a fuzz
+    finding: ctrl 640.0000000000364 against the exact 640)."""
+    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
 
 
 def _point_kinematics(c: _Compiled, data, body, offset, n: int):
@@ -188,8 +207,67 @@ def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, 
     return phi, Jc, bias
 
 
+def _task_inertia(model: Model, c: _Compiled, data, Minv_p: np.ndarray) -> dict:
+    """``task_inertia`` (eq. 22) of the default task point from the task frame's Jacobian (needs
+    computeJointJacobians) and ``M^-1``, and ``conditions["task_inertia"]``; NaN and inf where ``J M^-1 J^T`` is
+    numerically singular (below ``k eps`` times its largest eigenvalue)."""
+    J6 = np.array(pin.getFrameJacobian(c.model, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED)).reshape(6, model.n)
+    J = model.task_point().directions @ J6[:3]                  # A does not depend on the coordinate order
+    A = J @ Minv_p @ J.T
+    w = np.linalg.eigvalsh(A)
+    if not singular_below(model, w) < w[0]:
+        return {"task_inertia": np.full(A.shape, np.nan), "conditions": {"task_inertia": float("inf")}}
+    Lambda = np.linalg.inv(A)
+    return {"task_inertia": 0.5 * (Lambda + Lambda.T), "conditions": {"task_inertia": float(w[-1] / w[0])}}
+
+
+def _joint_wrenches(c: _Compiled, data, q_p, v_p, a_p, fext=None) -> np.ndarray:
+    """``data.f`` after ``rnea(q, v, a, fext)``: row ``i`` (our order) = ``[force, moment]`` the parent transmits to
+    body ``i``, in its frame, about its origin (module docstring)."""
+    if fext is None:
+        pin.rnea(c.model, data, q_p, v_p, a_p)
+    else:
+        pin.rnea(c.model, data, q_p, v_p, a_p, fext)
+    out = np.empty((len(c.order), 6))
+    for jid in range(1, c.model.njoints):
+        f = data.f[jid]
+        out[c.order[c.model.joints[jid].idx_v]] = np.concatenate([f.linear, f.angular])
+    return out
+
+
+def _point_forces(c: _Compiled, data, con, part: np.ndarray) -> list:
+    """The point forces ``(body, offset, world force)`` the multipliers ``part`` of one declaration apply (none on
+    the world, none for a coupling): a circle ``2 P^T P (p - c) lam``, a loop ``D^T lam`` on a and ``-D^T lam`` on
+    b, a line ``N^T lam``. Needs the frame placements."""
+    if isinstance(con, PointsCoincide):
+        force = con.directions.T @ part
+        return [(b, o, s * force) for b, o, s in ((con.body_a, con.offset_a, 1.0), (con.body_b, con.offset_b, -1.0))
+                if b is not None]
+    if isinstance(con, PointOnLine):
+        return [(con.body, con.offset, con.normals.T @ part)]
+    if isinstance(con, PointOnCircle):
+        p = np.array(data.oMf[c.points[(con.body, tuple(con.offset))]].translation)
+        return [(con.body, con.offset, 2.0 * con.plane.T @ (con.plane @ (p - con.center)) * part[0])]
+    return []
+
+
+def _constraint_fext(model: Model, c: _Compiled, data, lam: np.ndarray) -> list:
+    """The constraint forces of ``lam`` as RNEA's external forces: per joint a ``pinocchio.Force`` in its local frame
+    (``R^T f``, moment ``offset x R^T f`` about the joint origin). Needs the placements (``data.oMi``, ``oMf``)."""
+    fext = [pin.Force.Zero() for _ in range(c.model.njoints)]
+    start = 0
+    for con in model.constraints:
+        part, start = lam[start:start + con.size], start + con.size
+        for body, offset, force in _point_forces(c, data, con, part):
+            jid = c.model.getJointId(body)
+            local = np.array(data.oMi[jid].rotation).T @ force
+            fext[jid] = fext[jid] + pin.Force(local, np.cross(offset, local))
+    return fext
+
+
 def split(model: Model, q, qd, u) -> Split:
-    """Drift / control / total accelerations from Pinocchio (ABA twice, ``M^-1 B u`` from computeMinverse);
+    """Drift / control / total accelerations from Pinocchio (ABA twice; ``M^-1 B u`` by a Cholesky solve on CRBA's M:
+    computeMinverse lost 256 eps on a single rotor, a fuzz finding);
     task drift from the classical acceleration of a frame at the default task point (getFrameClassicalAcceleration).
     A constrained model goes through :func:`_constrained_split` (Pinocchio's KKT forward dynamics)."""
     q, qd, u = check_state(model, q, qd, u)
@@ -206,8 +284,8 @@ def split(model: Model, q, qd, u) -> Split:
     drift_p = np.array(pin.aba(pm, data, qp, vp, zero))
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
-    Minv_p = _sym(np.array(pin.computeMinverse(pm, data, qp)))
     M_p = _sym(np.array(pin.crba(pm, data, qp)))
+    Minv_p = _inverse(M_p)
     g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
     Cqd_p = np.array(pin.rnea(pm, data, qp, vp, zero)) - g_p
 
@@ -216,18 +294,20 @@ def split(model: Model, q, qd, u) -> Split:
         out[order] = vec_p
         return out
 
-    Minv = np.empty((model.n, model.n))
-    Minv[np.ix_(order, order)] = Minv_p
     M = np.empty((model.n, model.n))
     M[np.ix_(order, order)] = M_p
-    ctrl = Minv @ tau_ctrl
+    ctrl = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), tau_ctrl)
     Cqd, g = ours(Cqd_p), ours(g_p)
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
+    pin.computeJointJacobians(pm, data, qp)
     return unconstrained_split(drift=ours(drift_p), ctrl=ctrl, total=ours(total_p), tau_ctrl=tau_ctrl, qd=qd,
                                cond_M=cond_M, accel_scale=accel_scale,
                                extras={"M": M, "Cqd": Cqd, "g": g},
                                task_drift=model.task_point().directions @ np.array(task_accel),
-                               kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)))
+                               kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
+                               joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
+                               joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p),
+                               **_task_inertia(model, c, data, Minv_p))
 
 
 def _to_ours(order: np.ndarray, vec_p: np.ndarray) -> np.ndarray:
@@ -244,7 +324,7 @@ def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias):
 
 def _constrained_split(model: Model, q, qd, u) -> Split:
     """Eq. (12)-(17) with Pinocchio: total / lam and drift / lam_drift from ``pinocchio.forwardDynamics`` with
-    our ``Jc`` and ``gamma = Jcdot qd``; ctrl = B_c B u with ``M^-1`` from computeMinverse (eq. 17)."""
+    our ``Jc`` and ``gamma = Jcdot qd``; ctrl = B_c B u with ``M^-1`` by Cholesky on CRBA's M (eq. 17)."""
     c = _compiled(model)
     pm, order = c.model, c.order
     data = pm.createData()
@@ -254,9 +334,9 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     M_p = _sym(np.array(pin.crba(pm, data, qp)))
     g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
     Cqd_p = np.array(pin.rnea(pm, data, qp, vp, np.zeros(model.n))) - g_p
-    Minv_p = _sym(np.array(pin.computeMinverse(pm, data, qp)))
+    Minv_p = _inverse(M_p)
     S = Jc_p @ Minv_p @ Jc_p.T
-    S_pinv, rows = _pinv_sym(S)
+    S_pinv, rows = _pinv_sym(model, S)
     if rows.shape[1] == len(S):     # regular: the rows as declared
         rows = np.eye(len(S))
     # singular S: Pinocchio's KKT on the independent combinations of the rows, the redundant directions dropped as
@@ -266,6 +346,11 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     drift_p, lam_drift_r = _kkt(c, data, qp, vp, np.zeros(model.n), J_r, bias_r)
     lam, lam_drift = rows @ lam_r, rows @ lam_drift_r
     B_c = Minv_p - Minv_p @ Jc_p.T @ S_pinv @ Jc_p @ Minv_p
+    pin.computeJointJacobians(pm, data, qp)                      # placements and Jacobians at q, afresh
+    pin.updateFramePlacements(pm, data)
+    inertia = _task_inertia(model, c, data, Minv_p)
+    fext, fext_drift = _constraint_fext(model, c, data, lam), _constraint_fext(model, c, data, lam_drift)
+    wrenches = _joint_wrenches(c, data, qp, vp, total_p, fext), _joint_wrenches(c, data, qp, vp, drift_p, fext_drift)
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
     M, Jc = np.empty_like(M_p), np.empty_like(Jc_p)
@@ -277,20 +362,21 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
         total=_to_ours(order, total_p), lam=lam, lam_drift=lam_drift,
         extras={"M": M, "Cqd": _to_ours(order, Cqd_p), "g": _to_ours(order, g_p)},
         task_drift=model.task_point().directions @ np.array(task_accel),
-        kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)))
+        kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)), joint_wrenches=wrenches[0],
+        joint_wrenches_drift=wrenches[1], **inertia)
 
 
-def _pinv_sym(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pinv_sym(model: Model, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pseudo-inverse of a symmetric positive semi-definite matrix, eigenvalues below CONSTRAINT_RCOND dropped, and
     an orthonormal basis of its range (the kept eigenvectors)."""
     w, U = np.linalg.eigh(S)
-    keep = w > CONSTRAINT_RCOND * max(w[-1], np.finfo(float).tiny)
+    keep = w > redundant_below(model, w[-1])
     return (U[:, keep] / w[keep]) @ U[:, keep].T, U[:, keep]
 
 
 REFERENCE = Formalism(
     name="pinocchio",
-    summary="External reference: Pinocchio's ABA (total, drift), computeMinverse (ctrl), CRBA/RNEA (conditioning), "
+    summary="External reference: Pinocchio's ABA (total, drift), CRBA (ctrl by Cholesky), RNEA (conditioning), "
             "built from our model data",
     split=split,
 )

@@ -71,19 +71,13 @@ def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]
     return states
 
 
-def length_scale(model: Model) -> float:
-    """A length for the model's constraint residuals: 1 m plus every placement and offset in it."""
-    lengths = [np.linalg.norm(b.translation) + np.linalg.norm(b.com) for b in model.bodies]
-    return 1.0 + float(sum(lengths))
-
-
 def project_configuration(model: Model, q) -> np.ndarray:
     """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps (halved until |phi| shrinks),
     iterated down to rounding; :class:`ProjectionError` saying how far it got when it ends above ``PHI_TOL``."""
     from crosscheck.reference import constraint_kinematics
 
     q = np.array(q, dtype=float)
-    zero, tol = np.zeros(model.n), PHI_TOL * length_scale(model) ** 2
+    zero, tol = np.zeros(model.n), PHI_TOL * model.length_scale ** 2
     phi, Jc, _ = constraint_kinematics(model, q, zero)
     for _ in range(NEWTON_STEPS):
         step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
@@ -103,16 +97,17 @@ def project_configuration(model: Model, q) -> np.ndarray:
 
 
 def project_velocity(model: Model, q, qd) -> np.ndarray:
-    """``qd`` minus its component off the tangent space: ``(I - Jc^+ Jc) qd`` (so that ``Jc qd = 0``), applied twice:
-    the first pass leaves a residual of the rounding of the removed part, which can dwarf a small remaining qd."""
+    """``qd`` projected onto the tangent space ``Jc qd = 0``: ``N N^T qd`` with N an orthonormal basis of null(Jc)
+    (Jc's right singular vectors beyond its rank; singular values above ``VELOCITY_RCOND`` count). Built from the
+    kept part rather than by subtracting the removed one (``(I - Jc^+ Jc) qd``), the residual ``Jc qd`` is rounding
+    of the result, not of the removed part, which can dwarf a small remaining qd."""
     from crosscheck.reference import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.n))
-    pinv = np.linalg.pinv(Jc, rcond=VELOCITY_RCOND)
-    qd = np.asarray(qd, dtype=float)
-    for _ in range(2):
-        qd = qd - pinv @ (Jc @ qd)
-    return qd
+    _, sigma, Vt = np.linalg.svd(Jc)
+    rank = int(np.sum(sigma > VELOCITY_RCOND * sigma.max())) if sigma.size and sigma.max() > 0.0 else 0
+    N = Vt[rank:].T
+    return N @ (N.T @ np.asarray(qd, dtype=float))
 
 
 def admissible(model: Model, q, qd, rng: np.random.Generator, span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

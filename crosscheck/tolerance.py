@@ -12,8 +12,32 @@ Constrained models (article 5.2-5.5). The multipliers solve ``S lam = r`` with `
 ``lam_scale = ||S^+|| (|Jcdot qd| + ||Jc|| accel_scale)`` (``formalisms.interface.constraint_conditioning``), which
 already carries S's amplification (``||S^+||``, over the directions kept above ``CONSTRAINT_RCOND``); the
 acceleration scale adds what the constraint force can produce, ``||M^-1|| ||Jc|| lam_scale``. ``Jc^T lam`` and its
-power add ``||Jc^T||`` and ``|qd|_1``. The constraint kinematics (``phi``, ``Jc``, ``Jcdot qd``, ``Jc qd``) are sums of products of lengths: their
-scale is ``L^2 (n + 1) + max|Jc| (1 + |q|_1)`` with L the model's length scale, times ``|qd|_1`` per time derivative.
+power add ``||Jc^T||`` and ``|qd|_1``. The constraint kinematics (``phi``, ``Jc``, ``Jcdot qd``, ``Jc qd``) are sums of
+products of lengths: their scale is ``L^2 (n + 1) + max|Jc| (1 + |q|_1)`` with L the model's length scale, times
+``|qd|_1`` per time derivative.
+
+Joint loads (``joint_wrenches``, ``joint_wrenches_drift``: body-frame force and moment per joint, article 6.1.5)
+are sums over a subtree of masses times accelerations, weights and the point forces of the multipliers, with
+moments over lever arms no longer than the model's reach R (its length scale plus the travel of its prismatic
+joints). Their rounding is eps times those magnitudes: ``(m_total R^2 + sum |I_k|) (|qdd|_1 + |qd|_1^2)`` for the
+inertial and velocity-product terms (forces ``m R``, moments ``m R^2 + |I|`` per unit acceleration; ``|I_k|``
+bounded by its trace),
+``(1 + R) m_total |gravity|`` for the weights, ``(1 + R) G cond(S) |lam|_1`` for the constraint forces (G the largest
+force or coupling torque per unit multiplier of a declaration: 1 for the orthonormal rows of a loop or a line,
+``2 radius`` for a circle, ``max |c_j|`` for a coupling; ``cond(S)`` over the directions kept, what the multipliers'
+solve amplifies), plus the loads' own size. The accelerations and multipliers they are built from were solved with
+M, so the sum is multiplied by cond(M): scale ``cond(M) [(m_total R^2 + sum |I_k|) (|qdd|_1 + |qd|_1^2) + (1 + R)
+(m_total |gravity| + G cond(S) |lam|_1) + max |load|]``, with ``qdd, lam`` the total's (``lam_drift`` and the drift's
+for the drift loads), each size the median over the voters.
+
+The task-space inertia ``Lambda = A^-1``, ``A = J M^-1 J^T`` (``task_inertia``, eq. 22): a backward-stable solve
+with M gives ``|dA| <~ eps cond(M) |A|`` (the backends' own J and M round at the same relative size), and the
+inverse amplifies it to ``|dLambda| <~ |Lambda|^2 |dA| = eps cond(M) cond(A) |Lambda|``. Scale:
+``cond(M) cond(A) max|Lambda_ij|``, cond(A) (as the voters report it) and the largest entry the medians over the
+voters. Where A is
+numerically singular (a task singularity) Lambda does not exist; each voter reports ``cond(A)`` as the condition
+``task_inertia`` and is left out of the vote on ``task_inertia`` alone above its limit (``BREAKDOWN_LIMITS``).
+
 Quantities with an exact value (``EXACT``) vote against it: a drift off ``H_t``, constraint power at an admissible
 state, an inadmissible sampled state.
 
@@ -25,11 +49,13 @@ relative errors a modelling bug produces.
 
 from __future__ import annotations
 
+import statistics
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
-from crosscheck.sampling import length_scale
+from cases.constraints import JointCoupling, PointOnCircle
 from formalisms.interface import Unsupported
 
 EPS = float(np.finfo(float).eps)
@@ -43,6 +69,9 @@ TOLERANCES: dict[str, tuple[str, float]] = {
     "power_ctrl": ("power", 100.0),
     "task_drift": ("task", 100.0),
     "kinetic_energy": ("energy", 100.0),
+    "joint_wrenches": ("load", 100.0),
+    "joint_wrenches_drift": ("load_drift", 100.0),
+    "task_inertia": ("task_inertia", 100.0),
     "lam": ("multiplier", 100.0),
     "lam_drift": ("multiplier", 100.0),
     "constraint_force": ("constraint_force", 100.0),
@@ -85,12 +114,16 @@ BREAKDOWN_LIMITS: dict[str, float] = {
     "constraint": 1e8,                # cond(Jc M^-1 Jc^T): redundant or degenerate constraints (5.6)
     "constraint_kept": 1e8,           # the same over the directions kept: nearly (not exactly) redundant rows
     "constraint_consistency": 1e-8,   # share of the KKT right-hand side S cannot reach: H_t is empty (5.4)
+    "task_inertia": 1e8,              # cond(J M^-1 J^T) of a backend that reports Lambda (eq. 22) besides its split
 }
 
 #: condition name -> the quantities its BREAKDOWN leaves out; a condition not listed leaves out the whole backend.
-#: Singular ``Jc M^-1 Jc^T`` makes only the multipliers non-unique: ``Jc^T lam`` and the accelerations stay unique.
+#: Singular ``Jc M^-1 Jc^T`` makes only the multipliers non-unique: ``Jc^T lam`` and the accelerations stay unique,
+#: while the joint loads carry the multipliers' point forces themselves. A singular task space leaves its Lambda
+#: undefined, and nothing else of a backend that only reports it.
 BREAKDOWN_SCOPE: dict[str, tuple[str, ...]] = {
-    "constraint": ("lam", "lam_drift"),
+    "constraint": ("lam", "lam_drift", "joint_wrenches", "joint_wrenches_drift"),
+    "task_inertia": ("task_inertia",),
 }
 
 
@@ -125,11 +158,18 @@ class Scales:
     jc: float = 0.0
     kinematics: float = 0.0
     rate: float = 0.0
+    load: float = 0.0
+    load_drift: float = 0.0
+    task_cond: float = 0.0
+    task_size: float = 0.0
 
     def of(self, kind: str) -> float:
         acceleration = self.cond_M * self.accel_scale
         multiplier = self.cond_M * self.lam_scale
         scale = {
+            "load": self.cond_M * self.load,
+            "load_drift": self.cond_M * self.load_drift,
+            "task_inertia": self.cond_M * self.task_cond * self.task_size,
             "acceleration": acceleration,
             "power": self.power_scale,
             "task": self.lever * (acceleration + self.rate_sq),
@@ -137,7 +177,9 @@ class Scales:
             "multiplier": multiplier,
             "constraint_force": self.jc * multiplier,
             "constraint_power": (self.jc * multiplier + self.lam_scale * self.kinematics) * self.rate,
-            "admissibility": self.jc * acceleration + self.kinematics * self.rate**2,
+            # Jc qdd: the error of the solve through Jc, plus Jc's own rounding (eps times the kinematics scale) times
+            # qdd, which a row dropped as degenerate (rounding-size Jc, no multiplier) leaves whole
+            "admissibility": self.jc * acceleration + self.kinematics * (self.accel_scale + self.rate**2),
             "constraint_kinematics": self.kinematics,
             "constraint_velocity": self.kinematics * self.rate,
             "constraint_rate": self.kinematics * self.rate**2,
@@ -161,28 +203,126 @@ def task_lever(model, q) -> float:
     return lever
 
 
+def load_gain(model) -> float:
+    """The largest force (or coupling torque) a unit multiplier of one row applies: 1 for the orthonormal rows of a
+    loop or a line, ``2 radius`` for a circle (``|grad phi| = 2 |P (p - c)|`` on it), ``max |c_j|`` for a coupling;
+    0 without constraints."""
+    def gain(c) -> float:
+        if isinstance(c, PointOnCircle):
+            return 2.0 * c.radius
+        return float(np.abs(c.coefficients).max()) if isinstance(c, JointCoupling) else 1.0
+
+    return max((gain(c) for c in model.constraints), default=0.0)
+
+
+@dataclass(frozen=True)
+class _Loads:
+    """The model's constants in the load scale (module doc): its length scale, total mass, ``sum_k tr I_k`` (a bound
+    on ``sum |I_k|_2``), weight ``m_total |gravity|``, the gain G and the indices of its prismatic joints."""
+
+    length: float
+    mass: float
+    inertia: float
+    weight: float
+    gain: float
+    prismatic: np.ndarray
+
+    @classmethod
+    def of(cls, model) -> "_Loads":
+        return cls(model.length_scale, sum(b.mass for b in model.bodies),
+                   sum(float(np.trace(b.inertia)) for b in model.bodies),
+                   sum(b.mass for b in model.bodies) * float(np.linalg.norm(model.gravity)), load_gain(model),
+                   np.array([i for i, b in enumerate(model.bodies) if b.joint == "prismatic"], dtype=int))
+
+
+_LOADS: dict[int, tuple[weakref.ref, _Loads]] = {}   # id(model) -> (the model, its constants); models are immutable
+
+
+def _loads(model) -> _Loads:
+    entry = _LOADS.get(id(model))
+    if entry is None or entry[0]() is not model:
+        key = id(model)
+        entry = _LOADS[key] = (weakref.ref(model, lambda _, key=key: _LOADS.pop(key, None)), _Loads.of(model))
+    return entry[1]
+
+
+def reach(model, q) -> float:
+    """The model's reach R: its length scale (1 m plus every placement and COM offset) plus the travel of its
+    prismatic joints; no lever arm within the tree is longer."""
+    constants = _loads(model)
+    return constants.length + float(np.abs(np.asarray(q, dtype=float)[constants.prismatic]).sum())
+
+
+def _median(values) -> float:
+    """The median of a short list of floats (``statistics``: the gate calls this per state, many times)."""
+    return float(statistics.median(values)) if values else 0.0
+
+
+def _load_scales(model, splits, q, qd) -> dict[str, float]:
+    """The sums of magnitudes in the joint loads at the total and at the drift (module doc), without cond(M), over
+    the splits that supply the loads (none: no load scale, as in a chart, where no backend reports them)."""
+    splits = [s for s in splits if not isinstance(s.joint_wrenches, Unsupported)]
+    if not splits:
+        return {}
+    constants, R = _loads(model), reach(model, q)
+    lever = constants.mass * R**2 + constants.inertia
+    rate_sq = float(np.abs(qd).sum()) ** 2
+    cond_S = _median([s.conditions.get("constraint_kept", 1.0) for s in splits])
+    out = {}
+    for kind, acceleration, lam, load in (("load", "total", "lam", "joint_wrenches"),
+                                          ("load_drift", "drift", "lam_drift", "joint_wrenches_drift")):
+        multipliers = [float(np.abs(s.quantity(lam)).sum()) for s in splits if s.constraint_jacobian is not None]
+        out[kind] = (lever * (_median([float(np.abs(s.quantity(acceleration)).sum()) for s in splits]) + rate_sq)
+                     + (1.0 + R) * (constants.weight + constants.gain * cond_S * _median(multipliers))
+                     + _median([float(np.abs(s.quantity(load)).max()) for s in splits]))
+    return out
+
+
+def _task_condition(split) -> float:
+    """cond(J M^-1 J^T) as the split reports it (``task_inertia``, or the operational-space ``task``), else from its
+    Lambda."""
+    found = split.conditions.get("task_inertia", split.conditions.get("task"))
+    if found is not None:
+        return float(found)
+    eig = np.linalg.eigvalsh(split.task_inertia)
+    return float(eig[-1] / eig[0]) if eig[0] > 0.0 else float("inf")
+
+
+def _task_inertia_scales(splits) -> dict[str, float]:
+    """Median cond(J M^-1 J^T) and largest entry of Lambda over the splits that vote on ``task_inertia`` (supplied,
+    below the BREAKDOWN limit of the condition, finite)."""
+    limit = BREAKDOWN_LIMITS["task_inertia"]
+    voting = [(cond, s.task_inertia) for s in splits if not isinstance(s.task_inertia, Unsupported)
+              and (cond := _task_condition(s)) <= limit and np.all(np.isfinite(s.task_inertia))]
+    if not voting:
+        return {}
+    return {"task_cond": _median([cond for cond, _ in voting]),
+            "task_size": _median([float(np.abs(Lambda).max()) for _, Lambda in voting])}
+
+
 def scales(splits, model=None, q=None, qd=None) -> Scales:
-    """Median scales over the backends' splits (an iterable of Split); the task scale needs the model and the
-    state (``q``, ``qd``)."""
+    """Median scales over the backends' splits (an iterable of Split); the task and load scales need the model and
+    the state (``q``, ``qd``)."""
     splits = list(splits)
-    task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2}
+    task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2,
+                                     **_load_scales(model, splits, q, qd)}
+    task.update(_task_inertia_scales(splits))
     energies = [s.kinetic_energy for s in splits if not isinstance(s.kinetic_energy, Unsupported)]
     constrained = [s for s in splits if s.constraint_jacobian is not None]
     if model is not None and constrained:
         task.update(_constraint_scales(model, constrained, q, qd))
-    return Scales(cond_M=float(np.median([s.cond_M for s in splits])),
-                  accel_scale=float(np.median([s.accel_scale for s in splits])),
-                  power_scale=float(np.median([np.abs(s.power_ctrl_per_coord).sum() for s in splits])),
-                  energy=float(np.median(energies)) if energies else 0.0, **task)
+    return Scales(cond_M=_median([s.cond_M for s in splits]), accel_scale=_median([s.accel_scale for s in splits]),
+                  power_scale=_median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits]),
+                  energy=_median(energies), **task)
 
 
 def _constraint_scales(model, splits, q, qd) -> dict[str, float]:
     """The constraint part of :class:`Scales` (module doc), medians over the constrained splits."""
-    length = length_scale(model)
-    jc_max = float(np.median([np.abs(s.constraint_jacobian).max() for s in splits]))
-    return {"cond_S": float(np.median([s.conditions.get("constraint_kept", 1.0) for s in splits])),
-            "lam_scale": float(np.median([s.lam_scale for s in splits])),
-            "jc": float(np.median([np.abs(s.constraint_jacobian).sum(axis=0).max() for s in splits])),
+    length = _loads(model).length
+    jc_max = _median([float(np.abs(s.constraint_jacobian).max()) for s in splits])
+    return {"cond_S": _median([s.conditions.get("constraint_kept", 1.0) for s in splits]),
+            "lam_scale": _median([s.lam_scale for s in splits]),
+            "jc": _median([float(np.abs(s.constraint_jacobian).sum(axis=0).max()) for s in splits]),
             "kinematics": length**2 * (model.n + 1) + jc_max * (1.0 + float(np.abs(q).sum())),
             "rate": float(np.abs(qd).sum())}
 

@@ -56,7 +56,7 @@ import symengine as sp
 
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Chart, Formalism, chart_vectors, check_state, conditioning,
+from formalisms.interface import (redundant_below, Chart, Formalism, chart_vectors, check_state, conditioning,
                                   constrained_split, factor_mass_matrix, unconstrained_split)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
@@ -207,16 +207,26 @@ def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatr
     return poses
 
 
+def _com(R: sp.DenseMatrix, p: sp.DenseMatrix, com) -> sp.DenseMatrix:  # noqa: N803
+    """World position of a body's COM ``p + R com`` (``com`` in the body frame)."""
+    return p + R * _matrix(com)
+
+
+def _pseudo_inertia(inertia: np.ndarray) -> np.ndarray:
+    """``J = 1/2 tr(I) 1 - I``, so that ``1/2 w^T I w = 1/2 tr(R_dot J R_dot^T)`` (module docstring, step 2)."""
+    return 0.5 * np.trace(inertia) * np.eye(3) - inertia
+
+
 def _energies(model: Model, st: _Staged, poses, pd) -> tuple[sp.Expr, sp.Expr]:
     """Kinetic energy T(p, pd) and potential energy V(p) of the whole tree (module docstring, step 2)."""
     T, V = ZERO, ZERO
     gravity = _matrix(model.gravity)
     for body, (R, p) in zip(model.bodies, poses):
-        c = (p + R * _matrix(body.com)).applyfunc(st.name)
+        c = _com(R, p, body.com).applyfunc(st.name)
         c_dot = st.rate(c, pd)
         T += HALF * _exact(body.mass) * (c_dot.T * c_dot)[0]
         if np.any(body.inertia):
-            J = _matrix(0.5 * np.trace(body.inertia) * np.eye(3) - body.inertia)
+            J = _matrix(_pseudo_inertia(body.inertia))
             R_dot = st.rate(R, pd)
             RJR = R_dot * J * R_dot.T
             T += HALF * (RJR[0, 0] + RJR[1, 1] + RJR[2, 2])
@@ -323,6 +333,12 @@ class Derivation(NamedTuple):
     staged: _Staged
 
 
+def _christoffel_first(dm, i: int, j: int, k: int) -> sp.Expr:
+    """The Christoffel symbol of the first kind ``Gamma_{i,jk} = 1/2 (dM_ij/dp_k + dM_ik/dp_j - dM_jk/dp_i)``
+    (eq. 7), from ``dm(i, j, k) = dM_ij/dp_k``."""
+    return HALF * (dm(i, j, k) + dm(i, k, j) - dm(j, k, i))
+
+
 def derivation(model: Model, chart: Chart | None = None) -> Derivation:
     """Symbolic ``M``, ``C pd``, ``g`` (article 4.7.1, eqs. 6–8), the energies T, V and the constraint terms
     ``phi``, ``Jc``, ``Jcdot pd`` (article 5.7, eq. 13) in the chart ``q = psi(p)`` (article 6.4.6: the Lagrangian
@@ -349,8 +365,7 @@ def derivation(model: Model, chart: Chart | None = None) -> Derivation:
         return dM[(min(i, j), max(i, j), k)]
 
     Cqd = sp.DenseMatrix([
-        sp.Add(*[HALF * (dm(i, j, k) + dm(i, k, j) - dm(j, k, i)) * xd[j] * xd[k]
-                 for j in range(n) for k in range(n)])
+        sp.Add(*[_christoffel_first(dm, i, j, k) * xd[j] * xd[k] for j in range(n) for k in range(n)])
         for i in range(n)])
     g = sp.DenseMatrix([st.diff(V, i) for i in range(n)])
     return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses, xd), x, xd, list(st.joint), st)
@@ -606,7 +621,7 @@ def _scaled(model: Model, M, Jc, x, chart: str | None) -> _Scaled:
     U = np.tril(c).T if lower else np.triu(c)
     A = scipy.linalg.solve_triangular(U, Jc.T, trans="T").T
     w, V = np.linalg.eigh(A @ A.T)
-    keep = w > CONSTRAINT_RCOND * max(float(w[-1]), np.finfo(float).tiny)
+    keep = w > redundant_below(model, w[-1])
     return _Scaled(U, A, V[:, keep], w[keep])
 
 

@@ -41,6 +41,10 @@ in every chart.
 Task drift (eq. 23): for ``model.task_point()`` with directions ``D``, ``x(p) = D (o_b + R_b offset)``; the classical
 acceleration at the drift is ``J drift + Jdot pd`` with ``J = dx/dp`` and ``Jdot pd = jtimes(jtimes(x, p, pd), p, pd)``.
 
+Task-space inertia (eq. 22): ``task_inertia = (J M_p^-1 J^T)^-1`` from the same ``J`` and the metric, in any chart
+(``J_p = J_q Dpsi`` and ``M_p = Dpsi^T M Dpsi`` give the same matrix, so it is chart-invariant); with constraints
+still the unconstrained metric's (eq. 22 puts them in ``F_constr``).
+
 Constraints (article 5, eqs. 12-17; 6.4.5 "constraints restrict motion to submanifolds of Q"; 7.2 reaction
 covectors). ``phi(p)`` is each declaration's function (``cases.constraints``) of this backend's own point positions
 ``o_b + R_b offset`` through the chart, so ``phi(psi(p))`` is the same function in every chart and the multipliers
@@ -67,9 +71,10 @@ Rank: the interface's convention. The eigen-directions ``U_r`` of the constraint
 ``S = Jc M^-1 Jc^T`` above ``CONSTRAINT_RCOND`` times its largest eigenvalue are the independent constraints; the
 distribution is ``ker U_r^T Jc`` and the multipliers lie in ``range U_r``. (Deciding the rank from Jc's own singular
 values instead would drop a nearly redundant direction that the metric does not, at a four-bar near its change
-point, and move the accelerations far from the other backends'.) Redundant rows (a duplicated constraint) and a rank drop (a four-bar at its change point) never raise: the
-pseudo-inverses give the minimum-norm multipliers, unique ``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and
-finite least-squares numbers when it is (the harness flags BREAKDOWN from ``constrained_split``'s conditions).
+point, and move the accelerations far from the other backends'.) Redundant rows (a duplicated constraint) and a rank
+drop (a four-bar at its change point) never raise: the pseudo-inverses give the minimum-norm multipliers, unique
+``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and finite least-squares numbers when it is (the harness flags
+BREAKDOWN from ``constrained_split``'s conditions).
 
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
@@ -96,8 +101,8 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, chart_vectors, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, unconstrained_split)
+from formalisms.interface import (redundant_below, Formalism, Split, chart_vectors, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, task_space_inertia, unconstrained_split)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -470,7 +475,14 @@ def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) 
     task_drift = pt.J @ drift + pt.Jdot_pd
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=pd, cond_M=cond_M,
                                accel_scale=accel_scale, task_drift=task_drift, kinetic_energy=pt.T,
-                               extras={"chart": _chart_name(chart)})
+                               extras={"chart": _chart_name(chart)}, **_task_inertia(model, pt, factor))
+
+
+def _task_inertia(model: Model, pt: _Point, factor) -> dict:
+    """``task_inertia`` ``(J M^-1 J^T)^-1`` (eq. 22) from the chart's task Jacobian ``J = dx/dp`` and metric ``M_p``
+    (the same matrix in every chart: ``J_p M_p^-1 J_p^T = J M^-1 J^T``), with ``conditions["task_inertia"]``."""
+    Lambda, cond = task_space_inertia(model, pt.J, factor)
+    return {"task_inertia": Lambda, "conditions": {"task_inertia": cond}}
 
 
 # ------------------------------------------------------------------------------------------------ constraints
@@ -497,13 +509,13 @@ class _Distribution:
         return self.rows @ (self.U @ ((self.V.T @ c) / self.s))
 
 
-def _distribution(Jc: np.ndarray, factor) -> _Distribution:
+def _distribution(model: Model, Jc: np.ndarray, factor) -> _Distribution:
     """The independent directions of ``S = Jc M^-1 Jc^T`` (``factor``: M's Cholesky factor from
     ``factor_mass_matrix``) and the SVD of those rows (module docstring, "Rank")."""
     c, lower = factor
     X = scipy.linalg.solve_triangular(c, Jc.T, lower=lower, trans="N" if lower else "T")   # L^-1 Jc^T, M = L L^T
     w, E = np.linalg.eigh(X.T @ X)
-    rows = E[:, w > CONSTRAINT_RCOND * max(float(w[-1]), np.finfo(float).tiny)] if w.size else E
+    rows = E[:, w > redundant_below(model, w[-1])] if w.size else E
     U, s, Vt = np.linalg.svd(rows.T @ Jc)
     r = rows.shape[1]
     return _Distribution(rows=rows, U=U, s=s[:r], V=Vt[:r].T, Z=Vt[r:].T)
@@ -534,7 +546,8 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
     acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the three projections onto ``D``:
     ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
     Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``."""
-    dist = _distribution(pt.Jc, factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart)))
+    metric_factor = factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart))
+    dist = _distribution(model, pt.Jc, metric_factor)
     factor, Mz = _reduced_metric_factor(model, chart, pt.M, dist.Z, p)
     Cqd = (christoffel_first_kind(pt.dM) @ pd) @ pd          # M Gamma(pd, pd), the chart's C qd (eq. 7)
     f0 = -Cqd - pt.dV                                        # eq. (24) as a covector, tau = 0
@@ -546,11 +559,12 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
     total, drift, ctrl = pdd_p + steps[:, 0], pdd_p + steps[:, 1], steps[:, 2]
     lam = dist.solve_transposed(pt.M @ total - f)            # eq. (12): M pdd + h = tau + Jc^T lam
     lam_drift = dist.solve_transposed(pt.M @ drift - f0)     # eq. (14)
+    inertia = _task_inertia(model, pt, metric_factor)               # eq. (22): the unconstrained metric's
     return constrained_split(model, M=pt.M, Cqd=Cqd, g=pt.dV, tau_ctrl=tau, qd=pd, phi=pt.phi, Jc=pt.Jc,
                              bias=pt.Jc_bias, drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
                              extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
-                             conditions={"reduced_metric": _condition(Mz)},
-                             kinetic_energy=pt.T)
+                             kinetic_energy=pt.T, task_inertia=inertia["task_inertia"],
+                             conditions={"reduced_metric": _condition(Mz), **inertia["conditions"]})
 
 
 # ------------------------------------------------------------------------------------------------- public API

@@ -43,10 +43,37 @@ UNSUPPORTED = Unsupported()
 
 #: Relative eigenvalue of ``S = Jc M^-1 Jc^T`` below which a constraint direction counts as redundant (module doc).
 CONSTRAINT_RCOND = 1e-10
+#: A constraint or task row shorter than this times the model's length scale (in the metric of M) is degenerate.
+DEGENERATE_ROW = 1e-8
+
+
+def degenerate_floor(model: Model) -> float:
+    """The smallest eigenvalue of ``J M^-1 J^T`` (J the constraint rows Jc, or a task Jacobian) that is a direction
+    and not rounding: ``(DEGENERATE_ROW L)^2 / inertia_scale``, L the model's length scale.
+
+    A row that vanishes at a configuration (a constrained or task point on a joint axis, a direction the point cannot
+    move in) comes out of some kinematics as exact zeros and of others as rounding (1e-17 L); relative to the largest
+    eigenvalue, as a lone row, the rounding looks like a direction, and one backend enforced it (a fuzz finding).
+    The floor is far above that rounding, ``(eps L)^2 ||M^-1||``, unless cond(M) exceeds 1e15, and far below a row of
+    any physical size."""
+    return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
+
+
+def redundant_below(model: Model, w_max: float) -> float:
+    """Eigenvalues of ``S = Jc M^-1 Jc^T`` at or below this are redundant directions (module doc): ``CONSTRAINT_RCOND``
+    times the largest, and never less than :func:`degenerate_floor`."""
+    return max(CONSTRAINT_RCOND * float(w_max), degenerate_floor(model))
 
 
 class StateError(ValueError):
     """A state (q, qd, u) does not fit the model: wrong length or non-finite entries."""
+
+
+class ModelNotSupported(Exception):
+    """Raised by ``split`` of a backend written for some mechanisms only (a closed form derived for one model, a
+    plugin without constraint handling) on a model outside them, with the reason. The gate then reports that
+    backend as NOT COMPARED on the whole case (listed as "not supplied by"): not a failure, not a silent skip.
+    A backend that handles the model but not some quantity returns ``UNSUPPORTED`` for that quantity instead."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +98,22 @@ class Split:
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).
+    joint_wrenches       (n, 6) row ``i`` = ``[force(3), moment(3)]`` the parent exerts on body ``i`` through joint
+                         ``i`` at ``qdd = total`` (article 6.1.5, 7.2), moment about body ``i``'s origin, both in body
+                         frame ``i``; gravity and the constraint forces of ``lam`` included (point forces applied to the
+                         bodies; a joint coupling's torque ``c_j lam`` is carried by its joints, like an actuator, so
+                         the axis components are ``B u`` plus the coupling rows of ``Jc^T lam``). Body-frame loads:
+                         invariant under a change of chart or of world frame. UNSUPPORTED from a formalism without
+                         body-level forces.
+    joint_wrenches_drift the same at ``qdd = drift`` with ``lam_drift`` (the passive loads of the ZTCF, article 6.1.4).
+    task_inertia         (k, k) ``Lambda = (J M^-1 J^T)^-1`` (eq. 22) of ``model.task_point()`` in its task coordinates
+                         ``x_task = D p`` (the point and directions of ``task_drift``), from this formalism's own J and
+                         M. With constraints it is still the unconstrained M's (eq. 22 puts the constraints in
+                         ``F_constr``). Invariant under a chart change (``J_p M_p^-1 J_p^T = J M^-1 J^T``) and a frame
+                         change (the task directions turn with the scene). NaN where ``J M^-1 J^T`` is numerically
+                         singular; a formalism that reports it also reports ``conditions["task_inertia"]`` (or, the
+                         operational-space one, ``"task"``): cond(J M^-1 J^T). UNSUPPORTED from a formalism without
+                         point kinematics.
 
     Constrained models only (None otherwise), each from the formalism's own kinematics:
     constraint_value     ``phi(q)`` (k,), the declarations' functions (``cases.constraints``).
@@ -97,6 +140,9 @@ class Split:
     task_drift: np.ndarray | Unsupported = UNSUPPORTED
     conditions: Mapping[str, float] = field(default_factory=dict)
     kinetic_energy: float | Unsupported = UNSUPPORTED
+    joint_wrenches: np.ndarray | Unsupported = UNSUPPORTED
+    joint_wrenches_drift: np.ndarray | Unsupported = UNSUPPORTED
+    task_inertia: np.ndarray | Unsupported = UNSUPPORTED
     constraint_value: np.ndarray | None = None
     constraint_jacobian: np.ndarray | None = None
     constraint_bias: np.ndarray | None = None
@@ -248,20 +294,55 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
+def _optional(value):
+    """A supplied optional quantity as a read-only float array; UNSUPPORTED stays UNSUPPORTED."""
+    return value if isinstance(value, Unsupported) else _readonly(value)
+
+
+def singular_below(model: Model, eig: np.ndarray) -> float:
+    """A symmetric positive semi-definite ``J M^-1 J^T`` with ascending eigenvalues ``eig`` is numerically singular
+    when its smallest is at or below this (NaN when any is not finite): ``k eps`` times the largest (eigvalsh's
+    absolute accuracy) or :func:`degenerate_floor`, whichever is larger."""
+    if not np.all(np.isfinite(eig)):
+        return float("nan")
+    return max(len(eig) * np.finfo(float).eps * float(eig[-1]), degenerate_floor(model))
+
+
+def task_space_inertia(model: Model, J: np.ndarray, factor) -> tuple[np.ndarray, float]:
+    """``(Lambda, cond)``: the task-space inertia ``Lambda = (J M^-1 J^T)^-1`` of eq. (22) and ``cond_2(J M^-1 J^T)``
+    from a formalism's own task Jacobian ``J`` (k x n) and the Cholesky factor of its own ``M``
+    (:func:`factor_mass_matrix`). ``A = J M^-1 J^T`` is inverted in its eigen-axes; where it is numerically singular
+    (its smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below
+    :func:`degenerate_floor`: indistinguishable from zero) ``cond`` is inf and ``Lambda`` NaN, never a
+    plausible-looking number."""
+    A = J @ scipy.linalg.cho_solve(factor, J.T)
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    if not singular_below(model, w) < w[0]:
+        return np.full(A.shape, np.nan), float("inf")
+    Lambda = (V / w) @ V.T
+    return 0.5 * (Lambda + Lambda.T), float(w[-1] / w[0])
+
+
 def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None,
-                        task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED) -> Split:
+                        task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
+                        joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED,
+                        task_inertia=UNSUPPORTED) -> Split:
     """Assemble the :class:`Split` of an unconstrained model (no multipliers, no constraint power)."""
     n = len(qd)
     for label, value in (("drift", drift), ("ctrl", ctrl), ("total", total)):
         if np.shape(value) != (n,):
             raise ValueError(f"a formalism returned {label} of shape {np.shape(value)}, expected ({n},)")
+    for label, value in (("joint_wrenches", joint_wrenches), ("joint_wrenches_drift", joint_wrenches_drift)):
+        if not isinstance(value, Unsupported) and np.shape(value) != (n, 6):
+            raise ValueError(f"a formalism returned {label} of shape {np.shape(value)}, expected ({n}, 6)")
     p, per = joint_power(tau_ctrl, qd)
     return Split(drift=_readonly(drift), ctrl=_readonly(ctrl), total=_readonly(total), lam=None, lam_drift=None,
                  power_ctrl=p, power_ctrl_per_coord=_readonly(per), power_constr=None, power_constr_per_coord=None,
                  cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}),
-                 task_drift=task_drift if isinstance(task_drift, Unsupported) else _readonly(task_drift),
-                 conditions={k: float(v) for k, v in (conditions or {}).items()},
-                 kinetic_energy=kinetic_energy if isinstance(kinetic_energy, Unsupported) else float(kinetic_energy))
+                 task_drift=_optional(task_drift), conditions={k: float(v) for k, v in (conditions or {}).items()},
+                 kinetic_energy=kinetic_energy if isinstance(kinetic_energy, Unsupported) else float(kinetic_energy),
+                 joint_wrenches=_optional(joint_wrenches), joint_wrenches_drift=_optional(joint_wrenches_drift),
+                 task_inertia=_optional(task_inertia))
 
 
 @dataclass(frozen=True)
@@ -276,8 +357,8 @@ class ConstraintConditioning:
     force_scale: float   # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
 
 
-def constraint_conditioning(M: np.ndarray, Jc: np.ndarray, bias: np.ndarray, forces: Sequence[np.ndarray],
-                            accel_scale: float) -> ConstraintConditioning:
+def constraint_conditioning(model: Model, M: np.ndarray, Jc: np.ndarray, bias: np.ndarray,
+                            forces: Sequence[np.ndarray], accel_scale: float) -> ConstraintConditioning:
     """Conditioning of the constrained problem from a formalism's own ``M``, ``Jc``, ``Jcdot qd``; ``forces`` are
     the right-hand sides ``B u - h`` (total) and ``-h`` (drift).
 
@@ -285,14 +366,15 @@ def constraint_conditioning(M: np.ndarray, Jc: np.ndarray, bias: np.ndarray, for
     ||Jc|| accel_scale)`` bounds their size from the magnitudes summed into r. When S is singular (redundant or
     degenerate constraints), ``inconsistency`` is ``max |U_0^T r| / |r|`` over the right-hand sides, with U_0 the
     redundant eigen-directions: non-zero means ``H_t`` is empty (the constraints cannot all hold, e.g. a four-bar
-    at its change point moving off both branches) and no acceleration is the answer.
+    at its change point moving off both branches) and no acceleration is the answer. |r| is taken at least
+    ``1e-6 L accel_scale``: where every row is degenerate, r itself is rounding, and its share means nothing.
     """
     L = np.linalg.cholesky(M)
     X = np.linalg.solve(L, Jc.T)
     S = X.T @ X
     w, U = np.linalg.eigh(S)
-    w_max = max(float(w[-1]), np.finfo(float).tiny)
-    kept = w > CONSTRAINT_RCOND * w_max
+    w_max = max(float(w[-1]), degenerate_floor(model))
+    kept = w > redundant_below(model, w[-1])
     rank = int(kept.sum())
     Minv_norm = 1.0 / float(np.linalg.eigvalsh(M)[0])
     jc_norm = float(np.linalg.norm(Jc, 2))
@@ -301,7 +383,7 @@ def constraint_conditioning(M: np.ndarray, Jc: np.ndarray, bias: np.ndarray, for
     if rank < len(w):
         for f in forces:
             r = -bias - Jc @ np.linalg.solve(L.T, np.linalg.solve(L, f))
-            size = np.linalg.norm(r)
+            size = max(float(np.linalg.norm(r)), 1e-6 * model.length_scale * accel_scale)
             if size > 0.0:
                 inconsistency = max(inconsistency, float(np.linalg.norm(U[:, ~kept].T @ r) / size))
     return ConstraintConditioning(cond_S=float(w_max / w[0]) if w[0] > 0.0 else np.inf,
@@ -311,7 +393,8 @@ def constraint_conditioning(M: np.ndarray, Jc: np.ndarray, bias: np.ndarray, for
 
 
 def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, drift, ctrl, total, lam, lam_drift,
-                      extras=None, task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED) -> Split:
+                      extras=None, task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
+                      joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED, task_inertia=UNSUPPORTED) -> Split:
     """Assemble the :class:`Split` of a constrained model from a formalism's own solve (eq. 12-17) and its own
     ``M``, ``C qd``, ``g``, ``phi``, ``Jc``, ``Jcdot qd``.
 
@@ -328,12 +411,13 @@ def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, d
         if value.shape != shape:
             raise ValueError(f"a formalism returned {label} of shape {value.shape}, expected {shape}")
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
-    cc = constraint_conditioning(M, Jc, bias, (tau_ctrl - Cqd - g, -Cqd - g), accel_scale)
+    cc = constraint_conditioning(model, M, Jc, bias, (tau_ctrl - Cqd - g, -Cqd - g), accel_scale)
     base = unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
                                accel_scale=accel_scale + cc.force_scale, extras=extras, task_drift=task_drift,
                                conditions={**(conditions or {}), "constraint": cc.cond_S,
                                            "constraint_consistency": cc.inconsistency},
-                               kinetic_energy=kinetic_energy)
+                               kinetic_energy=kinetic_energy, joint_wrenches=joint_wrenches,
+                               joint_wrenches_drift=joint_wrenches_drift, task_inertia=task_inertia)
     force, force_drift = Jc.T @ lam, Jc.T @ lam_drift
     p_constr, per = joint_power(force, qd)
     return replace(base, lam=_readonly(lam), lam_drift=_readonly(lam_drift), power_constr=p_constr,

@@ -46,7 +46,7 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
+from formalisms.interface import (redundant_below, Formalism, Split, check_state, conditioning, constrained_split,
                                   factor_mass_matrix, joint_vectors, unconstrained_split)
 
 
@@ -119,6 +119,21 @@ def _unit_motions(model: Model, kin) -> list:
     return [_forward(model, kin, zero, e) for e in np.eye(model.n)]
 
 
+def _com_acceleration(a: np.ndarray, wd: np.ndarray, w: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """Classical acceleration of the COM ``c`` from the body origin's: ``a_c = a + wd x c + w x (w x c)``."""
+    return a + _cross(wd, com) + _cross(w, _cross(w, com))
+
+
+def _body_gravity(W: np.ndarray, gravity: np.ndarray) -> np.ndarray:  # noqa: N803
+    """The world gravity vector in the body frame: ``W^T gravity`` (``W``: world <- body)."""
+    return W.T @ gravity
+
+
+def _gyroscopic(inertia: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The gyroscopic moment ``w x (I w)`` of eq. (19)."""
+    return _cross(w, inertia @ w)
+
+
 def _backward(model: Model, kin, motion, gravity: bool, external: np.ndarray | None = None):
     """Backward pass, tip to base: the joint loads ``f, n`` (n x 3 each), the force and the moment about body
     ``i``'s origin that the parent exerts on body ``i``, in body frame ``i``. Eq. (18) and (19) solved for the
@@ -129,12 +144,11 @@ def _backward(model: Model, kin, motion, gravity: bool, external: np.ndarray | N
     f, n = np.zeros((model.n, 3)), np.zeros((model.n, 3))
     for i in reversed(model.topological_order):
         b = model.bodies[i]
-        a_c = a[i] + _cross(wd[i], b.com) + _cross(w[i], _cross(w[i], b.com))
-        F = b.mass * a_c                                     # eq. (18): m a_c
+        F = b.mass * _com_acceleration(a[i], wd[i], w[i], b.com)   # eq. (18): m a_c
         if gravity:
-            F = F - b.mass * (W[i].T @ model.gravity)        # external force m g, moved to the left side
+            F = F - b.mass * _body_gravity(W[i], model.gravity)     # external force m g, moved to the left side
         f[i] += F
-        n[i] += b.inertia @ wd[i] + _cross(w[i], b.inertia @ w[i]) + _cross(b.com, F)   # eq. (19)
+        n[i] += b.inertia @ wd[i] + _gyroscopic(b.inertia, w[i]) + _cross(b.com, F)   # eq. (19)
         if external is not None:
             f[i] -= external[i, :3]
             n[i] -= external[i, 3:]
@@ -333,11 +347,11 @@ class _RangeSpace:
     S_pinv: np.ndarray
 
     @classmethod
-    def build(cls, factor, Jc: np.ndarray, bias: np.ndarray) -> "_RangeSpace":
+    def build(cls, model: Model, factor, Jc: np.ndarray, bias: np.ndarray) -> "_RangeSpace":
         X = scipy.linalg.cho_solve(factor, Jc.T)
         S = Jc @ X
         w, U = np.linalg.eigh(0.5 * (S + S.T))
-        keep = w > CONSTRAINT_RCOND * max(w[-1], np.finfo(float).tiny)
+        keep = w > redundant_below(model, w[-1])
         return cls(factor, Jc, bias, X, (U[:, keep] / w[keep]) @ U[:, keep].T)
 
     def solve(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -369,6 +383,12 @@ def _extras(model: Model, kin, qd: np.ndarray, total: np.ndarray, drift: np.ndar
     return extras, drift_motion
 
 
+def _wrenches(extras: dict) -> dict:
+    """The compared joint loads (``Split.joint_wrenches``, ``joint_wrenches_drift``): the reactions of
+    :func:`_extras` themselves, rows ``[force, moment about the body origin]`` in body frames."""
+    return {"joint_wrenches": extras["joint_reactions"], "joint_wrenches_drift": extras["joint_reactions_drift"]}
+
+
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9): ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl = M^-1 B u`` solved
     directly, ``total = M^-1 (B u - h)`` solved on its own, with ``h = C qd + g`` from the RNEA at ``qdd = 0``.
@@ -376,8 +396,8 @@ def split(model: Model, q, qd, u) -> Split:
 
     extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)`` (body
     frames; with the constraint forces of ``lam`` and ``lam_drift`` applied), ``joint_reactions_world`` (the former
-    in the world frame, moments about the world origin); ``task_drift`` is the default task point's classical
-    acceleration from the forward pass at the drift.
+    in the world frame, moments about the world origin); ``joint_wrenches`` and ``joint_wrenches_drift`` are the
+    first two; ``task_drift`` is the default task point's classical acceleration from the forward pass at the drift.
     """
     q, qd, u = check_state(model, q, qd, u)
     kin, zero = _placements(model, q), np.zeros(model.n)
@@ -395,10 +415,10 @@ def split(model: Model, q, qd, u) -> Split:
         return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
                                    cond_M=cond_M, accel_scale=accel_scale, extras=extras,
                                    task_drift=_task_acceleration(model, kin, drift_motion),
-                                   kinetic_energy=0.5 * qd @ M @ qd)
+                                   kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
     rows = _constraint_rows(model, kin, units, bias_motion, q, qd)
     Jc, bias = np.vstack([r.jacobian for r in rows]), np.concatenate([r.bias for r in rows])
-    schur = _RangeSpace.build(factor, Jc, bias)
+    schur = _RangeSpace.build(model, factor, Jc, bias)
     (total, lam), (drift, lam_drift) = schur.solve(tau_ctrl - h), schur.solve(-h)        # eq. (12, 13), (14)
     extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
                                    _constraint_loads(model, kin, rows, lam_drift))
@@ -406,7 +426,7 @@ def split(model: Model, q, qd, u) -> Split:
                              phi=np.concatenate([r.phi for r in rows]), Jc=Jc, bias=bias, drift=drift,
                              ctrl=schur.input_map(tau_ctrl), total=total, lam=lam, lam_drift=lam_drift,
                              extras=extras, task_drift=_task_acceleration(model, kin, drift_motion),
-                             kinetic_energy=0.5 * qd @ M @ qd)
+                             kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
 
 
 FORMALISM = Formalism(

@@ -85,10 +85,9 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, check_state, conditioning, constrained_split,
-                                  factor_mass_matrix, unconstrained_split)
+from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, factor_mass_matrix,
+                                  redundant_below, singular_below, unconstrained_split)
 
-EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -224,17 +223,26 @@ def _angular_bias(kin: Kinematics) -> np.ndarray:
     return (kin.moves * np.where(kin.revolute, kin.qd, 0.0)) @ kin.zdot
 
 
+def _world_inertia(R: np.ndarray, inertia: np.ndarray) -> np.ndarray:  # noqa: N803
+    """The COM inertias (n, 3, 3) rotated from the body frames to the world: ``R I R^T``."""
+    return R @ inertia @ R.transpose(0, 2, 1)
+
+
+def _gyroscopic(inertia: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The gyroscopic moments ``w x (I w)`` (n, 3) of bodies with world inertias ``I`` and angular velocities ``w``."""
+    return _cross(w, np.einsum("iab,ib->ia", inertia, w))
+
+
 def _terms(model: Model, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``M``, ``C qd``, ``g`` projected from the COM Jacobians (Kane's form, module docstring)."""
     bodies = np.arange(model.n)
     mass = np.array([b.mass for b in model.bodies])
     com = kin.o + np.einsum("iab,ib->ia", kin.R, np.array([b.com for b in model.bodies]))
-    inertia = kin.R @ np.array([b.inertia for b in model.bodies]) @ kin.R.transpose(0, 2, 1)
+    inertia = _world_inertia(kin.R, np.array([b.inertia for b in model.bodies]))
     Jv, Jw = point_jacobian(kin, bodies, com)
     v = np.einsum("iaj,j->ia", Jv, kin.qd)
     a_bias = point_bias(kin, bodies, com, v)
-    Iw = np.einsum("iab,ib->ia", inertia, kin.w)
-    torque = np.einsum("iab,ib->ia", inertia, _angular_bias(kin)) + _cross(kin.w, Iw)
+    torque = np.einsum("iab,ib->ia", inertia, _angular_bias(kin)) + _gyroscopic(inertia, kin.w)
     M = np.einsum("i,iaj,iak->jk", mass, Jv, Jv) + np.einsum("iaj,iab,ibk->jk", Jw, inertia, Jw)
     Cqd = np.einsum("iaj,ia->j", Jv, mass[:, None] * a_bias) + np.einsum("iaj,ia->j", Jw, torque)
     g = -np.einsum("iaj,ia->j", Jv, mass[:, None] * model.gravity)
@@ -266,15 +274,16 @@ def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[
     return tp.directions @ Jv, tp.directions @ bias
 
 
-def _cond(eig: np.ndarray) -> float:
-    """``cond_2`` of a symmetric positive semi-definite matrix from its ascending eigenvalues; ``inf`` when it is
-    numerically singular (smallest eigenvalue not finite, not positive, or below ``k eps`` times the largest)."""
-    if not np.all(np.isfinite(eig)) or eig[0] <= len(eig) * EPS * eig[-1]:
+def _cond(model: Model, eig: np.ndarray) -> float:
+    """``cond_2`` of ``A = J M^-1 J^T`` from its ascending eigenvalues; ``inf`` when it is numerically singular
+    (smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below the degenerate floor:
+    ``interface.singular_below``; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
+    if not singular_below(model, eig) < eig[0]:
         return float("inf")
     return float(eig[-1] / eig[0])
 
 
-def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpace, TaskSpace]:
+def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpace, TaskSpace]:
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
     ``tau_constr`` (3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone and
@@ -285,7 +294,7 @@ def _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpa
     A = J @ Minv @ J.T
     A = 0.5 * (A + A.T)
     eig, V = np.linalg.eigh(A)
-    cond = _cond(eig)
+    cond = _cond(model, eig)
     if cond == np.inf:
         eig = np.full(k, np.nan)
     Jp, bias = V.T @ J, V.T @ Jdot_qd
@@ -368,12 +377,12 @@ def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.n
     return phi, Jc, bias
 
 
-def _constraint_inertia(Jc: np.ndarray, Minv: np.ndarray) -> np.ndarray:
+def _constraint_inertia(model: Model, Jc: np.ndarray, Minv: np.ndarray) -> np.ndarray:
     """``Lambda_c = S^+``, ``S = Jc M^-1 Jc^T``: the constraint-space inertia, from S's eigendecomposition without
     the eigen-directions below ``CONSTRAINT_RCOND`` times the largest eigenvalue (minimum-norm multipliers)."""
     S = Jc @ Minv @ Jc.T
     w, U = np.linalg.eigh(0.5 * (S + S.T))
-    keep = w > CONSTRAINT_RCOND * max(w[-1], np.finfo(float).tiny)
+    keep = w > redundant_below(model, w[-1])
     return (U[:, keep] / w[keep]) @ U[:, keep].T
 
 
@@ -404,7 +413,7 @@ def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.nda
     """Eq. (13) solved for the multipliers in constraint space, ``lam = Lambda_c (-Jcdot qd - Jc a)``, from the free
     accelerations ``free = (a_drift, a_ctrl, a_total)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u - h)``)."""
     phi, Jc, bias = _constraint_rows(model, kin, q)
-    Lambda = _constraint_inertia(Jc, Minv)
+    Lambda = _constraint_inertia(model, Jc, Minv)
     a_drift, a_ctrl, a_total = free
     return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, lam_drift=Lambda @ (-bias - Jc @ a_drift),
                            lam_ctrl=-Lambda @ (Jc @ a_ctrl), lam=Lambda @ (-bias - Jc @ a_total))
@@ -439,7 +448,7 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     J, Jdot_qd = _task_kinematics(model, kin, point)
 
     def through_task_space(tau_constr):
-        ts, reported = _task_space(J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
+        ts, reported = _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
         return reported, _recompose(ts, Minv, Cqd + g, tau_ctrl, tau_constr)
 
     task, accelerations = through_task_space(np.zeros((3, model.n)))
@@ -463,7 +472,9 @@ def split(model: Model, q, qd, u) -> Split:
     ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``. With constraints the same with the constraint
     forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u).
 
-    ``task_drift`` is eq. (23) for ``model.task_point()``; ``conditions = {"task": cond_2(A)}``;
+    ``task_drift`` is eq. (23) for ``model.task_point()``; ``task_inertia`` its ``Lambda`` (eq. 22, the reported one
+    of ``extras["task"]``; with constraints still ``(J M^-1 J^T)^-1`` of the unconstrained M, the constraints
+    entering eq. 22 as ``F_constr``); ``conditions = {"task": cond_2(A)}``;
     ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
     (``Lambda_c``). NaN accelerations where A is numerically singular.
     """
@@ -471,7 +482,7 @@ def split(model: Model, q, qd, u) -> Split:
     s = _solve(model, q, qd, u, None)
     drift, ctrl, total = s.accelerations
     common = dict(drift=drift, ctrl=ctrl, total=total, tau_ctrl=s.tau_ctrl, qd=qd, task_drift=s.task.xdd_drift,
-                  conditions={"task": s.task.cond}, kinetic_energy=0.5 * qd @ s.M @ qd)
+                  conditions={"task": s.task.cond}, kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
     c = s.constraint
     if c is None:
         cond_M, accel_scale = conditioning(model, s.M, s.Cqd, s.g, s.tau_ctrl, qd)

@@ -388,7 +388,7 @@ def test_split_identities_at_sampled_admissible_states(name, case):
         s = split(name, model, q, qd, u)
         tau, jc = model.input_map @ u, sup(s.constraint_jacobian)
         sc = max(1.0, sup(s.total), sup(s.drift))
-        check(s.constraint_value, 0.0, 1e-12 * sampling.length_scale(model) ** 2, "phi")
+        check(s.constraint_value, 0.0, 1e-12 * model.length_scale ** 2, "phi")
         check(s.constraint_velocity, 0.0, 1e-12 * (1.0 + np.abs(qd).sum()), "Jc qd")
         check(s.additivity, 0.0, 1e-13 * s.accel_scale, "drift + ctrl = total")
         check(s.admissibility_total, 0.0, 1e-12 * sc * min(1.0, jc), "H_t residual (total)")

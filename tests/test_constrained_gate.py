@@ -12,7 +12,7 @@ import pytest
 import cases
 import formalisms.euler_lagrange as el
 import formalisms.operational_space as osc
-from cases import build_model
+from cases import Body, PointOnLine, build_model
 from crosscheck import backends, sampling
 from crosscheck.compare import AGREE, DISAGREE
 from crosscheck.gate import CaseSpec, Checks, evaluate, run_case, run_gate
@@ -163,3 +163,24 @@ def test_fault_inadmissible_sampled_velocity_is_caught_by_the_admissibility_and_
     for quantity in ("constraint_velocity", "power_constr"):
         found = _caught("double_pendulum_circle", quantity)
         assert len(found) >= 5 and set(found.values()) == {"exact"}, quantity
+
+
+def test_a_constraint_row_that_vanishes_identically_is_dropped_by_every_backend():
+    """A point on the joint axes held on a line through it: phi = 0 and Jc = 0 at every configuration. Some
+    kinematics give exact zeros, others rounding (1e-17); relative to itself a lone rounding row once looked like a
+    direction, and Newton–Euler applied a 19.6 N constraint force (a fuzz finding). Below the degenerate floor
+    (``interface.degenerate_floor``) every backend drops it: unconstrained motion, lam = 0."""
+    z = (0.0, 0.0, 1.0)
+    inertia = np.diag([0.25, 0.25, 0.025])
+    model = build_model("vacuous_line", [
+        Body("b0", None, "revolute", z, 1.0, inertia=inertia),
+        Body("b1", "b0", "prismatic", z, 1.0, com=(0.3, 0, 0)),
+        Body("b2", "b1", "revolute", (1.0, 0.0, 0.0), 1.0, inertia=inertia,
+             rotation=[[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
+    ], gravity=(0, 0, -9.81), constraints=[PointOnLine("line", "b2", (0, 0, 0), (0, 0, 0), [[1.0, 0.0, 0.0]])])
+    chosen = [backends.get(name) for name in backends.names()]
+    for q in ([0.0, 0.0, 1.0], [0.4, -0.2, 2.0]):
+        outcome = evaluate(model, State(0, tuple(q), (0.5, 1.0, -2.0), (1.0, 2.0, 3.0)), chosen)
+        assert not outcome.failed, {k: c.worst_ratio for k, c in outcome.comparisons.items()}
+        trusted = outcome.trusted           # operational space is in task BREAKDOWN: its task point is on the axes
+        assert len(trusted) == 5 and all(s.constraint_rank == 0 and np.all(s.lam == 0.0) for s in trusted.values())

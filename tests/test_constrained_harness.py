@@ -70,7 +70,7 @@ def test_sampled_states_are_admissible_by_pinocchio_kinematics(case):
     model = cases.load(case)
     for state in sampling.sample_states(model, 20, 3, case):
         phi, Jc, _ = reference.constraint_kinematics(model, state.q, state.qd)
-        assert np.abs(phi).max() < 1e-13 * sampling.length_scale(model) ** 2
+        assert np.abs(phi).max() < 1e-13 * model.length_scale ** 2
         assert np.abs(Jc @ np.array(state.qd)).max() < 1e-13 * (1 + np.abs(state.qd).sum())
         assert np.abs(state.qd).max() > 0.0            # the tangent projection keeps a real velocity
 
@@ -107,3 +107,16 @@ def test_eval_refuses_an_inadmissible_state_saying_how_far_off_and_projects_on_r
     assert main(args + ["--project"]) == 0
     captured = capsys.readouterr()
     assert "projected onto the constraint manifold" in captured.err and "lam" in captured.out
+
+
+def test_a_projected_velocity_satisfies_the_constraints_to_rounding_of_itself_however_small():
+    """qd almost entirely off the tangent space: the projection keeps a tiny admissible part, and ``Jc qd`` is rounding
+    of that part (eps |qd_projected|), not of the part removed (a residual once 1e12 times the tolerance)."""
+    model = cases.load("double_pendulum_circle")
+    q = sampling.project_configuration(model, np.array([0.3, 1.2]))
+    _, Jc, _ = reference.constraint_kinematics(model, q, np.zeros(2))
+    tangent = np.linalg.svd(Jc)[2][-1]
+    for tiny in (1e-3, 1e-9, 1e-15, 0.0):
+        qd = sampling.project_velocity(model, q, 7.0 * Jc[0] + tiny * tangent)
+        assert np.abs(Jc @ qd).max() <= 4 * np.finfo(float).eps * np.linalg.norm(Jc) * max(np.abs(qd).max(), 1e-300)
+        np.testing.assert_allclose(qd, tiny * tangent, rtol=1e-12, atol=1e-14)

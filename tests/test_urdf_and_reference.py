@@ -312,6 +312,15 @@ def test_reference_on_a_branched_tree_whose_parents_first_order_is_not_depth_fir
         _close(s.drift, -np.linalg.solve(M, s.extras["Cqd"] + s.extras["g"]), 1e-10)
 
 
+def test_reference_ctrl_is_backward_stable_on_a_single_rotor():
+    """A rotor of Izz = 1/640 driven by u = 1 accelerates at exactly 640 rad/s^2; computeMinverse once gave
+    640.0000000000364 (256 eps, a fuzz finding), beyond the ctrl tolerance of a perfectly conditioned M."""
+    rotor = build_model("rotor", [Body("r", None, "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.1, 0.1, 1 / 640]),
+                                       translation=(0, 1, 0))], gravity=(0, 0, -9.81))
+    s = split(rotor, np.zeros(1), np.zeros(1), np.ones(1))
+    assert abs(s.ctrl[0] - 640.0) <= 4 * np.finfo(float).eps * 640.0
+
+
 def test_reference_is_pure():
     dp, arm = cases.load("double_pendulum"), cases.load("spatial_arm")
     args_dp = (np.array([0.3, -0.2]), np.array([1.0, 0.5]), np.array([0.1, 0.2]))

@@ -34,6 +34,13 @@ Constrained models also report (article 7.2, "constraint wrenches"; eq. 27's ``W
                                      ``sum_i J_s,i^T W_i = Jc^T lam``.
 ``constraint_wrenches_space_drift``  (n, 6) the same for ``lam_drift``.
 
+The split also carries the compared joint loads ``joint_wrenches`` (``joint_wrenches_drift``): ``wrenches_body``
+(``wrenches_body_drift``) in ``[force, moment]`` order, with the torques ``c_j lam`` of any joint coupling added back
+on the coupled joints' axes (they are applied to the bodies as constraint wrenches, so the wrench recursion leaves
+them out of the joint's own load; the harness's convention counts them in, like an actuator's ``B u``), and the
+task-space inertia ``task_inertia`` ``Lambda = (J M^-1 J^T)^-1`` (eq. 22) of the default task point, with ``J`` the
+point Jacobian ``[-[p] | I] J_s`` from the space Jacobian (``conditions["task_inertia"]`` = cond(J M^-1 J^T)).
+
 Under a change of world frame by ``g`` (the scene moved rigidly, gravity rotated with it) the space twists and
 accelerations map by ``Ad_g``, ``wrenches_space`` and the constraint wrenches by ``Ad_g^-T``, ``poses`` by
 ``g T``; the body quantities do not change (article 7.4).
@@ -46,7 +53,7 @@ import scipy.linalg
 
 from cases.model import Model
 from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, factor_mass_matrix,
-                                  unconstrained_split)
+                                  task_space_inertia, unconstrained_split)
 from formalisms.screw import constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 
@@ -57,6 +64,25 @@ def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
     tp = model.task_point()
     a = kinematics.point_acceleration(kin, model.body_index(tp.body), tp.offset, qd, drift)
     return tp.directions @ a
+
+
+def _task_inertia(kin: Kinematics, factor) -> dict:
+    """``task_inertia`` (eq. 22) of the default task point from its point Jacobian ``D [-[p] | I] J_s`` and the
+    factor of M, with its condition ``cond(J M^-1 J^T)``."""
+    model = kin.model
+    tp = model.task_point()
+    body = model.body_index(tp.body)
+    J = tp.directions @ kinematics.point_jacobian(kin, body, kinematics.point_position(kin, body, tp.offset))
+    Lambda, cond = task_space_inertia(model, J, factor)
+    return {"task_inertia": Lambda, "conditions": {"task_inertia": cond}}
+
+
+def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | None = None) -> np.ndarray:  # noqa: N803
+    """Body wrenches ``(moment, force)`` as the compared joint loads ``[force, moment]``, each joint's coupling
+    torque ``torques[j]`` (None: no coupling) added along its body screw axis ``B_j``."""
+    if torques is not None:
+        F_body = F_body + torques[:, None] * kin.screws.body_axes
+    return np.concatenate([F_body[:, 3:], F_body[:, :3]], axis=1)
 
 
 def _kinetic_energy(model: Model, twists_body: np.ndarray) -> float:
@@ -111,7 +137,10 @@ def split(model: Model, q, qd, u) -> Split:
     extras = _extras(kin, qd, total, drift)
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
                                accel_scale=accel_scale, extras=extras, task_drift=_task_drift(kin, qd, drift),
-                               kinetic_energy=_kinetic_energy(model, extras["twists_body"]))
+                               kinetic_energy=_kinetic_energy(model, extras["twists_body"]),
+                               joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"]),
+                               joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"]),
+                               **_task_inertia(kin, factor))
 
 
 def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) -> Split:  # noqa: N803
@@ -119,13 +148,17 @@ def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) 
     lam_drift without it (eq. 14), ``ctrl = B_c B u`` (eq. 17) directly; the constraint wrenches of both."""
     model = kin.model
     rows = constraints.terms(kin, q, qd)
-    gauss = constraints.Gauss.build(factor, rows.jacobian, rows.bias)
+    gauss = constraints.Gauss.build(model, factor, rows.jacobian, rows.bias)
     (total, lam), (drift, lam_drift) = gauss.solve(tau_ctrl - h), gauss.solve(-h)
     extras = _extras(kin, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
     return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd, phi=rows.phi, Jc=rows.jacobian,
                              bias=rows.bias, drift=drift, ctrl=gauss.input_map(tau_ctrl), total=total, lam=lam,
                              lam_drift=lam_drift, extras=extras, task_drift=_task_drift(kin, qd, drift),
-                             kinetic_energy=_kinetic_energy(model, extras["twists_body"]))
+                             kinetic_energy=_kinetic_energy(model, extras["twists_body"]),
+                             joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"], rows.coupling_torques(lam)),
+                             joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"],
+                                                                  rows.coupling_torques(lam_drift)),
+                             **_task_inertia(kin, factor))
 
 
 FORMALISM = Formalism(

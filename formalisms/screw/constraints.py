@@ -46,25 +46,31 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import CONSTRAINT_RCOND
+from formalisms.interface import redundant_below
 from formalisms.screw import kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 
 
 @dataclass(frozen=True)
 class ConstraintTerms:
-    """The constraint rows at one state: ``phi`` (k,), ``jacobian`` ``Jc`` (k, n), ``bias`` ``Jcdot qd`` (k,) and
+    """The constraint rows at one state: ``phi`` (k,), ``jacobian`` ``Jc`` (k, n), ``bias`` ``Jcdot qd`` (k,),
     ``unit_wrenches`` (k, n, 6): the space wrench ``(moment about the world origin, force)`` a unit multiplier of
-    row ``r`` exerts on body ``i``."""
+    row ``r`` exerts on body ``i``, and ``coupling`` (k,): the rows of joint couplings."""
 
     phi: np.ndarray
     jacobian: np.ndarray
     bias: np.ndarray
     unit_wrenches: np.ndarray
+    coupling: np.ndarray
 
     def wrenches(self, lam: np.ndarray) -> np.ndarray:
         """The constraint wrench on every body (n, 6), space frame, for the multipliers ``lam``."""
         return np.einsum("r,rib->ib", lam, self.unit_wrenches)
+
+    def coupling_torques(self, lam: np.ndarray) -> np.ndarray:
+        """The joint torques (n,) of the couplings' multipliers, ``(coupling rows of Jc)^T lam``: what the
+        couplings make each joint carry, like an actuator."""
+        return self.jacobian[self.coupling].T @ lam[self.coupling]
 
 
 @dataclass(frozen=True)
@@ -154,7 +160,8 @@ def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:
                             f"{c!r} of type {type(c).__name__}; known: {[t.__name__ for t in _DECLARATIONS]}")
         parts.append(_DECLARATIONS[type(c)](kin, c, point, q, qd))
     phi, Jc, bias, W = (np.concatenate(column) for column in zip(*parts))
-    return ConstraintTerms(phi, Jc, bias, W)
+    coupling = np.concatenate([np.full(c.size, isinstance(c, JointCoupling)) for c in model.constraints])
+    return ConstraintTerms(phi, Jc, bias, W, coupling)
 
 
 @dataclass(frozen=True)
@@ -169,7 +176,7 @@ class Gauss:
     A_pinv: np.ndarray
 
     @classmethod
-    def build(cls, factor, Jc: np.ndarray, bias: np.ndarray) -> "Gauss":
+    def build(cls, model: Model, factor, Jc: np.ndarray, bias: np.ndarray) -> "Gauss":
         """From ``scipy.linalg.cho_factor(M)`` and the constraint rows."""
         c, lower = factor
         L = np.tril(c) if lower else np.triu(c).T
@@ -177,7 +184,7 @@ class Gauss:
         # matrices this small when the cores are busy
         A = np.array([scipy.linalg.solve_triangular(L, row, lower=True) for row in Jc])
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        keep = s > np.sqrt(CONSTRAINT_RCOND) * max(s.max(initial=0.0), np.finfo(float).tiny)
+        keep = s**2 > redundant_below(model, s.max(initial=0.0) ** 2)   # s^2: the eigenvalues of S = A A^T
         return cls(factor, L, Jc, bias, (Vt[keep].T / s[keep]) @ U[:, keep].T)
 
     def _lift(self, y: np.ndarray) -> np.ndarray:
