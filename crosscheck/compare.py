@@ -1,15 +1,34 @@
-"""Comparison of one quantity across backends at one state, and the verdict (DESIGN.md, verdicts)."""
+"""Comparison of one quantity across backends at one state, and the verdict (DESIGN.md, verdicts).
+
+A DISAGREE carries its severity (how many tolerances the worst pair is apart, :data:`SEVERITY`) and the vote:
+the outlier when three or more voters allow one, or why none is named (:func:`vote`). A DISAGREE that the
+divergence registry explains becomes KNOWN (``crosscheck.registry``): reported with its reason, not a failure.
+"""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from itertools import combinations
+from typing import Iterable
 
 import numpy as np
 
 from formalisms.interface import Unsupported
 
-AGREE, DISAGREE, NOT_COMPARED = "agree", "DISAGREE", "NOT COMPARED"
+AGREE, DISAGREE, KNOWN, NOT_COMPARED = "agree", "DISAGREE", "KNOWN", "NOT COMPARED"
+
+#: Severity of a DISAGREE from its worst error/tolerance ratio r: (upper bound on r, name), the first band that
+#: holds. The tolerance is 100 eps times the problem's scale, so r counts rounding budgets, and on the double
+#: pendulum r ~ 2.5e9 (median; 1e8 to 1e10 over states) times the relative error of a perturbed parameter:
+#:
+#: - marginal, 1 < r <= 10: within the reach of rounding the tolerance model under-estimates (README, "Breakdown":
+#:   unflagged states near a task singularity reach 7.8); look at the conditioning before the physics;
+#: - clear, 10 < r <= 1e4: no rounding explains it, but the answers match to 6-9 digits (a mass off by a relative
+#:   1e-8 gives median r = 250): a parameter wrong in a late digit, a truncated constant, a lost-precision formula;
+#: - gross, r > 1e4 or NaN: a relative error of ~1e-6 or more (mass off by 1e-6: median r = 2.5e4); a wrong term,
+#:   sign or factor gives r = 1e10 and more.
+SEVERITY: tuple[tuple[float, str], ...] = ((10.0, "marginal"), (1e4, "clear"), (np.inf, "gross"))
 
 
 @dataclass(frozen=True)
@@ -19,7 +38,8 @@ class Comparison:
     ``pairs`` maps (backend_a, backend_b) to the max-norm difference divided by the tolerance.
     ``outlier`` is the backend whose removal makes all others agree while it disagrees with each of them;
     None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
-    kept for a disagreement only, for the report.
+    kept for a disagreement only, for the report. ``severity`` (:data:`SEVERITY`) is set for a disagreement;
+    ``reason`` is the registry's explanation of a KNOWN one.
     """
 
     quantity: str
@@ -30,6 +50,29 @@ class Comparison:
     outlier: str | None = None
     not_compared: tuple[str, ...] = ()
     values: dict[str, np.ndarray] = field(default_factory=dict)
+    severity: str | None = None
+    reason: str | None = None
+
+    @property
+    def voters(self) -> tuple[str, ...]:
+        """The voters compared, in order of first appearance in ``pairs``."""
+        return tuple(dict.fromkeys(name for pair in self.pairs for name in pair))
+
+    @property
+    def disagreeing_pairs(self) -> list[tuple[str, str]]:
+        """The pairs further apart than the tolerance (NaN included)."""
+        return [pair for pair, ratio in self.pairs.items() if not ratio <= 1.0]
+
+
+def severity(ratio: float) -> str:
+    """The :data:`SEVERITY` band of an error/tolerance ratio above 1 (NaN is gross)."""
+    return next((name for bound, name in SEVERITY if ratio <= bound), SEVERITY[-1][1])
+
+
+def worst_of(ratios) -> float:
+    """The largest error/tolerance ratio, NaN when any is NaN (a plain ``max`` may skip a NaN); 0 when empty."""
+    ratios = list(ratios)
+    return float("nan") if any(r != r for r in ratios) else max(ratios, default=0.0)
 
 
 def _as_vector(value) -> np.ndarray:
@@ -42,11 +85,19 @@ def compare(quantity: str, values: dict[str, object], tol: float) -> Comparison:
     skipped = tuple(k for k, v in values.items() if isinstance(v, Unsupported))
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, tol, 0.0, not_compared=skipped)
-    pairs = dict(zip(combinations(present, 2), (_pairwise(list(present.values())) / tol).tolist()))
-    worst = max(pairs.values())
-    if not worst <= 1.0:  # also catches NaN
-        return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped, present)
+    pairs = dict(zip(combinations(present, 2), _ratios(_pairwise(list(present.values())), tol).tolist()))
+    worst = max(pairs.values(), key=lambda r: np.inf if r != r else r)  # NaN is the worst
+    if not worst <= 1.0:
+        return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped, present,
+                          severity(worst))
     return Comparison(quantity, AGREE, tol, worst, pairs, None, skipped)
+
+
+def _ratios(differences: np.ndarray, tol: float) -> np.ndarray:
+    """error / tolerance; an exact match is 0 whatever the tolerance (a tolerance that underflows to 0 at a state at
+    rest, qd = 0, would otherwise make 0 / 0 a NaN and a false DISAGREE)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(differences == 0.0, 0.0, differences / tol)
 
 
 def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
@@ -70,3 +121,74 @@ def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | Non
         if all(r <= 1.0 for r in without) and all(not r <= 1.0 for r in with_it):
             return suspect
     return None
+
+
+def backend_of(voter: str) -> str:
+    """The backend behind a voter label: ``newton_euler@g1`` (moved scene), ``geometric@affine`` (chart-native),
+    ``screw (Ad-mapped)`` (a frame law's prediction) all belong to their backend; ``exact`` stays ``exact``."""
+    return voter.split("@")[0].split(" (")[0]
+
+
+def suspect(comp: Comparison) -> str | None:
+    """The backend a disagreement points at: the outlier's backend; or the one backend behind every voter of a
+    comparison that involves only it (a frame law: its prediction against its moved answer); or the one backend
+    in every disagreeing pair while two or more other voters remain (a chart or frame check, where a backend votes
+    twice, in the joint chart and in the chart or the moved scene); else None."""
+    if comp.outlier is not None:
+        return backend_of(comp.outlier)
+    behind = {backend_of(v) for v in comp.voters} - {"exact"}
+    if len(behind) == 1:
+        return behind.pop()
+    pairs = comp.disagreeing_pairs
+    found = [b for b in sorted(behind) if pairs and all(b in (backend_of(x), backend_of(y)) for x, y in pairs)]
+    if len(found) != 1:
+        return None
+    return found[0] if sum(backend_of(v) != found[0] for v in comp.voters) >= 2 else None
+
+
+def vote(comp: Comparison) -> str:
+    """How the vote on a disagreement came out, in words: the outlier, or why none is named."""
+    named = suspect(comp)
+    if comp.outlier == "exact":
+        return "outlier exact: the backends agree with each other against the exact value (the state or the claim)"
+    if comp.outlier is not None:
+        return f"outlier {comp.outlier}"
+    mine = [v for v in comp.voters if backend_of(v) == named]
+    if named is not None and len(mine) == len(comp.voters):
+        return f"one backend only ({named}): {' vs '.join(comp.voters)}"
+    if named is not None:
+        return f"outlier {named} (its voters {', '.join(mine)} against the others)"
+    if len(comp.voters) == 2:
+        return f"only two voters ({', '.join(comp.voters)}): no vote, either may be wrong"
+    split = ", ".join(f"{a}/{b}" for a, b in comp.disagreeing_pairs)
+    return f"split vote: no single backend explains it among {len(comp.voters)} voters (apart: {split})"
+
+
+@dataclass(frozen=True)
+class Suspects:
+    """Who the disagreements among some comparisons point at: per backend the number of disagreements where it is
+    the suspect (:func:`suspect`), and the disagreements no single backend explains (``split``: three or more
+    voters; ``undecided``: two voters of different backends)."""
+
+    by_backend: dict[str, int]
+    split: int = 0
+    undecided: int = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.by_backend or self.split or self.undecided)
+
+
+def suspects(comparisons: Iterable[Comparison]) -> Suspects:
+    """Tally the DISAGREE comparisons among ``comparisons`` by suspect, most frequent first."""
+    named, split, undecided = Counter(), 0, 0
+    for comp in comparisons:
+        if comp.verdict != DISAGREE:
+            continue
+        who = suspect(comp)
+        if who is not None:
+            named[who] += 1
+        elif len(comp.voters) == 2:
+            undecided += 1
+        else:
+            split += 1
+    return Suspects(dict(sorted(named.items(), key=lambda kv: (-kv[1], kv[0]))), split, undecided)

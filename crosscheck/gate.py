@@ -16,9 +16,9 @@ from cases.model import Model
 from crosscheck import charts as chart_catalog
 from crosscheck import conservation, frames, invariance
 from crosscheck import tolerance as tolerance_policy
-from crosscheck.compare import DISAGREE, Comparison, compare
+from crosscheck.compare import DISAGREE, Comparison, compare, worst_of
 from crosscheck.sampling import State, sample_states
-from formalisms.interface import Formalism, Split
+from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,8 @@ class CaseSpec:
 @dataclass
 class StateOutcome:
     """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
-    -> value above its limit; left out of the comparisons) and one comparison per quantity."""
+    -> value above its limit; left out of the comparisons) and one comparison per quantity; ``hint``, for a failing
+    state, what the shape of the error suggests (``crosscheck.diagnosis``)."""
 
     state: State
     splits: dict[str, Split]
@@ -61,6 +62,7 @@ class StateOutcome:
     comparisons: dict[str, Comparison]
     breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
     checks: dict[str, Comparison] = field(default_factory=dict)
+    hint: str = ""
 
     @property
     def failed(self) -> bool:
@@ -81,7 +83,7 @@ class StateOutcome:
 
     @property
     def worst_ratio(self) -> float:
-        return max((c.worst_ratio for c in self.comparisons.values()), default=0.0)
+        return worst_of(c.worst_ratio for c in self.comparisons.values())
 
 
 @dataclass
@@ -120,14 +122,18 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
 
     A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
     out of the comparisons (all, or the quantities the condition concerns) and of the tolerance scales: its answer
-    is not trusted there, and it is not a bug.
+    is not trusted there, and it is not a bug. A backend that raises ``ModelNotSupported`` (written for other
+    mechanisms) is NOT COMPARED: it joins every comparison as UNSUPPORTED, so the report lists it as not supplied.
     """
     splits: dict[str, Split] = {}
     errors: dict[str, str] = {}
+    unsupported: list[str] = []
     for backend in backends:
         start = time.perf_counter()
         try:
             splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
+        except ModelNotSupported:
+            unsupported.append(backend.name)
         except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
             errors[backend.name] = f"{type(exc).__name__}: {exc}"
         if clock is not None:
@@ -138,6 +144,7 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
         at = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
         for quantity in tolerance_policy.quantities(model):
             values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
+            values.update(dict.fromkeys(unsupported, UNSUPPORTED))
             if quantity in tolerance_policy.EXACT:
                 values["exact"] = tolerance_policy.EXACT[quantity]
             outcome.comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
@@ -150,8 +157,9 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
     """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
     checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there."""
     state, trusted = outcome.state, outcome.trusted
+    supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
     for chart in case_charts:
-        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, backends, outcome.errors))
+        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors))
     if scene is not None:
         frame, moved = scene
         there = evaluate(moved, state, backends)
@@ -161,24 +169,51 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
         outcome.checks.update(conservation.checks(model, state, trusted))
 
 
+@dataclass(frozen=True)
+class CaseSetup:
+    """One case as the gate checks it (seeded): the model, its charts, its moved scenes (frame, moved model) and
+    whether the conservation checks run."""
+
+    spec: CaseSpec
+    model: Model
+    charts: tuple[chart_catalog.Chart, ...]
+    scenes: tuple[tuple[frames.Frame, Model], ...]
+    conservation: bool
+
+    @classmethod
+    def build(cls, spec: CaseSpec, seed: int, checks: Checks = Checks()) -> "CaseSetup":
+        model = spec.build()
+        case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
+        case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
+        scenes = tuple((frame, frames.move_scene(model, frame)) for frame in case_frames)
+        return cls(spec, model, tuple(case_charts), scenes, checks.conservation)
+
+    def scene(self, state: State) -> tuple[frames.Frame, Model] | None:
+        """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
+        return self.scenes[state.index % len(self.scenes)] if self.scenes else None
+
+    def evaluate(self, state: State, backends: Sequence[Formalism],
+                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+        """Everything the gate does at one state: the comparisons (:func:`evaluate`) and the checks
+        (:func:`add_checks`)."""
+        outcome = evaluate(self.model, state, backends, clock)
+        add_checks(self.model, outcome, backends, self.charts, self.scene(state), self.conservation)
+        return outcome
+
+
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
              progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
-    model = spec.build()
-    case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
-    case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
-    scenes = [(frame, frames.move_scene(model, frame)) for frame in case_frames]
+    setup = CaseSetup.build(spec, seed, checks)
     clock: dict[str, list[float]] = {}
     outcomes = []
-    for state in sample_states(model, samples, seed, spec.name):
-        outcome = evaluate(model, state, backends, clock)
-        scene = scenes[state.index % len(scenes)] if scenes else None
-        add_checks(model, outcome, backends, case_charts, scene, checks.conservation)
-        outcomes.append(outcome)
+    for state in sample_states(setup.model, samples, seed, spec.name):
+        outcomes.append(setup.evaluate(state, backends, clock))
         if progress:
             progress(spec.name, state.index + 1)
     first = {name: times[0] for name, times in clock.items()}
     rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
-    return CaseOutcome(spec, model, outcomes, first, rest, tuple(c.name for c in case_charts), tuple(case_frames))
+    return CaseOutcome(spec, setup.model, outcomes, first, rest, tuple(c.name for c in setup.charts),
+                       tuple(frame for frame, _ in setup.scenes))
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,

@@ -1,19 +1,26 @@
-"""Markdown report of a gate run: summary first, then every disagreement, then the worst states.
+"""Markdown report of a gate run: the summary (verdict, counts, suspects) first, then every disagreement with its
+severity, vote, hint and reproduce command, the known divergences, stale registry entries, breakdowns, the checks,
+the constraint power audit and the worst states.
 
 Same seed, same report byte for byte, apart from the timing section at the end.
 """
 
 from __future__ import annotations
 
+import shlex
+
 import numpy as np
 
-from crosscheck import charts
-from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, Comparison
+from crosscheck import backends, charts
+from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
+                                vote)
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
+from crosscheck.registry import Applied
 from formalisms.interface import Unsupported
 from crosscheck.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE, EXACT, TOLERANCES, quantities
 
 MAX_LISTED_FAILURES = 20
+VERDICTS = (AGREE, DISAGREE, KNOWN, NOT_COMPARED)
 
 
 def _vec(x) -> str:
@@ -28,7 +35,13 @@ def _arg(values) -> str:
 def reproduce_command(case: CaseOutcome, state: StateOutcome) -> str:
     """A command that evaluates every backend at exactly this state (floats round-trip through repr)."""
     s = state.state
-    return (f"crosscheck eval {case.spec.cli_args()} --q={_arg(s.q)} --qd={_arg(s.qd)} --u={_arg(s.u)}")
+    return (f"crosscheck eval {case.spec.cli_args()} --q={_arg(s.q)} --qd={_arg(s.qd)} --u={_arg(s.u)}"
+            + _plugin_args())
+
+
+def _plugin_args() -> str:
+    """``--plugin SPEC`` for every plugin loaded by spec in this run (entry points load themselves)."""
+    return "".join(f" --plugin {shlex.quote(spec)}" for spec in backends.plugin_specs())
 
 
 def check_reproduce_command(case: CaseOutcome, state: StateOutcome, family: str, seed: int) -> str:
@@ -41,7 +54,7 @@ def check_reproduce_command(case: CaseOutcome, state: StateOutcome, family: str,
         pd = charts.velocity_to_chart(chart, p, np.array(s.qd))
         tau = charts.force_to_chart(chart, p, case.model.input_map @ np.array(s.u))
         return (f"crosscheck eval {case.spec.cli_args()} --chart {chart.name} --seed {seed} --q={_arg(p)} "
-                f"--qd={_arg(pd)} --tau={_arg(tau)}")
+                f"--qd={_arg(pd)} --tau={_arg(tau)}" + _plugin_args())
     if family.startswith("frame") and case.frames:
         frame = case.frames[s.index % len(case.frames)]
         return f"{reproduce_command(case, state)} --frame {frame.name} --seed {seed}"
@@ -52,17 +65,79 @@ def _summary_rows(case: CaseOutcome) -> list[str]:
     rows = []
     for quantity in quantities(case.model):
         comps = [(s, s.comparisons[quantity]) for s in case.states if quantity in s.comparisons]
-        counts = {v: sum(c.verdict == v for _, c in comps) for v in (AGREE, DISAGREE, NOT_COMPARED)}
-        worst_state, worst = max(comps, key=lambda sc: sc[1].worst_ratio, default=(None, None))
+        counts = {v: sum(c.verdict == v for _, c in comps) for v in VERDICTS}
+        worst_state, worst = max(comps, key=lambda sc: _ratio(sc[1]), default=(None, None))
         ratio = f"{worst.worst_ratio:.3g}" if worst else "-"
         where = f"#{worst_state.state.index}" if worst_state else "-"
         unsupported = sorted({name for _, c in comps for name in c.not_compared})
         rows.append(f"| {case.spec.name} | {case.model.n} | {quantity} | {counts[AGREE]} | {counts[DISAGREE]} | "
-                    f"{counts[NOT_COMPARED]} | {ratio} | {where} | {', '.join(unsupported) or '-'} |")
+                    f"{counts[KNOWN]} | {counts[NOT_COMPARED]} | {ratio} | {_severity(worst)} | {where} | "
+                    f"{', '.join(unsupported) or '-'} |")
     errors = sum(bool(s.errors) for s in case.states)
     if errors:
-        rows.append(f"| {case.spec.name} | {case.model.n} | backend errors | - | {errors} | - | - | - | - |")
+        rows.append(f"| {case.spec.name} | {case.model.n} | backend errors | - | {errors} | - | - | - | - | - | - |")
     return rows
+
+
+def _ratio(comp: Comparison) -> float:
+    """The worst ratio for ordering, NaN last-but-worst."""
+    return comp.worst_ratio if comp.worst_ratio == comp.worst_ratio else float("inf")
+
+
+def _severity(comp: Comparison | None) -> str:
+    return comp.severity if comp is not None and comp.severity else "-"
+
+
+def _all(state: StateOutcome) -> list[Comparison]:
+    return list(state.comparisons.values()) + list(state.checks.values())
+
+
+def _counts_rows(result: GateResult) -> list[str]:
+    """Per case and in total: comparisons (quantities and checks) per verdict, and states failing, in BREAKDOWN,
+    with a backend error."""
+    rows, total = [], [0] * 8
+    for case in result.cases:
+        found = [c for s in case.states for c in _all(s)]
+        row = [len(case.states), sum(s.failed for s in case.states)]
+        row += [sum(c.verdict == v for c in found) for v in VERDICTS]
+        row += [sum(bool(s.breakdowns) for s in case.states), sum(bool(s.errors) for s in case.states)]
+        total = [a + b for a, b in zip(total, row)]
+        rows.append(f"| {case.spec.name} | " + " | ".join(map(str, row)) + " |")
+    if len(result.cases) > 1:
+        rows.append("| **all** | " + " | ".join(map(str, total)) + " |")
+    return ["| case | states | failing states | agree | DISAGREE | KNOWN | NOT COMPARED | BREAKDOWN states | "
+            "states with a backend error |", "|---|---|---|---|---|---|---|---|---|"] + rows
+
+
+def _state_tally(state: StateOutcome) -> list[tuple[str, int, int]]:
+    """(suspect, quantities, checks) at one state, the unexplained disagreements as two pseudo-suspects."""
+    q, c = suspects(state.comparisons.values()), suspects(state.checks.values())
+    rows = [(name, q.by_backend.get(name, 0), c.by_backend.get(name, 0))
+            for name in dict.fromkeys([*q.by_backend, *c.by_backend])]
+    rows += [("no single backend (split vote)", q.split, c.split), ("no vote (two voters only)", q.undecided,
+                                                                      c.undecided)]
+    return [row for row in rows if row[1] or row[2]]
+
+
+def _case_suspects(case: CaseOutcome) -> list[str]:
+    """Who the case's disagreements point at: per backend the quantities, checks and states where it is the
+    suspect; then the disagreements no single backend explains."""
+    tally: dict[str, list[int]] = {}
+    for state in case.states:
+        for label, q, c in _state_tally(state):
+            t = tally.setdefault(label, [0, 0, 0])
+            t[0], t[1], t[2] = t[0] + q, t[1] + c, t[2] + 1
+    order = sorted(tally, key=lambda k: (k.startswith("no "), -tally[k][2], k))
+    return [f"| {case.spec.name} | {k} | {tally[k][0]} | {tally[k][1]} | {tally[k][2]} |" for k in order]
+
+
+def _suspects_section(result: GateResult) -> list[str]:
+    rows = [row for case in result.cases for row in _case_suspects(case)]
+    if not rows:
+        return ["Suspects: none (no disagreement).", ""]
+    return ["Suspects (the backend each disagreement points at: the outlier of a vote of three or more, or the one "
+            "backend behind a frame law):", "",
+            "| case | suspect | quantities | checks | states |", "|---|---|---|---|---|"] + rows + [""]
 
 
 def check_family(key: str) -> str:
@@ -176,7 +251,8 @@ def _power_audit(result: GateResult) -> list[str]:
             "moves energy fastest (the power it injects into the gaining coordinates), with the joints it drains and "
             "feeds and the input power |P_ctrl| there for comparison. Median over the backends; per-coordinate power "
             "depends on the coordinates (5.5), so these are joint-chart numbers.", "",
-            "| case | states | max abs P_constr (W) | largest transfer (W) | at state | from | to | abs P_ctrl there (W) |",
+            "| case | states | max abs P_constr (W) | largest transfer (W) | at state | from | to | "
+            "abs P_ctrl there (W) |",
             "|---|---|---|---|---|---|---|---|"] + rows + [""]
 
 
@@ -203,36 +279,78 @@ def _breakdown_section(result: GateResult) -> list[str]:
     return lines + [""]
 
 
-def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: int) -> list[str]:
+def _verdict_line(key: str, comp: Comparison) -> str:
+    """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
+    disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
+    severity = f" ({comp.severity})" if comp.severity else ""
+    line = (f"- **{key}**: {comp.verdict}{severity}, worst error/tolerance {comp.worst_ratio:.3g} "
+            f"(tolerance {comp.tolerance:.3g})")
+    if comp.outlier:
+        line += f", outlier **{comp.outlier}**"
+    elif comp.verdict in (DISAGREE, KNOWN):
+        line += f"; {vote(comp)}"
+    if comp.verdict == KNOWN:
+        line += f"; known divergence: {comp.reason}"
+    return line
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
+def _state_suspects(state: StateOutcome) -> str:
+    """The state-level suspect summary: per backend the quantities and checks it is the suspect in, and the
+    disagreements no single backend explains."""
+    q, c = suspects(state.comparisons.values()), suspects(state.checks.values())
+    parts = [f"{name} in {_count(q.by_backend.get(name, 0), 'quantity', 'quantities')} and "
+             f"{_count(c.by_backend.get(name, 0), 'check', 'checks')}"
+             for name in dict.fromkeys([*q.by_backend, *c.by_backend])]
+    alone = [key for key, comp in {**state.comparisons, **state.checks}.items()
+             if comp.verdict == DISAGREE and suspect(comp) is None]
+    if alone:
+        parts.append(f"no single backend explains {', '.join(alone)}")
+    return "; ".join(parts) or "none"
+
+
+def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: int, full: bool = True) -> list[str]:
+    """One state: its vector, reproduce command, hint and suspects, then each comparison with the voters' values
+    (``full``) or only the disagreeing and known ones, the agreeing ones on one line."""
     s = state.state
     lines = [f"### {heading}", "",
              f"- q = `{_vec(s.q)}`", f"- qd = `{_vec(s.qd)}`", f"- u = `{_vec(s.u)}`",
-             f"- reproduce: `{reproduce_command(case, state)}`", ""]
+             f"- reproduce: `{reproduce_command(case, state)}`"]
+    if state.hint:
+        lines.append(f"- hint: {state.hint}")
+    if state.failed:
+        lines.append(f"- suspects: {_state_suspects(state)}")
+    lines.append("")
     for name, message in state.errors.items():
         lines.append(f"- **{name} raised** `{message}`")
     for name, conditions in state.breakdowns.items():
         lines.append(f"- {name}: BREAKDOWN, not compared: " + "; ".join(
             f"{_scope(k)} ({_condition(state, name, k, v)})" for k, v in conditions.items()))
+    agreeing = []
     for quantity, comp in state.comparisons.items():
         if comp.verdict == NOT_COMPARED:
-            lines.append(f"- {quantity}: NOT COMPARED ({', '.join(comp.not_compared) or 'fewer than two values'})")
+            if full:
+                lines.append(f"- {quantity}: NOT COMPARED ({', '.join(comp.not_compared) or 'fewer than two values'})")
             continue
-        blame = f", outlier **{comp.outlier}**" if comp.outlier else ""
-        lines += [f"- **{quantity}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
-                  f"(tolerance {comp.tolerance:.3g}){blame}", "",
-                  "  | backend | value |", "  |---|---|"]
+        if comp.verdict == AGREE and not full:
+            agreeing.append(f"{quantity} ({comp.worst_ratio:.3g})")
+            continue
+        lines += [_verdict_line(quantity, comp), "", "  | backend | value |", "  |---|---|"]
         lines += [f"  | {name} | `{_vec(split.quantity(quantity))}` |"
                   for name, split in state.voters(quantity).items()
                   if not isinstance(split.quantity(quantity), Unsupported)]
         if quantity in EXACT:
             lines.append(f"  | exact | `{_vec(EXACT[quantity])}` |")
         lines.append("")
+    if agreeing:
+        lines += [f"- agree (worst error/tolerance): {', '.join(agreeing)}", ""]
     for key, comp in state.checks.items():
-        if comp.verdict != DISAGREE:
+        if comp.verdict not in (DISAGREE, KNOWN):
             continue
-        blame = f", outlier **{comp.outlier}**" if comp.outlier else ""
-        lines += [f"- **{key}**: {comp.verdict}, worst error/tolerance {comp.worst_ratio:.3g} "
-                  f"(tolerance {comp.tolerance:.3g}){blame}; reproduce: "
+        lines += [f"{_verdict_line(key, comp)}; reproduce: "
                   f"`{check_reproduce_command(case, state, check_family(key), seed)}`", "",
                   "  | voter | value |", "  |---|---|"]
         lines += [f"  | {name} | `{_vec(value)}` |" for name, value in comp.values.items()] + [""]
@@ -242,38 +360,93 @@ def _state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: in
     return lines + [""]
 
 
-def render(result: GateResult, command: str) -> str:
-    """The whole report as markdown; ``command`` is the gate command that produced it."""
+def _known_section(result: GateResult) -> list[str]:
+    """The disagreements the divergence registry explains, grouped by case, key and reason."""
+    groups: dict[tuple[str, str, str], list] = {}
+    for case in result.cases:
+        for state in case.states:
+            for key, comp in {**state.comparisons, **state.checks}.items():
+                if comp.verdict == KNOWN:
+                    groups.setdefault((case.spec.name, key, comp.reason), []).append((state, comp))
+    if not groups:
+        return []
+    lines = ["## Known divergences (explained in the registry: reported, not failures)", "",
+             "| case | quantity or check | suspect | states | worst error/tolerance | severity | at state | reason |",
+             "|---|---|---|---|---|---|---|---|"]
+    for (case_name, key, reason), hits in groups.items():
+        state, worst = max(hits, key=lambda h: _ratio(h[1]))
+        who = ", ".join(sorted({suspect(c) or "-" for _, c in hits}))
+        lines.append(f"| {case_name} | {key} | {who} | {len(hits)} | {worst.worst_ratio:.3g} | {worst.severity} | "
+                     f"#{state.state.index} | {reason} |")
+    return lines + [""]
+
+
+def _registry_section(applied: Applied | None) -> list[str]:
+    """Stale entries (exercised by the run, explained nothing: a warning) and entries the run did not exercise."""
+    if applied is None or not (applied.stale or applied.unexercised):
+        return []
+    lines = ["## Stale registry entries (warnings, not failures)", ""]
+    lines += [f"- **stale**: {e.describe()} in `{applied.registry.source}` was compared in this run but explained "
+              f"no disagreement; remove it if the divergence is fixed. Reason given: {e.reason}"
+              for e in applied.stale]
+    lines += [f"- not exercised: {e.describe()} (its backend, case or quantity was not compared in this run)"
+              for e in applied.unexercised]
+    return lines + [""]
+
+
+def _registry_line(applied: Applied | None) -> str:
+    if applied is None:
+        return "- divergence registry: none"
+    return (f"- divergence registry: `{applied.registry.source}`, {len(applied.registry.entries)} entries; "
+            f"{applied.known} comparison(s) KNOWN, {_count(len(applied.stale), 'stale entry', 'stale entries')}")
+
+
+def render(result: GateResult, command: str, applied: Applied | None = None) -> str:
+    """The whole report as markdown; ``command`` is the gate command that produced it, ``applied`` the divergence
+    registry as applied to ``result`` (``crosscheck.registry.apply``), if any."""
     verdict = "PASS" if result.passed else "FAIL"
     n_states = sum(len(c.states) for c in result.cases)
     failed = [(c, s) for c in result.cases for s in c.states if s.failed]
     broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
+    known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in _all(s))
     lines = ["# crosscheck gate report", "",
              f"**{verdict}**: {len(failed)} of {n_states} states disagree or fail "
              f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
-             f"({', '.join(result.backends)}); {broken} state(s) with a backend in BREAKDOWN.", "",
+             f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
+             f"{broken} state(s) with a backend in BREAKDOWN.", "",
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
+             _registry_line(applied),
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
                                                      for q, (k, f) in TOLERANCES.items()),
              "  (acceleration scale = cond(M) ||M^-1|| H, H the size of the forces summed; median over backends;",
              "  task scale = L (acceleration scale + |qd|_1^2), L the task point's lever arm)",
+             "- severity of a DISAGREE by error/tolerance: " + ", ".join(
+                 f"{name} up to {bound:g}" if bound != float("inf") else f"{name} above (or NaN)"
+                 for bound, name in SEVERITY),
              "- BREAKDOWN limits: " + ", ".join(f"cond {k} > {v:.3g}" for k, v in BREAKDOWN_LIMITS.items()), "",
              "## Summary", "",
-             "| case | n | quantity | agree | DISAGREE | not compared | worst error/tolerance | at state | "
-             "not supplied by |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "Comparisons per verdict (quantities and checks) and states:", ""]
+    lines += _counts_rows(result) + [""]
+    lines += _suspects_section(result)
+    lines += ["Per quantity:", "",
+              "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
+              "at state | not supplied by |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in result.cases:
         lines += _summary_rows(case)
     lines.append("")
-    lines += _checks_section(result)
-    lines += _power_audit(result)
-    lines += _breakdown_section(result)
     if failed:
         lines += ["## Disagreements", ""]
         for case, state in failed[:MAX_LISTED_FAILURES]:
-            lines += _state_detail(case, state, f"{case.spec.name}, state #{state.state.index}", result.seed)
+            lines += _state_detail(case, state, f"{case.spec.name}, state #{state.state.index}", result.seed,
+                                   full=False)
         if len(failed) > MAX_LISTED_FAILURES:
             lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
+    lines += _known_section(result)
+    lines += _registry_section(applied)
+    lines += _breakdown_section(result)
+    lines += _checks_section(result)
+    lines += _power_audit(result)
     lines += ["## Worst state per case", ""]
     for case in result.cases:
         worst = max(case.states, key=lambda s: s.worst_ratio, default=None)

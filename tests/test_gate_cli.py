@@ -63,6 +63,24 @@ def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis
     np.testing.assert_allclose(out["newton_euler"]["drift"], out["pinocchio"]["drift"], rtol=1e-12)
 
 
+def test_a_failing_report_is_reproducible_and_puts_the_summary_first(tmp_path, dropped_coriolis):
+    args = ("--case", "double_pendulum", "--samples", "6", "--frames", "1", "--no-registry")
+    code, first = _gate(tmp_path, *args)
+    assert code == 1
+    _, second = _gate(tmp_path, *args)
+    assert _without_timing(first) == _without_timing(second)      # hints and suspects included
+    sections = ["## Summary", "## Disagreements", "## Breakdowns", "## Invariance and conservation checks",
+                "## Worst state per case", "## Timing"]
+    assert [first.index(h) for h in sections] == sorted(first.index(h) for h in sections)
+    summary = first.split("## Disagreements")[0]
+    assert "| double_pendulum | 6 | 5 |" in summary                  # states, failing states
+    assert "| double_pendulum | euler_lagrange | 10 |" in summary     # suspect: 2 quantities at 5 states
+    assert "| double_pendulum | 2 | drift | 1 | 5 | 0 | 0 |" in summary and "| gross |" in summary
+    detail = first.split("## Disagreements")[1].split("\n## ")[0]
+    assert detail.count("- hint: euler_lagrange's drift error x4 when qd doubles, 0 at qd = 0") == 5
+    assert "- **drift**: DISAGREE (gross), worst error/tolerance" in detail
+
+
 def test_two_backends_disagree_without_a_vote(dropped_coriolis):
     chosen = [backends.get("euler_lagrange"), backends.get("pinocchio")]
     result = run_gate([CaseSpec("double_pendulum")], chosen, samples=5, seed=0)
@@ -165,14 +183,20 @@ def test_a_backend_in_breakdown_is_reported_not_compared(condition):
     chosen = [backends.get("euler_lagrange"), backend, backends.get("pinocchio")]
     result = run_gate([CaseSpec("acrobot")], chosen, samples=3, seed=0)
     assert result.passed
+    others = {}                      # the other backends' breakdowns: only Lambda's, at a task-singular state
     for state in result.cases[0].states:
-        assert set(state.breakdowns) == {"newton_euler"}
+        assert set(state.breakdowns["newton_euler"]) == {"task"}
+        others.update({(state.state.index, name): b for name, b in state.breakdowns.items() if name != "newton_euler"})
         assert all("newton_euler" not in pair for c in state.comparisons.values() for pair in c.pairs)
+    assert all(set(b) == {"task_inertia"} for b in others.values())
     report = render(result, "cmd")
     assert "3 state(s) with a backend in BREAKDOWN" in report
     limit = BREAKDOWN_LIMITS["task"]
     assert f"| acrobot | newton_euler | cond task | {limit:.3g} | all | 3 | {condition:.3g} |" in report
-    assert report.count("acrobot #") == 3 and "reproduce: `crosscheck eval --case acrobot" in report
+    assert report.count(": newton_euler cond task = ") == 3
+    assert all(f"| acrobot | {name} | cond task_inertia | {BREAKDOWN_LIMITS['task_inertia']:.3g} | task_inertia |"
+               in report for _, name in others)
+    assert report.count("acrobot #") == 3 + len(others) and "reproduce: `crosscheck eval --case acrobot" in report
 
 
 def test_a_condition_below_its_limit_is_compared():
@@ -181,7 +205,9 @@ def test_a_condition_below_its_limit_is_compared():
 
     chosen = [backends.get("euler_lagrange"), Formalism("newton_euler", "", conditioned), backends.get("pinocchio")]
     state = run_gate([CaseSpec("acrobot")], chosen, samples=1, seed=0).cases[0].states[0]
-    assert not state.breakdowns and ("euler_lagrange", "newton_euler") in state.comparisons["drift"].pairs
+    assert "newton_euler" not in state.breakdowns
+    assert ("euler_lagrange", "newton_euler") in state.comparisons["drift"].pairs
+    assert all(set(b) == {"task_inertia"} for b in state.breakdowns.values())   # acrobot #0 is task-singular
 
 
 def test_state_zero_is_the_home_configuration():
