@@ -1,23 +1,223 @@
-"""The backends the harness evaluates: every registered formalism plus the Pinocchio reference."""
+"""The backends the harness evaluates: the built-in formalisms, the Pinocchio reference, and plugins.
+
+A plugin is a user's own backend behind the formalisms' contract (:class:`formalisms.interface.Formalism`): an
+object with a ``name`` (letters, digits, ``_`` and ``-``), a callable ``split(model, q, qd, u)`` returning a
+:class:`~formalisms.interface.Split`, and optionally a one-line ``summary`` and a ``split_chart``. It joins in one
+of two ways:
+
+* an entry point in the group ``crosscheck.formalisms`` of an installed distribution, named like the backend
+  (``closed_form_pendulum = "closed_form_pendulum:CLOSED_FORM"``), discovered on first use, in name order;
+* :func:`load_plugin` (``"module:object"``, the command line's ``--plugin``) or :func:`register` (the object).
+
+Order (:func:`names`): the five formalisms, the reference, then the plugins (entry points first). Plugins come
+last so that adding one never moves a built-in backend: with and without plugins the built-ins keep their places
+in every report table, and the first backend (whose cond(M) a report prints per state) stays a built-in.
+
+Every problem with a plugin is a :class:`PluginError` naming the plugin and what to fix. A plugin that raises
+``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it (``crosscheck.gate.evaluate``).
+"""
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
+import os
+import re
+import sys
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
 import formalisms
-from formalisms.interface import Formalism
+from formalisms.interface import Formalism, Split
 
 REFERENCE_NAME = "pinocchio"
 
+#: The entry-point group an installed distribution declares its backends in.
+ENTRY_POINT_GROUP = "crosscheck.formalisms"
+
+#: A backend name appears in reports, in ``--formalism`` and in labels such as ``name@g0`` (a moved scene).
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*\Z")
+
+#: Names the comparisons use for voters that are not backends (``crosscheck.compare``: the exact value).
+RESERVED = ("exact",)
+
+
+class PluginError(Exception):
+    """A plugin cannot be used: not importable, not found, not a backend, a name taken, an entry point that fails."""
+
+
+@dataclass(frozen=True)
+class _Checked:
+    """A plugin's ``split`` (or ``split_chart``) whose result must be a Split; anything else is a TypeError, which
+    the gate reports as that backend's error at that state."""
+
+    name: str
+    function: Callable[..., Any]
+
+    def __call__(self, *args, **kwargs) -> Split:
+        out = self.function(*args, **kwargs)
+        if not isinstance(out, Split):
+            raise TypeError(f"plugin '{self.name}' returned {type(out).__name__}, not a formalisms.interface.Split "
+                            "(build one with formalisms.interface.unconstrained_split or constrained_split)")
+        return out
+
+
+@dataclass(frozen=True)
+class _Plugin:
+    obj: Any              # what was loaded or registered (loading the same object again is a no-op)
+    formalism: Formalism
+    source: str           # where it came from, for messages and ``crosscheck formalisms``
+    spec: str | None      # the ``module:object`` that loads it again (worker processes); None otherwise
+
+
+_plugins: dict[str, _Plugin] = {}
+_discovered = False
+
+
+def _problems(obj) -> list[str]:
+    """What keeps ``obj`` from being a backend (empty when nothing)."""
+    name, split = getattr(obj, "name", None), getattr(obj, "split", None)
+    chart, summary = getattr(obj, "split_chart", None), getattr(obj, "summary", "")
+    out = []
+    if not isinstance(name, str):
+        out.append(f"no 'name' string (got {type(name).__name__})")
+    elif not _NAME.match(name) or name in RESERVED:
+        out.append(f"the name '{name}' is not usable: take letters, digits, '_' and '-' (not {', '.join(RESERVED)})")
+    if not callable(split):
+        out.append("no callable 'split(model, q, qd, u) -> Split'")
+    if chart is not None and not callable(chart):
+        out.append("a 'split_chart' that is not callable (leave it None when the backend works in joint "
+                   "coordinates only)")
+    if not isinstance(summary, str):
+        out.append(f"a 'summary' that is not a string (got {type(summary).__name__})")
+    return out
+
+
+def _add(obj, source: str, spec: str | None) -> Formalism:
+    """Validate ``obj`` and register it under its name; the same object again is a no-op."""
+    problems = _problems(obj)
+    if problems:
+        raise PluginError(f"{source} is not a backend (formalisms.interface.Formalism): it has "
+                          + "; ".join(problems))
+    name = obj.name
+    if name in formalisms.names() or name == REFERENCE_NAME:
+        raise PluginError(f"{source} is named '{name}', the name of a built-in backend; give it another name")
+    if name in _plugins:
+        if _plugins[name].obj is obj:
+            return _plugins[name].formalism
+        raise PluginError(f"{source} is named '{name}', a name already taken by {_plugins[name].source}; "
+                          "give one of them another name")
+    chart = getattr(obj, "split_chart", None)
+    formalism = Formalism(name, getattr(obj, "summary", ""), _Checked(name, obj.split),
+                          None if chart is None else _Checked(name, chart))
+    _plugins[name] = _Plugin(obj, formalism, source, spec)
+    return formalism
+
+
+def _distribution(ep) -> str:
+    dist = getattr(ep, "dist", None)
+    return "(unknown)" if dist is None else f"'{dist.metadata['Name']} {dist.version}'"
+
+
+def _discover() -> None:
+    """Register the backends of the installed distributions' entry points (once; in name order)."""
+    global _discovered
+    if _discovered:
+        return
+    for ep in sorted(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        source = f"entry point '{ep.name} = {ep.value}' (group {ENTRY_POINT_GROUP}) of distribution {_distribution(ep)}"
+        try:
+            obj = ep.load()
+        except Exception as exc:  # user code: any failure is reported, with where it came from
+            raise PluginError(f"{source} failed to load: {type(exc).__name__}: {exc}") from exc
+        if getattr(obj, "name", None) != ep.name and not _problems(obj):
+            raise PluginError(f"{source} loads a backend named '{obj.name}'; name the entry point like the backend "
+                              f"('{obj.name} = {ep.value}')")
+        _add(obj, source, None)
+    _discovered = True
+
+
+def _import(module_name: str, spec: str):
+    """Import the plugin's module; the current directory is searched too (after the installed packages)."""
+    if os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and (module_name + ".").startswith(exc.name + "."):
+            raise PluginError(f"plugin '{spec}': module '{module_name}' not found (install the package that "
+                              f"provides it, or run from the directory that contains it)") from exc
+        raise PluginError(f"plugin '{spec}': importing module '{module_name}' failed: ModuleNotFoundError: "
+                          f"{exc}") from exc
+    except Exception as exc:  # user code: any failure at import is reported as such
+        raise PluginError(f"plugin '{spec}': importing module '{module_name}' failed: {type(exc).__name__}: "
+                          f"{exc}") from exc
+
+
+def load_plugin(spec: str) -> Formalism:
+    """Load and register the backend ``"module:object"`` (``object`` may be dotted); loading it again is a no-op."""
+    module_name, sep, attr = spec.partition(":")
+    if not sep or not module_name or not attr:
+        raise PluginError(f"a plugin is given as MODULE:OBJECT (e.g. mypkg.dynamics:BACKEND), got '{spec}'")
+    _discover()
+    obj = _import(module_name, spec)
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            candidates = sorted(k for k, v in vars(obj).items() if not _problems(v)) if hasattr(obj, "__dict__") else []
+            raise PluginError(f"plugin '{spec}': '{module_name}' has no attribute '{attr}' (backends defined there: "
+                              f"{', '.join(candidates) or 'none'})")
+        obj = getattr(obj, part)
+    return _add(obj, f"plugin '{spec}'", spec)
+
+
+def load_plugins(specs: Sequence[str]) -> None:
+    """:func:`load_plugin` each spec, in order (the command line; a worker process's initializer with
+    :func:`plugin_specs` of its parent)."""
+    for spec in specs:
+        load_plugin(spec)
+
+
+def register(obj) -> Formalism:
+    """Register a backend object (a :class:`~formalisms.interface.Formalism` or anything with ``name``, ``split``
+    and optionally ``summary`` and ``split_chart``); returns it as a Formalism. Not passed on to worker
+    processes (use :func:`load_plugin` for that)."""
+    _discover()
+    return _add(obj, f"the {type(obj).__name__} object passed to register()", None)
+
+
+def plugin_specs() -> tuple[str, ...]:
+    """The ``module:object`` specs of the plugins loaded so far, in order: what a worker process needs to load the
+    same plugins (it discovers the entry points itself)."""
+    return tuple(p.spec for p in _plugins.values() if p.spec is not None)
+
+
+def plugin_sources() -> dict[str, str]:
+    """Plugin name -> where it came from (entry point, ``--plugin`` spec or register())."""
+    _discover()
+    return {name: p.source for name, p in _plugins.items()}
+
+
+def reset() -> None:
+    """Forget every plugin; the entry points are discovered again on next use."""
+    global _discovered
+    _plugins.clear()
+    _discovered = False
+
 
 def names() -> list[str]:
-    """Every formalism, then the reference."""
-    return formalisms.names() + [REFERENCE_NAME]
+    """Every formalism, the reference, then the plugins (module docstring: why in that order)."""
+    _discover()
+    return formalisms.names() + [REFERENCE_NAME] + list(_plugins)
 
 
 def get(name: str) -> Formalism:
-    """A formalism or the reference by name; an unknown name lists the valid ones."""
+    """A formalism, the reference or a plugin by name; an unknown name lists the valid ones."""
     if name == REFERENCE_NAME:
         from crosscheck.reference import REFERENCE
         return REFERENCE
-    if name not in formalisms.names():
+    if name in formalisms.names():
+        return formalisms.get(name)
+    _discover()
+    if name not in _plugins:
         raise formalisms.UnknownFormalism(f"unknown formalism '{name}'; valid: {', '.join(names())}")
-    return formalisms.get(name)
+    return _plugins[name].formalism
