@@ -1,0 +1,339 @@
+"""The fault catalog: realistic bugs in each backend's own computation, the kind dynamics code gets wrong, each
+injected by replacing one function or method (``crosscheck.faults``).
+
+Every entry changes its backend's output at some state of the default gate, and the gate catches it, except the
+entries with a ``gap`` note: realistic faults the gate misses, kept to document its blind spots (the note says
+why, and which check would catch them; none at present: the last two, joint reactions at the wrong acceleration and
+an uninverted task-space inertia, are caught since the gate compares ``joint_wrenches`` and ``task_inertia``);
+``tests/test_faults.py`` checks all of this. A replacement is built from the original: most wrap it and alter an
+argument or the result, so the fault is exactly the bug described.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from crosscheck.faults import Fault, FaultError
+
+EL, NE, SCREW, OSC, GEO = "euler_lagrange", "newton_euler", "screw", "operational_space", "geometric"
+
+
+# ------------------------------------------------------------------------------------------- Euler–Lagrange
+
+
+def _kinetic_energy_doubled(energies):
+    def faulty(model, st, poses, pd):
+        T, V = energies(model, st, poses, pd)
+        return 2 * T, V
+    return faulty
+
+
+def _christoffel_sign_on_wrong_term(first):
+    # first(dm, i, j, k) = 1/2 (A + B - C) with A = dM_ij/dp_k, B = dM_ik/dp_j, C = dM_jk/dp_i; faulty: 1/2 (B + C - A)
+    return lambda dm, i, j, k: first(dm, i, j, k) + dm(j, k, i) - dm(i, j, k)
+
+
+def _com_unrotated(com):
+    import symengine
+
+    return lambda R, p, offset: com(symengine.eye(3), p, offset)
+
+
+def _chart_jacobian_constant(derivative_of):
+    """``_Staged._derivative_of`` returning 0 for the derivatives of the chart Jacobian's entries
+    ``Dpsi_kj = dq_k/dp_j`` (the named derivatives of the named ``q_k = psi_k(p)``)."""
+    import symengine
+
+    def faulty(self, s, k):
+        jacobian = self.__dict__.setdefault("fault_dpsi", set())     # this derivation's Dpsi_kj, as they appear
+        if s in jacobian:
+            return symengine.Integer(0)
+        derivative = derivative_of(self, s, k)
+        if s in self.joint:
+            jacobian.add(derivative)
+        return derivative
+    return faulty
+
+
+EULER_LAGRANGE = [
+    Fault("el-kinetic-energy-missing-half", EL,
+          "The kinetic energy is written without its 1/2 (T = m |c_dot|^2 + w^T I w), which doubles M and C qd "
+          "but not gravity.",
+          "formalisms.euler_lagrange:_energies", _kinetic_energy_doubled, derived=True),
+    Fault("el-rotational-energy-com-inertia", EL,
+          "The rotational energy 1/2 tr(R_dot J R_dot^T) uses the COM inertia I in place of the pseudo-inertia "
+          "J = 1/2 tr(I) 1 - I.",
+          "formalisms.euler_lagrange:_pseudo_inertia", lambda f: lambda inertia: np.array(inertia, dtype=float),
+          derived=True),
+    Fault("el-christoffel-index-order", EL,
+          "The Christoffel symbols of the first kind have the minus sign on the wrong term: "
+          "Gamma_i,jk = 1/2 (d_j M_ik + d_i M_jk - d_k M_ij) instead of 1/2 (d_k M_ij + d_j M_ik - d_i M_jk).",
+          "formalisms.euler_lagrange:_christoffel_first", _christoffel_sign_on_wrong_term, derived=True),
+    Fault("el-com-offset-unrotated", EL,
+          "The COM offset is added in the world frame (c = p + com) instead of being rotated with the body "
+          "(c = p + R com).",
+          "formalisms.euler_lagrange:_com", _com_unrotated, derived=True),
+    Fault("el-chart-jacobian-constant", EL,
+          "In a chart q = psi(p) the chain rule treats Dpsi as constant, so the (d/dt Dpsi) pd terms drop out of "
+          "the chart's C_p pd (and of Jcdot pd).",
+          "formalisms.euler_lagrange:_Staged._derivative_of", _chart_jacobian_constant, derived=True),
+    Fault("el-constrained-drift-with-input", EL,
+          "The constrained drift (ZTCF) and lam_drift are solved with the input applied: the u = 0 right-hand "
+          "side of the KKT system is B u - h.",
+          "formalisms.euler_lagrange:_kkt", lambda f: lambda sc, forces, bias: f(sc, forces[:, [0, 0]], bias)),
+    Fault("el-input-map-unprojected", EL,
+          "The constrained ctrl uses the free input map M^-1 B u: the projector I - Jc^T S^+ Jc M^-1 of eq. (17) "
+          "is dropped.",
+          "formalisms.euler_lagrange:_constrained_input_map",
+          lambda f: lambda sc: f(sc._replace(V=sc.V[:, :0], w=sc.w[:0]))),
+]
+
+
+# ------------------------------------------------------------------------------------------- Newton–Euler
+
+
+def _prismatic_axis_in_parent_frame(placements):
+    def faulty(model, q):
+        P, r, W = placements(model, q)
+        for i, body in enumerate(model.bodies):
+            if body.joint == "prismatic":
+                r[i] = body.translation + q[i] * body.axis
+        return P, r, W
+    return faulty
+
+
+def _negated_multipliers(solve):
+    def faulty(self, force):
+        qdd, lam = solve(self, force)
+        return qdd, -lam
+    return faulty
+
+
+def _without_bias(rows):
+    def faulty(*args):
+        return [dataclasses.replace(r, bias=np.zeros_like(r.bias)) for r in rows(*args)]
+    return faulty
+
+
+def _loads_with_transposed_rotation(loads):
+    return lambda model, kin, rows, lam: loads(model, (kin[0], kin[1], [W.T for W in kin[2]]), rows, lam)
+
+
+NEWTON_EULER = [
+    Fault("ne-gyroscopic-dropped", NE,
+          "Euler's equation (19) misses the gyroscopic moment w x (I w).",
+          "formalisms.newton_euler:_gyroscopic", lambda f: lambda inertia, w: np.zeros(3)),
+    Fault("ne-gravity-transposed-rotation", NE,
+          "Gravity is brought into the body frame with W instead of W^T (the world <- body rotation not "
+          "transposed).",
+          "formalisms.newton_euler:_body_gravity", lambda f: lambda W, gravity: W @ gravity),
+    Fault("ne-com-centripetal-dropped", NE,
+          "The COM acceleration misses the centripetal term: a_c = a + wd x c without w x (w x c).",
+          "formalisms.newton_euler:_com_acceleration",
+          lambda f: lambda a, wd, w, com: f(a, wd, np.zeros(3), com)),
+    Fault("ne-prismatic-axis-parent-frame", NE,
+          "A prismatic joint slides along its axis taken in the parent's frame (q axis) instead of the joint "
+          "frame (q rotation axis), in the placements only.",
+          "formalisms.newton_euler:_placements", _prismatic_axis_in_parent_frame),
+    Fault("ne-multiplier-sign", NE,
+          "The multipliers are returned with the opposite sign convention (M qdd + h = B u - Jc^T lam).",
+          "formalisms.newton_euler:_RangeSpace.solve", _negated_multipliers),
+    Fault("ne-constraint-bias-dropped", NE,
+          "Jcdot qd is dropped from the constraint acceleration equation (Jc qdd = 0 instead of -Jcdot qd).",
+          "formalisms.newton_euler:_constraint_rows", _without_bias),
+    Fault("ne-reactions-at-drift-acceleration", NE,
+          "The joint reactions reported at the total acceleration are computed from the drift's forward pass (the "
+          "motion at u = 0 reused).",
+          "formalisms.newton_euler:_extras",
+          lambda f: lambda model, kin, qd, total, drift, loads=None, loads_drift=None: f(
+              model, kin, qd, drift, drift, loads, loads_drift)),
+    Fault("ne-constraint-force-wrong-frame", NE,
+          "The constraint forces are rotated into the body frames with W instead of W^T before the backward pass "
+          "(the joint reactions carry them in the wrong frame).",
+          "formalisms.newton_euler:_constraint_loads", _loads_with_transposed_rotation),
+]
+
+
+# ------------------------------------------------------------------------------------------- screw
+
+
+def _com_inertia_at_origin(spatial_inertias):
+    from formalisms.screw import lie
+
+    def faulty(model):
+        G = spatial_inertias(model)
+        mass = np.array([b.mass for b in model.bodies])[:, None, None]
+        C = lie.hat3(np.array([b.com for b in model.bodies]))
+        G[:, :3, :3] += mass * (C @ C)                      # back to I_c: the -m [c][c] term removed
+        return G
+    return faulty
+
+
+def _point_jacobian_from_body_jacobian(point_jacobian):
+    from formalisms.screw import kinematics, lie
+
+    def faulty(kin, body, p):
+        Jb = kinematics.body_jacobian(kin, body)
+        return Jb[3:] - lie.hat3(p) @ Jb[:3]
+    return faulty
+
+
+SCREW = [
+    Fault("screw-coadjoint-dropped", SCREW,
+          "The wrench balance (27) misses the coadjoint term ad_V^T (G V) (gyroscopic and velocity-product "
+          "wrenches).",
+          "formalisms.screw.lie:coad", lambda f: lambda V, F: np.zeros(np.broadcast_shapes(V.shape, F.shape))),
+    Fault("screw-coadjoint-sign", SCREW,
+          "ad*_V = -ad_V^T is confused with ad_V^T: the coadjoint term enters eq. (27) with the wrong sign.",
+          "formalisms.screw.lie:coad", lambda f: lambda V, F: -f(V, F)),
+    Fault("screw-wrench-mapped-as-twist", SCREW,
+          "A child's wrench is carried to the parent by Ad (the twist map) instead of Ad^-T.",
+          "formalisms.screw.dynamics:_wrench_to_parent", lambda f: lambda Ad, F: (Ad @ F[..., None])[..., 0]),
+    Fault("screw-parallel-axis-dropped", SCREW,
+          "The spatial inertia about the body origin keeps the COM inertia in its rotational block (the "
+          "parallel-axis term -m [c][c] is missing).",
+          "formalisms.screw.dynamics:spatial_inertias", _com_inertia_at_origin),
+    Fault("screw-spatial-point-acceleration", SCREW,
+          "A point's acceleration is taken from the spatial acceleration vd + wd x p, without w x pdot "
+          "(spatial, not classical: task drift and Jcdot qd).",
+          "formalisms.screw.kinematics:classical_acceleration",
+          lambda f: lambda V, Vdot, p: f(np.zeros_like(V), Vdot, p)),
+    Fault("screw-gravity-sign", SCREW,
+          "The gravity wrench has the wrong sign (the weight pulls up).",
+          "formalisms.screw.dynamics:gravity_wrenches", lambda f: lambda model, kin: -f(model, kin)),
+    Fault("screw-point-jacobian-body-frame", SCREW,
+          "A constrained point's Jacobian is built from the body Jacobian J_b with the point's world position "
+          "(body and space frames mixed).",
+          "formalisms.screw.kinematics:point_jacobian", _point_jacobian_from_body_jacobian),
+]
+
+
+# ------------------------------------------------------------------------------------------- operational space
+
+
+def _task_bias_dropped(task_kinematics):
+    def faulty(model, kin, point):
+        J, bias = task_kinematics(model, kin, point)
+        return J, np.zeros_like(bias)
+    return faulty
+
+
+def _lambda_reported_uninverted(task_space):
+    def faulty(*args):
+        principal, reported = task_space(*args)
+        return principal, dataclasses.replace(reported, Lambda=reported.A)
+    return faulty
+
+
+OPERATIONAL_SPACE = [
+    Fault("osc-gyroscopic-dropped", OSC,
+          "The projected C qd misses the gyroscopic moments w x (I w).",
+          "formalisms.operational_space:_gyroscopic", lambda f: lambda inertia, w: np.zeros_like(w)),
+    Fault("osc-inertia-transposed-rotation", OSC,
+          "The COM inertias are rotated to the world as R^T I R instead of R I R^T.",
+          "formalisms.operational_space:_world_inertia", lambda f: lambda R, inertia: f(R.transpose(0, 2, 1), inertia)),
+    Fault("osc-inertia-axes-swapped", OSC,
+          "The body inertia tensors are read with their x and z axes swapped.",
+          "formalisms.operational_space:_world_inertia", lambda f: lambda R, inertia: f(R, inertia[:, ::-1, ::-1])),
+    Fault("osc-spatial-point-bias", OSC,
+          "Point bias accelerations Jdot qd hold the point fixed in the world (its velocity dropped): spatial, "
+          "not classical accelerations, for the COMs and the task point.",
+          "formalisms.operational_space:point_bias",
+          lambda f: lambda kin, body, points, velocities: f(kin, body, points, np.zeros_like(velocities))),
+    Fault("osc-task-bias-dropped", OSC,
+          "The task acceleration misses Jdot qd: the task drift is taken as J qdd_drift.",
+          "formalisms.operational_space:_task_kinematics", _task_bias_dropped),
+    Fault("osc-null-space-untransposed", OSC,
+          "The null-space part of the recomposition uses N instead of N^T (M^-1 N (tau - h)).",
+          "formalisms.operational_space:_recompose",
+          lambda f: lambda ts, Minv, h, tau, tau_c: f(dataclasses.replace(ts, N=ts.N.T), Minv, h, tau, tau_c)),
+    Fault("osc-lever-arm-from-world-origin", OSC,
+          "Revolute Jacobian columns take the lever arm from the world origin (z_j x p) instead of from the joint "
+          "origin (z_j x (p - o_j)).",
+          "formalisms.operational_space:_linear_columns",
+          lambda f: lambda z, o, revolute, moves, points: f(z, np.zeros_like(o), revolute, moves, points)),
+    Fault("osc-support-transposed", OSC,
+          "The support mask is transposed: body i's Jacobian gets the columns of its descendants instead of its "
+          "ancestors.",
+          "formalisms.operational_space:_moves", lambda f: lambda model: f(model).T),
+    Fault("osc-lambda-reported-uninverted", OSC,
+          "The reported task-space inertia is A = J M^-1 J^T instead of Lambda = A^-1 (extras['task'], "
+          "task_space()).",
+          "formalisms.operational_space:_task_space", _lambda_reported_uninverted),
+    Fault("osc-constraint-inertia-with-m", OSC,
+          "The constraint-space inertia is formed with M in place of M^-1: Lambda_c = (Jc M Jc^T)^+.",
+          "formalisms.operational_space:_constraint_inertia",
+          lambda f: lambda model, Jc, Minv: f(model, Jc, np.linalg.inv(Minv))),
+]
+
+
+# ------------------------------------------------------------------------------------------- geometric
+
+
+def _christoffel_first_kind_sign_on_wrong_term(first_kind):
+    # correct: 1/2 (d_j M_lk + d_k M_lj - d_l M_jk); faulty: 1/2 (d_k M_lj + d_l M_jk - d_j M_lk)
+    return lambda dM: 0.5 * (dM.transpose(1, 2, 0) + dM - dM.transpose(1, 0, 2))
+
+
+def _point_offset_unrotated(point):
+    import casadi
+
+    return lambda model, R, o, body, offset: point(model, [casadi.DM.eye(3)] * len(R), o, body, offset)
+
+
+def _task_bias_dropped_geometric(evaluate):
+    def faulty(model, chart, p, pd):
+        point = evaluate(model, chart, p, pd)
+        return dataclasses.replace(point, Jdot_pd=np.zeros_like(point.Jdot_pd))
+    return faulty
+
+
+def _ctrl_unprojected(constrained_split):
+    def faulty(model, chart, pt, p, pd, tau):
+        split = constrained_split(model, chart, pt, p, pd, tau)
+        return dataclasses.replace(split, ctrl=np.linalg.solve(pt.M, tau))
+    return faulty
+
+
+GEOMETRIC = [
+    Fault("geo-christoffel-index-order", GEO,
+          "The Christoffel symbols of the first kind have the minus sign on the wrong term: "
+          "Gamma_l,jk = 1/2 (d_k M_lj + d_l M_jk - d_j M_lk).",
+          "formalisms.geometric:christoffel_first_kind", _christoffel_first_kind_sign_on_wrong_term),
+    Fault("geo-point-offset-unrotated", GEO,
+          "A body point (the task point, a constrained point) is placed at o_b + offset, its offset not rotated "
+          "with the body.",
+          "formalisms.geometric:_point", _point_offset_unrotated, derived=True),
+    Fault("geo-task-bias-dropped", GEO,
+          "The task drift misses Jdot pd (taken as J pdd_drift).",
+          "formalisms.geometric:_evaluate", _task_bias_dropped_geometric),
+    Fault("geo-ctrl-unprojected", GEO,
+          "The constrained ctrl is the free M^-1 tau, not projected onto the constraint distribution "
+          "(eq. 17 ignored).",
+          "formalisms.geometric:_constrained_split", _ctrl_unprojected),
+    Fault("geo-multiplier-sign", GEO,
+          "The multipliers are solved from Jc^T lam = f - M pdd (eq. 12's sign convention reversed).",
+          "formalisms.geometric:_Distribution.solve_transposed", lambda f: lambda self, c: -f(self, c)),
+    Fault("geo-euclidean-projection", GEO,
+          "The free motion is projected onto H_t in the Euclidean metric (Z^T Z) instead of the kinetic-energy "
+          "metric (Z^T M Z).",
+          "formalisms.geometric:_reduced_metric_factor",
+          lambda f: lambda model, chart, M, Z, p: f(model, chart, np.eye(len(M)), Z, p)),
+]
+
+
+CATALOG: list[Fault] = EULER_LAGRANGE + NEWTON_EULER + SCREW + OPERATIONAL_SPACE + GEOMETRIC
+
+
+def names() -> list[str]:
+    return [f.name for f in CATALOG]
+
+
+def get(name: str) -> Fault:
+    """The fault called ``name``; an unknown name lists the valid ones."""
+    for fault in CATALOG:
+        if fault.name == name:
+            return fault
+    raise FaultError(f"unknown fault '{name}'; valid faults: {', '.join(names())}")
