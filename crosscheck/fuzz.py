@@ -1,0 +1,737 @@
+"""Fuzzing campaigns: random mechanisms and states, every backend compared, each failure shrunk and saved.
+
+A campaign is a deterministic sequence of chunks k = 0, 1, 2, ... Chunk k is one Hypothesis run (seeded from the
+campaign seed and k, no example database, no deadline, ``chunk_examples`` examples) of a property that draws a model
+(``crosscheck.testing.models``), up to ``max_states`` admissible states, a chart and a rigid frame, evaluates every
+backend at each state with the gate's comparison, chart, frame and conservation checks (``crosscheck.gate``), tells
+Hypothesis the worst error/tolerance ratio (``hypothesis.target``) and fails when a state fails (a disagreement or a
+backend error). Hypothesis then shrinks the failure to a minimal model and state, and the last failing call, the
+minimal example, is saved as a finding; the campaign goes on with the next chunk.
+
+A chunk's result depends only on (seed, k) and the campaign parameters, so ``--shard i/N`` (the chunks with
+k % N == i) run on N machines and merged give the findings of the unsharded run, and ``--workers W`` runs chunks in
+W processes (spawned, each loading the plugins by their specs; a worker process is replaced every
+``CHUNKS_PER_PROCESS`` chunks, which bounds the memory the backends' per-model caches take).
+
+The campaign directory holds ``campaign.json`` (the parameters; a run in a directory with the same parameters
+resumes, skipping the chunks already logged and not interrupted), ``chunks.jsonl`` (one line per chunk, appended as
+each ends), ``findings/ID.json`` (written atomically as soon as a chunk ends with a failure, or is interrupted with
+one in hand) and ``report.md`` (written at the end, also after Ctrl-C). A finding's ID hashes the model digest, the
+state and the failing check keys, so the same failure found by a shard and by the unsharded run has the same ID.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+from hypothesis import HealthCheck, Phase, Verbosity, given, settings, target
+from hypothesis import seed as hypothesis_seed
+from hypothesis import strategies as st
+
+from cases.model import Model
+from cases.serialize import model_from_dict, model_to_dict
+from crosscheck import backends, charts, frames, gate, testing
+from crosscheck.gate import StateOutcome
+from crosscheck.sampling import State
+
+DEFAULT_DIR = ".crosscheck/fuzz"
+#: Examples of a campaign given neither a number of examples nor of minutes (the command line's default).
+DEFAULT_EXAMPLES = 100
+#: ``--constraints`` words -> ``FuzzConfig.constraints`` (``crosscheck.testing.models``).
+CONSTRAINT_CHOICES = {"never": False, "sometimes": None, "always": True}
+#: Examples per chunk: small enough that a chunk ends (and is logged) every few tens of seconds.
+CHUNK_EXAMPLES = 10
+#: Test calls a chunk may spend shrinking after its first failure; then the smallest failure so far is saved.
+SHRINK_CALLS = 300
+#: Chunks a worker process runs before it is replaced (the backends cache compiled code per model).
+CHUNKS_PER_PROCESS = 4
+#: Seconds the campaign waits, after Ctrl-C, for the chunks in flight to save what they found.
+INTERRUPT_GRACE = 3.0
+#: The parameters that make two runs parts of one campaign (merge and resume require them equal).
+IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "backends", "plugins",
+            "shrink_calls", "charts", "frames", "conservation")
+
+
+class FuzzError(ValueError):
+    """Bad campaign input: a directory of another campaign, an unknown finding, incompatible shards."""
+
+
+@dataclass(frozen=True)
+class FuzzConfig:
+    """A campaign's parameters. ``examples`` bounds the run (examples generated over all shards, in chunks of
+    ``chunk_examples``), else ``minutes`` does; ``workers`` 0 runs in this process (tests, debugging).
+    ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones. ``charts``,
+    ``frames`` and ``conservation`` turn the gate's checks on or off (the chart and frame are drawn either way)."""
+
+    seed: int = 0
+    examples: int | None = None
+    minutes: float | None = None
+    workers: int = 1
+    shard: tuple[int, int] = (0, 1)
+    out: str = DEFAULT_DIR
+    backends: tuple[str, ...] = ()
+    plugins: tuple[str, ...] = ()
+    chunk_examples: int = CHUNK_EXAMPLES
+    max_bodies: int = 4
+    max_states: int = 4
+    constraints: bool | None = None
+    shrink_calls: int = SHRINK_CALLS
+    charts: bool = True
+    frames: bool = True
+    conservation: bool = True
+
+    def checks(self) -> dict:
+        return {"charts": self.charts, "frames": self.frames, "conservation": self.conservation}
+
+    def identity(self) -> dict:
+        return {key: _jsonable(getattr(self, key)) for key in IDENTITY}
+
+
+def config(**kwargs) -> FuzzConfig:
+    """A checked :class:`FuzzConfig`; the backends default to every one in ``crosscheck.backends``."""
+    cfg = FuzzConfig(**kwargs)
+    problems = []
+    if (cfg.examples is None) == (cfg.minutes is None):
+        problems.append("give either a number of examples or of minutes")
+    if cfg.examples is not None and cfg.examples < 1:
+        problems.append(f"examples must be at least 1, got {cfg.examples}")
+    if cfg.minutes is not None and not cfg.minutes > 0:
+        problems.append(f"minutes must be positive, got {cfg.minutes}")
+    index, count = cfg.shard
+    if not (count >= 1 and 0 <= index < count):
+        problems.append(f"shard {index}/{count}: give i/N with 0 <= i < N")
+    for key in ("workers", "chunk_examples", "max_bodies", "max_states", "shrink_calls"):
+        if getattr(cfg, key) < (0 if key in ("workers", "shrink_calls") else 1):
+            problems.append(f"{key} is {getattr(cfg, key)}")
+    if cfg.constraints is True and cfg.max_bodies < 2:
+        problems.append("constrained models need max_bodies >= 2")
+    if problems:
+        raise FuzzError("fuzz campaign: " + "; ".join(problems))
+    names = tuple(cfg.backends) or tuple(backends.names())
+    for name in names:
+        backends.get(name)  # an unknown name raises, listing the valid ones
+    return dataclasses.replace(cfg, backends=names, plugins=tuple(cfg.plugins))
+
+
+def _jsonable(value):
+    return list(value) if isinstance(value, tuple) else value
+
+
+def chunk_seed(seed: int, k: int) -> int:
+    """The Hypothesis seed of chunk ``k`` of the campaign with ``seed``."""
+    return int.from_bytes(hashlib.sha256(f"crosscheck-fuzz/{seed}/{k}".encode()).digest()[:8], "big")
+
+
+def planned_chunks(cfg: FuzzConfig) -> Iterator[int]:
+    """This shard's chunks in order (all of them for an examples-bounded campaign; endless for a timed one)."""
+    index, count = cfg.shard
+    ks = range(math.ceil(cfg.examples / cfg.chunk_examples)) if cfg.examples else itertools.count()
+    return (k for k in ks if k % count == index)
+
+
+def chunk_size(cfg: FuzzConfig, k: int) -> int:
+    """Examples of chunk ``k``: ``chunk_examples``, or what is left of the campaign's examples."""
+    if cfg.examples is None:
+        return cfg.chunk_examples
+    return min(cfg.chunk_examples, cfg.examples - k * cfg.chunk_examples)
+
+
+# ------------------------------------------------------------------------------------------------ one chunk
+
+
+class _ShrinkBudget(BaseException):
+    """Raised inside the property when a chunk has spent its shrinking calls (escapes Hypothesis, which only
+    shrinks on Exception)."""
+
+
+def _worst(outcome: StateOutcome) -> tuple[float, str]:
+    """The worst error/tolerance ratio of every comparison and check at a state (NaN counts as inf), and its key."""
+    everything = {**outcome.comparisons, **outcome.checks}
+    ratios = {key: (c.worst_ratio if c.worst_ratio == c.worst_ratio else math.inf) for key, c in everything.items()}
+    if not ratios:
+        return 0.0, ""
+    key = max(ratios, key=ratios.get)
+    return ratios[key], key
+
+
+def _comparison_record(key: str, c) -> dict:
+    return {"key": key, "verdict": c.verdict, "worst_ratio": c.worst_ratio, "tolerance": c.tolerance,
+            "outlier": c.outlier, "values": {voter: np.atleast_1d(np.asarray(v, dtype=float)).tolist()
+                                             for voter, v in c.values.items()}}
+
+
+def finding_id(digest: str, state: dict, keys: Sequence[str]) -> str:
+    """A stable ID: a hash of the model digest, the state and the failing check keys (sorted)."""
+    text = json.dumps([digest, state["q"], state["qd"], state["u"], sorted(keys)])
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def make_finding(model: Model, state: State, chart_spec: tuple[str, int], frame: frames.Frame, checks: dict,
+                 chosen: Sequence[str], outcome: StateOutcome | None, harness_error: str | None = None) -> dict:
+    """A finding (module doc): the serialized model, the state, the chart and frame, every failing comparison with
+    each voter's value, the backend errors; without ID, campaign and shrinking marks (added when it is saved)."""
+    failing = [] if outcome is None else [_comparison_record(k, c) for k, c in testing.failing(outcome).items()]
+    errors = {} if outcome is None else dict(outcome.errors)
+    if harness_error is not None:
+        errors["harness"] = harness_error
+    state_dict = {"q": list(state.q), "qd": list(state.qd), "u": list(state.u)}
+    keys = [c["key"] for c in failing] + [f"error {name}" for name in errors]
+    return {"id": finding_id(model.digest(), state_dict, keys), "model": model_to_dict(model), "state": state_dict,
+            "chart": {"name": chart_spec[0], "seed": chart_spec[1]},
+            "frame": {"name": frame.name, "rotation": frame.rotation.tolist(),
+                      "translation": frame.translation.tolist()},
+            "checks": checks, "backends": list(chosen), "failing": failing, "errors": errors,
+            "worst_ratio": max([c["worst_ratio"] for c in failing], default=math.inf if errors else 0.0)}
+
+
+@dataclass
+class _Recorder:
+    """What one chunk's property calls saw: counts, the worst ratio and where, the last failing call."""
+
+    shrink_calls: int
+    progress: Callable[[int, int, float], None] | None = None
+    examples: int = 0
+    shrinking: int = 0
+    states: int = 0
+    models: set = field(default_factory=set)
+    worst: float = 0.0
+    worst_key: str = ""
+    agreeing: float = 0.0
+    agreeing_key: str = ""
+    last_failure: dict | None = None
+
+    def example(self, model: Model) -> None:
+        """A call that drew a model: a generated example, or (after a failure) a shrinking call."""
+        if self.last_failure is None:
+            self.examples += 1
+        else:
+            self.shrinking += 1
+            if self.shrinking > self.shrink_calls:
+                raise _ShrinkBudget()
+        self.models.add(model.digest())
+
+    def state(self, ratio: float, key: str, failed: bool) -> None:
+        self.states += 1
+        if ratio > self.worst or not self.worst_key:
+            self.worst, self.worst_key = ratio, key
+        if not failed and (ratio > self.agreeing or not self.agreeing_key):
+            self.agreeing, self.agreeing_key = ratio, key
+
+    def done(self, states: int, ratio: float) -> None:
+        if self.progress is not None:
+            self.progress(int(self.last_failure is None), states, ratio)
+
+
+def evaluate(model: Model, state: State, chart: charts.Chart, frame: frames.Frame, chosen, checks: dict
+             ) -> StateOutcome:
+    """One state as the gate checks it: every backend compared, then (as ``checks`` says) the chart check in
+    ``chart``, the frame check on the scene moved by ``frame`` and the conservation checks."""
+    outcome = gate.evaluate(model, state, chosen)
+    scene = (frame, frames.move_scene(model, frame)) if checks["frames"] else None
+    gate.add_checks(model, outcome, chosen, [chart] if checks["charts"] else [], scene, checks["conservation"])
+    return outcome
+
+
+def _evaluate(model: Model, states: Sequence[State], chart_spec: tuple[str, int], frame: frames.Frame,
+              chosen, checks: dict, rec: _Recorder) -> tuple[float, dict | None]:
+    """Every state (:func:`evaluate`); (worst ratio, finding of the first failing state or None). An exception
+    of the harness itself is a finding too."""
+    worst, names = 0.0, [b.name for b in chosen]
+    chart = charts.get(chart_spec[0], model, chart_spec[1])
+    for state in states:
+        try:
+            outcome = evaluate(model, state, chart, frame, chosen, checks)
+        except Exception as exc:  # the harness failing on a valid model and state is a finding, not a crash
+            where = "".join(traceback.format_exception(exc, limit=-3)).strip()
+            return math.inf, make_finding(model, state, chart_spec, frame, checks, names, None, where)
+        ratio, key = _worst(outcome)
+        rec.state(ratio, key, outcome.failed)
+        worst = max(worst, ratio)
+        if outcome.failed:
+            return worst, make_finding(model, state, chart_spec, frame, checks, names, outcome)
+    return worst, None
+
+
+def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
+    """The property one chunk runs (module doc)."""
+
+    @given(st.data())
+    def backends_agree(data):
+        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints), label="model")
+        count = data.draw(st.integers(1, cfg.max_states), label="number of states")
+        states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
+        chart_spec = data.draw(testing.chart_specs(model), label="chart (name, seed)")
+        frame = data.draw(testing.frames(), label="frame")
+        rec.example(model)
+        worst, finding = _evaluate(model, states, chart_spec, frame, chosen, cfg.checks(), rec)
+        rec.done(len(states), worst)
+        target(min(worst, 1e300), label="worst error/tolerance")
+        if finding is not None:
+            rec.last_failure = finding
+            raise AssertionError(f"finding {finding['id']}: "
+                                 + ", ".join([c["key"] for c in finding["failing"]] + list(finding["errors"])))
+
+    return backends_agree
+
+
+def run_chunk(cfg: FuzzConfig, k: int, progress: Callable[[int, int, float], None] | None = None) -> dict:
+    """Run chunk ``k`` (module doc); save its finding, if any, in ``cfg.out``; return its log record.
+
+    Ctrl-C during the chunk ends it: a failure in hand (shrunk or not) is saved, the record says ``interrupted``.
+    """
+    chosen = [backends.get(name) for name in cfg.backends]
+    rec = _Recorder(cfg.shrink_calls, progress)
+    test = settings(max_examples=chunk_size(cfg, k), database=None, deadline=None, derandomize=False,
+                    phases=(Phase.generate, Phase.target, Phase.shrink), report_multiple_bugs=False,
+                    suppress_health_check=list(HealthCheck), verbosity=Verbosity.quiet)(_property(cfg, chosen, rec))
+    test = hypothesis_seed(chunk_seed(cfg.seed, k))(test)
+    start, interrupted, shrunk = time.perf_counter(), False, True
+    try:
+        with np.errstate(all="ignore"):  # NaN and inf are compared and reported, not warned about
+            test()
+    except KeyboardInterrupt:
+        interrupted, shrunk = True, False
+    except _ShrinkBudget:
+        shrunk = False
+    except Exception as exc:
+        if rec.last_failure is None:   # not a failing example: a bug of the campaign itself
+            raise
+        shrunk = isinstance(exc, AssertionError)   # else Hypothesis could not replay it (flaky): as found
+    findings = []
+    if rec.last_failure is not None:
+        campaign = {"seed": cfg.seed, "chunk": k, "chunk_seed": chunk_seed(cfg.seed, k)}
+        finding = {**rec.last_failure, "campaign": campaign, "shrunk": shrunk}
+        save_finding(Path(cfg.out), finding)
+        findings.append(finding["id"])
+    return {"chunk": k, "examples": rec.examples, "shrink_calls": rec.shrinking, "states": rec.states,
+            "models": len(rec.models), "worst_ratio": rec.worst, "worst_key": rec.worst_key,
+            "worst_agreeing": rec.agreeing, "worst_agreeing_key": rec.agreeing_key,
+            "seconds": round(time.perf_counter() - start, 3), "findings": findings, "interrupted": interrupted}
+
+
+# ------------------------------------------------------------------------------------------------ storage
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as fh:
+        fh.write(text)
+    os.replace(fh.name, path)
+
+
+def save_finding(out: Path, finding: dict) -> bool:
+    """Write ``findings/ID.json`` atomically; a finding already saved from an earlier chunk is kept (so the stored
+    copy does not depend on which shard or worker finished first). Returns whether it was written."""
+    path = out / "findings" / f"{finding['id']}.json"
+    if path.exists() and json.loads(path.read_text())["campaign"]["chunk"] <= finding["campaign"]["chunk"]:
+        return False
+    _write_atomic(path, json.dumps(finding, indent=1))
+    return True
+
+
+def load_findings(out: Path) -> list[dict]:
+    """The saved findings, ordered by chunk then ID."""
+    found = [json.loads(p.read_text()) for p in sorted((out / "findings").glob("*.json"))]
+    return sorted(found, key=lambda f: (f["campaign"]["chunk"], f["id"]))
+
+
+def load_chunks(out: Path) -> list[dict]:
+    """The chunk log, one record per chunk (the last record of a chunk logged twice), ordered by chunk."""
+    path = out / "chunks.jsonl"
+    records = [json.loads(line) for line in path.read_text().splitlines() if line] if path.exists() else []
+    return sorted({r["chunk"]: r for r in records}.values(), key=lambda r: r["chunk"])
+
+
+def _append_chunk(out: Path, record: dict) -> None:
+    with open(out / "chunks.jsonl", "a") as fh:
+        fh.write(json.dumps(record) + "\n")
+
+
+def load_campaign(out: Path) -> dict | None:
+    path = out / "campaign.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _prepare(cfg: FuzzConfig) -> dict:
+    """Create or resume the campaign directory: ``campaign.json`` must hold the same parameters."""
+    out = Path(cfg.out)
+    found = load_campaign(out)
+    if found is not None and found["identity"] != cfg.identity():
+        diff = {k: (found["identity"].get(k), v) for k, v in cfg.identity().items() if found["identity"].get(k) != v}
+        raise FuzzError(f"{out} holds another campaign (parameters differ: "
+                        + ", ".join(f"{k} {a!r} there, {b!r} here" for k, (a, b) in diff.items())
+                        + "); give another --out or remove it")
+    campaign = found or {"identity": cfg.identity(), "runs": []}
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomic(out / "campaign.json", json.dumps(campaign, indent=1))
+    return campaign
+
+
+def _record_run(cfg: FuzzConfig, campaign: dict, wall: float, interrupted: bool) -> None:
+    run = {"shard": f"{cfg.shard[0]}/{cfg.shard[1]}", "workers": cfg.workers, "examples": cfg.examples,
+           "minutes": cfg.minutes, "wall_seconds": round(wall, 3), "interrupted": interrupted}
+    campaign["runs"].append(run)
+    _write_atomic(Path(cfg.out) / "campaign.json", json.dumps(campaign, indent=1))
+
+
+# ------------------------------------------------------------------------------------------------ a campaign
+
+
+class _Display:
+    """The progress bar (rich, on stderr, only on a terminal): examples, examples/s, worst ratio, findings."""
+
+    def __init__(self, total: int | None, console=None):
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.console = console or Console(stderr=True)
+        self.start = time.perf_counter()
+        self.examples, self.worst, self.findings = 0, 0.0, 0
+        self.progress = Progress(TextColumn("fuzz"), BarColumn(), TextColumn("{task.completed} examples"),
+                                 TextColumn("{task.fields[rate]:.2f}/s"), TextColumn("worst {task.fields[worst]:.3g}"),
+                                 TextColumn("{task.fields[findings]} findings"), TimeElapsedColumn(),
+                                 console=self.console, disable=not self.console.is_terminal)
+        self.task = self.progress.add_task("fuzz", total=total, rate=0.0, worst=0.0, findings=0)
+
+    def __enter__(self):
+        self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self.progress.__exit__(*exc)
+
+    def example(self, examples: int, states: int, ratio: float) -> None:
+        self.examples += examples
+        self.worst = max(self.worst, ratio)
+        rate = self.examples / max(time.perf_counter() - self.start, 1e-9)
+        self.progress.update(self.task, advance=examples, rate=rate, worst=self.worst)
+
+    def chunk(self, record: dict) -> None:
+        self.findings += len(record["findings"])
+        self.progress.update(self.task, findings=self.findings)
+
+
+def _until(deadline: float | None, ks: Iterable[int]) -> Iterator[int]:
+    for k in ks:
+        if deadline is not None and time.monotonic() > deadline:
+            return
+        yield k
+
+
+def _in_process(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
+    """Chunks one after another in this process (the derivation cache pointed at ``cache`` meanwhile), until one is
+    interrupted."""
+    before = os.environ.get("CROSSCHECK_CACHE")
+    os.environ["CROSSCHECK_CACHE"] = cache
+    try:
+        for k in plan:
+            record = run_chunk(cfg, k, display.example)
+            yield record
+            if record["interrupted"]:
+                return
+    finally:
+        if before is None:
+            os.environ.pop("CROSSCHECK_CACHE", None)
+        else:
+            os.environ["CROSSCHECK_CACHE"] = before
+
+
+_QUEUE = None
+_LIMITS = None
+
+
+def _init_worker(plugins: Sequence[str], cache: str, queue) -> None:
+    """A worker process: the campaign's derivation cache, one BLAS thread, the plugins, the progress queue."""
+    global _QUEUE, _LIMITS
+    from threadpoolctl import threadpool_limits
+
+    os.environ["CROSSCHECK_CACHE"] = cache
+    _LIMITS = threadpool_limits(limits=1, user_api="blas")
+    backends.load_plugins(plugins)
+    _QUEUE = queue
+
+
+def _worker_chunk(cfg: FuzzConfig, k: int) -> dict:
+    return run_chunk(cfg, k, lambda examples, states, ratio: _QUEUE.put((examples, states, ratio)))
+
+
+def _finished(pending: dict, queue, display: _Display) -> list[dict]:
+    """Wait (showing progress) until chunks in flight end; their records."""
+    while True:
+        while not queue.empty():
+            display.example(*queue.get())
+        ready = [k for k, result in pending.items() if result.ready()]
+        if ready:
+            return [pending.pop(k).get() for k in ready]
+        time.sleep(0.1)
+
+
+def _grace(pending: dict) -> Iterator[dict]:
+    """The records of the chunks in flight that end within ``INTERRUPT_GRACE`` seconds."""
+    deadline = time.monotonic() + INTERRUPT_GRACE
+    while pending and time.monotonic() < deadline:
+        for k in [k for k, result in pending.items() if result.ready()]:
+            yield pending.pop(k).get()
+        time.sleep(0.05)
+
+
+def _in_pool(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
+    """Chunks in ``cfg.workers`` spawned processes, at most one in flight per worker, records in completion order.
+    On Ctrl-C (in this process, or a chunk reporting it was interrupted) no chunk starts any more, and the chunks in
+    flight get ``INTERRUPT_GRACE`` seconds to save what they hold and report."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    pool = ctx.Pool(cfg.workers, initializer=_init_worker, initargs=(cfg.plugins, cache, queue),
+                    maxtasksperchild=CHUNKS_PER_PROCESS)
+    pending = {k: pool.apply_async(_worker_chunk, (cfg, k)) for k in itertools.islice(plan, cfg.workers)}
+    try:
+        while pending:
+            try:
+                done = _finished(pending, queue, display)
+            except KeyboardInterrupt:
+                yield from _grace(pending)
+                raise
+            yield from done
+            if any(record["interrupted"] for record in done):
+                yield from _grace(pending)
+                return
+            pending.update({k: pool.apply_async(_worker_chunk, (cfg, k)) for k in itertools.islice(plan, len(done))})
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+@dataclass
+class CampaignResult:
+    out: Path
+    chunks: list[dict]
+    findings: list[dict]
+    interrupted: bool
+
+
+def run_campaign(cfg: FuzzConfig, command: str = "", console=None) -> CampaignResult:
+    """Run the campaign ``cfg`` (from :func:`config`): chunks logged as they end, findings saved as they are found,
+    the report written at the end, after Ctrl-C too (``interrupted`` is then set)."""
+    campaign = _prepare(cfg)
+    out = Path(cfg.out)
+    logged = {r["chunk"] for r in load_chunks(out) if not r["interrupted"]}   # an interrupted chunk runs again
+    deadline = None if cfg.minutes is None else time.monotonic() + 60.0 * cfg.minutes
+    plan = _until(deadline, (k for k in planned_chunks(cfg) if k not in logged))
+    total = None if cfg.examples is None else sum(chunk_size(cfg, k) for k in planned_chunks(cfg) if k not in logged)
+    cache = tempfile.mkdtemp(prefix="crosscheck-fuzz-cache-")
+    start, interrupted = time.perf_counter(), False
+    runner = _in_process if cfg.workers == 0 else _in_pool
+    try:
+        with _Display(total, console) as display:
+            for record in runner(cfg, plan, cache, display):
+                _append_chunk(out, record)
+                display.chunk(record)
+                interrupted |= record["interrupted"]
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+        _record_run(cfg, campaign, time.perf_counter() - start, interrupted)
+        write_report(out, command)
+    return CampaignResult(out, load_chunks(out), load_findings(out), interrupted)
+
+
+# ------------------------------------------------------------------------------------------------ replay, merge
+
+
+def find(out: Path, finding: str) -> dict:
+    """The saved finding with this ID (or unique ID prefix); :class:`FuzzError` listing the valid IDs otherwise."""
+    ids = sorted(p.stem for p in (out / "findings").glob("*.json"))
+    matches = [i for i in ids if i.startswith(finding)] if finding else []
+    if len(matches) != 1:
+        what = "matches several findings" if matches else "is not a finding"
+        raise FuzzError(f"'{finding}' {what} in {out}; valid IDs: {', '.join(ids) or 'none (no findings saved)'}")
+    return json.loads((out / "findings" / f"{matches[0]}.json").read_text())
+
+
+def scene_of(finding: dict) -> tuple[Model, State, charts.Chart, frames.Frame]:
+    """The model, state, chart and frame a finding was found at, rebuilt exactly."""
+    model = model_from_dict(finding["model"])
+    s = finding["state"]
+    state = State(0, tuple(s["q"]), tuple(s["qd"]), tuple(s["u"]))
+    chart = charts.get(finding["chart"]["name"], model, finding["chart"]["seed"])
+    f = finding["frame"]
+    frame = frames.Frame(f["name"], np.array(f["rotation"]), np.array(f["translation"]))
+    return model, state, chart, frame
+
+
+def replay(finding: dict, names: Sequence[str] | None = None) -> StateOutcome:
+    """Evaluate the finding's state again, as the campaign did, with its backends (or ``names``)."""
+    model, state, chart, frame = scene_of(finding)
+    chosen = [backends.get(name) for name in (names or finding["backends"])]
+    with np.errstate(all="ignore"):
+        return evaluate(model, state, chart, frame, chosen, finding["checks"])
+
+
+def merge(dirs: Sequence[Path], out: Path, command: str = "") -> CampaignResult:
+    """Combine campaign directories (shards) into ``out``: the same parameters required, findings de-duplicated by
+    ID, chunk logs combined (a chunk in several keeps one record), runs listed; the report written."""
+    campaigns = []
+    for d in dirs:
+        found = load_campaign(Path(d))
+        if found is None:
+            raise FuzzError(f"{d} is not a campaign directory (no campaign.json)")
+        campaigns.append(found)
+    for d, c in zip(dirs[1:], campaigns[1:]):
+        if c["identity"] != campaigns[0]["identity"]:
+            raise FuzzError(f"cannot merge {d} with {dirs[0]}: the campaigns' parameters differ "
+                            f"({c['identity']} vs {campaigns[0]['identity']})")
+    existing = load_campaign(out)
+    if existing is not None and existing["identity"] != campaigns[0]["identity"]:
+        raise FuzzError(f"{out} holds another campaign; give another --out")
+    runs = (existing or {"runs": []})["runs"] + [r for c in campaigns for r in c["runs"]]
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomic(out / "campaign.json", json.dumps({"identity": campaigns[0]["identity"], "runs": runs}, indent=1))
+    records = {r["chunk"]: r for d in [out, *map(Path, dirs)] for r in load_chunks(d)}
+    _write_atomic(out / "chunks.jsonl", "".join(json.dumps(records[k]) + "\n" for k in sorted(records)))
+    for d in dirs:
+        for finding in load_findings(Path(d)):
+            save_finding(out, finding)
+    write_report(out, command)
+    return CampaignResult(out, load_chunks(out), load_findings(out), False)
+
+
+# ------------------------------------------------------------------------------------------------ report
+
+
+def _vec(values) -> str:
+    """A vector (or a matrix, row after row) with 6 significant digits."""
+    return "[" + ", ".join(f"{float(x):.6g}" for x in np.ravel(values)) + "]"
+
+
+def describe_model(d: dict) -> list[str]:
+    """A serialized model in a few lines: each body and joint, gravity, B, task point, constraints."""
+    lines = []
+    for b in d["bodies"]:
+        inertia = "point mass" if not any(map(any, b["inertia"])) else f"inertia {b['inertia']}"
+        lines.append(f"  - `{b['name']}`: {b['joint']} about {_vec(b['axis'])} on {b['parent'] or 'the world'} "
+                     f"at {_vec(b['translation'])}, rotation {b['rotation']}; mass {b['mass']:.6g} kg, "
+                     f"COM {_vec(b['com'])}, {inertia}")
+    B = np.array(d["input_map"])
+    lines.append(f"  - gravity {_vec(d['gravity'])}; B "
+                 + ("identity" if B.shape[0] == B.shape[1] and np.array_equal(B, np.eye(len(B))) else str(B.tolist())))
+    for tp in d["task_points"]:
+        lines.append(f"  - task point `{tp['name']}` on `{tp['body']}` at {_vec(tp['offset'])}, "
+                     f"directions {tp['directions']}")
+    for c in d["constraints"]:
+        fields = ", ".join(f"{k} {v}" for k, v in c.items() if k not in ("type", "name"))
+        lines.append(f"  - constraint `{c['name']}`: {c['type']} ({fields})")
+    return lines
+
+
+def _finding_section(f: dict, out: Path) -> list[str]:
+    s, chart, frame = f["state"], f["chart"], f["frame"]
+    camp = f["campaign"]
+    how = "shrunk" if f["shrunk"] else "NOT fully shrunk (interrupted or shrinking budget spent)"
+    lines = [f"### Finding `{f['id']}`", "",
+             f"Chunk {camp['chunk']} (campaign seed {camp['seed']}), {how}; worst error/tolerance "
+             f"{f['worst_ratio']:.3g}.", "",
+             f"- model ({len(f['model']['bodies'])} bodies, {len(f['model']['constraints'])} constraints):",
+             *describe_model(f["model"]),
+             f"- state: q = {s['q']}, qd = {s['qd']}, u = {s['u']}",
+             f"- chart `{chart['name']}` (seed {chart['seed']}); frame `{frame['name']}`: rotation "
+             f"{frame['rotation']}, translation {frame['translation']}",
+             f"- backends: {', '.join(f['backends'])}; checks: "
+             + ", ".join(["comparison"] + [name for name, on in f["checks"].items() if on]),
+             f"- reproduce: `crosscheck replay {f['id']} --dir {out}`", ""]
+    if f["failing"]:
+        lines += ["| check | error/tolerance | tolerance | outlier |", "|---|---|---|---|"]
+        lines += [f"| {c['key']} | {c['worst_ratio']:.3g} | {c['tolerance']:.3g} | {c['outlier'] or '-'} |"
+                  for c in f["failing"]]
+        lines += ["", "Values:", "", "```"]
+        for c in f["failing"]:
+            lines.append(f"{c['key']}:")
+            lines += [f"  {voter}: {_vec(v)}" for voter, v in c["values"].items()]
+        lines += ["```", ""]
+    if f["errors"]:
+        lines += ["Errors:", "", "```"] + [f"{name}: {message}" for name, message in f["errors"].items()] + ["```", ""]
+    return lines
+
+
+def render_report(out: Path, command: str = "") -> str:
+    """The campaign report (markdown): summary first, then each finding. Only the rows ``compute time``, ``wall
+    time`` and ``throughput`` depend on the machine; the rest is the same for the same campaign."""
+    campaign = load_campaign(out) or {"identity": {}, "runs": []}
+    chunks, findings = load_chunks(out), load_findings(out)
+    ident = campaign["identity"]
+    total = {key: sum(r[key] for r in chunks) for key in ("examples", "shrink_calls", "states", "models")}
+    seconds = sum(r["seconds"] for r in chunks)
+    wall = sum(r["wall_seconds"] for r in campaign["runs"])
+    worst = max(chunks, key=lambda r: r["worst_ratio"], default=None)
+    where = f" (chunk {worst['chunk']}, `{worst['worst_key']}`)" if worst and worst["worst_key"] else ""
+    margin = max(chunks, key=lambda r: r["worst_agreeing"], default=None)
+    margin_where = f" (chunk {margin['chunk']}, `{margin['worst_agreeing_key']}`)" if margin else ""
+    shards = sorted({r["shard"] for r in campaign["runs"]})
+    interrupted = [r for r in chunks if r["interrupted"]]
+    rate = f"{len(findings) / total['states']:.3g} per state" if total["states"] else "-"
+    lines = ["# Fuzzing campaign", ""]
+    if command:
+        lines += [f"Command: `{command}`", ""]
+    lines += [
+        "## Summary", "",
+        "| | |", "|---|---|",
+        f"| seed | {ident.get('seed')} |",
+        f"| backends | {', '.join(ident.get('backends', []))} |",
+        f"| drawn | up to {ident.get('max_bodies')} bodies, up to {ident.get('max_states')} states per model, "
+        f"constraints {({True: 'always', False: 'never', None: 'sometimes'})[ident.get('constraints')]} |",
+        "| checks | every quantity compared; "
+        + ", ".join(name for name in ("charts", "frames", "conservation") if ident.get(name)) + " |",
+        f"| chunks | {len(chunks)} of {ident.get('chunk_examples')} examples (shards run: {', '.join(shards)}"
+        + (f"; {len(interrupted)} interrupted" if interrupted else "") + ") |",
+        f"| examples | {total['examples']} generated, {total['shrink_calls']} more calls while shrinking |",
+        f"| models | {total['models']} |",
+        f"| states | {total['states']} |",
+        f"| worst error/tolerance | {worst['worst_ratio'] if worst else 0.0:.3g}{where} |",
+        f"| worst error/tolerance at states that passed | {margin['worst_agreeing'] if margin else 0.0:.3g}"
+        f"{margin_where} |",
+        f"| findings (disagreements and backend errors) | {len(findings)} |",
+        f"| false alarms | {len(findings)} findings on {total['states']} states ({rate}): with correct backends each "
+        "finding is a false alarm of the tolerance policy unless replaying it shows a backend bug |",
+        f"| compute time | {seconds:.1f} s in chunks |",
+        f"| wall time | {wall:.1f} s |",
+        f"| throughput | {total['examples'] / seconds if seconds else 0.0:.2f} examples/s, "
+        f"{total['states'] / seconds if seconds else 0.0:.2f} states/s (per process) |", ""]
+    lines += ["## Findings", ""]
+    if not findings:
+        lines += ["None: every backend agreed at every state.", ""]
+    for f in findings:
+        lines += _finding_section(f, out)
+    return "\n".join(lines)
+
+
+def summary(result: CampaignResult) -> str:
+    """A few lines for the terminal: what ran, what was found (each finding with its replay command), the report."""
+    chunks = result.chunks
+    lines = [f"{len(chunks)} chunks, {sum(r['examples'] for r in chunks)} examples, {sum(r['states'] for r in chunks)} "
+             f"states, {len(result.findings)} findings" + (" (interrupted)" if result.interrupted else "")]
+    for f in result.findings:
+        what = ", ".join([c["key"] for c in f["failing"][:3]] + [f"error {e}" for e in f["errors"]][:3])
+        lines.append(f"  {f['id']}: {what}; crosscheck replay {f['id']} --dir {result.out}")
+    lines.append(f"report written to {result.out / 'report.md'}")
+    return "\n".join(lines)
+
+
+def write_report(out: Path, command: str = "") -> Path:
+    path = out / "report.md"
+    _write_atomic(path, render_report(out, command))
+    return path

@@ -1,0 +1,420 @@
+"""Hypothesis strategies and assertions for property tests of rigid-body dynamics code, yours or ours.
+
+Draw random mechanisms and admissible states, and check that backends agree under the harness's tolerance policy::
+
+    from hypothesis import given, settings, strategies as st
+    from crosscheck import testing
+
+    @settings(max_examples=50, deadline=None)
+    @given(st.data())
+    def test_my_backend_agrees(data):
+        model = data.draw(testing.models(max_bodies=4))
+        state = data.draw(testing.states(model))
+        testing.assert_backends_agree(model, state, backends=["my_backend", "pinocchio"])
+
+Strategies: :func:`models` (random kinematic trees, optionally constrained), :func:`states` (admissible
+``crosscheck.sampling.State``), :func:`charts` (``crosscheck.charts``), :func:`frames` (rigid transforms,
+``crosscheck.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`, :func:`rotations`,
+:func:`inertias`). Everything a failing example shrinks toward is the simplest mechanism of its kind: fewer bodies,
+a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers.
+
+Assertions: :func:`assert_backends_agree` runs the gate's comparison at one state (and the chart, frame and
+conservation checks); :func:`assert_split_close` compares two splits with the tolerance policy. Both raise
+``AssertionError`` with every failing quantity, its error/tolerance ratio, the outlier and each backend's value.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+from hypothesis import assume
+from hypothesis import strategies as st
+
+from cases import constraints as decl
+from cases.model import Body, Model, TaskPoint, build_model
+from crosscheck import backends as backend_registry
+from crosscheck import charts as chart_catalog
+from crosscheck import frames as frame_tools
+from crosscheck import gate, reference, sampling
+from crosscheck import tolerance as policy
+from crosscheck.compare import DISAGREE, Comparison, compare
+from crosscheck.gate import StateOutcome
+from formalisms.interface import Split
+
+#: Drawn ranges. Lengths (placements, centres of mass, task offsets) within +-1 m and +-0.5 m; masses log-uniform
+#: over four decades; radii of gyration 5-50 cm; gravity up to 20 m/s^2 per axis; constraint circles 0.1-1 m.
+PLACEMENT_RANGE = 1.0
+OFFSET_RANGE = 0.5
+MASS_DECADES = (-2.0, 2.0)
+GYRATION_RANGE = (0.05, 0.5)
+GRAVITY_RANGE = 20.0
+RADIUS_RANGE = (0.1, 1.0)
+#: Drawn lengths below this (1 micrometre) are drawn as 0. Physically they are below any modelling precision, and
+#: numerically a lever arm that small next to metre-scale placements is decided by rounding: a constraint point
+#: 1e-38 m off a joint axis has a Jacobian row of 1e-38 in body-frame kinematics and exactly 0 in world-frame
+#: kinematics, so the backends disagree on whether the constraint exists (see the fuzzing notes in the README).
+MIN_LENGTH = 1e-6
+#: Drawn direction components and state entries (angles, rates, inputs) below this in magnitude are drawn as 0:
+#: below any sensor, actuator or machining resolution, they only probe floating-point underflow (a 1-row task
+#: Jacobian of 1e-135 at q = 2e-135 rad overflows the operational-space backend's task inertia; see the README).
+MIN_VALUE = 1e-9
+#: A projected state whose q moved more than this from the draw (in some coordinate) is rejected: Gauss–Newton left
+#: the draw's neighbourhood (a revolute angle of -7.8e6 rad was seen), and the state is a far-off copy of one near it.
+MAX_PROJECTION_STEP = 2.0 * np.pi
+#: A point mass on a revolute joint sits at least this far from the joint axis; closer, the body gets a solid
+#: inertia instead. Either way every joint moves some inertia along its own motion, so M is positive definite
+#: (the shallowest moving joint always moves its own body), whatever the configuration.
+MIN_ARM = 0.05
+#: Principal moments of a solid body, in units of mass x gyration^2: the two first in [0.1, 1], the third between
+#: their difference and their sum (the triangle inequality) and at least 0.1, so the inertia is positive definite.
+MIN_MOMENT = 0.1
+
+STANDARD_GRAVITY = (0.0, 0.0, -9.81)
+_UNIT = {"z": (0.0, 0.0, 1.0), "x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0)}
+
+
+@functools.lru_cache(maxsize=None)
+def _floats(low: float, high: float) -> st.SearchStrategy[float]:
+    return st.floats(low, high, allow_nan=False, allow_infinity=False)
+
+
+def _length(x: float) -> float:
+    return 0.0 if abs(x) < MIN_LENGTH else x
+
+
+def _value(x: float) -> float:
+    return 0.0 if abs(x) < MIN_VALUE else x
+
+
+@functools.lru_cache(maxsize=None)
+def _values(low: float, high: float) -> st.SearchStrategy[float]:
+    """Floats in ``[low, high]``, those below :data:`MIN_VALUE` in magnitude drawn as 0."""
+    return _floats(low, high).map(_value)
+
+
+@functools.lru_cache(maxsize=None)
+def vectors(bound: float) -> st.SearchStrategy[np.ndarray]:
+    """3-vectors with entries in ``[-bound, bound]`` (shrinking toward zero and round entries); entries below
+    :data:`MIN_LENGTH` in magnitude are 0."""
+    return st.tuples(*[_floats(-bound, bound).map(_length)] * 3).map(lambda v: np.array(v, dtype=float))
+
+
+def _normalized(v) -> np.ndarray:
+    v = np.array([_value(x) for x in v], dtype=float)
+    norm = np.linalg.norm(v)
+    return v / norm if norm > 1e-6 else np.array(_UNIT["z"])
+
+
+@functools.lru_cache(maxsize=None)
+def unit_vectors() -> st.SearchStrategy[np.ndarray]:
+    """Random unit 3-vectors (a drawn vector, components below :data:`MIN_VALUE` zeroed, normalized; one too short
+    to normalize stands for z)."""
+    return st.tuples(*[_floats(-1.0, 1.0)] * 3).map(_normalized)
+
+
+@functools.lru_cache(maxsize=None)
+def axes() -> st.SearchStrategy[np.ndarray]:
+    """Joint axes: z, x or y (shrinking toward z), or a random unit vector."""
+    return st.one_of(st.sampled_from(list(_UNIT.values())).map(np.array), unit_vectors())
+
+
+def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` about the unit ``axis``: ``I + sin(a) K + (1 - cos(a)) K^2`` with ``K = [axis]x``."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+@functools.lru_cache(maxsize=None)
+def rotations() -> st.SearchStrategy[np.ndarray]:
+    """Rotation matrices: the identity, a quarter turn about x, y or z (exact entries), or a random rotation
+    (axis and angle in [-pi, pi]), in that shrinking order."""
+    quarter = [np.rint(_rodrigues(np.array(a), s * np.pi / 2)) for a in _UNIT.values() for s in (1, -1)]
+    return st.one_of(st.just(np.eye(3)), st.sampled_from(quarter),
+                     st.builds(_rodrigues, unit_vectors(), _values(-np.pi, np.pi)))
+
+
+def _unit_inertia(k: float, s1: float, s2: float, t: float, R: np.ndarray) -> np.ndarray:
+    low, high = max(abs(s1 - s2), MIN_MOMENT), s1 + s2
+    inertia = k * k * (R @ np.diag([s1, s2, low + t * (high - low)]) @ R.T)
+    return 0.5 * (inertia + inertia.T)
+
+
+@functools.lru_cache(maxsize=None)
+def _unit_inertias() -> st.SearchStrategy[np.ndarray]:
+    return st.builds(_unit_inertia, _floats(*GYRATION_RANGE), _floats(MIN_MOMENT, 1.0), _floats(MIN_MOMENT, 1.0),
+                     _floats(0.0, 1.0), rotations())
+
+
+def inertias(mass: float = 1.0) -> st.SearchStrategy[np.ndarray]:
+    """Rotational inertias about the COM of a solid body of ``mass``: ``m k^2 R diag(s) R^T`` with the radius of
+    gyration k in ``GYRATION_RANGE``, principal moments s satisfying the triangle inequality and each at least
+    ``MIN_MOMENT`` (the third drawn between the bounds that leaves; positive definite), principal axes R a drawn
+    rotation. Exactly symmetric."""
+    return _unit_inertias().map(lambda inertia: mass * inertia)
+
+
+def _arm(com: np.ndarray, axis: np.ndarray) -> float:
+    """Distance of the COM from the joint axis through the body origin."""
+    return float(np.linalg.norm(com - (com @ axis) * axis))
+
+
+@functools.lru_cache(maxsize=None)
+@st.composite
+def _body(draw, i: int) -> Body:
+    """Body ``i``: parent the previous body (shrinking toward a serial chain), an earlier one, or the world."""
+    back = draw(st.integers(0, i))
+    parent = None if back == i else f"b{i - 1 - back}"
+    joint = draw(st.sampled_from(("revolute", "prismatic")))
+    axis = draw(axes())
+    translation = draw(vectors(PLACEMENT_RANGE))
+    rotation = draw(rotations())
+    mass = float(10.0 ** draw(_floats(*MASS_DECADES)))
+    com = draw(vectors(OFFSET_RANGE))
+    solid = mass * draw(_unit_inertias())
+    wants_solid = draw(st.booleans())
+    point = not wants_solid and (joint == "prismatic" or _arm(com, axis) >= MIN_ARM)
+    return Body(f"b{i}", parent, joint, axis, mass, com=com, inertia=np.zeros((3, 3)) if point else solid,
+                rotation=rotation, translation=translation)
+
+
+@functools.lru_cache(maxsize=None)
+def _input_maps(n: int) -> st.SearchStrategy:
+    """B: identity (None), a selection of joints (possibly underactuated), or a dense n x m matrix."""
+    selection = st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True).map(
+        lambda cols: np.eye(n)[:, sorted(cols)])
+    dense = st.integers(1, n).flatmap(
+        lambda m: st.lists(st.lists(_values(-2.0, 2.0), min_size=m, max_size=m), min_size=n, max_size=n)).map(
+        lambda rows: np.array(rows, dtype=float))
+    return st.one_of(st.none(), selection, dense)
+
+
+def configurations(model: Model) -> st.SearchStrategy[np.ndarray]:
+    """Joint positions over ``crosscheck.sampling``'s ranges: one turn (revolute), +-0.5 m (prismatic)."""
+    spans = [sampling.ANGLE_RANGE if b.joint == "revolute" else sampling.DISPLACEMENT_RANGE for b in model.bodies]
+    return st.tuples(*[_values(-s, s) for s in spans]).map(lambda q: np.array(q, dtype=float))
+
+
+def body_poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
+    """World (rotation, origin) of every body frame at ``q``, from Pinocchio's forward kinematics (the reference,
+    outside the backends under test)."""
+    pm = reference.to_pinocchio(model)
+    data = pm.createData()
+    ids = [pm.getJointId(b.name) for b in model.bodies]
+    q_pin = np.zeros(pm.nq)
+    for i, jid in enumerate(ids):
+        q_pin[pm.joints[jid].idx_q] = q[i]
+    pin.forwardKinematics(pm, data, q_pin)
+    return [(np.array(data.oMi[jid].rotation), np.array(data.oMi[jid].translation)) for jid in ids]
+
+
+@st.composite
+def _task_point(draw, model: Model) -> TaskPoint:
+    """A task point on a body (shrinking toward the last), with 1 to min(3, n) task directions."""
+    body = model.bodies[model.n - 1 - draw(st.integers(0, model.n - 1))]
+    offset = draw(vectors(OFFSET_RANGE))
+    rows = draw(st.integers(1, min(3, model.n)))
+    return TaskPoint("tip", body.name, offset, draw(rotations())[:rows])
+
+
+def _point(poses, i: int, offset: np.ndarray) -> np.ndarray:
+    R, origin = poses[i]
+    return R @ offset + origin
+
+
+@st.composite
+def _constraint(draw, model: Model, q0: np.ndarray, poses, budget: int, name: str):
+    """One declaration that holds at ``q0`` (where the bodies have ``poses``), with at most ``budget`` rows."""
+    kinds = ["JointCoupling", "PointsCoincide", "PointOnCircle", "PointOnLine"]
+    kind = draw(st.sampled_from(kinds))
+    names = [b.name for b in model.bodies]
+    a = draw(st.integers(0, model.n - 1))
+    offset = draw(vectors(OFFSET_RANGE))
+    p = _point(poses, a, offset)
+    frame = draw(rotations())
+    if kind == "JointCoupling":
+        others = [j for j in range(model.n) if j != a]
+        joints = [a] + draw(st.lists(st.sampled_from(others), max_size=1))
+        coefficients = [draw(st.sampled_from((1.0, -1.0, 2.0, 0.5))) for _ in joints]
+        return decl.JointCoupling(name, tuple(names[j] for j in joints), tuple(coefficients),
+                                  float(sum(c * q0[j] for c, j in zip(coefficients, joints))))
+    if kind == "PointsCoincide":
+        other = draw(st.sampled_from([None] + [j for j in range(model.n) if j != a]))
+        rows = draw(st.integers(1, min(3, budget)))
+        if other is None:
+            return decl.PointsCoincide(name, names[a], offset, None, p, frame[:rows])
+        R_b, origin_b = poses[other]
+        return decl.PointsCoincide(name, names[a], offset, names[other], R_b.T @ (p - origin_b), frame[:rows])
+    if kind == "PointOnCircle":
+        radius, angle = draw(_floats(*RADIUS_RANGE)), draw(_values(-np.pi, np.pi))
+        plane = frame[:2]
+        center = p - radius * (np.cos(angle) * plane[0] + np.sin(angle) * plane[1])
+        return decl.PointOnCircle(name, names[a], offset, center, radius, plane)
+    rows = draw(st.integers(1, min(2, budget)))
+    return decl.PointOnLine(name, names[a], offset, p, frame[:rows])
+
+
+@st.composite
+def _constraints(draw, model: Model, required: bool) -> list:
+    """Declarations that hold at a drawn reference configuration q0 (placed with Pinocchio's forward kinematics
+    there: the circle, line or pin through the point's position at q0), with fewer rows than joints."""
+    q0 = draw(configurations(model))
+    poses = body_poses(model, q0)
+    out: list = []
+    budget = model.n - 1
+    while budget > 0 and (draw(st.booleans()) or (required and not out)):
+        c = draw(_constraint(model, q0, poses, budget, f"c{len(out)}"))
+        out.append(c)
+        budget -= c.size
+    return out
+
+
+@st.composite
+def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodies: int = 1,
+           name: str = "drawn") -> Model:
+    """Random valid models: kinematic trees of ``min_bodies`` to ``max_bodies`` bodies.
+
+    Each body hangs from the previous one, an earlier one or the world, by a revolute or prismatic joint about an
+    axis-aligned or random unit axis, at a drawn placement (translation, rotation); its mass is log-uniform over
+    ``MASS_DECADES``, its COM offset drawn, its inertia a point mass or a random positive definite one (see
+    :data:`MIN_ARM`: M is positive definite everywhere). Gravity is standard or random, B the identity, a selection
+    of joints or a dense matrix (possibly underactuated), the task point on a drawn body with 1-3 task directions.
+
+    ``constraints``: False none, True at least one, None either. Declarations (joint couplings, points coinciding
+    with another body's point or pinned to the world, points on circles and lines) are placed so that a drawn
+    configuration satisfies them, with fewer rows than joints; ``states`` then finds admissible states.
+    """
+    if constraints and max_bodies < 2:
+        raise ValueError("models(constraints=True) needs max_bodies >= 2 (a constraint leaves fewer rows than joints)")
+    low = max(min_bodies, 2) if constraints else min_bodies
+    n = draw(st.integers(low, max_bodies))
+    bodies = [draw(_body(i)) for i in range(n)]
+    gravity = draw(st.one_of(st.just(np.array(STANDARD_GRAVITY)), vectors(GRAVITY_RANGE)))
+    input_map = draw(_input_maps(n))
+    base = build_model(name, bodies, gravity=gravity, input_map=input_map)
+    task = draw(_task_point(base))
+    wanted = draw(st.booleans()) if constraints is None else constraints
+    declared = draw(_constraints(base, constraints is True)) if wanted and n >= 2 else []
+    return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared)
+
+
+@st.composite
+def states(draw, model: Model, index: int = 0) -> sampling.State:
+    """Admissible states of ``model`` over ``crosscheck.sampling``'s ranges (positions one turn or +-0.5 m, rates,
+    inputs). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
+    (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
+    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, is rejected (``hypothesis.assume``).
+    Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
+    drawn = draw(configurations(model))
+    qd = np.array(draw(st.tuples(*[_values(-sampling.RATE_RANGE, sampling.RATE_RANGE)] * model.n)), dtype=float)
+    u = np.array(draw(st.tuples(*[_values(-sampling.INPUT_RANGE, sampling.INPUT_RANGE)] * model.m)), dtype=float)
+    q = drawn
+    if model.constraints:
+        try:
+            q = sampling.project_configuration(model, drawn)
+        except sampling.ProjectionError:
+            assume(False)
+        assume(np.abs(q - drawn).max() <= MAX_PROJECTION_STEP)
+        qd = sampling.project_velocity(model, q, qd)
+    return sampling.State(index, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist()))
+
+
+def chart_names(model: Model) -> list[str]:
+    """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain."""
+    return [name for name in ("identity", "nonlinear", "affine", "absolute")
+            if name != "absolute" or chart_catalog.is_planar_serial(model)]
+
+
+def chart_specs(model: Model) -> st.SearchStrategy[tuple[str, int]]:
+    """(chart name, seed) pairs; ``crosscheck.charts.get(name, model, seed)`` makes the chart."""
+    return st.tuples(st.sampled_from(chart_names(model)), st.integers(0, 2**31 - 1))
+
+
+def charts(model: Model) -> st.SearchStrategy[chart_catalog.Chart]:
+    """Built-in charts of ``model`` (shrinking toward the identity; the affine one drawn from a seed)."""
+    return chart_specs(model).map(lambda spec: chart_catalog.get(spec[0], model, spec[1]))
+
+
+def frames(name: str = "g", reach: float = 1.0) -> st.SearchStrategy[frame_tools.Frame]:
+    """Rigid transforms: a drawn rotation and a translation within +-``reach`` m per axis."""
+    return st.builds(frame_tools.Frame, st.just(name), rotations(), vectors(reach))
+
+
+# ------------------------------------------------------------------------------------------------ assertions
+
+
+def _format(value) -> str:
+    arr = np.atleast_1d(np.asarray(value, dtype=float))
+    return np.array2string(arr, precision=9, max_line_width=10_000, separator=", ")
+
+
+def failing(outcome: StateOutcome) -> dict[str, Comparison]:
+    """The comparisons and checks of ``outcome`` that DISAGREE, by key."""
+    everything = {**outcome.comparisons, **outcome.checks}
+    return {key: c for key, c in everything.items() if c.verdict == DISAGREE}
+
+
+def describe_comparison(key: str, c: Comparison) -> list[str]:
+    """A failing comparison as lines: key, ratio, tolerance, outlier, then each voter's value."""
+    outlier = f", outlier {c.outlier}" if c.outlier else ", no single outlier"
+    lines = [f"{key}: DISAGREE, error/tolerance {c.worst_ratio:.3g} (tolerance {c.tolerance:.3g}){outlier}"]
+    lines += [f"    {voter}: {_format(value)}" for voter, value in c.values.items()]
+    return lines
+
+
+def describe_failure(outcome: StateOutcome) -> str:
+    """Every failing comparison and backend error of ``outcome``, one block each."""
+    s = outcome.state
+    lines = [f"at q = {list(s.q)}, qd = {list(s.qd)}, u = {list(s.u)}:"]
+    for key, c in failing(outcome).items():
+        lines += describe_comparison(key, c)
+    lines += [f"{name} raised {message}" for name, message in outcome.errors.items()]
+    return "\n".join(lines)
+
+
+def assert_backends_agree(model: Model, state: sampling.State, backends: Sequence[str] | None = None,
+                          chart: chart_catalog.Chart | None = None, frame: frame_tools.Frame | None = None,
+                          conservation: bool = True) -> StateOutcome:
+    """Evaluate ``backends`` (names; default every one in ``crosscheck.backends``) at ``state`` as the gate does
+    (``crosscheck.gate.evaluate``), with the chart check in ``chart``, the frame check on the scene moved by
+    ``frame`` and the conservation checks when asked (``gate.add_checks``). Returns the outcome; raises
+    AssertionError listing each disagreement (quantity, error/tolerance ratio, tolerance, outlier, values) and each
+    backend error.
+
+        >>> model = cases.load("double_pendulum")
+        >>> state = sampling.State(0, (0.3, -0.2), (1.0, 0.5), (2.0, -1.0))
+        >>> testing.assert_backends_agree(model, state, chart=charts.get("absolute", model))
+    """
+    chosen = [backend_registry.get(name) for name in (backends or backend_registry.names())]
+    outcome = gate.evaluate(model, state, chosen)
+    scene = None if frame is None else (frame, frame_tools.move_scene(model, frame))
+    gate.add_checks(model, outcome, chosen, [] if chart is None else [chart], scene, conservation)
+    if outcome.failed:
+        raise AssertionError(f"backends {[b.name for b in chosen]} disagree on model '{model.name}' "
+                             + describe_failure(outcome))
+    return outcome
+
+
+def assert_split_close(a: Split, b: Split, model: Model, q, qd, names: tuple[str, str] = ("a", "b")) -> None:
+    """Compare two splits of ``model`` at ``(q, qd)`` quantity by quantity (``crosscheck.tolerance.quantities``)
+    with the harness's tolerance policy (scales from both splits; quantities with an exact value also against it).
+    The splits are compared as given (a BREAKDOWN is not looked at). Raises AssertionError naming each quantity
+    that differs, with the ratio, the tolerance and both values.
+
+        >>> a = formalisms.get("newton_euler").split(model, q, qd, u)
+        >>> testing.assert_split_close(a, my_split(model, q, qd, u), model, q, qd, names=("newton_euler", "mine"))
+    """
+    at = policy.scales([a, b], model, np.asarray(q, dtype=float), np.asarray(qd, dtype=float))
+    bad = []
+    for quantity in policy.quantities(model):
+        values = {names[0]: a.quantity(quantity), names[1]: b.quantity(quantity)}
+        if quantity in policy.EXACT:
+            values["exact"] = policy.EXACT[quantity]
+        c = compare(quantity, values, policy.tolerance(quantity, at))
+        if c.verdict == DISAGREE:
+            bad += describe_comparison(quantity, c)
+    if bad:
+        raise AssertionError(f"splits {names[0]} and {names[1]} of model '{model.name}' differ at q = {list(q)}, "
+                             f"qd = {list(qd)}:\n" + "\n".join(bad))
