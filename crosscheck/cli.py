@@ -1,4 +1,4 @@
-"""The ``crosscheck`` command line: cases, formalisms, gate, eval.
+"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge.
 
 Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage.
 """
@@ -19,10 +19,12 @@ import cases
 from cases.model import ModelError
 from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
+from crosscheck import diagnosis, junit, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
+from crosscheck.compare import KNOWN, worst_of
 from crosscheck.report import render
 from formalisms import UnknownFormalism
-from formalisms.interface import StateError
+from formalisms.interface import ModelNotSupported, StateError
 
 DEFAULT_REPORT = "reports/gate.md"
 
@@ -75,6 +77,13 @@ def _backends(selected: list[str] | None):
     return [backends.get(name) for name in (selected or backends.names())]
 
 
+def add_plugin_option(parser: argparse.ArgumentParser) -> None:
+    """``--plugin MODULE:OBJECT`` (repeatable) on a subcommand. :func:`main` loads the plugins before the command
+    runs, so they are in ``backends.names()``; a worker process loads them from ``backends.plugin_specs()``."""
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
+                        help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+
+
 def cmd_cases(args) -> int:
     for info in cases.catalog():
         params = ", ".join(f"{k}={v}" for k, v in info.parameters.items()) or "no parameters"
@@ -84,10 +93,25 @@ def cmd_cases(args) -> int:
 
 def cmd_formalisms(args) -> int:
     width = max(map(len, backends.names()))
+    plugins = backends.plugin_sources()
     for name in backends.names():
         tag = " (external reference)" if name == backends.REFERENCE_NAME else ""
+        tag = f" ({plugins[name]})" if name in plugins else tag
         print(f"{name:{width}s}  {backends.get(name).summary}{tag}")
     return 0
+
+
+def _registry(args) -> registry.Registry | None:
+    """The divergence registry of a gate run: ``--registry PATH``, else ``divergences.toml`` in the current
+    directory when there is one; none with ``--no-registry``."""
+    if args.no_registry and args.registry:
+        raise UsageError("give either --registry PATH or --no-registry, not both")
+    path = None if args.no_registry else args.registry or (
+        registry.DEFAULT_PATH if Path(registry.DEFAULT_PATH).is_file() else None)
+    try:
+        return registry.load(path) if path else None
+    except registry.RegistryError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def cmd_gate(args) -> int:
@@ -97,6 +121,7 @@ def cmd_gate(args) -> int:
     chosen = _backends(args.formalism)
     for spec in specs:  # build every model first so bad input fails before any work
         spec.build()
+    known = _registry(args)
 
     def progress(case, done):
         if done == args.samples:
@@ -106,19 +131,29 @@ def cmd_gate(args) -> int:
         raise UsageError("--frames must be 0 (off) or more")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation)
     result = run_gate(specs, chosen, args.samples, args.seed, progress, checks)
+    applied = registry.apply(known, result) if known else None
+    diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
-    report.write_text(render(result, command))
+    report.write_text(render(result, command, applied))
+    if args.junit:
+        junit.write(result, args.junit)
+    for entry in applied.stale if applied else ():
+        print(f"crosscheck: warning: stale {entry.describe()} in {applied.registry.source}: compared in this run "
+              "but explained no disagreement", file=sys.stderr)
     for case in result.cases:
         bad = sum(s.failed for s in case.states)
         broken = sum(bool(s.breakdowns) for s in case.states)
-        worst = max((s.worst_ratio for s in case.states), default=0.0)
+        worst = worst_of(s.worst_ratio for s in case.states)
         checked = [c.worst_ratio for s in case.states for c in s.checks.values()]
         status = "FAIL" if bad else "ok"
-        print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {broken} breakdown, "
+        known_here = sum(c.verdict == KNOWN for s in case.states for c in [*s.comparisons.values(),
+                                                                           *s.checks.values()])
+        print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {known_here} known, "
+              f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
-              f"{max(checked, default=0.0):.3g}")
+              f"{worst_of(checked):.3g}")
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
 
@@ -161,22 +196,30 @@ def _inputs(args, model, chart, p) -> tuple[np.ndarray, np.ndarray]:
     return u, tau_p
 
 
-def _chart_splits(model, chart, p, pd, u, tau_p, chosen) -> dict[str, tuple[str, object]]:
-    """Per backend: (how it was evaluated, split in the chart). Joint-chart answers are mapped into the chart."""
+def _chart_split(backend, model, chart, p, pd, u, tau_p) -> tuple[str, object]:
+    """(how it was evaluated, split in the chart). A joint-chart answer is mapped into the chart."""
     q = chart.q_of(p)
     qd = chart.jacobian(p) @ pd
-    out = {}
+    if chart.name == "identity":
+        return "joint chart", backend.split(model, q, qd, u)
+    if backend.split_chart is not None:
+        return f"in chart {chart.name}", backend.split_chart(model, chart, p, pd, tau_p)
+    split = backend.split(model, q, qd, u)
+    mapped = {name: charts.acceleration_to_chart(chart, p, pd, getattr(split, name), with_rate=name != "ctrl")
+              for name in ("drift", "ctrl", "total")}
+    return "joint chart, mapped by Dpsi^-1", dataclasses.replace(split, **mapped)
+
+
+def _chart_splits(model, chart, p, pd, u, tau_p, chosen) -> tuple[dict[str, tuple[str, object]], dict[str, str]]:
+    """Per backend: (how it was evaluated, split in the chart); and the backends written for other models
+    (``ModelNotSupported``): name -> their reason."""
+    out, unsupported = {}, {}
     for backend in chosen:
-        if chart.name == "identity":
-            out[backend.name] = ("joint chart", backend.split(model, q, qd, u))
-        elif backend.split_chart is not None:
-            out[backend.name] = (f"in chart {chart.name}", backend.split_chart(model, chart, p, pd, tau_p))
-        else:
-            split = backend.split(model, q, qd, u)
-            mapped = {name: charts.acceleration_to_chart(chart, p, pd, getattr(split, name), with_rate=name != "ctrl")
-                      for name in ("drift", "ctrl", "total")}
-            out[backend.name] = ("joint chart, mapped by Dpsi^-1", dataclasses.replace(split, **mapped))
-    return out
+        try:
+            out[backend.name] = _chart_split(backend, model, chart, p, pd, u, tau_p)
+        except ModelNotSupported as exc:
+            unsupported[backend.name] = str(exc)
+    return out, unsupported
 
 
 #: eval accepts a constrained state when |phi| and |Jc qd| are below this times the model's length scale squared
@@ -196,7 +239,7 @@ def _admissible(model, chart, p, pd, project: bool) -> tuple[np.ndarray, np.ndar
     q, qd = chart.q_of(p), chart.jacobian(p) @ pd
     phi, Jc, _ = constraint_kinematics(model, q, qd)
     vel = Jc @ qd
-    scale = sampling.length_scale(model) ** 2
+    scale = model.length_scale ** 2
     tol_q, tol_v = ADMISSIBLE * scale, ADMISSIBLE * scale * (1.0 + float(np.abs(qd).sum()))
     if np.abs(phi).max() <= tol_q and np.abs(vel).max() <= tol_v:
         return p, pd
@@ -232,13 +275,13 @@ def cmd_eval(args) -> int:
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
     u, tau_p = _inputs(args, model, chart, p)
-    splits = _chart_splits(model, chart, p, pd, u, tau_p, _backends(args.formalism))
+    splits, unsupported = _chart_splits(model, chart, p, pd, u, tau_p, _backends(args.formalism))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
            for name, (_, split) in splits.items()}
     if args.json:
         print(json.dumps({"case": spec.name, "params": dict(spec.params), "chart": chart.name,
                           "frame": args.frame, "q": p.tolist(), "qd": pd.tolist(), "u": u.tolist(),
-                          "tau": tau_p.tolist(), "formalisms": out}, indent=1))
+                          "tau": tau_p.tolist(), "formalisms": out, "not_supported": unsupported}, indent=1))
         return 0
     where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
     print(f"case {model.name}{where}: q = {p.tolist()}, qd = {pd.tolist()}, u = {u.tolist()}, "
@@ -249,12 +292,15 @@ def cmd_eval(args) -> int:
         print(f"{name} ({how}):" + (" BREAKDOWN (" + ", ".join(
             f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}" for k, v in broken.items()) + ")"
             if broken else ""))
-        keys = ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "cond_M", "conditions")
+        keys = ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "task_inertia",
+                "joint_wrenches", "joint_wrenches_drift", "cond_M", "conditions")
         if model.constraints:
             keys += ("lam", "lam_drift", "constraint_force", "power_constr", "power_constr_per_coord",
                      "constraint_rank")
         for key in keys:
             print(f"  {key:22s} {values[key]}")
+    for name, reason in unsupported.items():
+        print(f"{name}: NOT COMPARED ({reason})")
     return 0
 
 
@@ -264,11 +310,114 @@ def _frame(name: str, seed: int, case: str) -> frames.Frame:
     return frames.sampled(seed, case, int(name[1:]) + 1)[-1]
 
 
+DEFAULT_FAULTS_REPORT = "reports/faults.md"
+
+
+def cmd_faults(args) -> int:
+    """Inject each catalog fault in turn and hunt it with the default gate (``crosscheck.faults``)."""
+    import time
+
+    from crosscheck import fault_catalog, faults
+
+    if args.samples < 1:
+        raise UsageError("--samples must be at least 1")
+    try:
+        chosen = [fault_catalog.get(name) for name in args.fault] if args.fault else list(fault_catalog.CATALOG)
+    except faults.FaultError as exc:
+        raise UsageError(str(exc)) from None
+    if args.list:
+        width = max(len(f.name) for f in chosen)
+        for f in chosen:
+            print(f"{f.name:{width}s}  {f.backend:17s}  {f.target}{' (derivation)' if f.derived else ''}\n"
+                  f"{'':{width}s}  {f.bug}")
+        return 0
+    known = _registry(args)
+    start = time.perf_counter()
+    hunts = []
+    for fault in chosen:
+        hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known))
+        print(faults.line(hunts[-1]), flush=True)
+    seconds = time.perf_counter() - start
+    summary = faults.summarize(hunts)
+    report = Path(args.report)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
+    report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed))
+    print(f"caught {summary.caught}/{summary.faults} ({100 * summary.rate:.0f} %); states needed median "
+          f"{summary.median_states:g}, max {summary.max_states}; outlier named = faulty backend for "
+          f"{summary.named_faulty}/{summary.caught}; {seconds:.1f} s; report written to {report}")
+    return 0 if summary.caught == summary.faults else 1
+
+
+def _shard(text: str) -> tuple[int, int]:
+    index, sep, count = text.partition("/")
+    if not (sep and index.isdigit() and count.isdigit()):
+        raise UsageError(f"--shard takes i/N (e.g. 0/4), got '{text}'")
+    return int(index), int(count)
+
+
+def cmd_fuzz(args) -> int:
+    from crosscheck import fuzz
+
+    if args.examples is not None and args.minutes is not None:
+        raise UsageError("give either --examples or --minutes, not both")
+    bound = {"examples": args.examples, "minutes": args.minutes}
+    if args.examples is None and args.minutes is None:
+        bound["examples"] = fuzz.DEFAULT_EXAMPLES
+    if args.chunk_examples is not None:
+        bound["chunk_examples"] = args.chunk_examples
+    try:
+        cfg = fuzz.config(seed=args.seed, workers=args.workers, shard=_shard(args.shard), out=args.out,
+                          backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
+                          max_bodies=args.max_bodies, max_states=args.max_states,
+                          constraints=fuzz.CONSTRAINT_CHOICES[args.constraints], charts=not args.no_charts,
+                          frames=not args.no_frames, conservation=not args.no_conservation, **bound)
+        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
+    except fuzz.FuzzError as exc:
+        raise UsageError(str(exc)) from None
+    print(fuzz.summary(result))
+    return 130 if result.interrupted else (1 if result.findings else 0)
+
+
+def cmd_replay(args) -> int:
+    from crosscheck import fuzz
+    from crosscheck.testing import describe_failure
+
+    try:
+        finding = fuzz.find(Path(args.dir), args.id)
+    except fuzz.FuzzError as exc:
+        raise UsageError(str(exc)) from None
+    outcome = fuzz.replay(finding, args.formalism)
+    print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
+          f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")
+    if outcome.failed:
+        print("FAILS " + describe_failure(outcome))
+        return 1
+    worst = max((c.worst_ratio for c in [*outcome.comparisons.values(), *outcome.checks.values()]), default=0.0)
+    print(f"passes now: {len(outcome.comparisons) + len(outcome.checks)} comparisons and checks agree, worst "
+          f"error/tolerance {worst:.3g}")
+    return 0
+
+
+def cmd_merge(args) -> int:
+    from crosscheck import fuzz
+
+    try:
+        result = fuzz.merge([Path(d) for d in args.dirs], Path(args.out),
+                            "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
+    except fuzz.FuzzError as exc:
+        raise UsageError(str(exc)) from None
+    print(fuzz.summary(result))
+    return 1 if result.findings else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="crosscheck", description="Cross-formalism verification of rigid multibody dynamics.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     sub.add_parser("cases", help="list the built-in cases and their parameters").set_defaults(run=cmd_cases)
-    sub.add_parser("formalisms", help="list the formalisms and the reference").set_defaults(run=cmd_formalisms)
+    listing = sub.add_parser("formalisms", help="list the formalisms, the reference and the plugins")
+    add_plugin_option(listing)
+    listing.set_defaults(run=cmd_formalisms)
 
     gate = sub.add_parser("gate", help="sample states per case, compare every backend, write a report")
     gate.add_argument("--case", action="append", default=[], help="a built-in case (repeatable; default: all)")
@@ -281,6 +430,11 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
     gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
+    gate.add_argument("--registry", metavar="PATH", help="divergence registry of known, explained divergences "
+                      f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
+    gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
+    add_plugin_option(gate)
     gate.set_defaults(run=cmd_gate)
 
     ev = sub.add_parser("eval", help="evaluate the backends at one state")
@@ -298,7 +452,56 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--project", action="store_true",
                     help="constrained case: move the state onto the constraint manifold first (else it is refused)")
     ev.add_argument("--json", action="store_true", help="print JSON")
+    add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
+
+    hunt = sub.add_parser("faults", help="inject each catalogued fault and measure whether the default gate "
+                          "catches it")
+    hunt.add_argument("--fault", action="append", default=[], metavar="NAME",
+                      help="run only this fault (repeatable; default: the whole catalog, see --list)")
+    hunt.add_argument("--samples", type=int, default=100, help="at most this many states per case (default 100)")
+    hunt.add_argument("--seed", type=int, default=0, help="random seed of the gate's states (default 0)")
+    hunt.add_argument("--report", default=DEFAULT_FAULTS_REPORT,
+                      help=f"markdown report path (default {DEFAULT_FAULTS_REPORT})")
+    hunt.add_argument("--list", action="store_true", help="print the catalog (or the chosen faults) and exit")
+    hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
+                      f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
+    hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    hunt.set_defaults(run=cmd_faults)
+
+    fz = sub.add_parser("fuzz", help="fuzzing campaign: random models and states, failures shrunk and saved")
+    fz.add_argument("--examples", type=int, help="examples to generate over all shards (default 100 when --minutes "
+                    "is not given)")
+    fz.add_argument("--minutes", type=float, help="run for this long instead (the chunks in flight then finish)")
+    fz.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    fz.add_argument("--workers", type=int, default=1, help="worker processes (default 1; 0: in this process)")
+    fz.add_argument("--shard", default="0/1", metavar="i/N", help="run the chunks k with k %% N == i (default 0/1)")
+    fz.add_argument("--out", default=".crosscheck/fuzz", metavar="DIR",
+                    help="campaign directory: findings, chunk log, report.md (default .crosscheck/fuzz)")
+    fz.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
+    fz.add_argument("--max-bodies", type=int, default=4, help="largest drawn model (default 4 bodies)")
+    fz.add_argument("--chunk-examples", type=int, default=None, metavar="N",
+                    help="examples per chunk (part of the campaign's identity; default 10)")
+    fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
+    fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
+                    help="constrained models (default sometimes)")
+    fz.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
+    fz.add_argument("--no-frames", action="store_true", help="skip the frame invariance checks")
+    fz.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
+    add_plugin_option(fz)
+    fz.set_defaults(run=cmd_fuzz)
+
+    rp = sub.add_parser("replay", help="evaluate a saved fuzzing finding again")
+    rp.add_argument("id", help="the finding's ID (or a unique prefix), as in the campaign report")
+    rp.add_argument("--dir", default=".crosscheck/fuzz", help="campaign directory (default .crosscheck/fuzz)")
+    rp.add_argument("--formalism", action="append", help="evaluate these backends instead of the finding's")
+    add_plugin_option(rp)
+    rp.set_defaults(run=cmd_replay)
+
+    mg = sub.add_parser("merge", help="combine the directories of fuzzing shards into one, with its report")
+    mg.add_argument("dirs", nargs="+", metavar="DIR", help="campaign directories (shards of one campaign)")
+    mg.add_argument("--out", required=True, metavar="DIR", help="the merged campaign directory")
+    mg.set_defaults(run=cmd_merge)
     return parser
 
 
@@ -313,10 +516,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         args.argv = argv
+        backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
     except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
-            charts.ChartError, sampling.ProjectionError, FileNotFoundError) as exc:
+            backends.PluginError, charts.ChartError, sampling.ProjectionError, FileNotFoundError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
 

@@ -146,3 +146,17 @@ def test_task_directions_default_to_all_three_and_are_validated():
     assert "task point 'many' directions have shape (4, 3)" in text
     with pytest.raises(ModelError, match="a model needs at least one task point"):
         build_model("none", _good_bodies(), task_points=[])
+
+
+def test_a_unit_axis_is_kept_bit_for_bit_so_rebuilding_a_model_keeps_its_digest():
+    """Dividing a unit vector by its computed norm can move its last bit; rebuilding a model from its own (already
+    normalized) axes must not change it, or a saved model would come back with another digest."""
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        model = build_model("one", [Body("b", None, "revolute", axis, 1.0, com=(0.1, 0, 0))])
+        again = build_model("one", list(model.bodies))
+        assert np.array_equal(again.bodies[0].axis, model.bodies[0].axis) and again.digest() == model.digest()
+    scaled = build_model("one", [Body("b", None, "revolute", (0, 0, 1 + 1e-9), 1.0, com=(0.1, 0, 0))])
+    assert np.array_equal(scaled.bodies[0].axis, [0.0, 0.0, 1.0])       # a nearly-unit axis is still normalized
