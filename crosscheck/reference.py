@@ -145,6 +145,15 @@ def _sym(upper: np.ndarray) -> np.ndarray:
     return np.triu(upper) + np.triu(upper, 1).T
 
 
+def mass_matrix(model: Model, q) -> np.ndarray:
+    """``M(q)`` from Pinocchio's CRBA in our coordinate order (for the harness's tolerance scales)."""
+    c = _compiled(model)
+    M_p = _sym(np.array(pin.crba(c.model, c.model.createData(), np.asarray(q, dtype=float)[c.order])))
+    M = np.empty_like(M_p)
+    M[np.ix_(c.order, c.order)] = M_p
+    return M
+
+
 def _inverse(M: np.ndarray) -> np.ndarray:
     """``M^-1`` by Cholesky on CRBA's M: backward stable, where computeMinverse lost 256 eps on a single rotor (a fuzz
     finding: ctrl 640.0000000000364 against the exact 640)."""

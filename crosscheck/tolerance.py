@@ -31,10 +31,13 @@ M, so the sum is multiplied by cond(M): scale ``cond(M) [(m_total R^2 + sum |I_k
 for the drift loads), each size the median over the voters.
 
 The task-space inertia ``Lambda = A^-1``, ``A = J M^-1 J^T`` (``task_inertia``, eq. 22): a backward-stable solve
-with M gives ``|dA| <~ eps cond(M) |A|`` (the backends' own J and M round at the same relative size), and the
-inverse amplifies it to ``|dLambda| <~ |Lambda|^2 |dA| = eps cond(M) cond(A) |Lambda|``. Scale:
-``cond(M) cond(A) max|Lambda_ij|``, cond(A) (as the voters report it) and the largest entry the medians over the
-voters. Where A is
+with M gives ``|dA| <~ eps cond(M) |A|``, and the inverse amplifies it to ``|dLambda| <~ |Lambda|^2 |dA| = eps
+cond(M) cond(A) |Lambda|``. J itself rounds at ``eps L`` (L the task point's lever arm) however small it comes out:
+a task direction the point barely moves in (``|J|`` small, Lambda large) is a difference of lever-arm-sized terms,
+relative error ``eps L / |J|``, with ``1 / |J| <= sqrt(max|Lambda| ||M^-1||)`` (a fuzz finding: one body, Lambda = 1042
+kg, 18 times the tolerance without this). Scale: ``cond(M) max|Lambda_ij| (cond(A) + L sqrt(max|Lambda_ij|
+||M^-1||))``, cond(A) (as the voters report it) and the largest entry the medians over the voters, ``||M^-1||``
+from Pinocchio's M. Where A is
 numerically singular (a task singularity) Lambda does not exist; each voter reports ``cond(A)`` as the condition
 ``task_inertia`` and is left out of the vote on ``task_inertia`` alone above its limit (``BREAKDOWN_LIMITS``).
 
@@ -162,6 +165,7 @@ class Scales:
     load_drift: float = 0.0
     task_cond: float = 0.0
     task_size: float = 0.0
+    minv: float = 0.0
 
     def of(self, kind: str) -> float:
         acceleration = self.cond_M * self.accel_scale
@@ -169,7 +173,8 @@ class Scales:
         scale = {
             "load": self.cond_M * self.load,
             "load_drift": self.cond_M * self.load_drift,
-            "task_inertia": self.cond_M * self.task_cond * self.task_size,
+            "task_inertia": self.cond_M * self.task_size
+            * (self.task_cond + self.lever * np.sqrt(self.task_size * self.minv)),
             "acceleration": acceleration,
             "power": self.power_scale,
             "task": self.lever * (acceleration + self.rate_sq),
@@ -288,6 +293,12 @@ def _task_condition(split) -> float:
     return float(eig[-1] / eig[0]) if eig[0] > 0.0 else float("inf")
 
 
+def _minv_norm(model, q) -> float:
+    """``||M^-1||_2`` at q from Pinocchio's CRBA (``crosscheck.reference.mass_matrix``)."""
+    from crosscheck.reference import mass_matrix
+    return 1.0 / float(np.linalg.eigvalsh(mass_matrix(model, q))[0])
+
+
 def _task_inertia_scales(splits) -> dict[str, float]:
     """Median cond(J M^-1 J^T) and largest entry of Lambda over the splits that vote on ``task_inertia`` (supplied,
     below the BREAKDOWN limit of the condition, finite)."""
@@ -305,7 +316,7 @@ def scales(splits, model=None, q=None, qd=None) -> Scales:
     the state (``q``, ``qd``)."""
     splits = list(splits)
     task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2,
-                                     **_load_scales(model, splits, q, qd)}
+                                     "minv": _minv_norm(model, q), **_load_scales(model, splits, q, qd)}
     task.update(_task_inertia_scales(splits))
     energies = [s.kinetic_energy for s in splits if not isinstance(s.kinetic_energy, Unsupported)]
     constrained = [s for s in splits if s.constraint_jacobian is not None]
