@@ -34,7 +34,11 @@ because pytest's default ("prepend") import mode puts this directory on ``sys.pa
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+
+import cases
 
 
 def endpoint_jacobian(t, l1=1.0, l2=1.0):
@@ -204,3 +208,13 @@ def pin_forces(t, td, tdd, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
     a1 = endpoint_jacobian(t, l1, 0.0) @ tdd + tip_bias(t, td, l1, 0.0)
     a2 = endpoint_jacobian(t, l1, l2) @ tdd + tip_bias(t, td, l1, l2)
     return m1 * a1 + m2 * a2 - (m1 + m2) * gravity, m2 * (a2 - gravity)
+
+
+def heaviest_body_heavier(model, relative: float):
+    """``model`` with its heaviest body's mass scaled by ``1 + relative``: a small modelling error a tolerance must
+    resolve."""
+    heavy = int(np.argmax([b.mass for b in model.bodies]))
+    bodies = [dataclasses.replace(b, mass=b.mass * (1.0 + relative)) if i == heavy else b
+              for i, b in enumerate(model.bodies)]
+    return cases.build_model(f"{model.name}_heavier", bodies, gravity=model.gravity, input_map=model.input_map,
+                             task_points=model.task_points, constraints=model.constraints)

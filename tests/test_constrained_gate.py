@@ -109,7 +109,8 @@ def test_the_four_bar_near_its_change_point_agrees_or_is_flagged_before_it_goes_
     assert not outcome.errors and not outcome.failed
     totals = np.array([split.total for split in outcome.splits.values()])
     assert np.ptp(totals, axis=0).max() < 1e-8 * (1.0 + np.abs(totals).max())
-    flagged = {name for name, b in outcome.breakdowns.items() if b.keys() & {"constraint_kept", "constraint_consistency"}}
+    whole = {"constraint_kept", "constraint_consistency"}
+    flagged = {name for name, b in outcome.breakdowns.items() if b.keys() & whole}
     assert flagged == (set(outcome.splits) if offset < 1e-4 else set())   # near: nearly redundant, or H_t empty
 
 
