@@ -197,3 +197,25 @@ def test_the_load_scale_is_the_sum_of_the_magnitudes_times_cond_m():
     assert tolerance.tolerance("joint_wrenches", at) == pytest.approx(100 * tolerance.EPS * at.cond_M * expected,
                                                                        rel=1e-12)
 
+
+
+def test_loads_near_a_vacuous_constraint_row_carry_the_multipliers_rounding():
+    """A fuzz finding, shrunk: a circle constraint whose row nearly vanishes at q2 = 2e-8 (S tiny, lam = 5.6 but
+    lam_scale = 5e10). lam rounds at eps cond(M) lam_scale, not at eps |lam|: the loads (and the screw wrenches' frame
+    law) on the scene moved by t = (0, 0, 1) once disagreed with the unmoved ones at 1.3 and 2.6 times the tolerance."""
+    from cases import Body, PointOnCircle
+    from crosscheck import frames, invariance
+
+    model = cases.build_model("nearly_vacuous_circle", [
+        Body("b0", None, "revolute", (0, 0, 1), 28.973065541411664, inertia=np.diag([7.2432664, 3.4678422, 7.2432664])),
+        Body("b1", None, "revolute", (1, 0, 0), 1.0, com=(0, 0, 0.477742911577675),
+             translation=(0, 0.5043645627353799, 0)),
+        Body("b2", "b1", "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.03724997, 0.07449994, 0.03724997]))],
+        constraints=[PointOnCircle("c0", "b1", (0, 0.5, 0), (-0.5403023058681398, 0.16289357792748338, 0.0), 1.0)])
+    state = State(0, (0.0, 2.281272145616934e-08, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    frame = frames.Frame("g", np.eye(3), np.array([0.0, 0.0, 1.0]))
+    here, there = evaluate(model, state, ALL), evaluate(frames.move_scene(model, frame), state, ALL)
+    assert max(s.lam_scale for s in here.trusted.values()) > 1e9 * np.abs(here.splits["pinocchio"].lam).max()
+    checks = invariance.frame_checks(model, frame, state, here.trusted, there.trusted)
+    assert all(c.verdict != DISAGREE for c in checks.values()), {k: c.worst_ratio for k, c in checks.items()}
+    assert all(checks[key].verdict == AGREE for key in ("frame: joint_wrenches", "frame law: screw wrenches_space"))
