@@ -12,7 +12,7 @@ import pytest
 import cases
 import formalisms.euler_lagrange as el
 import formalisms.operational_space as osc
-from cases import Body, PointOnLine, build_model
+from cases import Body, PointOnLine, PointsCoincide, build_model
 from crosscheck import backends, sampling
 from crosscheck.compare import AGREE, DISAGREE
 from crosscheck.gate import CaseSpec, Checks, evaluate, run_case, run_gate
@@ -185,3 +185,19 @@ def test_a_constraint_row_that_vanishes_identically_is_dropped_by_every_backend(
         assert not outcome.failed, {k: c.worst_ratio for k, c in outcome.comparisons.items()}
         trusted = outcome.trusted           # operational space is in task BREAKDOWN: its task point is on the axes
         assert len(trusted) == 5 and all(s.constraint_rank == 0 and np.all(s.lam == 0.0) for s in trusted.values())
+
+
+def test_multipliers_of_a_short_constraint_row_carry_its_rounding():
+    """A fuzz finding: a point 5.3e-5 m off a joint axis pinned in x. Its Jc row is a difference of lever-sized terms,
+    so it rounds at eps L however short it is, and lam = -1.4e5 inherits that relative error (2000 eps); a tolerance
+    from lam_scale alone put correct backends 1.6 times over (``tolerance._lam_rounding``)."""
+    model = build_model("short_row", [
+        Body("b0", None, "revolute", (0, 1, 0), 1.0, inertia=np.diag([0.00625, 0.0625, 0.06875]),
+             translation=(0, 0, 1)),
+        Body("b1", "b0", "revolute", (0, 0, 1), 1.0, com=(0, 0, 0.5), inertia=np.diag([0.25, 0.0625, 0.1875]))],
+        constraints=[PointsCoincide("c0", "b0", (0, 0, 5.319490610664871e-05), None,
+                                    (4.476197002832528e-05, 0, 1.0000287413304298), [[1.0, 0.0, 0.0]])])
+    outcome = evaluate(model, State(0, (1.0, 0.0), (0.0, 0.0), (0.0, 0.0)), [backends.get(n) for n in backends.names()])
+    assert abs(outcome.splits["pinocchio"].lam[0]) > 1e5
+    assert outcome.comparisons["lam"].verdict == AGREE and not outcome.failed
+
