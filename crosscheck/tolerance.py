@@ -279,9 +279,9 @@ def _load_scales(model, splits, q, qd) -> dict[str, float]:
                                           ("load_drift", "drift", "lam_drift", "joint_wrenches_drift")):
         constrained = [s for s in splits if s.constraint_jacobian is not None]
         multipliers = [float(np.abs(s.quantity(lam)).sum()) for s in constrained]
-        # lam's own rounding is eps cond(M) lam_scale (the multiplier tolerance), whatever |lam| is: a nearly vacuous
-        # row (S tiny) gives lam = 5.6 with lam_scale = 5e10 (a fuzz finding, loads off by 1e-9 relative)
-        lam_error = _median([s.lam_scale for s in constrained])
+        # lam's own rounding (the multiplier tolerance, module doc), whatever |lam| is: a nearly vacuous row (S tiny)
+        # gives lam = 5.6 with lam_scale = 5e10, a circle row near tangency lam = -6e7 with Jc = 2.5e-8 (fuzz findings)
+        lam_error = _median([s.lam_scale + _lam_rounding(model, s) for s in constrained])
         out[kind] = (lever * (_median([float(np.abs(s.quantity(acceleration)).sum()) for s in splits]) + rate_sq)
                      + (1.0 + R) * (constants.weight + constants.gain * (cond_S * _median(multipliers) + lam_error))
                      + _median([float(np.abs(s.quantity(load)).max()) for s in splits]))

@@ -219,3 +219,22 @@ def test_loads_near_a_vacuous_constraint_row_carry_the_multipliers_rounding():
     checks = invariance.frame_checks(model, frame, state, here.trusted, there.trusted)
     assert all(c.verdict != DISAGREE for c in checks.values()), {k: c.worst_ratio for k, c in checks.items()}
     assert all(checks[key].verdict == AGREE for key in ("frame: joint_wrenches", "frame law: screw wrenches_space"))
+
+
+def test_loads_near_a_tangent_circle_row_carry_the_rounding_of_its_short_row():
+    """A fuzz finding, shrunk: a slider whose point moves tangentially to its circle at q = 0.375 (Jc = 2.5e-8, a
+    difference of O(1) coordinates, lam = -6e7). lam inherits Jc's relative rounding eps / 2.5e-8, and so do the
+    loads: on the scene moved by t = (0, 1, 0) they once disagreed with the unmoved ones at 22 times the tolerance."""
+    from cases import Body, PointOnCircle
+    from crosscheck import frames, invariance
+
+    model = cases.build_model("tangent_circle", [
+        Body("b0", None, "prismatic", (0, 1, 0), 1.0),
+        Body("b1", "b0", "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.25, 0.04075453917271098, 0.209245460827289]))],
+        input_map=[[1.0], [0.0]], constraints=[PointOnCircle("c0", "b0", (0, 0, 0), (-0.75, 0.375, 0.0), 0.75)])
+    state = State(0, (0.3749999875823657, 0.0), (0.0, 0.0), (1.0,))
+    frame = frames.Frame("g", np.eye(3), np.array([0.0, 1.0, 0.0]))
+    here, there = evaluate(model, state, ALL), evaluate(frames.move_scene(model, frame), state, ALL)
+    assert np.abs(here.splits["pinocchio"].lam).max() > 1e7 and not here.failed
+    checks = invariance.frame_checks(model, frame, state, here.trusted, there.trusted)
+    assert all(c.verdict != DISAGREE for c in checks.values()), {k: c.worst_ratio for k, c in checks.items()}
