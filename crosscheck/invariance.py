@@ -17,6 +17,7 @@ directions, body-frame joint loads) must equal the unmoved ones; extras transfor
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -144,12 +145,14 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     both = [name for name in original if name in moved]
     if not both:
         return {}
-    at = [policy.scales([original[n] for n in both], model, q, qd),
-          policy.scales([moved[n] for n in both], model, q, qd)]
     # the moved scene sits up to |t| farther from the origin: world-frame kinematics there round on lever arms
     # longer by that much (a body twist from space twists cancels ``t x w``), as in the frame laws below; the kinetic
-    # energy multiplies two such velocities
+    # energy multiplies two such velocities. A task point on the joint axes has lever 0 unmoved (its acceleration is
+    # exactly 0) but rounds on |t| moved (a fuzz finding): the moved scene's task lever adds |t|.
     reach = 1.0 + float(np.linalg.norm(frame.translation))
+    there = policy.scales([moved[n] for n in both], model, q, qd)
+    at = [policy.scales([original[n] for n in both], model, q, qd),
+          dataclasses.replace(there, lever=there.lever + reach - 1.0)]
     out = {}
     for quantity in _invariant(model):
         values = {name: original[name].quantity(quantity) for name in both if _votes(original[name], quantity)}

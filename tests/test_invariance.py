@@ -172,3 +172,23 @@ def test_fault_a_christoffel_symbol_with_the_wrong_sign_breaks_the_skew_identity
                         lambda dM: 0.5 * (dM.transpose(1, 0, 2) + dM.transpose(1, 2, 0) + dM))
     result, bad = _run("spatial_arm", charts=False, frames=0)
     assert {"conservation: Mdot - 2C skew-symmetric", "conservation: C qd = M Gamma(qd, qd)"} <= bad
+
+
+def test_a_task_point_on_the_joint_axes_is_compared_on_the_moved_scene_with_the_frames_lever():
+    """A fuzz finding: the task point on two coaxial joints' axis accelerates at exactly 0 (task lever 0, tolerance
+    0), but on the scene moved by t = (0, 1, 0) the screw backend's world-frame kinematics round on |t| (2.5e-16)."""
+    from crosscheck import invariance
+    from crosscheck.gate import evaluate
+    from crosscheck.sampling import State
+
+    inertia = np.diag([0.25, 0.25, 0.025])
+    model = cases.build_model("on_axis", [cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=inertia),
+                                          cases.Body("b1", "b0", "revolute", (0, 0, 1), 1.0, inertia=inertia)],
+                              task_points=[cases.TaskPoint("tip", "b1", (0, 0, 0), directions=[[1.0, 0.0, 0.0]])])
+    chosen = [backends.get(name) for name in backends.names()]
+    state = State(0, (0.0, 0.1875), (0.0, 1.0), (0.0, 0.0))
+    frame = frames.Frame("g", np.eye(3), np.array([0.0, 1.0, 0.0]))
+    here, there = evaluate(model, state, chosen), evaluate(frames.move_scene(model, frame), state, chosen)
+    assert np.all(here.splits["pinocchio"].task_drift == 0.0)
+    checks = invariance.frame_checks(model, frame, state, here.trusted, there.trusted)
+    assert checks["frame: task_drift"].verdict != DISAGREE and checks["frame: task_drift"].tolerance > 0.0
