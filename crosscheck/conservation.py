@@ -29,12 +29,14 @@ EPS = policy.EPS
 FACTOR = 100.0
 
 
-def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float):
+def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float, cond_M: float):
     """Per backend: dE/dt at its drift and at its total minus its control power, and the tolerance.
 
     A backward-stable solve of ``M qdd = f`` leaves a residual of size ``eps (||M|| |qdd| + |f|)``, and the energy
     rate is ``qd . (M qdd - f)`` up to the terms it sums, so its rounding is ``eps (magnitude + |qd|_1 F)`` with F
-    the size of the forces (no cond(M): the rate measures the residual, not the acceleration error).
+    the size of the forces. Not every backend is backward stable: the operational-space recomposition (task part
+    plus null-space part) has a forward error of ``eps cond(M)`` relative, and so a residual up to ``eps cond(M)
+    |qd|_1 F`` (a fuzz finding: 7.5 times the backward-stable tolerance at cond(M) = 105), so F carries cond(M).
     """
     at_drift, at_total, tol = {}, {}, 0.0
     for name, split in splits.items():
@@ -45,7 +47,8 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
         total = geometric.energy_rate(model, q, qd, split.total)
         at_drift[name], at_total[name] = drift.rate, total.rate - split.power_ctrl
         for rate in (drift, total):
-            tol = max(tol, FACTOR * EPS * (rate.magnitude + abs(split.power_ctrl) + np.abs(qd).sum() * force))
+            tol = max(tol, FACTOR * EPS * (rate.magnitude + abs(split.power_ctrl)
+                                           + np.abs(qd).sum() * force * cond_M))
     return at_drift, at_total, tol
 
 
@@ -55,7 +58,7 @@ def checks(model: Model, state: State, splits: Mapping[str, Split]) -> dict[str,
     at = policy.scales(splits.values(), model, q, qd)
     M = geometric.metric(model, q)
     force = at.accel_scale * np.linalg.norm(M, 2) / at.cond_M       # H = accel_scale * lambda_min(M)
-    at_drift, at_total, tol = _energy_rates(model, q, qd, splits, force)
+    at_drift, at_total, tol = _energy_rates(model, q, qd, splits, force, at.cond_M)
     out = {"conservation: energy rate at drift": compare("dE/dt", {**at_drift, "exact": 0.0}, tol),
            "conservation: energy rate at total - power": compare("dE/dt - P", {**at_total, "exact": 0.0}, tol)}
     out.update(_christoffel(model, q, qd, splits, at, M, force))

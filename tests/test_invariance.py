@@ -192,3 +192,26 @@ def test_a_task_point_on_the_joint_axes_is_compared_on_the_moved_scene_with_the_
     assert np.all(here.splits["pinocchio"].task_drift == 0.0)
     checks = invariance.frame_checks(model, frame, state, here.trusted, there.trusted)
     assert checks["frame: task_drift"].verdict != DISAGREE and checks["frame: task_drift"].tolerance > 0.0
+
+
+def test_the_energy_rate_allows_a_backend_that_is_not_backward_stable():
+    """A fuzz finding: three coaxial bodies, the first tilted by 7e-3 rad. The operational-space recomposition (task
+    part plus null-space part) is not a backward-stable solve of M qdd = f; its drift's energy rate was 1.8 times a
+    tolerance that assumed one (``conservation._energy_rates``: the force term now carries cond(M))."""
+    from crosscheck import conservation
+    from crosscheck.gate import evaluate
+    from crosscheck.sampling import State
+
+    tilt = [[0.9999761996640864, 1.2643928454141578e-05, 0.0068992713747435324],
+            [1.2643928454141578e-05, 0.9999932829130087, -0.003665237917832502],
+            [-0.0068992713747435324, 0.003665237917832502, 0.9999694825770951]]
+    outer, inner = np.diag([0.25, 0.25, 0.025]), np.diag([0.0546875, 0.0625, 0.0078125])
+    model = cases.build_model("tilted_coaxial", [
+        cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=outer, rotation=tilt),
+        cases.Body("b1", "b0", "revolute", (0, 0, 1), 1.0, inertia=inner),
+        cases.Body("b2", "b1", "revolute", (0, 0, 1), 1.0, inertia=outer)],
+        task_points=[cases.TaskPoint("tip", "b2", (0.5, 0, 0), directions=[[1.0, 0.0, 0.0]])])
+    state = State(0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    outcome = evaluate(model, state, [backends.get(name) for name in backends.names()])
+    rate = conservation.checks(model, state, outcome.trusted)["conservation: energy rate at drift"]
+    assert "operational_space" in rate.voters and rate.verdict != DISAGREE
