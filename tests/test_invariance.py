@@ -215,3 +215,27 @@ def test_the_energy_rate_allows_a_backend_that_is_not_backward_stable():
     outcome = evaluate(model, state, [backends.get(name) for name in backends.names()])
     rate = conservation.checks(model, state, outcome.trusted)["conservation: energy rate at drift"]
     assert "operational_space" in rate.voters and rate.verdict != DISAGREE
+
+
+def test_the_energy_rate_allows_what_the_drift_comparison_allows():
+    """A fuzz finding: an acceleration within the drift tolerance changes dE/dt by up to |M qd|_1 times it; the
+    operational-space drift used that room (its task direction nearly normal to the point's motion) and its energy
+    rate was 8 times a tolerance built from the forces alone."""
+    from crosscheck import conservation
+    from crosscheck.gate import evaluate
+    from crosscheck.sampling import State
+
+    model = cases.build_model("oblique_task", [
+        cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.12910281416703115] * 2 + [0.0129102814]),
+                   rotation=[[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
+        cases.Body("b1", "b0", "revolute", (0, 0, 1), 1.0, com=(0, 0.016, 0), translation=(-0.9297101705889657, 0, 0),
+                   inertia=np.diag([0.01272449651405012, 0.11724536167239735, 0.10452086515834723])),
+        cases.Body("b2", "b1", "revolute", (1, 0, 0), 1.0,
+                   inertia=np.diag([0.021369577729806265, 0.0641087331894188, 0.042739155459612536]))],
+        task_points=[cases.TaskPoint("tip", "b0", (0, -0.5, 0),
+                                     directions=[[-0.7936945575169088, 9.064622042047122e-07, 0.6083164878311427]])])
+    state = State(0, (0.0, 0.0, 0.0), (2.754561810972139, 0.0, 0.0), (0.0, 0.0, 0.0))
+    outcome = evaluate(model, state, [backends.get(name) for name in backends.names()])
+    assert outcome.comparisons["drift"].verdict != DISAGREE
+    rate = conservation.checks(model, state, outcome.trusted)["conservation: energy rate at drift"]
+    assert "operational_space" in rate.voters and rate.verdict != DISAGREE
