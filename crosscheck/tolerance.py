@@ -170,7 +170,8 @@ class Scales:
     lam_rounding: float = 0.0
 
     def of(self, kind: str) -> float:
-        acceleration = self.cond_M * self.accel_scale
+        # the constraint force Jc^T lam carries the multipliers' short-row rounding into the accelerations
+        acceleration = self.cond_M * self.accel_scale + self.minv * self.jc * self.lam_rounding
         multiplier = self.cond_M * self.lam_scale + self.lam_rounding
         scale = {
             "load": self.cond_M * self.load,
