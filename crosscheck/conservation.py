@@ -78,7 +78,10 @@ def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: policy.Sc
     C = first @ qd                                               # C_ij = sum_k Gamma_ijk qd_k
     Mdot = np.einsum("kij,k->ij", geometric.metric_derivatives(model, q), qd)
     N = Mdot - 2.0 * C
-    size = FACTOR * EPS * at.cond_M * (np.abs(Mdot).max() + np.abs(C).max() + np.finfo(float).tiny)
+    # the entries of Mdot and C are sums of terms of size ||M|| |qd|_1 that can cancel to 0 (a fuzz finding: Mdot = 0
+    # exactly, N + N^T = 1e-16 against a tolerance of 8e-30), so that is their floor
+    terms = max(np.abs(Mdot).max() + np.abs(C).max(), np.linalg.norm(M, 2) * float(np.abs(qd).sum()))
+    size = FACTOR * EPS * at.cond_M * (terms + np.finfo(float).tiny)
     Cqd = {"geometric": C @ qd}
     if "euler_lagrange" in splits:
         Cqd["euler_lagrange"] = euler_lagrange.terms(model, q, qd)[1]

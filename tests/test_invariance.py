@@ -239,3 +239,21 @@ def test_the_energy_rate_allows_what_the_drift_comparison_allows():
     assert outcome.comparisons["drift"].verdict != DISAGREE
     rate = conservation.checks(model, state, outcome.trusted)["conservation: energy rate at drift"]
     assert "operational_space" in rate.voters and rate.verdict != DISAGREE
+
+
+def test_the_skew_symmetry_check_has_a_floor_where_mdot_cancels_to_zero():
+    """A fuzz finding: a body on a perpendicular axis, q = (2, 0), qd = (1, 0): Mdot = 0 exactly, and the geometric
+    backend's N + N^T = 1e-16 (rounding of terms of size ||M|| |qd|) failed a tolerance of 8e-30."""
+    from crosscheck import conservation
+    from crosscheck.gate import evaluate
+    from crosscheck.sampling import State
+
+    inertia = np.diag([0.25, 0.25, 0.025])
+    model = cases.build_model("perpendicular", [
+        cases.Body("b0", None, "revolute", (1, 0, 0), 1.0, inertia=inertia),
+        cases.Body("b1", "b0", "revolute", (0, 1, 0), 1.0, com=(0.5, 0, 0), inertia=inertia,
+                   rotation=[[0, 0, 1], [0, 1, 0], [-1, 0, 0]], translation=(0, 1, 0))])
+    state = State(0, (2.0, 0.0), (1.0, 0.0), (0.0, 0.0))
+    outcome = evaluate(model, state, [backends.get(name) for name in backends.names()])
+    skew = conservation.checks(model, state, outcome.trusted)["conservation: Mdot - 2C skew-symmetric"]
+    assert skew.verdict != DISAGREE and skew.tolerance > 1e-16
