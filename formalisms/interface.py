@@ -59,10 +59,11 @@ def degenerate_floor(model: Model) -> float:
     return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
 
 
-def redundant_below(model: Model, w_max: float) -> float:
+def redundant_below(model: Model, w_max):
     """Eigenvalues of ``S = Jc M^-1 Jc^T`` at or below this are redundant directions (module doc): ``CONSTRAINT_RCOND``
-    times the largest, and never less than :func:`degenerate_floor`."""
-    return max(CONSTRAINT_RCOND * float(w_max), degenerate_floor(model))
+    times the largest, and never less than :func:`degenerate_floor`. ``w_max`` may be an array (one largest
+    eigenvalue per state of a batch); the result then has its shape."""
+    return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), degenerate_floor(model))
 
 
 class StateError(ValueError):
@@ -192,18 +193,73 @@ class Chart(Protocol):
 
 
 @dataclass(frozen=True)
+class SplitBatch:
+    """The split of N states at once (``split_batch(model, Q, QD, U)``), each row what ``split`` returns for that
+    state: ``drift``, ``ctrl``, ``total`` (N, n) as in :class:`Split` (eq. 9, 10; ctrl ``B_c B u`` of eq. 17 computed
+    directly), ``lam`` and ``lam_drift`` (N, k) the multipliers with and without input (eq. 12, 14; None when
+    unconstrained; minimum-norm over redundant directions, the rule of :func:`redundant_below`)."""
+
+    drift: np.ndarray
+    ctrl: np.ndarray
+    total: np.ndarray
+    lam: np.ndarray | None = None
+    lam_drift: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.drift)
+
+
+def check_batch(model: Model, Q, QD, U) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (Q, QD, U) as float arrays of shapes (N, n), (N, n), (N, m), or raise :class:`StateError` naming what
+    does not fit."""
+    out = []
+    for label, value, size in (("Q", Q, model.n), ("QD", QD, model.n), ("U", U, model.m)):
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise StateError(f"{label} is not a numeric array: {value!r}") from None
+        if arr.ndim != 2 or arr.shape[1] != size:
+            raise StateError(f"{label} must have shape (N, {size}) for model '{model.name}' (one row per state), "
+                             f"got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            bad = np.argwhere(~np.isfinite(arr))[0]
+            raise StateError(f"{label} has non-finite entries (first at row {bad[0]}, column {bad[1]})")
+        out.append(arr)
+    if not len(out[0]) == len(out[1]) == len(out[2]):
+        raise StateError(f"Q, QD and U must have the same number of rows (states), got {len(out[0])}, "
+                         f"{len(out[1])} and {len(out[2])}")
+    return out[0], out[1], out[2]
+
+
+def split_batch_by_loop(split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]):
+    """A ``split_batch`` that calls ``split`` state by state: for a backend (a plugin) without its own."""
+    def split_batch(model: Model, Q, QD, U) -> SplitBatch:
+        Q, QD, U = check_batch(model, Q, QD, U)
+        splits = [split(model, q, qd, u) for q, qd, u in zip(Q, QD, U)]
+
+        def stack(name: str, width: int) -> np.ndarray:
+            return np.array([getattr(s, name) for s in splits], dtype=float).reshape(len(Q), width)
+        lam = (stack("lam", model.k), stack("lam_drift", model.k)) if model.k else (None, None)
+        return SplitBatch(stack("drift", model.n), stack("ctrl", model.n), stack("total", model.n), *lam)
+    return split_batch
+
+
+@dataclass(frozen=True)
 class Formalism:
     """A named formulation of rigid-body dynamics behind the shared ``split`` contract.
 
     ``split_chart(model, chart, p, pd, tau_p)``, when present, evaluates the same split directly in the chart
     ``q = psi(p)``: state ``(p, pd)``, the generalized force ``tau_p`` a covector in that chart, and the
     returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
+    ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s);
+    None for a backend without one (the harness then loops over ``split``: :func:`split_batch_by_loop`).
     """
 
     name: str
     summary: str
     split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]
     split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
+    split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
 
 
 def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,87 @@
+"""``split_batch(model, Q, QD, U)`` equals ``split`` state by state, for every backend (issue 7).
+
+Each row of a batch must be what ``split`` returns for that state, to rounding: the accelerations within 1e-9 of
+the state's ``accel_scale`` (the size of the terms summed, :func:`formalisms.interface.conditioning`) and the
+multipliers within 1e-9 of ``lam_scale``. A real error (a missing term, a wrong row) is many orders larger.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import cases
+from crosscheck import backends, sampling, testing
+from formalisms.interface import StateError
+
+BATCHED = [name for name in backends.names() if backends.get(name).split_batch is not None]
+SAMPLES = 12
+RTOL = 1e-9
+
+
+def _states(model, case: str, count: int = SAMPLES):
+    states = sampling.sample_states(model, count, seed=3, case=case)
+    return tuple(np.array([getattr(s, f) for s in states]) for f in ("q", "qd", "u"))
+
+
+def _difference(row: np.ndarray, value: np.ndarray) -> float:
+    """Largest difference of a batch row from ``split``'s value; NaN must sit in the same places (a backend returns
+    NaN where its method breaks down, e.g. operational space at a task singularity)."""
+    assert np.array_equal(np.isnan(row), np.isnan(value)), f"NaN pattern differs: {row} against {value}"
+    return float(np.max(np.abs(np.where(np.isnan(value), 0.0, row - value)), initial=0.0))
+
+
+def assert_rows_equal_split(formalism, model, Q, QD, U) -> None:
+    batch = formalism.split_batch(model, Q, QD, U)
+    assert batch.drift.shape == batch.ctrl.shape == batch.total.shape == (len(Q), model.n)
+    for i in range(len(Q)):
+        s = formalism.split(model, Q[i], QD[i], U[i])
+        tol = RTOL * s.accel_scale
+        for name in ("drift", "ctrl", "total"):
+            err = _difference(getattr(batch, name)[i], getattr(s, name))
+            assert err <= tol, f"{formalism.name} {model.name} state {i}: {name} differs by {err:.3g} (tol {tol:.3g})"
+        if model.k:
+            assert batch.lam.shape == batch.lam_drift.shape == (len(Q), model.k)
+            for name in ("lam", "lam_drift"):
+                err = _difference(getattr(batch, name)[i], getattr(s, name))
+                assert err <= RTOL * s.lam_scale, f"{formalism.name} {model.name} state {i}: {name} differs by {err:.3g}"
+        else:
+            assert batch.lam is None and batch.lam_drift is None
+
+
+@pytest.mark.parametrize("case", cases.names())
+@pytest.mark.parametrize("name", BATCHED)
+def test_split_batch_rows_equal_split(name, case):
+    model = cases.load(case)
+    assert_rows_equal_split(backends.get(name), model, *_states(model, case))
+
+
+@pytest.mark.parametrize("name", BATCHED)
+@settings(max_examples=6)
+@given(data=st.data())
+def test_split_batch_on_drawn_models(name, data):
+    model = data.draw(testing.models(max_bodies=4, constraints=None))
+    states = [data.draw(testing.states(model, index=i)) for i in range(3)]
+    Q, QD, U = (np.array([getattr(s, f) for s in states]) for f in ("q", "qd", "u"))
+    assert_rows_equal_split(backends.get(name), model, Q, QD, U)
+
+
+@pytest.mark.parametrize("name", BATCHED)
+def test_split_batch_of_one_and_of_none(name):
+    model = cases.load("double_pendulum")
+    Q, QD, U = _states(model, "double_pendulum", 1)
+    assert len(backends.get(name).split_batch(model, Q, QD, U)) == 1
+    empty = backends.get(name).split_batch(model, Q[:0], QD[:0], U[:0])
+    assert empty.total.shape == (0, model.n)
+
+
+@pytest.mark.parametrize("name", BATCHED)
+def test_split_batch_rejects_bad_shapes(name):
+    model = cases.load("double_pendulum")
+    Q, QD, U = _states(model, "double_pendulum", 2)
+    with pytest.raises(StateError, match=r"QD must have shape \(N, 2\)"):
+        backends.get(name).split_batch(model, Q, QD[:, :1], U)
+    with pytest.raises(StateError, match="same number of rows"):
+        backends.get(name).split_batch(model, Q, QD[:1], U)
