@@ -23,6 +23,9 @@ and the constrained references of section 5 that every backend's constrained tes
 * ``min_norm_solve``                      the range-space solve with S's pseudo-inverse (redundant rows)
 * ``cartesian_lam``                       the cartesian pendulum's multiplier in closed form
 * ``disk_inertia``                        what rotational inertias of the masses add to eq. (6)
+* ``pendulum_terms_mp``, ``cartesian_lam_mp``
+                                          eqs. (6)-(8) and the cartesian pendulum's multiplier in mpmath, for
+                                          references beyond double precision
 * ``absolute_loop_state``, ``loop_to_joint``, ``pin_forces``
                                           the absolute-coordinate double pendulum: a joint state in its coordinates,
                                           its accelerations back, and its pins' forces by Newton's second law
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import mpmath
 import numpy as np
 
 import cases
@@ -218,3 +222,28 @@ def heaviest_body_heavier(model, relative: float):
               for i, b in enumerate(model.bodies)]
     return cases.build_model(f"{model.name}_heavier", bodies, gravity=model.gravity, input_map=model.input_map,
                              task_points=model.task_points, constraints=model.constraints)
+
+
+def _mp(*values):
+    """The arguments as mpmath numbers at the working precision, each float taken as its exact binary value."""
+    return [mpmath.mpf(float(x)) for x in values]
+
+
+def pendulum_terms_mp(t, td, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
+    """Eqs. (6), (7), (8) as in ``pendulum_terms``, evaluated in mpmath at its working precision (every argument taken
+    as its exact binary value): (M, C qd, g) as mpmath matrices (2 x 2, 2 x 1, 2 x 1)."""
+    t1, t2, t1d, t2d, m1, m2, l1, l2, g = _mp(*t, *td, m1, m2, l1, l2, g)
+    c2, s12 = mpmath.cos(t2), mpmath.sin(t1 + t2)
+    M12 = m2 * l2**2 + m2 * l1 * l2 * c2
+    M = mpmath.matrix([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, M12], [M12, m2 * l2**2]])
+    c = m2 * l1 * l2 * mpmath.sin(t2)
+    Cqd = mpmath.matrix([-2 * c * t1d * t2d - c * t2d**2, c * t1d**2])
+    grav = mpmath.matrix([(m1 + m2) * g * l1 * mpmath.sin(t1) + m2 * g * l2 * s12, m2 * g * l2 * s12])
+    return M, Cqd, grav
+
+
+def cartesian_lam_mp(q, qd, u, m=1.0, L=1.0, g=9.81):  # noqa: N803
+    """``cartesian_lam`` in mpmath at its working precision (arguments exact binary values):
+    ``lam = -m (|v|^2 + p . (gravity + u / m)) / (2 L^2)``; exact at a state exactly on the circle, |p| = L."""
+    x, y, xd, yd, ux, uy, m, L, g = _mp(*q, *qd, *u, m, L, g)
+    return -m * (xd**2 + yd**2 + x * ux / m + y * (uy / m - g)) / (2 * L**2)

@@ -1,0 +1,519 @@
+"""A high-precision reference: the exact split of a model's float data, in mpmath (issue 7).
+
+:func:`split` computes drift, ctrl, total (eq. 9, 10; eq. 12-17 with constraints) and the multipliers lam,
+lam_drift with mpmath at ``digits`` significant digits (default :data:`DIGITS` = 50), so that every backend's true
+error at a state can be measured against it. It is part of the harness, not a formalism: it never calls a backend or
+Pinocchio, and is written from the model's definition (``cases.model``) in a classical, compact form:
+
+* kinematics in the world frame per body, parents first: rotation R, origin p, joint axis a and origin o, angular
+  velocity w, origin velocity v, and at ``qdd = 0`` the angular acceleration and the origin's classical acceleration;
+  each joint's unit twist at the world origin, ``S = (a, o x a)`` (revolute) or ``(0, a)`` (prismatic);
+* ``M`` from composite bodies (CRBA): the momentum ``(L, P)`` of body i's subtree moving with ``S_i`` paired with
+  ``S_j`` for each ancestor j, ``M_ij = a_j . L + v_j . P``;
+* ``h = C qd + g`` by a recursive Newton–Euler pass at ``qdd = 0``: each body's ``m (a_com - gravity)`` and
+  ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_j``;
+* each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point
+  Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
+* the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
+  lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``formalisms.interface.redundant_below`` dropped
+  (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
+  lam_drift (eq. 14), and ``ctrl = B_c B u`` (eq. 17) computed directly.
+
+Exactness. q, qd, u and the model's numbers are taken as their exact binary values (``mpf(float)``), so the result is
+the exact answer for those inputs, to ``digits``. Two kinds of model data are unit or orthogonal only to rounding in
+float, and are made exactly so first: joint axes are normalized, and placement rotations are replaced by the nearest
+rotation (polar decomposition), so that the bodies are rigid; the change is at the level of the float data's own
+rounding (``cases.model`` validates both to a few eps). Constraint directions are used as given.
+
+Cost: O(n^2) multiprecision operations per state plus Cholesky (n^3 / 6); see the report of issue 7 for timings.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import mpmath
+import numpy as np
+from mpmath import mpf
+
+from cases.constraints import JointCoupling, PointOnLine, PointsCoincide
+from cases.model import Model
+from formalisms.interface import check_state, redundant_below
+
+#: Default working precision (significant decimal digits).
+DIGITS = 50
+#: The least precision :func:`split` accepts: well above double's 16 digits, so its answer is exact to double.
+MIN_DIGITS = 40
+
+_ZERO3 = (mpf(0), mpf(0), mpf(0))
+
+
+# ----------------------------------------------------------------------------------------------- 3-vector algebra
+
+
+def _add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _scale(s, a):
+    return (s * a[0], s * a[1], s * a[2])
+
+
+def _dot(a, b):
+    return mpmath.fdot(a, b)
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _matvec(A, x):
+    return tuple(_dot(row, x) for row in A)
+
+
+def _matmul(A, B):
+    cols = tuple(zip(*B))
+    return tuple(tuple(_dot(row, col) for col in cols) for row in A)
+
+
+def _transpose(A):
+    return tuple(zip(*A))
+
+
+# ----------------------------------------------------------------------------------------------- model data
+
+
+@dataclass(frozen=True)
+class _Body:
+    """One body's data as mpf (``cases.model.Body``); parent -1 is the world."""
+
+    parent: int
+    revolute: bool
+    axis: tuple
+    mass: mpf
+    com: tuple
+    inertia: tuple
+    rotation: tuple
+    translation: tuple
+
+
+@dataclass(frozen=True)
+class _Data:
+    """The model's numbers as mpf (axes unit and placements rotations exactly: module doc)."""
+
+    bodies: tuple
+    order: tuple
+    gravity: tuple
+    B: tuple
+    rows: tuple       # per declaration, its numbers as mpf (see _constraint_data)
+
+
+def _vec(x) -> tuple:
+    return tuple(mpf(float(v)) for v in np.asarray(x, dtype=float).reshape(-1))
+
+
+def _mat(A) -> tuple:
+    return tuple(_vec(row) for row in np.atleast_2d(np.asarray(A, dtype=float)))
+
+
+def _unit(x) -> tuple:
+    v = _vec(x)
+    return _scale(1 / mpmath.sqrt(_dot(v, v)), v)
+
+
+def _nearest_rotation(R) -> tuple:
+    """The rotation nearest to ``R`` (its polar factor) by Newton's iteration ``R <- (R + R^-T) / 2``, which converges
+    quadratically from a matrix orthogonal to rounding."""
+    tol = mpf(2) ** (-mpmath.mp.prec)
+    for _ in range(20):
+        cof = tuple(_cross(R[(i + 1) % 3], R[(i + 2) % 3]) for i in range(3))   # rows of det(R) R^-T
+        det = _dot(R[0], cof[0])
+        new = tuple(tuple((R[i][j] + cof[i][j] / det) / 2 for j in range(3)) for i in range(3))
+        change = max(abs(new[i][j] - R[i][j]) for i in range(3) for j in range(3))
+        R = new
+        if change <= tol:
+            break
+    return R
+
+
+def _constraint_data(model: Model, c) -> tuple:
+    """A declaration's kind, bodies (by index) and numbers as mpf; the fourth kind is PointOnCircle."""
+    if isinstance(c, JointCoupling):
+        return ("coupling", tuple(model.body_index(j) for j in c.joints), _vec(c.coefficients), mpf(c.offset))
+    if isinstance(c, PointsCoincide):
+        b = None if c.body_b is None else model.body_index(c.body_b)
+        return ("coincide", (model.body_index(c.body_a), _vec(c.offset_a)), (b, _vec(c.offset_b)), _mat(c.directions))
+    if isinstance(c, PointOnLine):
+        return ("line", (model.body_index(c.body), _vec(c.offset)), _vec(c.origin), _mat(c.normals))
+    return ("circle", (model.body_index(c.body), _vec(c.offset)), _vec(c.center), mpf(c.radius),
+            _mat(c.plane))
+
+
+@functools.lru_cache(maxsize=32)
+def _prepare(model: Model, prec: int) -> _Data:
+    """The model's data at binary precision ``prec`` (the mpmath context must be at that precision)."""
+    bodies = tuple(_Body(int(model.parent_index[i]), b.joint == "revolute", _unit(b.axis), mpf(b.mass),
+                         _vec(b.com), _mat(b.inertia), _nearest_rotation(_mat(b.rotation)), _vec(b.translation))
+                   for i, b in enumerate(model.bodies))
+    return _Data(bodies, tuple(model.topological_order), _vec(model.gravity), _mat(model.input_map),
+                 tuple(_constraint_data(model, c) for c in model.constraints))
+
+
+def _check_digits(digits) -> int:
+    if not isinstance(digits, (int, np.integer)) or isinstance(digits, bool) or digits < MIN_DIGITS:
+        raise ValueError(f"digits must be an integer of at least {MIN_DIGITS} (significant decimal digits of the "
+                         f"reference), got {digits!r}")
+    return int(digits)
+
+
+# ----------------------------------------------------------------------------------------------- kinematics
+
+
+@dataclass(frozen=True)
+class _Kin:
+    """World-frame kinematics of every body at (q, qd) and qdd = 0 (lists indexed by body)."""
+
+    R: list
+    p: list        # body origin
+    w: list        # angular velocity
+    v: list        # origin velocity
+    alpha: list    # angular acceleration at qdd = 0
+    acc: list      # origin classical acceleration at qdd = 0
+    S: list        # joint unit twist at the world origin: (angular, linear)
+    inertia: list  # COM inertia in the world frame, R I R^T (None for a point mass)
+
+
+def _axis_rotation(a, angle):
+    """Rodrigues: the rotation by ``angle`` about the unit vector ``a``."""
+    s, c = mpmath.sin(angle), mpmath.cos(angle)
+    K = ((0, -a[2], a[1]), (a[2], 0, -a[0]), (-a[1], a[0], 0))
+    K2 = _matmul(K, K)
+    return tuple(tuple((1 if i == j else 0) + s * K[i][j] + (1 - c) * K2[i][j] for j in range(3)) for i in range(3))
+
+
+def _kinematics(data: _Data, q, qd) -> _Kin:
+    """One pass parents first: ``X_body = X_parent * placement * motion(q_i)`` (``cases.model``), velocities and the
+    accelerations at qdd = 0 (a prismatic joint adds its Coriolis term ``2 w_parent x a qd_i``)."""
+    n = len(q)
+    kin = _Kin(*([None] * n for _ in range(8)))
+    identity = ((mpf(1), 0, 0), (0, mpf(1), 0), (0, 0, mpf(1)))
+    for i in data.order:
+        b = data.bodies[i]
+        if b.parent < 0:
+            R0, p0, w0, v0, al0, ac0 = identity, _ZERO3, _ZERO3, _ZERO3, _ZERO3, _ZERO3
+        else:
+            j = b.parent
+            R0, p0, w0, v0, al0, ac0 = kin.R[j], kin.p[j], kin.w[j], kin.v[j], kin.alpha[j], kin.acc[j]
+        Rj = _matmul(R0, b.rotation)                       # joint frame
+        o = _add(p0, _matvec(R0, b.translation))           # joint origin
+        a = _matvec(Rj, b.axis)                            # joint axis (world)
+        if b.revolute:
+            R, p = _matmul(Rj, _axis_rotation(b.axis, q[i])), o
+            w, alpha = _add(w0, _scale(qd[i], a)), _add(al0, _scale(qd[i], _cross(w0, a)))
+            S = (a, _cross(o, a))
+        else:
+            R, p = Rj, _add(o, _scale(q[i], a))
+            w, alpha = w0, al0
+            S = (_ZERO3, a)
+        r = _sub(p, p0)
+        v = _add(v0, _cross(w0, r))
+        acc = _add(_add(ac0, _cross(al0, r)), _cross(w0, _cross(w0, r)))
+        if not b.revolute:
+            v = _add(v, _scale(qd[i], a))
+            acc = _add(acc, _scale(2 * qd[i], _cross(w0, a)))
+        kin.R[i], kin.p[i], kin.w[i], kin.v[i], kin.alpha[i], kin.acc[i], kin.S[i] = R, p, w, v, alpha, acc, S
+        if any(x for row in b.inertia for x in row):
+            kin.inertia[i] = _matmul(_matmul(R, b.inertia), _transpose(R))
+    return kin
+
+
+def _ancestors(data: _Data, i: int):
+    """Body ``i`` and its ancestors up to the root."""
+    while i >= 0:
+        yield i
+        i = data.bodies[i].parent
+
+
+# ----------------------------------------------------------------------------------------------- M and h
+
+
+def _mass_matrix(data: _Data, kin: _Kin) -> list:
+    """CRBA: composite mass, first moment h = sum m c and inertia about the world origin per subtree; then
+    ``M_ij = a_j . L + v_j . P`` with ``(L, P) = (I_o a_i + h x v_i, m v_i + a_i x h)`` the subtree's momentum at
+    unit rate of joint i."""
+    n = len(data.bodies)
+    mass, first, second = [None] * n, [None] * n, [None] * n
+    for i, b in enumerate(data.bodies):
+        c = _add(kin.p[i], _matvec(kin.R[i], b.com))
+        cc = _dot(c, c)
+        mass[i], first[i] = b.mass, _scale(b.mass, c)
+        second[i] = tuple(tuple(b.mass * ((cc if r == s else 0) - c[r] * c[s]) for s in range(3)) for r in range(3))
+        if kin.inertia[i] is not None:
+            second[i] = tuple(_add(row, own) for row, own in zip(second[i], kin.inertia[i]))
+    for i in reversed(data.order):
+        j = data.bodies[i].parent
+        if j >= 0:
+            mass[j], first[j] = mass[j] + mass[i], _add(first[j], first[i])
+            second[j] = tuple(_add(second[j][r], second[i][r]) for r in range(3))
+    M = [[mpf(0)] * n for _ in range(n)]
+    for i in range(n):
+        wi, vi = kin.S[i]
+        L = _add(_matvec(second[i], wi), _cross(first[i], vi))
+        P = _add(_scale(mass[i], vi), _cross(wi, first[i]))
+        for j in _ancestors(data, i):
+            wj, vj = kin.S[j]
+            M[i][j] = M[j][i] = _dot(wj, L) + _dot(vj, P)
+    return M
+
+
+def _bias(data: _Data, kin: _Kin) -> list:
+    """``h = C qd + g``: Newton–Euler at qdd = 0, each body's wrench about the world origin summed over subtrees."""
+    n = len(data.bodies)
+    force, moment = [None] * n, [None] * n
+    for i, b in enumerate(data.bodies):
+        r = _matvec(kin.R[i], b.com)
+        w = kin.w[i]
+        a_com = _add(_add(kin.acc[i], _cross(kin.alpha[i], r)), _cross(w, _cross(w, r)))
+        f = _scale(b.mass, _sub(a_com, data.gravity))
+        moment[i], force[i] = _cross(_add(kin.p[i], r), f), f
+        Iw = kin.inertia[i]
+        if Iw is not None:
+            moment[i] = _add(moment[i], _add(_matvec(Iw, kin.alpha[i]), _cross(w, _matvec(Iw, w))))
+    for i in reversed(data.order):
+        j = data.bodies[i].parent
+        if j >= 0:
+            force[j], moment[j] = _add(force[j], force[i]), _add(moment[j], moment[i])
+    return [_dot(kin.S[i][0], moment[i]) + _dot(kin.S[i][1], force[i]) for i in range(n)]
+
+
+# ----------------------------------------------------------------------------------------------- constraints
+
+
+def _point(data: _Data, kin: _Kin, n: int, body, offset):
+    """World position, velocity, linear Jacobian (3 rows of n) and classical acceleration at qdd = 0 of the point
+    ``offset`` of ``body``; a world point (body None) is fixed."""
+    zero = [mpf(0)] * n
+    if body is None:
+        return offset, _ZERO3, [list(zero) for _ in range(3)], _ZERO3
+    r = _matvec(kin.R[body], offset)
+    x = _add(kin.p[body], r)
+    w = kin.w[body]
+    vel = _add(kin.v[body], _cross(w, r))
+    acc = _add(_add(kin.acc[body], _cross(kin.alpha[body], r)), _cross(w, _cross(w, r)))
+    J = [list(zero) for _ in range(3)]
+    for j in _ancestors(data, body):
+        col = _add(kin.S[j][1], _cross(kin.S[j][0], x))
+        for r_ in range(3):
+            J[r_][j] = col[r_]
+    return x, vel, J, acc
+
+
+def _project(D, x):
+    return [_dot(row, x) for row in D]
+
+
+def _project_jacobian(D, J):
+    return [[_dot(row, col) for col in zip(*J)] for row in D]
+
+
+def _rows(data: _Data, kin: _Kin, q, decl):
+    """phi, Jc and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
+    n = len(q)
+    kind = decl[0]
+    if kind == "coupling":
+        _, joints, coefficients, offset = decl
+        row = [mpf(0)] * n
+        for j, c in zip(joints, coefficients):
+            row[j] += c
+        return [mpmath.fdot(row, q) - offset], [row], [mpf(0)]
+    if kind == "coincide":
+        _, a, b, D = decl
+        xa, _, Ja, aa = _point(data, kin, n, *a)
+        xb, _, Jb, ab = _point(data, kin, n, *b)
+        dJ = [[s - t for s, t in zip(ra, rb)] for ra, rb in zip(Ja, Jb)]
+        return _project(D, _sub(xa, xb)), _project_jacobian(D, dJ), _project(D, _sub(aa, ab))
+    x, vel, J, acc = _point(data, kin, n, *decl[1])
+    if kind == "line":
+        _, _, origin, N = decl
+        return _project(N, _sub(x, origin)), _project_jacobian(N, J), _project(N, acc)
+    _, _, center, radius, P = decl
+    d = _project(P, _sub(x, center))
+    PJ, Pv, Pa = _project_jacobian(P, J), _project(P, vel), _project(P, acc)
+    row = [2 * (d[0] * PJ[0][k] + d[1] * PJ[1][k]) for k in range(n)]
+    return ([d[0] ** 2 + d[1] ** 2 - radius ** 2], [row],
+            [2 * (Pv[0] ** 2 + Pv[1] ** 2) + 2 * (d[0] * Pa[0] + d[1] * Pa[1])])
+
+
+def _constraint_terms(data: _Data, kin: _Kin, q):
+    phi, Jc, bias = [], [], []
+    for decl in data.rows:
+        p, J, b = _rows(data, kin, q, decl)
+        phi += p
+        Jc += J
+        bias += b
+    return phi, Jc, bias
+
+
+# ----------------------------------------------------------------------------------------------- linear algebra
+
+
+def _cholesky(model: Model, M, q) -> list:
+    n = len(M)
+    L = [[mpf(0)] * n for _ in range(n)]
+    for j in range(n):
+        d = M[j][j] - mpmath.fdot(L[j][:j], L[j][:j])
+        if d <= 0:
+            raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = {list(q)} "
+                             "(multiprecision Cholesky failed)")
+        L[j][j] = mpmath.sqrt(d)
+        for i in range(j + 1, n):
+            L[i][j] = (M[i][j] - mpmath.fdot(L[i][:j], L[j][:j])) / L[j][j]
+    return L
+
+
+def _cho_solve(L, b) -> list:
+    n = len(L)
+    y = [mpf(0)] * n
+    for i in range(n):
+        y[i] = (b[i] - mpmath.fdot(L[i][:i], y[:i])) / L[i][i]
+    x = [mpf(0)] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - mpmath.fdot([L[k][i] for k in range(i + 1, n)], x[i + 1:])) / L[i][i]
+    return x
+
+
+def _matvec_n(A, x) -> list:
+    return [mpmath.fdot(row, x) for row in A]
+
+
+class _RangeSpace:
+    """``X = M^-1 Jc^T`` and ``S^+`` (S = Jc X, eigenvalues at or below ``redundant_below`` dropped)."""
+
+    def __init__(self, model: Model, L, Jc, bias):
+        self.L, self.Jc, self.bias = L, Jc, bias
+        cols = [_cho_solve(L, row) for row in Jc]                  # columns of X
+        self.X = [list(r) for r in zip(*cols)]
+        k = len(Jc)
+        S = mpmath.matrix(k, k)
+        for r in range(k):
+            for s in range(r, k):
+                S[r, s] = S[s, r] = mpmath.fdot(Jc[r], cols[s])
+        w, U = mpmath.eigsy(S)
+        w_max = max(w[i] for i in range(k))
+        floor = redundant_below(model, float(w_max))
+        kept = [i for i in range(k) if w[i] > floor]
+        self.S_pinv = [[sum((U[r, i] * U[s, i] / w[i] for i in kept), mpf(0)) for s in range(k)] for r in range(k)]
+
+    def solve(self, f) -> tuple[list, list]:
+        """``(qdd, lam)`` of eq. (12, 13) for the generalized force ``f``."""
+        a = _cho_solve(self.L, f)
+        r = [-b - jc for b, jc in zip(self.bias, _matvec_n(self.Jc, a))]
+        lam = _matvec_n(self.S_pinv, r)
+        return [x + y for x, y in zip(a, _matvec_n(self.X, lam))], lam
+
+    def input_map(self, tau) -> list:
+        """``B_c tau`` of eq. (17): ``M^-1 tau - X S^+ Jc M^-1 tau``."""
+        a = _cho_solve(self.L, tau)
+        corr = _matvec_n(self.X, _matvec_n(self.S_pinv, _matvec_n(self.Jc, a)))
+        return [x - y for x, y in zip(a, corr)]
+
+
+# ----------------------------------------------------------------------------------------------- public API
+
+
+@dataclass(frozen=True)
+class PreciseSplit:
+    """The exact split at one state, to ``digits`` significant digits: ``drift``, ``ctrl``, ``total`` (n mpf each),
+    ``lam``, ``lam_drift`` (k mpf each; None when the model has no constraints).
+
+    The mpf values keep their digits, but mpmath rounds every new result to its context's precision (15 digits by
+    default): do arithmetic on them inside ``mpmath.workdps(digits)``, or use :func:`relative_error`."""
+
+    drift: tuple
+    ctrl: tuple
+    total: tuple
+    lam: tuple | None
+    lam_drift: tuple | None
+    digits: int
+
+    def floats(self, name: str) -> np.ndarray | None:
+        """The quantity ``name`` rounded to the nearest float64 (None for the multipliers of an unconstrained
+        model)."""
+        if name not in ("drift", "ctrl", "total", "lam", "lam_drift"):
+            raise ValueError(f"PreciseSplit has no quantity {name!r}; quantities: drift, ctrl, total, lam, lam_drift")
+        value = getattr(self, name)
+        return None if value is None else np.array([float(x) for x in value])
+
+
+def _state(model: Model, q, qd, u):
+    q, qd, u = check_state(model, q, qd, u)
+    return [mpf(float(x)) for x in q], [mpf(float(x)) for x in qd], [mpf(float(x)) for x in u]
+
+
+def _terms(model: Model, q, qd):
+    data = _prepare(model, mpmath.mp.prec)
+    kin = _kinematics(data, q, qd)
+    return data, kin, _mass_matrix(data, kin), _bias(data, kin)
+
+
+def split(model: Model, q, qd, u, digits: int = DIGITS) -> PreciseSplit:
+    """The split of eq. (9) (eq. 12-17 with constraints) at ``(q, qd, u)``, exact for the float inputs to ``digits``
+    significant digits (module doc). ``ctrl = B_c B u`` is computed directly, not as total - drift."""
+    digits = _check_digits(digits)
+    with mpmath.workdps(digits):
+        q, qd, u = _state(model, q, qd, u)
+        data, kin, M, h = _terms(model, q, qd)
+        L = _cholesky(model, M, q)
+        tau = _matvec_n(data.B, u)
+        force = [t - x for t, x in zip(tau, h)]
+        if not data.rows:
+            out = _cho_solve(L, [-x for x in h]), _cho_solve(L, tau), _cho_solve(L, force), None, None
+        else:
+            _, Jc, bias = _constraint_terms(data, kin, q)
+            rs = _RangeSpace(model, L, Jc, bias)
+            drift, lam_drift = rs.solve([-x for x in h])
+            total, lam = rs.solve(force)
+            out = drift, rs.input_map(tau), total, tuple(lam), tuple(lam_drift)
+    return PreciseSplit(tuple(out[0]), tuple(out[1]), tuple(out[2]), out[3], out[4], digits)
+
+
+def mass_matrix(model: Model, q, digits: int = DIGITS) -> mpmath.matrix:
+    """``M(q)`` (n x n) to ``digits`` significant digits, e.g. for exact condition numbers."""
+    digits = _check_digits(digits)
+    with mpmath.workdps(digits):
+        q, qd, _ = _state(model, q, np.zeros(model.n), np.zeros(model.m))
+        _, _, M, _ = _terms(model, q, qd)
+        return mpmath.matrix(M)
+
+
+def bias_forces(model: Model, q, qd, digits: int = DIGITS) -> tuple:
+    """``h = C(q, qd) qd + g(q)`` (n mpf) to ``digits`` significant digits (article eq. 7, 8 for the double
+    pendulum)."""
+    digits = _check_digits(digits)
+    with mpmath.workdps(digits):
+        q, qd, _ = _state(model, q, qd, np.zeros(model.m))
+        return tuple(_terms(model, q, qd)[3])
+
+
+def relative_error(value, exact) -> float:
+    """Norm-wise relative error ``max_i |value_i - exact_i| / max_i |exact_i|``, evaluated in mpmath (float or mpf
+    entries, taken exactly, at :data:`DIGITS` digits) and returned as a float. When ``exact`` is all zero there is no
+    scale: the absolute error ``max_i |value_i|`` is returned instead. A value that is not finite (NaN, inf) is
+    infinitely wrong: inf."""
+    value, exact = list(np.asarray(value, dtype=object).reshape(-1)), list(exact)
+    if len(value) != len(exact):
+        raise ValueError(f"relative_error: value has {len(value)} entries, exact has {len(exact)}")
+    with mpmath.workdps(DIGITS):
+        if not all(mpmath.isfinite(mpf(a)) for a in value):
+            return float("inf")
+        err = max((abs(mpf(a) - mpf(b)) for a, b in zip(value, exact)), default=mpf(0))
+        size = max((abs(mpf(b)) for b in exact), default=mpf(0))
+        return float(err / size) if size else float(err)
+
+
+__all__ = ["DIGITS", "MIN_DIGITS", "PreciseSplit", "bias_forces", "mass_matrix", "relative_error", "split"]
