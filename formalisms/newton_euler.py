@@ -42,39 +42,83 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (redundant_below, Formalism, Split, check_state, conditioning, constrained_split,
-                                  factor_mass_matrix, joint_vectors, unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, SplitBatch, check_batch, check_state,
+                                  conditioning, constrained_split, degenerate_floor, factor_mass_matrix,
+                                  joint_vectors, unconstrained_split)
 
+#: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
+BLOCK = 2048
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 3-vector algebra on component-first arrays: a vector is (3, *B), a rotation (3, 3, *B) with B the batch axes
+# (none for a single state, so a single state's arrays are plain 3-vectors and 3 x 3 matrices)
+# ----------------------------------------------------------------------------------------------------------
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` for 3-vectors (np.cross is general and several times slower on single vectors)."""
+    """``a x b`` componentwise (np.cross is general and several times slower on 3-vectors)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rotation by ``angle`` about the unit vector ``axis`` (Rodrigues)."""
+def _mv(A: np.ndarray, v: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``A v`` for a batch of rotations ``A`` (3, 3, *B) and vectors ``v`` (3, *B) (B of ``v`` may add axes); one
+    rotation (3, 3) multiplies ``v`` (3, ...) as a matrix."""
+    if A.ndim == 2:
+        return A @ v
+    return A[:, 0] * v[0] + A[:, 1] * v[1] + A[:, 2] * v[2]
+
+
+def _over_motions(x: np.ndarray, axes: int) -> np.ndarray:
+    """A batch of rotations (``axes`` = 2) or vectors (1) with a unit axis inserted after the component axes, to
+    broadcast over the motions of :func:`_unit_motions`; one state's (3, 3) or (3,) as is."""
+    return x if x.ndim == axes else np.expand_dims(x, axes)
+
+
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``A B`` for two batches of 3 x 3 matrices (3, 3, *B)."""
+    return A[:, 0, None] * B[None, 0] + A[:, 1, None] * B[None, 1] + A[:, 2, None] * B[None, 2]
+
+
+def _cmv(C: np.ndarray, v: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``C v`` for one constant matrix ``C`` (r x c, or a c-vector for a dot product) and a batch ``v`` (c, *B)."""
+    return (C @ v.reshape(len(v), -1)).reshape(C.shape[:-1] + v.shape[1:])
+
+
+def _column(c: np.ndarray, batch: tuple) -> np.ndarray:
+    """A constant array ``c`` repeated over the batch axes: shape ``c.shape + batch`` (a read-only view)."""
+    return np.broadcast_to(c.reshape(c.shape + (1,) * len(batch)), c.shape + batch)
+
+
+def _axis_rotation(axis: np.ndarray, angle) -> np.ndarray:
+    """Rotation by ``angle`` (scalar or batch) about the unit vector ``axis`` (Rodrigues), shape (3, 3, *B)."""
     x, y, z = axis
     K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+    return (_column(np.eye(3), np.shape(angle)) + np.multiply.outer(K, np.sin(angle))
+            + np.multiply.outer(K @ K, 1.0 - np.cos(angle)))
 
+
+# ----------------------------------------------------------------------------------------------------------
+# Kinematics and the two passes, for one state (q of shape (n,)) or a batch (q of shape (n, *B))
+# ----------------------------------------------------------------------------------------------------------
 
 def _placements(model: Model, q: np.ndarray):
     """Per body: rotation ``P`` (parent frame <- body frame), body origin ``r`` in the parent frame, and the
     world <- body rotation ``W``. ``X_body = X_parent * (rotation, translation) * motion(q_i)``."""
+    batch = np.shape(q)[1:]
     P, r, W = [None] * model.n, [None] * model.n, [None] * model.n
     for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
         if b.joint == "revolute":
-            P[i] = b.rotation @ _axis_rotation(b.axis, q[i])
-            r[i] = b.translation
+            R = _axis_rotation(b.axis, q[i])
+            P[i] = (b.rotation @ R.reshape(3, -1)).reshape(R.shape)
+            r[i] = _column(b.translation, batch)
         else:
-            P[i] = b.rotation
-            r[i] = b.translation + q[i] * (b.rotation @ b.axis)
-        W[i] = P[i] if p < 0 else W[p] @ P[i]
+            P[i] = _column(b.rotation, batch)
+            r[i] = _column(b.translation, batch) + np.multiply.outer(b.rotation @ b.axis, q[i])
+        W[i] = P[i] if p < 0 else _mm(W[p], P[i])
     return P, r, W
 
 
@@ -84,39 +128,63 @@ def _origins(model: Model, kin) -> list[np.ndarray]:
     origin = [None] * model.n
     for i in model.topological_order:
         p = model.parent_index[i]
-        origin[i] = r[i] if p < 0 else origin[p] + W[p] @ r[i]
+        origin[i] = r[i] if p < 0 else origin[p] + _mv(W[p], r[i])
     return origin
 
 
 def _forward(model: Model, kin, qd: np.ndarray, qdd: np.ndarray):
     """Forward pass, base to tip: angular velocity ``w``, angular acceleration ``wd`` and the classical
-    acceleration ``a`` of each body-frame origin (n x 3 each, body frame)."""
+    acceleration ``a`` of each body-frame origin (n x 3 x *B each, body frame)."""
     P, r, _ = kin
-    nb = model.n
-    w, wd, a = np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3))
-    zero = np.zeros(3)
+    w, wd, a = [None] * model.n, [None] * model.n, [None] * model.n
+    zero = np.zeros((3,) + np.shape(qd)[1:])
     for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
         w_p, wd_p, a_p = (zero, zero, zero) if p < 0 else (w[p], wd[p], a[p])
-        E = P[i].T                                          # body <- parent
-        w_in, s = E @ w_p, b.axis * qd[i]                   # s: joint rate along the axis
-        a_origin = E @ (a_p + _cross(wd_p, r[i]) + _cross(w_p, _cross(w_p, r[i])))
+        E = P[i].swapaxes(0, 1)                             # body <- parent
+        w_in, s = _mv(E, w_p), np.multiply.outer(b.axis, qd[i])      # s: joint rate along the axis
+        a_origin = _mv(E, a_p + _cross(wd_p, r[i]) + _cross(w_p, _cross(w_p, r[i])))
         if b.joint == "revolute":
             w[i] = w_in + s
-            wd[i] = E @ wd_p + b.axis * qdd[i] + _cross(w_in, s)
+            wd[i] = _mv(E, wd_p) + np.multiply.outer(b.axis, qdd[i]) + _cross(w_in, s)
             a[i] = a_origin
         else:
             w[i] = w_in
-            wd[i] = E @ wd_p
-            a[i] = a_origin + 2.0 * _cross(w[i], s) + b.axis * qdd[i]
-    return w, wd, a
+            wd[i] = _mv(E, wd_p)
+            a[i] = a_origin + 2.0 * _cross(w[i], s) + np.multiply.outer(b.axis, qdd[i])
+    return np.array(w), np.array(wd), np.array(a)
 
 
-def _unit_motions(model: Model, kin) -> list:
+def _paths(model: Model) -> list[list[int]]:
+    """Per body, the joints on its path from the root, root first (the body's own joint last)."""
+    path = [None] * model.n
+    for i in model.topological_order:
+        p = model.parent_index[i]
+        path[i] = ([] if p < 0 else path[p]) + [i]
+    return path
+
+
+def _unit_motions(model: Model, kin) -> tuple[list, list]:
     """The forward pass at ``qd = 0``, ``qdd = e_j`` for every joint ``j``: the columns of ``M`` (backward pass,
-    no gravity) and of every point Jacobian (a point's classical acceleration)."""
-    zero = np.zeros(model.n)
-    return [_forward(model, kin, zero, e) for e in np.eye(model.n)]
+    no gravity) and of every point Jacobian (a point's classical acceleration).
+
+    At ``qd = 0`` every ``w`` vanishes, and body ``i`` moves only under the joints on its path from the root
+    (:func:`_paths`), so body ``i`` carries ``wd`` and ``a`` for those motions only, on a second axis
+    (3, len(path), *B).
+    """
+    P, r, _ = kin
+    wd, a = [None] * model.n, [None] * model.n
+    for i in model.topological_order:
+        b, p = model.bodies[i], model.parent_index[i]
+        unit = _column(b.axis, r[i].shape[1:])[:, None]            # qdd_i = 1 along the axis
+        own_wd, own_a = (unit, np.zeros_like(unit)) if b.joint == "revolute" else (np.zeros_like(unit), unit)
+        if p < 0:
+            wd[i], a[i] = own_wd, own_a
+            continue
+        E, r_i = _over_motions(P[i].swapaxes(0, 1), 2), _over_motions(r[i], 1)
+        wd[i] = np.concatenate([_mv(E, wd[p]), own_wd], axis=1)
+        a[i] = np.concatenate([_mv(E, a[p] + _cross(wd[p], r_i)), own_a], axis=1)
+    return wd, a
 
 
 def _com_acceleration(a: np.ndarray, wd: np.ndarray, w: np.ndarray, com: np.ndarray) -> np.ndarray:
@@ -126,38 +194,52 @@ def _com_acceleration(a: np.ndarray, wd: np.ndarray, w: np.ndarray, com: np.ndar
 
 def _body_gravity(W: np.ndarray, gravity: np.ndarray) -> np.ndarray:  # noqa: N803
     """The world gravity vector in the body frame: ``W^T gravity`` (``W``: world <- body)."""
-    return W.T @ gravity
+    return (gravity @ W.reshape(3, -1)).reshape(W.shape[1:])
 
 
 def _gyroscopic(inertia: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The gyroscopic moment ``w x (I w)`` of eq. (19)."""
-    return _cross(w, inertia @ w)
+    return _cross(w, _cmv(inertia, w))
+
+
+def _body_load(model: Model, i: int, W: np.ndarray, w, wd, a, gravity: bool):  # noqa: N803
+    """Body ``i``'s own terms of eq. (18) and (19): ``F = m a_c (- m g)`` and ``I wd + w x (I w) + c x F``; ``w``
+    None for a body at rest (the unit motions: no velocity terms). A massless body has no force terms and a body
+    without rotational inertia (a point mass) no inertia terms."""
+    b = model.bodies[i]
+    F = np.zeros_like(a)
+    if b.mass:
+        a_c = a + _cross(wd, b.com) if w is None else _com_acceleration(a, wd, w, b.com)
+        F = b.mass * a_c                                                 # eq. (18): m a_c
+        if gravity:
+            F = F - b.mass * _body_gravity(W, model.gravity)             # external force m g, moved to the left side
+    n = _cross(b.com, F)
+    if b.inertia.any():
+        n = n + _cmv(b.inertia, wd)                                      # eq. (19)
+        if w is not None:
+            n = n + _gyroscopic(b.inertia, w)
+    return F, n
 
 
 def _backward(model: Model, kin, motion, gravity: bool, external: np.ndarray | None = None):
-    """Backward pass, tip to base: the joint loads ``f, n`` (n x 3 each), the force and the moment about body
+    """Backward pass, tip to base: the joint loads ``f, n`` (n x 3 x *B each), the force and the moment about body
     ``i``'s origin that the parent exerts on body ``i``, in body frame ``i``. Eq. (18) and (19) solved for the
-    inboard load; ``external`` (n x 6, rows ``[force, moment about the origin]`` in body frame ``i``) are further
-    loads applied to the bodies."""
+    inboard load; ``external`` (n x 6, rows ``[force, moment about the origin]`` in body frame ``i``; one state) are
+    further loads applied to the bodies."""
     P, r, W = kin
     w, wd, a = motion
-    f, n = np.zeros((model.n, 3)), np.zeros((model.n, 3))
+    f, n = [0.0] * model.n, [0.0] * model.n                  # the children's loads, summed
     for i in reversed(model.topological_order):
-        b = model.bodies[i]
-        F = b.mass * _com_acceleration(a[i], wd[i], w[i], b.com)   # eq. (18): m a_c
-        if gravity:
-            F = F - b.mass * _body_gravity(W[i], model.gravity)     # external force m g, moved to the left side
-        f[i] += F
-        n[i] += b.inertia @ wd[i] + _gyroscopic(b.inertia, w[i]) + _cross(b.com, F)   # eq. (19)
+        F, N = _body_load(model, i, W[i], w[i], wd[i], a[i], gravity)
+        f[i], n[i] = f[i] + F, n[i] + N
         if external is not None:
-            f[i] -= external[i, :3]
-            n[i] -= external[i, 3:]
+            f[i], n[i] = f[i] - external[i, :3], n[i] - external[i, 3:]
         p = model.parent_index[i]
         if p >= 0:                                           # the child pushes back on its parent
-            fp = P[i] @ f[i]
-            f[p] += fp
-            n[p] += P[i] @ n[i] + _cross(r[i], fp)
-    return f, n
+            fp = _mv(P[i], f[i])
+            f[p] = f[p] + fp
+            n[p] = n[p] + _mv(P[i], n[i]) + _cross(r[i], fp)
+    return np.array(f), np.array(n)
 
 
 def _recursion(model: Model, kin, qd: np.ndarray, qdd: np.ndarray, gravity: bool):
@@ -169,7 +251,7 @@ def _point_acceleration(kin, motion, body: int, offset: np.ndarray) -> np.ndarra
     """Classical acceleration (world frame) of the point ``offset`` fixed in ``body``: ``a + wd x r + w x (w x r)``
     of the forward pass, rotated to the world."""
     w, wd, a = (x[body] for x in motion)
-    return kin[2][body] @ (a + _cross(wd, offset) + _cross(w, _cross(w, offset)))
+    return _mv(kin[2][body], a + _cross(wd, offset) + _cross(w, _cross(w, offset)))
 
 
 def _task_acceleration(model: Model, kin, motion) -> np.ndarray:
@@ -179,8 +261,8 @@ def _task_acceleration(model: Model, kin, motion) -> np.ndarray:
 
 
 def _joint_torques(model: Model, f: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """``tau_i = axis . n_i`` (revolute) or ``axis . f_i`` (prismatic)."""
-    return np.array([b.axis @ (n[i] if b.joint == "revolute" else f[i]) for i, b in enumerate(model.bodies)])
+    """``tau_i = axis . n_i`` (revolute) or ``axis . f_i`` (prismatic), shape (n, *B)."""
+    return np.array([_cmv(b.axis, n[i] if b.joint == "revolute" else f[i]) for i, b in enumerate(model.bodies)])
 
 
 def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarray:
@@ -191,16 +273,35 @@ def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarr
 
 
 def _mass_matrix(model: Model, kin, units) -> np.ndarray:
-    """Column ``j`` of ``M`` = the backward pass (no gravity) of the unit motion ``e_j``, symmetrized."""
-    M = np.column_stack([_joint_torques(model, *_backward(model, kin, motion, gravity=False)) for motion in units])
-    return 0.5 * (M + M.T)
+    """``M`` (n x n x *B): column ``j`` is the backward pass (no gravity, ``w = 0``) of the unit motion ``e_j``.
+
+    Body ``i``'s load under the motions of its path (:func:`_unit_motions`) sums the loads of its subtree; its axis
+    component is ``M[i, j]`` for ``j`` on the path, and symmetry gives ``M[j, i]`` (the entries off the paths are
+    zero: neither joint moves the other's subtree)."""
+    P, r, _ = kin
+    wd, a = units
+    path = _paths(model)
+    M = np.zeros((model.n, model.n) + r[0].shape[1:])
+    f, n = [0.0] * model.n, [0.0] * model.n                  # the children's loads under the parent's motions
+    for i in reversed(model.topological_order):
+        F, N = _body_load(model, i, None, None, wd[i], a[i], gravity=False)
+        f_i, n_i = f[i] + F, n[i] + N
+        b, p = model.bodies[i], model.parent_index[i]
+        column = _cmv(b.axis, n_i if b.joint == "revolute" else f_i)
+        M[i, path[i]] = column
+        M[path[i], i] = column
+        if p >= 0:                                           # the parent does not move under joint i: drop it
+            E, r_i = _over_motions(P[i], 2), _over_motions(r[i], 1)
+            fp = _mv(E, f_i[:, :-1])
+            f[p] = f[p] + fp
+            n[p] = n[p] + _mv(E, n_i[:, :-1]) + _cross(r_i, fp)
+    return M
 
 
 def mass_matrix(model: Model, q) -> np.ndarray:
-    """``M(q)`` of eq. (2), column ``j`` = RNEA with ``qd = 0``, no gravity and ``qdd = e_j`` (n passes).
+    """``M(q)`` of eq. (2), column ``j`` = RNEA with ``qd = 0``, no gravity and ``qdd = e_j`` (:func:`_mass_matrix`).
 
-    The placements are computed once and shared by the columns; the result is symmetrized to remove rounding.
-    """
+    The placements are computed once and shared by the columns."""
     (q,) = joint_vectors(model, q)
     kin = _placements(model, q)
     return _mass_matrix(model, kin, _unit_motions(model, kin))
@@ -233,8 +334,9 @@ def _reactions_in_world(model: Model, kin, reactions: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Rows:
-    """One declaration's rows: ``phi``, ``Jc``, ``Jcdot qd``, and ``loads``: the point forces its multipliers
-    apply, as ``(body index, offset in the body, F)`` with ``F`` (3 x rows) the world force per unit multiplier."""
+    """One declaration's rows: ``phi`` (rows, *B), ``Jc`` (rows, n, *B), ``Jcdot qd`` (rows, *B), and ``loads``: the
+    point forces its multipliers apply, as ``(body index, offset in the body, F)`` with ``F`` (3 x rows) the world
+    force per unit multiplier (used for one state)."""
 
     phi: np.ndarray
     jacobian: np.ndarray
@@ -244,8 +346,8 @@ class _Rows:
 
 @dataclass(frozen=True)
 class _Point:
-    """A point's world position ``p``, Jacobian ``dp/dq`` (3 x n) and bias acceleration ``Jdot qd``; ``body`` is
-    None for a fixed world point."""
+    """A point's world position ``p`` (3, *B), Jacobian ``dp/dq`` (3, n, *B) and bias acceleration ``Jdot qd``
+    (3, *B); ``body`` is None for a fixed world point."""
 
     body: int | None
     offset: np.ndarray
@@ -256,29 +358,36 @@ class _Point:
 
 def _point_kinematics(model: Model, kin, units, bias_motion) -> Callable[[str | None, np.ndarray], _Point]:
     """``point(body name, offset)``: the kinematics of a body point from the recursion (module docstring); a body
-    of None makes ``offset`` a fixed world point."""
-    origins = _origins(model, kin)
+    of None makes ``offset`` a fixed world point. Jacobian column ``j`` is the point's acceleration under the unit
+    motion ``e_j`` (``w = 0``: ``W (a + wd x offset)``), zero for the joints off the body's path."""
+    origins, path, W = _origins(model, kin), _paths(model), kin[2]
+    batch = kin[1][0].shape[1:]
 
     def point(body: str | None, offset: np.ndarray) -> _Point:
         if body is None:
-            return _Point(None, offset, offset, np.zeros((3, model.n)), np.zeros(3))
+            return _Point(None, offset, _column(offset, batch), np.zeros((3, model.n) + batch), np.zeros((3,) + batch))
         i = model.body_index(body)
-        J = np.column_stack([_point_acceleration(kin, motion, i, offset) for motion in units])
-        return _Point(i, offset, origins[i] + kin[2][i] @ offset, J,
-                      _point_acceleration(kin, bias_motion, i, offset))
+        J = np.zeros((3, model.n) + batch)
+        J[:, path[i]] = _mv(_over_motions(W[i], 2), units[1][i] + _cross(units[0][i], offset))
+        return _Point(i, offset, origins[i] + _mv(W[i], offset), J, _point_acceleration(kin, bias_motion, i, offset))
 
     return point
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``x . y`` over the first (component) axis."""
+    return (x * y).sum(axis=0)
 
 
 def _circle(model: Model, c, point, q, qd) -> _Rows:
     """``phi = |P d|^2 - R^2`` with ``d = p - c``: ``Jc = 2 (P d)^T P J``, ``Jcdot qd = 2 |P v|^2 + 2 (P d)^T P a``;
     the force ``2 P^T P d lam`` at the point."""
     x = point(c.body, c.offset)
-    d = c.plane @ (x.p - c.center)
-    grad = 2.0 * c.plane.T @ d                               # dphi/dp, world
-    v = c.plane @ (x.J @ qd)
-    return _Rows(np.array([d @ d - c.radius**2]), (grad @ x.J)[None, :], np.array([2.0 * v @ v + grad @ x.a]),
-                 ((x.body, x.offset, grad[:, None]),))
+    d = _cmv(c.plane, x.p - _column(c.center, x.p.shape[1:]))
+    grad = _cmv(2.0 * c.plane.T, d)                          # dphi/dp, world
+    v = _cmv(c.plane, (x.J * qd[None]).sum(axis=1))
+    return _Rows((_dot(d, d) - c.radius**2)[None], _dot(grad[:, None], x.J)[None],
+                 (2.0 * _dot(v, v) + _dot(grad, x.a))[None], ((x.body, x.offset, grad[:, None]),))
 
 
 def _coincide(model: Model, c, point, q, qd) -> _Rows:
@@ -287,14 +396,15 @@ def _coincide(model: Model, c, point, q, qd) -> _Rows:
     xa, xb = point(c.body_a, c.offset_a), point(c.body_b, c.offset_b)
     D = c.directions
     loads = ((xa.body, xa.offset, D.T),) + (() if xb.body is None else ((xb.body, xb.offset, -D.T),))
-    return _Rows(D @ (xa.p - xb.p), D @ (xa.J - xb.J), D @ (xa.a - xb.a), loads)
+    return _Rows(_cmv(D, xa.p - xb.p), _cmv(D, xa.J - xb.J), _cmv(D, xa.a - xb.a), loads)
 
 
 def _line(model: Model, c, point, q, qd) -> _Rows:
     """``phi = N (p - origin)``: ``Jc = N J``, ``Jcdot qd = N a``; the force ``N^T lam`` at the point."""
     x = point(c.body, c.offset)
     N = c.normals
-    return _Rows(N @ (x.p - c.origin), N @ x.J, N @ x.a, ((x.body, x.offset, N.T),))
+    return _Rows(_cmv(N, x.p - _column(c.origin, x.p.shape[1:])), _cmv(N, x.J), _cmv(N, x.a),
+                 ((x.body, x.offset, N.T),))
 
 
 def _coupling(model: Model, c, point, q, qd) -> _Rows:
@@ -302,7 +412,8 @@ def _coupling(model: Model, c, point, q, qd) -> _Rows:
     row = np.zeros(model.n)
     for name, coefficient in zip(c.joints, c.coefficients):
         row[model.body_index(name)] += coefficient
-    return _Rows(np.array([row @ q - c.offset]), row[None, :], np.zeros(1))
+    batch = q.shape[1:]
+    return _Rows((np.tensordot(row, q, axes=1) - c.offset)[None], _column(row[None, :], batch), np.zeros((1,) + batch))
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -323,8 +434,8 @@ def _constraint_rows(model: Model, kin, units, bias_motion, q: np.ndarray, qd: n
 
 
 def _constraint_loads(model: Model, kin, rows: list[_Rows], lam: np.ndarray) -> np.ndarray:
-    """The point forces of the multipliers ``lam`` as external loads on the bodies (n x 6, rows ``[force, moment
-    about the body origin]`` in body frame ``i``), for the backward pass."""
+    """The point forces of the multipliers ``lam`` (one state) as external loads on the bodies (n x 6, rows
+    ``[force, moment about the body origin]`` in body frame ``i``), for the backward pass."""
     loads, start = np.zeros((model.n, 6)), 0
     for r in rows:
         part, start = lam[start:start + len(r.phi)], start + len(r.phi)
@@ -335,46 +446,106 @@ def _constraint_loads(model: Model, kin, rows: list[_Rows], lam: np.ndarray) -> 
     return loads
 
 
+# ----------------------------------------------------------------------------------------------------------
+# The solves, for a batch of states on the last axis (vectors (n, N), matrices (n, n, N); one state is N = 1)
+# ----------------------------------------------------------------------------------------------------------
+
+def _cholesky(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:  # noqa: N803
+    """Lower Cholesky factors ``L`` of the mass matrices ``M = L L^T`` (n, n, N) at the configurations ``q`` (n, N),
+    column by column (a loop over the joints). A mass matrix that is not positive definite raises
+    :func:`factor_mass_matrix`'s ValueError for the first such state."""
+    L = np.zeros_like(M)
+    for j in range(len(M)):
+        d = M[j, j] - (L[j, :j] ** 2).sum(axis=0)
+        if not np.all(d > 0.0):
+            bad = int(np.flatnonzero(~(d > 0.0))[0])
+            factor_mass_matrix(model, M[:, :, bad], q[:, bad])
+            raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = "
+                             f"{q[:, bad].tolist()} (Cholesky failed at joint {j})")
+        L[j, j] = np.sqrt(d)
+        L[j + 1:, j] = (M[j + 1:, j] - (L[j + 1:, :j] * L[j, :j][None]).sum(axis=1)) / L[j, j]
+    return L
+
+
+def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``M^-1 b`` from the factors ``L`` (n, n, N) of ``M = L L^T``, ``b`` (n, m, N): forward then back substitution
+    (a loop over the joints)."""
+    y, x = np.empty_like(b), np.empty_like(b)
+    for i in range(len(L)):
+        y[i] = (b[i] - (L[i, :i, None] * y[:i]).sum(axis=0)) / L[i, i]
+    for i in reversed(range(len(L))):
+        x[i] = (y[i] - (L[i + 1:, i, None] * x[i + 1:]).sum(axis=0)) / L[i, i]
+    return x
+
+
+def _redundant_below(model: Model, w_max: np.ndarray) -> np.ndarray:
+    """``interface.redundant_below`` per state: ``CONSTRAINT_RCOND`` times the largest eigenvalue, at least
+    :func:`degenerate_floor`."""
+    return np.maximum(CONSTRAINT_RCOND * w_max, degenerate_floor(model))
+
+
+def _times(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``A x`` per state: ``A`` (r, c, N), ``x`` (c, N)."""
+    return (A * x[None]).sum(axis=1)
+
+
 @dataclass(frozen=True)
 class _RangeSpace:
-    """The range-space (Schur complement) method on the Cholesky factor of ``M``: ``X = M^-1 Jc^T`` and
-    ``S^+`` with ``S = Jc X`` (eigenvalues below ``CONSTRAINT_RCOND`` times the largest dropped)."""
+    """The range-space (Schur complement) method on the Cholesky factors ``L`` of ``M``, per state: ``X = M^-1 Jc^T``
+    and ``S^+`` with ``S = Jc X`` (eigenvalues at or below :func:`_redundant_below` dropped). States on the last
+    axis."""
 
-    factor: tuple
+    L: np.ndarray
     Jc: np.ndarray
     bias: np.ndarray
     X: np.ndarray
     S_pinv: np.ndarray
 
     @classmethod
-    def build(cls, model: Model, factor, Jc: np.ndarray, bias: np.ndarray) -> "_RangeSpace":
-        X = scipy.linalg.cho_solve(factor, Jc.T)
-        S = Jc @ X
-        w, U = np.linalg.eigh(0.5 * (S + S.T))
-        keep = w > redundant_below(model, w[-1])
-        return cls(factor, Jc, bias, X, (U[:, keep] / w[keep]) @ U[:, keep].T)
+    def build(cls, model: Model, L: np.ndarray, Jc: np.ndarray, bias: np.ndarray) -> "_RangeSpace":  # noqa: N803
+        X = _cho_solve(L, Jc.swapaxes(0, 1))
+        S = np.einsum("kin,ijn->nkj", Jc, X)                  # (N, k, k) for eigh
+        w, U = np.linalg.eigh(0.5 * (S + S.swapaxes(1, 2)))
+        keep = w > _redundant_below(model, w[:, -1])[:, None]
+        inverse = np.divide(1.0, w, out=np.zeros_like(w), where=keep)
+        return cls(L, Jc, bias, X, np.moveaxis((U * inverse[:, None, :]) @ U.swapaxes(1, 2), 0, -1))
 
     def solve(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(qdd, lam)`` of eq. (12, 13) for the generalized force ``f``: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``,
-        ``qdd = M^-1 f + X lam``."""
-        a = scipy.linalg.cho_solve(self.factor, f)
-        lam = self.S_pinv @ (-self.bias - self.Jc @ a)
-        return a + self.X @ lam, lam
+        """``(qdd, lam)`` of eq. (12, 13) for the generalized forces ``f`` (n, N): ``lam = S^+ (-Jcdot qd - Jc M^-1
+        f)``, ``qdd = M^-1 f + X lam``."""
+        a = _cho_solve(self.L, f[:, None])[:, 0]
+        lam = _times(self.S_pinv, -self.bias - _times(self.Jc, a))
+        return a + _times(self.X, lam), lam
 
     def input_map(self, tau: np.ndarray) -> np.ndarray:
         """``B_c tau`` of eq. (17): ``M^-1 tau - X S^+ Jc M^-1 tau``."""
-        a = scipy.linalg.cho_solve(self.factor, tau)
-        return a - self.X @ (self.S_pinv @ (self.Jc @ a))
+        a = _cho_solve(self.L, tau[:, None])[:, 0]
+        return a - _times(self.X, _times(self.S_pinv, _times(self.Jc, a)))
 
 
 # ----------------------------------------------------------------------------------------------------------
 # The split
 # ----------------------------------------------------------------------------------------------------------
 
+def _dynamics(model: Model, q: np.ndarray, qd: np.ndarray):
+    """The recursion's terms at ``(q, qd)`` (shapes (n, *B)): placements, unit motions, the forward pass at
+    ``qdd = 0``, ``h = C qd + g`` (the RNEA at ``qdd = 0``, (n, *B)) and ``M`` (n, n, *B)."""
+    kin = _placements(model, q)
+    units, bias_motion = _unit_motions(model, kin), _forward(model, kin, qd, np.zeros_like(qd))
+    h = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=True))
+    return kin, units, bias_motion, h, _mass_matrix(model, kin, units)
+
+
+def _constraint_terms(model: Model, kin, units, bias_motion, q, qd) -> tuple[list[_Rows], np.ndarray, np.ndarray]:
+    """The rows of every declaration, ``Jc`` (k, n, *B) and ``Jcdot qd`` (k, *B)."""
+    rows = _constraint_rows(model, kin, units, bias_motion, q, qd)
+    return rows, np.concatenate([r.jacobian for r in rows]), np.concatenate([r.bias for r in rows])
+
+
 def _extras(model: Model, kin, qd: np.ndarray, total: np.ndarray, drift: np.ndarray, loads=None,
             loads_drift=None):
     """The joint reactions at the total and at the drift (with the external ``loads``, ``loads_drift`` applied),
-    the former also in the world frame; and the drift's forward pass."""
+    the former also in the world frame; and the drift's forward pass (one state)."""
     drift_motion = _forward(model, kin, qd, drift)
     reactions = np.hstack(_backward(model, kin, _forward(model, kin, qd, total), True, loads))
     extras = {"joint_reactions": reactions,
@@ -392,7 +563,8 @@ def _wrenches(extras: dict) -> dict:
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9): ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl = M^-1 B u`` solved
     directly, ``total = M^-1 (B u - h)`` solved on its own, with ``h = C qd + g`` from the RNEA at ``qdd = 0``.
-    A constrained model goes through the range-space solve of eq. (12)-(17) instead (module docstring).
+    A constrained model goes through the range-space solve of eq. (12)-(17) instead (module docstring). The
+    recursion and the solves are those of :func:`split_batch` on a batch of one.
 
     extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)`` (body
     frames; with the constraint forces of ``lam`` and ``lam_drift`` applied), ``joint_reactions_world`` (the former
@@ -400,37 +572,65 @@ def split(model: Model, q, qd, u) -> Split:
     first two; ``task_drift`` is the default task point's classical acceleration from the forward pass at the drift.
     """
     q, qd, u = check_state(model, q, qd, u)
-    kin, zero = _placements(model, q), np.zeros(model.n)
-    units, bias_motion = _unit_motions(model, kin), _forward(model, kin, qd, zero)
-    h = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=True))     # RNEA at qdd = 0
+    kin, units, bias_motion, h, M = _dynamics(model, q, qd)
+    zero = np.zeros(model.n)
     c_qd = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=False))
     g = _joint_torques(model, *_recursion(model, kin, zero, zero, gravity=True))
-    M = _mass_matrix(model, kin, units)
-    factor = factor_mass_matrix(model, M, q)
+    L = _cholesky(model, M[..., None], q[:, None])
     tau_ctrl = model.input_map @ u
     if not model.constraints:
-        drift, ctrl, total = (scipy.linalg.cho_solve(factor, f) for f in (-h, tau_ctrl, tau_ctrl - h))
+        drift, ctrl, total = _cho_solve(L, np.column_stack([-h, tau_ctrl, tau_ctrl - h])[..., None])[..., 0].T
         extras, drift_motion = _extras(model, kin, qd, total, drift)
         cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
         return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
                                    cond_M=cond_M, accel_scale=accel_scale, extras=extras,
                                    task_drift=_task_acceleration(model, kin, drift_motion),
                                    kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
-    rows = _constraint_rows(model, kin, units, bias_motion, q, qd)
-    Jc, bias = np.vstack([r.jacobian for r in rows]), np.concatenate([r.bias for r in rows])
-    schur = _RangeSpace.build(model, factor, Jc, bias)
-    (total, lam), (drift, lam_drift) = schur.solve(tau_ctrl - h), schur.solve(-h)        # eq. (12, 13), (14)
+    rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
+    schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
+    (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
+        x[:, 0] for x in schur.solve(-h[:, None]))                                      # eq. (12, 13), (14)
     extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
                                    _constraint_loads(model, kin, rows, lam_drift))
     return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd,
                              phi=np.concatenate([r.phi for r in rows]), Jc=Jc, bias=bias, drift=drift,
-                             ctrl=schur.input_map(tau_ctrl), total=total, lam=lam, lam_drift=lam_drift,
+                             ctrl=schur.input_map(tau_ctrl[:, None])[:, 0], total=total, lam=lam, lam_drift=lam_drift,
                              extras=extras, task_drift=_task_acceleration(model, kin, drift_motion),
                              kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
+
+
+def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray) -> SplitBatch:  # noqa: N803
+    """:func:`split_batch` on one block of states (rows of ``Q``, ``QD``, ``U``)."""
+    q, qd = np.ascontiguousarray(Q.T), np.ascontiguousarray(QD.T)
+    kin, units, bias_motion, h, M = _dynamics(model, q, qd)
+    L, tau = _cholesky(model, M, q), model.input_map @ U.T
+    if not model.constraints:
+        drift, ctrl, total = _cho_solve(L, np.stack([-h, tau, tau - h], axis=1)).transpose(1, 2, 0)
+        return SplitBatch(drift, ctrl, total)
+    _, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
+    schur = _RangeSpace.build(model, L, Jc, bias)
+    (total, lam), (drift, lam_drift) = schur.solve(tau - h), schur.solve(-h)             # eq. (12, 13), (14)
+    return SplitBatch(drift.T, schur.input_map(tau).T, total.T, lam.T, lam_drift.T)
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:  # noqa: N803
+    """The split of N states at once (rows of ``Q``, ``QD``, ``U``; :class:`SplitBatch`): the recursion of
+    :func:`split` with the states on a trailing axis of every 3-vector, in blocks of :data:`BLOCK` states, and the
+    same solves per state; rows equal ``split``'s."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    blocks = [_split_block(model, Q[s:s + BLOCK], QD[s:s + BLOCK], U[s:s + BLOCK])
+              for s in range(0, len(Q), BLOCK)]
+    if not blocks:
+        lam = (np.zeros((0, model.k)),) * 2 if model.k else (None, None)
+        return SplitBatch(np.zeros((0, model.n)), np.zeros((0, model.n)), np.zeros((0, model.n)), *lam)
+    stack = (lambda name: None if getattr(blocks[0], name) is None
+             else np.concatenate([getattr(b, name) for b in blocks]))
+    return SplitBatch(*(stack(name) for name in ("drift", "ctrl", "total", "lam", "lam_drift")))
 
 
 FORMALISM = Formalism(
     name="newton_euler",
     summary="Recursive Newton–Euler in body frames (article 6.1, eqs. 18-19): 3-vector force balance per body",
     split=split,
+    split_batch=split_batch,
 )
