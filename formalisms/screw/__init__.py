@@ -6,11 +6,15 @@ point kinematics), :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq
 :mod:`~formalisms.screw.constraints` (``phi``, ``Jc``, ``Jcdot qd``, constraint wrenches and Gauss's principle,
 article 5). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
 
-``M``, ``h = C qd + g``, ``C qd`` and ``g`` come from one vectorized pass of the wrench recursion (eq. 27); one
-Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)`` (eq. 10, the ZTCF), ``ctrl = M^-1 B u`` and
-``total = M^-1 (B u - h)``, each solved on its own. With constraints, total / lam and drift / lam_drift (eq. 14)
-come from Gauss's principle in the Udwadia–Kalaba form on the same factor, and ``ctrl = B_c B u`` (eq. 17)
-directly.
+``M`` comes from the composite spatial inertias and ``h = C qd + g`` from the wrench recursion of eq. (27), both in
+the world frame (:mod:`~formalisms.screw.dynamics`); one Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)``
+(eq. 10, the ZTCF), ``ctrl = M^-1 B u`` and ``total = M^-1 (B u - h)``, each solved on its own. With constraints,
+total / lam and drift / lam_drift (eq. 14) come from Gauss's principle in the Udwadia–Kalaba form on the same factor,
+and ``ctrl = B_c B u`` (eq. 17) directly.
+
+``split_batch`` evaluates N states in one pass of the same functions (kinematics, inertias, recursion, rows and
+solves all take a leading state axis; :mod:`~formalisms.screw.linalg` factors the N mass matrices at once), in
+blocks of :data:`BLOCK` states; ``split`` is that pass for one state, plus the extras below.
 
 extras (numpy arrays, row ``i`` = body ``i`` in model order; twists ``(w, v)``, wrenches ``(moment, force)``):
 
@@ -49,13 +53,17 @@ accelerations map by ``Ad_g``, ``wrenches_space`` and the constraint wrenches by
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, factor_mass_matrix,
-                                  task_space_inertia, unconstrained_split)
+from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, task_space_inertia, unconstrained_split)
 from formalisms.screw import constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
+from formalisms.screw.linalg import Cholesky
+
+#: States per pass of :func:`split_batch`: large enough that numpy's per-call cost is spread over many states,
+#: small enough that the per-body arrays stay in cache and N = 10,000 states need a few tens of MB.
+BLOCK = 1024
 
 
 def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
@@ -98,21 +106,35 @@ def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarra
     V_s = kinematics.twists(kin, qd)
     external = None
     if constraint_wrenches is not None:                       # F_b = Ad_{T_i}^T F_s
-        external = np.einsum("iba,ikb->ika", lie.Ad(kin.poses), np.stack(constraint_wrenches, axis=1))
-    F = dynamics.wrenches(kin, np.column_stack([qd, qd]), np.column_stack([total, drift]), np.ones(2), external)
-    F_body = F[:, 0]
+        external = lie.wrench_to_body(kin.poses, np.stack(constraint_wrenches))
+    F = dynamics.wrenches(kin, np.stack([qd, qd]), np.stack([total, drift]), np.ones(2), external)
+    F_body = F[0]
     extras = {
         "poses": kin.poses,
         "twists_space": V_s,
         "twists_body": (kin.to_body @ V_s[..., None])[..., 0],
         "accelerations_space": kinematics.spatial_accelerations(kin, qd, total),
         "wrenches_body": F_body,
-        "wrenches_body_drift": F[:, 1],
-        "wrenches_space": (np.swapaxes(kin.to_body, 1, 2) @ F_body[..., None])[..., 0],
+        "wrenches_body_drift": F[1],
+        "wrenches_space": (np.swapaxes(kin.to_body, -1, -2) @ F_body[..., None])[..., 0],
     }
     if constraint_wrenches is not None:
         extras["constraint_wrenches_space"], extras["constraint_wrenches_space_drift"] = constraint_wrenches
     return extras
+
+
+def _unconstrained(factor: Cholesky, h: np.ndarray, tau_ctrl: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(drift, ctrl, total) = M^-1 (-h), M^-1 B u, M^-1 (B u - h)`` (N, n) each (eq. 9, 10), solved on their own."""
+    rhs = np.stack([-h, tau_ctrl, tau_ctrl - h], axis=1)                 # (N, 3, n)
+    x = factor.solve(np.transpose(rhs, (2, 1, 0)))
+    return tuple(np.transpose(x, (2, 1, 0))[:, c] for c in range(3))
+
+
+def _constrained(gauss: constraints.Gauss, h: np.ndarray, tau_ctrl: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(drift, ctrl, total, lam, lam_drift)`` (eq. 12-17) by Gauss's principle: total / lam with the input,
+    drift / lam_drift without it (eq. 14), ``ctrl = B_c B u`` (eq. 17) directly."""
+    (total, lam), (drift, lam_drift) = gauss.solve(tau_ctrl - h), gauss.solve(-h)
+    return drift, gauss.input_map(tau_ctrl), total, lam, lam_drift
 
 
 def split(model: Model, q, qd, u) -> Split:
@@ -130,9 +152,7 @@ def split(model: Model, q, qd, u) -> Split:
     tau_ctrl = model.input_map @ u
     if model.constraints:
         return _constrained_split(kin, q, qd, M, factor, h, c_qd, g, tau_ctrl)
-    drift = scipy.linalg.cho_solve(factor, -h)
-    ctrl = scipy.linalg.cho_solve(factor, tau_ctrl)
-    total = scipy.linalg.cho_solve(factor, tau_ctrl - h)
+    drift, ctrl, total = (x[0] for x in _unconstrained(Cholesky.of(M[None]), h[None], tau_ctrl[None]))
     cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
     extras = _extras(kin, qd, total, drift)
     return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
@@ -144,15 +164,15 @@ def split(model: Model, q, qd, u) -> Split:
 
 
 def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) -> Split:  # noqa: N803
-    """Eq. (12)-(17) by Gauss's principle (:class:`constraints.Gauss`): total / lam with the input, drift /
-    lam_drift without it (eq. 14), ``ctrl = B_c B u`` (eq. 17) directly; the constraint wrenches of both."""
+    """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state) and the constraint wrenches
+    of both multipliers."""
     model = kin.model
     rows = constraints.terms(kin, q, qd)
-    gauss = constraints.Gauss.build(model, factor, rows.jacobian, rows.bias)
-    (total, lam), (drift, lam_drift) = gauss.solve(tau_ctrl - h), gauss.solve(-h)
+    gauss = constraints.Gauss.build(model, Cholesky.of(M[None]), rows.jacobian[None], rows.bias[None])
+    drift, ctrl, total, lam, lam_drift = (x[0] for x in _constrained(gauss, h[None], tau_ctrl[None]))
     extras = _extras(kin, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
     return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd, phi=rows.phi, Jc=rows.jacobian,
-                             bias=rows.bias, drift=drift, ctrl=gauss.input_map(tau_ctrl), total=total, lam=lam,
+                             bias=rows.bias, drift=drift, ctrl=ctrl, total=total, lam=lam,
                              lam_drift=lam_drift, extras=extras, task_drift=_task_drift(kin, qd, drift),
                              kinetic_energy=_kinetic_energy(model, extras["twists_body"]),
                              joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"], rows.coupling_torques(lam)),
@@ -161,8 +181,50 @@ def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) 
                              **_task_inertia(kin, factor))
 
 
+def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int) -> Cholesky:  # noqa: N803
+    """The Cholesky factors of a block's mass matrices; a ValueError naming the first state (``first`` is the block's
+    offset in the batch) whose M is not positive definite."""
+    factor = Cholesky.of(M)
+    if not factor.positive.all():
+        i = int(np.flatnonzero(~factor.positive)[0])
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at state {first + i} of "
+                         f"the batch, q = {Q[i].tolist()} (Cholesky failed); eigenvalues "
+                         f"{np.linalg.eigvalsh(M[i]).tolist()}")
+    return factor
+
+
+def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray, first: int) -> tuple:  # noqa: N803
+    """``(drift, ctrl, total, lam, lam_drift)`` of a block of states (lam None when unconstrained): the pass of
+    ``split`` over a leading state axis."""
+    kin = kinematics.forward_kinematics(model, Q)
+    G = dynamics.space_inertias(kin)
+    M = dynamics.mass_matrix_of(kin, G)
+    h = dynamics.generalized_forces(kin, dynamics.space_wrenches(kin, G, QD, None, 1.0))
+    factor, tau_ctrl = _factor(model, M, Q, first), U @ model.input_map.T
+    if not model.constraints:
+        return (*_unconstrained(factor, h, tau_ctrl), None, None)
+    rows = constraints.terms(kin, Q, QD)
+    return _constrained(constraints.Gauss.build(model, factor, rows.jacobian, rows.bias), h, tau_ctrl)
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:  # noqa: N803
+    """The split of N states at once (:class:`SplitBatch`): row ``i`` is ``split(model, Q[i], QD[i], U[i])``'s
+    drift, ctrl, total (and lam, lam_drift), by the same functions over a leading state axis, :data:`BLOCK` states
+    per pass."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    starts = range(0, len(Q), BLOCK)
+    blocks = [_split_block(model, Q[i:i + BLOCK], QD[i:i + BLOCK], U[i:i + BLOCK], i) for i in starts]
+    if not blocks:
+        empty = np.zeros((0, model.n))
+        lam = (np.zeros((0, model.k)),) * 2 if model.constraints else (None, None)
+        return SplitBatch(empty, empty, empty, *lam)
+    drift, ctrl, total, lam, lam_drift = (None if parts[0] is None else np.concatenate(parts) for parts in zip(*blocks))
+    return SplitBatch(drift, ctrl, total, lam, lam_drift)
+
+
 FORMALISM = Formalism(
     name="screw",
     summary="Product of exponentials and screw theory (article 6.2, eqs. 20, 27): twists and wrenches on SE(3)",
     split=split,
+    split_batch=split_batch,
 )

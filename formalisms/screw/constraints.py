@@ -34,48 +34,59 @@ with ``A^+`` from the singular value decomposition of ``A``, the singular values
 ``sqrt(CONSTRAINT_RCOND)`` times the largest dropped (``A A^T = Jc M^-1 Jc^T``, so this drops the eigenvalues of
 ``S`` below ``CONSTRAINT_RCOND`` times its largest): minimum-norm multipliers for redundant rows, least-squares
 numbers for an inconsistent system. ``M qdd = f + Jc^T lam`` holds because ``Jc^T lam = L A^+ A A^+ r = L A^+ r``.
+
+The rows and the solve take a stack of states (leading axes, as :mod:`~formalisms.screw.kinematics`): the batched
+split evaluates N states in one pass; the split is the stack of one.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import redundant_below
+from formalisms.interface import CONSTRAINT_RCOND, degenerate_floor
 from formalisms.screw import kinematics, lie
 from formalisms.screw.kinematics import Kinematics
+from formalisms.screw.linalg import Cholesky
 
 
 @dataclass(frozen=True)
 class ConstraintTerms:
-    """The constraint rows at one state: ``phi`` (k,), ``jacobian`` ``Jc`` (k, n), ``bias`` ``Jcdot qd`` (k,),
-    ``unit_wrenches`` (k, n, 6): the space wrench ``(moment about the world origin, force)`` a unit multiplier of
-    row ``r`` exerts on body ``i``, and ``coupling`` (k,): the rows of joint couplings."""
+    """The constraint rows at a state (leading axes ``...`` those of the state): ``phi`` (..., k), ``jacobian``
+    ``Jc`` (..., k, n), ``bias`` ``Jcdot qd`` (..., k), and ``coupling`` (k,): the rows of joint couplings. At one
+    state also ``unit_wrenches`` (k, n, 6): the space wrench ``(moment about the world origin, force)`` a unit
+    multiplier of row ``r`` exerts on body ``i``."""
 
     phi: np.ndarray
     jacobian: np.ndarray
     bias: np.ndarray
-    unit_wrenches: np.ndarray
     coupling: np.ndarray
+    loads: tuple[Callable[[], np.ndarray], ...] = field(repr=False)
+
+    @cached_property
+    def unit_wrenches(self) -> np.ndarray:
+        """(k, n, 6), one state: the declarations' unit wrenches, in row order."""
+        return np.concatenate([load() for load in self.loads])
 
     def wrenches(self, lam: np.ndarray) -> np.ndarray:
-        """The constraint wrench on every body (n, 6), space frame, for the multipliers ``lam``."""
+        """The constraint wrench on every body (n, 6), space frame, for the multipliers ``lam`` (one state)."""
         return np.einsum("r,rib->ib", lam, self.unit_wrenches)
 
     def coupling_torques(self, lam: np.ndarray) -> np.ndarray:
         """The joint torques (n,) of the couplings' multipliers, ``(coupling rows of Jc)^T lam``: what the
-        couplings make each joint carry, like an actuator."""
+        couplings make each joint carry, like an actuator (one state)."""
         return self.jacobian[self.coupling].T @ lam[self.coupling]
 
 
 @dataclass(frozen=True)
 class _Point:
-    """A point's body index (None for a fixed world point), world position, ``dp/dq`` (3, n) and ``Jdot qd``."""
+    """A point's body index (None for a fixed world point), world position (..., 3), ``dp/dq`` (..., 3, n) and
+    ``Jdot qd`` (..., 3)."""
 
     body: int | None
     p: np.ndarray
@@ -88,61 +99,80 @@ def _point_kinematics(kin: Kinematics, qd: np.ndarray) -> Callable[[str | None, 
     docstring); a body of None makes ``offset`` a fixed world point."""
     model = kin.model
     V, A = kinematics.twists(kin, qd), kinematics.bias_accelerations(kin, qd)
+    batch = V.shape[:-2]
 
     def point(body: str | None, offset: np.ndarray) -> _Point:
         if body is None:
-            return _Point(None, offset, np.zeros((3, model.n)), np.zeros(3))
+            return _Point(None, np.broadcast_to(offset, batch + (3,)), np.zeros(batch + (3, model.n)),
+                          np.zeros(batch + (3,)))
         i = model.body_index(body)
         p = kinematics.point_position(kin, i, offset)
-        return _Point(i, p, kinematics.point_jacobian(kin, i, p), kinematics.classical_acceleration(V[i], A[i], p))
+        return _Point(i, p, kinematics.point_jacobian(kin, i, p),
+                      kinematics.classical_acceleration(V[..., i, :], A[..., i, :], p))
 
     return point
 
 
-def _force_wrenches(n: int, loads) -> np.ndarray:
-    """(rows, n, 6) space wrenches of point forces: ``loads`` holds ``(point, F)`` with ``F`` (3, rows) the world
-    force per unit multiplier at the point; a world point takes none."""
-    W = np.zeros((next(iter(loads))[1].shape[1], n, 6))
-    for x, F in loads:
-        if x.body is not None:
-            W[:, x.body, :3] += lie.cross(x.p, F.T)
-            W[:, x.body, 3:] += F.T
-    return W
+def _force_wrenches(n: int, loads) -> Callable[[], np.ndarray]:
+    """The (rows, n, 6) space wrenches of point forces at one state, when called: ``loads`` holds ``(point, F)``
+    with ``F`` (3, rows) the world force per unit multiplier at the point; a world point takes none."""
+    def build() -> np.ndarray:
+        W = np.zeros((next(iter(loads))[1].shape[1], n, 6))
+        for x, F in loads:
+            if x.body is not None:
+                W[:, x.body, :3] += lie.cross(x.p, F.T)
+                W[:, x.body, 3:] += F.T
+        return W
+    return build
+
+
+def _rows_of(D: np.ndarray, J: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``D J``: constant row directions (r, 3) times point Jacobians (..., 3, n)."""
+    return np.einsum("ra,...an->...rn", D, J)
 
 
 def _circle(kin: Kinematics, c, point, q, qd):
     x = point(c.body, c.offset)
-    d = c.plane @ (x.p - c.center)
-    grad = 2.0 * c.plane.T @ d                                # dphi/dp, world
-    v = c.plane @ (x.J @ qd)
-    return (np.array([d @ d - c.radius**2]), (grad @ x.J)[None, :], np.array([2.0 * v @ v + grad @ x.a]),
+    d = (x.p - c.center) @ c.plane.T
+    grad = 2.0 * d @ c.plane                                  # dphi/dp, world
+    v = np.einsum("...an,...n->...a", x.J, qd) @ c.plane.T
+    return (np.sum(d * d, axis=-1, keepdims=True) - c.radius**2, np.einsum("...a,...an->...n", grad, x.J)[..., None, :],
+            2.0 * np.sum(v * v, axis=-1, keepdims=True) + np.sum(grad * x.a, axis=-1, keepdims=True),
             _force_wrenches(kin.model.n, [(x, grad[:, None])]))
 
 
 def _coincide(kin: Kinematics, c, point, q, qd):
     xa, xb = point(c.body_a, c.offset_a), point(c.body_b, c.offset_b)
     D = c.directions
-    return (D @ (xa.p - xb.p), D @ (xa.J - xb.J), D @ (xa.a - xb.a),
+    return ((xa.p - xb.p) @ D.T, _rows_of(D, xa.J - xb.J), (xa.a - xb.a) @ D.T,
             _force_wrenches(kin.model.n, [(xa, D.T), (xb, -D.T)]))
 
 
 def _line(kin: Kinematics, c, point, q, qd):
     x = point(c.body, c.offset)
     N = c.normals
-    return N @ (x.p - c.origin), N @ x.J, N @ x.a, _force_wrenches(kin.model.n, [(x, N.T)])
+    return (x.p - c.origin) @ N.T, _rows_of(N, x.J), x.a @ N.T, _force_wrenches(kin.model.n, [(x, N.T)])
 
 
 def _coupling(kin: Kinematics, c, point, q, qd):
     model = kin.model
-    row, W = np.zeros(model.n), np.zeros((1, model.n, 6))
+    row = np.zeros(model.n)
     for name, coefficient in zip(c.joints, c.coefficients):
-        j = model.body_index(name)
-        row[j] += coefficient
-        wrench = coefficient * (kin.to_body[j].T @ kin.screws.body_axes[j])   # Ad_{T_j^-1}^T (c_j B_j)
-        W[0, j] += wrench
-        if model.parent_index[j] >= 0:
-            W[0, model.parent_index[j]] -= wrench
-    return np.array([row @ q - c.offset]), row[None, :], np.zeros(1), W
+        row[model.body_index(name)] += coefficient
+
+    def build() -> np.ndarray:
+        W = np.zeros((1, model.n, 6))
+        for name, coefficient in zip(c.joints, c.coefficients):
+            j = model.body_index(name)
+            wrench = coefficient * (kin.to_body[j].T @ kin.screws.body_axes[j])   # Ad_{T_j^-1}^T (c_j B_j)
+            W[0, j] += wrench
+            if model.parent_index[j] >= 0:
+                W[0, model.parent_index[j]] -= wrench
+        return W
+
+    batch = q.shape[:-1]
+    return ((q @ row - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,)),
+            build)
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -150,7 +180,7 @@ _DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine:
 
 
 def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:
-    """The rows of every declaration of ``kin.model``, in model order (module docstring)."""
+    """The rows of every declaration of ``kin.model``, in model order (module docstring); ``q``, ``qd`` (..., n)."""
     model: Model = kin.model
     point = _point_kinematics(kin, qd)
     parts = []
@@ -159,45 +189,55 @@ def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:
             raise TypeError(f"model '{model.name}': the screw backend does not know the constraint declaration "
                             f"{c!r} of type {type(c).__name__}; known: {[t.__name__ for t in _DECLARATIONS]}")
         parts.append(_DECLARATIONS[type(c)](kin, c, point, q, qd))
-    phi, Jc, bias, W = (np.concatenate(column) for column in zip(*parts))
+    phi, bias = (np.concatenate([part[i] for part in parts], axis=-1) for i in (0, 2))
+    Jc = np.concatenate([part[1] for part in parts], axis=-2)
     coupling = np.concatenate([np.full(c.size, isinstance(c, JointCoupling)) for c in model.constraints])
-    return ConstraintTerms(phi, Jc, bias, W, coupling)
+    return ConstraintTerms(phi, Jc, bias, coupling, tuple(part[3] for part in parts))
+
+
+def _states_last(x: np.ndarray) -> np.ndarray:
+    """(N, n) -> (n, 1, N): vectors of N states as one right-hand side for :class:`Cholesky`."""
+    return x.T[:, None, :]
+
+
+def _states_first(x: np.ndarray) -> np.ndarray:
+    """(n, 1, N) -> (N, n), the inverse of :func:`_states_last`."""
+    return x[:, 0, :].T
 
 
 @dataclass(frozen=True)
 class Gauss:
-    """Gauss's principle on the Cholesky factor of ``M`` (module docstring): ``L`` with ``M = L L^T``, and
-    ``A^+`` of ``A = Jc L^-T``."""
+    """Gauss's principle (module docstring) for N states: the Cholesky factors of ``M``, the rows ``Jc`` (N, k, n)
+    and ``Jcdot qd`` (N, k), and ``A^+`` (N, n, k) of ``A = Jc L^-T``."""
 
-    factor: tuple
-    L: np.ndarray
+    factor: Cholesky
     Jc: np.ndarray
     bias: np.ndarray
     A_pinv: np.ndarray
 
     @classmethod
-    def build(cls, model: Model, factor, Jc: np.ndarray, bias: np.ndarray) -> "Gauss":
-        """From ``scipy.linalg.cho_factor(M)`` and the constraint rows."""
-        c, lower = factor
-        L = np.tril(c) if lower else np.triu(c).T
-        # row by row: OpenBLAS threads its many-right-hand-side triangular solver, which costs milliseconds on
-        # matrices this small when the cores are busy
-        A = np.array([scipy.linalg.solve_triangular(L, row, lower=True) for row in Jc])
+    def build(cls, model: Model, factor: Cholesky, Jc: np.ndarray, bias: np.ndarray) -> "Gauss":  # noqa: N803
+        """From the factors of ``M`` and the constraint rows. Singular values of ``A`` with ``s^2`` (the eigenvalues
+        of ``S = A A^T``) at or below ``interface.redundant_below(model, s_max^2)`` are dropped, state by state."""
+        A = np.transpose(factor.forward(np.transpose(Jc, (2, 1, 0))), (2, 1, 0))      # (L^-1 Jc^T)^T
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        keep = s**2 > redundant_below(model, s.max(initial=0.0) ** 2)   # s^2: the eigenvalues of S = A A^T
-        return cls(factor, L, Jc, bias, (Vt[keep].T / s[keep]) @ U[:, keep].T)
+        w_max = s[:, :1] ** 2
+        keep = s**2 > np.maximum(CONSTRAINT_RCOND * w_max, degenerate_floor(model))   # redundant_below, per state
+        inverse = np.divide(1.0, s, out=np.zeros_like(s), where=keep)
+        return cls(factor, Jc, bias, np.einsum("Nrn,Nr,Nkr->Nnk", Vt, inverse, U))
 
     def _lift(self, y: np.ndarray) -> np.ndarray:
-        """``L^-T y``."""
-        return scipy.linalg.solve_triangular(self.L, y, lower=True, trans="T")
+        """``L^-T y`` (N, n)."""
+        return _states_first(self.factor.backward(_states_last(y)))
 
     def solve(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(qdd, lam)`` of eq. (12, 13) for the generalized force ``f``, by Gauss's principle."""
-        a = scipy.linalg.cho_solve(self.factor, f)
-        y = self.A_pinv @ (-self.bias - self.Jc @ a)
-        return a + self._lift(y), self.A_pinv.T @ y
+        """``(qdd, lam)`` (N, n), (N, k) of eq. (12, 13) for the generalized forces ``f`` (N, n), by Gauss's
+        principle."""
+        a = _states_first(self.factor.solve(_states_last(f)))
+        y = np.einsum("Nnk,Nk->Nn", self.A_pinv, -self.bias - np.einsum("Nkn,Nn->Nk", self.Jc, a))
+        return a + self._lift(y), np.einsum("Nnk,Nn->Nk", self.A_pinv, y)
 
     def input_map(self, tau: np.ndarray) -> np.ndarray:
-        """``B_c tau`` of eq. (17): ``M^-1 tau - L^-T A^+ Jc M^-1 tau``."""
-        a = scipy.linalg.cho_solve(self.factor, tau)
-        return a - self._lift(self.A_pinv @ (self.Jc @ a))
+        """``B_c tau`` (N, n) of eq. (17): ``M^-1 tau - L^-T A^+ Jc M^-1 tau``."""
+        a = _states_first(self.factor.solve(_states_last(tau)))
+        return a - self._lift(np.einsum("Nnk,Nk->Nn", self.A_pinv, np.einsum("Nkn,Nn->Nk", self.Jc, a)))

@@ -16,12 +16,15 @@ exponentials of ``i`` and its ancestors, root first. The space Jacobian of body 
 A point fixed in body ``i`` at world position ``p`` moves with the body's space twist ``(w, v)``: velocity
 ``v + w x p`` (so ``dp/dq = [-[p] | I] J_s,i``) and classical acceleration ``vd + wd x p + w x (v + w x p)``.
 
-Quantities of all bodies are stacked along a leading body axis, in model order.
+Quantities of all bodies are stacked along a body axis, in model order, after any leading axes of ``q``: a stack
+of N configurations ``q`` (N, n) gives poses (N, n, 4, 4), twists (N, n, 6), ... (the batched split evaluates all
+states in one pass); one configuration gives (n, 4, 4), (n, 6), ... Rates such as ``qd`` broadcast the same way.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -48,18 +51,21 @@ class Screws:
 
 @dataclass(frozen=True)
 class Kinematics:
-    """The PoE kinematics at one configuration ``q``.
+    """The PoE kinematics at a configuration ``q`` (..., n); the leading axes ``...`` are those of ``q``.
 
-    poses       (n, 4, 4)  ``T_i(q)``, world <- body ``i`` (eq. 20)
-    to_body     (n, 6, 6)  ``Ad_{T_i^-1}``: maps a twist from the world frame to body frame ``i``
-    columns     (n, 6)     ``S_j(q) = Ad_{P_parent(j)} S_j``: joint ``j``'s screw axis in the world frame at ``q``
+    poses       (..., n, 4, 4)  ``T_i(q)``, world <- body ``i`` (eq. 20)
+    columns     (..., n, 6)     ``S_j(q) = Ad_{P_parent(j)} S_j``: joint ``j``'s screw axis in the world frame at ``q``
     """
 
     model: Model
     screws: Screws
     poses: np.ndarray
-    to_body: np.ndarray
     columns: np.ndarray
+
+    @cached_property
+    def to_body(self) -> np.ndarray:
+        """(..., n, 6, 6) ``Ad_{T_i^-1}``: maps a twist from the world frame to body frame ``i``."""
+        return lie.Ad(lie.inv(self.poses))
 
 
 def screws(model: Model) -> Screws:
@@ -82,48 +88,65 @@ def screws(model: Model) -> Screws:
     return Screws(home, body_axes, space_axes, support)
 
 
+def _body_major(shape: tuple) -> np.ndarray:
+    """An empty (..., n, 4, 4) array stored body by body, then entry by entry, the leading (state) axes innermost: one
+    body's transforms of a stack of states are then a contiguous block for the loop over the tree."""
+    lead = len(shape) - 3
+    return np.empty(shape[-3:] + shape[:-3]).transpose(tuple(range(3, lead + 3)) + (0, 1, 2))
+
+
 def forward_kinematics(model: Model, q: np.ndarray) -> Kinematics:
     """Eq. (20) on the tree: ``T_i(q) = (prod over j in root..i of exp([S_j] q_j)) M_i``, and the Jacobian
-    columns ``S_j(q) = Ad_{P_parent(j)} S_j``. ``q`` is a float vector of length ``model.n``."""
+    columns ``S_j(q) = Ad_{P_parent(j)} S_j``. ``q`` is a float array (..., n), n = ``model.n``."""
     sc = screws(model)
     factors = lie.exp6(sc.space_axes, q)                  # exp([S_j] q_j), all joints at once
-    products = np.empty_like(factors)                     # P_i = P_parent(i) exp([S_i] q_i)
-    before = np.empty_like(factors)                       # P_parent(i) (identity at a root)
+    products = _body_major(factors.shape)                 # P_i = P_parent(i) exp([S_i] q_i)
+    before = _body_major(factors.shape)                   # P_parent(i) (identity at a root)
     for i in model.topological_order:
         p = model.parent_index[i]
-        before[i] = np.eye(4) if p < 0 else products[p]
-        products[i] = before[i] @ factors[i]
-    columns = (lie.Ad(before) @ sc.space_axes[..., None])[..., 0]
-    poses = products @ sc.home
-    return Kinematics(model, sc, poses, lie.Ad(lie.inv(poses)), columns)
+        if p < 0:
+            before[..., i, :, :], products[..., i, :, :] = np.eye(4), factors[..., i, :, :]
+        else:
+            before[..., i, :, :] = products[..., p, :, :]
+            products[..., i, :, :] = lie.compose(products[..., p, :, :], factors[..., i, :, :])
+    return Kinematics(model, sc, lie.compose(products, sc.home), lie.adjoint(before, sc.space_axes))
 
 
 def _joint_rates(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
-    """``S_j(q) rate_j`` per joint: (n, 6) for rates (n,), or (n, k, 6) for k columns of rates (n, k)."""
-    rates = np.asarray(rates, dtype=float)
-    if rates.ndim == 1:
-        return kin.columns * rates[:, None]
-    return kin.columns[:, None, :] * rates[:, :, None]
+    """``S_j(q) rate_j`` per joint: (..., n, 6) for rates (..., n) (leading axes broadcast with the kinematics')."""
+    return kin.columns * np.asarray(rates, dtype=float)[..., None]
+
+
+def _over_bodies(x: np.ndarray, mix: np.ndarray) -> np.ndarray:
+    """``out_i = sum_j mix[i, j] x_j`` over the body axis -2 of ``x`` (..., n, c): one matrix product, the components
+    kept stored part by part (:func:`lie.components`)."""
+    d = x.ndim
+    return (x.transpose((d - 1,) + tuple(range(d - 1))) @ mix.T).transpose(tuple(range(1, d)) + (0,))
 
 
 def _accumulate(kin: Kinematics, per_joint: np.ndarray) -> np.ndarray:
-    """Sum per-joint terms over each body's supporting joints: ``out_i = sum_{j <= i} per_joint_j``."""
-    n = len(per_joint)
-    return (kin.screws.support @ per_joint.reshape(n, -1)).reshape(per_joint.shape)
+    """Sum per-joint terms over each body's supporting joints: ``out_i = sum_{j <= i} per_joint_j`` (body axis -2)."""
+    return _over_bodies(per_joint, kin.screws.support)
+
+
+def subtree_sum(kin: Kinematics, per_body: np.ndarray) -> np.ndarray:
+    """Sum per-body terms over each joint's subtree: ``out_j = sum_{i >= j} per_body_i`` (body axis -2), the bodies
+    joint ``j`` moves (the transpose of :func:`_accumulate`)."""
+    return _over_bodies(per_body, kin.screws.support.T)
 
 
 def space_jacobian(kin: Kinematics, body: int) -> np.ndarray:
-    """``J_s,i`` (6 x n): column ``j`` is ``S_j(q)`` if joint ``j`` moves body ``i``, else 0 (article 6.2.2)."""
-    return kin.columns.T * kin.screws.support[body]
+    """``J_s,i`` (..., 6, n): column ``j`` is ``S_j(q)`` if joint ``j`` moves body ``i``, else 0 (article 6.2.2)."""
+    return np.swapaxes(kin.columns, -1, -2) * kin.screws.support[body]
 
 
 def body_jacobian(kin: Kinematics, body: int) -> np.ndarray:
-    """``J_b,i = Ad_{T_i^-1} J_s,i`` (6 x n), in body frame ``i``."""
-    return kin.to_body[body] @ space_jacobian(kin, body)
+    """``J_b,i = Ad_{T_i^-1} J_s,i`` (..., 6, n), in body frame ``i``."""
+    return kin.to_body[..., body, :, :] @ space_jacobian(kin, body)
 
 
 def twists(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
-    """Space twists ``V_s,i = J_s,i qd`` of every body, (n, 6); for qd of shape (n, k), one per column (n, k, 6).
+    """Space twists ``V_s,i = J_s,i qd`` of every body, (..., n, 6) for qd (..., n).
 
     ``V_s = (w, v)``: ``w`` the angular velocity and ``v`` the velocity of the body-fixed point at the world
     origin, both in the world frame (``[V_s] = Tdot T^-1``).
@@ -132,7 +155,7 @@ def twists(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
 
 
 def bias_accelerations(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
-    """``Jdot_s,i qd = sum_{j <= i} ad_{V_s,parent(j)} S_j(q) qd_j`` (article 6.2.2), (n, 6) or (n, k, 6).
+    """``Jdot_s,i qd = sum_{j <= i} ad_{V_s,parent(j)} S_j(q) qd_j`` (article 6.2.2), (..., n, 6).
 
     Each column moves with everything inboard of it: ``d/dt S_j(q) = [V_s,parent(j), S_j(q)]``.
     Since ``[S_j, S_j] = 0``, ``V_s,parent(j)`` may be replaced by ``V_s,j``, which is what is used.
@@ -143,7 +166,7 @@ def bias_accelerations(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
 
 def spatial_accelerations(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """``Vdot_s,i = J_s,i qdd + Jdot_s,i qd`` (article 6.2.2): the time derivative of the space twists,
-    (n, 6), or (n, k, 6) for columns."""
+    (..., n, 6)."""
     return _accumulate(kin, _joint_rates(kin, qdd)) + bias_accelerations(kin, qd)
 
 
@@ -155,24 +178,24 @@ def classical_acceleration(V: np.ndarray, Vdot: np.ndarray, p: np.ndarray) -> np
     ``pddot = vd + wd x p + w x pdot = ([Vdot] + [V]^2) (p, 1)``: the spatial acceleration alone (``vd + wd x p``)
     misses the ``w x pdot`` term.
     """
-    pdot = V[3:] + lie.cross(V[:3], p)
-    return Vdot[3:] + lie.cross(Vdot[:3], p) + lie.cross(V[:3], pdot)
+    pdot = V[..., 3:] + lie.cross(V[..., :3], p)
+    return Vdot[..., 3:] + lie.cross(Vdot[..., :3], p) + lie.cross(V[..., :3], pdot)
 
 
 def point_position(kin: Kinematics, body: int, offset: np.ndarray) -> np.ndarray:
     """World position ``T_i (offset, 1)`` of the point ``offset`` fixed in ``body`` (body-frame coordinates)."""
-    return kin.poses[body, :3, :3] @ offset + kin.poses[body, :3, 3]
+    return lie.rotate(kin.poses[..., body, :3, :3], offset) + kin.poses[..., body, :3, 3]
 
 
 def point_jacobian(kin: Kinematics, body: int, p: np.ndarray) -> np.ndarray:
-    """``dp/dq`` (3 x n) of the body-fixed point at world position ``p``: column ``j`` is the velocity
-    ``v_j + w_j x p = v_j - [p] w_j`` the space twist ``S_j(q)`` gives the point."""
-    Js = space_jacobian(kin, body)
-    return Js[3:] - lie.hat3(p) @ Js[:3]
+    """``dp/dq`` (..., 3, n) of the body-fixed point at world position ``p`` (..., 3): column ``j`` is the velocity
+    ``v_j + w_j x p`` the space twist ``S_j(q)`` gives the point."""
+    S = kin.columns * kin.screws.support[body][:, None]
+    return np.swapaxes(S[..., 3:] + lie.cross(S[..., :3], p[..., None, :]), -1, -2)
 
 
 def point_acceleration(kin: Kinematics, body: int, offset: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """Classical acceleration (world frame) of the point ``offset`` fixed in ``body`` (body-frame coordinates),
     from the body's space twist and spatial acceleration (:func:`classical_acceleration`)."""
-    return classical_acceleration(twists(kin, qd)[body], spatial_accelerations(kin, qd, qdd)[body],
+    return classical_acceleration(twists(kin, qd)[..., body, :], spatial_accelerations(kin, qd, qdd)[..., body, :],
                                   point_position(kin, body, offset))

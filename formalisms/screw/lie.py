@@ -15,9 +15,6 @@ import numpy as np
 #: forms lose digits to cancellation; the series are kept to the order that makes them exact to rounding here.
 _SMALL = 0.2
 
-#: Cyclic index shifts of a 3-vector's components, for :func:`cross`.
-_NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])
-
 
 def hat3(w: np.ndarray) -> np.ndarray:
     """``[w]``: the skew-symmetric 3x3 matrix with ``[w] x = w x x`` (so(3))."""
@@ -76,23 +73,25 @@ def exp3(phi: np.ndarray) -> np.ndarray:
 def exp6(S: np.ndarray, theta=1.0) -> np.ndarray:
     """The exact SE(3) exponential ``exp([S] theta)`` (Lynch & Park eq. 3.88, article eq. 20's factors).
 
-    With ``(phi, rho) = S theta`` and ``x = |phi|``::
+    With ``S = (omega, v)``, ``K = [omega]`` and ``x = |omega theta|``::
 
-        exp([S] theta) = [[exp3(phi), G rho], [0, 1]],   G = I + ((1 - cos x) / x^2) [phi] + ((x - sin x) / x^3) [phi]^2
+        exp([S] theta) = [[I + A theta K + B theta^2 K^2, (theta I + B theta^2 K + C theta^3 K^2) v], [0, 1]]
 
-    For a unit revolute screw (``|omega| = 1``) this is the rotation by ``theta`` about the screw axis; for a
-    prismatic one (``omega = 0``) ``G = I`` and it is the translation ``v theta``; any other twist works too.
-    ``theta`` broadcasts against the leading axes of ``S``.
+    with ``A = sin x / x``, ``B = (1 - cos x) / x^2``, ``C = (x - sin x) / x^3``. For a unit revolute screw
+    (``|omega| = 1``) this is the rotation by ``theta`` about the screw axis; for a prismatic one (``omega = 0``) it
+    is the translation ``v theta``; any other twist works too. ``theta`` broadcasts against the leading axes of
+    ``S``; ``K`` and ``K^2 = omega omega^T - |omega|^2 I`` are built from ``S`` alone, so a stack of states over
+    the same screws costs elementwise products only.
     """
-    V = np.asarray(S, dtype=float) * np.asarray(theta, dtype=float)[..., None]
-    phi, rho = V[..., :3], V[..., 3:]
-    A, B, C = _rotation_coefficients(np.linalg.norm(phi, axis=-1))
-    K = hat3(phi)
-    K2 = K @ K
-    T = np.zeros(V.shape[:-1] + (4, 4))
-    T[..., :3, :3] = np.eye(3) + A[..., None, None] * K + B[..., None, None] * K2
-    G = np.eye(3) + B[..., None, None] * K + C[..., None, None] * K2
-    T[..., :3, 3] = (G @ rho[..., None])[..., 0]
+    S, theta = np.asarray(S, dtype=float), np.asarray(theta, dtype=float)
+    w, v = S[..., :3], S[..., 3:]
+    A, B, C = _rotation_coefficients(np.linalg.norm(w, axis=-1) * np.abs(theta))
+    K = hat3(w)
+    K2 = w[..., :, None] * w[..., None, :] - np.sum(w * w, axis=-1)[..., None, None] * np.eye(3)
+    At, Bt, Ct = A * theta, B * theta**2, C * theta**3
+    T = _to_back(np.zeros((4, 4) + np.broadcast_shapes(S.shape[:-1], theta.shape)), 2)
+    T[..., :3, :3] = np.eye(3) + At[..., None, None] * K + Bt[..., None, None] * K2
+    T[..., :3, 3] = theta[..., None] * v + Bt[..., None] * rotate(K, v) + Ct[..., None] * rotate(K2, v)
     T[..., 3, 3] = 1.0
     return T
 
@@ -150,6 +149,75 @@ def inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def _to_front(x: np.ndarray, k: int) -> np.ndarray:
+    """The last ``k`` axes of ``x`` moved to the front (a view; ``np.moveaxis`` costs more per call)."""
+    d = x.ndim
+    return x.transpose(tuple(range(d - k, d)) + tuple(range(d - k)))
+
+
+def _to_back(x: np.ndarray, k: int) -> np.ndarray:
+    """The first ``k`` axes of ``x`` moved to the end: the inverse of :func:`_to_front`."""
+    d = x.ndim
+    return x.transpose(tuple(range(k, d)) + tuple(range(k)))
+
+
+def _fronts(a: np.ndarray, ka: int, b: np.ndarray, kb: int) -> tuple[np.ndarray, np.ndarray]:
+    """``a`` and ``b`` with their last ``ka``, ``kb`` (component) axes moved to the front, their leading (stack) axes
+    padded to equal length so that they broadcast: with components stored part by part (:func:`components`) each
+    component is a contiguous block, and sums over components are sums of blocks."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    lead = max(a.ndim - ka, b.ndim - kb)
+    a = a.reshape((1,) * (lead + ka - a.ndim) + a.shape)
+    b = b.reshape((1,) * (lead + kb - b.ndim) + b.shape)
+    return _to_front(a, ka), _to_front(b, kb)
+
+
+def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``A B`` for stacks of small matrices (..., i, k) and (..., k, j) (leading axes broadcast), as one product and
+    one sum over blocks: ``np.matmul`` on a large stack of 3x3 or 4x4 matrices costs several times more than the
+    arithmetic."""
+    a, b = _fronts(A, 2, B, 2)
+    return _to_back(np.sum(a[:, :, None] * b[None], axis=1), 2)
+
+
+def rotate(R: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``R x`` for stacks of 3x3 matrices and 3-vectors (broadcast), as in :func:`matmul`."""
+    r, v = _fronts(R, 2, x, 1)
+    return _to_back(np.sum(r * v[None], axis=1), 1)
+
+
+def rotate_back(R: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``R^T x`` for stacks (see :func:`rotate`)."""
+    r, v = _fronts(R, 2, x, 1)
+    return _to_back(np.sum(r * v[:, None], axis=0), 1)
+
+
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a . b`` over the last axis of stacks of vectors (broadcast), as a sum over blocks."""
+    x, y = _fronts(a, 1, b, 1)
+    return np.sum(x * y, axis=0)
+
+
+def compose(T1: np.ndarray, T2: np.ndarray) -> np.ndarray:
+    """``T1 T2`` for stacks of 4x4 transforms (broadcast)."""
+    return matmul(T1, T2)
+
+
+def adjoint(T: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """``Ad_T V = (R w, p x R w + R v)`` for a twist ``V = (w, v)``, without building the 6x6 matrix."""
+    R, p = T[..., :3, :3], T[..., :3, 3]
+    w = rotate(R, V[..., :3])
+    return join(w, cross(p, w) + rotate(R, V[..., 3:]))
+
+
+def wrench_to_body(T: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """``Ad_T^T F = (R^T (m - p x f), R^T f)``: a wrench ``F = (m, f)`` in the frame ``T`` maps from (the world,
+    say) to its own frame (:func:`Ad`: wrenches map by ``Ad_T^-T``), without building the 6x6 matrix."""
+    R, p = T[..., :3, :3], T[..., :3, 3]
+    m, f = F[..., :3], F[..., 3:]
+    return join(rotate_back(R, m - cross(p, f)), rotate_back(R, f))
+
+
 def Ad(T: np.ndarray) -> np.ndarray:  # noqa: N802 (the article's name)
     """The adjoint ``Ad_T = [[R, 0], [[p] R, R]]`` (6x6): ``[Ad_T V] = T [V] T^-1`` maps twists by ``T``.
 
@@ -176,21 +244,38 @@ def ad(V: np.ndarray) -> np.ndarray:
     return X
 
 
+def components(*parts: np.ndarray) -> np.ndarray:
+    """The stack ``(..., k)`` of k arrays ``(...)`` of one shape, stored part by part: each component of a large
+    stack (of states) is then one contiguous block, which elementwise operations run through several times faster
+    than components interleaved state by state."""
+    return _to_back(np.stack(parts), 1)
+
+
+def join(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(a, b)`` joined along the last axis (e.g. a twist from its angular and linear parts), leading axes
+    broadcast, stored component by component (:func:`components`)."""
+    if a.shape[:-1] != b.shape[:-1]:
+        lead = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+        a, b = np.broadcast_to(a, lead + a.shape[-1:]), np.broadcast_to(b, lead + b.shape[-1:])
+    return _to_back(np.concatenate([_to_front(a, 1), _to_front(b, 1)]), 1)
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a x b`` over the last axis of stacks of 3-vectors: ``(a x b)_k = a_{k+1} b_{k+2} - a_{k+2} b_{k+1}``
-    (``np.cross`` is several times slower on small stacks)."""
-    return a[..., _NEXT] * b[..., _PREV] - a[..., _PREV] * b[..., _NEXT]
+    (``np.cross`` is several times slower on small stacks), component by component."""
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    return components(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
 
 
 def bracket(V: np.ndarray, W: np.ndarray) -> np.ndarray:
     """``ad_V W = [V, W] = (w x w', w x v' + v x w')`` for ``V = (w, v)``, ``W = (w', v')``, without building
     the matrix (stacks broadcast)."""
     w, v, w2, v2 = V[..., :3], V[..., 3:], W[..., :3], W[..., 3:]
-    return np.concatenate([cross(w, w2), cross(w, v2) + cross(v, w2)], axis=-1)
+    return join(cross(w, w2), cross(w, v2) + cross(v, w2))
 
 
 def coad(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """``ad_V^T F = (-(w x m) - v x f, -(w x f))`` for ``V = (w, v)`` and a wrench ``F = (m, f)``, without
     building the matrix: the pairing ``(ad_V^T F) . W = F . [V, W]``."""
     w, v, m, f = V[..., :3], V[..., 3:], F[..., :3], F[..., 3:]
-    return -np.concatenate([cross(w, m) + cross(v, f), cross(w, f)], axis=-1)
+    return -join(cross(w, m) + cross(v, f), cross(w, f))
