@@ -14,6 +14,16 @@ a revolute joint, in its parent too), a revolute column changes by ``zdot_j x (p
 and a prismatic one by ``zdot_j``. Velocities are Jacobian sums as well: ``w_i = sum_j z_j qd_j`` over the
 revolute joints moving ``i``, ``odot_i = J_v(o_i) qd``.
 
+Column offsets: a revolute linear column is ``z_j x p + c_j`` with ``c_j = o_j x z_j`` (a prismatic one is
+``c_j = z_j``), so every column sum over the joints moving body ``i`` splits into a part of the point and a part of
+the body: ``J_v qd = w_i x p + sum_j c_j qd_j`` and ``Jdot_v qd = (Jdot_w qd)_i x p + w_i x pdot + sum_j cdot_j
+qd_j``, with ``cdot_j = odot_j x z_j + o_j x zdot_j`` (``zdot_j`` prismatic). The kinematics keeps the three body
+sums, ``Jdot_w qd``, ``sum c_j qd_j`` and ``sum cdot_j qd_j``; a point's velocity and bias then cost O(1), not a
+sum over the joints per point.
+
+Batches: every function below takes one state or a batch (a leading axis ``...`` on each state-dependent array);
+``split`` evaluates one state, ``split_batch`` blocks of states, through the same code.
+
 Joint-space terms by projection (Kane's form), from the COM Jacobians ``J_v,i`` and ``J_w,i``:
 
     M    = sum_i m_i J_v,i^T J_v,i + J_w,i^T I_i J_w,i                       (I_i: COM inertia, world)
@@ -81,22 +91,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, factor_mass_matrix,
-                                  redundant_below, singular_below, unconstrained_split)
-
+from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, SplitBatch, check_batch, check_state,
+                                  conditioning, constrained_split, degenerate_floor, factor_mass_matrix,
+                                  unconstrained_split)
 
 
 @dataclass(frozen=True)
 class Kinematics:
-    """World-frame kinematics of every body at ``(q, qd)`` (rows indexed by body = coordinate index).
+    """World-frame kinematics of every body at ``(q, qd)`` (rows indexed by body = coordinate index), of one state
+    or, with a leading batch axis ``...`` on every state-dependent field, of a batch of states.
 
-    R (n, 3, 3) world <- body rotations; o (n, 3) body origins; z (n, 3) joint axes; revolute (n,) joint kinds;
-    moves (n, n) ``moves[i, j]``: joint ``j`` moves body ``i`` (``j == i`` or an ancestor); qd (n,) joint rates;
-    w (n, 3) angular velocities; odot (n, 3) origin velocities; zdot (n, 3) axis rates ``w_j x z_j``.
+    R (..., n, 3, 3) world <- body rotations; o (..., n, 3) body origins; z (..., n, 3) joint axes; revolute (n,)
+    joint kinds; moves (n, n) ``moves[i, j]``: joint ``j`` moves body ``i`` (``j == i`` or an ancestor); qd (..., n)
+    joint rates; w (..., n, 3) angular velocities; odot (..., n, 3) origin velocities; zdot (..., n, 3) axis rates
+    ``w_j x z_j``; the sums over the joints moving each body (..., n, 3) (module docstring, column offsets):
+    w_bias = ``Jdot_w qd`` = sum ``zdot_j qd_j`` (revolute), c_qd = sum ``c_j qd_j``, cdot_qd = sum ``cdot_j qd_j``.
     """
 
     R: np.ndarray
@@ -108,11 +120,15 @@ class Kinematics:
     w: np.ndarray
     odot: np.ndarray
     zdot: np.ndarray
+    w_bias: np.ndarray
+    c_qd: np.ndarray
+    cdot_qd: np.ndarray
 
 
 @dataclass(frozen=True)
 class TaskSpace:
-    """The task-space quantities of eq. (22) at one state, for one task point (k task coordinates).
+    """The task-space quantities of eq. (22) at one state (or a batch: a leading axis ``...`` on every field), for
+    one task point (k task coordinates).
 
     J (k, n), Jdot_qd (k,) classical bias, A = J M^-1 J^T (k, k), Lambda = A^-1, mu, p (k,), J_bar (n, k),
     N (n, n), F_ctrl = J_bar^T B u (k,), F_constr and F_constr_drift = J_bar^T Jc^T lam (k,) with and without input
@@ -135,22 +151,46 @@ class TaskSpace:
     xdd_drift: np.ndarray
     xdd_ctrl: np.ndarray
     xdd_total: np.ndarray
-    cond: float
+    cond: float | np.ndarray
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a x b`` over the last axis of stacked 3-vectors, broadcasting (np.cross pays for axis handling)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    for axis, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        out[..., axis] = a[..., i] * b[..., j] - a[..., j] * b[..., i]
+    return out
+
+
+def _t(A: np.ndarray) -> np.ndarray:
+    """The transposes of stacked matrices (..., r, c) -> (..., c, r)."""
+    return np.swapaxes(A, -1, -2)
+
+
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``A x`` for stacked matrices (..., r, c) and vectors (..., c), broadcasting."""
+    return (A @ x[..., None])[..., 0]
+
+
+def _diag(x: np.ndarray) -> np.ndarray:
+    """Stacked diagonal matrices (..., k, k) with the diagonals ``x`` (..., k)."""
+    out = np.zeros(x.shape + x.shape[-1:])
+    out[..., np.arange(x.shape[-1]), np.arange(x.shape[-1])] = x
+    return out
+
+
+def _flat(columns: np.ndarray) -> np.ndarray:
+    """Stacked per-body Jacobians (..., b, 3, n) as one (..., 3 b, n) matrix."""
+    *batch, b, rows, n = columns.shape
+    return columns.reshape((*batch, b * rows, n))
 
 
 def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations by ``angles`` about the unit ``axes`` (Rodrigues), stacked (n, 3, 3)."""
+    """Rotations by ``angles`` (..., n) about the unit ``axes`` (n, 3) (Rodrigues), stacked (..., n, 3, 3)."""
     x, y, z = axes.T
     zero = np.zeros_like(x)
     K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + np.sin(angles)[:, None, None] * K + (1.0 - np.cos(angles))[:, None, None] * (K @ K)
+    return np.eye(3) + np.sin(angles)[..., None, None] * K + (1.0 - np.cos(angles))[..., None, None] * (K @ K)
 
 
 def _moves(model: Model) -> np.ndarray:
@@ -164,11 +204,30 @@ def _moves(model: Model) -> np.ndarray:
     return moves
 
 
+def _column_offsets(z: np.ndarray, o: np.ndarray, revolute: np.ndarray) -> np.ndarray:
+    """The constant parts ``c_j`` (..., n, 3) of the linear Jacobian columns ``z_j x p + c_j``: ``o_j x z_j``
+    (revolute: ``z_j x (p - o_j)``) or ``z_j`` (prismatic, whose columns have no ``z_j x p`` part)."""
+    return np.where(revolute[:, None], _cross(o, z), z)
+
+
 def _linear_columns(z, o, revolute, moves_rows, points) -> np.ndarray:
-    """Linear Jacobian columns (k, n, 3) of world points (k, 3): ``z_j x (p - o_j)`` (revolute) or ``z_j``
-    (prismatic) for the joints in ``moves_rows`` (k, n), zero elsewhere."""
-    lever = _cross(z, points[:, None, :] - o)
-    return np.where(revolute[:, None], lever, z) * moves_rows[:, :, None]
+    """Linear Jacobians (..., k, 3, n) of world points (..., k, 3): column ``z_j x (p - o_j) = z_j x p + o_j x z_j``
+    (revolute) or ``z_j`` (prismatic) for the joints in ``moves_rows`` (k, n), zero elsewhere; ``z``, ``o``
+    (..., n, 3). Built row by row (x, y, z) from the axes and the points, one (..., k, n) product per term."""
+    zr = (z * revolute[:, None])[..., None, :, :]
+    c = _column_offsets(z, o, revolute)[..., None, :, :]
+    p = points[..., :, None, :]
+    J = np.empty(np.broadcast_shapes(zr.shape[:-1], p.shape[:-1], moves_rows.shape)[:-1] + (3, zr.shape[-2]))
+    for axis, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
+        J[..., axis, :] = (zr[..., a] * p[..., b] - zr[..., b] * p[..., a] + c[..., axis]) * moves_rows
+    return J
+
+
+def _angular_columns(kin: Kinematics, body: np.ndarray) -> np.ndarray:
+    """Angular Jacobians (..., k, 3, n) of bodies ``body`` (k,): column ``z_j`` for the revolute joints moving
+    them, zero elsewhere."""
+    axes = np.ascontiguousarray(_t(kin.z * kin.revolute[:, None]))
+    return axes[..., None, :, :] * kin.moves[body][:, None, :]
 
 
 def kinematics(model: Model, q, qd) -> Kinematics:
@@ -179,74 +238,83 @@ def kinematics(model: Model, q, qd) -> Kinematics:
 
 
 def _kinematics(model: Model, q: np.ndarray, qd: np.ndarray) -> Kinematics:
-    n = model.n
+    n, batch = model.n, q.shape[:-1]
     revolute = np.array([b.joint == "revolute" for b in model.bodies])
     axes = np.array([b.axis for b in model.bodies])
     local = np.array([b.rotation for b in model.bodies])
     motion = _axis_rotations(axes, np.where(revolute, q, 0.0))
-    R, o, z = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3))
+    R, o, z = np.empty(batch + (n, 3, 3)), np.empty(batch + (n, 3)), np.empty(batch + (n, 3))
     for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
-        R_p, o_p = (np.eye(3), np.zeros(3)) if p < 0 else (R[p], o[p])
-        joint_frame = R_p @ local[i]
-        z[i] = joint_frame @ axes[i]
-        R[i] = joint_frame @ motion[i]
-        o[i] = o_p + R_p @ b.translation + (0.0 if revolute[i] else q[i] * z[i])
+        if p < 0:
+            joint_frame, o_joint = local[i], b.translation
+        else:
+            joint_frame, o_joint = R[..., p, :, :] @ local[i], o[..., p, :] + R[..., p, :, :] @ b.translation
+        z[..., i, :] = joint_frame @ axes[i]
+        R[..., i, :, :] = joint_frame @ motion[..., i, :, :]
+        o[..., i, :] = o_joint if revolute[i] else o_joint + q[..., i, None] * z[..., i, :]
     moves = _moves(model)
-    w = (moves * np.where(revolute, qd, 0.0)) @ z
-    odot = np.einsum("ija,j->ia", _linear_columns(z, o, revolute, moves, o), qd)
-    return Kinematics(R, o, z, revolute, moves, qd, w, odot, _cross(w, z))
+    rates, revolute_rates = moves * qd[..., None, :], moves * np.where(revolute, qd, 0.0)[..., None, :]
+    w = revolute_rates @ z
+    c_qd = rates @ _column_offsets(z, o, revolute)
+    odot = _cross(w, o) + c_qd
+    zdot = _cross(w, z)
+    cdot = np.where(revolute[:, None], _cross(odot, z) + _cross(o, zdot), zdot)
+    return Kinematics(R, o, z, revolute, moves, qd, w, odot, zdot, revolute_rates @ zdot, c_qd, rates @ cdot)
 
 
 def point_jacobian(kin: Kinematics, body: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Geometric Jacobians ``(J_v, J_w)``, each (k, 3, n), of the world points ``points`` (k, 3) fixed in bodies
-    ``body`` (k,): linear column ``z_j x (p - o_j)`` (revolute) or ``z_j`` (prismatic), angular column ``z_j``
-    (revolute) or 0, for every joint ``j`` moving the body; zero columns elsewhere."""
-    mask = kin.moves[body]
-    Jv = _linear_columns(kin.z, kin.o, kin.revolute, mask, points)
-    Jw = (kin.z * kin.revolute[:, None]) * mask[:, :, None]
-    return Jv.transpose(0, 2, 1), Jw.transpose(0, 2, 1)
+    """Geometric Jacobians ``(J_v, J_w)``, each (..., k, 3, n), of the world points ``points`` (..., k, 3) fixed in
+    bodies ``body`` (k,): linear column ``z_j x (p - o_j)`` (revolute) or ``z_j`` (prismatic), angular column
+    ``z_j`` (revolute) or 0, for every joint ``j`` moving the body; zero columns elsewhere."""
+    return _linear_columns(kin.z, kin.o, kin.revolute, kin.moves[body], points), _angular_columns(kin, body)
+
+
+def point_velocity(kin: Kinematics, body: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``J_v qd`` (..., k, 3) of world points fixed in bodies ``body``: the column sum ``sum_j (z_j x p + c_j) qd_j
+    = w x p + sum_j c_j qd_j`` (module docstring, column offsets)."""
+    return _cross(kin.w[..., body, :], points) + kin.c_qd[..., body, :]
 
 
 def point_bias(kin: Kinematics, body: np.ndarray, points: np.ndarray, velocities: np.ndarray) -> np.ndarray:
-    """The CLASSICAL bias ``Jdot qd`` (k, 3) of world points fixed in bodies ``body`` moving with ``velocities``:
-    the second time derivative of each point's position at ``qdd = 0``, summed over the Jacobian columns,
-    ``(zdot_j x (p - o_j) + z_j x (pdot - odot_j)) qd_j`` (revolute) and ``zdot_j qd_j`` (prismatic)."""
-    rel, rel_v = points[:, None, :] - kin.o, velocities[:, None, :] - kin.odot
-    revolute_rate = _cross(kin.zdot, rel) + _cross(kin.z, rel_v)            # (k, n, 3)
-    columns = np.where(kin.revolute[:, None], revolute_rate, kin.zdot)
-    return np.einsum("kja,kj->ka", columns, kin.moves[body] * kin.qd)
-
-
-def _angular_bias(kin: Kinematics) -> np.ndarray:
-    """``Jdot_w,i qd`` of every body: the sum of ``zdot_j qd_j`` over the revolute joints moving it."""
-    return (kin.moves * np.where(kin.revolute, kin.qd, 0.0)) @ kin.zdot
+    """The CLASSICAL bias ``Jdot qd`` (..., k, 3) of world points fixed in bodies ``body`` moving with
+    ``velocities``: the second time derivative of each point's position at ``qdd = 0``, the sum of the column
+    derivatives ``(zdot_j x p + z_j x pdot + cdot_j) qd_j`` (revolute; ``zdot_j qd_j`` prismatic), that is
+    ``Jdot_w qd x p + w x pdot + sum_j cdot_j qd_j`` (module docstring, column offsets)."""
+    return (_cross(kin.w_bias[..., body, :], points) + _cross(kin.w[..., body, :], velocities)
+            + kin.cdot_qd[..., body, :])
 
 
 def _world_inertia(R: np.ndarray, inertia: np.ndarray) -> np.ndarray:  # noqa: N803
-    """The COM inertias (n, 3, 3) rotated from the body frames to the world: ``R I R^T``."""
-    return R @ inertia @ R.transpose(0, 2, 1)
+    """The COM inertias (..., n, 3, 3) rotated from the body frames to the world: ``R I R^T``."""
+    return R @ inertia @ _t(R)
 
 
 def _gyroscopic(inertia: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """The gyroscopic moments ``w x (I w)`` (n, 3) of bodies with world inertias ``I`` and angular velocities ``w``."""
-    return _cross(w, np.einsum("iab,ib->ia", inertia, w))
+    """The gyroscopic moments ``w x (I w)`` (..., n, 3) of bodies with world inertias ``I`` and angular velocities
+    ``w``."""
+    return _cross(w, _mv(inertia, w))
 
 
 def _terms(model: Model, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``M``, ``C qd``, ``g`` projected from the COM Jacobians (Kane's form, module docstring)."""
-    bodies = np.arange(model.n)
+    """``M``, ``C qd``, ``g`` projected from the COM Jacobians (Kane's form, module docstring), the linear terms
+    through ``sqrt(m_i) J_v,i``. Bodies without mass skip the linear terms, bodies without rotational inertia (point
+    masses) the angular ones."""
     mass = np.array([b.mass for b in model.bodies])
-    com = kin.o + np.einsum("iab,ib->ia", kin.R, np.array([b.com for b in model.bodies]))
-    inertia = _world_inertia(kin.R, np.array([b.inertia for b in model.bodies]))
-    Jv, Jw = point_jacobian(kin, bodies, com)
-    v = np.einsum("iaj,j->ia", Jv, kin.qd)
-    a_bias = point_bias(kin, bodies, com, v)
-    torque = np.einsum("iab,ib->ia", inertia, _angular_bias(kin)) + _gyroscopic(inertia, kin.w)
-    M = np.einsum("i,iaj,iak->jk", mass, Jv, Jv) + np.einsum("iaj,iab,ibk->jk", Jw, inertia, Jw)
-    Cqd = np.einsum("iaj,ia->j", Jv, mass[:, None] * a_bias) + np.einsum("iaj,ia->j", Jw, torque)
-    g = -np.einsum("iaj,ia->j", Jv, mass[:, None] * model.gravity)
-    return 0.5 * (M + M.T), Cqd, g
+    inertia = np.array([b.inertia for b in model.bodies])
+    heavy, spinning = np.flatnonzero(mass > 0.0), np.flatnonzero(np.abs(inertia).sum(axis=(1, 2)) > 0.0)
+    com = kin.o[..., heavy, :] + _mv(kin.R[..., heavy, :, :], np.array([model.bodies[i].com for i in heavy]))
+    root_m = np.sqrt(mass[heavy])[:, None]
+    Jv = _flat(_linear_columns(kin.z, kin.o, kin.revolute, kin.moves[heavy], com) * root_m[..., None])
+    a_bias = root_m * point_bias(kin, heavy, com, point_velocity(kin, heavy, com))
+    I_world = _world_inertia(kin.R[..., spinning, :, :], inertia[spinning])
+    Jw = _angular_columns(kin, spinning)
+    torque = _mv(I_world, kin.w_bias[..., spinning, :]) + _gyroscopic(I_world, kin.w[..., spinning, :])
+    Jw_flat, JvT = _flat(Jw), _t(Jv)
+    M = JvT @ Jv + _t(Jw_flat) @ _flat(I_world @ Jw)
+    Cqd = _mv(JvT, _flat(a_bias[..., None])[..., 0]) + _mv(_t(Jw_flat), _flat(torque[..., None])[..., 0])
+    g = -(root_m * model.gravity).reshape(-1) @ Jv
+    return 0.5 * (M + _t(M)), Cqd, g
 
 
 def joint_space_terms(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -257,62 +325,80 @@ def joint_space_terms(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.n
 
 def _point_kinematics(model: Model, kin: Kinematics, body: str | None,
                       offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World position ``p`` (3,), linear Jacobian ``J_v`` (3, n) and classical bias ``Jdot_v qd`` (3,) of the point
-    ``offset`` fixed in ``body``; with ``body = None`` the fixed world point ``offset`` (zero Jacobian and bias)."""
+    """World position ``p`` (..., 3), linear Jacobian ``J_v`` (..., 3, n) and classical bias ``Jdot_v qd`` (..., 3)
+    of the point ``offset`` fixed in ``body``; with ``body = None`` the fixed world point ``offset`` (zero Jacobian
+    and bias)."""
+    batch = kin.qd.shape[:-1]
     if body is None:
-        return np.asarray(offset, dtype=float), np.zeros((3, model.n)), np.zeros(3)
+        return (np.broadcast_to(np.asarray(offset, dtype=float), batch + (3,)), np.zeros(batch + (3, model.n)),
+                np.zeros(batch + (3,)))
     i = np.array([model.body_index(body)])
-    p = kin.o[i] + kin.R[i] @ offset
-    Jv = point_jacobian(kin, i, p)[0]
-    return p[0], Jv[0], point_bias(kin, i, p, Jv @ kin.qd)[0]
+    p = kin.o[..., i, :] + _mv(kin.R[..., i, :, :], offset)
+    Jv = _linear_columns(kin.z, kin.o, kin.revolute, kin.moves[i], p)
+    return p[..., 0, :], Jv[..., 0, :, :], point_bias(kin, i, p, point_velocity(kin, i, p))[..., 0, :]
 
 
 def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """``J = D J_v(p)`` (k, n) and the classical ``Jdot qd = D (point bias)`` (k,) of a task point."""
+    """``J = D J_v(p)`` (..., k, n) and the classical ``Jdot qd = D (point bias)`` (..., k) of a task point."""
     tp = model.task_point(point)
     _, Jv, bias = _point_kinematics(model, kin, tp.body, tp.offset)
-    return tp.directions @ Jv, tp.directions @ bias
+    return tp.directions @ Jv, bias @ tp.directions.T
 
 
-def _cond(model: Model, eig: np.ndarray) -> float:
-    """``cond_2`` of ``A = J M^-1 J^T`` from its ascending eigenvalues; ``inf`` when it is numerically singular
-    (smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below the degenerate floor:
-    ``interface.singular_below``; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
-    if not singular_below(model, eig) < eig[0]:
-        return float("inf")
-    return float(eig[-1] / eig[0])
+def _singular_below(model: Model, eig: np.ndarray) -> np.ndarray:
+    """``interface.singular_below`` for stacked ascending eigenvalues (..., k): ``k eps`` times the largest or the
+    degenerate floor, whichever is larger; NaN where any eigenvalue is not finite."""
+    floor = np.maximum(eig.shape[-1] * np.finfo(float).eps * eig[..., -1], degenerate_floor(model))
+    return np.where(np.all(np.isfinite(eig), axis=-1), floor, np.nan)
 
 
-def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpace, TaskSpace]:
+def _cond(model: Model, eig: np.ndarray) -> float | np.ndarray:
+    """``cond_2`` of ``A = J M^-1 J^T`` from its ascending eigenvalues (..., k); ``inf`` where it is numerically
+    singular (smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below the
+    degenerate floor: :func:`_singular_below`; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
+    regular = _singular_below(model, eig) < eig[..., 0]
+    return np.where(regular, eig[..., -1] / np.where(regular, eig[..., 0], 1.0), np.inf)[()]
+
+
+def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
+                          tau_constr) -> tuple[TaskSpace, np.ndarray, np.ndarray]:
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
-    ``tau_constr`` (3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone and
-    at the total (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
-    Returns the :class:`TaskSpace` in those axes and rotated back to the task coordinates (``J``, ``Jdot qd`` and
-    ``A`` there as assembled). All NaN, ``cond`` inf, where ``A`` is numerically singular."""
-    n, k = Minv.shape[0], J.shape[0]
-    A = J @ Minv @ J.T
-    A = 0.5 * (A + A.T)
+    ``tau_constr`` (..., 3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone
+    and at the total (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
+    Returns the :class:`TaskSpace` in those axes, ``A`` as assembled and ``V``. All NaN, ``cond`` inf, where ``A`` is
+    numerically singular."""
+    n = Minv.shape[-1]
+    A = J @ Minv @ _t(J)
+    A = 0.5 * (A + _t(A))
     eig, V = np.linalg.eigh(A)
     cond = _cond(model, eig)
-    if cond == np.inf:
-        eig = np.full(k, np.nan)
-    Jp, bias = V.T @ J, V.T @ Jdot_qd
-    Minv_JT = Minv @ Jp.T
-    mu = (Minv_JT.T @ Cqd - bias) / eig                    # Lambda (J M^-1 C qd - Jdot qd)
-    p = (Minv_JT.T @ g) / eig                              # Lambda J M^-1 g
-    J_bar = Minv_JT / eig                                  # M^-1 J^T Lambda
-    F_ctrl = J_bar.T @ tau_ctrl
-    F_constr_drift, F_constr_ctrl, F_constr = tau_constr @ J_bar
-    principal = TaskSpace(J=Jp, Jdot_qd=bias, A=np.diag(eig), Lambda=np.diag(1.0 / eig), mu=mu, p=p, J_bar=J_bar,
+    eig = np.where(np.isinf(cond)[..., None], np.nan, eig)
+    Jp, bias = _t(V) @ J, _mv(_t(V), Jdot_qd)
+    Minv_JT = Minv @ _t(Jp)
+    mu = (_mv(_t(Minv_JT), Cqd) - bias) / eig               # Lambda (J M^-1 C qd - Jdot qd)
+    p = _mv(_t(Minv_JT), g) / eig                            # Lambda J M^-1 g
+    J_bar = Minv_JT / eig[..., None, :]                      # M^-1 J^T Lambda
+    F_ctrl = _mv(_t(J_bar), tau_ctrl)
+    F_constr_drift, F_constr_ctrl, F_constr = np.moveaxis(tau_constr @ J_bar, -2, 0)
+    principal = TaskSpace(J=Jp, Jdot_qd=bias, A=_diag(eig), Lambda=_diag(1.0 / eig), mu=mu, p=p, J_bar=J_bar,
                           N=np.eye(n) - J_bar @ Jp, F_ctrl=F_ctrl, F_constr=F_constr, F_constr_drift=F_constr_drift,
                           xdd_drift=eig * (F_constr_drift - mu - p), xdd_ctrl=eig * (F_ctrl + F_constr_ctrl),
                           xdd_total=eig * (F_ctrl + F_constr - mu - p), cond=cond)
-    Lambda = V @ principal.Lambda @ V.T
-    reported = TaskSpace(J=J, Jdot_qd=Jdot_qd, A=A, Lambda=0.5 * (Lambda + Lambda.T), mu=V @ mu, p=V @ p,
-                         J_bar=J_bar @ V.T, N=principal.N, F_ctrl=V @ F_ctrl, F_constr=V @ F_constr,
-                         F_constr_drift=V @ F_constr_drift, xdd_drift=V @ principal.xdd_drift,
-                         xdd_ctrl=V @ principal.xdd_ctrl, xdd_total=V @ principal.xdd_total, cond=cond)
+    return principal, A, V
+
+
+def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[TaskSpace, TaskSpace]:
+    """The :class:`TaskSpace` of :func:`_principal_task_space` in the principal axes and rotated back to the task
+    coordinates (``J``, ``Jdot qd`` and ``A`` there as assembled)."""
+    principal, A, V = _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
+    Lambda = V @ principal.Lambda @ _t(V)
+    reported = TaskSpace(J=J, Jdot_qd=Jdot_qd, A=A, Lambda=0.5 * (Lambda + _t(Lambda)), mu=_mv(V, principal.mu),
+                         p=_mv(V, principal.p), J_bar=principal.J_bar @ _t(V), N=principal.N,
+                         F_ctrl=_mv(V, principal.F_ctrl), F_constr=_mv(V, principal.F_constr),
+                         F_constr_drift=_mv(V, principal.F_constr_drift), xdd_drift=_mv(V, principal.xdd_drift),
+                         xdd_ctrl=_mv(V, principal.xdd_ctrl), xdd_total=_mv(V, principal.xdd_total),
+                         cond=principal.cond)
     return principal, reported
 
 
@@ -322,20 +408,21 @@ def _recompose(ts: TaskSpace, Minv: np.ndarray, h: np.ndarray, tau_ctrl: np.ndar
     (module docstring): ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl
     + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam
     - h)``, with the constraint forces ``tau_constr`` of :func:`_task_space`."""
-    null = Minv @ ts.N.T
-    f_drift, f_ctrl, f_total = tau_constr
-    return (ts.J_bar @ (ts.xdd_drift - ts.Jdot_qd) + null @ (f_drift - h),
-            ts.J_bar @ ts.xdd_ctrl + null @ (tau_ctrl + f_ctrl),
-            ts.J_bar @ (ts.xdd_total - ts.Jdot_qd) + null @ (tau_ctrl + f_total - h))
+    f_drift, f_ctrl, f_total = np.moveaxis(tau_constr, -2, 0)
+    task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd], axis=-1)
+    forces = np.stack([f_drift - h, tau_ctrl + f_ctrl, tau_ctrl + f_total - h], axis=-1)
+    drift, ctrl, total = np.moveaxis(ts.J_bar @ task + Minv @ (_t(ts.N) @ forces), -1, 0)   # (..., n, 3) columns
+    return drift, ctrl, total
 
 
 def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PointOnCircle: ``d = P (p - c)``, ``phi = d.d - R^2``, ``Jc = 2 d^T P J_v``,
     ``Jcdot qd = 2 |P J_v qd|^2 + 2 d^T P (Jdot_v qd)``."""
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
-    d, PJ = c.plane @ (p - c.center), c.plane @ Jv
-    v = PJ @ kin.qd
-    return np.array([d @ d - c.radius**2]), (2.0 * d @ PJ)[None], np.array([2.0 * v @ v + 2.0 * d @ (c.plane @ bias)])
+    d, PJ = (p - c.center) @ c.plane.T, c.plane @ Jv
+    v = _mv(PJ, kin.qd)
+    dot = (lambda a, b: np.sum(a * b, axis=-1, keepdims=True))  # noqa: E731
+    return dot(d, d) - c.radius**2, 2.0 * d[..., None, :] @ PJ, 2.0 * dot(v, v) + 2.0 * dot(d, bias @ c.plane.T)
 
 
 def _coincide(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -344,20 +431,21 @@ def _coincide(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     pa, Ja, ba = _point_kinematics(model, kin, c.body_a, c.offset_a)
     pb, Jb, bb = _point_kinematics(model, kin, c.body_b, c.offset_b)
     D = c.directions
-    return D @ (pa - pb), D @ (Ja - Jb), D @ (ba - bb)
+    return (pa - pb) @ D.T, D @ (Ja - Jb), (ba - bb) @ D.T
 
 
 def _line(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PointOnLine: ``N (p - origin)``, ``N J_v``, ``N Jdot_v qd``."""
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
-    return c.normals @ (p - c.origin), c.normals @ Jv, c.normals @ bias
+    return (p - c.origin) @ c.normals.T, c.normals @ Jv, bias @ c.normals.T
 
 
 def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """JointCoupling: ``sum_j c_j q_j - offset``, a constant row, zero bias."""
     row = np.zeros(model.n)
     row[[model.body_index(name) for name in c.joints]] = c.coefficients
-    return np.array([row @ q - c.offset]), row[None], np.zeros(1)
+    batch = q.shape[:-1]
+    return (q @ row - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -365,34 +453,35 @@ _DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine:
 
 
 def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``phi`` (k,), ``Jc`` (k, n) and ``Jcdot qd`` (k,) of every declaration, in model order, from the point
-    kinematics (module docstring, constraints)."""
+    """``phi`` (..., k), ``Jc`` (..., k, n) and ``Jcdot qd`` (..., k) of every declaration, in model order, from the
+    point kinematics (module docstring, constraints)."""
     rows = []
     for c in model.constraints:
         if type(c) not in _DECLARATIONS:
             raise TypeError(f"model '{model.name}': the operational-space backend does not know the constraint "
                             f"{type(c).__name__} ({c.name!r}); known: {[t.__name__ for t in _DECLARATIONS]}")
         rows.append(_DECLARATIONS[type(c)](model, kin, q, c))
-    phi, Jc, bias = (np.concatenate(column) for column in zip(*rows))
-    return phi, Jc, bias
+    phi, Jc, bias = zip(*rows)
+    return np.concatenate(phi, axis=-1), np.concatenate(Jc, axis=-2), np.concatenate(bias, axis=-1)
 
 
 def _constraint_inertia(model: Model, Jc: np.ndarray, Minv: np.ndarray) -> np.ndarray:
     """``Lambda_c = S^+``, ``S = Jc M^-1 Jc^T``: the constraint-space inertia, from S's eigendecomposition without
-    the eigen-directions below ``CONSTRAINT_RCOND`` times the largest eigenvalue (minimum-norm multipliers)."""
-    S = Jc @ Minv @ Jc.T
-    w, U = np.linalg.eigh(0.5 * (S + S.T))
-    keep = w > redundant_below(model, w[-1])
-    return (U[:, keep] / w[keep]) @ U[:, keep].T
+    the eigen-directions at or below ``interface.redundant_below`` (``CONSTRAINT_RCOND`` times the largest
+    eigenvalue, at least the degenerate floor): minimum-norm multipliers."""
+    S = Jc @ Minv @ _t(Jc)
+    w, U = np.linalg.eigh(0.5 * (S + _t(S)))
+    keep = w > np.maximum(CONSTRAINT_RCOND * w[..., -1:], degenerate_floor(model))
+    return (U * np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)[..., None, :]) @ _t(U)
 
 
 @dataclass(frozen=True)
 class ConstraintSpace:
-    """The constraint space at one state (eqs. 12-17; k constraint rows, module docstring).
+    """The constraint space at one state or a batch (eqs. 12-17; k constraint rows, module docstring).
 
-    phi (k,), Jc (k, n), bias = Jcdot qd (k,), Lambda = S^+ (k, k) the constraint-space inertia; the multipliers
-    lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved directly) and lam
-    (eq. 12), each (k,).
+    phi (..., k), Jc (..., k, n), bias = Jcdot qd (..., k), Lambda = S^+ (..., k, k) the constraint-space inertia;
+    the multipliers lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved
+    directly) and lam (eq. 12), each (..., k).
     """
 
     phi: np.ndarray
@@ -405,8 +494,9 @@ class ConstraintSpace:
 
     @property
     def forces(self) -> np.ndarray:
-        """The generalized constraint forces ``Jc^T lam`` (3, n): at the drift, of the input alone, at the total."""
-        return np.stack([self.lam_drift, self.lam_ctrl, self.lam]) @ self.Jc
+        """The generalized constraint forces ``Jc^T lam`` (..., 3, n): at the drift, of the input alone, at the
+        total."""
+        return np.stack([self.lam_drift, self.lam_ctrl, self.lam], axis=-2) @ self.Jc
 
 
 def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.ndarray, free) -> ConstraintSpace:
@@ -415,43 +505,53 @@ def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.nda
     phi, Jc, bias = _constraint_rows(model, kin, q)
     Lambda = _constraint_inertia(model, Jc, Minv)
     a_drift, a_ctrl, a_total = free
-    return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, lam_drift=Lambda @ (-bias - Jc @ a_drift),
-                           lam_ctrl=-Lambda @ (Jc @ a_ctrl), lam=Lambda @ (-bias - Jc @ a_total))
+    return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, lam_drift=_mv(Lambda, -bias - _mv(Jc, a_drift)),
+                           lam_ctrl=-_mv(Lambda, _mv(Jc, a_ctrl)), lam=_mv(Lambda, -bias - _mv(Jc, a_total)))
 
 
 def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``M^-1`` from a Cholesky factor (symmetrized)."""
-    Minv = scipy.linalg.cho_solve(factor_mass_matrix(model, M, q), np.eye(model.n))
-    return 0.5 * (Minv + Minv.T)
+    """``M^-1 = L^-T L^-1`` from the Cholesky factor ``L`` (symmetrized), of one state or a batch; a mass matrix
+    that is not positive definite is the ValueError of ``interface.factor_mass_matrix`` for the first such state."""
+    try:
+        L_inv = np.linalg.inv(np.linalg.cholesky(M))
+    except np.linalg.LinAlgError:
+        for state in np.ndindex(M.shape[:-2]):               # the error path: name the first failing state
+            factor_mass_matrix(model, M[state], q[state])
+        raise
+    Minv = _t(L_inv) @ L_inv
+    return 0.5 * (Minv + _t(Minv))
 
 
 @dataclass(frozen=True)
 class _Solution:
-    """One state solved: the joint-space terms, the reported task space, (drift, ctrl, total), the constraint space
-    (None without constraints)."""
+    """One state or a batch solved: the joint-space terms, the reported task space (None when not asked for),
+    (drift, ctrl, total), the constraint space (None without constraints)."""
 
     M: np.ndarray
     Cqd: np.ndarray
     g: np.ndarray
     tau_ctrl: np.ndarray
-    task: TaskSpace
+    task: TaskSpace | None
     accelerations: tuple[np.ndarray, np.ndarray, np.ndarray]
     constraint: ConstraintSpace | None
 
 
-def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: str | None) -> _Solution:
+def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: str | None,
+           report: bool = True) -> _Solution:
     """The free split through the task space of ``point``; with constraints, their multipliers from it and the split
-    again with the constraint forces as ``F_constr`` (module docstring, constraints)."""
+    again with the constraint forces as ``F_constr`` (module docstring, constraints). One state (q, qd (n,), u (m,))
+    or a batch (a leading axis on each). ``report``: also rotate the task space back to the task coordinates."""
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
-    Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), model.input_map @ u
+    Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), u @ model.input_map.T
     J, Jdot_qd = _task_kinematics(model, kin, point)
 
     def through_task_space(tau_constr):
-        ts, reported = _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
+        args = (model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
+        ts, reported = _task_space(*args) if report else (_principal_task_space(*args)[0], None)
         return reported, _recompose(ts, Minv, Cqd + g, tau_ctrl, tau_constr)
 
-    task, accelerations = through_task_space(np.zeros((3, model.n)))
+    task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (3, model.n)))
     constraint = None
     if model.constraints:
         constraint = _constraint_space(model, kin, q, Minv, accelerations)
@@ -492,10 +592,31 @@ def split(model: Model, q, qd, u) -> Split:
                              **common)
 
 
+#: Bound on the body-pair entries of the largest temporaries (N states x n bodies x n joints) that
+#: :func:`split_batch` lets one block of states hold: about 0.4 MB each, so a block stays near the caches.
+BLOCK_ENTRIES = 50_000
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:
+    """:func:`split` of N states at once (Q, QD (N, n), U (N, m)): the same kinematics, Kane projection, task space
+    and null-space recomposition (eq. 22) and, with constraints, constraint space (eqs. 12-17), evaluated with a
+    leading batch axis on blocks of states. Rows are ``split``'s drift, ctrl, total and lam, lam_drift."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    size = max(1, BLOCK_ENTRIES // model.n**2)
+    blocks = [_solve(model, Q[s:s + size], QD[s:s + size], U[s:s + size], None, report=False)
+              for s in range(0, max(len(Q), 1), size)]                  # an empty batch is one empty block
+    drift, ctrl, total = (np.concatenate([b.accelerations[i] for b in blocks]) for i in range(3))
+    if not model.constraints:
+        return SplitBatch(drift, ctrl, total)
+    lam, lam_drift = (np.concatenate([getattr(b.constraint, name) for b in blocks]) for name in ("lam", "lam_drift"))
+    return SplitBatch(drift, ctrl, total, lam, lam_drift)
+
+
 FORMALISM = Formalism(
     name="operational_space",
     summary="Operational space (article 6.3, eqs. 22-23): Kane-projected M, C qd, g; task-space Lambda, mu, p; "
             "joint answer recomposed from task space plus the dynamically consistent null space; constraints as a "
             "constraint space (Lambda_c = S^+, eqs. 12-17) whose forces enter eq. 22 as F_constr",
     split=split,
+    split_batch=split_batch,
 )

@@ -387,3 +387,25 @@ def test_registry_entry():
 
     assert formalisms.get("operational_space") is op.FORMALISM
     assert op.FORMALISM.name == "operational_space" and op.FORMALISM.split is op.split
+    assert op.FORMALISM.split_batch is op.split_batch
+
+
+def test_batch_is_nan_exactly_where_split_breaks_down():
+    """A stretched double pendulum (q = 0) has a singular square task Jacobian: ``split`` returns NaN accelerations
+    there, and the batch row does too, while a regular state in the same batch (and in a block of its own, past the
+    block size) equals ``split``."""
+    model = model_of("double_pendulum")
+    Q = np.array([[0.0, 0.0], [0.4, -1.1], [0.4, -1.1]])
+    QD, U = np.array([[0.3, -0.2], [1.5, 0.7], [1.5, 0.7]]), np.array([[0.5, -0.4], [2.0, 1.0], [2.0, 1.0]])
+    size = op.BLOCK_ENTRIES
+    try:
+        op.BLOCK_ENTRIES = 2 * model.n**2                      # blocks of two states: rows 0-1 and row 2
+        batch = op.split_batch(model, Q, QD, U)
+    finally:
+        op.BLOCK_ENTRIES = size
+    singular, regular = op.split(model, Q[0], QD[0], U[0]), op.split(model, Q[1], QD[1], U[1])
+    assert np.isnan(singular.total).all() and np.isnan(batch.total[0]).all() and np.isnan(batch.drift[0]).all()
+    for row in (1, 2):
+        for name in ("drift", "ctrl", "total"):
+            np.testing.assert_allclose(getattr(batch, name)[row], getattr(regular, name), rtol=0,
+                                       atol=1e-12 * regular.accel_scale)
