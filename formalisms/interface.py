@@ -355,13 +355,14 @@ def _optional(value):
     return value if isinstance(value, Unsupported) else _readonly(value)
 
 
-def singular_below(model: Model, eig: np.ndarray) -> float:
+def singular_below(model: Model, eig: np.ndarray):
     """A symmetric positive semi-definite ``J M^-1 J^T`` with ascending eigenvalues ``eig`` is numerically singular
     when its smallest is at or below this (NaN when any is not finite): ``k eps`` times the largest (eigvalsh's
-    absolute accuracy) or :func:`degenerate_floor`, whichever is larger."""
-    if not np.all(np.isfinite(eig)):
-        return float("nan")
-    return max(len(eig) * np.finfo(float).eps * float(eig[-1]), degenerate_floor(model))
+    absolute accuracy) or :func:`degenerate_floor`, whichever is larger. ``eig`` may be stacked (..., k), one row
+    per state of a batch; the result then has the leading shape."""
+    eig = np.asarray(eig, dtype=float)
+    floor = np.maximum(eig.shape[-1] * np.finfo(float).eps * eig[..., -1], degenerate_floor(model))
+    return np.where(np.all(np.isfinite(eig), axis=-1), floor, np.nan)[()]
 
 
 def task_space_inertia(model: Model, J: np.ndarray, factor) -> tuple[np.ndarray, float]:

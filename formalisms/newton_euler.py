@@ -45,9 +45,9 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, SplitBatch, check_batch, check_state,
-                                  conditioning, constrained_split, degenerate_floor, factor_mass_matrix,
-                                  joint_vectors, unconstrained_split)
+from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, joint_vectors, redundant_below,
+                                  unconstrained_split)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -478,12 +478,6 @@ def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:  # noqa: N803
     return x
 
 
-def _redundant_below(model: Model, w_max: np.ndarray) -> np.ndarray:
-    """``interface.redundant_below`` per state: ``CONSTRAINT_RCOND`` times the largest eigenvalue, at least
-    :func:`degenerate_floor`."""
-    return np.maximum(CONSTRAINT_RCOND * w_max, degenerate_floor(model))
-
-
 def _times(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # noqa: N803
     """``A x`` per state: ``A`` (r, c, N), ``x`` (c, N)."""
     return (A * x[None]).sum(axis=1)
@@ -492,7 +486,7 @@ def _times(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # noqa: N803
 @dataclass(frozen=True)
 class _RangeSpace:
     """The range-space (Schur complement) method on the Cholesky factors ``L`` of ``M``, per state: ``X = M^-1 Jc^T``
-    and ``S^+`` with ``S = Jc X`` (eigenvalues at or below :func:`_redundant_below` dropped). States on the last
+    and ``S^+`` with ``S = Jc X`` (eigenvalues at or below :func:`redundant_below` dropped). States on the last
     axis."""
 
     L: np.ndarray
@@ -506,7 +500,7 @@ class _RangeSpace:
         X = _cho_solve(L, Jc.swapaxes(0, 1))
         S = np.einsum("kin,ijn->nkj", Jc, X)                  # (N, k, k) for eigh
         w, U = np.linalg.eigh(0.5 * (S + S.swapaxes(1, 2)))
-        keep = w > _redundant_below(model, w[:, -1])[:, None]
+        keep = w > redundant_below(model, w[:, -1:])
         inverse = np.divide(1.0, w, out=np.zeros_like(w), where=keep)
         return cls(L, Jc, bias, X, np.moveaxis((U * inverse[:, None, :]) @ U.swapaxes(1, 2), 0, -1))
 

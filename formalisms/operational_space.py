@@ -94,8 +94,8 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Split, SplitBatch, check_batch, check_state,
-                                  conditioning, constrained_split, degenerate_floor, factor_mass_matrix,
+from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
+                                  constrained_split, factor_mass_matrix, redundant_below, singular_below,
                                   unconstrained_split)
 
 
@@ -345,18 +345,11 @@ def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[
     return tp.directions @ Jv, bias @ tp.directions.T
 
 
-def _singular_below(model: Model, eig: np.ndarray) -> np.ndarray:
-    """``interface.singular_below`` for stacked ascending eigenvalues (..., k): ``k eps`` times the largest or the
-    degenerate floor, whichever is larger; NaN where any eigenvalue is not finite."""
-    floor = np.maximum(eig.shape[-1] * np.finfo(float).eps * eig[..., -1], degenerate_floor(model))
-    return np.where(np.all(np.isfinite(eig), axis=-1), floor, np.nan)
-
-
 def _cond(model: Model, eig: np.ndarray) -> float | np.ndarray:
     """``cond_2`` of ``A = J M^-1 J^T`` from its ascending eigenvalues (..., k); ``inf`` where it is numerically
     singular (smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below the
-    degenerate floor: :func:`_singular_below`; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
-    regular = _singular_below(model, eig) < eig[..., 0]
+    degenerate floor: :func:`singular_below`; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
+    regular = singular_below(model, eig) < eig[..., 0]
     return np.where(regular, eig[..., -1] / np.where(regular, eig[..., 0], 1.0), np.inf)[()]
 
 
@@ -471,7 +464,7 @@ def _constraint_inertia(model: Model, Jc: np.ndarray, Minv: np.ndarray) -> np.nd
     eigenvalue, at least the degenerate floor): minimum-norm multipliers."""
     S = Jc @ Minv @ _t(Jc)
     w, U = np.linalg.eigh(0.5 * (S + _t(S)))
-    keep = w > np.maximum(CONSTRAINT_RCOND * w[..., -1:], degenerate_floor(model))
+    keep = w > redundant_below(model, w[..., -1:])
     return (U * np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)[..., None, :]) @ _t(U)
 
 

@@ -46,7 +46,7 @@ def assert_rows_equal_split(formalism, model, Q, QD, U) -> None:
             assert batch.lam.shape == batch.lam_drift.shape == (len(Q), model.k)
             for name in ("lam", "lam_drift"):
                 err = _difference(getattr(batch, name)[i], getattr(s, name))
-                assert err <= RTOL * s.lam_scale, f"{formalism.name} {model.name} state {i}: {name} differs by {err:.3g}"
+                assert err <= RTOL * s.lam_scale, f"{formalism.name} {model.name} state {i}: {name} off by {err:.3g}"
         else:
             assert batch.lam is None and batch.lam_drift is None
 

@@ -49,7 +49,7 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import CONSTRAINT_RCOND, degenerate_floor
+from formalisms.interface import redundant_below
 from formalisms.screw import kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
@@ -222,7 +222,7 @@ class Gauss:
         A = np.transpose(factor.forward(np.transpose(Jc, (2, 1, 0))), (2, 1, 0))      # (L^-1 Jc^T)^T
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
         w_max = s[:, :1] ** 2
-        keep = s**2 > np.maximum(CONSTRAINT_RCOND * w_max, degenerate_floor(model))   # redundant_below, per state
+        keep = s**2 > redundant_below(model, w_max)
         inverse = np.divide(1.0, s, out=np.zeros_like(s), where=keep)
         return cls(factor, Jc, bias, np.einsum("Nrn,Nr,Nkr->Nnk", Vt, inverse, U))
 
