@@ -1,0 +1,56 @@
+"""The same scene, modelled with general 3-D body frames (issue 7, "model no more than a scene needs").
+
+The case factories build the smallest model of a scene: planar chains with joint axes along z, point masses where
+the article uses them, placements along one axis. :func:`general_3d` rebuilds a model with every body frame turned
+by a rotation ``R_i``: the joint axes become unaligned, the placements rotated, COM offsets and inertia tensors
+dense. The joint coordinates and the physics are unchanged, so every backend must return the same drift, ctrl,
+total and lam (to rounding); only the work the model lets a backend skip differs.
+
+With the joint frame ``J' = J R_i`` and axis ``R_i^T a``, the body frame becomes ``B' = B R_i`` for any q (a rotation
+about ``R_i^T a`` seen in ``J R_i`` is the rotation about ``a`` in ``J``); a child's placement, expressed in ``B'``,
+is ``(R_p^T rotation R_i, R_p^T translation)``; body-fixed points (COM, task points, constrained points) turn by
+``R_i^T``, inertias by ``R_i^T I R_i``. World-fixed data (gravity, circle centres, lines, task directions) stay.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from cases import constraints as decl
+from cases.model import Model, build_model
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random rotation (QR of a Gaussian matrix, signs fixed so that det = +1)."""
+    Q, R = np.linalg.qr(rng.standard_normal((3, 3)))
+    Q = Q * np.sign(np.diag(R))
+    return Q if np.linalg.det(Q) > 0 else -Q
+
+
+def _turn_constraint(c, turn: dict):
+    """A constraint declaration with its body-fixed offsets turned into the new body frames."""
+    if isinstance(c, (decl.PointOnCircle, decl.PointOnLine)):
+        return dataclasses.replace(c, offset=turn[c.body].T @ c.offset)
+    if isinstance(c, decl.PointsCoincide):
+        offset_b = c.offset_b if c.body_b is None else turn[c.body_b].T @ c.offset_b
+        return dataclasses.replace(c, offset_a=turn[c.body_a].T @ c.offset_a, offset_b=offset_b)
+    return c
+
+
+def general_3d(model: Model, seed: int = 0) -> Model:
+    """``model`` with every body frame turned by a random rotation (module doc): the same physics in the same
+    joint coordinates, written as general 3-D bodies. Deterministic for a given seed."""
+    rng = np.random.default_rng(seed)
+    turn = {b.name: _rotation(rng) for b in model.bodies}
+    bodies = []
+    for b in model.bodies:
+        R, Rp = turn[b.name], (np.eye(3) if b.parent is None else turn[b.parent])
+        bodies.append(dataclasses.replace(
+            b, axis=R.T @ b.axis, com=R.T @ b.com, inertia=R.T @ b.inertia @ R,
+            rotation=Rp.T @ b.rotation @ R, translation=Rp.T @ b.translation))
+    tasks = [dataclasses.replace(tp, offset=turn[tp.body].T @ tp.offset) for tp in model.task_points]
+    return build_model(f"{model.name} (general 3-D frames)", bodies, gravity=model.gravity,
+                       input_map=model.input_map, task_points=tasks,
+                       constraints=[_turn_constraint(c, turn) for c in model.constraints])
