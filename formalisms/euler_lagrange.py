@@ -33,7 +33,12 @@ Compilation: plain Python source evaluated with ``math``, the staged definitions
 subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); one call returns M, C pd, g, the
 kinetic energy T and the constraint terms phi, Jc, Jcdot pd at the state. The source is cached on disk keyed by
 the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart) and a hash
-of this module, so a second process loads it instead of re-deriving.
+of this module, so a second process loads it instead of re-deriving; its compiled code object is cached beside it
+(compiling a 9-joint arm's source takes most of a second, loading the code milliseconds).
+Batches (:func:`split_batch`): the same code run with numpy's ``sin`` and ``cos`` on columns of states (each
+coordinate an array with one entry per state) gives every state's M, C qd, g and constraint terms in one call;
+the solves below are written for one state or a stack alike (batched Cholesky, substitution over the stack), with
+constrained states grouped by the rank of S.
 Solving: Cholesky factorization of M, never an explicit inverse. With constraints, the KKT system of article 5.6
 as one block matrix, scaled by the Cholesky factor and the eigen-directions of ``S = Jc M^-1 Jc^T`` kept above
 ``CONSTRAINT_RCOND`` (rank-revealing: redundant constraints give the minimum-norm multipliers, :func:`_kkt`), and
@@ -44,9 +49,12 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.util
+import marshal
 import math
 import os
 import tempfile
+import types
 from pathlib import Path
 from typing import NamedTuple, Sequence
 
@@ -56,8 +64,9 @@ import symengine as sp
 
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (redundant_below, Chart, Formalism, chart_vectors, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, unconstrained_split)
+from formalisms.interface import (Chart, Formalism, SplitBatch, chart_vectors, check_batch, check_state,
+                                  conditioning, constrained_split, factor_mass_matrix, redundant_below,
+                                  unconstrained_split)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -507,11 +516,34 @@ def cached_source(model: Model, chart: Chart | None = None) -> str:
     if path.exists():
         return path.read_text()
     source = generate_source(model, chart)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as fh:
-        fh.write(source)
-    os.replace(fh.name, path)
+    _write(path, source.encode())
     return source
+
+
+def _write(path: Path, data: bytes) -> None:
+    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
+        fh.write(data)
+    os.replace(fh.name, path)
+
+
+def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
+    """The code object of :func:`cached_source`, cached on disk beside it (marshal, keyed also by the interpreter's
+    bytecode magic number): compiling the source of a 9-joint arm takes most of a second, loading its code a few
+    milliseconds. An entry that does not load is compiled again."""
+    path = _cache_dir() / f"{cache_key(model, chart)}.py"
+    code_path = path.with_name(f"{path.stem}-{importlib.util.MAGIC_NUMBER.hex()}.code")
+    if path.exists() and code_path.exists():
+        try:
+            code = marshal.loads(code_path.read_bytes())
+        except (EOFError, ValueError, TypeError):
+            code = None
+        if isinstance(code, types.CodeType):
+            return code
+    code = compile(cached_source(model, chart), str(path), "exec")
+    _write(code_path, marshal.dumps(code))
+    return code
 
 
 class _ChartRef:
@@ -536,13 +568,15 @@ def _ref(model: Model, chart: Chart | None) -> _ChartRef | None:
 
 
 @functools.lru_cache(maxsize=64)
-def _compiled(model: Model, ref: _ChartRef | None = None):
-    """``evaluate`` compiled from the cached source; keyed by (model, chart key) (None: the joint chart)."""
-    chart = None if ref is None else ref.chart
-    where = "" if ref is None else f" in chart '{chart.name}'"
-    namespace = {"sin": math.sin, "cos": math.cos}
-    exec(compile(cached_source(model, chart), f"<euler_lagrange {model.name}{where}>", "exec"), namespace)
-    return namespace["evaluate"]
+def _compiled(model: Model, ref: _ChartRef | None = None, batched: bool = False):
+    """``evaluate`` from the cached code (:func:`cached_code`); keyed by (model, chart key) (None: the joint chart)
+    and ``batched``: the same code run with numpy's ``sin`` and ``cos``, so that coordinates given as arrays with one
+    entry per state evaluate every state at once (an output that does not depend on the state stays a number)."""
+    namespace = {"sin": np.sin, "cos": np.cos} if batched else {"sin": math.sin, "cos": math.cos}
+    exec(cached_code(model, None if ref is None else ref.chart), namespace)
+    evaluate = namespace["evaluate"]
+    evaluate.locals = len(evaluate.__code__.co_varnames)  # the batched call holds one array per local
+    return evaluate
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -580,6 +614,30 @@ def evaluate(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = 
                             np.array(bias, dtype=float)))
 
 
+def _rows(values, size: int) -> np.ndarray:
+    """The outputs of the batched source (arrays with one entry per state, or numbers where an entry does not
+    depend on the state) as one (len(values), size) array."""
+    out = np.empty((len(values), size))
+    for i, v in enumerate(values):
+        out[i] = v
+    return out
+
+
+def evaluate_batch(model: Model, X: np.ndarray, XD: np.ndarray) -> tuple[Terms, ConstraintTerms]:
+    """The dynamics and the constraint terms of N joint-chart states at once (rows of ``X``, ``XD``), from one call
+    of the batched compiled derivation: ``M`` (N, n, n), ``Cqd``, ``g`` (N, n), ``T`` (N,), ``phi``, ``bias`` (N, k),
+    ``Jc`` (N, k, n)."""
+    n, N = model.n, len(X)
+    M_upper, Cqd, g, T, phi, Jc, bias = _compiled(model, None, True)(
+        np.ascontiguousarray(X.T, dtype=float), np.ascontiguousarray(XD.T, dtype=float))
+    M = np.zeros((N, n, n))
+    rows, cols = np.triu_indices(n)
+    M[:, rows, cols] = M[:, cols, rows] = _rows(M_upper, N).T
+    k = len(phi)
+    return (Terms(M, _rows(Cqd, N).T, _rows(g, N).T, _rows([T], N)[0]),
+            ConstraintTerms(_rows(phi, N).T, _rows(Jc, N).T.reshape(N, k, n), _rows(bias, N).T))
+
+
 def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> Terms:
     """``M``, ``C xd``, ``g`` and ``T`` at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint chart)."""
     return evaluate(model, x, xd, chart)[0]
@@ -591,23 +649,70 @@ def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.n
     return M, Cqd, g
 
 
+# The solves below take one state (2-D matrices) or a stack of states (a leading batch axis) alike.
+
+def _t(a: np.ndarray) -> np.ndarray:
+    """The transpose of the last two axes (of every matrix in a stack)."""
+    return np.swapaxes(a, -1, -2)
+
+
+def _upper_factor(model: Model, M: np.ndarray, x: np.ndarray, chart: str | None = None) -> np.ndarray:
+    """The upper Cholesky factor ``U`` of ``M = U^T U`` (of each M in a stack, ``x`` then the stack of coordinates);
+    a mass matrix that is not positive definite is :func:`factor_mass_matrix`'s ValueError (for a stack, of the
+    state with the smallest eigenvalue, named by its row)."""
+    if M.ndim == 2:
+        c, lower = factor_mass_matrix(model, M, x, chart)
+        return np.tril(c).T if lower else np.triu(c)
+    try:
+        return _t(np.linalg.cholesky(M))
+    except np.linalg.LinAlgError:
+        worst = int(np.argmin(np.linalg.eigvalsh(M)[:, 0]))
+        try:
+            factor_mass_matrix(model, M[worst], x[worst], chart)
+        except ValueError as err:
+            raise ValueError(f"state {worst} of the batch: {err}") from None
+        raise ValueError(f"model '{model.name}': a mass matrix of the batch is not positive definite (Cholesky "
+                         f"failed; the smallest eigenvalue, {np.linalg.eigvalsh(M[worst])[0]:.3g}, is at state "
+                         f"{worst})") from None
+
+
+def _triangular(U: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
+    """``U^-1 b`` (``U^-T b`` with ``trans``) for an upper-triangular ``U`` and ``b`` of shape (n, columns), or for
+    stacks of both: LAPACK for one matrix, substitution row by row over the whole stack for many."""
+    if U.ndim == 2:
+        return scipy.linalg.solve_triangular(U, b, trans="T" if trans else "N")
+    if len(U) == 1 == len(b):  # a stack of one (a single split's scaling)
+        return _triangular(U[0], b[0], trans)[None]
+    n = U.shape[-1]
+    x = np.empty(np.broadcast_shapes(U.shape[:-1], b.shape[:-1]) + b.shape[-1:])
+    for i in (range(n) if trans else range(n - 1, -1, -1)):
+        done = slice(0, i) if trans else slice(i + 1, n)
+        coefficients = U[:, done, i] if trans else U[:, i, done]
+        x[:, i] = (b[:, i] - (coefficients[:, None, :] @ x[:, done])[:, 0]) / U[:, i, i, None]
+    return x
+
+
+def _free(U: np.ndarray, h: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """drift ``-M^-1 h`` (eq. 10, ``h = C xd + g``), ctrl ``M^-1 tau`` and total ``M^-1 (tau - h)``, each solved on
+    its own (a separate right-hand side) with the Cholesky factor ``U`` of M, never an inverse."""
+    x = _triangular(U, _triangular(U, np.stack([-h, tau, tau - h], axis=-1), trans=True))
+    return x[..., 0], x[..., 1], x[..., 2]
+
+
 def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None):
     """The split of eq. (9) from the terms: drift ``-M^-1 (C xd + g)`` (eq. 10), ctrl ``M^-1 tau``, total
-    ``M^-1 (tau - C xd - g)``, each solved on its own with the Cholesky factor of M (never an inverse)."""
-    factor = factor_mass_matrix(model, M, x, chart)
-    h = Cqd + g
+    ``M^-1 (tau - C xd - g)`` (:func:`_free`)."""
+    drift, ctrl, total = _free(_upper_factor(model, M, x, chart), Cqd + g, tau)
     cond_M, accel_scale = conditioning(model, M, Cqd, g, tau, xd)
-    return unconstrained_split(
-        drift=scipy.linalg.cho_solve(factor, -h),
-        ctrl=scipy.linalg.cho_solve(factor, tau),
-        total=scipy.linalg.cho_solve(factor, tau - h),
-        tau_ctrl=tau, qd=xd, cond_M=cond_M, accel_scale=accel_scale, kinetic_energy=T)
+    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=xd, cond_M=cond_M,
+                               accel_scale=accel_scale, kinetic_energy=T)
 
 
 class _Scaled(NamedTuple):
     """The constrained problem in the Cholesky frame of ``M = U^T U``: ``A = Jc U^-1``, so ``S = Jc M^-1 Jc^T =
     A A^T``, and the eigen-directions ``V`` (columns) and eigenvalues ``w`` (ascending) of S that are kept: those
-    above ``CONSTRAINT_RCOND`` times the largest (interface); the others are redundant."""
+    above ``CONSTRAINT_RCOND`` times the largest (interface); the others are redundant. For one state, or a stack
+    of states of the same rank (leading axis)."""
 
     U: np.ndarray
     A: np.ndarray
@@ -615,20 +720,26 @@ class _Scaled(NamedTuple):
     w: np.ndarray
 
 
-def _scaled(model: Model, M, Jc, x, chart: str | None) -> _Scaled:
-    """:class:`_Scaled` from M (factored by :func:`factor_mass_matrix`, with its errors) and Jc."""
-    c, lower = factor_mass_matrix(model, M, x, chart)
-    U = np.tril(c).T if lower else np.triu(c)
-    A = scipy.linalg.solve_triangular(U, Jc.T, trans="T").T
-    w, V = np.linalg.eigh(A @ A.T)
-    keep = w > redundant_below(model, w[-1])
-    return _Scaled(U, A, V[:, keep], w[keep])
+def _scaled(model: Model, U: np.ndarray, Jc: np.ndarray) -> list[tuple[np.ndarray, _Scaled]]:
+    """:class:`_Scaled` of a stack of states (``U`` (N, n, n) the Cholesky factors of M, ``Jc`` (N, k, n)), grouped
+    by rank: ``(rows, scaled)`` per rank, the states' rows in the stack and their stacked :class:`_Scaled`. The kept
+    eigenvalues of S are the largest ones (eigh sorts them), above :func:`redundant_below` of each state."""
+    A = _t(_triangular(U, _t(Jc), trans=True))
+    w, V = np.linalg.eigh(A @ _t(A))
+    k = w.shape[-1]
+    below = redundant_below(model, w[:, -1:])
+    rank = (w > below).sum(axis=1)
+    groups = []
+    for r in np.unique(rank):
+        rows = np.flatnonzero(rank == r)
+        groups.append((rows, _Scaled(U[rows], A[rows], V[rows][..., k - r:], w[rows][..., k - r:])))
+    return groups
 
 
 def _kkt(sc: _Scaled, forces: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve the KKT system of article 5.6, ``[[M, -Jc^T], [Jc, 0]] [qdd; lam] = [f; -Jcdot qd]`` (eq. 12:
     ``M qdd + h = B u + Jc^T lam``; eq. 13), for each column ``f`` of ``forces``; returns qdd (n x columns) and
-    lam (k x columns).
+    lam (k x columns) (for a stack of states: a leading axis on every argument and result).
 
     Rank-revealing by scaling: in the unknowns ``y = U qdd`` and ``mu = s V^T lam`` (``s^2`` the largest
     eigenvalue of S) the block matrix becomes ``[[I, -Ah^T], [Ah, 0]]`` with ``Ah = V^T A / s``, whose rows are
@@ -638,35 +749,44 @@ def _kkt(sc: _Scaled, forces: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray,
     one (``H_t`` empty) the equations along the redundant directions are dropped: a finite answer, the
     least-squares one where those directions are exactly redundant.
     """
-    n, r = sc.A.shape[1], sc.V.shape[1]
-    s = math.sqrt(sc.w[-1]) if r else 1.0
-    Ah = sc.V.T @ sc.A / s
-    K = np.block([[np.eye(n), -Ah.T], [Ah, np.zeros((r, r))]])
-    rhs = np.vstack([scipy.linalg.solve_triangular(sc.U, forces, trans="T"),
-                     np.repeat(-(sc.V.T @ bias)[:, None] / s, forces.shape[1], axis=1)])
-    sol = np.linalg.solve(K, rhs)
-    return scipy.linalg.solve_triangular(sc.U, sol[:n]), sc.V @ sol[n:] / s
+    n, r = sc.A.shape[-1], sc.V.shape[-1]
+    s = (np.sqrt(sc.w[..., -1:]) if r else np.ones(sc.w.shape[:-1] + (1,)))[..., None]
+    Ah = _t(sc.V) @ sc.A / s
+    K = np.zeros(Ah.shape[:-2] + (n + r, n + r))
+    K[..., :n, :n] = np.eye(n)
+    K[..., :n, n:], K[..., n:, :n] = -_t(Ah), Ah
+    target = np.broadcast_to(-(_t(sc.V) @ bias[..., None]) / s, Ah.shape[:-1] + forces.shape[-1:])
+    sol = np.linalg.solve(K, np.concatenate([_triangular(sc.U, forces, trans=True), target], axis=-2))
+    return _triangular(sc.U, sol[..., :n, :]), sc.V @ sol[..., n:, :] / s
 
 
 def _constrained_input_map(sc: _Scaled) -> np.ndarray:
     """``B_c = M^-1 [I - Jc^T S^+ Jc M^-1]`` with ``S = Jc M^-1 Jc^T`` (article eq. 17), ``S^+`` the
     pseudo-inverse over its kept eigen-directions (``V diag(1/w) V^T``); in the Cholesky frame
-    ``U^-1 (I - A^T S^+ A) U^-T``."""
-    AW = sc.A.T @ (sc.V / np.sqrt(sc.w))
-    P = np.eye(sc.U.shape[0]) - AW @ AW.T
-    return scipy.linalg.solve_triangular(sc.U, scipy.linalg.solve_triangular(sc.U, P).T)  # U^-1 (U^-1 P)^T, P = P^T
+    ``U^-1 (I - A^T S^+ A) U^-T`` (for a stack of states: each one's)."""
+    AW = _t(sc.A) @ (sc.V / np.sqrt(sc.w)[..., None, :])
+    P = np.eye(sc.U.shape[-1]) - AW @ _t(AW)
+    return _triangular(sc.U, _t(_triangular(sc.U, P)))  # U^-1 (U^-1 P)^T, P = P^T
+
+
+def _constrained(sc: _Scaled, h: np.ndarray, tau: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(total, drift, ctrl, lam, lam_drift)`` of one state or a stack (article 5.3-5.6): total and lam from the KKT
+    system with the input, drift and lam_drift with u = 0 (eq. 14), both by :func:`_kkt`; ctrl ``B_c tau``
+    (eq. 17) directly, never total - drift."""
+    qdd, lam = _kkt(sc, np.stack([tau - h, -h], axis=-1), bias)
+    ctrl = (_constrained_input_map(sc) @ tau[..., None])[..., 0]
+    return qdd[..., 0], qdd[..., 1], ctrl, lam[..., 0], lam[..., 1]
 
 
 def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau, x, xd, chart: str | None = None):
-    """The constrained split (article 5.3-5.6): total and lam from the KKT system with the input, drift and
-    lam_drift with u = 0 (eq. 14), both by :func:`_kkt`; ctrl ``B_c tau`` (eq. 17) directly, never total - drift."""
+    """The constrained split (article 5.3-5.6) of one state by :func:`_constrained`, with the scaling of
+    :func:`_scaled` (a stack of one)."""
     M, Cqd, g, T = dynamics
-    sc = _scaled(model, M, cons.Jc, x, chart)
-    h = Cqd + g
-    qdd, lam = _kkt(sc, np.column_stack([tau - h, -h]), cons.bias)
+    ((_, stacked),) = _scaled(model, _upper_factor(model, M, x, chart)[None], cons.Jc[None])
+    total, drift, ctrl, lam, lam_drift = _constrained(_Scaled(*(a[0] for a in stacked)), Cqd + g, tau, cons.bias)
     return constrained_split(model, M=M, Cqd=Cqd, g=g, tau_ctrl=tau, qd=xd, phi=cons.phi, Jc=cons.Jc,
-                             bias=cons.bias, drift=qdd[:, 1], ctrl=_constrained_input_map(sc) @ tau,
-                             total=qdd[:, 0], lam=lam[:, 0], lam_drift=lam[:, 1], kinetic_energy=T)
+                             bias=cons.bias, drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
+                             kinetic_energy=T)
 
 
 def split(model: Model, q, qd, u):
@@ -699,10 +819,48 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     return _solve(model, M, Cqd, g, tau_p, p, pd, T, chart=chart.name)
 
 
+#: States per block of :func:`split_batch`, at most; the batched code holds one array per local (some 4,000 for a
+#: 9-joint arm, 90,000 for a 30-link chain) until it returns, so a block has at most ``BATCH_ENTRIES // locals``
+#: states: at most 256 MB of intermediates (70 MB for panda), and blocks as long as that allows, since every
+#: operation costs numpy's per-call overhead once per block.
+BATCH_BLOCK = 2048
+BATCH_ENTRIES = 2 ** 25
+
+
+def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(drift, ctrl, total, lam, lam_drift)`` of a block of states (module docstring: the same derivation and
+    solves as :func:`split`, every state at once; the constrained states grouped by the rank of S)."""
+    (M, Cqd, g, _), cons = evaluate_batch(model, Q, QD)
+    U, h = _upper_factor(model, M, Q), Cqd + g
+    if not model.constraints:
+        return (*_free(U, h, tau), None, None)
+    out = [np.empty((len(Q), model.n)) for _ in range(3)] + [np.empty((len(Q), model.k)) for _ in range(2)]
+    for rows, sc in _scaled(model, U, cons.Jc):
+        for o, part in zip(out, _constrained(sc, h[rows], tau[rows], cons.bias[rows])):
+            o[rows] = part
+    total, drift, ctrl, lam, lam_drift = out
+    return drift, ctrl, total, lam, lam_drift
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:
+    """:func:`split` of N states at once (rows of ``Q``, ``QD``, ``U``): the derivation's source evaluated with numpy
+    on whole columns of states, M assembled and factored as a stack, and the same solves (:func:`_free`; with
+    constraints :func:`_kkt` and :func:`_constrained_input_map` on the states of each rank of S), in blocks of
+    at most :data:`BATCH_BLOCK` states (fewer for a long source: :data:`BATCH_ENTRIES`)."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    tau = U @ model.input_map.T
+    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // _compiled(model, None, True).locals))
+    blocks = [slice(i, i + size) for i in range(0, max(len(Q), 1), size)]
+    parts = [_split_block(model, Q[b], QD[b], tau[b]) for b in blocks]
+    drift, ctrl, total, lam, lam_drift = (None if p[0] is None else np.concatenate(p) for p in zip(*parts))
+    return SplitBatch(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift)
+
+
 FORMALISM = Formalism(
     name="euler_lagrange",
     summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq; "
             "re-derived in any chart q = psi(p) (6.4.6); constraints by a scaled, rank-revealing KKT solve (5.6)",
     split=split,
     split_chart=split_chart,
+    split_batch=split_batch,
 )

@@ -82,9 +82,14 @@ digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions);
 LAPACK solve with all right-hand sides and small numpy contractions (with constraints: one SVD of Jc, and the factor
 is that of ``Z^T M Z``).
 
-Public API: :func:`split`, :func:`split_chart` (the :class:`Formalism` contract); the geometric objects of a mechanism
-:func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`, :func:`drift_field`,
-:func:`energy_rate` (all in the joint chart or any ``chart``); the same machinery for any metric,
+Batches (:func:`split_batch`): the same Function mapped over a block of states (``Function.map``, through a buffer on
+the numpy arrays), then the connection, the metric solves and (with constraints) the null-space method for the whole
+stack in numpy: ``Gamma(pd, pd)`` as ``M^-1`` of the first-kind symbols contracted with the rates (the same
+connection, raised after contracting), batched Cholesky solves, the constrained states grouped by the rank of S.
+
+Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
+objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
+:func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``); the same machinery for any metric,
 :func:`christoffel_of` and :func:`curvature_of`; the shared formula :func:`christoffel_symbols`.
 """
 
@@ -101,8 +106,9 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (redundant_below, Formalism, Split, chart_vectors, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, task_space_inertia, unconstrained_split)
+from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, chart_vectors, check_state,
+                                  conditioning, constrained_split, factor_mass_matrix, redundant_below,
+                                  task_space_inertia, unconstrained_split)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -114,8 +120,8 @@ JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 def christoffel_first_kind(dM: np.ndarray) -> np.ndarray:
     """``Gamma_{l,jk} = 1/2 (d_j M_lk + d_k M_lj - d_l M_jk)`` as an (n, n, n) array indexed ``[l, j, k]``, from the
     metric derivatives ``dM[k, i, j] = d M_ij / dx_k``. Linear in ``dM``: applied to ``d_m dM`` it gives
-    ``d_m Gamma_{l,jk}`` (used by :func:`curvature_of`)."""
-    return 0.5 * (dM.transpose(1, 0, 2) + dM.transpose(1, 2, 0) - dM)
+    ``d_m Gamma_{l,jk}`` (used by :func:`curvature_of`). A stack (..., n, n, n) gives each point's."""
+    return 0.5 * (dM.swapaxes(-3, -2) + dM.swapaxes(-3, -2).swapaxes(-2, -1) - dM)
 
 
 def christoffel_symbols(M: np.ndarray, dM: np.ndarray, factor=None, covectors=()) -> tuple:
@@ -310,6 +316,8 @@ class _Evaluator:
         self._buffer.set_arg(1, memoryview(self._pd))
         self._buffer.set_res(0, memoryview(self._out))
         self._lock = threading.Lock()
+        self._mapped: dict[int, ca.Function] = {}
+        self.size = self._out.size  # outputs per state
 
     def __call__(self, p: np.ndarray, pd: np.ndarray) -> np.ndarray:
         with self._lock:
@@ -317,6 +325,28 @@ class _Evaluator:
             self._pd[:] = pd
             self._trigger()
             return self._out.copy()
+
+    def batch(self, P: np.ndarray, PD: np.ndarray) -> np.ndarray:
+        """The Function at N states at once (rows of ``P``, ``PD``), as an (N, outputs) array: the Function mapped over
+        N (``Function.map``), called through a buffer on the arrays themselves (a row-major (N, n) array is the
+        column-major (n, N) argument of the map, one state per column)."""
+        N = len(P)
+        out = np.empty((N, self._out.size))
+        if N == 0:
+            return out
+        with self._lock:
+            if N not in self._mapped:
+                if len(self._mapped) >= 4:  # the map of a block size, and of the last partial blocks
+                    self._mapped.clear()
+                self._mapped[N] = self.function.map(N)
+            mapped = self._mapped[N]
+        P, PD = (np.ascontiguousarray(a, dtype=float).reshape(-1) for a in (P, PD))
+        buffer, trigger = mapped.buffer()
+        buffer.set_arg(0, memoryview(P))
+        buffer.set_arg(1, memoryview(PD))
+        buffer.set_res(0, memoryview(out.reshape(-1)))
+        trigger()
+        return out
 
 
 class _Compiled:
@@ -492,7 +522,8 @@ def _task_inertia(model: Model, pt: _Point, factor) -> dict:
 class _Distribution:
     """The constraint distribution ``D = ker (rows^T Jc)`` at a point: ``rows`` (k x r) the independent constraint
     directions (module docstring, "Rank"), the SVD ``rows^T Jc = U diag(s) V^T`` (full row rank r) and ``Z``, an
-    orthonormal basis of ``D`` (the other right singular vectors)."""
+    orthonormal basis of ``D`` (the other right singular vectors). For one point, or a stack of points of the same
+    rank r (a leading axis on every field, and on the vectors the methods take and return)."""
 
     rows: np.ndarray  # (k, r)
     U: np.ndarray     # (r, r)
@@ -502,11 +533,21 @@ class _Distribution:
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """The minimum-norm solution of the independent rows of ``Jc x = b``."""
-        return self.V @ ((self.U.T @ (self.rows.T @ b)) / self.s)
+        return _mv(self.V, _mv(_t(self.U), _mv(_t(self.rows), b)) / self.s)
 
     def solve_transposed(self, c: np.ndarray) -> np.ndarray:
         """The minimum-norm least-squares solution of ``Jc^T lam = c`` with lam in the independent directions."""
-        return self.rows @ (self.U @ ((self.V.T @ c) / self.s))
+        return _mv(self.rows, _mv(self.U, _mv(_t(self.V), c) / self.s))
+
+
+def _t(a: np.ndarray) -> np.ndarray:
+    """The transpose of the last two axes (of every matrix in a stack)."""
+    return np.swapaxes(a, -1, -2)
+
+
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Matrix times vector, for one matrix and vector or for stacks of both."""
+    return (A @ x[..., None])[..., 0]
 
 
 def _distribution(model: Model, Jc: np.ndarray, factor) -> _Distribution:
@@ -654,10 +695,116 @@ def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
     return EnergyRate(rate=float(terms.sum()), magnitude=float(np.abs(terms).sum()), momentum=momentum)
 
 
+# ------------------------------------------------------------------------------------------------------- batches
+
+#: States per block of :func:`split_batch`, at most; a block's (block, n, n, n) metric derivatives and the Function's
+#: output have at most ``BATCH_ENTRIES`` numbers each (16 MB), so the memory stays bounded for long chains too.
+BATCH_BLOCK = 2048
+BATCH_ENTRIES = 2 ** 21
+
+
+def _stack_cholesky(M: np.ndarray, explain: Callable[[int], object]) -> np.ndarray:
+    """Lower Cholesky factors ``L`` (``M = L L^T``) of a stack of symmetric matrices; when one is not positive
+    definite, ``explain(row)`` of the state with the smallest eigenvalue raises the single-state ValueError, which is
+    re-raised naming that row."""
+    try:
+        return np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        worst = int(np.argmin(np.linalg.eigvalsh(M)[:, 0]))
+        try:
+            explain(worst)
+        except ValueError as err:
+            raise ValueError(f"state {worst} of the batch: {err}") from None
+        raise ValueError(f"state {worst} of the batch: a matrix to factor is not positive definite (Cholesky failed; "
+                         f"eigenvalues {np.linalg.eigvalsh(M[worst]).tolist()})") from None
+
+
+def _forward(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``L^-1 b`` for stacks of lower-triangular ``L`` (N, n, n) and ``b`` (N, n, columns): forward substitution, one
+    row at a time for the whole stack."""
+    y = np.empty(b.shape)
+    for i in range(L.shape[-1]):
+        y[:, i] = (b[:, i] - (L[:, i, None, :i] @ y[:, :i])[:, 0]) / L[:, i, i, None]
+    return y
+
+
+def _stack_cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``M^-1 b`` with ``M = L L^T`` for stacks (each column of ``b`` its own solve): forward, then back substitution
+    with ``L^T``."""
+    y, n = _forward(L, b), L.shape[-1]
+    x = np.empty(b.shape)
+    for i in range(n - 1, -1, -1):
+        x[:, i] = (y[:, i] - (_t(L)[:, i, None, i + 1:] @ x[:, i + 1:])[:, 0]) / L[:, i, i, None]
+    return x
+
+
+def _constrained_block(model: Model, Jc: np.ndarray, bias: np.ndarray, M: np.ndarray, L: np.ndarray, Cqd, dV, P,
+                       tau) -> tuple[np.ndarray, ...]:
+    """``(drift, ctrl, total, lam, lam_drift)`` of a stack of constrained states by the null-space method of
+    :func:`_constrained_split` (eqs. 12-17), the states grouped by the rank of ``S = Jc M^-1 Jc^T`` (the rule of
+    :func:`_distribution`), each group's :class:`_Distribution` a stack."""
+    N, n = M.shape[:2]
+    X = _forward(L, _t(Jc))                                  # L^-1 Jc^T, M = L L^T
+    w, E = np.linalg.eigh(_t(X) @ X)
+    k = w.shape[-1]
+    rank = (w > redundant_below(model, w[:, -1:])).sum(axis=1)
+    f0 = -Cqd - dV                                           # eq. (24) as a covector, tau = 0
+    f = tau + f0
+    out = [np.empty((N, n)) for _ in range(3)] + [np.empty((N, k)) for _ in range(2)]
+    for r in np.unique(rank):
+        i = np.flatnonzero(rank == r)
+        rows = E[i][..., k - r:]
+        Us, s, Vt = np.linalg.svd(_t(rows) @ Jc[i])
+        dist = _Distribution(rows=rows, U=Us, s=s[:, :r], V=_t(Vt[:, :r]), Z=_t(Vt[:, r:]))
+        Mi = M[i]
+        pdd_p = dist.solve(-bias[i])                         # a point of H_t (eq. 16)
+        rhs = _t(dist.Z) @ np.stack([f[i] - _mv(Mi, pdd_p), f0[i] - _mv(Mi, pdd_p), tau[i]], axis=-1)
+        steps = np.zeros((len(i), n, 3))
+        if n > r:
+            Lz = _stack_cholesky(_t(dist.Z) @ Mi @ dist.Z,
+                                 lambda j: _reduced_metric_factor(model, None, Mi[j], dist.Z[j], P[i[j]]))
+            steps = dist.Z @ _stack_cho_solve(Lz, rhs)
+        total, drift = pdd_p + steps[..., 0], pdd_p + steps[..., 1]
+        lam = dist.solve_transposed(_mv(Mi, total) - f[i])                 # eq. (12)
+        lam_drift = dist.solve_transposed(_mv(Mi, drift) - f0[i])          # eq. (14)
+        for o, part in zip(out, (drift, steps[..., 2], total, lam, lam_drift)):
+            o[i] = part
+    return tuple(out)
+
+
+def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -> tuple:
+    """``(drift, ctrl, total, lam, lam_drift)`` of a block of joint-chart states: the compiled Function mapped over the
+    block, then eqs. (24)-(25) for the whole stack. ``Gamma(pd, pd) = M^-1 (Gamma_{.,jk} pd^j pd^k)``: the first-kind
+    symbols contracted with the rates, then raised by the metric (the same connection as :func:`_split`, which raises
+    every symbol first); with constraints :func:`_constrained_block`."""
+    c = _compiled(model, None)
+    flat = c.evaluate.batch(P, PD)
+    M, dM, dV = flat[:, c.M_index], flat[:, c.dM_index], flat[:, c.dV_slice]
+    L = _stack_cholesky(M, lambda j: factor_mass_matrix(model, M[j], P[j]))
+    Cqd = _mv((christoffel_first_kind(dM) @ PD[:, None, :, None])[..., 0], PD)   # M Gamma(pd, pd) (eq. 7)
+    if model.constraints:
+        return _constrained_block(model, flat[:, c.Jc_index], flat[:, c.Jc_bias_slice], M, L, Cqd, dV, P, tau)
+    gamma_pdpd, grad_V, ctrl, forced = np.moveaxis(_stack_cho_solve(L, np.stack([Cqd, dV, tau, tau - dV], -1)), -1, 0)
+    return -gamma_pdpd - grad_V, ctrl, forced - gamma_pdpd, None, None    # eq. (25); total solved on its own
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:
+    """:func:`split` of N states at once (rows of ``Q``, ``QD``, ``U``), in blocks of at most :data:`BATCH_BLOCK` states
+    (fewer for a long chain: :data:`BATCH_ENTRIES`), each by :func:`_split_block`."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    tau = U @ model.input_map.T
+    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // max(model.n ** 3, _compiled(model, None).evaluate.size)))
+    blocks = [slice(i, i + size) for i in range(0, max(len(Q), 1), size)]
+    parts = [_split_block(model, Q[b], QD[b], tau[b]) for b in blocks]
+    drift, ctrl, total, lam, lam_drift = (None if p[0] is None else np.concatenate(p) for p in zip(*parts))
+    return SplitBatch(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift)
+
+
 FORMALISM = Formalism(
     name="geometric",
     summary="Geometric mechanics: kinetic-energy metric, Levi-Civita connection, intrinsic drift field "
             "(article 6.4, eqs. 24-25), any chart",
     split=split,
     split_chart=split_chart,
+    split_batch=split_batch,
 )

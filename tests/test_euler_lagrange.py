@@ -453,3 +453,62 @@ def test_disk_cache_entry_is_what_the_generator_produces(isolated_cache):
     el.terms(model, np.zeros(2), np.zeros(2))
     (path,) = isolated_cache.rglob("*.py")
     assert path.read_text() == el.generate_source(model)
+
+
+def test_compiled_code_is_cached_beside_the_source(isolated_cache, monkeypatch):
+    """A fresh process loads the compiled code object (marshal) instead of compiling the source again (most of a
+    second for a 9-joint arm); a damaged entry is compiled again and rewritten."""
+    model = cases.load("double_pendulum", m1=1.5)
+    q, qd = np.array([0.3, -1.1]), np.array([0.7, 2.0])
+    first = el.terms(model, q, qd)
+    (code_file,) = isolated_cache.rglob("*.code")
+    el._compiled.cache_clear()
+
+    def no_source(*args):
+        raise AssertionError("the source was read although its compiled code is cached")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(el, "cached_source", no_source)
+        second = el.terms(model, q, qd)
+    for damage in (b"damaged", b"N"):  # not marshal data; marshal data that is not code
+        code_file.write_bytes(damage)
+        el._compiled.cache_clear()
+        third = el.terms(model, q, qd)
+        for a, b, c in zip(first, second, third):
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(a, c)
+        assert code_file.read_bytes() != damage
+
+
+def test_batch_over_several_blocks_equals_split(monkeypatch):
+    """Blocks of 4 states: a batch of 10 crosses two block boundaries and ends on a partial block; every row is
+    what ``split`` gives (1e-9 of the state's accel_scale), and the numpy evaluation of the derived source gives
+    the same M, C qd, g as the scalar one."""
+    monkeypatch.setattr(el, "BATCH_BLOCK", 4)
+    model = cases.load("spatial_arm")
+    rng = np.random.default_rng(5)
+    Q, QD, U = (rng.uniform(-2.0, 2.0, (10, size)) for size in (model.n, model.n, model.m))
+    batch = el.split_batch(model, Q, QD, U)
+    terms, _ = el.evaluate_batch(model, Q, QD)
+    for i in range(len(Q)):
+        s = el.split(model, Q[i], QD[i], U[i])
+        for name in ("drift", "ctrl", "total"):
+            err = np.abs(getattr(batch, name)[i] - getattr(s, name)).max()
+            assert err <= 1e-9 * s.accel_scale, f"state {i}: {name} differs by {err:.3g}"
+        single = el.evaluate_terms(model, Q[i], QD[i])
+        for name in ("M", "Cqd", "g", "T"):
+            np.testing.assert_allclose(getattr(terms, name)[i], getattr(single, name), rtol=1e-12, atol=1e-12)
+
+
+def test_batch_with_a_singular_mass_matrix_names_the_state():
+    """The second link a point mass on its own joint axis makes M singular everywhere: the batch raises the
+    single-state error of ``factor_mass_matrix``, naming the row."""
+    import dataclasses
+    base = cases.load("double_pendulum")
+    first, second = base.bodies
+    model = cases.build_model("point_on_axis", [first, dataclasses.replace(second, com=np.zeros(3),
+                                                                         inertia=np.zeros((3, 3)))],
+                              gravity=base.gravity, task_points=base.task_points)
+    Q = np.zeros((3, 2))
+    with pytest.raises(ValueError, match=r"state \d of the batch: .*not positive definite"):
+        el.split_batch(model, Q, Q, Q)

@@ -430,3 +430,31 @@ def test_a_singular_chart_is_reported_with_the_chart():
 
     with pytest.raises(ValueError, match=r"at p = \[0.1, 0.2\] in chart 'collapsed' \(M_p = Dpsi\^T M Dpsi"):
         geo.split_chart(PENDULUM, Collapsed(), [0.1, 0.2], [0.0, 0.0], [0.0, 0.0])
+
+
+def test_batch_over_several_blocks_equals_split(monkeypatch):
+    """Blocks of 4 states: a batch of 10 crosses two block boundaries and ends on a partial block (each block size
+    its own mapped Function); every row is what ``split`` gives (1e-9 of the state's accel_scale)."""
+    monkeypatch.setattr(geo, "BATCH_BLOCK", 4)
+    rng = np.random.default_rng(5)
+    Q, QD, U = (rng.uniform(-2.0, 2.0, (10, size)) for size in (SPATIAL_ARM.n, SPATIAL_ARM.n, SPATIAL_ARM.m))
+    batch = geo.split_batch(SPATIAL_ARM, Q, QD, U)
+    assert batch.lam is None and batch.lam_drift is None
+    for i in range(len(Q)):
+        s = geo.split(SPATIAL_ARM, Q[i], QD[i], U[i])
+        for name in ("drift", "ctrl", "total"):
+            err = np.abs(getattr(batch, name)[i] - getattr(s, name)).max()
+            assert err <= 1e-9 * s.accel_scale, f"state {i}: {name} differs by {err:.3g}"
+
+
+def test_batch_with_a_singular_metric_names_the_state():
+    """The second link a point mass on its own joint axis makes M singular everywhere: the batch raises the
+    single-state error, naming the row."""
+    import dataclasses
+    first, second = PENDULUM.bodies
+    model = cases.build_model("point_on_axis", [first, dataclasses.replace(second, com=np.zeros(3),
+                                                                         inertia=np.zeros((3, 3)))],
+                              gravity=PENDULUM.gravity, task_points=PENDULUM.task_points)
+    Q = np.zeros((3, 2))
+    with pytest.raises(ValueError, match=r"state \d of the batch: .*not positive definite"):
+        geo.split_batch(model, Q, Q, Q)
