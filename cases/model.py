@@ -103,12 +103,12 @@ class Model:
         """Number of inputs (columns of the input map B)."""
         return self.input_map.shape[1]
 
-    @property
+    @functools.cached_property
     def length_scale(self) -> float:
         """A length for the model's residuals and floors: 1 m plus every placement and COM offset in it."""
         return 1.0 + float(sum(np.linalg.norm(b.translation) + np.linalg.norm(b.com) for b in self.bodies))
 
-    @property
+    @functools.cached_property
     def inertia_scale(self) -> float:
         """``sum_k (m_k L^2 + tr I_k)`` with L the length scale: the size of M's entries (about its largest
         eigenvalue, up to a factor of the number of joints)."""

@@ -7,6 +7,7 @@ divergence registry explains becomes KNOWN (``crosscheck.registry``): reported w
 
 from __future__ import annotations
 
+import functools
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -96,8 +97,18 @@ def compare(quantity: str, values: dict[str, object], tol: float) -> Comparison:
 def _ratios(differences: np.ndarray, tol: float) -> np.ndarray:
     """error / tolerance; an exact match is 0 whatever the tolerance (a tolerance that underflows to 0 at a state at
     rest, qd = 0, would otherwise make 0 / 0 a NaN and a false DISAGREE)."""
+    if 0.0 < tol < np.inf:                       # no division by zero and no inf / inf: nothing to silence
+        return np.where(differences == 0.0, 0.0, differences / tol)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(differences == 0.0, 0.0, differences / tol)
+
+
+@functools.lru_cache(maxsize=None)
+def _pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of every pair of ``count`` voters, in ``itertools.combinations`` order (read-only)."""
+    i, j = np.triu_indices(count, 1)
+    i.flags.writeable = j.flags.writeable = False
+    return i, j
 
 
 def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
@@ -107,7 +118,7 @@ def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
     if any(v.size not in (1, size) for v in vectors):
         raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
     V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
-    i, j = np.triu_indices(len(vectors), 1)
+    i, j = _pair_indices(len(vectors))
     return np.abs(V[i] - V[j]).max(axis=1)
 
 

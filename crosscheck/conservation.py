@@ -52,10 +52,13 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
     return at_drift, at_total, tol
 
 
-def checks(model: Model, state: State, splits: Mapping[str, Split]) -> dict[str, Comparison]:
-    """Energy-rate and Christoffel checks at ``state`` for the (trusted) ``splits``."""
+def checks(model: Model, state: State, splits: Mapping[str, Split],
+           at: policy.Scales | None = None) -> dict[str, Comparison]:
+    """Energy-rate and Christoffel checks at ``state`` for the (trusted) ``splits``; ``at``: their
+    ``tolerance.scales`` at the state when the caller has them (computed here otherwise)."""
     q, qd = np.array(state.q), np.array(state.qd)
-    at = policy.scales(splits.values(), model, q, qd)
+    if at is None:
+        at = policy.scales(splits.values(), model, q, qd)
     M = geometric.metric(model, q)
     force = at.accel_scale * np.linalg.norm(M, 2) / at.cond_M       # H = accel_scale * lambda_min(M)
     at_drift, at_total, tol = _energy_rates(model, q, qd, splits, force, at.cond_M)

@@ -3,10 +3,15 @@
 Besides the cross-backend comparison at each state, the gate checks by default (:class:`Checks`) that the
 answers do not depend on the chart (every built-in chart that applies; ``crosscheck.invariance``), on the world
 frame (state ``i`` in sampled frame ``i mod frames``) or break conservation (``crosscheck.conservation``).
+
+Each backend runs once per state and scene (joint chart, each chart, the moved scene); the tolerance scales of the
+trusted joint-chart splits are computed once per state and shared by every check. ``run_gate(..., workers=W)``
+runs the cases in W spawned processes with the same outcomes, in case order.
 """
 
 from __future__ import annotations
 
+import pickle
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -16,6 +21,7 @@ from cases.model import Model
 from crosscheck import charts as chart_catalog
 from crosscheck import conservation, frames, invariance
 from crosscheck import tolerance as tolerance_policy
+from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.compare import DISAGREE, Comparison, compare, worst_of
 from crosscheck.sampling import State, sample_states
 from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split
@@ -54,7 +60,8 @@ class CaseSpec:
 class StateOutcome:
     """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
     -> value above its limit; left out of the comparisons) and one comparison per quantity; ``hint``, for a failing
-    state, what the shape of the error suggests (``crosscheck.diagnosis``)."""
+    state, what the shape of the error suggests (``crosscheck.diagnosis``); ``scales``, the tolerance scales of the
+    trusted splits (None when no split is trusted)."""
 
     state: State
     splits: dict[str, Split]
@@ -63,6 +70,7 @@ class StateOutcome:
     breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
     checks: dict[str, Comparison] = field(default_factory=dict)
     hint: str = ""
+    scales: tolerance_policy.Scales | None = None
 
     @property
     def failed(self) -> bool:
@@ -116,6 +124,27 @@ class GateResult:
         return not any(c.failed for c in self.cases)
 
 
+def run_backends(model: Model, state: State, backends: Sequence[Formalism],
+                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+    """Every backend's split at ``state``, the errors they raised and the backends in BREAKDOWN, without the
+    comparisons (what a moved scene needs: :func:`add_checks`). A backend raising ``ModelNotSupported`` is in
+    neither ``splits`` nor ``errors``."""
+    splits: dict[str, Split] = {}
+    errors: dict[str, str] = {}
+    for backend in backends:
+        start = time.perf_counter()
+        try:
+            splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
+        except ModelNotSupported:
+            pass
+        except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
+            errors[backend.name] = f"{type(exc).__name__}: {exc}"
+        if clock is not None:
+            clock.setdefault(backend.name, []).append(time.perf_counter() - start)
+    breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
+    return StateOutcome(state, splits, errors, {}, breakdowns)
+
+
 def evaluate(model: Model, state: State, backends: Sequence[Formalism],
              clock: dict[str, list[float]] | None = None) -> StateOutcome:
     """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table.
@@ -124,24 +153,12 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
     out of the comparisons (all, or the quantities the condition concerns) and of the tolerance scales: its answer
     is not trusted there, and it is not a bug. A backend that raises ``ModelNotSupported`` (written for other
     mechanisms) is NOT COMPARED: it joins every comparison as UNSUPPORTED, so the report lists it as not supplied.
+    The tolerance scales of the trusted splits are kept in ``outcome.scales`` for the checks (:func:`add_checks`).
     """
-    splits: dict[str, Split] = {}
-    errors: dict[str, str] = {}
-    unsupported: list[str] = []
-    for backend in backends:
-        start = time.perf_counter()
-        try:
-            splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
-        except ModelNotSupported:
-            unsupported.append(backend.name)
-        except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
-            errors[backend.name] = f"{type(exc).__name__}: {exc}"
-        if clock is not None:
-            clock.setdefault(backend.name, []).append(time.perf_counter() - start)
-    breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
-    outcome = StateOutcome(state, splits, errors, {}, breakdowns)
+    outcome = run_backends(model, state, backends, clock)
+    unsupported = [b.name for b in backends if b.name not in outcome.splits and b.name not in outcome.errors]
     if outcome.trusted:
-        at = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
+        at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
         for quantity in tolerance_policy.quantities(model):
             values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
             values.update(dict.fromkeys(unsupported, UNSUPPORTED))
@@ -155,18 +172,22 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
                case_charts: Sequence[chart_catalog.Chart], scene: tuple[frames.Frame, Model] | None,
                do_conservation: bool) -> None:
     """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
-    checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there."""
+    checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there. The
+    trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check."""
     state, trusted = outcome.state, outcome.trusted
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
+    if trusted and outcome.scales is None:
+        outcome.scales = tolerance_policy.scales(trusted.values(), model, state.q, state.qd)
     for chart in case_charts:
-        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors))
+        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors,
+                                                      outcome.scales))
     if scene is not None:
         frame, moved = scene
-        there = evaluate(moved, state, backends)
+        there = run_backends(moved, state, backends)
         outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
-        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted))
+        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales))
     if do_conservation and trusted:
-        outcome.checks.update(conservation.checks(model, state, trusted))
+        outcome.checks.update(conservation.checks(model, state, trusted, outcome.scales))
 
 
 @dataclass(frozen=True)
@@ -217,7 +238,62 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> GateResult:
-    """Run the gate over the cases; the result passes when no state shows a disagreement or an error."""
-    outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
+             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks(),
+             workers: int = 0) -> GateResult:
+    """Run the gate over the cases; the result passes when no state shows a disagreement or an error.
+
+    ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
+    outcomes are the same as in this process and come back in case order, so the report is too (its timings
+    apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
+    run in this process. ``progress`` is then called once per case, when its outcome is in."""
+    count = min(workers, len(specs))
+    if count > 1 and _picklable(backends):
+        outcomes = _in_pool(specs, backends, samples, seed, progress, checks, count)
+    else:
+        outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
     return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks)
+
+
+def _picklable(backends: Sequence[Formalism]) -> bool:
+    try:
+        pickle.dumps(list(backends))
+    except Exception:  # any object a user registers: pickling may fail in many ways
+        return False
+    return True
+
+
+_BACKENDS: list[Formalism] = []
+_LIMITS = None
+
+
+def _init_worker(chosen: list[Formalism], plugins: Sequence[str]) -> None:
+    """A worker process: one BLAS thread, the parent's plugins, the backends of the run."""
+    global _LIMITS
+    from threadpoolctl import threadpool_limits
+
+    _LIMITS = threadpool_limits(limits=1, user_api="blas")
+    load_plugins(plugins)
+    _BACKENDS[:] = chosen
+
+
+def _worker_case(spec: CaseSpec, samples: int, seed: int, checks: Checks) -> CaseOutcome:
+    return run_case(spec, _BACKENDS, samples, seed, None, checks)
+
+
+def _in_pool(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
+             progress: Callable[[str, int], None] | None, checks: Checks, workers: int) -> list[CaseOutcome]:
+    """The cases in ``workers`` spawned processes, the largest models (most coordinates) first so that no worker
+    is left with a large case at the end; outcomes in case order."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    order = sorted(range(len(specs)), key=lambda k: -specs[k].build().n)
+    with ctx.Pool(workers, initializer=_init_worker,
+                  initargs=(list(backends), plugin_specs())) as pool:
+        pending = {k: pool.apply_async(_worker_case, (specs[k], samples, seed, checks)) for k in order}
+        outcomes = []
+        for k, spec in enumerate(specs):
+            outcomes.append(pending[k].get())
+            if progress:
+                progress(spec.name, samples)
+    return outcomes

@@ -70,19 +70,25 @@ FRAME_LAWS: dict[str, str | None] = {
 }
 
 
-def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str):
-    """A joint-chart answer expressed in the chart."""
+def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict | None = None):
+    """A joint-chart answer expressed in the chart; ``done`` keeps the maps already made for this split (the
+    additivity is the mapped drift plus the mapped ctrl minus the mapped total, each mapped once)."""
+    done = {} if done is None else done
+    if quantity in done:
+        return done[quantity]
     if quantity in ("drift", "total"):
-        return charts.acceleration_to_chart(chart, p, pd, split.quantity(quantity))
-    if quantity == "ctrl":
-        return charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
-    if quantity == "additivity":
-        return (charts.acceleration_to_chart(chart, p, pd, split.drift)
-                + charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
-                - charts.acceleration_to_chart(chart, p, pd, split.total))
-    if quantity in ("constraint_force", "constraint_force_drift"):
-        return charts.force_to_chart(chart, p, split.quantity(quantity))
-    return split.quantity(quantity)          # power, energy, task accelerations, multipliers, phi: no map
+        value = charts.acceleration_to_chart(chart, p, pd, split.quantity(quantity))
+    elif quantity == "ctrl":
+        value = charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
+    elif quantity == "additivity":
+        value = (_mapped(chart, p, pd, split, "drift", done) + _mapped(chart, p, pd, split, "ctrl", done)
+                 - _mapped(chart, p, pd, split, "total", done))
+    elif quantity in ("constraint_force", "constraint_force_drift"):
+        value = charts.force_to_chart(chart, p, split.quantity(quantity))
+    else:
+        value = split.quantity(quantity)     # power, energy, task accelerations, multipliers, phi: no map
+    done[quantity] = value
+    return value
 
 
 def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence[float]) -> float:
@@ -92,9 +98,11 @@ def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence[f
 
 
 def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping[str, Split],
-                 backends: Sequence[Formalism], errors: dict[str, str]) -> dict[str, Comparison]:
+                 backends: Sequence[Formalism], errors: dict[str, str],
+                 joint_scales: policy.Scales | None = None) -> dict[str, Comparison]:
     """Chart invariance at ``state``: the chart-capable ``backends`` evaluated in p against every trusted
-    joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``."""
+    joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``. ``joint_scales``:
+    ``tolerance.scales`` of ``joint`` at the state when the caller has them (computed here otherwise)."""
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     p = chart.p_of(q)
     pd = charts.velocity_to_chart(chart, p, qd)
@@ -111,14 +119,19 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     if not native or not joint:
         return {}
     gain = float(np.linalg.norm(np.linalg.inv(chart.jacobian(p)), 2))
-    at = [policy.scales(native.values(), model, q, qd), policy.scales(joint.values(), model, q, qd)]
+    if joint_scales is None:
+        joint_scales = policy.scales(joint.values(), model, q, qd)
+    at = [policy.scales(native.values(), model, q, qd), joint_scales]
     out = {}
+    done: dict[str, dict] = {name: {} for name in joint}
+    left_out = {name: policy.left_out(policy.breakdown(split)) for name, split in (*joint.items(), *native.items())}
     for quantity in _invariant(model):
         if all(isinstance(split.quantity(quantity), Unsupported) for split in native.values()):
             continue                        # no answer from the chart itself: nothing the joint chart has not
-        values = {name: _mapped(chart, p, pd, split, quantity) for name, split in joint.items()
-                  if _votes(split, quantity)}
-        values.update({name: split.quantity(quantity) for name, split in native.items() if _votes(split, quantity)})
+        values = {name: _mapped(chart, p, pd, split, quantity, done[name]) for name, split in joint.items()
+                  if quantity not in left_out[name]}
+        values.update({name: split.quantity(quantity) for name, split in native.items()
+                       if quantity not in left_out[name]})
         gains = (1.0, gain) if quantity in ("drift", "ctrl", "total", "additivity") else (1.0, 1.0)
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, _tolerance(quantity, at, gains))
     return out
@@ -137,10 +150,12 @@ def _load_scale(model: Model, u: np.ndarray) -> float:
 
 
 def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapping[str, Split],
-                 moved: Mapping[str, Split]) -> dict[str, Comparison]:
+                 moved: Mapping[str, Split], original_scales: policy.Scales | None = None) -> dict[str, Comparison]:
     """Frame invariance at ``state``: each backend's split of the moved scene (``moved``) against the unmoved
     splits (``original``), for the joint quantities (all backends vote together) and, per backend, for each
-    extra with a law in :data:`FRAME_LAWS` (the prediction from the unmoved extra against the moved one)."""
+    extra with a law in :data:`FRAME_LAWS` (the prediction from the unmoved extra against the moved one).
+    ``original_scales``: ``tolerance.scales`` of all of ``original`` when the caller has them (used when every
+    original backend is also in ``moved``)."""
     q, qd = np.array(state.q), np.array(state.qd)
     both = [name for name in original if name in moved]
     if not both:
@@ -151,8 +166,9 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     # exactly 0) but rounds on |t| moved (a fuzz finding): the moved scene's task lever adds |t|.
     reach = 1.0 + float(np.linalg.norm(frame.translation))
     there = policy.scales([moved[n] for n in both], model, q, qd)
-    at = [policy.scales([original[n] for n in both], model, q, qd),
-          dataclasses.replace(there, lever=there.lever + reach - 1.0)]
+    if original_scales is None or len(both) < len(original):
+        original_scales = policy.scales([original[n] for n in both], model, q, qd)
+    at = [original_scales, dataclasses.replace(there, lever=there.lever + reach - 1.0)]
     out = {}
     for quantity in _invariant(model):
         values = {name: original[name].quantity(quantity) for name in both if _votes(original[name], quantity)}

@@ -266,9 +266,10 @@ def _median(values) -> float:
     return float(statistics.median(values)) if values else 0.0
 
 
-def _load_scales(model, splits, q, qd) -> dict[str, float]:
+def _load_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
     """The sums of magnitudes in the joint loads at the total and at the drift (module doc), without cond(M), over
-    the splits that supply the loads (none: no load scale, as in a chart, where no backend reports them)."""
+    the splits that supply the loads (none: no load scale, as in a chart, where no backend reports them);
+    ``rounding``: :func:`_lam_rounding` of each constrained split, by ``id``."""
     splits = [s for s in splits if not isinstance(s.joint_wrenches, Unsupported)]
     if not splits:
         return {}
@@ -283,7 +284,7 @@ def _load_scales(model, splits, q, qd) -> dict[str, float]:
         multipliers = [float(np.abs(s.quantity(lam)).sum()) for s in constrained]
         # lam's own rounding (the multiplier tolerance, module doc), whatever |lam| is: a nearly vacuous row (S tiny)
         # gives lam = 5.6 with lam_scale = 5e10, a circle row near tangency lam = -6e7 with Jc = 2.5e-8 (fuzz findings)
-        lam_error = _median([s.lam_scale + _lam_rounding(model, s) for s in constrained])
+        lam_error = _median([s.lam_scale + rounding[id(s)] for s in constrained])
         out[kind] = (lever * (_median([float(np.abs(s.quantity(acceleration)).sum()) for s in splits]) + rate_sq)
                      + (1.0 + R) * (constants.weight + constants.gain * (cond_S * _median(multipliers) + lam_error))
                      + _median([float(np.abs(s.quantity(load)).max()) for s in splits]))
@@ -300,10 +301,20 @@ def _task_condition(split) -> float:
     return float(eig[-1] / eig[0]) if eig[0] > 0.0 else float("inf")
 
 
+_MINV: dict[int, tuple[weakref.ref, bytes, float]] = {}   # id(model) -> (the model, q's bytes, ||M^-1||): last q
+
+
 def _minv_norm(model, q) -> float:
-    """``||M^-1||_2`` at q from Pinocchio's CRBA (``crosscheck.reference.mass_matrix``)."""
-    from crosscheck.reference import mass_matrix
-    return 1.0 / float(np.linalg.eigvalsh(mass_matrix(model, q))[0])
+    """``||M^-1||_2`` at q from Pinocchio's CRBA (``crosscheck.reference.mass_matrix``); the value at the model's
+    last q is kept, since the gate asks for it several times per state (joint chart, charts, moved scene)."""
+    key = np.asarray(q, dtype=float).tobytes()
+    entry = _MINV.get(id(model))
+    if entry is None or entry[0]() is not model or entry[1] != key:
+        from crosscheck.reference import mass_matrix
+        value = 1.0 / float(np.linalg.eigvalsh(mass_matrix(model, q))[0])
+        ident = id(model)
+        entry = _MINV[ident] = (weakref.ref(model, lambda _, ident=ident: _MINV.pop(ident, None)), key, value)
+    return entry[2]
 
 
 def _task_inertia_scales(splits) -> dict[str, float]:
@@ -322,20 +333,22 @@ def scales(splits, model=None, q=None, qd=None) -> Scales:
     """Median scales over the backends' splits (an iterable of Split); the task and load scales need the model and
     the state (``q``, ``qd``)."""
     splits = list(splits)
+    constrained = [s for s in splits if s.constraint_jacobian is not None]
+    rounding = {} if model is None else {id(s): _lam_rounding(model, s) for s in constrained}
     task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2,
-                                     "minv": _minv_norm(model, q), **_load_scales(model, splits, q, qd)}
+                                     "minv": _minv_norm(model, q), **_load_scales(model, splits, q, qd, rounding)}
     task.update(_task_inertia_scales(splits))
     energies = [s.kinetic_energy for s in splits if not isinstance(s.kinetic_energy, Unsupported)]
-    constrained = [s for s in splits if s.constraint_jacobian is not None]
     if model is not None and constrained:
-        task.update(_constraint_scales(model, constrained, q, qd))
+        task.update(_constraint_scales(model, constrained, q, qd, rounding))
     return Scales(cond_M=_median([s.cond_M for s in splits]), accel_scale=_median([s.accel_scale for s in splits]),
                   power_scale=_median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits]),
                   energy=_median(energies), **task)
 
 
-def _constraint_scales(model, splits, q, qd) -> dict[str, float]:
-    """The constraint part of :class:`Scales` (module doc), medians over the constrained splits."""
+def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
+    """The constraint part of :class:`Scales` (module doc), medians over the constrained splits (``rounding``:
+    :func:`_lam_rounding` of each, by ``id``)."""
     length = _loads(model).length
     jc_max = _median([float(np.abs(s.constraint_jacobian).max()) for s in splits])
     return {"cond_S": _median([s.conditions.get("constraint_kept", 1.0) for s in splits]),
@@ -343,7 +356,7 @@ def _constraint_scales(model, splits, q, qd) -> dict[str, float]:
             "jc": _median([float(np.abs(s.constraint_jacobian).sum(axis=0).max()) for s in splits]),
             "kinematics": length**2 * (model.n + 1) + jc_max * (1.0 + float(np.abs(q).sum())),
             "rate": float(np.abs(qd).sum()),
-            "lam_rounding": _median([_lam_rounding(model, s) for s in splits])}
+            "lam_rounding": _median([rounding[id(s)] for s in splits])}
 
 
 def _lam_rounding(model, split) -> float:
@@ -358,7 +371,7 @@ def _lam_rounding(model, split) -> float:
     size = max(float(np.abs(split.lam).sum()), float(np.abs(split.lam_drift).sum()))
     if not (np.isfinite(size) and sigma[rank - 1] > 0.0):
         return 0.0                   # an answer that is not finite fails on its own; it must not blur the tolerance
-    return size * model.length_scale * (model.n + 1) / float(sigma[rank - 1])
+    return size * _loads(model).length * (model.n + 1) / float(sigma[rank - 1])
 
 
 def tolerance(quantity: str, at: Scales) -> float:

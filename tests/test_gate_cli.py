@@ -12,7 +12,7 @@ import pytest
 import cases
 import formalisms.newton_euler as ne
 from closed_forms import pendulum_terms
-from crosscheck import backends, cli
+from crosscheck import backends, cli, gate
 from crosscheck.compare import DISAGREE
 from crosscheck.gate import CaseSpec, run_gate
 from crosscheck.report import render
@@ -41,6 +41,33 @@ def test_gate_passes_and_is_reproducible(tmp_path):
     assert _without_timing(first) == _without_timing(second)
     _, other_seed = _gate(tmp_path, "--case", "double_pendulum", "--case", "acrobot", "--samples", "15", "--seed", "4")
     assert _without_timing(first) != _without_timing(other_seed)
+
+
+def test_workers_give_the_same_report_with_the_cases_in_order(tmp_path, monkeypatch):
+    """Cases in two spawned processes (the larger model, n_link_pendulum, starts first): the report of one process,
+    timings apart, cases in the order given."""
+    pooled, real = [], gate._in_pool
+    monkeypatch.setattr(gate, "_in_pool", lambda *args: pooled.append(args[0]) or real(*args))
+    args = ("--case", "double_pendulum", "--case", "n_link_pendulum", "--samples", "4", "--seed", "2")
+    code, alone = _gate(tmp_path, *args, "--workers", "1")
+    assert code == 0 and not pooled
+    code, together = _gate(tmp_path, *args, "--workers", "2")
+    assert code == 0 and len(pooled) == 1
+    assert _without_timing(together).replace("--workers 2", "--workers 1") == _without_timing(alone)
+    timing = together.split("## Timing")[1]
+    assert 0 < timing.index("| double_pendulum |") < timing.index("| n_link_pendulum |")
+
+
+def test_backends_another_process_cannot_take_run_in_this_one(monkeypatch):
+    """A backend that cannot be pickled (a lambda) keeps every case in this process, whatever ``workers`` says."""
+    pooled, real = [], gate._in_pool
+    monkeypatch.setattr(gate, "_in_pool", lambda *args: pooled.append(args[0]) or real(*args))
+    local = Formalism("newton_euler", "a lambda", lambda model, q, qd, u: ne.split(model, q, qd, u))
+    chosen = [backends.get("euler_lagrange"), local, backends.get("pinocchio")]
+    result = run_gate([CaseSpec("acrobot"), CaseSpec("double_pendulum")], chosen, samples=2, seed=0, workers=2)
+    assert not pooled and result.passed
+    assert [c.spec.name for c in result.cases] == ["acrobot", "double_pendulum"]
+    assert all("newton_euler" in s.splits for c in result.cases for s in c.states)
 
 
 def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis, capsys):
@@ -114,6 +141,7 @@ def test_eval_json_matches_article_closed_form(capsys):
     (["eval", "--case", "double_pendulum", "--q=0,0", "--formalism", "hamilton"], "valid: euler_lagrange"),
     (["eval", "--model", "/no/such/robot.urdf", "--q=0"], "/no/such/robot.urdf"),
     (["gate", "--samples", "0"], "--samples must be at least 1"),
+    (["gate", "--workers", "0"], "--workers must be at least 1"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_exits_2_with_one_line(argv, fragment, capsys):
