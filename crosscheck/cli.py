@@ -1,4 +1,4 @@
-"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge.
+"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench.
 
 Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage.
 """
@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -129,8 +130,10 @@ def cmd_gate(args) -> int:
 
     if args.frames < 0:
         raise UsageError("--frames must be 0 (off) or more")
+    if args.workers < 1:
+        raise UsageError("--workers must be at least 1 (1: every case in this process)")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation)
-    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks)
+    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers)
     applied = registry.apply(known, result) if known else None
     diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
@@ -411,6 +414,36 @@ def cmd_merge(args) -> int:
     return 1 if result.findings else 0
 
 
+def cmd_stability(args) -> int:
+    """``crosscheck stability``: true errors, condition numbers and the gate's verdicts along paths into trouble
+    (``crosscheck.stability``), written to DIR/stability.md and its charts. Exit 0: it measures."""
+    from crosscheck import stability
+
+    report = stability.write_report(Path(args.out), quick=args.quick,
+                                    progress=lambda path, i, n: print(f"{path}: {i}/{n}", file=sys.stderr,
+                                                                      flush=True))
+    print(f"stability: {report}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    """``crosscheck bench``: time and error of every backend (reports/speed_accuracy.md and its charts), then the
+    stability maps (reports/stability.md), so one command regenerates both reports. Exit 0: it measures."""
+    from crosscheck import bench, bench_report
+
+    plan = bench.QUICK if args.quick else bench.FULL
+    names = args.formalism or None
+    for name in names or []:
+        backends.get(name)
+    results = bench.run(plan, names, getattr(args, "plugin", []),
+                        log=lambda line: print(line, file=sys.stderr, flush=True))
+    print(f"speed and accuracy: {bench_report.write(results, Path(args.out))}")
+    if not args.no_stability:
+        from crosscheck import stability
+        print(f"stability: {stability.write_report(Path(args.out), quick=args.quick)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="crosscheck", description="Cross-formalism verification of rigid multibody dynamics.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -434,6 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
     gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
+    gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                      help="cases run in this many processes (default: the number of CPUs; 1: in this process)")
     add_plugin_option(gate)
     gate.set_defaults(run=cmd_gate)
 
@@ -502,6 +537,20 @@ def build_parser() -> argparse.ArgumentParser:
     mg.add_argument("dirs", nargs="+", metavar="DIR", help="campaign directories (shards of one campaign)")
     mg.add_argument("--out", required=True, metavar="DIR", help="the merged campaign directory")
     mg.set_defaults(run=cmd_merge)
+
+    bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (reports/)")
+    bn.add_argument("--quick", action="store_true", help="few scenes, states and repeats (CI; about a minute)")
+    bn.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
+    bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
+    add_plugin_option(bn)
+    bn.set_defaults(run=cmd_bench)
+
+    st = sub.add_parser("stability", help="true errors and condition numbers along paths into trouble "
+                        "(reports/stability.md)")
+    st.add_argument("--quick", action="store_true", help="a few points per path (CI; well under a minute)")
+    st.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    st.set_defaults(run=cmd_stability)
     return parser
 
 

@@ -40,8 +40,9 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, check_state, conditioning, constrained_split, redundant_below,
-                                  singular_below, unconstrained_split)
+from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
+                                  constrained_split, redundant_below, singular_below, split_batch_by_loop,
+                                  unconstrained_split)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -383,11 +384,47 @@ def _pinv_sym(model: Model, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (U[:, keep] / w[keep]) @ U[:, keep].T, U[:, keep]
 
 
+_POOLS: dict[str, tuple] = {}
+
+
+def _pools(model: Model) -> tuple:
+    """Pinocchio ModelPools of the model and of a gravity-free copy (for ``M^-1 tau = ABA(q, 0, tau)``), cached."""
+    key, pm = model.digest(), _compiled(model).model
+    with _LOCK:
+        if key not in _POOLS:
+            still = pin.Model(pm)
+            still.gravity = pin.Motion.Zero()
+            _POOLS[key] = (pin.ModelPool(pm, 1), pin.ModelPool(still, 1))
+    return _POOLS[key]
+
+
+def split_batch(model: Model, Q, QD, U) -> SplitBatch:
+    """N states with Pinocchio's batched ABA (``abaInParallel`` on one thread): total ``ABA(q, qd, B u)``, drift
+    ``ABA(q, qd, 0)``, ctrl ``ABA(q, 0, B u)`` of the gravity-free model, which is ``M^-1 B u`` (eq. 9) computed
+    directly. A constrained model goes state by state through :func:`split` (Pinocchio's KKT solve has no batched
+    form in its Python API)."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    if model.constraints or not len(Q):
+        return split_batch_by_loop(split)(model, Q, QD, U)
+    order = _compiled(model).order
+    pool, still = _pools(model)
+    qp, vp = np.asfortranarray(Q[:, order].T), np.asfortranarray(QD[:, order].T)
+    tp = np.asfortranarray((U @ model.input_map.T)[:, order].T)
+    rest = np.zeros_like(vp)
+    out = {}
+    for name, (p, v, t) in {"total": (pool, vp, tp), "drift": (pool, vp, rest), "ctrl": (still, rest, tp)}.items():
+        a = np.empty_like(vp)
+        a[order] = np.reshape(pin.abaInParallel(1, p, qp, v, t), vp.shape)
+        out[name] = a.T
+    return SplitBatch(**out)
+
+
 REFERENCE = Formalism(
     name="pinocchio",
     summary="External reference: Pinocchio's ABA (total, drift), CRBA (ctrl by Cholesky), RNEA (conditioning), "
             "built from our model data",
     split=split,
+    split_batch=split_batch,
 )
 
 __all__ = ["REFERENCE", "constraint_kinematics", "split", "to_pinocchio"]

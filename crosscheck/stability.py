@@ -1,0 +1,308 @@
+"""Stability maps (issue 7, item 3): true errors and condition numbers along paths into trouble.
+
+Each path (:func:`paths`) walks one model or family of models towards a place where some method degrades: the
+double pendulum's task singularity theta2 -> 0 (article 6.3.4), the parallelogram four-bar's change point (5.6),
+extreme mass ratios, long chains, large velocities. At every point every backend's split is measured against the
+exact split of :mod:`crosscheck.precise` (its true error in drift, ctrl, total and, with constraints, lam), next to
+the condition numbers that matter (cond M; cond(J M^-1 J^T) of the operational-space task; cond S of the
+constraints) and the gate's own verdict at that state: :meth:`crosscheck.gate.CaseSetup.evaluate`, the same
+comparisons, tolerances, BREAKDOWN rule and checks as ``crosscheck gate``.
+
+Per point and backend a true error above the gate's tolerance for that quantity is
+
+* ``flagged`` when the backend does not vote on the quantity there (BREAKDOWN: the gate said not to trust it);
+* ``caught`` when the gate's comparison of the quantity is a DISAGREE naming a pair the backend is in;
+* ``silent`` otherwise: the tolerance policy let a real error through (a finding).
+
+A DISAGREE (or a failing check, or a backend error) while every true error is within its tolerance is a false
+alarm. :func:`write_report` writes ``stability.md`` and one ``stability_<path>.png`` per path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path as FilePath
+from typing import Sequence
+
+import numpy as np
+
+from crosscheck import backends as backend_registry
+from crosscheck import gate, precise, tolerance
+from crosscheck.compare import DISAGREE, backend_of
+from crosscheck.sampling import State, project_configuration, project_velocity
+from formalisms.interface import Formalism, Unsupported
+
+#: The quantities measured against the exact split (lam on constrained models only).
+QUANTITIES = ("drift", "ctrl", "total", "lam")
+#: Seed of the gate's sampled charts and frames at every point.
+SEED = 0
+#: Chain length above which a backend is left out of the long-chain path: its one-off preparation grows too fast
+#: (cold, on the 2-core development machine: Euler–Lagrange derivation 16 s at n = 20, 40 s at 25, 89 s at 30;
+#: the geometric backend's casadi graph 4 s, 8 s, 25 s, rebuilt in every process).
+PREPARATION_CAP = {"euler_lagrange": 20, "geometric": 20}
+#: The double pendulum's state on its paths (besides the coordinate a path moves).
+DP_Q, DP_QD, DP_U = (0.7, 0.5), (1.5, -2.0), (3.0, -1.0)
+
+FULL_CHECKS = gate.Checks()
+CHAIN_CHECKS = gate.Checks(charts=False, frames=0)      # re-deriving a long chain per chart or frame costs minutes
+COMPARISONS_ONLY = gate.Checks(charts=False, frames=0, conservation=False)  # conservation builds geometric's graph
+
+
+@dataclass(frozen=True)
+class Point:
+    """One state on a path: the path parameter ``x``, the case, the state, the backends evaluated and the gate's
+    checks."""
+
+    x: float
+    spec: gate.CaseSpec
+    state: State
+    backends: tuple[str, ...]
+    checks: gate.Checks = FULL_CHECKS
+
+
+@dataclass(frozen=True)
+class Path:
+    """A sequence of points into trouble; ``conditions`` are the condition names shown besides cond M."""
+
+    name: str
+    title: str
+    parameter: str
+    conditions: tuple[str, ...]
+    points: tuple[Point, ...]
+    note: str = ""
+
+
+def _points(spec_of, state_of, xs, names, checks=FULL_CHECKS) -> tuple[Point, ...]:
+    return tuple(Point(float(x), spec_of(x), State(i, *state_of(x)), tuple(names), checks) for i, x in enumerate(xs))
+
+
+def theta2_path(count: int, names: Sequence[str]) -> Path:
+    """Double pendulum at q = (0.7, theta2), theta2 from 1 down to 1e-12: the task Jacobian of the tip goes
+    singular (the stretched pendulum, article 6.3.4)."""
+    xs = np.logspace(0, -12, count)
+    return Path("theta2", "Task singularity: double pendulum, theta2 -> 0", "theta2 (rad)", ("task",),
+                _points(lambda x: gate.CaseSpec("double_pendulum"), lambda x: ((DP_Q[0], x), DP_QD, DP_U), xs, names))
+
+
+def four_bar_state(delta: float) -> tuple[tuple, tuple, tuple]:
+    """The parallelogram four-bar (the default 1-2-1-2) on its parallelogram branch q = (a, pi/2 - a, a), crank
+    angle a = pi/2 - delta, ``delta`` from the change point q = (pi/2, 0, pi/2) where the loop Jacobian loses rank;
+    q polished onto phi = 0 and qd = 1.3 (1, -1, 1) projected onto Jc qd = 0 (``crosscheck.sampling``)."""
+    import cases
+
+    model = cases.load("four_bar")
+    a = np.pi / 2 - delta
+    q = project_configuration(model, (a, np.pi / 2 - a, a))
+    qd = project_velocity(model, q, 1.3 * np.array([1.0, -1.0, 1.0]))
+    return tuple(q.tolist()), tuple(qd.tolist()), (2.0, -1.0, 0.5)
+
+
+def four_bar_path(count: int, names: Sequence[str]) -> Path:
+    """The parallelogram four-bar approaching its change point, delta from 1 down to 1e-10 rad."""
+    xs = np.logspace(0, -10, count)
+    return Path("four_bar", "Change point: parallelogram four-bar", "delta = pi/2 - crank angle (rad)",
+                ("constraint", "task"), _points(lambda x: gate.CaseSpec("four_bar"), four_bar_state, xs, names))
+
+
+def mass_ratio_path(count: int, names: Sequence[str]) -> Path:
+    """Double pendulum with m1 = 1 and m2 from 1e-6 to 1e6 kg."""
+    xs = np.logspace(-6, 6, count)
+    return Path("mass_ratio", "Mass ratio: double pendulum, m2/m1 from 1e-6 to 1e6", "m2 / m1", ("task",),
+                _points(lambda x: gate.CaseSpec("double_pendulum", (("m2", repr(float(x))),)),
+                        lambda x: (DP_Q, DP_QD, DP_U), xs, names))
+
+
+def chain_state(n: int) -> tuple[tuple, tuple, tuple]:
+    """The first n entries of one seeded draw: q uniform in +-pi, qd in +-1 rad/s, u in +-10 (one input per joint)."""
+    rng = np.random.default_rng(SEED)
+    q, qd, u = rng.uniform(-np.pi, np.pi, 60), rng.uniform(-1.0, 1.0, 60), rng.uniform(-10.0, 10.0, 60)
+    return tuple(q[:n].tolist()), tuple(qd[:n].tolist()), tuple(u[:n].tolist())
+
+
+def chain_path(ns: Sequence[int], names: Sequence[str]) -> Path:
+    """n_link_pendulum for the given chain lengths (at most 60); a backend of :data:`PREPARATION_CAP` only up to its
+    cap, the energy checks only while the geometric backend is evaluated."""
+    if max(ns) > 60:
+        raise ValueError(f"chain_path: chain lengths up to 60 are supported, got {max(ns)}")
+    points = []
+    for i, n in enumerate(ns):
+        kept = tuple(b for b in names if n <= PREPARATION_CAP.get(b, n))
+        checks = CHAIN_CHECKS if "geometric" in kept else COMPARISONS_ONLY
+        points.append(Point(float(n), gate.CaseSpec("n_link_pendulum", (("n", str(n)),)), State(i, *chain_state(n)),
+                            kept, checks))
+    capped = ", ".join(f"{b} up to n = {cap}" for b, cap in PREPARATION_CAP.items() if b in names)
+    note = (f"Chart and frame checks are off on this path (each re-derives the chain); {capped} (their one-off "
+            "preparation grows too fast: cold, Euler–Lagrange's symbolic derivation took 16 s at n = 20, 40 s at 25 "
+            "and 89 s at 30; the geometric backend's casadi graph 4 s, 8 s and 25 s); beyond that the energy "
+            "checks are off too (they use the geometric backend's energy).")
+    return Path("chain", "Long chains: n_link_pendulum", "n (links)", ("task",), tuple(points), note)
+
+
+def velocity_path(count: int, names: Sequence[str]) -> Path:
+    """Double pendulum with qd = s (1.5, -2.0), s from 1 to 1e6."""
+    xs = np.logspace(0, 6, count)
+    return Path("velocity", "Large velocities: double pendulum, qd scaled by s", "s (qd = s qd0)", ("task",),
+                _points(lambda x: gate.CaseSpec("double_pendulum"),
+                        lambda x: (DP_Q, tuple(x * v for v in DP_QD), DP_U), xs, names))
+
+
+def paths(quick: bool, names: Sequence[str]) -> list[Path]:
+    """The five paths: a handful of points each when ``quick`` (CI), else 16 to 30."""
+    ns = (2, 4, 8) if quick else (2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 60)
+    return [theta2_path(5 if quick else 25, names), four_bar_path(5 if quick else 21, names),
+            mass_ratio_path(5 if quick else 25, names), chain_path(ns, names), velocity_path(4 if quick else 16, names)]
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One point: conditions (``"M"``: cond M, and each condition a backend reports, the median over reporters),
+    per backend and quantity the relative true error and the absolute true error over the gate's tolerance (NaN
+    where the gate compared nothing), the gate's tolerance per quantity, the verdict per backend (agree, DISAGREE,
+    BREAKDOWN, ERROR) with the broken conditions, the (backend, quantity) pairs above tolerance by kind
+    (``flagged``, ``caught``, ``silent``: module doc), the gate's alarms and its worst error/tolerance ratio."""
+
+    point: Point
+    conditions: dict[str, float]
+    errors: dict[str, dict[str, float]]
+    ratios: dict[str, dict[str, float]]
+    tolerances: dict[str, float]
+    verdicts: dict[str, str]
+    breakdowns: dict[str, dict[str, float]]
+    over: dict[str, tuple[tuple[str, str], ...]]
+    alarms: tuple[str, ...]
+    worst_ratio: float
+
+    @property
+    def false_alarm(self) -> bool:
+        return bool(self.alarms) and not any(self.over.values())
+
+    def voting_ratio(self) -> float:
+        """The largest true error / tolerance of a backend on a quantity it votes on (0 when none)."""
+        return max((r for b, rs in self.ratios.items() for q, r in rs.items()
+                    if q not in self.left_out(b) and r == r), default=0.0)
+
+    def left_out(self, backend: str) -> set[str]:
+        """The quantities ``backend`` does not vote on here (all when wholly in BREAKDOWN or in error)."""
+        if self.verdicts.get(backend) == "ERROR":
+            return set(QUANTITIES)
+        broken = self.breakdowns.get(backend, {})
+        return set(QUANTITIES) if tolerance.whole(broken) else tolerance.left_out(broken) & set(QUANTITIES)
+
+
+def _conditions(outcome: gate.StateOutcome) -> dict[str, float]:
+    out = {"M": statistics.median(s.cond_M for s in outcome.splits.values())} if outcome.splits else {}
+    reported: dict[str, list[float]] = {}
+    for split in outcome.splits.values():
+        for name, value in split.conditions.items():
+            reported.setdefault(name, []).append(float(value))
+    out.update({name: float(statistics.median(values)) for name, values in reported.items()})
+    return out
+
+
+def _in_disagreement(outcome: gate.StateOutcome, backend: str, quantities=None) -> bool:
+    """Whether ``backend`` is in a disagreeing pair of a comparison (of ``quantities``, default all and the checks)."""
+    comps = ([outcome.comparisons[q] for q in quantities if q in outcome.comparisons] if quantities is not None
+             else [*outcome.comparisons.values(), *outcome.checks.values()])
+    return any(backend in (backend_of(a), backend_of(b)) for c in comps if c.verdict == DISAGREE
+               for a, b in c.disagreeing_pairs)
+
+
+def _verdict(outcome: gate.StateOutcome, backend: str) -> str:
+    if backend in outcome.errors:
+        return "ERROR"
+    if backend in outcome.breakdowns:
+        return "BREAKDOWN"
+    return DISAGREE if _in_disagreement(outcome, backend) else "agree"
+
+
+def _true_errors(splits, exact: precise.PreciseSplit) -> dict[str, dict[str, tuple[float, float]]]:
+    """Per backend and quantity: (relative error, absolute max-norm error) against the exact split."""
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for name, split in splits.items():
+        for quantity in QUANTITIES:
+            value, truth = split.quantity(quantity), getattr(exact, quantity)
+            if truth is None or value is None or isinstance(value, Unsupported):
+                continue
+            relative = precise.relative_error(value, truth)
+            size = float(np.abs(exact.floats(quantity)).max(initial=0.0))
+            out.setdefault(name, {})[quantity] = (relative, relative * size if size else relative)
+    return out
+
+
+def measure(point: Point, setup: gate.CaseSetup, formalisms: Sequence[Formalism]) -> Measurement:
+    """Everything at one point: the gate's evaluation at the state, the exact split, and their comparison."""
+    state, model = point.state, setup.model
+    outcome = setup.evaluate(state, formalisms)
+    exact = precise.split(model, state.q, state.qd, state.u)
+    true = _true_errors(outcome.splits, exact)
+    tolerances = {q: c.tolerance for q, c in outcome.comparisons.items() if q in QUANTITIES}
+    ratios = {b: {q: (err / tolerances[q] if q in tolerances else float("nan")) for q, (_, err) in qs.items()}
+              for b, qs in true.items()}
+    verdicts = {b.name: _verdict(outcome, b.name) for b in formalisms}
+    alarms = tuple([f"{name}: {c.worst_ratio:.3g}" for name, c in [*outcome.comparisons.items(),
+                                                                     *outcome.checks.items()]
+                    if c.verdict == DISAGREE] + [f"{b} raised {m}" for b, m in outcome.errors.items()])
+    m = Measurement(point, _conditions(outcome), {b: {q: rel for q, (rel, _) in qs.items()} for b, qs in true.items()},
+                    ratios, tolerances, verdicts, dict(outcome.breakdowns), {}, alarms, outcome.worst_ratio)
+    return dataclasses.replace(m, over=_over(m, outcome))
+
+
+def _over(m: Measurement, outcome: gate.StateOutcome) -> dict[str, tuple[tuple[str, str], ...]]:
+    """The (backend, quantity) pairs whose true error is above the gate's tolerance (or not finite), by kind."""
+    kinds: dict[str, list[tuple[str, str]]] = {"flagged": [], "caught": [], "silent": []}
+    for backend, rs in m.ratios.items():
+        for quantity, ratio in rs.items():
+            if not ratio > 1.0:     # NaN: no tolerance, the gate compared nothing there
+                continue
+            kind = ("flagged" if quantity in m.left_out(backend) else
+                    "caught" if _in_disagreement(outcome, backend, [quantity]) else "silent")
+            kinds[kind].append((backend, quantity))
+    return {kind: tuple(pairs) for kind, pairs in kinds.items()}
+
+
+@dataclass(frozen=True)
+class PathResult:
+    path: Path
+    measurements: tuple[Measurement, ...]
+
+    @property
+    def backends(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(b for p in self.path.points for b in p.backends))
+
+
+def run_path(path: Path, progress=None) -> PathResult:
+    """Measure every point of ``path`` (one :class:`~crosscheck.gate.CaseSetup` per case and checks)."""
+    setups: dict[tuple, gate.CaseSetup] = {}
+    out = []
+    for point in path.points:
+        key = (point.spec, point.checks)
+        if key not in setups:
+            setups[key] = gate.CaseSetup.build(point.spec, SEED, point.checks)
+        out.append(measure(point, setups[key], [backend_registry.get(b) for b in point.backends]))
+        if progress:
+            progress(path.name, len(out), len(path.points))
+    return PathResult(path, tuple(out))
+
+
+def write_report(out_dir, quick: bool, progress=None) -> FilePath:
+    """Run every path (``quick``: a few points each) and write ``stability.md`` and its ``stability_<path>.png``
+    charts into ``out_dir``; returns the markdown's path."""
+    start = time.perf_counter()
+    results = [run_path(path, progress) for path in paths(quick, backend_registry.names())]
+    return write(results, out_dir, quick, time.perf_counter() - start)
+
+
+def write(results: Sequence[PathResult], out_dir, quick: bool, seconds: float) -> FilePath:
+    """Write the report of measured ``results`` (``stability.md`` and one chart per path) into ``out_dir``."""
+    from crosscheck import stability_report
+
+    out_dir = FilePath(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for result in results:
+        stability_report.plot(result, out_dir / f"stability_{result.path.name}.png")
+    report = out_dir / "stability.md"
+    report.write_text(stability_report.render(list(results), quick, seconds))
+    return report

@@ -1,0 +1,89 @@
+"""Stability maps (``crosscheck.stability``): the quick paths, the tolerance policy against the exact split, the
+BREAKDOWN of the operational-space backend at the task singularity, and an injected wrong answer."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from crosscheck import backends, gate, stability
+from crosscheck.cli import build_parser, cmd_stability
+
+
+@pytest.fixture(scope="module")
+def results() -> dict[str, stability.PathResult]:
+    return {p.name: stability.run_path(p) for p in stability.paths(quick=True, names=backends.names())}
+
+
+def _voting(m: stability.Measurement):
+    """(backend, quantity, ratio) for every quantity a backend votes on at this point."""
+    return [(b, q, r) for b, rs in m.ratios.items() for q, r in rs.items() if q not in m.left_out(b)]
+
+
+def test_paths_cover_every_backend_with_finite_errors(results):
+    assert set(results) == {"theta2", "four_bar", "mass_ratio", "chain", "velocity"}
+    for result in results.values():
+        assert len(result.measurements) >= 3
+        for m in result.measurements:
+            assert set(m.errors) == set(m.point.backends) == set(m.verdicts)
+            for backend, errors in m.errors.items():
+                assert {"drift", "ctrl", "total"} <= set(errors)
+                if not m.left_out(backend):
+                    assert all(math.isfinite(e) for e in errors.values()), (result.path.name, m.point.x, backend)
+
+
+def test_true_error_within_tolerance_wherever_the_gate_votes(results):
+    for result in results.values():
+        for m in result.measurements:
+            assert not m.alarms, (result.path.name, m.point.x, m.alarms)
+            voting = _voting(m)
+            assert all(not math.isnan(r) for _, _, r in voting) or not m.tolerances
+            over = [(b, q, r) for b, q, r in voting if r > 1.0]
+            assert not over, (result.path.name, m.point.x, over)
+            assert not m.over["silent"] and not m.over["caught"]
+
+
+def test_operational_space_breakdown_comes_before_its_error_exceeds_the_tolerance(results):
+    ms = results["theta2"].measurements
+    broken = [i for i, m in enumerate(ms) if m.left_out("operational_space")]
+    wrong = [i for i, m in enumerate(ms) if max(m.ratios["operational_space"].values()) > 1.0]
+    assert broken and wrong
+    assert broken[0] < wrong[0]
+    assert all(i in broken for i in wrong)                        # every wrong answer is flagged
+    assert ms[broken[0]].conditions["task"] > 1e3                  # flagged by the task condition
+    assert all(("operational_space", q) in ms[i].over["flagged"] for i in wrong
+               for q, r in ms[i].ratios["operational_space"].items() if r > 1.0)
+
+
+def test_an_injected_error_is_recorded_above_tolerance_and_caught():
+    honest = backends.get("newton_euler")
+
+    def wrong(model, q, qd, u):
+        split = honest.split(model, q, qd, u)
+        return dataclasses.replace(split, drift=split.drift * (1.0 + 1e-6))
+
+    formalisms = [dataclasses.replace(honest, split=wrong) if b.name == honest.name else b
+                  for b in map(backends.get, backends.names())]
+    point = stability.theta2_path(3, backends.names()).points[0]
+    m = stability.measure(point, gate.CaseSetup.build(point.spec, stability.SEED, point.checks), formalisms)
+    assert 0.5e-6 < m.errors["newton_euler"]["drift"] < 2e-6
+    assert m.ratios["newton_euler"]["drift"] > 1.0
+    assert all(r <= 1.0 for b, q, r in _voting(m) if b != "newton_euler")
+    assert ("newton_euler", "drift") in m.over["caught"]
+    assert m.verdicts["newton_euler"] == "DISAGREE" and m.alarms and not m.false_alarm
+
+
+def test_report_and_charts_are_written(results, tmp_path):
+    report = stability.write(list(results.values()), tmp_path, quick=True, seconds=1.0)
+    text = report.read_text()
+    for name in results:
+        assert f"## {name}" in text and f"(stability_{name}.png)" in text
+        assert (tmp_path / f"stability_{name}.png").stat().st_size > 1000
+    assert "silent" in text and "**silent:" not in text
+
+
+def test_cli_has_the_stability_command():
+    args = build_parser().parse_args(["stability", "--quick", "--out", "somewhere"])
+    assert args.run is cmd_stability and args.quick and args.out == "somewhere"
