@@ -23,6 +23,7 @@ state and the failing check keys, so the same failure found by a shard and by th
 from __future__ import annotations
 
 import dataclasses
+import contextlib
 import hashlib
 import itertools
 import json
@@ -287,6 +288,26 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
     return backends_agree
 
 
+@contextlib.contextmanager
+def _no_local_constants():
+    """Hypothesis (6.13x and later) sometimes draws a literal constant found in the source of the local modules in
+    ``sys.modules``, so what a chunk drew depended on which modules the process had imported (and on its
+    ``__main__``): a spawned worker and a test process that had imported ``crosscheck.stability`` drew different
+    examples from one seed. A campaign's draws must depend on its seed alone, so during a chunk that pool is empty.
+    This replaces a private Hypothesis function (no public setting exists); without it the chunk still runs."""
+    try:
+        from hypothesis.internal.conjecture import providers
+        original = providers._get_local_constants
+    except (ImportError, AttributeError):
+        yield
+        return
+    providers._get_local_constants = providers.Constants
+    try:
+        yield
+    finally:
+        providers._get_local_constants = original
+
+
 def run_chunk(cfg: FuzzConfig, k: int, progress: Callable[[int, int, float], None] | None = None) -> dict:
     """Run chunk ``k`` (module doc); save its finding, if any, in ``cfg.out``; return its log record.
 
@@ -300,7 +321,7 @@ def run_chunk(cfg: FuzzConfig, k: int, progress: Callable[[int, int, float], Non
     test = hypothesis_seed(chunk_seed(cfg.seed, k))(test)
     start, interrupted, shrunk = time.perf_counter(), False, True
     try:
-        with np.errstate(all="ignore"):  # NaN and inf are compared and reported, not warned about
+        with np.errstate(all="ignore"), _no_local_constants():  # NaN and inf are compared and reported
             test()
     except KeyboardInterrupt:
         interrupted, shrunk = True, False

@@ -109,7 +109,8 @@ def test_replay_of_an_unknown_id_lists_the_valid_ones(reference_run, capsys):
     assert all(f["id"] in err for f in reference_run.findings)
 
 
-FAULT = dict(seed=0, examples=6, chunk_examples=3, max_bodies=3, max_states=2, constraints=False,
+#: Seed 2's six examples include a moving mechanism of two or more bodies (seeds 0, 4 and 5 draw none in six).
+FAULT = dict(seed=2, examples=6, chunk_examples=3, max_bodies=3, max_states=2, constraints=False,
              conservation=False)
 
 
