@@ -121,7 +121,8 @@ class Representation:
     scene: str
     minimal_s: float
     general_s: float
-    difference: float            # max |total_general - total_minimal| / accel_scale over the timing states
+    difference: float            # max |total_general - total_minimal| / accel_scale over the timing states (NaN in
+                                 # both: not counted)
 
 
 @dataclass
@@ -259,6 +260,13 @@ def preparation(backend: str, scene: Scene, plugins: Sequence[str] = ()) -> Prep
                        max(cached["first"] - cached["steady"], 0.0))
 
 
+def _difference(a, b) -> float:
+    """``max |total_b - total_a| / accel_scale``; 0 where both are NaN (the method breaks down at that state in
+    both models, e.g. operational space at a task singularity), NaN where only one is."""
+    both = np.isnan(a.total) & np.isnan(b.total)
+    return float(np.max(np.abs(np.where(both, 0.0, b.total - a.total)))) / a.accel_scale
+
+
 def representation(plan: Plan, scene: Scene, names: Sequence[str]) -> list[Representation]:
     """Each backend on the scene as modelled and written with general 3-D body frames: time per call and the
     largest difference of the answers."""
@@ -273,7 +281,7 @@ def representation(plan: Plan, scene: Scene, names: Sequence[str]) -> list[Repre
         for model in (minimal, general):
             answers.append([formalism.split(model, *c) for c in calls])
             times.append(per_call(lambda q, qd, u: formalism.split(model, q, qd, u), calls, plan.min_time))
-        difference = max(float(np.max(np.abs(a.total - b.total))) / a.accel_scale for a, b in zip(*answers))
+        difference = max(_difference(a, b) for a, b in zip(*answers))
         out.append(Representation(name, scene.label, times[0], times[1], difference))
     return out
 

@@ -163,6 +163,10 @@ def render(res: Results, target: str = "panda") -> str:
         "",
         "## Targets",
         "",
+        "The issue's targets. A batched split returns drift, ctrl and total: three solves per state (one factorization "
+        "and three right-hand sides, or three recursions), where `aba` is one. Pinocchio's own batched split (three "
+        "`abaInParallel` passes, row `pinocchio`) shows what that costs with compiled code.",
+        "",
         *_targets(res, target),
         "",
         "## Time and error per scene",
