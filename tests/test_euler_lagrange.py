@@ -500,15 +500,3 @@ def test_batch_over_several_blocks_equals_split(monkeypatch):
             np.testing.assert_allclose(getattr(terms, name)[i], getattr(single, name), rtol=1e-12, atol=1e-12)
 
 
-def test_batch_with_a_singular_mass_matrix_names_the_state():
-    """The second link a point mass on its own joint axis makes M singular everywhere: the batch raises the
-    single-state error of ``factor_mass_matrix``, naming the row."""
-    import dataclasses
-    base = cases.load("double_pendulum")
-    first, second = base.bodies
-    model = cases.build_model("point_on_axis", [first, dataclasses.replace(second, com=np.zeros(3),
-                                                                         inertia=np.zeros((3, 3)))],
-                              gravity=base.gravity, task_points=base.task_points)
-    Q = np.zeros((3, 2))
-    with pytest.raises(ValueError, match=r"state \d of the batch: .*not positive definite"):
-        el.split_batch(model, Q, Q, Q)

@@ -447,14 +447,3 @@ def test_batch_over_several_blocks_equals_split(monkeypatch):
             assert err <= 1e-9 * s.accel_scale, f"state {i}: {name} differs by {err:.3g}"
 
 
-def test_batch_with_a_singular_metric_names_the_state():
-    """The second link a point mass on its own joint axis makes M singular everywhere: the batch raises the
-    single-state error, naming the row."""
-    import dataclasses
-    first, second = PENDULUM.bodies
-    model = cases.build_model("point_on_axis", [first, dataclasses.replace(second, com=np.zeros(3),
-                                                                         inertia=np.zeros((3, 3)))],
-                              gravity=PENDULUM.gravity, task_points=PENDULUM.task_points)
-    Q = np.zeros((3, 2))
-    with pytest.raises(ValueError, match=r"state \d of the batch: .*not positive definite"):
-        geo.split_batch(model, Q, Q, Q)

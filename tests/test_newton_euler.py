@@ -369,14 +369,6 @@ def test_singular_mass_matrix_names_model_and_eigenvalues():
         ne.split(model, [0.3], [0.0], [1.0])
 
 
-def test_singular_mass_matrix_in_a_batch_names_the_state():
-    """``split_batch`` factors all mass matrices at once; one that is not positive definite is the same ValueError
-    as ``split``'s, for the offending state."""
-    model = build_model("mass_on_axis", [Body("p", None, "revolute", axis=(0.0, 0.0, 1.0), mass=1.0)])
-    with pytest.raises(ValueError, match=r"mass_on_axis.*not positive definite at q = \[0\.3\].*eigenvalues"):
-        ne.split_batch(model, [[0.3], [0.4]], [[0.0], [0.0]], [[1.0], [1.0]])
-
-
 def test_unknown_constraint_declaration_is_rejected():
     """Constrained models are handled (tests/test_constrained_newton_euler.py); a declaration that is none of
     ``cases.constraints`` is a TypeError naming the known ones."""

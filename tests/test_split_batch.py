@@ -7,6 +7,8 @@ multipliers within 1e-9 of ``lam_scale``. A real error (a missing term, a wrong 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -75,6 +77,21 @@ def test_split_batch_of_one_and_of_none(name):
     assert len(backends.get(name).split_batch(model, Q, QD, U)) == 1
     empty = backends.get(name).split_batch(model, Q[:0], QD[:0], U[:0])
     assert empty.total.shape == (0, model.n)
+
+
+@pytest.mark.parametrize("name", [n for n in BATCHED if n != backends.REFERENCE_NAME])
+def test_split_batch_names_a_state_whose_mass_matrix_is_singular(name):
+    """The second link a point mass on its own joint axis: M is singular wherever the first joint is. The batch
+    raises ``factor_mass_matrix``'s ValueError for the first such state (model, q, eigenvalues), as ``split`` does.
+    (Pinocchio's ABA does not factor M and is not asked to.)"""
+    base = cases.load("double_pendulum")
+    first, second = base.bodies
+    model = cases.build_model("point_on_axis", [first, dataclasses.replace(second, com=np.zeros(3),
+                                                                         inertia=np.zeros((3, 3)))],
+                              gravity=base.gravity, task_points=base.task_points)
+    Q = np.array([[0.3, 0.0], [0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"point_on_axis.*not positive definite.*q = \[0\.3, 0\.0\].*eigenvalues"):
+        backends.get(name).split_batch(model, Q, Q, Q)
 
 
 @pytest.mark.parametrize("name", BATCHED)
