@@ -129,7 +129,7 @@ def chart_scaling(res: Results, path: Path) -> None:
 
     chain = [m for m in res.measurements if m.links is not None]
     names = _order(m.backend for m in chain)
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = plt.subplots(figsize=(10, 5))
     for i, name in enumerate(names):
         rows = sorted((m for m in chain if m.backend == name), key=lambda m: m.links)
         x = [m.links for m in rows]
@@ -140,8 +140,11 @@ def chart_scaling(res: Results, path: Path) -> None:
     ax.plot([a for a, _ in aba], [t * 1e6 for _, t in aba], ":k", lw=2, label="pinocchio aba (anchor)")
     ax.set(yscale="log", xscale="log", xlabel="links n", ylabel="time per state (us)",
            title="planar n-link chain")
+    links = sorted({m.links for m in chain})
+    ax.set_xticks(links, [str(n) for n in links])
+    ax.minorticks_off()
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
