@@ -209,15 +209,20 @@ class SplitBatch:
         return len(self.drift)
 
 
+def _numeric(label: str, value, kind: str) -> np.ndarray:
+    """``value`` as a float array, or a :class:`StateError` saying that ``label`` is not a numeric ``kind``."""
+    try:
+        return np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise StateError(f"{label} is not a numeric {kind}: {value!r}") from None
+
+
 def check_batch(model: Model, Q, QD, U) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return (Q, QD, U) as float arrays of shapes (N, n), (N, n), (N, m), or raise :class:`StateError` naming what
     does not fit."""
     out = []
     for label, value, size in (("Q", Q, model.n), ("QD", QD, model.n), ("U", U, model.m)):
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise StateError(f"{label} is not a numeric array: {value!r}") from None
+        arr = _numeric(label, value, "array")
         if arr.ndim != 2 or arr.shape[1] != size:
             raise StateError(f"{label} must have shape (N, {size}) for model '{model.name}' (one row per state), "
                              f"got {arr.shape}")
@@ -266,10 +271,7 @@ def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndar
     """Return (q, qd, u) as float arrays, or raise :class:`StateError` naming what does not fit."""
     out = []
     for label, value, size in (("q", q, model.n), ("qd", qd, model.n), ("u", u, model.m)):
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise StateError(f"{label} is not a numeric vector: {value!r}") from None
+        arr = _numeric(label, value, "vector")
         if arr.ndim != 1:
             raise StateError(f"{label} must be a 1-D vector of length {size}, got an array of shape {arr.shape}")
         if arr.size != size:
@@ -285,10 +287,7 @@ def chart_vectors(model: Model, **vectors) -> list[np.ndarray]:
     per coordinate, or a :class:`StateError` naming the one that does not fit."""
     out = []
     for label, value in vectors.items():
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise StateError(f"{label} is not a numeric vector: {value!r}") from None
+        arr = _numeric(label, value, "vector")
         if arr.ndim != 1 or arr.size != model.n:
             raise StateError(f"{label} has shape {arr.shape} ({arr.size} entries) but model '{model.name}' needs "
                              f"{model.n} values (one per coordinate)")

@@ -158,24 +158,3 @@ def test_chart_split_with_a_constraint_is_the_joint_split_mapped(kind):
 # ----------------------------------------------------------------------------------------------------------
 # split_batch: states of different ranks of S in one batch
 # ----------------------------------------------------------------------------------------------------------
-
-def test_batch_mixing_ranks_of_S_equals_split_row_by_row():
-    """The batch groups the states by the rank of S: four-bar states at rank 1 (d = 1e-6 off the change point) and
-    rank 2 (d = 3e-5, and far from it), interleaved, each row what ``split`` gives for that state."""
-    model = cases.load("four_bar")
-    near = [np.array([math.pi / 2 + d, -d, math.pi / 2 + d]) for d in (1e-6, 3e-5, 1e-6)]
-    Q = np.array([near[0], [1.2, -0.4, 1.9], near[1], near[2]])
-    QD = np.array([[0.0, 0.0, 0.0], [0.3, 0.1, -0.2], [0.5, -0.5, 0.5], [0.5, -0.5, 0.5]])
-    U = np.array([[0.5, -1.0, 2.0], [1.0, 0.0, -1.0], [0.5, -1.0, 2.0], [-2.0, 1.0, 0.5]])
-    batch = el.split_batch(model, Q, QD, U)
-    ranks = []
-    for i in range(len(Q)):
-        s = el.split(model, Q[i], QD[i], U[i])
-        ranks.append(s.constraint_rank)
-        for name in ("drift", "ctrl", "total"):
-            assert_close(getattr(batch, name)[i], getattr(s, name), f"state {i}: {name}", rtol=1e-9,
-                         scale=s.accel_scale)
-        for name in ("lam", "lam_drift"):
-            assert_close(getattr(batch, name)[i], getattr(s, name), f"state {i}: {name}", rtol=1e-9,
-                         scale=s.lam_scale)
-    assert ranks == [1, 2, 2, 1]

@@ -159,24 +159,3 @@ def test_a_constrained_split_is_fast():
     for _ in range(50):
         geo.split(CIRCLE, q, qd, np.ones(2))
     assert (time.perf_counter() - start) / 50 < 5e-3
-
-
-def test_batch_mixing_ranks_of_S_equals_split_row_by_row():
-    """The batch groups the states by the rank of S (each group's null space its own stack): four-bar states at
-    rank 1 (d = 1e-6 off the change point, pi/2 + d, -d, pi/2 + d) and rank 2, interleaved, each row what ``split``
-    gives for that state."""
-    model = cases.load("four_bar")
-    near = [np.array([np.pi / 2 + d, -d, np.pi / 2 + d]) for d in (1e-6, 3e-5, 1e-6)]
-    Q = np.array([near[0], [1.2, -0.4, 1.9], near[1], near[2]])
-    QD = np.array([[0.0, 0.0, 0.0], [0.3, 0.1, -0.2], [0.5, -0.5, 0.5], [0.5, -0.5, 0.5]])
-    U = np.array([[0.5, -1.0, 2.0], [1.0, 0.0, -1.0], [0.5, -1.0, 2.0], [-2.0, 1.0, 0.5]])
-    batch = geo.split_batch(model, Q, QD, U)
-    ranks = []
-    for i in range(len(Q)):
-        s = geo.split(model, Q[i], QD[i], U[i])
-        ranks.append(s.constraint_rank)
-        for name in ("drift", "ctrl", "total"):
-            assert_close(getattr(batch, name)[i], getattr(s, name), 1e-9 * s.accel_scale, f"state {i}: {name}")
-        for name in ("lam", "lam_drift"):
-            assert_close(getattr(batch, name)[i], getattr(s, name), 1e-9 * s.lam_scale, f"state {i}: {name}")
-    assert ranks == [1, 2, 2, 1]

@@ -1,8 +1,11 @@
 """``split_batch(model, Q, QD, U)`` equals ``split`` state by state, for every backend (issue 7).
 
-Each row of a batch must be what ``split`` returns for that state, to rounding: the accelerations within 1e-9 of
-the state's ``accel_scale`` (the size of the terms summed, :func:`formalisms.interface.conditioning`) and the
-multipliers within 1e-9 of ``lam_scale``. A real error (a missing term, a wrong row) is many orders larger.
+Each row of a batch must be what ``split`` returns for that state, to rounding: the accelerations within
+``100 eps cond(M)`` of the state's ``accel_scale`` (the size of the terms summed,
+:func:`formalisms.interface.conditioning`) and the multipliers within as much of ``lam_scale``: the harness's own
+bound on two correct solves of one problem. Measured on the built-in cases the largest difference is 4e-15 of
+``accel_scale`` (Pinocchio's batched ABA against its Cholesky solve), 1e-16 for the five formalisms; a row off by
+1e-8 of its size fails.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ from formalisms.interface import StateError
 
 BATCHED = [name for name in backends.names() if backends.get(name).split_batch is not None]
 SAMPLES = 12
-RTOL = 1e-9
+#: Rounding allowed between a batch row and ``split``, in units of ``cond(M)`` times the state's scale.
+RTOL = 100 * np.finfo(float).eps
 
 
 def _states(model, case: str, count: int = SAMPLES):
@@ -40,7 +44,7 @@ def assert_rows_equal_split(formalism, model, Q, QD, U) -> None:
     assert batch.drift.shape == batch.ctrl.shape == batch.total.shape == (len(Q), model.n)
     for i in range(len(Q)):
         s = formalism.split(model, Q[i], QD[i], U[i])
-        tol = RTOL * s.accel_scale
+        tol = RTOL * s.cond_M * s.accel_scale
         for name in ("drift", "ctrl", "total"):
             err = _difference(getattr(batch, name)[i], getattr(s, name))
             assert err <= tol, f"{formalism.name} {model.name} state {i}: {name} differs by {err:.3g} (tol {tol:.3g})"
@@ -48,7 +52,8 @@ def assert_rows_equal_split(formalism, model, Q, QD, U) -> None:
             assert batch.lam.shape == batch.lam_drift.shape == (len(Q), model.k)
             for name in ("lam", "lam_drift"):
                 err = _difference(getattr(batch, name)[i], getattr(s, name))
-                assert err <= RTOL * s.lam_scale, f"{formalism.name} {model.name} state {i}: {name} off by {err:.3g}"
+                tol = RTOL * s.cond_M * s.lam_scale
+                assert err <= tol, f"{formalism.name} {model.name} state {i}: {name} off by {err:.3g} (tol {tol:.3g})"
         else:
             assert batch.lam is None and batch.lam_drift is None
 
@@ -58,6 +63,21 @@ def assert_rows_equal_split(formalism, model, Q, QD, U) -> None:
 def test_split_batch_rows_equal_split(name, case):
     model = cases.load(case)
     assert_rows_equal_split(backends.get(name), model, *_states(model, case))
+
+
+@pytest.mark.parametrize("name", BATCHED)
+def test_split_batch_mixing_ranks_of_S(name):
+    """Four-bar states at rank 1 (d = 1e-6 off the change point q = (pi/2 + d, -d, pi/2 + d): the rows of S nearly
+    redundant, one dropped) and rank 2, interleaved in one batch: a backend that groups states by rank (or solves
+    them together) must still give each row what ``split`` gives for that state."""
+    model = cases.load("four_bar")
+    near = [np.array([np.pi / 2 + d, -d, np.pi / 2 + d]) for d in (1e-6, 3e-5, 1e-6)]
+    Q = np.array([near[0], [1.2, -0.4, 1.9], near[1], near[2]])
+    QD = np.array([[0.0, 0.0, 0.0], [0.3, 0.1, -0.2], [0.5, -0.5, 0.5], [0.5, -0.5, 0.5]])
+    U = np.array([[0.5, -1.0, 2.0], [1.0, 0.0, -1.0], [0.5, -1.0, 2.0], [-2.0, 1.0, 0.5]])
+    formalism = backends.get(name)
+    assert [formalism.split(model, *s).constraint_rank for s in zip(Q, QD, U)] == [1, 2, 2, 1]
+    assert_rows_equal_split(formalism, model, Q, QD, U)
 
 
 @pytest.mark.parametrize("name", BATCHED)
