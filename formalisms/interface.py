@@ -153,6 +153,45 @@ class Split:
     constraint_rank: int | None = None
     lam_scale: float = 0.0
 
+    def __post_init__(self):
+        """Validate and freeze: every array field becomes a read-only float array of the shape the contract gives it
+        (n from ``drift``, k from ``lam``), scalars become floats; a field of the wrong shape is a ValueError naming
+        it. A formalism builds its Split directly, from its own numbers; this checks only their form."""
+        n = np.shape(self.drift)[0] if np.ndim(self.drift) == 1 else -1
+        if n < 0:
+            raise ValueError(f"a formalism returned drift of shape {np.shape(self.drift)}, expected (n,)")
+        constrained = self.lam is not None and not isinstance(self.lam, Unsupported)
+        k = int(np.size(self.lam)) if constrained else 0
+        shapes = {"drift": (n,), "ctrl": (n,), "total": (n,), "power_ctrl_per_coord": (n,),
+                  "joint_wrenches": (n, 6), "joint_wrenches_drift": (n, 6), "lam": (k,), "lam_drift": (k,),
+                  "power_constr_per_coord": (n,), "constraint_value": (k,), "constraint_jacobian": (k, n),
+                  "constraint_bias": (k,), "constraint_velocity": (k,), "constraint_force": (n,),
+                  "constraint_force_drift": (n,)}
+        for name, shape in shapes.items():
+            value = getattr(self, name)
+            if value is None or isinstance(value, Unsupported):
+                continue
+            arr = np.array(value, dtype=float).reshape(-1) if name in ("lam", "lam_drift") else np.array(
+                value, dtype=float)
+            if arr.shape != shape:
+                raise ValueError(f"a formalism returned {name} of shape {arr.shape}, expected {shape}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        for name in ("task_drift", "task_inertia"):
+            value = getattr(self, name)
+            if not isinstance(value, Unsupported):
+                arr = np.array(value, dtype=float)
+                arr.setflags(write=False)
+                object.__setattr__(self, name, arr)
+        for name in ("power_ctrl", "cond_M", "accel_scale", "lam_scale"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("power_constr", "kinetic_energy"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, Unsupported):
+                object.__setattr__(self, name, float(value))
+        object.__setattr__(self, "conditions", {key: float(v) for key, v in self.conditions.items()})
+        object.__setattr__(self, "extras", dict(self.extras))
+
     @property
     def additivity(self) -> np.ndarray:
         """``drift + ctrl - total``: zero up to rounding, because the split of eq. (9) is exact (4.2, 5.3)."""
