@@ -39,7 +39,7 @@ ENTRY_POINT_GROUP = "crosscheck.formalisms"
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*\Z")
 
 #: Names the comparisons use for voters that are not backends (``crosscheck.compare``: the exact value).
-RESERVED = ("exact",)
+RESERVED = ("exact", "independent", "closed_form")
 
 
 class PluginError(Exception):
@@ -58,7 +58,7 @@ class _Checked:
         out = self.function(*args, **kwargs)
         if not isinstance(out, Split):
             raise TypeError(f"plugin '{self.name}' returned {type(out).__name__}, not a formalisms.interface.Split "
-                            "(build one with formalisms.interface.unconstrained_split or constrained_split)")
+                            "(build one with crosscheck.assemble.unconstrained_split or constrained_split)")
         return out
 
 
@@ -204,10 +204,15 @@ def reset() -> None:
     _discovered = False
 
 
+def builtin_names() -> list[str]:
+    """The five formalisms and the reference, without plugins."""
+    return formalisms.names() + [REFERENCE_NAME]
+
+
 def names() -> list[str]:
     """Every formalism, the reference, then the plugins (module docstring: why in that order)."""
     _discover()
-    return formalisms.names() + [REFERENCE_NAME] + list(_plugins)
+    return builtin_names() + list(_plugins)
 
 
 def get(name: str) -> Formalism:

@@ -43,6 +43,11 @@ Solving: Cholesky factorization of M, never an explicit inverse. With constraint
 as one block matrix, scaled by the Cholesky factor and the eigen-directions of ``S = Jc M^-1 Jc^T`` kept above
 ``CONSTRAINT_RCOND`` (rank-revealing: redundant constraints give the minimum-norm multipliers, :func:`_kkt`), and
 the control part from the constraint-consistent input map of eq. (17) (:func:`_constrained_input_map`).
+Everything a split reports is computed here (the interface supplies only types and validators), by methods of its
+own: cond(M) and ``||M^-1||`` from M's extreme eigenvalues, each by Sturm-sequence bisection (:func:`_mass_spectrum`);
+S's eigenvalues, rank and the consistency of the KKT right-hand sides from the SVD of the scaled constraint block
+``Jc U^-1`` that the KKT solve itself uses (:func:`_spectrum`, :func:`_constraint_conditioning`); the powers with a
+correctly rounded sum (:func:`_power`).
 """
 
 from __future__ import annotations
@@ -64,9 +69,8 @@ import symengine as sp
 
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Chart, Formalism, SplitBatch, chart_vectors, check_batch, check_state,
-                                  conditioning, constrained_split, factor_mass_matrix, redundant_below,
-                                  unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Split, SplitBatch,
+                                  chart_vectors, check_batch, check_state)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -656,19 +660,31 @@ def _t(a: np.ndarray) -> np.ndarray:
     return np.swapaxes(a, -1, -2)
 
 
+def _not_positive_definite(model: Model, M: np.ndarray, x: np.ndarray, chart: str | None) -> ValueError:
+    """The error for a mass matrix that is not positive definite (e.g. a point mass on its own joint axis), naming
+    the model, the configuration and the eigenvalues; in a chart (its name) ``M`` and ``x`` are ``M_p`` and ``p``."""
+    where = f"q = {x.tolist()}" if chart is None else (
+        f"p = {x.tolist()} in chart '{chart}' (M_p = Dpsi^T M Dpsi is singular wherever Dpsi is)")
+    return ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} (Cholesky "
+                      f"failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}")
+
+
 def _upper_factor(model: Model, M: np.ndarray, x: np.ndarray, chart: str | None = None) -> np.ndarray:
     """The upper Cholesky factor ``U`` of ``M = U^T U`` (of each M in a stack, ``x`` then the stack of coordinates);
-    a mass matrix that is not positive definite is :func:`factor_mass_matrix`'s ValueError (for a stack, of the
+    a mass matrix that is not positive definite is :func:`_not_positive_definite`'s ValueError (for a stack, of the
     state with the smallest eigenvalue, named by its row)."""
     if M.ndim == 2:
-        c, lower = factor_mass_matrix(model, M, x, chart)
+        try:
+            c, lower = scipy.linalg.cho_factor(M)
+        except np.linalg.LinAlgError:
+            raise _not_positive_definite(model, M, x, chart) from None
         return np.tril(c).T if lower else np.triu(c)
     try:
         return _t(np.linalg.cholesky(M))
     except np.linalg.LinAlgError:
         worst = int(np.argmin(np.linalg.eigvalsh(M)[:, 0]))
         try:
-            factor_mass_matrix(model, M[worst], x[worst], chart)
+            _upper_factor(model, M[worst], x[worst], chart)
         except ValueError as err:
             raise ValueError(f"state {worst} of the batch: {err}") from None
         raise ValueError(f"model '{model.name}': a mass matrix of the batch is not positive definite (Cholesky "
@@ -699,40 +715,111 @@ def _free(U: np.ndarray, h: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np
     return x[..., 0], x[..., 1], x[..., 2]
 
 
-def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None):
+#: LAPACK's symmetric eigensolver for selected eigenvalues (Sturm-sequence bisection), called directly: scipy's
+#: ``eigh`` wrapper costs more than the two bisections.
+_SYEVX = scipy.linalg.lapack.get_lapack_funcs("syevx", (np.zeros(1),))
+
+
+def _eigenvalue(M: np.ndarray, i: int) -> float:
+    """The ``i``-th smallest eigenvalue (1-based) of the symmetric ``M`` by bisection: the value where the Sturm count
+    of M's tridiagonal form ``T`` (the number of negative pivots of ``T - sigma 1``, Sylvester's law of inertia)
+    reaches i (LAPACK dsyevx with an index range: dstebz), not by the QR iteration of a full eigendecomposition."""
+    w, _, _, _, info = _SYEVX(M, compute_v=0, range="I", il=i, iu=i)
+    if info != 0:
+        raise ValueError(f"LAPACK dsyevx failed (info = {info}) on a matrix with entries {M.tolist()}")
+    return float(w[0])
+
+
+def _mass_spectrum(M: np.ndarray) -> tuple[float, float]:
+    """``(lambda_min, lambda_max)`` of a mass matrix, each by bisection (:func:`_eigenvalue`): the smallest and the
+    largest kinetic energy per unit rate, ``2 T / |xd|^2``."""
+    return _eigenvalue(M, 1), _eigenvalue(M, len(M))
+
+
+def _conditioning(model: Model, M, Cqd, g, tau, xd) -> tuple[float, float, float]:
+    """``(cond(M), ||M^-1||, accel_scale)`` from this derivation's M, C xd, g and the applied force ``tau``, with
+    M's extreme eigenvalues from :func:`_mass_spectrum` (``cond = lambda_max / lambda_min``, ``||M^-1|| = 1 /
+    lambda_min``; both inf where lambda_min is not positive).
+
+    ``accel_scale = ||M^-1||_2 H``, H the size of the generalized forces summed in ``tau - C xd - g``. The computed
+    ``C xd`` and ``g`` can cancel to zero while their terms do not (a folded arm, zero gravity), so H also carries
+    configuration-robust magnitudes of those terms: ``||M|| |xd|^2`` for the velocity products and ``|gravity|
+    sqrt(m_total ||M||)`` (a mass times a lever arm) for gravity. 1-norms, so tiny vectors do not underflow."""
+    low, high = _mass_spectrum(M)
+    m_total = sum(b.mass for b in model.bodies)
+    H = (np.abs(Cqd).sum() + np.abs(g).sum() + np.abs(tau).sum() + high * float(xd @ xd)
+         + np.abs(model.gravity).sum() * math.sqrt(m_total * high))
+    inverse_norm = 1.0 / low if low > 0.0 else math.inf
+    return high * inverse_norm, inverse_norm, float(H) * inverse_norm
+
+
+def _power(force: np.ndarray, rate: np.ndarray) -> tuple[float, np.ndarray]:
+    """The power of a generalized force (a covector) on the rates: per coordinate ``force_i rate_i``, and their sum
+    correctly rounded (``math.fsum``)."""
+    per = force * rate
+    return math.fsum(per), per
+
+
+def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None) -> Split:
     """The split of eq. (9) from the terms: drift ``-M^-1 (C xd + g)`` (eq. 10), ctrl ``M^-1 tau``, total
-    ``M^-1 (tau - C xd - g)`` (:func:`_free`)."""
+    ``M^-1 (tau - C xd - g)`` (:func:`_free`); the power ``tau . xd`` and the conditioning of M."""
     drift, ctrl, total = _free(_upper_factor(model, M, x, chart), Cqd + g, tau)
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau, xd)
-    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=xd, cond_M=cond_M,
-                               accel_scale=accel_scale, kinetic_energy=T)
+    cond_M, _, accel_scale = _conditioning(model, M, Cqd, g, tau, xd)
+    power, per = _power(tau, xd)
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=power,
+                 power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
+                 accel_scale=accel_scale, kinetic_energy=T)
 
 
 class _Scaled(NamedTuple):
     """The constrained problem in the Cholesky frame of ``M = U^T U``: ``A = Jc U^-1``, so ``S = Jc M^-1 Jc^T =
-    A A^T``, and the eigen-directions ``V`` (columns) and eigenvalues ``w`` (ascending) of S that are kept: those
-    above ``CONSTRAINT_RCOND`` times the largest (interface); the others are redundant. For one state, or a stack
-    of states of the same rank (leading axis)."""
+    A A^T``, and S's eigen-decomposition from the SVD of A (:func:`_spectrum`): the eigen-directions ``V`` (columns)
+    and eigenvalues ``w`` (ascending) that are kept, above :func:`_redundant_below`, and the redundant ones ``V0``,
+    ``w0``. For one state, or a stack of states of the same rank (leading axis)."""
 
     U: np.ndarray
     A: np.ndarray
     V: np.ndarray
     w: np.ndarray
+    V0: np.ndarray
+    w0: np.ndarray
+
+
+def _degenerate_floor(model: Model) -> float:
+    """The smallest eigenvalue of ``Jc M^-1 Jc^T`` that is a direction and not rounding: a row of ``DEGENERATE_ROW``
+    times the model's length scale L, in the metric of M: ``(DEGENERATE_ROW L)^2 / inertia_scale``."""
+    return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
+
+
+def _redundant_below(model: Model, w_max):
+    """The redundancy rule: eigenvalues of S at or below ``CONSTRAINT_RCOND`` times the largest, ``w_max`` (one per
+    state of a stack), or below :func:`_degenerate_floor`, are redundant directions."""
+    return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), _degenerate_floor(model))
+
+
+def _spectrum(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigen-directions (columns) and eigenvalues, ascending, of ``S = A A^T`` (of each in a stack) from the SVD of
+    ``A = E diag(sigma) X^T``: ``S = E diag(sigma^2) E^T``, the eigenvalues beyond ``min(k, n)`` zero."""
+    E, sigma, _ = np.linalg.svd(A)
+    w = np.zeros(A.shape[:-1])
+    w[..., :sigma.shape[-1]] = sigma ** 2
+    return E[..., ::-1], w[..., ::-1]
 
 
 def _scaled(model: Model, U: np.ndarray, Jc: np.ndarray) -> list[tuple[np.ndarray, _Scaled]]:
     """:class:`_Scaled` of a stack of states (``U`` (N, n, n) the Cholesky factors of M, ``Jc`` (N, k, n)), grouped
     by rank: ``(rows, scaled)`` per rank, the states' rows in the stack and their stacked :class:`_Scaled`. The kept
-    eigenvalues of S are the largest ones (eigh sorts them), above :func:`redundant_below` of each state."""
+    eigenvalues of S are the largest ones, above :func:`_redundant_below` of each state."""
     A = _t(_triangular(U, _t(Jc), trans=True))
-    w, V = np.linalg.eigh(A @ _t(A))
+    E, w = _spectrum(A)
     k = w.shape[-1]
-    below = redundant_below(model, w[:, -1:])
-    rank = (w > below).sum(axis=1)
+    rank = (w > _redundant_below(model, w[:, -1:])).sum(axis=1)
     groups = []
     for r in np.unique(rank):
         rows = np.flatnonzero(rank == r)
-        groups.append((rows, _Scaled(U[rows], A[rows], V[rows][..., k - r:], w[rows][..., k - r:])))
+        E_r, w_r = E[rows], w[rows]
+        groups.append((rows, _Scaled(U[rows], A[rows], E_r[..., k - r:], w_r[..., k - r:], E_r[..., :k - r],
+                                     w_r[..., :k - r])))
     return groups
 
 
@@ -778,15 +865,70 @@ def _constrained(sc: _Scaled, h: np.ndarray, tau: np.ndarray, bias: np.ndarray) 
     return qdd[..., 0], qdd[..., 1], ctrl, lam[..., 0], lam[..., 1]
 
 
-def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau, x, xd, chart: str | None = None):
+class _ConstraintConditioning(NamedTuple):
+    """The conditioning of the constrained problem at one state (:func:`_constraint_conditioning`)."""
+
+    conditions: dict     # "constraint", "constraint_consistency", "constraint_kept"
+    rank: int
+    lam_scale: float
+    force_scale: float   # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
+
+
+def _inconsistency(model: Model, sc: _Scaled, bias: np.ndarray, forces: np.ndarray, accel_scale: float) -> float:
+    """The relative size of the KKT right-hand sides in S's redundant directions ``V0``: ``max |V0^T r| / |r|`` over
+    the columns ``f`` of ``forces``, ``r = -Jcdot qd - Jc M^-1 f = -Jcdot qd - A U^-T f`` (the multipliers solve
+    ``S lam = r``); 0 when S is regular. Non-zero means ``H_t`` is empty (eq. 16: the constraints cannot all hold,
+    e.g. a four-bar at its change point moving off both branches). |r| is taken at least ``1e-6 L accel_scale``:
+    where every row is degenerate, r itself is rounding, and its share means nothing."""
+    if not sc.V0.shape[-1]:
+        return 0.0
+    r = -bias[:, None] - sc.A @ _triangular(sc.U, forces, trans=True)
+    size = np.maximum(np.linalg.norm(r, axis=0), 1e-6 * model.length_scale * accel_scale)
+    return float(np.max(np.linalg.norm(sc.V0.T @ r, axis=0) / np.where(size > 0.0, size, 1.0)))
+
+
+def _constraint_conditioning(model: Model, sc: _Scaled, cons: ConstraintTerms, forces: np.ndarray,
+                             accel_scale: float, inverse_norm: float) -> _ConstraintConditioning:
+    """The conditioning of the constrained problem from the KKT's own scaled blocks (:class:`_Scaled`, one state):
+    S's eigenvalues ``w0, w`` (ascending; the largest ``w_max`` taken at least :func:`_degenerate_floor`) give
+    ``"constraint"`` = cond S = ``w_max / w_min`` (inf when ``w_min`` is not positive: the multipliers are not unique)
+    and ``"constraint_kept"`` = ``w_max`` over the smallest kept eigenvalue (what the solve amplifies; 1 when none
+    is kept); ``"constraint_consistency"`` is :func:`_inconsistency` of the right-hand sides ``forces`` (columns
+    ``B u - h`` and ``-h``). ``lam_scale = ||S^+|| (|Jcdot qd|_1 + ||Jc|| accel_scale)`` bounds the multipliers by the
+    magnitudes summed into ``r`` (``||S^+||`` one over the smallest kept eigenvalue; 0 when none is kept)."""
+    w = np.concatenate([sc.w0, sc.w])
+    w_max = max(float(w[-1]), _degenerate_floor(model))
+    rank = len(sc.w)
+    jc_norm = float(np.linalg.svd(cons.Jc, compute_uv=False)[0])
+    lam_scale = float((np.abs(cons.bias).sum() + jc_norm * accel_scale) / sc.w[0]) if rank else 0.0
+    conditions = {"constraint": w_max / w[0] if w[0] > 0.0 else math.inf,
+                  "constraint_consistency": _inconsistency(model, sc, cons.bias, forces, accel_scale),
+                  "constraint_kept": w_max / sc.w[0] if rank else 1.0}
+    return _ConstraintConditioning(conditions, rank, lam_scale, inverse_norm * jc_norm * lam_scale)
+
+
+def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau, x, xd,
+                       chart: str | None = None) -> Split:
     """The constrained split (article 5.3-5.6) of one state by :func:`_constrained`, with the scaling of
-    :func:`_scaled` (a stack of one)."""
+    :func:`_scaled` (a stack of one); the constraint force ``Jc^T lam`` (and at the drift), its power
+    ``(Jc^T lam) . xd`` (5.5), ``Jc xd``, and the conditioning of :func:`_constraint_conditioning`, whose
+    ``force_scale`` the acceleration scale includes."""
     M, Cqd, g, T = dynamics
     ((_, stacked),) = _scaled(model, _upper_factor(model, M, x, chart)[None], cons.Jc[None])
-    total, drift, ctrl, lam, lam_drift = _constrained(_Scaled(*(a[0] for a in stacked)), Cqd + g, tau, cons.bias)
-    return constrained_split(model, M=M, Cqd=Cqd, g=g, tau_ctrl=tau, qd=xd, phi=cons.phi, Jc=cons.Jc,
-                             bias=cons.bias, drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
-                             kinetic_energy=T)
+    sc = _Scaled(*(a[0] for a in stacked))
+    h = Cqd + g
+    total, drift, ctrl, lam, lam_drift = _constrained(sc, h, tau, cons.bias)
+    cond_M, inverse_norm, accel_scale = _conditioning(model, M, Cqd, g, tau, xd)
+    cc = _constraint_conditioning(model, sc, cons, np.stack([tau - h, -h], axis=-1), accel_scale, inverse_norm)
+    power, per = _power(tau, xd)
+    force, force_drift = cons.Jc.T @ lam, cons.Jc.T @ lam_drift
+    power_constr, per_constr = _power(force, xd)
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift, power_ctrl=power,
+                 power_ctrl_per_coord=per, power_constr=power_constr, power_constr_per_coord=per_constr,
+                 cond_M=cond_M, accel_scale=accel_scale + cc.force_scale, conditions=cc.conditions,
+                 kinetic_energy=T, constraint_value=cons.phi, constraint_jacobian=cons.Jc,
+                 constraint_bias=cons.bias, constraint_velocity=cons.Jc @ xd, constraint_force=force,
+                 constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale)
 
 
 def split(model: Model, q, qd, u):

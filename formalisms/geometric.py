@@ -68,19 +68,29 @@ projector onto ``D`` (each is idempotent, fixes ``D`` and has an M-orthogonal ke
 ``B_c = (I - M^-1 Jc^T S^+ Jc) M^-1 = P M^-1 = Z (Z^T M Z)^-1 Z^T``.
 
 Rank: the interface's convention. The eigen-directions ``U_r`` of the constraint-space inverse inertia
-``S = Jc M^-1 Jc^T`` above ``CONSTRAINT_RCOND`` times its largest eigenvalue are the independent constraints; the
-distribution is ``ker U_r^T Jc`` and the multipliers lie in ``range U_r``. (Deciding the rank from Jc's own singular
-values instead would drop a nearly redundant direction that the metric does not, at a four-bar near its change
-point, and move the accelerations far from the other backends'.) Redundant rows (a duplicated constraint) and a rank
-drop (a four-bar at its change point) never raise: the pseudo-inverses give the minimum-norm multipliers, unique
-``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and finite least-squares numbers when it is (the harness flags
-BREAKDOWN from ``constrained_split``'s conditions).
+``S = Jc M^-1 Jc^T`` above ``CONSTRAINT_RCOND`` times its largest eigenvalue (and above the degenerate floor
+``(DEGENERATE_ROW L)^2 / inertia_scale``) are the independent constraints; the distribution is ``ker U_r^T Jc`` and
+the multipliers lie in ``range U_r``. S is decomposed from the constraint covectors whitened by the metric,
+``X = L^-1 Jc^T`` (``M = L L^T``): the triangle R of ``X = Q R`` has ``R^T R = S`` (eigh of that). (Deciding the rank
+from Jc's own singular values instead would drop a nearly redundant direction that the metric does not, at a
+four-bar near its change point, and move the accelerations far from the other backends'.) Redundant rows (a
+duplicated constraint) and a rank drop (a four-bar at its change point) never raise: the pseudo-inverses give the
+minimum-norm multipliers, unique ``pdd`` and ``Jc^T lam`` when ``H_t`` is not empty, and finite least-squares numbers
+when it is (the harness flags BREAKDOWN from the conditions below).
+
+Reported numbers, all computed here (the interface supplies only types and validators): cond(M) and ``||M^-1||``
+from the eigenvalues of the metric's operator in the frame of its Cholesky factor (``L^T L``, similar to M); the
+powers as covectors paired with the velocity in the chart (``tau(pd)``, ``(Jc^T lam)(pd)``); cond S, the kept cond,
+the rank and the consistency of ``S lam = r`` (its share in S's redundant directions) from the decomposition above;
+the task inertia ``Lambda = (J M^-1 J^T)^-1`` from the QR of the whitened task covectors ``L^-1 J^T``, whose triangle
+is the Cholesky factor of ``J M^-1 J^T`` (``Lambda = R^-1 R^-T``, its condition from R's singular values).
 
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
 digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one
 LAPACK solve with all right-hand sides and small numpy contractions (with constraints: one SVD of Jc, and the factor
-is that of ``Z^T M Z``).
+is that of ``Z^T M Z``). The small LAPACK calls (``potrs``, ``trtrs``, ``geqrf``, ``trtri``) are made directly: scipy's
+wrappers check their arguments for longer than the calls take.
 
 Batches (:func:`split_batch`): the same Function mapped over a block of states (``Function.map``, through a buffer on
 the numpy arrays), then the connection, the metric solves and (with constraints) the null-space method for the whole
@@ -95,10 +105,11 @@ objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christ
 
 from __future__ import annotations
 
+import math
 import threading
 import weakref
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -106,9 +117,8 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, chart_vectors, check_state,
-                                  conditioning, constrained_split, factor_mass_matrix, redundant_below,
-                                  task_space_inertia, unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
+                                  chart_vectors, check_state)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -148,12 +158,18 @@ def _cho_solve(factor, rhs: np.ndarray) -> np.ndarray:
     of argument checking per call, more than the solve)."""
     c, lower = factor
     x, info = _POTRS(c, rhs, lower=int(bool(lower)))
-    if info != 0:
-        raise ValueError(f"LAPACK potrs failed (info = {info})")
+    _checked("potrs", info)
     return x
 
 
-_POTRS = scipy.linalg.lapack.get_lapack_funcs("potrs", (np.zeros(1),))
+_POTRS, _TRTRS, _GEQRF, _TRTRI = scipy.linalg.lapack.get_lapack_funcs(("potrs", "trtrs", "geqrf", "trtri"),
+                                                                      (np.zeros(1),))
+
+
+def _checked(routine: str, info: int) -> None:
+    """A LAPACK call made directly (module docstring, performance) failed: a ValueError naming it."""
+    if info != 0:
+        raise ValueError(f"LAPACK {routine} failed (info = {info})")
 
 
 def _cholesky(M: np.ndarray):
@@ -490,29 +506,108 @@ def _chart_name(chart) -> str:
     return JOINT_CHART if chart is None else getattr(chart, "name", "chart")
 
 
+def _metric_factor(model: Model, chart, M: np.ndarray, p: np.ndarray):
+    """The Cholesky factor of the metric ``M_p`` (``cho_factor``); a metric that is not positive definite (a point
+    mass on its own joint axis; in a chart, wherever ``Dpsi`` is singular) is a ValueError naming the model, the
+    point and the eigenvalues."""
+    try:
+        return scipy.linalg.cho_factor(M)
+    except np.linalg.LinAlgError:
+        where = f"q = {p.tolist()}" if chart is None else (
+            f"p = {p.tolist()} in chart '{_chart_name(chart)}' (M_p = Dpsi^T M Dpsi is singular wherever Dpsi is)")
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} (Cholesky "
+                         f"failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
+
+
+def _whitened(factor, covectors: np.ndarray) -> np.ndarray:
+    """Covectors (the columns of ``covectors``) in the orthonormal coframe of the metric: ``L^-1 c`` with ``M = L L^T``
+    (``factor`` from :func:`_metric_factor`), so that ``c^T M^-1 c' = (L^-1 c) . (L^-1 c')``."""
+    c, lower = factor
+    x, info = _TRTRS(c, covectors, lower=int(bool(lower)), trans=0 if lower else 1)
+    _checked("trtrs", info)
+    return x
+
+
+def _metric_spectrum(factor) -> tuple[float, float]:
+    """``(lambda_min, lambda_max)`` of the metric from its Cholesky factor: with ``M = L L^T``, the metric's operator in
+    the frame of its factor, ``L^T L = L^-1 M L``, is similar to M, and its eigenvalues (eigvalsh) are M's."""
+    c, lower = factor
+    L = np.tril(c) if lower else np.triu(c).T
+    eig = np.linalg.eigvalsh(L.T @ L)
+    return float(eig[0]), float(eig[-1])
+
+
+def _conditioning(model: Model, factor, Cqd: np.ndarray, dV: np.ndarray, tau: np.ndarray,
+                  pd: np.ndarray) -> tuple[float, float, float]:
+    """``(cond(M), ||M^-1||, accel_scale)`` of the metric in this chart (:func:`_metric_spectrum`; inf where its
+    smallest eigenvalue is not positive), with ``accel_scale = ||M^-1||_2 H``: H the size of the covectors summed in
+    ``tau - M Gamma(pd, pd) - dV/dp``, plus configuration-robust magnitudes of the terms that can cancel,
+    ``||M|| |pd|^2`` (velocity products) and ``|gravity| sqrt(m_total ||M||)`` (a mass times a lever arm: gravity).
+    1-norms, so tiny vectors do not underflow."""
+    low, high = _metric_spectrum(factor)
+    m_total = sum(b.mass for b in model.bodies)
+    H = (np.abs(Cqd).sum() + np.abs(dV).sum() + np.abs(tau).sum() + high * float(pd @ pd)
+         + np.abs(model.gravity).sum() * np.sqrt(m_total * high))
+    if not low > 0.0:
+        return np.inf, np.inf, np.inf
+    return high / low, 1.0 / low, float(H / low)
+
+
+def _pairing(covector: np.ndarray, velocity: np.ndarray) -> tuple[float, np.ndarray]:
+    """The power of a generalized force: the covector paired with the velocity in this chart, ``tau(pd) = tau_i pd^i``
+    (chart-invariant), and its terms per coordinate."""
+    return float(np.dot(covector, velocity)), covector * velocity
+
+
+def _degenerate_floor(model: Model) -> float:
+    """The smallest eigenvalue of ``J M^-1 J^T`` (J constraint or task rows) that is a direction and not rounding: a
+    row of ``DEGENERATE_ROW`` times the model's length scale L in the metric, ``(DEGENERATE_ROW L)^2 /
+    inertia_scale``."""
+    return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
+
+
 def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
     pt = _evaluate(model, chart, p, pd)
     if model.constraints:
         return _constrained_split(model, chart, pt, p, pd, tau)
-    factor = factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart))
+    factor = _metric_factor(model, chart, pt.M, p)
     # grad V (dV raised by the metric), G u (the control covector raised) and M^-1 (tau - dV), each its own solve
     Gamma, first, (grad_V, ctrl, forced) = christoffel_symbols(pt.M, pt.dM, factor, (pt.dV, tau, tau - pt.dV))
     gamma_pdpd = (Gamma @ pd) @ pd                           # Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k
     Cqd = (first @ pd) @ pd                                  # M Gamma(pd, pd): the chart's C qd (eq. 7)
     drift = -gamma_pdpd - grad_V                             # eq. (25)
     total = forced - gamma_pdpd                              # eq. (24) solved on its own, not drift + ctrl
-    cond_M, accel_scale = conditioning(model, pt.M, Cqd, pt.dV, tau, pd)
-    task_drift = pt.J @ drift + pt.Jdot_pd
-    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau, qd=pd, cond_M=cond_M,
-                               accel_scale=accel_scale, task_drift=task_drift, kinetic_energy=pt.T,
-                               extras={"chart": _chart_name(chart)}, **_task_inertia(model, pt, factor))
+    cond_M, _, accel_scale = _conditioning(model, factor, Cqd, pt.dV, tau, pd)
+    power, per = _pairing(tau, pd)
+    Lambda, task_cond = _task_inertia(model, pt, factor)
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=power,
+                 power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
+                 accel_scale=accel_scale, extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
+                 conditions={"task_inertia": task_cond}, kinetic_energy=pt.T, task_inertia=Lambda)
 
 
-def _task_inertia(model: Model, pt: _Point, factor) -> dict:
-    """``task_inertia`` ``(J M^-1 J^T)^-1`` (eq. 22) from the chart's task Jacobian ``J = dx/dp`` and metric ``M_p``
-    (the same matrix in every chart: ``J_p M_p^-1 J_p^T = J M^-1 J^T``), with ``conditions["task_inertia"]``."""
-    Lambda, cond = task_space_inertia(model, pt.J, factor)
-    return {"task_inertia": Lambda, "conditions": {"task_inertia": cond}}
+def _task_inertia(model: Model, pt: _Point, factor) -> tuple[np.ndarray, float]:
+    """``(Lambda, cond)``: the task-space inertia ``Lambda = (J M_p^-1 J^T)^-1`` (eq. 22) from the chart's task
+    Jacobian ``J = dx/dp`` and metric ``M_p`` (the same matrix in every chart: ``J_p M_p^-1 J_p^T = J M^-1 J^T``), and
+    ``cond_2(J M^-1 J^T)``.
+
+    The task covectors whitened by the metric (:func:`_whitened`), ``X = L^-1 J^T``, have ``X^T X = J M^-1 J^T``; the
+    triangle of their QR factorization ``X = Q R`` is its Cholesky factor, got without forming it: its eigenvalues
+    are R's squared singular values and ``Lambda = R^-1 R^-T``. Numerically singular (the smallest eigenvalue not
+    above k eps times the largest, eigvalsh's absolute accuracy, nor above :func:`_degenerate_floor`; or not
+    finite): cond inf and Lambda NaN, never a plausible-looking number."""
+    k = pt.J.shape[0]
+    qr, _, _, info = _GEQRF(_whitened(factor, pt.J.T))
+    _checked("geqrf", info)
+    R = np.triu(qr[:k])                                      # (min(n, k), k)
+    w = np.zeros(k)
+    w[k - len(R):] = np.linalg.svd(R, compute_uv=False)[::-1] ** 2
+    if not max(k * np.finfo(float).eps * w[-1], _degenerate_floor(model)) < w[0]:
+        return np.full((k, k), np.nan), np.inf
+    R_inv, info = _TRTRI(R)
+    _checked("trtri", info)
+    Lambda = R_inv @ R_inv.T
+    return 0.5 * (Lambda + Lambda.T), float(w[-1] / w[0])
 
 
 # ------------------------------------------------------------------------------------------------ constraints
@@ -550,16 +645,27 @@ def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (A @ x[..., None])[..., 0]
 
 
-def _distribution(model: Model, Jc: np.ndarray, factor) -> _Distribution:
-    """The independent directions of ``S = Jc M^-1 Jc^T`` (``factor``: M's Cholesky factor from
-    ``factor_mass_matrix``) and the SVD of those rows (module docstring, "Rank")."""
-    c, lower = factor
-    X = scipy.linalg.solve_triangular(c, Jc.T, lower=lower, trans="N" if lower else "T")   # L^-1 Jc^T, M = L L^T
-    w, E = np.linalg.eigh(X.T @ X)
-    rows = E[:, w > redundant_below(model, w[-1])] if w.size else E
-    U, s, Vt = np.linalg.svd(rows.T @ Jc)
-    r = rows.shape[1]
-    return _Distribution(rows=rows, U=U, s=s[:r], V=Vt[:r].T, Z=Vt[r:].T)
+def _constraint_spectrum(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigen-directions (columns) of ``S = Jc M^-1 Jc^T`` from the whitened constraint
+    covectors ``X = L^-1 Jc^T`` (:func:`_whitened`; one state or a stack): the triangle of the QR factorization
+    ``X = Q R`` has ``R^T R = X^T X = S``, decomposed by eigh in the constraint coordinates."""
+    R = np.linalg.qr(X, mode="r")
+    return np.linalg.eigh(_t(R) @ R)
+
+
+def _independent(model: Model, w: np.ndarray) -> np.ndarray:
+    """The independent constraint directions (module docstring, "Rank") among S's eigenvalues ``w`` (ascending; one
+    state or a stack): above ``CONSTRAINT_RCOND`` times the largest and above :func:`_degenerate_floor`; the others,
+    at or below, are redundant."""
+    return w > np.maximum(CONSTRAINT_RCOND * w[..., -1:], _degenerate_floor(model))
+
+
+def _distribution(Jc: np.ndarray, rows: np.ndarray) -> _Distribution:
+    """The constraint distribution of the independent directions ``rows`` (columns, from :func:`_independent`): the
+    SVD of ``rows^T Jc`` (module docstring, "Rank"); for one state or a stack of states of the same rank."""
+    U, s, Vt = np.linalg.svd(_t(rows) @ Jc)
+    r = rows.shape[-1]
+    return _Distribution(rows=rows, U=U, s=s[..., :r], V=_t(Vt[..., :r, :]), Z=_t(Vt[..., r:, :]))
 
 
 def _reduced_metric_factor(model: Model, chart, M: np.ndarray, Z: np.ndarray, p: np.ndarray):
@@ -582,13 +688,61 @@ def _condition(Mz: np.ndarray) -> float:
     return float(eig[-1] / eig[0])
 
 
+def _inconsistency(model: Model, pt: _Point, factor, X: np.ndarray, redundant: np.ndarray, forces: np.ndarray,
+                   accel_scale: float) -> float:
+    """The relative size of the right-hand sides ``r = -Jcdot pd - Jc M^-1 f`` of ``S lam = r`` in S's ``redundant``
+    directions (columns), ``max |redundant^T r| / |r|`` over the covectors ``f`` (columns of ``forces``: with and
+    without the input); ``Jc M^-1 f = X^T (L^-1 f)``, both whitened (:func:`_whitened`). 0 when S is regular;
+    non-zero means ``H_t`` is empty (eq. 16: the constraints cannot all hold, e.g. a four-bar at its change point
+    moving off both branches). |r| is taken at least ``1e-6 L accel_scale``: where every row is degenerate, r itself
+    is rounding, and its share means nothing."""
+    if not redundant.shape[1]:
+        return 0.0
+    r = -pt.Jc_bias[:, None] - X.T @ _whitened(factor, forces)
+    size = np.maximum(np.linalg.norm(r, axis=0), 1e-6 * model.length_scale * accel_scale)
+    return float(np.max(np.linalg.norm(redundant.T @ r, axis=0) / np.where(size > 0.0, size, 1.0)))
+
+
+class _ConstraintConditioning(NamedTuple):
+    """The conditioning of the constrained problem at one point (:func:`_constraint_conditioning`)."""
+
+    conditions: dict     # "constraint", "constraint_consistency", "constraint_kept"
+    rank: int
+    lam_scale: float
+    force_scale: float   # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
+
+
+def _constraint_conditioning(model: Model, pt: _Point, w: np.ndarray, independent: np.ndarray, inconsistency: float,
+                             accel_scale: float, inverse_norm: float) -> _ConstraintConditioning:
+    """From S's eigenvalues ``w`` (ascending, :func:`_constraint_spectrum`; the largest, ``w_max``, taken at least
+    :func:`_degenerate_floor`) and its ``independent`` directions: ``"constraint"`` = cond S = ``w_max / w_min`` (inf
+    when ``w_min`` is not positive: the multipliers are not unique), ``"constraint_kept"`` = ``w_max`` over the
+    smallest independent eigenvalue (what the solve amplifies; 1 when none), the ``inconsistency``
+    (:func:`_inconsistency`), the rank, and ``lam_scale = ||S^+|| (|Jcdot pd|_1 + ||Jc|| accel_scale)``, the size of the
+    multipliers the summed terms could produce (``||S^+||`` one over the smallest independent eigenvalue; 0 when
+    none), ``||Jc||`` the square root of ``Jc Jc^T``'s largest eigenvalue."""
+    w_max = max(float(w[-1]), _degenerate_floor(model))
+    kept = w[independent]
+    jc_norm = math.sqrt(max(float(np.linalg.eigvalsh(pt.Jc @ pt.Jc.T)[-1]), 0.0))
+    lam_scale = float((np.abs(pt.Jc_bias).sum() + jc_norm * accel_scale) / kept[0]) if kept.size else 0.0
+    conditions = {"constraint": w_max / w[0] if w[0] > 0.0 else math.inf,
+                  "constraint_consistency": inconsistency,
+                  "constraint_kept": w_max / kept[0] if kept.size else 1.0}
+    return _ConstraintConditioning(conditions, int(kept.size), lam_scale, inverse_norm * jc_norm * lam_scale)
+
+
 def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
     """Eqs. (12)-(17) by the null-space method (module docstring, "Constraints"): one particular admissible
     acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the three projections onto ``D``:
     ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
-    Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``."""
-    metric_factor = factor_mass_matrix(model, pt.M, p, None if chart is None else _chart_name(chart))
-    dist = _distribution(model, pt.Jc, metric_factor)
+    Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``. The
+    reaction covector ``Jc^T lam`` (and at the drift) paired with pd is the constraint power (5.5); ``Jc pd`` the
+    constraint covectors paired with the velocity; the conditioning from :func:`_constraint_conditioning`."""
+    metric_factor = _metric_factor(model, chart, pt.M, p)
+    X = _whitened(metric_factor, pt.Jc.T)                    # the constraint covectors, whitened by the metric
+    w, E = _constraint_spectrum(X)
+    independent = _independent(model, w)
+    dist = _distribution(pt.Jc, E[:, independent])
     factor, Mz = _reduced_metric_factor(model, chart, pt.M, dist.Z, p)
     Cqd = (christoffel_first_kind(pt.dM) @ pd) @ pd          # M Gamma(pd, pd), the chart's C qd (eq. 7)
     f0 = -Cqd - pt.dV                                        # eq. (24) as a covector, tau = 0
@@ -600,12 +754,22 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
     total, drift, ctrl = pdd_p + steps[:, 0], pdd_p + steps[:, 1], steps[:, 2]
     lam = dist.solve_transposed(pt.M @ total - f)            # eq. (12): M pdd + h = tau + Jc^T lam
     lam_drift = dist.solve_transposed(pt.M @ drift - f0)     # eq. (14)
-    inertia = _task_inertia(model, pt, metric_factor)               # eq. (22): the unconstrained metric's
-    return constrained_split(model, M=pt.M, Cqd=Cqd, g=pt.dV, tau_ctrl=tau, qd=pd, phi=pt.phi, Jc=pt.Jc,
-                             bias=pt.Jc_bias, drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
-                             extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
-                             kinetic_energy=pt.T, task_inertia=inertia["task_inertia"],
-                             conditions={"reduced_metric": _condition(Mz), **inertia["conditions"]})
+    cond_M, inverse_norm, accel_scale = _conditioning(model, metric_factor, Cqd, pt.dV, tau, pd)
+    inconsistency = _inconsistency(model, pt, metric_factor, X, E[:, ~independent], np.column_stack([f, f0]),
+                                   accel_scale)
+    cc = _constraint_conditioning(model, pt, w, independent, inconsistency, accel_scale, inverse_norm)
+    Lambda, task_cond = _task_inertia(model, pt, metric_factor)   # eq. (22): the unconstrained metric's
+    power, per = _pairing(tau, pd)
+    reaction, reaction_drift = lam @ pt.Jc, lam_drift @ pt.Jc     # the reaction covectors Jc^T lam
+    power_constr, per_constr = _pairing(reaction, pd)
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift, power_ctrl=power,
+                 power_ctrl_per_coord=per, power_constr=power_constr, power_constr_per_coord=per_constr,
+                 cond_M=cond_M, accel_scale=accel_scale + cc.force_scale, extras={"chart": _chart_name(chart)},
+                 task_drift=pt.J @ drift + pt.Jdot_pd,
+                 conditions={"reduced_metric": _condition(Mz), "task_inertia": task_cond, **cc.conditions},
+                 kinetic_energy=pt.T, task_inertia=Lambda, constraint_value=pt.phi, constraint_jacobian=pt.Jc,
+                 constraint_bias=pt.Jc_bias, constraint_velocity=pt.Jc @ pd, constraint_force=reaction,
+                 constraint_force_drift=reaction_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale)
 
 
 # ------------------------------------------------------------------------------------------------- public API
@@ -650,7 +814,7 @@ def christoffel(model: Model, p, chart=None) -> np.ndarray:
     symmetric in (j, k); ``Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k`` is the drift's velocity-product term."""
     (p,) = chart_vectors(model, p=p)
     pt = _evaluate(model, chart, p, np.zeros(model.n))
-    return christoffel_symbols(pt.M, pt.dM, factor_mass_matrix(model, pt.M, p))[0]
+    return christoffel_symbols(pt.M, pt.dM, _metric_factor(model, chart, pt.M, p))[0]
 
 
 def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
@@ -741,21 +905,19 @@ def _stack_cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _constrained_block(model: Model, Jc: np.ndarray, bias: np.ndarray, M: np.ndarray, L: np.ndarray, Cqd, dV, P,
                        tau) -> tuple[np.ndarray, ...]:
     """``(drift, ctrl, total, lam, lam_drift)`` of a stack of constrained states by the null-space method of
-    :func:`_constrained_split` (eqs. 12-17), the states grouped by the rank of ``S = Jc M^-1 Jc^T`` (the rule of
-    :func:`_distribution`), each group's :class:`_Distribution` a stack."""
+    :func:`_constrained_split` (eqs. 12-17), the states grouped by the rank of ``S = Jc M^-1 Jc^T`` (its spectrum and
+    independent directions as there: :func:`_constraint_spectrum`, :func:`_independent`), each group's
+    :class:`_Distribution` a stack."""
     N, n = M.shape[:2]
-    X = _forward(L, _t(Jc))                                  # L^-1 Jc^T, M = L L^T
-    w, E = np.linalg.eigh(_t(X) @ X)
+    w, E = _constraint_spectrum(_forward(L, _t(Jc)))         # from L^-1 Jc^T, M = L L^T
     k = w.shape[-1]
-    rank = (w > redundant_below(model, w[:, -1:])).sum(axis=1)
+    rank = _independent(model, w).sum(axis=1)
     f0 = -Cqd - dV                                           # eq. (24) as a covector, tau = 0
     f = tau + f0
     out = [np.empty((N, n)) for _ in range(3)] + [np.empty((N, k)) for _ in range(2)]
     for r in np.unique(rank):
         i = np.flatnonzero(rank == r)
-        rows = E[i][..., k - r:]
-        Us, s, Vt = np.linalg.svd(_t(rows) @ Jc[i])
-        dist = _Distribution(rows=rows, U=Us, s=s[:, :r], V=_t(Vt[:, :r]), Z=_t(Vt[:, r:]))
+        dist = _distribution(Jc[i], E[i][..., k - r:])
         Mi = M[i]
         pdd_p = dist.solve(-bias[i])                         # a point of H_t (eq. 16)
         rhs = _t(dist.Z) @ np.stack([f[i] - _mv(Mi, pdd_p), f0[i] - _mv(Mi, pdd_p), tau[i]], axis=-1)
@@ -780,7 +942,7 @@ def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -
     c = _compiled(model, None)
     flat = c.evaluate.batch(P, PD)
     M, dM, dV = flat[:, c.M_index], flat[:, c.dM_index], flat[:, c.dV_slice]
-    L = _stack_cholesky(M, lambda j: factor_mass_matrix(model, M[j], P[j]))
+    L = _stack_cholesky(M, lambda j: _metric_factor(model, None, M[j], P[j]))
     Cqd = _mv((christoffel_first_kind(dM) @ PD[:, None, :, None])[..., 0], PD)   # M Gamma(pd, pd) (eq. 7)
     if model.constraints:
         return _constrained_block(model, flat[:, c.Jc_index], flat[:, c.Jc_bias_slice], M, L, Cqd, dV, P, tau)

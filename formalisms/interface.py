@@ -11,15 +11,21 @@ constraint-consistent input map ``B_c = M^-1 [I - Jc^T (Jc M^-1 Jc^T)^-1 Jc M^-1
 Redundant constraints make ``S = Jc M^-1 Jc^T`` singular: every backend then treats the eigen-directions of S
 below ``CONSTRAINT_RCOND`` times its largest eigenvalue as redundant and returns the minimum-norm multipliers
 (the generalized constraint force ``Jc^T lam`` and the accelerations stay unique).
+
+This module holds only what every backend must agree on to be compared at all: types (:class:`Split`,
+:class:`SplitBatch`, :class:`Formalism`, :class:`Chart`), constants (the rule for redundant and degenerate rows),
+validators of the state vectors and exceptions (DESIGN.md, "Independence is the product"). Every number a backend
+reports, its power, constraint forces, factorization, rank decision, conditioning and task inertia, it computes
+itself, its own way; ``tests/test_independence.py`` holds the formalisms to the names listed in :data:`__all__`.
+The definitions those numbers follow are written out in :class:`Split`'s fields below.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
-import scipy.linalg
 
 from cases.model import Model
 
@@ -41,29 +47,15 @@ class Unsupported:
 UNSUPPORTED = Unsupported()
 
 
-#: Relative eigenvalue of ``S = Jc M^-1 Jc^T`` below which a constraint direction counts as redundant (module doc).
+#: Relative eigenvalue of ``S = Jc M^-1 Jc^T`` below which a constraint direction counts as redundant (module doc):
+#: an eigenvalue at or below ``max(CONSTRAINT_RCOND w_max, floor)`` is redundant, the floor below.
 CONSTRAINT_RCOND = 1e-10
-#: A constraint or task row shorter than this times the model's length scale (in the metric of M) is degenerate.
+#: A constraint or task row shorter than this times the model's length scale (in the metric of M) is degenerate: the
+#: floor ``(DEGENERATE_ROW L)^2 / inertia_scale`` (``Model.length_scale``, ``Model.inertia_scale``) is the smallest
+#: eigenvalue of ``J M^-1 J^T`` that is a direction and not rounding (a row that vanishes at a configuration comes
+#: out of some kinematics as exact zeros and of others as 1e-17 L). A task ``J M^-1 J^T`` is numerically singular
+#: when its smallest eigenvalue is not above ``max(k eps w_max, floor)``.
 DEGENERATE_ROW = 1e-8
-
-
-def degenerate_floor(model: Model) -> float:
-    """The smallest eigenvalue of ``J M^-1 J^T`` (J the constraint rows Jc, or a task Jacobian) that is a direction
-    and not rounding: ``(DEGENERATE_ROW L)^2 / inertia_scale``, L the model's length scale.
-
-    A row that vanishes at a configuration (a constrained or task point on a joint axis, a direction the point cannot
-    move in) comes out of some kinematics as exact zeros and of others as rounding (1e-17 L); relative to the largest
-    eigenvalue, as a lone row, the rounding looks like a direction, and one backend enforced it (a fuzz finding).
-    The floor is far above that rounding, ``(eps L)^2 ||M^-1||``, unless cond(M) exceeds 1e15, and far below a row of
-    any physical size."""
-    return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
-
-
-def redundant_below(model: Model, w_max):
-    """Eigenvalues of ``S = Jc M^-1 Jc^T`` at or below this are redundant directions (module doc): ``CONSTRAINT_RCOND``
-    times the largest, and never less than :func:`degenerate_floor`. ``w_max`` may be an array (one largest
-    eigenvalue per state of a batch); the result then has its shape."""
-    return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), degenerate_floor(model))
 
 
 class StateError(ValueError):
@@ -87,7 +79,10 @@ class Split:
     power_constr         ``(Jc^T lam) . qd``, None when unconstrained; per coordinate likewise.
     cond_M               2-norm condition number of the mass matrix this formalism solved with.
     accel_scale          the size of the accelerations the summed terms could produce (see
-                         :func:`conditioning`); the harness scales tolerances by it (DESIGN.md, tolerances).
+                         ``||M^-1||_2 H``, H = ``|C qd|_1 + |g|_1 + |B u|_1 + ||M|| |qd|^2 + |gravity|_1
+                         sqrt(m_total ||M||)``: the forces summed, with configuration-robust magnitudes of the terms
+                         that can cancel); the harness scales tolerances by it (DESIGN.md, tolerances). With
+                         constraints it adds ``force_scale = ||M^-1|| ||Jc|| lam_scale``.
     task_drift           classical acceleration (second time derivative of position, not spatial) of the model's
                          default task point ``model.task_point()`` at the drift, in its task coordinates
                          ``x_task = D p`` (eq. 23); UNSUPPORTED from a formalism without point kinematics.
@@ -123,7 +118,13 @@ class Split:
     constraint_velocity  ``Jc qd`` (k,): zero at an admissible state (5.1).
     constraint_force     ``Jc^T lam`` (n,), the generalized constraint force; ``constraint_force_drift`` likewise.
     constraint_rank      rank of ``S = Jc M^-1 Jc^T`` (eigenvalues above ``CONSTRAINT_RCOND`` times the largest).
-    lam_scale            the size of the multipliers the summed terms could produce (see :func:`constrained_split`).
+    lam_scale            the size of the multipliers the summed terms could produce: ``(|Jcdot qd|_1 + ||Jc||
+                         accel_scale) / w_kept``, ``w_kept`` the smallest kept eigenvalue of S (0 when none is kept).
+    conditions (constrained) ``"constraint"`` = cond S (``max(w_max, floor) / w_min``, inf when ``w_min <= 0``),
+                         ``"constraint_kept"`` the same over the kept eigenvalues (1 when none), and
+                         ``"constraint_consistency"`` = ``max |U_0^T r| / max(|r|, 1e-6 L accel_scale)`` over the KKT
+                         right-hand sides ``r = -Jcdot qd - Jc M^-1 f`` (``f = B u - h`` and ``-h``), U_0 S's
+                         redundant eigen-directions (0 when none): non-zero means ``H_t`` is empty.
     """
 
     drift: np.ndarray
@@ -236,7 +237,7 @@ class SplitBatch:
     """The split of N states at once (``split_batch(model, Q, QD, U)``), each row what ``split`` returns for that
     state: ``drift``, ``ctrl``, ``total`` (N, n) as in :class:`Split` (eq. 9, 10; ctrl ``B_c B u`` of eq. 17 computed
     directly), ``lam`` and ``lam_drift`` (N, k) the multipliers with and without input (eq. 12, 14; None when
-    unconstrained; minimum-norm over redundant directions, the rule of :func:`redundant_below`)."""
+    unconstrained; minimum-norm over redundant directions, the rule of :data:`CONSTRAINT_RCOND`)."""
 
     drift: np.ndarray
     ctrl: np.ndarray
@@ -346,179 +347,6 @@ def joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
     return out
 
 
-def factor_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray, chart: str | None = None):
-    """Cholesky factor of ``M`` (``scipy.linalg.cho_factor``); a mass matrix that is not positive definite (e.g. a
-    point mass on its own joint axis) is a ValueError naming the model, the configuration and the eigenvalues.
-    With ``chart`` (its name), ``M`` and ``q`` are the chart's ``M_p = Dpsi^T M Dpsi`` and ``p``."""
-    try:
-        return scipy.linalg.cho_factor(M)
-    except np.linalg.LinAlgError:
-        where = f"q = {q.tolist()}" if chart is None else (
-            f"p = {q.tolist()} in chart '{chart}' (M_p = Dpsi^T M Dpsi is singular wherever Dpsi is)")
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} "
-                         f"(Cholesky failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
-
-
-def conditioning(model: Model, M: np.ndarray, Cqd: np.ndarray, g: np.ndarray, tau: np.ndarray,
-                 qd: np.ndarray) -> tuple[float, float]:
-    """``(cond(M), accel_scale)`` from a formalism's own M, C qd, g and applied force ``tau``.
-
-    ``accel_scale = ||M^-1||_2 * H`` with H the size of the generalized forces summed in ``B u - C qd - g``.
-    The computed ``C qd`` and ``g`` can cancel to zero while their terms do not (a folded arm, zero
-    gravity), so H also carries configuration-robust magnitudes of those terms: ``||M|| |qd|^2`` for the
-    velocity products and ``|gravity| sqrt(m_total ||M||)`` (a mass times a lever arm) for gravity.
-    1-norms, so tiny vectors do not underflow.
-    """
-    eig = np.linalg.eigvalsh(M)
-    m_total = sum(b.mass for b in model.bodies)
-    H = (np.abs(Cqd).sum() + np.abs(g).sum() + np.abs(tau).sum() + eig[-1] * float(qd @ qd)
-         + np.abs(model.gravity).sum() * np.sqrt(m_total * eig[-1]))
-    return float(eig[-1] / eig[0]), float(H / eig[0])
-
-
-def joint_power(tau: np.ndarray, qd: np.ndarray) -> tuple[float, np.ndarray]:
-    """Power of a generalized force on the joint velocities: total ``tau . qd`` and per coordinate."""
-    per = tau * qd
-    return float(per.sum()), per
-
-
-def _readonly(arr: np.ndarray) -> np.ndarray:
-    arr = np.array(arr, dtype=float)
-    arr.setflags(write=False)
-    return arr
-
-
-def _optional(value):
-    """A supplied optional quantity as a read-only float array; UNSUPPORTED stays UNSUPPORTED."""
-    return value if isinstance(value, Unsupported) else _readonly(value)
-
-
-def singular_below(model: Model, eig: np.ndarray):
-    """A symmetric positive semi-definite ``J M^-1 J^T`` with ascending eigenvalues ``eig`` is numerically singular
-    when its smallest is at or below this (NaN when any is not finite): ``k eps`` times the largest (eigvalsh's
-    absolute accuracy) or :func:`degenerate_floor`, whichever is larger. ``eig`` may be stacked (..., k), one row
-    per state of a batch; the result then has the leading shape."""
-    eig = np.asarray(eig, dtype=float)
-    floor = np.maximum(eig.shape[-1] * np.finfo(float).eps * eig[..., -1], degenerate_floor(model))
-    return np.where(np.all(np.isfinite(eig), axis=-1), floor, np.nan)[()]
-
-
-def task_space_inertia(model: Model, J: np.ndarray, factor) -> tuple[np.ndarray, float]:
-    """``(Lambda, cond)``: the task-space inertia ``Lambda = (J M^-1 J^T)^-1`` of eq. (22) and ``cond_2(J M^-1 J^T)``
-    from a formalism's own task Jacobian ``J`` (k x n) and the Cholesky factor of its own ``M``
-    (:func:`factor_mass_matrix`). ``A = J M^-1 J^T`` is inverted in its eigen-axes; where it is numerically singular
-    (its smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below
-    :func:`degenerate_floor`: indistinguishable from zero) ``cond`` is inf and ``Lambda`` NaN, never a
-    plausible-looking number."""
-    A = J @ scipy.linalg.cho_solve(factor, J.T)
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    if not singular_below(model, w) < w[0]:
-        return np.full(A.shape, np.nan), float("inf")
-    Lambda = (V / w) @ V.T
-    return 0.5 * (Lambda + Lambda.T), float(w[-1] / w[0])
-
-
-def unconstrained_split(*, drift, ctrl, total, tau_ctrl, qd, cond_M, accel_scale, extras=None,
-                        task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
-                        joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED,
-                        task_inertia=UNSUPPORTED) -> Split:
-    """Assemble the :class:`Split` of an unconstrained model (no multipliers, no constraint power)."""
-    n = len(qd)
-    for label, value in (("drift", drift), ("ctrl", ctrl), ("total", total)):
-        if np.shape(value) != (n,):
-            raise ValueError(f"a formalism returned {label} of shape {np.shape(value)}, expected ({n},)")
-    for label, value in (("joint_wrenches", joint_wrenches), ("joint_wrenches_drift", joint_wrenches_drift)):
-        if not isinstance(value, Unsupported) and np.shape(value) != (n, 6):
-            raise ValueError(f"a formalism returned {label} of shape {np.shape(value)}, expected ({n}, 6)")
-    p, per = joint_power(tau_ctrl, qd)
-    return Split(drift=_readonly(drift), ctrl=_readonly(ctrl), total=_readonly(total), lam=None, lam_drift=None,
-                 power_ctrl=p, power_ctrl_per_coord=_readonly(per), power_constr=None, power_constr_per_coord=None,
-                 cond_M=float(cond_M), accel_scale=float(accel_scale), extras=dict(extras or {}),
-                 task_drift=_optional(task_drift), conditions={k: float(v) for k, v in (conditions or {}).items()},
-                 kinetic_energy=kinetic_energy if isinstance(kinetic_energy, Unsupported) else float(kinetic_energy),
-                 joint_wrenches=_optional(joint_wrenches), joint_wrenches_drift=_optional(joint_wrenches_drift),
-                 task_inertia=_optional(task_inertia))
-
-
-@dataclass(frozen=True)
-class ConstraintConditioning:
-    """Conditioning of ``S = Jc M^-1 Jc^T`` at one state (see :func:`constraint_conditioning`)."""
-
-    cond_S: float        # largest / smallest eigenvalue of S (inf when S is singular)
-    cond_kept: float     # largest / smallest eigenvalue kept above CONSTRAINT_RCOND (what a solve amplifies)
-    rank: int
-    inconsistency: float  # relative size of the KKT right-hand sides in S's redundant directions (0 when none)
-    lam_scale: float
-    force_scale: float   # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
-
-
-def constraint_conditioning(model: Model, M: np.ndarray, Jc: np.ndarray, bias: np.ndarray,
-                            forces: Sequence[np.ndarray], accel_scale: float) -> ConstraintConditioning:
-    """Conditioning of the constrained problem from a formalism's own ``M``, ``Jc``, ``Jcdot qd``; ``forces`` are
-    the right-hand sides ``B u - h`` (total) and ``-h`` (drift).
-
-    The multipliers solve ``S lam = r`` with ``r = -Jcdot qd - Jc M^-1 f``. ``lam_scale = ||S^+|| (|Jcdot qd|_1 +
-    ||Jc|| accel_scale)`` bounds their size from the magnitudes summed into r. When S is singular (redundant or
-    degenerate constraints), ``inconsistency`` is ``max |U_0^T r| / |r|`` over the right-hand sides, with U_0 the
-    redundant eigen-directions: non-zero means ``H_t`` is empty (the constraints cannot all hold, e.g. a four-bar
-    at its change point moving off both branches) and no acceleration is the answer. |r| is taken at least
-    ``1e-6 L accel_scale``: where every row is degenerate, r itself is rounding, and its share means nothing.
-    """
-    L = np.linalg.cholesky(M)
-    X = np.linalg.solve(L, Jc.T)
-    S = X.T @ X
-    w, U = np.linalg.eigh(S)
-    w_max = max(float(w[-1]), degenerate_floor(model))
-    kept = w > redundant_below(model, w[-1])
-    rank = int(kept.sum())
-    Minv_norm = 1.0 / float(np.linalg.eigvalsh(M)[0])
-    jc_norm = float(np.linalg.norm(Jc, 2))
-    lam_scale = (np.abs(bias).sum() + jc_norm * accel_scale) / float(w[kept][0]) if rank else 0.0
-    inconsistency = 0.0
-    if rank < len(w):
-        for f in forces:
-            r = -bias - Jc @ np.linalg.solve(L.T, np.linalg.solve(L, f))
-            size = max(float(np.linalg.norm(r)), 1e-6 * model.length_scale * accel_scale)
-            if size > 0.0:
-                inconsistency = max(inconsistency, float(np.linalg.norm(U[:, ~kept].T @ r) / size))
-    return ConstraintConditioning(cond_S=float(w_max / w[0]) if w[0] > 0.0 else np.inf,
-                                  cond_kept=float(w_max / w[kept][0]) if rank else 1.0, rank=rank,
-                                  inconsistency=inconsistency, lam_scale=float(lam_scale),
-                                  force_scale=Minv_norm * jc_norm * float(lam_scale))
-
-
-def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, drift, ctrl, total, lam, lam_drift,
-                      extras=None, task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
-                      joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED, task_inertia=UNSUPPORTED) -> Split:
-    """Assemble the :class:`Split` of a constrained model from a formalism's own solve (eq. 12-17) and its own
-    ``M``, ``C qd``, ``g``, ``phi``, ``Jc``, ``Jcdot qd``.
-
-    Adds the constraint force ``Jc^T lam`` (and at the drift), the constraint power ``(Jc^T lam) . qd`` and per
-    coordinate (5.5), and the conditions ``"constraint"`` (cond S: the multipliers are not unique above its limit)
-    and ``"constraint_consistency"`` (non-zero when ``H_t`` is empty). ``accel_scale`` includes the accelerations
-    the constraint force can produce.
-    """
-    n, k = len(qd), model.k
-    Jc, bias, phi = (np.asarray(x, dtype=float) for x in (Jc, bias, phi))
-    lam, lam_drift = np.asarray(lam, dtype=float).reshape(-1), np.asarray(lam_drift, dtype=float).reshape(-1)
-    for label, value, shape in (("Jc", Jc, (k, n)), ("Jcdot qd", bias, (k,)), ("phi", phi, (k,)),
-                                ("lam", lam, (k,)), ("lam_drift", lam_drift, (k,))):
-        if value.shape != shape:
-            raise ValueError(f"a formalism returned {label} of shape {value.shape}, expected {shape}")
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
-    cc = constraint_conditioning(model, M, Jc, bias, (tau_ctrl - Cqd - g, -Cqd - g), accel_scale)
-    base = unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
-                               accel_scale=accel_scale + cc.force_scale, extras=extras, task_drift=task_drift,
-                               conditions={**(conditions or {}), "constraint": cc.cond_S,
-                                           "constraint_consistency": cc.inconsistency},
-                               kinetic_energy=kinetic_energy, joint_wrenches=joint_wrenches,
-                               joint_wrenches_drift=joint_wrenches_drift, task_inertia=task_inertia)
-    force, force_drift = Jc.T @ lam, Jc.T @ lam_drift
-    p_constr, per = joint_power(force, qd)
-    return replace(base, lam=_readonly(lam), lam_drift=_readonly(lam_drift), power_constr=p_constr,
-                   power_constr_per_coord=_readonly(per), constraint_value=_readonly(phi),
-                   constraint_jacobian=_readonly(Jc), constraint_bias=_readonly(bias),
-                   constraint_velocity=_readonly(Jc @ qd),
-                   constraint_force=_readonly(force), constraint_force_drift=_readonly(force_drift),
-                   constraint_rank=cc.rank, lam_scale=cc.lam_scale,
-                   conditions={**base.conditions, "constraint_kept": cc.cond_kept})
+__all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "ModelNotSupported", "Split",
+           "SplitBatch", "StateError", "Unsupported", "chart_vectors", "check_batch", "check_state", "joint_vectors",
+           "split_batch_by_loop"]

@@ -27,6 +27,11 @@ dropped: redundant rows get the minimum-norm multipliers and an inconsistent sys
 least-squares numbers. The drift is the same solve with ``u = 0`` (eq. 14) and ``ctrl = B_c B u`` directly
 (eq. 17).
 
+The numbers the split reports about its solves are this backend's own, by singular values rather than the
+eigendecomposition the solve uses: cond(M) and ``||M^-1||`` from those of the Cholesky factor ``L`` (``M = L L^T``),
+and the eigenvalues of ``S = X^T X`` (rank, cond S, the consistency of the right-hand sides) from those of
+``X = L^-1 Jc^T``.
+
 In Newton–Euler the constraints are joint reactions (article 7.2): each multiplier's force is applied in the
 backward pass as an external point force on the bodies it acts on (a circle: ``2 P^T P (p - c) lam`` at the
 point; a loop closure: ``D^T lam`` on body a at ``p_a`` and ``-D^T lam`` on body b at ``p_b``, nothing on the
@@ -45,9 +50,8 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, joint_vectors, redundant_below,
-                                  unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
+                                  check_state, joint_vectors)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -452,27 +456,33 @@ def _constraint_loads(model: Model, kin, rows: list[_Rows], lam: np.ndarray) -> 
 
 def _cholesky(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:  # noqa: N803
     """Lower Cholesky factors ``L`` of the mass matrices ``M = L L^T`` (n, n, N) at the configurations ``q`` (n, N),
-    column by column (a loop over the joints). A mass matrix that is not positive definite raises
-    :func:`factor_mass_matrix`'s ValueError for the first such state."""
+    column by column (a loop over the joints). A mass matrix that is not positive definite is a ValueError naming
+    the model, the first such state's q and the eigenvalues of its M."""
     L = np.zeros_like(M)
     for j in range(len(M)):
         d = M[j, j] - (L[j, :j] ** 2).sum(axis=0)
         if not np.all(d > 0.0):
             bad = int(np.flatnonzero(~(d > 0.0))[0])
-            factor_mass_matrix(model, M[:, :, bad], q[:, bad])
             raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = "
-                             f"{q[:, bad].tolist()} (Cholesky failed at joint {j})")
+                             f"{q[:, bad].tolist()} (Cholesky failed at joint {j}); eigenvalues "
+                             f"{np.linalg.eigvalsh(M[:, :, bad]).tolist()}")
         L[j, j] = np.sqrt(d)
         L[j + 1:, j] = (M[j + 1:, j] - (L[j + 1:, :j] * L[j, :j][None]).sum(axis=1)) / L[j, j]
     return L
 
 
+def _lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``L^-1 b`` for the factors ``L`` (n, n, N) and ``b`` (n, m, N): forward substitution (a loop over the joints)."""
+    y = np.empty_like(b)
+    for i in range(len(L)):
+        y[i] = (b[i] - (L[i, :i, None] * y[:i]).sum(axis=0)) / L[i, i]
+    return y
+
+
 def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:  # noqa: N803
     """``M^-1 b`` from the factors ``L`` (n, n, N) of ``M = L L^T``, ``b`` (n, m, N): forward then back substitution
     (a loop over the joints)."""
-    y, x = np.empty_like(b), np.empty_like(b)
-    for i in range(len(L)):
-        y[i] = (b[i] - (L[i, :i, None] * y[:i]).sum(axis=0)) / L[i, i]
+    y, x = _lower_solve(L, b), np.empty_like(b)
     for i in reversed(range(len(L))):
         x[i] = (y[i] - (L[i + 1:, i, None] * x[i + 1:]).sum(axis=0)) / L[i, i]
     return x
@@ -486,7 +496,7 @@ def _times(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # noqa: N803
 @dataclass(frozen=True)
 class _RangeSpace:
     """The range-space (Schur complement) method on the Cholesky factors ``L`` of ``M``, per state: ``X = M^-1 Jc^T``
-    and ``S^+`` with ``S = Jc X`` (eigenvalues at or below :func:`redundant_below` dropped). States on the last
+    and ``S^+`` with ``S = Jc X`` (eigenvalues at or below :func:`_redundant_below` dropped). States on the last
     axis."""
 
     L: np.ndarray
@@ -500,7 +510,7 @@ class _RangeSpace:
         X = _cho_solve(L, Jc.swapaxes(0, 1))
         S = np.einsum("kin,ijn->nkj", Jc, X)                  # (N, k, k) for eigh
         w, U = np.linalg.eigh(0.5 * (S + S.swapaxes(1, 2)))
-        keep = w > redundant_below(model, w[:, -1:])
+        keep = w > _redundant_below(model, w[:, -1:])
         inverse = np.divide(1.0, w, out=np.zeros_like(w), where=keep)
         return cls(L, Jc, bias, X, np.moveaxis((U * inverse[:, None, :]) @ U.swapaxes(1, 2), 0, -1))
 
@@ -515,6 +525,91 @@ class _RangeSpace:
         """``B_c tau`` of eq. (17): ``M^-1 tau - X S^+ Jc M^-1 tau``."""
         a = _cho_solve(self.L, tau[:, None])[:, 0]
         return a - _times(self.X, _times(self.S_pinv, _times(self.Jc, a)))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Conditioning and scales, this backend's own (DESIGN.md, "Independence is the product"): from the singular values
+# of its Cholesky factor L of M and of L^-1 Jc^T (one state)
+# ----------------------------------------------------------------------------------------------------------
+
+def _redundant_below(model: Model, w_max):
+    """Eigenvalues of ``J M^-1 J^T`` at or below this are not directions (article 5.6): ``CONSTRAINT_RCOND`` times the
+    largest ``w_max`` (redundant rows), and never less than ``(DEGENERATE_ROW L)^2 / inertia_scale`` (L the model's
+    length scale: a row that vanishes here, which some kinematics round to 1e-17 L instead of 0). ``w_max`` may be an
+    array (one per state)."""
+    floor = (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
+    return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), floor)
+
+
+@dataclass(frozen=True)
+class _MassScales:
+    """cond_2(M), ``||M^-1||_2`` and ``accel_scale`` at one state (:func:`_mass_scales`)."""
+
+    cond: float
+    inverse_norm: float
+    accel_scale: float
+
+
+def _mass_scales(model: Model, L: np.ndarray, c_qd: np.ndarray, g: np.ndarray, tau: np.ndarray,  # noqa: N803
+                 qd: np.ndarray) -> _MassScales:
+    """The eigenvalues of ``M = L L^T`` are the squared singular values of its Cholesky factor ``L`` (n, n):
+    cond(M) = ``(s_max / s_min)^2``, ``||M|| = s_max^2``, ``||M^-1|| = s_min^-2``. ``accel_scale = ||M^-1|| H`` with
+    ``H = |C qd|_1 + |g|_1 + |B u|_1 + ||M|| |qd|^2 + |gravity|_1 sqrt(m_total ||M||)``: the generalized forces summed
+    in ``B u - C qd - g``, with configuration-robust sizes of the velocity products and of gravity (a mass times a
+    lever arm), since the computed ``C qd`` and ``g`` can cancel while their terms do not. 1-norms, so tiny vectors do
+    not underflow."""
+    s = np.linalg.svd(L, compute_uv=False)
+    largest, smallest = float(s[0]) ** 2, float(s[-1]) ** 2
+    m_total = sum(b.mass for b in model.bodies)
+    H = (np.abs(c_qd).sum() + np.abs(g).sum() + np.abs(tau).sum() + largest * float(qd @ qd)
+         + np.abs(model.gravity).sum() * np.sqrt(m_total * largest))
+    return _MassScales(largest / smallest, 1.0 / smallest, float(H) / smallest)
+
+
+@dataclass(frozen=True)
+class _ConstraintScales:
+    """The conditioning of ``S = Jc M^-1 Jc^T`` at one state (:func:`_constraint_scales`)."""
+
+    cond_S: float         # largest / smallest eigenvalue of S (inf when S is singular)
+    cond_kept: float      # largest / smallest eigenvalue kept (what the multipliers' solve amplifies)
+    rank: int
+    inconsistency: float  # share of the KKT right-hand sides in S's redundant directions (0 when none)
+    lam_scale: float
+    force_scale: float    # ||M^-1|| ||Jc|| lam_scale: the accelerations the constraint force can produce
+
+
+def _eigen_of_schur(L: np.ndarray, Jc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+    """``(w, V)``: the eigenvalues of ``S = X^T X``, ``X = L^-1 Jc^T`` (n, k), in descending order, as the squared
+    singular values of ``X`` (zeros beyond the n-th when k > n), and the eigenvectors, the right singular vectors
+    (columns of V, k x k)."""
+    X = _lower_solve(L[..., None], Jc.T[..., None])[..., 0]
+    _, s, Vt = np.linalg.svd(X, full_matrices=True)
+    w = np.zeros(len(Jc))
+    w[:len(s)] = s**2
+    return w, Vt.T
+
+
+def _constraint_scales(model: Model, L: np.ndarray, Jc: np.ndarray, bias: np.ndarray, forces,  # noqa: N803
+                       mass: _MassScales) -> _ConstraintScales:
+    """The multipliers solve ``S lam = r``, ``r = -Jcdot qd - Jc M^-1 f`` (``f = B u - h`` and ``-h``: ``forces``).
+    Eigenvalues of S at or below :func:`_redundant_below` are redundant directions; ``lam_scale = (|Jcdot qd|_1 + ||Jc||
+    accel_scale) / w_kept,min`` bounds the multipliers from the magnitudes summed into r; ``inconsistency = max |V_0^T
+    r| / max(|r|, 1e-6 L accel_scale)`` over the right-hand sides, V_0 the redundant eigenvectors: non-zero means
+    ``H_t`` is empty (eq. 16; where every row is degenerate r itself is rounding, hence the floor on |r|)."""
+    w, V = _eigen_of_schur(L, Jc)
+    rank = int((w > _redundant_below(model, w[0])).sum())     # descending: the kept directions come first
+    w_max = max(float(w[0]), float(_redundant_below(model, 0.0)))
+    jc_norm = float(np.linalg.norm(Jc, 2))
+    lam_scale = (np.abs(bias).sum() + jc_norm * mass.accel_scale) / w[rank - 1] if rank else 0.0
+    inconsistency = 0.0
+    for f in forces if rank < len(w) else ():
+        r = -bias - Jc @ _cho_solve(L[..., None], f[:, None, None])[:, 0, 0]
+        size = max(float(np.linalg.norm(r)), 1e-6 * model.length_scale * mass.accel_scale)
+        if size > 0.0:
+            inconsistency = max(inconsistency, float(np.linalg.norm(V[:, rank:].T @ r)) / size)
+    return _ConstraintScales(cond_S=w_max / w[-1] if w[-1] > 0.0 else np.inf,
+                             cond_kept=w_max / w[rank - 1] if rank else 1.0, rank=rank, inconsistency=inconsistency,
+                             lam_scale=float(lam_scale), force_scale=mass.inverse_norm * jc_norm * float(lam_scale))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -558,7 +653,8 @@ def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9): ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl = M^-1 B u`` solved
     directly, ``total = M^-1 (B u - h)`` solved on its own, with ``h = C qd + g`` from the RNEA at ``qdd = 0``.
     A constrained model goes through the range-space solve of eq. (12)-(17) instead (module docstring). The
-    recursion and the solves are those of :func:`split_batch` on a batch of one.
+    recursion and the solves are those of :func:`split_batch` on a batch of one; the conditioning is this backend's
+    own (:func:`_mass_scales`, :func:`_constraint_scales`), the power ``(B u)_i qd_i`` summed.
 
     extras: ``joint_reactions`` at ``(q, qd, total)`` and ``joint_reactions_drift`` at ``(q, qd, drift)`` (body
     frames; with the constraint forces of ``lam`` and ``lam_drift`` applied), ``joint_reactions_world`` (the former
@@ -572,25 +668,42 @@ def split(model: Model, q, qd, u) -> Split:
     g = _joint_torques(model, *_recursion(model, kin, zero, zero, gravity=True))
     L = _cholesky(model, M[..., None], q[:, None])
     tau_ctrl = model.input_map @ u
-    if not model.constraints:
-        drift, ctrl, total = _cho_solve(L, np.column_stack([-h, tau_ctrl, tau_ctrl - h])[..., None])[..., 0].T
-        extras, drift_motion = _extras(model, kin, qd, total, drift)
-        cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
-        return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd,
-                                   cond_M=cond_M, accel_scale=accel_scale, extras=extras,
-                                   task_drift=_task_acceleration(model, kin, drift_motion),
-                                   kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
+    mass = _mass_scales(model, L[..., 0], c_qd, g, tau_ctrl, qd)
+    power = tau_ctrl * qd
+    common = dict(power_ctrl=float(power.sum()), power_ctrl_per_coord=power, cond_M=mass.cond,
+                  kinetic_energy=0.5 * qd @ M @ qd)
+    if model.constraints:
+        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common)
+    drift, ctrl, total = _cho_solve(L, np.column_stack([-h, tau_ctrl, tau_ctrl - h])[..., None])[..., 0].T
+    extras, drift_motion = _extras(model, kin, qd, total, drift)
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
+                 power_constr_per_coord=None, accel_scale=mass.accel_scale, extras=extras,
+                 task_drift=_task_acceleration(model, kin, drift_motion), **_wrenches(extras), **common)
+
+
+def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass: _MassScales,  # noqa: N803
+                       common: dict) -> Split:
+    """Eq. (12)-(17) by the range-space method (a batch of one), the reactions with the loop forces applied, and the
+    constraint's own quantities (article 5.5): ``Jc^T lam`` and its power ``(Jc^T lam)_i qd_i``, ``Jc qd`` and the
+    conditioning of S; ``accel_scale`` adds what the constraint force can produce."""
     rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
     schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
     (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
         x[:, 0] for x in schur.solve(-h[:, None]))                                      # eq. (12, 13), (14)
     extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
                                    _constraint_loads(model, kin, rows, lam_drift))
-    return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd,
-                             phi=np.concatenate([r.phi for r in rows]), Jc=Jc, bias=bias, drift=drift,
-                             ctrl=schur.input_map(tau_ctrl[:, None])[:, 0], total=total, lam=lam, lam_drift=lam_drift,
-                             extras=extras, task_drift=_task_acceleration(model, kin, drift_motion),
-                             kinetic_energy=0.5 * qd @ M @ qd, **_wrenches(extras))
+    cs = _constraint_scales(model, L[..., 0], Jc, bias, (tau_ctrl - h, -h), mass)
+    force = Jc.T @ lam
+    power = force * qd
+    return Split(drift=drift, ctrl=schur.input_map(tau_ctrl[:, None])[:, 0], total=total, lam=lam,
+                 lam_drift=lam_drift, power_constr=float(power.sum()), power_constr_per_coord=power,
+                 accel_scale=mass.accel_scale + cs.force_scale, extras=extras,
+                 task_drift=_task_acceleration(model, kin, drift_motion),
+                 conditions={"constraint": cs.cond_S, "constraint_consistency": cs.inconsistency,
+                             "constraint_kept": cs.cond_kept},
+                 constraint_value=np.concatenate([r.phi for r in rows]), constraint_jacobian=Jc, constraint_bias=bias,
+                 constraint_velocity=Jc @ qd, constraint_force=force, constraint_force_drift=Jc.T @ lam_drift,
+                 constraint_rank=cs.rank, lam_scale=cs.lam_scale, **_wrenches(extras), **common)
 
 
 def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray) -> SplitBatch:  # noqa: N803

@@ -50,7 +50,8 @@ The joint answer is RECOMPOSED from task space plus the dynamically consistent n
 ``J_bar = J^-1`` and ``N = 0``: the joint acceleration comes entirely from task space.
 
 Breakdown (6.3.4): the method inverts ``A``, so every result carries ``cond = cond_2(A)`` (``Split.conditions
-["task"]``); the harness declares states above its limit a BREAKDOWN. Where ``A`` is numerically singular (its
+["task"]``) and how much shorter than its lever the task Jacobian is (``"task_jacobian"``, numerics below); the
+harness declares states above their limits a BREAKDOWN. Where ``A`` is numerically singular (its
 smallest eigenvalue is not positive, not finite, or below ``k eps lambda_max``, eigvalsh's absolute accuracy for
 a k x k matrix, so indistinguishable from zero) ``cond`` is ``inf`` and every task-space quantity and joint
 acceleration is NaN: no crash, and no plausible-looking garbage.
@@ -72,8 +73,15 @@ and the generalized constraint forces ``Jc^T lam`` enter eq. (22) as ``F_constr 
 control part that is eq. (17), ``ctrl = B_c B u = M^-1 [I - Jc^T Lambda_c Jc M^-1] B u``, computed directly from
 ``M^-1 B u`` (never ``total - drift``). Degenerate but consistent rows still give a unique ``qdd`` and ``Jc^T lam``;
 inconsistent ones (``H_t`` empty, eq. 16) finite least-squares numbers, which the harness flags from the conditions
-``constrained_split`` adds. A singular task space keeps its meaning: every acceleration is NaN there, with or
+:func:`constrained_split` adds. A singular task space keeps its meaning: every acceleration is NaN there, with or
 without constraints.
+
+Reported numbers, all computed here from this backend's own M, ``M^-1``, ``C qd``, g, Jc, ``Jcdot qd`` and task
+Jacobian (the interface supplies only types and validators): ``cond_2(M) = ||M|| ||M^-1||`` with each norm the largest
+eigenvalue of its own matrix, the projected M and the inverse every solve goes through; cond S, the kept cond, the
+rank and the consistency of ``S lam = r`` from the eigendecomposition of S that ``Lambda_c`` inverts; the task
+inertia and ``cond(A)`` from the eigendecomposition of ``A`` that eq. (22) is solved in; the control power in input
+space ``u . (B^T qd)`` and the constraint power in constraint space ``lam . (Jc qd)``.
 
 Numerics: near a singularity ``Lambda``, ``mu``, ``p`` and ``F_ctrl`` grow like ``1 / lambda_min(A)`` along the
 lost direction. In the model's task coordinates their rounding lands in every component, ``A``'s large
@@ -94,9 +102,8 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, redundant_below, singular_below,
-                                  unconstrained_split)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
+                                  check_state)
 
 
 @dataclass(frozen=True)
@@ -347,10 +354,34 @@ def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[
 
 def _cond(model: Model, eig: np.ndarray) -> float | np.ndarray:
     """``cond_2`` of ``A = J M^-1 J^T`` from its ascending eigenvalues (..., k); ``inf`` where it is numerically
-    singular (smallest eigenvalue not finite, not positive, below ``k eps`` times the largest or below the
-    degenerate floor: :func:`singular_below`; a task Jacobian of rounding size, 1e-135, once passed as cond 1)."""
-    regular = singular_below(model, eig) < eig[..., 0]
+    singular: its smallest eigenvalue not above ``k eps`` times the largest (eigvalsh's absolute accuracy) nor above
+    the degenerate floor (:func:`_degenerate_floor`), or not finite (a task Jacobian of rounding size, 1e-135, once
+    passed as cond 1)."""
+    regular = np.maximum(eig.shape[-1] * np.finfo(float).eps * eig[..., -1], _degenerate_floor(model)) < eig[..., 0]
     return np.where(regular, eig[..., -1] / np.where(regular, eig[..., 0], 1.0), np.inf)[()]
+
+
+def _task_lever(model: Model, q: np.ndarray) -> float:
+    """An upper bound on the length of the task Jacobian's columns: the placements along the task point's chain, the
+    point's offset, and for a prismatic joint its travel plus 1 (its unit column)."""
+    tp = model.task_point()
+    lever, i = float(np.linalg.norm(tp.offset)), model.body_index(tp.body)
+    while i >= 0:
+        body = model.bodies[i]
+        travel = abs(float(q[i])) + 1.0 if body.joint == "prismatic" else 0.0
+        lever += float(np.linalg.norm(body.translation)) + travel
+        i = model.parent_index[i]
+    return lever
+
+
+def _jacobian_condition(model: Model, q: np.ndarray, A: np.ndarray, inverse_norm: float) -> float:
+    """``L sqrt(||M^-1|| / lambda_min(A))``: how much shorter than its lever L the task Jacobian is in its shortest
+    direction (in the metric of M). The recomposition's error is about ``eps |Jdot qd| sqrt(1 / lambda_min(A))``
+    (module docstring, numerics); cond(A) misses it where every direction is short alike (a one-row task nearly
+    normal to the point's motion: cond 1, Lambda 8e12, a relative error of 4e-10, a fuzz finding). inf where A is
+    singular."""
+    w = np.linalg.eigvalsh(A)[0]
+    return _task_lever(model, q) * float(np.sqrt(inverse_norm / w)) if w > 0.0 else float("inf")
 
 
 def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
@@ -458,21 +489,37 @@ def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.n
     return np.concatenate(phi, axis=-1), np.concatenate(Jc, axis=-2), np.concatenate(bias, axis=-1)
 
 
-def _constraint_inertia(model: Model, Jc: np.ndarray, Minv: np.ndarray) -> np.ndarray:
-    """``Lambda_c = S^+``, ``S = Jc M^-1 Jc^T``: the constraint-space inertia, from S's eigendecomposition without
-    the eigen-directions at or below ``interface.redundant_below`` (``CONSTRAINT_RCOND`` times the largest
-    eigenvalue, at least the degenerate floor): minimum-norm multipliers."""
+def _degenerate_floor(model: Model) -> float:
+    """The smallest eigenvalue of ``J M^-1 J^T`` (J task or constraint rows) that is a direction and not rounding: a
+    row of ``DEGENERATE_ROW`` times the model's length scale L in the metric of M, ``(DEGENERATE_ROW L)^2 /
+    inertia_scale`` (a row that vanishes at a configuration comes out of some kinematics as exact zeros, of others
+    as rounding)."""
+    return (DEGENERATE_ROW * model.length_scale) ** 2 / model.inertia_scale
+
+
+def _independent(model: Model, w: np.ndarray) -> np.ndarray:
+    """The constraint-space directions kept, among the ascending eigenvalues ``w`` (..., k) of ``S = Jc M^-1 Jc^T``:
+    those above ``CONSTRAINT_RCOND`` times the largest and above :func:`_degenerate_floor`; the others are
+    redundant (redundant or degenerate rows)."""
+    return w > np.maximum(CONSTRAINT_RCOND * w[..., -1:], _degenerate_floor(model))
+
+
+def _constraint_inertia(model: Model, Jc: np.ndarray, Minv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Lambda_c, w, U)``: the constraint-space inertia ``Lambda_c = S^+``, ``S = Jc M^-1 Jc^T = U diag(w) U^T``
+    (eigh, w ascending), from S's eigendecomposition without the redundant eigen-directions (:func:`_independent`):
+    minimum-norm multipliers."""
     S = Jc @ Minv @ _t(Jc)
     w, U = np.linalg.eigh(0.5 * (S + _t(S)))
-    keep = w > redundant_below(model, w[..., -1:])
-    return (U * np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)[..., None, :]) @ _t(U)
+    keep = _independent(model, w)
+    return (U * np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)[..., None, :]) @ _t(U), w, U
 
 
 @dataclass(frozen=True)
 class ConstraintSpace:
     """The constraint space at one state or a batch (eqs. 12-17; k constraint rows, module docstring).
 
-    phi (..., k), Jc (..., k, n), bias = Jcdot qd (..., k), Lambda = S^+ (..., k, k) the constraint-space inertia;
+    phi (..., k), Jc (..., k, n), bias = Jcdot qd (..., k), Lambda = S^+ (..., k, k) the constraint-space inertia,
+    with S's eigenvalues (..., k; ascending) and eigen-directions (..., k, k; columns);
     the multipliers lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved
     directly) and lam (eq. 12), each (..., k).
     """
@@ -481,6 +528,8 @@ class ConstraintSpace:
     Jc: np.ndarray
     bias: np.ndarray
     Lambda: np.ndarray
+    eigenvalues: np.ndarray
+    directions: np.ndarray
     lam_drift: np.ndarray
     lam_ctrl: np.ndarray
     lam: np.ndarray
@@ -496,20 +545,31 @@ def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.nda
     """Eq. (13) solved for the multipliers in constraint space, ``lam = Lambda_c (-Jcdot qd - Jc a)``, from the free
     accelerations ``free = (a_drift, a_ctrl, a_total)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u - h)``)."""
     phi, Jc, bias = _constraint_rows(model, kin, q)
-    Lambda = _constraint_inertia(model, Jc, Minv)
+    Lambda, w, U = _constraint_inertia(model, Jc, Minv)
     a_drift, a_ctrl, a_total = free
-    return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, lam_drift=_mv(Lambda, -bias - _mv(Jc, a_drift)),
-                           lam_ctrl=-_mv(Lambda, _mv(Jc, a_ctrl)), lam=_mv(Lambda, -bias - _mv(Jc, a_total)))
+    return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, eigenvalues=w, directions=U,
+                           lam_drift=_mv(Lambda, -bias - _mv(Jc, a_drift)), lam_ctrl=-_mv(Lambda, _mv(Jc, a_ctrl)),
+                           lam=_mv(Lambda, -bias - _mv(Jc, a_total)))
+
+
+def _cholesky(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The Cholesky factor of one mass matrix; one that is not positive definite (e.g. a point mass on its own joint
+    axis) is a ValueError naming the model, the configuration and the eigenvalues."""
+    try:
+        return np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = {q.tolist()} "
+                         f"(Cholesky failed); eigenvalues {np.linalg.eigvalsh(M).tolist()}") from None
 
 
 def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``M^-1 = L^-T L^-1`` from the Cholesky factor ``L`` (symmetrized), of one state or a batch; a mass matrix
-    that is not positive definite is the ValueError of ``interface.factor_mass_matrix`` for the first such state."""
+    that is not positive definite is the ValueError of :func:`_cholesky` for the first such state."""
     try:
         L_inv = np.linalg.inv(np.linalg.cholesky(M))
     except np.linalg.LinAlgError:
         for state in np.ndindex(M.shape[:-2]):               # the error path: name the first failing state
-            factor_mass_matrix(model, M[state], q[state])
+            _cholesky(model, M[state], q[state])
         raise
     Minv = _t(L_inv) @ L_inv
     return 0.5 * (Minv + _t(Minv))
@@ -517,10 +577,11 @@ def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarr
 
 @dataclass(frozen=True)
 class _Solution:
-    """One state or a batch solved: the joint-space terms, the reported task space (None when not asked for),
-    (drift, ctrl, total), the constraint space (None without constraints)."""
+    """One state or a batch solved: the joint-space terms and the inverse mass matrix, the reported task space (None
+    when not asked for), (drift, ctrl, total), the constraint space (None without constraints)."""
 
     M: np.ndarray
+    Minv: np.ndarray
     Cqd: np.ndarray
     g: np.ndarray
     tau_ctrl: np.ndarray
@@ -549,7 +610,7 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     if model.constraints:
         constraint = _constraint_space(model, kin, q, Minv, accelerations)
         task, accelerations = through_task_space(constraint.forces)
-    return _Solution(M, Cqd, g, tau_ctrl, task, accelerations, constraint)
+    return _Solution(M, Minv, Cqd, g, tau_ctrl, task, accelerations, constraint)
 
 
 def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
@@ -559,30 +620,107 @@ def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
     return _solve(model, q, qd, u, point).task
 
 
+def _mass_conditioning(model: Model, s: _Solution, qd: np.ndarray) -> tuple[float, float, float]:
+    """``(cond(M), ||M^-1||, accel_scale)`` of a solved state: ``cond_2(M) = ||M||_2 ||M^-1||_2``, each norm the
+    largest eigenvalue of its own matrix, the M this backend projected and the inverse it solved with (eigvalsh).
+
+    ``accel_scale = ||M^-1||_2 H``, H the size of the generalized forces summed in ``B u - C qd - g``, plus
+    configuration-robust magnitudes of the terms that can cancel: ``||M|| |qd|^2`` for the velocity products and
+    ``|gravity| sqrt(m_total ||M||)`` (a mass times a lever arm) for gravity. 1-norms, so tiny vectors do not
+    underflow."""
+    norm, inverse_norm = float(np.linalg.eigvalsh(s.M)[-1]), float(np.linalg.eigvalsh(s.Minv)[-1])
+    m_total = sum(b.mass for b in model.bodies)
+    H = (np.abs(s.Cqd).sum() + np.abs(s.g).sum() + np.abs(s.tau_ctrl).sum() + norm * float(qd @ qd)
+         + np.abs(model.gravity).sum() * np.sqrt(m_total * norm))
+    return norm * inverse_norm, inverse_norm, float(H) * inverse_norm
+
+
+def _inconsistency(model: Model, c: ConstraintSpace, redundant: np.ndarray, Minv: np.ndarray, forces: np.ndarray,
+                   accel_scale: float) -> float:
+    """The relative size of the constraint-space right-hand sides ``r = -Jcdot qd - Jc M^-1 f`` (the multipliers
+    solve ``S lam = r``) in S's ``redundant`` eigen-directions (a mask): ``max |U_0^T r| / |r|`` over the columns
+    ``f`` of ``forces`` (``B u - h`` and ``-h``); 0 when S is regular. Non-zero means ``H_t`` is empty (eq. 16: the
+    constraints cannot all hold, e.g. a four-bar at its change point moving off both branches). |r| is taken at least
+    ``1e-6 L accel_scale``: where every row is degenerate, r itself is rounding, and its share means nothing."""
+    if not redundant.any():
+        return 0.0
+    r = -c.bias[:, None] - c.Jc @ (Minv @ forces)
+    size = np.maximum(np.linalg.norm(r, axis=0), 1e-6 * model.length_scale * accel_scale)
+    share = np.linalg.norm(c.directions[:, redundant].T @ r, axis=0) / np.where(size > 0.0, size, 1.0)
+    return float(np.max(share))
+
+
+def _constraint_conditioning(model: Model, c: ConstraintSpace, Minv: np.ndarray, free_forces: np.ndarray,
+                             accel_scale: float, inverse_norm: float) -> tuple[dict, int, float, float]:
+    """``(conditions, rank, lam_scale, force_scale)`` of one state's constraint space, from the eigendecomposition of
+    ``S = Lambda_c^+`` it inverted (:func:`_constraint_inertia`; the largest eigenvalue ``w_max`` taken at least
+    :func:`_degenerate_floor`): ``"constraint"`` = cond S = ``w_max / w_min`` (inf when ``w_min`` is not positive:
+    the multipliers are not unique), ``"constraint_consistency"`` (:func:`_inconsistency` of ``free_forces``, the
+    columns ``B u - h`` and ``-h``), ``"constraint_kept"`` = ``w_max`` over the smallest kept eigenvalue (what
+    ``Lambda_c`` amplifies; 1 when none). ``lam_scale = ||Lambda_c|| (|Jcdot qd|_1 + ||Jc|| accel_scale)`` is the
+    size of the multipliers the summed terms could produce (0 when no direction is kept); ``force_scale = ||M^-1||
+    ||Jc|| lam_scale`` the accelerations their force can."""
+    w = c.eigenvalues
+    kept = _independent(model, w)
+    w_max, rank = max(float(w[-1]), _degenerate_floor(model)), int(kept.sum())
+    jc_norm = float(np.linalg.norm(c.Jc, 2))
+    lam_scale = float((np.abs(c.bias).sum() + jc_norm * accel_scale) / w[kept][0]) if rank else 0.0
+    conditions = {"constraint": w_max / w[0] if w[0] > 0.0 else np.inf,
+                  "constraint_consistency": _inconsistency(model, c, ~kept, Minv, free_forces, accel_scale),
+                  "constraint_kept": w_max / w[kept][0] if rank else 1.0}
+    return conditions, rank, lam_scale, inverse_norm * jc_norm * lam_scale
+
+
+def constrained_split(model: Model, *, constraint: ConstraintSpace, Minv: np.ndarray, free_forces: np.ndarray,
+                      qd: np.ndarray, lam: np.ndarray, lam_drift: np.ndarray, accel_scale: float, inverse_norm: float,
+                      conditions: dict, **free) -> Split:
+    """The :class:`Split` of a constrained state from the fields of the free one (``free``, ``conditions``) and its
+    constraint space: the multipliers ``lam``, ``lam_drift`` (eqs. 12, 14), the generalized constraint forces
+    ``Jc^T lam`` (and at the drift), the constraint power in constraint space, ``lam . (Jc qd) = (Jc^T lam) . qd``
+    (5.5; per coordinate ``(Jc^T lam)_i qd_i``), ``Jc qd``, and the conditioning of :func:`_constraint_conditioning`
+    (``free_forces``: the columns ``B u - h`` and ``-h``), whose force scale the acceleration scale includes."""
+    c = constraint
+    cond, rank, lam_scale, force_scale = _constraint_conditioning(model, c, Minv, free_forces, accel_scale,
+                                                                  inverse_norm)
+    force, force_drift, velocity = lam @ c.Jc, lam_drift @ c.Jc, c.Jc @ qd
+    return Split(lam=lam, lam_drift=lam_drift, power_constr=float(lam @ velocity), power_constr_per_coord=force * qd,
+                 accel_scale=accel_scale + force_scale, conditions={**conditions, **cond}, constraint_value=c.phi,
+                 constraint_jacobian=c.Jc, constraint_bias=c.bias, constraint_velocity=velocity,
+                 constraint_force=force, constraint_force_drift=force_drift, constraint_rank=rank,
+                 lam_scale=lam_scale, **free)
+
+
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split (eq. 9) recomposed from task space (module docstring), in the principal axes:
     ``drift = J_bar (xdd_drift - Jdot qd) - M^-1 N^T h``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T B u`` (directly),
     ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``. With constraints the same with the constraint
-    forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u).
+    forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u): :func:`constrained_split`.
 
     ``task_drift`` is eq. (23) for ``model.task_point()``; ``task_inertia`` its ``Lambda`` (eq. 22, the reported one
     of ``extras["task"]``; with constraints still ``(J M^-1 J^T)^-1`` of the unconstrained M, the constraints
-    entering eq. 22 as ``F_constr``); ``conditions = {"task": cond_2(A)}``;
+    entering eq. 22 as ``F_constr``); ``conditions = {"task": cond_2(A), "task_jacobian":`` :func:`_jacobian_condition`
+    ``}``;
     ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
-    (``Lambda_c``). NaN accelerations where A is numerically singular.
+    (``Lambda_c``). NaN accelerations where A is numerically singular. The control power in input space,
+    ``u . (B^T qd)`` (per coordinate ``(B u)_i qd_i``); cond(M) and the scales from :func:`_mass_conditioning`.
     """
     q, qd, u = check_state(model, q, qd, u)
     s = _solve(model, q, qd, u, None)
     drift, ctrl, total = s.accelerations
-    common = dict(drift=drift, ctrl=ctrl, total=total, tau_ctrl=s.tau_ctrl, qd=qd, task_drift=s.task.xdd_drift,
-                  conditions={"task": s.task.cond}, kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
+    cond_M, inverse_norm, accel_scale = _mass_conditioning(model, s, qd)
+    free = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(u @ (model.input_map.T @ qd)),
+                power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M, task_drift=s.task.xdd_drift,
+                conditions={"task": s.task.cond,
+                            "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
+                kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
     c = s.constraint
     if c is None:
-        cond_M, accel_scale = conditioning(model, s.M, s.Cqd, s.g, s.tau_ctrl, qd)
-        return unconstrained_split(cond_M=cond_M, accel_scale=accel_scale, extras={"task": s.task}, **common)
-    return constrained_split(model, M=s.M, Cqd=s.Cqd, g=s.g, phi=c.phi, Jc=c.Jc, bias=c.bias, lam=c.lam,
-                             lam_drift=c.lam_drift, extras={"task": s.task, "constraint_inertia": c.Lambda},
-                             **common)
+        return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None, accel_scale=accel_scale,
+                     extras={"task": s.task}, **free)
+    h = s.Cqd + s.g
+    return constrained_split(model, constraint=c, Minv=s.Minv, free_forces=np.stack([s.tau_ctrl - h, -h], axis=-1),
+                             qd=qd, lam=c.lam, lam_drift=c.lam_drift, accel_scale=accel_scale,
+                             inverse_norm=inverse_norm, extras={"task": s.task, "constraint_inertia": c.Lambda}, **free)
 
 
 #: Bound on the body-pair entries of the largest temporaries (N states x n bodies x n joints) that

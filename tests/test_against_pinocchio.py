@@ -2,8 +2,9 @@
 
 Parametrized over formalism x case, at Hypothesis-drawn states: q in [-pi, pi] for revolute and [-0.5, 0.5]
 for prismatic joints, qd in [-5, 5], u in [-20, 20]. drift, ctrl and total must agree within
-``1e-10 * accel_scale`` (interface.conditioning: ||M^-1|| times the size of the summed forces, the size of the
-accelerations the summed terms could produce, taken from the reference); ``power_ctrl`` must equal ``u . (B^T qd)`` computed here.
+``1e-10 * accel_scale`` (Split.accel_scale: ||M^-1|| times the size of the summed forces, the size of the
+accelerations the summed terms could produce, taken from the reference); ``power_ctrl`` must equal ``u . (B^T qd)``
+computed here.
 ``task_drift``, where a formalism supplies it, must match Pinocchio's classical frame acceleration at zero torque
 within ``1e-10 * L (accel_scale + |qd|_1^2)`` (crosscheck.tolerance, task scale). A state where the formalism
 reports a BREAKDOWN (crosscheck.tolerance.breakdown, e.g. a singular task Jacobian) is not compared: that it is
@@ -53,7 +54,7 @@ def state_strategy(model):
 
 
 def accel_scale(model, ref, u):
-    """The reference's ``accel_scale`` (interface.conditioning); + 1e-290 keeps the tolerance above 1e-300,
+    """The reference's ``accel_scale`` (``Split.accel_scale``); + 1e-290 keeps the tolerance above 1e-300,
     where results are subnormal (no relative precision left)."""
     return ref.accel_scale + 1e-290
 

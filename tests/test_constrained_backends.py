@@ -45,7 +45,8 @@ from closed_forms import (absolute_loop_state, cartesian_lam, circle_state, circ
                           pin_forces, tip_bias)
 from crosscheck import backends, reference, sampling
 from crosscheck import tolerance as policy
-from formalisms.interface import CONSTRAINT_RCOND, Unsupported, conditioning
+from crosscheck.conditioning import normwise_scales
+from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
 BACKENDS = backends.names()
 CONSTRAINED = ("double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
@@ -329,7 +330,7 @@ def check_absolute_loop(name, loop, t, td, u, drawn):
                 "ctrl": np.linalg.solve(M, u)}
     sc, size = max(1.0, sup(expected["total"])), max(1.0, sup(s.total), sup(s.drift))
     # drawn states: 1e-12 of the accelerations the summed terms could produce; the former states: 1e-12 absolute
-    bound = 1e-12 * conditioning(joint_model, M, Cqd, g, u, td)[1] if drawn else 1e-12
+    bound = 1e-12 * normwise_scales(joint_model, M, Cqd, g, u, td)[1] if drawn else 1e-12
     check(s.constraint_value, np.zeros(4), 1e-15, "phi")
     for key, tdd in expected.items():
         check(loop_to_joint(s.quantity(key)), tdd, bound, f"{key}: loop vs eqs. (6)-(8)")

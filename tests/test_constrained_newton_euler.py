@@ -8,7 +8,9 @@ four-bar at its change point) are in ``test_constrained_backends.py``.
   circle leaves the actuation there;
 * a spatial loop and a spatial model with every declaration, against finite differences of ``phi`` and the
   equations of motion with the backend's own ``M`` and ``h``;
-* the joint reactions with the loop forces applied: their axis components are the actuation ``B u``.
+* the joint reactions with the loop forces applied: their axis components are the actuation ``B u``;
+* the backend's own conditioning (cond S, rank, consistency, lam_scale, accel_scale) on the cartesian pendulum in
+  closed form.
 """
 
 from __future__ import annotations
@@ -82,6 +84,33 @@ def test_a_duplicated_constraint_leaves_the_actuation_in_the_joint_reactions():
     tau = np.array([1.5, -2.0])
     two = ne.split(double, t, td, tau)
     np.testing.assert_allclose(axis_components(double, two.extras["joint_reactions"]), tau, rtol=0, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The conditioning, in closed form
+# ----------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("m, L", [(1.0, 1.0), (2.5, 0.4)])
+def test_conditioning_of_the_cartesian_pendulum_in_closed_form(m, L):  # noqa: N803
+    """``M = m I``, ``Jc = 2 p^T``, ``Jcdot qd = 2 |v|^2`` with ``|p| = L``: ``S = 4 L^2 / m``, one direction kept (cond
+    1, consistent). The scales by their definitions (``formalisms.interface.Split``): ``accel_0 = ||M^-1|| (|g|_1 +
+    |u|_1 + ||M|| |v|^2 + |gravity|_1 sqrt(m_total ||M||)) = (2 m G + |u|_1 + m |v|^2) / m``, ``lam_scale = (|Jcdot
+    qd|_1 + ||Jc|| accel_0) / S`` and ``accel_scale = accel_0 + ||M^-1|| ||Jc|| lam_scale``."""
+    model = cases.load("cartesian_pendulum", m=m, L=L)
+    for a, w, u in ((0.3, 1.5, (1.0, -2.0)), (2.0, -0.7, (0.0, 3.0)), (-1.2, 0.0, (0.0, 0.0))):
+        p, v = L * np.array([np.sin(a), -np.cos(a)]), w * L * np.array([np.cos(a), np.sin(a)])
+        s = ne.split(model, p, v, np.array(u))
+        accel_0 = (2.0 * m * 9.81 + np.abs(u).sum() + m * v @ v) / m
+        lam_scale = (2.0 * v @ v + 2.0 * L * accel_0) / (4.0 * L**2 / m)
+        assert s.cond_M == pytest.approx(1.0, rel=1e-15) and s.constraint_rank == 1
+        assert s.conditions["constraint"] == pytest.approx(1.0, rel=1e-15)
+        assert s.conditions["constraint_kept"] == pytest.approx(1.0, rel=1e-15)
+        assert s.conditions["constraint_consistency"] == 0.0
+        assert s.lam_scale == pytest.approx(lam_scale, rel=1e-13)
+        assert s.accel_scale == pytest.approx(accel_0 + 2.0 * L * lam_scale / m, rel=1e-13)
+        force = 2.0 * p * s.lam[0]
+        np.testing.assert_allclose(s.constraint_force, force, rtol=0, atol=1e-14 * np.abs(force).max())
+        assert s.power_constr == pytest.approx(force @ v, abs=1e-14 * np.abs(force).max() * np.abs(v).sum())
 
 
 # ----------------------------------------------------------------------------------------------------------

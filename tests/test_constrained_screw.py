@@ -8,7 +8,9 @@ point) are in ``test_constrained_backends.py``.
   them applied (axis components = ``B u``);
 * the absolute-coordinate double pendulum's multipliers are the joint forces of the joint model's wrench recursion;
 * across formalisms, on spatial models with every declaration: the Newton–Euler backend (same ``phi``, ``Jc``,
-  ``Jcdot qd``, accelerations, multipliers, and world-frame joint loads), and finite differences of ``phi``.
+  ``Jcdot qd``, accelerations, multipliers, and world-frame joint loads), and finite differences of ``phi``;
+* the conditioning of S, computed here by another algorithm than Newton–Euler's, agrees with it (also at the
+  four-bar's change point, where S is singular and ``H_t`` may be empty).
 """
 
 from __future__ import annotations
@@ -230,13 +232,49 @@ def test_spatial_screw_agrees_with_newton_euler(kind):
             np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0,
                                        atol=gain * max(1.0, np.abs(getattr(b, name)).max()), err_msg=name)
         assert a.kinetic_energy == pytest.approx(b.kinetic_energy, rel=1e-12)
-        assert a.constraint_rank == b.constraint_rank
+        assert_same_conditioning(a, b, model.name)
         if kind == "loop":   # both apply the loop force at the points: the same joint loads, (moment, force) order
             world = b.extras["joint_reactions_world"]
             np.testing.assert_allclose(a.extras["wrenches_space"], np.hstack([world[:, 3:], world[:, :3]]), rtol=0,
                                        atol=1e-11 * np.abs(world).max())
             assert a.constraint_rank == 3
             assert_small(a.admissibility_total, scale, 1e-12, "H_t residual")
+
+
+def assert_same_conditioning(a, b, what):
+    """The conditions and scales of two splits of one state, equal to rounding; cond S only where S is not singular
+    (there it is the rounding of a zero eigenvalue, inf or 1e30)."""
+    assert a.constraint_rank == b.constraint_rank, what
+    for key in ("constraint", "constraint_kept"):
+        if b.conditions[key] < 1e12:
+            assert a.conditions[key] == pytest.approx(b.conditions[key], rel=1e-9), f"{what}: {key}"
+        else:
+            assert a.conditions[key] > 1e12, f"{what}: {key}"
+    assert a.conditions["constraint_consistency"] == pytest.approx(b.conditions["constraint_consistency"], abs=1e-12)
+    for key in ("cond_M", "accel_scale", "lam_scale"):
+        assert getattr(a, key) == pytest.approx(getattr(b, key), rel=1e-9), f"{what}: {key}"
+
+
+@pytest.mark.parametrize("case", CONSTRAINED_CASES)
+def test_conditioning_agrees_with_newton_euler(case):
+    """cond S, its kept part, the rank, the consistency, lam_scale and accel_scale from the eigendecomposition of
+    ``S = A A^T`` here (Gauss's ``A = Jc L^-T``, ``scipy.linalg.eigh``), from the singular values of ``L^-1 Jc^T``
+    there, each from its own M and rows: equal to rounding."""
+    model = cases.load(case)
+    for state in sample_states(model, 4, 0, case):
+        a, b = (be.split(model, state.q, state.qd, state.u) for be in (screw, ne))
+        assert_same_conditioning(a, b, f"{case} state {state.index}")
+
+
+def test_conditioning_at_the_four_bars_change_point_agrees_with_newton_euler():
+    """q = (pi/2, 0, pi/2): the loop's x row vanishes (rank 1). Along a branch H_t is not empty (consistency 0), off
+    both branches it is (0.5 and more): both backends see the same."""
+    model = cases.load("four_bar")
+    q = np.array([np.pi / 2, 0.0, np.pi / 2])
+    for qd, empty in (((1.0, -1.0, 1.0), False), ((0.0, 1.0, 2.0), True), ((1.0, 0.3, -0.2), True)):
+        a, b = (be.split(model, q, np.array(qd), np.array([0.5, -1.0, 2.0])) for be in (screw, ne))
+        assert_same_conditioning(a, b, f"qd = {qd}")
+        assert a.constraint_rank == 1 and (a.conditions["constraint_consistency"] > 0.1) == empty
 
 
 def test_spatial_constraint_kinematics_by_finite_differences():

@@ -1,10 +1,15 @@
-"""Independence is the product (DESIGN.md): a formalism never imports Pinocchio, the harness, or another formalism.
+"""Independence is the product (DESIGN.md): a formalism never imports Pinocchio, the harness, or another formalism,
+and shares no numerics with the others.
 
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is
 read with ``ast`` (never imported, so nothing it would import is loaded) and every import is checked against an
 allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, the model language
 (``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new
-dependency must be added here, with a reason.
+dependency must be added here, with a reason. From ``formalisms.interface`` a formalism may use only the names in
+:data:`INTERFACE` (types, constants, validators, exceptions: imported, or read as attributes of the module), and
+``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for plugins): a power, a constraint
+force, a factorization, a rank decision, a conditioning or a task inertia computed there once for every backend
+would be compared bit-identically and prove nothing.
 Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their argument is a
 string literal, and refused when it is not (they could load anything).
 """
@@ -28,6 +33,10 @@ SHARED = {"formalisms/__init__.py", "formalisms/interface.py"}
 THIRD_PARTY = {"numpy", "scipy", "sympy", "symengine", "casadi"}
 # project modules a formalism may use: the model types and the shared interface
 PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
+# what a formalism may take from formalisms.interface: types, constants, validators and exceptions, nothing numeric
+INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
+             "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
+             "joint_vectors"}
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",
              "pin": "the external reference (Pinocchio) is kept apart from the five formalisms",
@@ -78,11 +87,41 @@ def _check_name(name: str, own_unit: str) -> str | None:
     return f"'{root}' is not on the allow-list (stdlib, {sorted(THIRD_PARTY)}); add it here with a reason"
 
 
+def _interface_name(name: str, lineno: int, module: str) -> list[str]:
+    if name in INTERFACE:
+        return []
+    return [f"{module}:{lineno}: uses formalisms.interface.{name}, which is not on the allow-list {sorted(INTERFACE)}: "
+            "a formalism computes every number it reports itself"]
+
+
+def interface_violations(tree: ast.AST, module: str, is_package: bool) -> list[str]:
+    """Names taken from ``formalisms.interface`` that are not in :data:`INTERFACE`: imported from it, or read as
+    attributes of a name the module bound to it (``from formalisms import interface``, ``import formalisms.interface
+    as fi``)."""
+    problems, aliases = [], set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module if node.level == 0 else _resolve_relative(module, is_package, node.level, node.module)
+            for alias in node.names:
+                if base == "formalisms.interface":
+                    problems += _interface_name(alias.name, node.lineno, module)
+                elif base == "formalisms" and alias.name == "interface":
+                    aliases.add(alias.asname or alias.name)
+        elif isinstance(node, ast.Import):
+            aliases.update(alias.asname for alias in node.names
+                           if alias.name == "formalisms.interface" and alias.asname)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases:
+            problems += _interface_name(node.attr, node.lineno, module)
+    return problems
+
+
 def import_violations(source: str, module: str, is_package: bool = False) -> list[str]:
-    """Every disallowed import in ``source`` (the text of ``module``), one message each with its line."""
+    """Every disallowed import in ``source`` (the text of ``module``), one message each with its line, and every
+    name it takes from ``formalisms.interface`` outside :data:`INTERFACE`."""
     tree = ast.parse(source)
     own_unit = ".".join(module.split(".")[:2])
-    problems: list[str] = []
+    problems: list[str] = interface_violations(tree, module, is_package)
 
     def check(lineno: int, name: str | None, statement: str) -> None:
         why = "it reaches outside the project tree" if name is None else _check_name(name, own_unit)
@@ -204,8 +243,24 @@ BAD = [
     "from importlib import import_module\nimport_module('formalisms.newton_euler')",
     "import importlib\nimportlib.import_module('.newton_euler', 'formalisms')",
     "pin = __import__('pinocchio')",
+    "from formalisms.interface import conditioning",
+    "from formalisms.interface import Split, constrained_split",
+    "from .interface import task_space_inertia",
+    "from formalisms import interface\ninterface.redundant_below(1, 2)",
+    "import formalisms.interface as fi\nfi.factor_mass_matrix(1)",
     "import importlib\nname = 'pin' + 'occhio'\nimportlib.import_module(name)",
 ]
+
+def test_the_interface_defines_only_the_allowed_names():
+    """``interface.py`` holds types, constants, validators and exceptions (and a loop for plugins), nothing numeric a
+    backend could share: every public name it defines is on the allow-list."""
+    tree = ast.parse((PACKAGE_DIR / "interface.py").read_text())
+    defined = {node.name for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+    defined |= {t.id for node in tree.body if isinstance(node, ast.Assign) for t in node.targets
+                if isinstance(t, ast.Name)}
+    public = {name for name in defined if not name.startswith("_")} - {"__all__"}
+    assert public <= INTERFACE | {"split_batch_by_loop"}, sorted(public - INTERFACE)
+
 
 GOOD = [
     "from __future__ import annotations",
@@ -219,6 +274,8 @@ GOOD = [
     "import symengine as sp",
     "import casadi as ca",
     "from formalisms.interface import Formalism, Split, check_state",
+    "from formalisms.interface import CONSTRAINT_RCOND, DEGENERATE_ROW, SplitBatch, check_batch",
+    "from formalisms import interface\ninterface.check_state(1, 2, 3, 4)",
     "import formalisms.interface",
     "from formalisms import interface",
     "from . import interface",

@@ -2,7 +2,7 @@
 
 Each row of a batch must be what ``split`` returns for that state, to rounding: the accelerations within
 ``100 eps cond(M)`` of the state's ``accel_scale`` (the size of the terms summed,
-:func:`formalisms.interface.conditioning`) and the multipliers within as much of ``lam_scale``: the harness's own
+``Split.accel_scale``) and the multipliers within as much of ``lam_scale``: the harness's own
 bound on two correct solves of one problem. Measured on the built-in cases the largest difference is 4e-15 of
 ``accel_scale`` (Pinocchio's batched ABA against its Cholesky solve), 1e-16 for the five formalisms; a row off by
 1e-8 of its size fails.
@@ -102,7 +102,7 @@ def test_split_batch_of_one_and_of_none(name):
 @pytest.mark.parametrize("name", [n for n in BATCHED if n != backends.REFERENCE_NAME])
 def test_split_batch_names_a_state_whose_mass_matrix_is_singular(name):
     """The second link a point mass on its own joint axis: M is singular wherever the first joint is. The batch
-    raises ``factor_mass_matrix``'s ValueError for the first such state (model, q, eigenvalues), as ``split`` does.
+    raises its ValueError for the first such state (model, q, eigenvalues), as ``split`` does.
     (Pinocchio's ABA does not factor M and is not asked to.)"""
     base = cases.load("double_pendulum")
     first, second = base.bodies

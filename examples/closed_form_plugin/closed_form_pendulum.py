@@ -29,7 +29,8 @@ from functools import partial
 
 import numpy as np
 
-from formalisms.interface import Formalism, ModelNotSupported, Split, check_state, conditioning, unconstrained_split
+from crosscheck.assemble import unconstrained_split
+from formalisms.interface import Formalism, ModelNotSupported, Split, check_state
 
 #: Relative tolerance on the geometry read off a model (a moved scene rounds it at 1e-16).
 GEOMETRY_TOL = 1e-9
@@ -117,10 +118,8 @@ def split(model, q, qd, u, velocity_terms=velocity_terms) -> Split:
     M, Cqd, g = mass_matrix(p, q), velocity_terms(p, q, qd), gravity_terms(p, q)
     tau = model.input_map @ u
     Minv = inverse(M)
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau, qd)
-    return unconstrained_split(drift=-Minv @ (Cqd + g), ctrl=Minv @ tau, total=Minv @ (tau - Cqd - g),
-                               tau_ctrl=tau, qd=qd, cond_M=cond_M, accel_scale=accel_scale,
-                               kinetic_energy=0.5 * qd @ M @ qd)
+    return unconstrained_split(model, M=M, Cqd=Cqd, g=g, tau_ctrl=tau, qd=qd, drift=-Minv @ (Cqd + g),
+                               ctrl=Minv @ tau, total=Minv @ (tau - Cqd - g), kinetic_energy=0.5 * qd @ M @ qd)
 
 
 CLOSED_FORM = Formalism("closed_form_pendulum",

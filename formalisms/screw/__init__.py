@@ -4,13 +4,14 @@ Modules: :mod:`~formalisms.screw.lie` (SE(3) and se(3): exponentials, logarithms
 :mod:`~formalisms.screw.kinematics` (eq. 20 on the tree, space and body Jacobians, twists, bias accelerations,
 point kinematics), :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq. 27, ``M``, ``h``) and
 :mod:`~formalisms.screw.constraints` (``phi``, ``Jc``, ``Jcdot qd``, constraint wrenches and Gauss's principle,
-article 5). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
+article 5), :mod:`~formalisms.screw.conditioning` (its own cond(M), conditioning of S, scales and task-space
+inertia). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
 
-``M`` comes from the composite spatial inertias and ``h = C qd + g`` from the wrench recursion of eq. (27), both in
-the world frame (:mod:`~formalisms.screw.dynamics`); one Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)``
-(eq. 10, the ZTCF), ``ctrl = M^-1 B u`` and ``total = M^-1 (B u - h)``, each solved on its own. With constraints,
-total / lam and drift / lam_drift (eq. 14) come from Gauss's principle in the Udwadia–Kalaba form on the same factor,
-and ``ctrl = B_c B u`` (eq. 17) directly.
+``M = sum_i J_b,i^T G_i J_b,i`` and ``h = C qd + g`` from the wrench recursion of eq. (27), both in body frames
+(:mod:`~formalisms.screw.dynamics`: no moment about the world origin, so M and h round on the levers about the
+joints); one Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)`` (eq. 10, the ZTCF), ``ctrl = M^-1 B u`` and
+``total = M^-1 (B u - h)``, each solved on its own. With constraints, total / lam and drift / lam_drift (eq. 14) come
+from Gauss's principle in the Udwadia–Kalaba form on the same factor, and ``ctrl = B_c B u`` (eq. 17) directly.
 
 ``split_batch`` evaluates N states in one pass of the same functions (kinematics, inertias, recursion, rows and
 solves all take a leading state axis; :mod:`~formalisms.screw.linalg` factors the N mass matrices at once), in
@@ -55,9 +56,8 @@ from __future__ import annotations
 import numpy as np
 
 from cases.model import Model
-from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
-                                  constrained_split, factor_mass_matrix, task_space_inertia, unconstrained_split)
-from formalisms.screw import constraints, dynamics, kinematics, lie
+from formalisms.interface import Formalism, Split, SplitBatch, check_batch, check_state
+from formalisms.screw import conditioning, constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
 
@@ -74,15 +74,14 @@ def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
     return tp.directions @ a
 
 
-def _task_inertia(kin: Kinematics, factor) -> dict:
+def _task_inertia(kin: Kinematics, factor: Cholesky) -> tuple[np.ndarray, float]:
     """``task_inertia`` (eq. 22) of the default task point from its point Jacobian ``D [-[p] | I] J_s`` and the
-    factor of M, with its condition ``cond(J M^-1 J^T)``."""
+    factor of M, with its condition ``cond(J M^-1 J^T)`` (:func:`conditioning.task_inertia`)."""
     model = kin.model
     tp = model.task_point()
     body = model.body_index(tp.body)
     J = tp.directions @ kinematics.point_jacobian(kin, body, kinematics.point_position(kin, body, tp.offset))
-    Lambda, cond = task_space_inertia(model, J, factor)
-    return {"task_inertia": Lambda, "conditions": {"task_inertia": cond}}
+    return conditioning.task_inertia(model, J, factor)
 
 
 def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | None = None) -> np.ndarray:  # noqa: N803
@@ -93,13 +92,12 @@ def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | N
     return np.concatenate([F_body[:, 3:], F_body[:, :3]], axis=1)
 
 
-def _kinetic_energy(model: Model, twists_body: np.ndarray) -> float:
+def _kinetic_energy(G: dynamics.Inertias, twists_body: np.ndarray) -> float:  # noqa: N803
     """``T = sum_i 1/2 V_b,i^T G_i V_b,i`` with ``G_i`` the spatial inertia in body frame ``i``."""
-    G = dynamics.spatial_inertias(model)
-    return 0.5 * float(np.einsum("ia,iab,ib->", twists_body, G, twists_body))
+    return 0.5 * float(np.sum(twists_body * G.apply(twists_body)))
 
 
-def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarray,
+def _extras(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, total: np.ndarray, drift: np.ndarray,  # noqa: N803
             constraint_wrenches: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """The twists, accelerations and wrenches listed in the module docstring; ``constraint_wrenches`` (space frame,
     at the total and at the drift) are applied to the bodies in the wrench recursion and reported."""
@@ -107,16 +105,15 @@ def _extras(kin: Kinematics, qd: np.ndarray, total: np.ndarray, drift: np.ndarra
     external = None
     if constraint_wrenches is not None:                       # F_b = Ad_{T_i}^T F_s
         external = lie.wrench_to_body(kin.poses, np.stack(constraint_wrenches))
-    F = dynamics.wrenches(kin, np.stack([qd, qd]), np.stack([total, drift]), np.ones(2), external)
-    F_body = F[0]
+    F = dynamics.wrenches(kin, G, qd, np.stack([total, drift]), np.ones(2), external)
     extras = {
         "poses": kin.poses,
         "twists_space": V_s,
-        "twists_body": (kin.to_body @ V_s[..., None])[..., 0],
+        "twists_body": kinematics.body_twists(kin, qd),
         "accelerations_space": kinematics.spatial_accelerations(kin, qd, total),
-        "wrenches_body": F_body,
+        "wrenches_body": F[0],
         "wrenches_body_drift": F[1],
-        "wrenches_space": (np.swapaxes(kin.to_body, -1, -2) @ F_body[..., None])[..., 0],
+        "wrenches_space": lie.wrench_from_body(kin.poses, F[0]),
     }
     if constraint_wrenches is not None:
         extras["constraint_wrenches_space"], extras["constraint_wrenches_space_drift"] = constraint_wrenches
@@ -137,59 +134,82 @@ def _constrained(gauss: constraints.Gauss, h: np.ndarray, tau_ctrl: np.ndarray) 
     return drift, gauss.input_map(tau_ctrl), total, lam, lam_drift
 
 
+def _reported(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, drift: np.ndarray, extras: dict,  # noqa: N803
+              torques=(None, None)) -> dict:
+    """The Split fields read off the extras: ``task_drift``, the kinetic energy and the joint wrenches (with the
+    coupling ``torques`` at the total and at the drift, :func:`_joint_wrenches`)."""
+    return dict(extras=extras, task_drift=_task_drift(kin, qd, drift),
+                kinetic_energy=_kinetic_energy(G, extras["twists_body"]),
+                joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"], torques[0]),
+                joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"], torques[1]))
+
+
+def _power(model: Model, u: np.ndarray, qd: np.ndarray) -> dict:
+    """``power_ctrl = u . (B^T qd)`` (W) and ``power_ctrl_per_coord = (B u)_i qd_i``."""
+    return {"power_ctrl": float(u @ (model.input_map.T @ qd)), "power_ctrl_per_coord": (model.input_map @ u) * qd}
+
+
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9) in screw coordinates: ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl =
     M^-1 B u`` solved directly, ``total = M^-1 (B u - h)`` solved on its own; ``M`` and ``h`` from eq. (27). A
-    constrained model goes through :func:`_constrained_split`.
+    constrained model goes through :func:`_constrained_split`. The conditioning is this backend's own
+    (:mod:`~formalisms.screw.conditioning`).
 
     ``task_drift`` is the classical acceleration of ``model.task_point()`` at the drift, from the body's space
     twist and spatial acceleration (eq. 23). extras: see the module docstring.
     """
     q, qd, u = check_state(model, q, qd, u)
-    kin = kinematics.forward_kinematics(model, q)
-    M, h, c_qd, g = dynamics.terms(kin, qd)
-    factor = factor_mass_matrix(model, M, q)
+    kin, G = kinematics.forward_kinematics(model, q), dynamics.Inertias.of(model)
+    M, h, c_qd, g = dynamics.terms(kin, G, qd)
+    factor = _factor(model, M[None], q[None])
     tau_ctrl = model.input_map @ u
+    mass = conditioning.of_mass(model, M, c_qd, g, tau_ctrl, qd)
+    Lambda, task_cond = _task_inertia(kin, factor)
+    common = dict(cond_M=mass.cond, task_inertia=Lambda, **_power(model, u, qd))
     if model.constraints:
-        return _constrained_split(kin, q, qd, M, factor, h, c_qd, g, tau_ctrl)
-    drift, ctrl, total = (x[0] for x in _unconstrained(Cholesky.of(M[None]), h[None], tau_ctrl[None]))
-    cond_M, accel_scale = conditioning(model, M, c_qd, g, tau_ctrl, qd)
-    extras = _extras(kin, qd, total, drift)
-    return unconstrained_split(drift=drift, ctrl=ctrl, total=total, tau_ctrl=tau_ctrl, qd=qd, cond_M=cond_M,
-                               accel_scale=accel_scale, extras=extras, task_drift=_task_drift(kin, qd, drift),
-                               kinetic_energy=_kinetic_energy(model, extras["twists_body"]),
-                               joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"]),
-                               joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"]),
-                               **_task_inertia(kin, factor))
+        return _constrained_split(kin, G, qd, factor, h, tau_ctrl, mass, common, {"task_inertia": task_cond})
+    drift, ctrl, total = (x[0] for x in _unconstrained(factor, h[None], tau_ctrl[None]))
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
+                 power_constr_per_coord=None, accel_scale=mass.accel_scale, conditions={"task_inertia": task_cond},
+                 **_reported(kin, G, qd, drift, _extras(kin, G, qd, total, drift)), **common)
 
 
-def _constrained_split(kin: Kinematics, q, qd, M, factor, h, c_qd, g, tau_ctrl) -> Split:  # noqa: N803
-    """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state) and the constraint wrenches
-    of both multipliers."""
+def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Cholesky, h, tau_ctrl,  # noqa: N803
+                       mass: conditioning.MassConditioning, common: dict, conditions: dict) -> Split:
+    """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state), the constraint wrenches of
+    both multipliers, and the constraint's own quantities (article 5.5): ``Jc^T lam`` and its power, ``Jc qd`` and the
+    conditioning of ``S`` (``accel_scale`` adds what the constraint force can produce)."""
     model = kin.model
-    rows = constraints.terms(kin, q, qd)
-    gauss = constraints.Gauss.build(model, Cholesky.of(M[None]), rows.jacobian[None], rows.bias[None])
+    rows = constraints.terms(kin, kin.q, qd)
+    Jc, bias = rows.jacobian, rows.bias
+    gauss = constraints.Gauss.build(model, factor, Jc[None], bias[None])
     drift, ctrl, total, lam, lam_drift = (x[0] for x in _constrained(gauss, h[None], tau_ctrl[None]))
-    extras = _extras(kin, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
-    return constrained_split(model, M=M, Cqd=c_qd, g=g, tau_ctrl=tau_ctrl, qd=qd, phi=rows.phi, Jc=rows.jacobian,
-                             bias=rows.bias, drift=drift, ctrl=ctrl, total=total, lam=lam,
-                             lam_drift=lam_drift, extras=extras, task_drift=_task_drift(kin, qd, drift),
-                             kinetic_energy=_kinetic_energy(model, extras["twists_body"]),
-                             joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"], rows.coupling_torques(lam)),
-                             joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"],
-                                                                  rows.coupling_torques(lam_drift)),
-                             **_task_inertia(kin, factor))
+    extras = _extras(kin, G, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
+    cc = conditioning.of_constraints(model, factor, gauss.A[0], Jc, bias, (tau_ctrl - h, -h), mass)
+    force = Jc.T @ lam
+    return Split(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
+                 power_constr=float(force @ qd), power_constr_per_coord=force * qd,
+                 accel_scale=mass.accel_scale + cc.force_scale,
+                 conditions={**conditions, "constraint": cc.cond_S, "constraint_consistency": cc.inconsistency,
+                             "constraint_kept": cc.cond_kept},
+                 constraint_value=rows.phi, constraint_jacobian=Jc, constraint_bias=bias, constraint_velocity=Jc @ qd,
+                 constraint_force=force, constraint_force_drift=Jc.T @ lam_drift, constraint_rank=cc.rank,
+                 lam_scale=cc.lam_scale,
+                 **_reported(kin, G, qd, drift, extras,
+                             (rows.coupling_torques(lam), rows.coupling_torques(lam_drift))),
+                 **common)
 
 
-def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int) -> Cholesky:  # noqa: N803
-    """The Cholesky factors of a block's mass matrices; a ValueError naming the first state (``first`` is the block's
-    offset in the batch) whose M is not positive definite."""
+def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int | None = None) -> Cholesky:  # noqa: N803
+    """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, n); a ValueError
+    naming the model, the first state whose M is not positive definite (``first``: the stack's offset in a batch; None
+    for one state) and its eigenvalues."""
     factor = Cholesky.of(M)
     if not factor.positive.all():
         i = int(np.flatnonzero(~factor.positive)[0])
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at state {first + i} of "
-                         f"the batch, q = {Q[i].tolist()} (Cholesky failed); eigenvalues "
-                         f"{np.linalg.eigvalsh(M[i]).tolist()}")
+        where = f"q = {Q[i].tolist()}" if first is None else f"state {first + i} of the batch, q = {Q[i].tolist()}"
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} (Cholesky "
+                         f"failed); eigenvalues {np.linalg.eigvalsh(M[i]).tolist()}")
     return factor
 
 
@@ -197,9 +217,9 @@ def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray, fir
     """``(drift, ctrl, total, lam, lam_drift)`` of a block of states (lam None when unconstrained): the pass of
     ``split`` over a leading state axis."""
     kin = kinematics.forward_kinematics(model, Q)
-    G = dynamics.space_inertias(kin)
+    G = dynamics.Inertias.of(model)
     M = dynamics.mass_matrix_of(kin, G)
-    h = dynamics.generalized_forces(kin, dynamics.space_wrenches(kin, G, QD, None, 1.0))
+    h = dynamics.generalized_forces(kin, dynamics.wrenches(kin, G, QD, None, 1.0))
     factor, tau_ctrl = _factor(model, M, Q, first), U @ model.input_map.T
     if not model.constraints:
         return (*_unconstrained(factor, h, tau_ctrl), None, None)

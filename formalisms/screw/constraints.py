@@ -32,8 +32,10 @@ Gauss's principle. The constrained acceleration is the admissible one closest to
 
 with ``A^+`` from the singular value decomposition of ``A``, the singular values below
 ``sqrt(CONSTRAINT_RCOND)`` times the largest dropped (``A A^T = Jc M^-1 Jc^T``, so this drops the eigenvalues of
-``S`` below ``CONSTRAINT_RCOND`` times its largest): minimum-norm multipliers for redundant rows, least-squares
-numbers for an inconsistent system. ``M qdd = f + Jc^T lam`` holds because ``Jc^T lam = L A^+ A A^+ r = L A^+ r``.
+``S`` below ``CONSTRAINT_RCOND`` times its largest, and those below the degenerate floor of
+:mod:`~formalisms.screw.conditioning`: rows that vanish here): minimum-norm multipliers for redundant rows,
+least-squares numbers for an inconsistent system. ``M qdd = f + Jc^T lam`` holds because ``Jc^T lam = L A^+ A A^+ r =
+L A^+ r``.
 
 The rows and the solve take a stack of states (leading axes, as :mod:`~formalisms.screw.kinematics`): the batched
 split evaluates N states in one pass; the split is the stack of one.
@@ -49,8 +51,9 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import redundant_below
+from formalisms.interface import CONSTRAINT_RCOND
 from formalisms.screw import kinematics, lie
+from formalisms.screw.conditioning import degenerate_floor
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
 
@@ -208,23 +211,24 @@ def _states_first(x: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class Gauss:
     """Gauss's principle (module docstring) for N states: the Cholesky factors of ``M``, the rows ``Jc`` (N, k, n)
-    and ``Jcdot qd`` (N, k), and ``A^+`` (N, n, k) of ``A = Jc L^-T``."""
+    and ``Jcdot qd`` (N, k), ``A = Jc L^-T`` (N, k, n) and its pseudo-inverse ``A^+`` (N, n, k)."""
 
     factor: Cholesky
     Jc: np.ndarray
     bias: np.ndarray
+    A: np.ndarray
     A_pinv: np.ndarray
 
     @classmethod
     def build(cls, model: Model, factor: Cholesky, Jc: np.ndarray, bias: np.ndarray) -> "Gauss":  # noqa: N803
-        """From the factors of ``M`` and the constraint rows. Singular values of ``A`` with ``s^2`` (the eigenvalues
-        of ``S = A A^T``) at or below ``interface.redundant_below(model, s_max^2)`` are dropped, state by state."""
+        """From the factors of ``M`` and the constraint rows. Singular values of ``A`` whose square (an eigenvalue of
+        ``S = A A^T``) is at or below ``CONSTRAINT_RCOND s_max^2`` or the degenerate floor (redundant or vanished rows,
+        :mod:`~formalisms.screw.conditioning`) are dropped, state by state."""
         A = np.transpose(factor.forward(np.transpose(Jc, (2, 1, 0))), (2, 1, 0))      # (L^-1 Jc^T)^T
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        w_max = s[:, :1] ** 2
-        keep = s**2 > redundant_below(model, w_max)
+        keep = s**2 > np.maximum(CONSTRAINT_RCOND * s[:, :1] ** 2, degenerate_floor(model))
         inverse = np.divide(1.0, s, out=np.zeros_like(s), where=keep)
-        return cls(factor, Jc, bias, np.einsum("Nrn,Nr,Nkr->Nnk", Vt, inverse, U))
+        return cls(factor, Jc, bias, A, np.einsum("Nrn,Nr,Nkr->Nnk", Vt, inverse, U))
 
     def _lift(self, y: np.ndarray) -> np.ndarray:
         """``L^-T y`` (N, n)."""

@@ -16,6 +16,11 @@ exponentials of ``i`` and its ancestors, root first. The space Jacobian of body 
 A point fixed in body ``i`` at world position ``p`` moves with the body's space twist ``(w, v)``: velocity
 ``v + w x p`` (so ``dp/dq = [-[p] | I] J_s,i``) and classical acceleration ``vd + wd x p + w x (v + w x p)``.
 
+Body frames (Lynch & Park 8.3.2): body ``i`` sees its parent's frame at ``T_i,parent(i) = exp(-[B_i] q_i)
+M_parent(i),i^-1`` (``M_parent(i),i`` the placement ``(rotation, translation)``), and its body Jacobian follows by the
+forward iteration ``J_b,i = [Ad_{T_i,parent(i)} J_b,parent(i) | B_i]``. Built from the placements alone, with no world
+coordinates, its columns round on the levers between the joints, not on the distances from the world origin.
+
 Quantities of all bodies are stacked along a body axis, in model order, after any leading axes of ``q``: a stack
 of N configurations ``q`` (N, n) gives poses (N, n, 4, 4), twists (N, n, 6), ... (the batched split evaluates all
 states in one pass); one configuration gives (n, 4, 4), (n, 6), ... Rates such as ``qd`` broadcast the same way.
@@ -37,6 +42,7 @@ class Screws:
     """The configuration-independent screw description of a model.
 
     home        (n, 4, 4)  ``M_i``, world <- body ``i`` at ``q = 0``
+    placements  (n, 4, 4)  ``M_parent(i),i = M_parent^-1 M_i``: the model's ``(rotation, translation)`` of body ``i``
     body_axes   (n, 6)     ``B_i`` in body frame ``i``
     space_axes  (n, 6)     ``S_i = Ad_{M_i} B_i`` in the world frame
     support     (n, n)     ``support[i, j] = 1`` when body ``j`` is ``i`` or an ancestor of ``i`` (joint ``j``
@@ -44,6 +50,7 @@ class Screws:
     """
 
     home: np.ndarray
+    placements: np.ndarray
     body_axes: np.ndarray
     space_axes: np.ndarray
     support: np.ndarray
@@ -53,12 +60,14 @@ class Screws:
 class Kinematics:
     """The PoE kinematics at a configuration ``q`` (..., n); the leading axes ``...`` are those of ``q``.
 
+    q           (..., n)        the configuration
     poses       (..., n, 4, 4)  ``T_i(q)``, world <- body ``i`` (eq. 20)
     columns     (..., n, 6)     ``S_j(q) = Ad_{P_parent(j)} S_j``: joint ``j``'s screw axis in the world frame at ``q``
     """
 
     model: Model
     screws: Screws
+    q: np.ndarray
     poses: np.ndarray
     columns: np.ndarray
 
@@ -67,25 +76,54 @@ class Kinematics:
         """(..., n, 6, 6) ``Ad_{T_i^-1}``: maps a twist from the world frame to body frame ``i``."""
         return lie.Ad(lie.inv(self.poses))
 
+    @cached_property
+    def from_parent(self) -> np.ndarray:
+        """(..., n, 4, 4) ``T_i,parent(i) = exp(-[B_i] q_i) M_parent(i),i^-1`` (Lynch & Park 8.3.2): the parent's frame
+        (the world's for a root) in body ``i``'s. ``Ad`` of it maps a twist from the parent's frame to body ``i``'s, its
+        transpose a wrench from body ``i``'s frame to the parent's."""
+        return lie.compose(lie.exp6(self.screws.body_axes, -self.q), lie.inv(self.screws.placements))
+
+    @cached_property
+    def from_parent_adjoint(self) -> np.ndarray:
+        """(..., n, 6, 6) ``Ad_{T_i,parent(i)}`` of :attr:`from_parent`, for the passes over the tree."""
+        return lie.Ad(self.from_parent)
+
+    @cached_property
+    def body_columns(self) -> np.ndarray:
+        """(..., n, n, 6): ``[..., i, j, :]`` is column ``j`` of the body Jacobian ``J_b,i`` (``= Ad_{T_i^-1} J_s,i``),
+        joint ``j``'s screw axis in body frame ``i`` where joint ``j`` moves body ``i``, else 0; by the forward
+        iteration ``J_b,i = [Ad_{T_i,parent(i)} J_b,parent(i) | B_i]`` (module docstring)."""
+        X = np.zeros(self.q.shape[:-1] + (self.model.n, self.model.n, 6))
+        for i in self.model.topological_order:
+            p = self.model.parent_index[i]
+            if p >= 0:
+                X[..., i, :, :] = _into_child(self.from_parent_adjoint[..., i, :, :], X[..., p, :, :])
+            X[..., i, i, :] = self.screws.body_axes[i]
+        return X
+
+
+def _into_child(Ad: np.ndarray, rows: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``Ad_{T_i,parent(i)} V`` for twists ``V`` stored as rows (..., r, 6) of the parent's frame: body ``i``'s view."""
+    return rows @ np.swapaxes(Ad, -1, -2)
+
 
 def screws(model: Model) -> Screws:
-    """Home configurations, body and space screw axes, and the support mask of ``model``."""
+    """Home configurations, placements, body and space screw axes, and the support mask of ``model``."""
     n = model.n
-    home = np.empty((n, 4, 4))
+    home, placements = np.empty((n, 4, 4)), np.zeros((n, 4, 4))
     body_axes = np.zeros((n, 6))
     support = np.zeros((n, n))
     for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
-        placement = np.eye(4)
-        placement[:3, :3], placement[:3, 3] = b.rotation, b.translation
-        home[i] = placement if p < 0 else home[p] @ placement
+        placements[i, :3, :3], placements[i, :3, 3], placements[i, 3, 3] = b.rotation, b.translation, 1.0
+        home[i] = placements[i] if p < 0 else home[p] @ placements[i]
         start = 0 if b.joint == "revolute" else 3
         body_axes[i, start:start + 3] = b.axis
         if p >= 0:
             support[i] = support[p]
         support[i, i] = 1.0
     space_axes = (lie.Ad(home) @ body_axes[..., None])[..., 0]
-    return Screws(home, body_axes, space_axes, support)
+    return Screws(home, placements, body_axes, space_axes, support)
 
 
 def _body_major(shape: tuple) -> np.ndarray:
@@ -109,7 +147,7 @@ def forward_kinematics(model: Model, q: np.ndarray) -> Kinematics:
         else:
             before[..., i, :, :] = products[..., p, :, :]
             products[..., i, :, :] = lie.compose(products[..., p, :, :], factors[..., i, :, :])
-    return Kinematics(model, sc, lie.compose(products, sc.home), lie.adjoint(before, sc.space_axes))
+    return Kinematics(model, sc, q, lie.compose(products, sc.home), lie.adjoint(before, sc.space_axes))
 
 
 def _joint_rates(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
@@ -129,20 +167,43 @@ def _accumulate(kin: Kinematics, per_joint: np.ndarray) -> np.ndarray:
     return _over_bodies(per_joint, kin.screws.support)
 
 
-def subtree_sum(kin: Kinematics, per_body: np.ndarray) -> np.ndarray:
-    """Sum per-body terms over each joint's subtree: ``out_j = sum_{i >= j} per_body_i`` (body axis -2), the bodies
-    joint ``j`` moves (the transpose of :func:`_accumulate`)."""
-    return _over_bodies(per_body, kin.screws.support.T)
-
-
 def space_jacobian(kin: Kinematics, body: int) -> np.ndarray:
     """``J_s,i`` (..., 6, n): column ``j`` is ``S_j(q)`` if joint ``j`` moves body ``i``, else 0 (article 6.2.2)."""
     return np.swapaxes(kin.columns, -1, -2) * kin.screws.support[body]
 
 
 def body_jacobian(kin: Kinematics, body: int) -> np.ndarray:
-    """``J_b,i = Ad_{T_i^-1} J_s,i`` (..., 6, n), in body frame ``i``."""
-    return kin.to_body[..., body, :, :] @ space_jacobian(kin, body)
+    """``J_b,i = Ad_{T_i^-1} J_s,i`` (..., 6, n), in body frame ``i`` (:attr:`Kinematics.body_columns`)."""
+    return np.swapaxes(kin.body_columns[..., body, :, :], -1, -2)
+
+
+def body_twists(kin: Kinematics, qd: np.ndarray) -> np.ndarray:
+    """Body twists ``V_b,i = J_b,i qd`` of every body, (..., n, 6) for qd (..., n): ``[V_b] = T^-1 Tdot``, body frame
+    ``i`` (``v`` the velocity of the body-frame origin); the twists of :func:`body_motion`, from the Jacobians."""
+    return (np.asarray(qd, dtype=float)[..., None, None, :] @ kin.body_columns)[..., 0, :]
+
+
+def body_motion(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Body twists ``V_i`` and accelerations ``Vdot_i`` (..., n, 6) of every body for rates ``qd``, ``qdd`` (..., n;
+    None: zero): Lynch & Park's forward iterations (8.3.2), base to tip, in body frames::
+
+        V_i = Ad_{T_i,parent(i)} V_parent + B_i qd_i
+        Vdot_i = Ad_{T_i,parent(i)} Vdot_parent + [V_i, B_i qd_i] + B_i qdd_i,   [V_i, B_i qd_i] = -qd_i [B_i, V_i]
+
+    with nothing inboard of a root (gravity is applied as a load, no accelerating base). The twists summed are ``V_i
+    = J_b,i qd`` (:func:`body_twists`), so only the accelerations are iterated; ``Vdot_i = J_b,i qdd + Jdot_b,i qd``,
+    the time derivative of ``V_i``, and ``Ad_{T_i^-1}`` of the space acceleration.
+    """
+    qd = np.asarray(qd, dtype=float)
+    qdd = np.zeros_like(qd) if qdd is None else np.asarray(qdd, dtype=float)
+    axes, Ad = kin.screws.body_axes, kin.from_parent_adjoint
+    V = body_twists(kin, qd)
+    Vdot = axes * qdd[..., None] - qd[..., None] * lie.bracket(axes, V)          # each body's own terms
+    for i in kin.model.topological_order:
+        p = kin.model.parent_index[i]
+        if p >= 0:
+            Vdot[..., i, :] += _into_child(Ad[..., i, :, :], Vdot[..., p, None, :])[..., 0, :]
+    return V, Vdot
 
 
 def twists(kin: Kinematics, qd: np.ndarray) -> np.ndarray:

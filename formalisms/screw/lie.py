@@ -218,6 +218,15 @@ def wrench_to_body(T: np.ndarray, F: np.ndarray) -> np.ndarray:
     return join(rotate_back(R, m - cross(p, f)), rotate_back(R, f))
 
 
+def wrench_from_body(T: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """``Ad_{T^-1}^T F = (R m + p x R f, R f)``: a wrench ``F = (m, f)`` given in the frame ``T`` (moment about its
+    origin) re-expressed in the frame ``T`` is placed in (the world, say; moment about the world origin): the inverse
+    of :func:`wrench_to_body`."""
+    R, p = T[..., :3, :3], T[..., :3, 3]
+    f = rotate(R, F[..., 3:])
+    return join(rotate(R, F[..., :3]) + cross(p, f), f)
+
+
 def Ad(T: np.ndarray) -> np.ndarray:  # noqa: N802 (the article's name)
     """The adjoint ``Ad_T = [[R, 0], [[p] R, R]]`` (6x6): ``[Ad_T V] = T [V] T^-1`` maps twists by ``T``.
 
