@@ -18,6 +18,9 @@ Frames and conventions
 * A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
   from two prismatic joints and a revolute one. Every joint must still move some mass.
 * ``constraints`` are declarations from :mod:`cases.constraints`; ``Model.k`` counts their rows (``phi`` in R^k).
+* ``source`` (optional, :class:`ModelSource`) records the file a loaded model was converted from and where the scene
+  places that file's world, so that the external reference can read the file itself instead of our conversion of it.
+  It is provenance, not physics: :meth:`Model.digest` leaves it out.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from cases import constraints as constraint_decl
 from cases.validation import as_array, finite, frozen, orthonormal_rows
 
 JOINT_TYPES = ("revolute", "prismatic")
+#: File formats a model can be loaded from (:attr:`ModelSource.kind`).
+SOURCE_KINDS = ("urdf",)
 
 
 class ModelError(ValueError):
@@ -76,6 +81,42 @@ class TaskPoint:
 
 
 @dataclass(frozen=True, eq=False)
+class ModelSource:
+    """Where a loaded model came from: the file (``kind`` one of :data:`SOURCE_KINDS`, ``path``: the URDF loader
+    stores it absolute) and the rigid transform ``(rotation, translation)`` that places the file's world frame in
+    the model's world (the identity for a model fresh from the loader; a moved scene composes it:
+    ``crosscheck.frames``).
+    A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
+    gravity ``g`` is ``rotation @ g``."""
+
+    kind: str
+    path: str
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def moved(self, rotation: np.ndarray, translation: np.ndarray) -> "ModelSource":
+        """The source of the scene moved by ``g = (rotation, translation)``: placement ``g * (R, t)``."""
+        R, t = np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float)
+        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t)
+
+    @property
+    def is_identity(self) -> bool:
+        """Whether the file's world is the model's world (a model as loaded, not moved)."""
+        return bool(np.array_equal(self.rotation, np.eye(3)) and not np.any(self.translation))
+
+    def key(self) -> str:
+        """A stable text of every field (for caches of whatever is built from the file)."""
+        placement = np.concatenate([np.ravel(self.rotation), np.ravel(self.translation)]).astype("<f8")
+        return f"{self.kind}:{self.path}:{placement.tobytes().hex()}"
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ModelSource) and self.key() == other.key()
+
+    def __hash__(self) -> int:
+        return hash(self.key())
+
+
+@dataclass(frozen=True, eq=False)
 class Model:
     """A validated, immutable multibody model. Build it with :func:`build_model`, never directly."""
 
@@ -87,6 +128,7 @@ class Model:
     constraints: tuple = ()
     parent_index: tuple[int, ...] = ()
     topological_order: tuple[int, ...] = ()
+    source: ModelSource | None = None
 
     @property
     def n(self) -> int:
@@ -133,7 +175,8 @@ class Model:
 
     def digest(self) -> str:
         """A stable hash of everything that determines the physics and the task points (for caches keyed by
-        model); the model's name is left out, so a renamed copy shares cache entries. Computed once per model."""
+        model); the model's name and its ``source`` (provenance, not physics) are left out, so a renamed copy
+        shares cache entries. Computed once per model."""
         return self._digest
 
     @functools.cached_property
@@ -306,12 +349,36 @@ def _depth(parent: Sequence[int], i: int) -> int:
     return depth
 
 
+def _validate_source(problems: list[str], source) -> ModelSource | None:
+    """``source`` with its placement as read-only arrays, or None (appending what is wrong)."""
+    if source is None:
+        return None
+    if not isinstance(source, ModelSource):
+        problems.append(f"source must be a cases.model.ModelSource or None, got {source!r}")
+        return None
+    n_before = len(problems)
+    if source.kind not in SOURCE_KINDS:
+        problems.append(f"source kind {source.kind!r} is not one of {list(SOURCE_KINDS)}")
+    if not isinstance(source.path, str) or not source.path:
+        problems.append(f"source path must be a non-empty string, got {source.path!r}")
+    rotation = as_array(problems, "source rotation", source.rotation, (3, 3))
+    if rotation is not None and (np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-9
+                                 or np.linalg.det(rotation) < 0):
+        problems.append(f"source rotation is not a proper rotation: {rotation.tolist()}")
+    translation = as_array(problems, "source translation", source.translation, (3,))
+    if len(problems) > n_before:
+        return None
+    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3))
+
+
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
-                task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = ()) -> Model:
+                task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = (),
+                source: ModelSource | None = None) -> Model:
     """Validate the description and return an immutable :class:`Model`.
 
     Every violated precondition is collected and reported together in one :class:`ModelError`.
     Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body.
+    ``source``: the file the description was converted from (:class:`ModelSource`; loaders set it).
     """
     bodies = list(bodies)
     problems: list[str] = []
@@ -337,9 +404,11 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     declared = [c.name for c in constraints if c is not None]
     if len(set(declared)) < len(declared):
         problems.append(f"constraint names repeat: {declared}; give each constraint its own name")
+    source = _validate_source(problems, source)
     if problems:
         raise ModelError(name, problems)
     B = B.copy()
     B.setflags(write=False)
     return Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
-                 task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order)
+                 task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
+                 source=source)

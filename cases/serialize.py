@@ -7,7 +7,9 @@ rebuilt model has the same ``digest()`` and every backend gives it the same spli
     True
 
 The dict holds the bodies (joint, axis, placement, mass, centre of mass, inertia), gravity, the input map, the task
-points and the constraint declarations of every type in :mod:`cases.constraints`. :func:`model_from_dict` rebuilds
+points, the constraint declarations of every type in :mod:`cases.constraints` and, for a model loaded from a file,
+its ``source`` (kind, path, world placement; :class:`cases.model.ModelSource`). A dict without ``source`` (written
+before it existed, or of a model built in code) loads as a model without one. :func:`model_from_dict` rebuilds
 through :func:`cases.build_model`, so a dict edited by hand is validated like any model; a missing or mistyped field
 raises :class:`SerializeError` naming the field (``bodies[1].mass``).
 """
@@ -19,7 +21,7 @@ import dataclasses
 import numpy as np
 
 from cases import constraints as constraint_decl
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.model import Body, Model, ModelSource, TaskPoint, build_model
 
 FORMAT = "crosscheck.model"
 VERSION = 1
@@ -46,8 +48,9 @@ def _plain(value):
 
 
 def model_to_dict(model: Model) -> dict:
-    """``model`` as a JSON-safe dict (module doc); :func:`model_from_dict` inverts it exactly."""
-    return {
+    """``model`` as a JSON-safe dict (module doc); :func:`model_from_dict` inverts it exactly. The ``source`` field
+    is there only when the model has one, so the dict of a model built in code is what it was before sources."""
+    d = {
         "format": FORMAT,
         "version": VERSION,
         "name": model.name,
@@ -60,6 +63,10 @@ def model_to_dict(model: Model) -> dict:
         "constraints": [{"type": type(c).__name__, **{f.name: _plain(getattr(c, f.name))
                                                       for f in dataclasses.fields(c)}} for c in model.constraints],
     }
+    if model.source is not None:
+        d["source"] = {"kind": model.source.kind, "path": model.source.path,
+                       "rotation": _plain(model.source.rotation), "translation": _plain(model.source.translation)}
+    return d
 
 
 def _get(d, key, where: str):
@@ -138,6 +145,16 @@ def _constraint(d, where: str):
     return cls(**kwargs)
 
 
+def _source(d: dict) -> ModelSource | None:
+    """The optional ``source`` field as a :class:`ModelSource` (absent or null: None); its placement is checked by
+    ``build_model``."""
+    value = d.get("source")
+    if value is None:
+        return None
+    return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
+                       _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"))
+
+
 def model_from_dict(d: dict) -> Model:
     """The model a :func:`model_to_dict` dict describes, built (and so validated) by :func:`cases.build_model`.
 
@@ -152,4 +169,5 @@ def model_from_dict(d: dict) -> Model:
     return build_model(
         _text(d, "name", ""), bodies, gravity=_numbers(d, "gravity", ""), input_map=_numbers(d, "input_map", ""),
         task_points=[_task_point(t, f"task_points[{i}]") for i, t in enumerate(_items(d, "task_points", ""))],
-        constraints=[_constraint(c, f"constraints[{i}]") for i, c in enumerate(_items(d, "constraints", ""))])
+        constraints=[_constraint(c, f"constraints[{i}]") for i, c in enumerate(_items(d, "constraints", ""))],
+        source=_source(d))

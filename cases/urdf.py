@@ -11,9 +11,11 @@ Pinocchio stores as ``(cos q, sin q)``, is one angle ``q`` here):
 * placement ``(rotation, translation)``: ``model.jointPlacements[j]``, in the parent joint's frame, which is
   our parent body frame;
 * axis: from the joint type (RX/RY/RZ, RUBX/RUBY/RUBZ = continuous, PX/PY/PZ -> unit axes;
-  RevoluteUnaligned, RevoluteUnboundedUnaligned, PrismaticUnaligned -> their axis);
+  RevoluteUnaligned, RevoluteUnboundedUnaligned, PrismaticUnaligned -> their motion subspace's axis);
 * mass, com, inertia about the COM: ``model.inertias[j]`` (joint frame = our body frame);
-* gravity: ``model.gravity.linear``.
+* gravity: ``model.gravity.linear``;
+* source: ``ModelSource("urdf", <absolute path>)`` with the identity placement, so the external reference
+  (``crosscheck.reference``) builds its own model from the file and never from this conversion.
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
@@ -30,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cases.model import Body, Model, ModelError, TaskPoint, build_model
+from cases.model import Body, Model, ModelError, ModelSource, TaskPoint, build_model
 
 
 class UrdfError(ValueError):
@@ -51,10 +53,20 @@ def _joint_kind(jm) -> tuple[str, np.ndarray] | None:
     if kind in ("PX", "PY", "PZ"):
         return "prismatic", np.array(_UNIT[kind[1]])
     if kind in ("RevoluteUnaligned", "RevoluteUnboundedUnaligned"):
-        return "revolute", np.array(jm.extract().axis, dtype=float)
+        return "revolute", _subspace(jm)[3:]
     if kind == "PrismaticUnaligned":
-        return "prismatic", np.array(jm.extract().axis, dtype=float)
+        return "prismatic", _subspace(jm)[:3]
     return None
+
+
+def _subspace(jm) -> np.ndarray:
+    """The joint's constant motion subspace ``S = (linear, angular)`` (6,) of a one-velocity joint: its axis is the
+    angular part (revolute) or the linear part (prismatic). Read from the joint data, since Pinocchio's Python
+    bindings expose no ``axis`` of a RevoluteUnboundedUnaligned joint (a URDF continuous joint about a non-axis
+    direction)."""
+    data = jm.createData()
+    jm.calc(data, np.array([1.0, 0.0]) if jm.nq == 2 else np.zeros(jm.nq))
+    return np.array(data.S, dtype=float).reshape(6)
 
 
 def _frame_parent_joint(frame) -> int:
@@ -145,6 +157,6 @@ def from_urdf(path, name: str | None = None) -> Model:
 
     try:
         return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
-                           task_points=leaves if leaves else None)
+                           task_points=leaves if leaves else None, source=ModelSource("urdf", str(path.resolve())))
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
         raise ModelError(model_name, list(exc.problems) + [f"(from URDF file '{path}')"]) from None

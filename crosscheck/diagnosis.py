@@ -17,6 +17,8 @@ the median of the others, or the spread of all voters when none is named. Per ar
 - one only in the joint loads (``joint_wrenches``, article 6.1.5) while the accelerations agree is in the backward
   pass (the wrench recursion); one only in ``task_inertia`` is in J or the inverse of ``J M^-1 J^T`` (eq. 22).
   When an acceleration fails too, the loads and Lambda follow from it and the accelerations classify the error.
+- the reference alone against every formalism on a model loaded from a file (the reference read the file itself,
+  the formalisms our conversion of it: ``crosscheck.reference``) points at the conversion, not at the formalisms.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 
 import cases
 from cases.model import Model
+from crosscheck.backends import REFERENCE_NAME
 from crosscheck.compare import DISAGREE, Comparison, suspect
 from crosscheck.gate import GateResult, StateOutcome
 from crosscheck.tolerance import CONSTRAINED_QUANTITIES
@@ -195,10 +198,13 @@ def hint(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> 
         return (f"the backends agree with each other against the exact value in {', '.join(failing)}: the state "
                 "(not admissible?) or the exact claim, not a backend")
     who = _suspect(failing, outcome.trusted)
+    names = ", ".join(failing)
+    if who == REFERENCE_NAME and model.source is not None:
+        return (f"all formalisms agree against the reference built from the file {model.source.path} ({names}): "
+                f"suspect the model conversion (cases/{model.source.kind}.py), not the formalisms")
     probe = Probe(model, outcome, backends, who)
     subject = f"{who}'s" if who else "the voters' spread in"
     tol = {q: c.tolerance for q, c in outcome.comparisons.items()}
-    names = ", ".join(failing)
     if set(failing) <= set(CONSTRAINED_QUANTITIES):
         first = next(q for q in CONSTRAINED_QUANTITIES if q in failing)
         where = f"only in constrained quantities ({names}): the multipliers or the constraint kinematics"

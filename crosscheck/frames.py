@@ -4,7 +4,8 @@ Moving the scene by ``g = (R, t)`` (world points ``x -> R x + t``) changes nothi
 placements become ``g * placement``, gravity rotates with the scene (``R gravity``), and the task directions
 rotate too (``D R^T``), so the task is the same task on the moved scene. The constraints' world data move with it
 (centres, line origins and ground points by g, planes, directions and normals by ``D R^T``), so every ``phi`` is
-the same function of q. Under it
+the same function of q. A model loaded from a file keeps its ``source`` with the file's world placement composed
+with g, so the reference built from the file sees the same moved scene. Under it
 
     joint accelerations, inputs, multipliers, power, kinetic energy   are invariant,
     twists (w, v) in the world frame                                  map by Ad_g,
@@ -66,14 +67,17 @@ def rotate_gravity(frame: Frame, gravity: np.ndarray) -> np.ndarray:
 
 
 def move_scene(model: Model, frame: Frame) -> Model:
-    """The same scene moved by ``frame``: root placements ``g * placement``, gravity and task directions rotated."""
+    """The same scene moved by ``frame``: root placements ``g * placement``, gravity and task directions rotated, and
+    a file source's world placement ``g * placement`` (``ModelSource.moved``)."""
     R, t = frame.rotation, frame.translation
     bodies = [dataclasses.replace(b, rotation=R @ b.rotation, translation=R @ b.translation + t)
               if b.parent is None else b for b in model.bodies]
     task_points = [dataclasses.replace(tp, directions=tp.directions @ R.T) for tp in model.task_points]
     constraints = [move_constraint(c, frame) for c in model.constraints]
+    source = None if model.source is None else model.source.moved(R, t)
     return cases.build_model(f"{model.name}@{frame.name}", bodies, gravity=rotate_gravity(frame, model.gravity),
-                             input_map=model.input_map, task_points=task_points, constraints=constraints)
+                             input_map=model.input_map, task_points=task_points, constraints=constraints,
+                             source=source)
 
 
 def move_constraint(c, frame: Frame):

@@ -1,66 +1,155 @@
 """Pinocchio as the external reference (DESIGN.md: kept apart from the five formalisms).
 
-:func:`to_pinocchio` builds a ``pinocchio.Model`` from OUR model data (never from a URDF), so the reference
-checks the same physics the formalisms see. :func:`split` is the shared ``split`` contract on top of
-Pinocchio's ABA / CRBA / RNEA; :data:`REFERENCE` wraps it as a :class:`~formalisms.interface.Formalism`.
+Which Pinocchio model
+---------------------
+* A model loaded from a file (``model.source``, a :class:`cases.model.ModelSource`: today URDF) is checked against
+  a ``pinocchio.Model`` the reference builds **from the file itself** (``pinocchio.buildModelFromUrdf(path)``, the
+  loader's call: no root joint), with the source's world placement ``g = (R, t)`` applied to the joints hanging
+  from the universe (``g * placement``) and to gravity (``R @`` the file's gravity). Nothing of our conversion's
+  bodies is read: not their placements, axes, masses, centres of mass or inertias, nor our gravity. From our
+  model it takes only what a state means and what is asked: the coordinate order (by body name, the explicit
+  joint map below), the input map B, the task point (by name; see :func:`_task_frame`) and its directions, and
+  the constraint declarations. A bug in our URDF conversion then moves the five formalisms and not the
+  reference, and the vote names the reference as the outlier.
+* A model without a source (factories, fuzz, a moved copy built in code) is checked against a ``pinocchio.Model``
+  built from OUR model data (:func:`to_pinocchio`): joints added in a depth-first order of ``model.bodies``,
+  each with its placement, axis and inertia.
+* The harness's own helpers, :func:`mass_matrix` (tolerance scales), :func:`bias_forces` and
+  :func:`task_jacobian` (the independent conditions a backend's BREAKDOWN claims are audited against) and
+  :func:`constraint_kinematics` (admissible states, projection onto the constraint manifold), always use the model
+  built from our data: they describe the problem the formalisms are given, not a vote.
+
+The joint map (file-built reference)
+------------------------------------
+Our coordinate ``i`` belongs to body ``model.bodies[i].name``, which the loader names after the URDF link the joint
+moves. :func:`joint_map` finds that link's BODY frame in the file-built model, checks that it hangs directly from
+a joint's JOINT frame (not welded to another link by a fixed joint), and maps the coordinate to that joint: its
+``idx_q``, ``idx_v`` and ``nq`` (2 for a URDF ``continuous`` joint, which Pinocchio stores as ``(cos q, sin q)``),
+sign +1 (our ``q_i`` is the URDF joint position). A link that is not in the file, a joint with ``nv != 1``, two
+coordinates on one joint or a joint left without a coordinate is a ValueError naming the body and the file, never
+a guess.
+
+What is computed
+----------------
+:func:`split` is the shared ``split`` contract on top of Pinocchio's ABA / CRBA / RNEA; :data:`REFERENCE` wraps it
+as a :class:`~formalisms.interface.Formalism`. The numbers the reference reports besides the accelerations are its
+own (no numerics from ``formalisms.interface``), with the definitions every backend uses:
+
+* ``cond_M`` and ``accel_scale`` from the singular values of M (:func:`_conditioning`);
+* the input power ``u . (B^T qd)``, the constraint force ``Jc^T lam``, the constraint power ``lam . (Jc qd)`` and
+  ``Jc qd``;
+* the constraint conditions (``"constraint"`` = cond S, ``"constraint_kept"``, ``"constraint_consistency"``,
+  the rank, ``lam_scale`` and the accelerations the constraint force can produce, added to ``accel_scale``) from
+  the SVD of ``L^-1 Jc^T`` (L the Cholesky factor of M), whose squared singular values are the eigenvalues of
+  ``S = Jc M^-1 Jc^T`` (:class:`_Gram`);
+* the task inertia ``(J M^-1 J^T)^-1`` and ``conditions["task_inertia"]`` likewise from the SVD of ``L^-1 J^T``.
 
 Constraints: :func:`constraint_kinematics` forms ``phi``, ``Jc`` and ``Jcdot qd`` of the declarations
 (``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations, and
 the constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynamics(q, v, tau, J, gamma)``) for
-total / lam and drift / lam_drift. The harness's sampler uses the same kinematics to put states on the
-constraint manifold, so admissibility is decided outside the five formalisms. At a degenerate state (``S = Jc
-M^-1 Jc^T`` singular up to ``CONSTRAINT_RCOND``) Pinocchio's Cholesky-based KKT solve has no answer: the reference
-gives it the independent combinations of the rows (S's eigen-directions above the threshold, as the formalisms
-keep them) and maps the multipliers back, which gives the minimum-norm multipliers the formalisms return.
+total / lam and drift / lam_drift. At a degenerate state (S singular up to ``CONSTRAINT_RCOND``) Pinocchio's
+Cholesky-based KKT solve has no answer: the reference gives it the independent combinations of the rows (S's
+eigen-directions above the threshold, as the formalisms keep them) and maps the multipliers back, which gives the
+minimum-norm multipliers the formalisms return.
 
-Joint loads and task inertia (the compared ``joint_wrenches`` and ``task_inertia``): ``data.f[j]`` after
-``pinocchio.rnea(q, v, a)`` is the spatial force ``(linear, angular)`` the parent transmits to body ``j`` through
-joint ``j``, in joint ``j``'s local frame (which is our body frame: the inertia is appended at the joint frame),
-moment about its origin; RNEA's accelerating base (``a_gf = a - g``) puts the weight in it exactly, so ``data.f``
-at ``a = total`` (``drift``) is ``joint_wrenches`` (``joint_wrenches_drift``), rows read back in our coordinate
-order. With constraints the point forces of ``lam`` (``lam_drift``), which no KKT solve reports per body, are
-applied as RNEA's external forces ``fext`` (local frame, moment about the joint origin), as the formalisms apply
-them; a joint coupling's ``c_j lam`` is not a point force, so RNEA leaves it in the coupled joint's own load, the
-convention of ``Split.joint_wrenches``. ``task_inertia`` is ``(J M^-1 J^T)^-1`` with J the task frame's
-``LOCAL_WORLD_ALIGNED`` linear Jacobian in the task directions and ``M^-1`` by Cholesky on CRBA's M, with
-``conditions["task_inertia"]`` = cond(J M^-1 J^T) (NaN and inf where that is numerically singular).
+Joint loads (the compared ``joint_wrenches``): ``data.f[j]`` after ``pinocchio.rnea(q, v, a)`` is the spatial force
+``(linear, angular)`` the parent transmits to body ``j`` through joint ``j``, in joint ``j``'s local frame (our body
+frame: the loader takes each body's inertia in the joint frame, and the data build appends it there), moment about
+its origin; RNEA's accelerating base (``a_gf = a - g``) puts the weight in it exactly, so ``data.f`` at ``a = total``
+(``drift``) is ``joint_wrenches`` (``joint_wrenches_drift``), rows read back in our coordinate order. With
+constraints the point forces of ``lam`` (``lam_drift``) are applied as RNEA's external forces ``fext`` (local
+frame, moment about the joint origin); a joint coupling's ``c_j lam`` is not a point force, so RNEA leaves it in
+the coupled joint's own load, the convention of ``Split.joint_wrenches``.
 
-Joint order: Pinocchio needs parents before children, so joints are added in ``model.topological_order``;
-states and results are permuted in and out, so callers always use our coordinate order.
+States and results are permuted (and continuous joints mapped to ``(cos q, sin q)``) in and out, so callers always
+use our coordinate order.
 """
 
 from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
-from cases.model import Model
-from formalisms.interface import (Formalism, Split, SplitBatch, check_batch, check_state, conditioning,
-                                  constrained_split, redundant_below, singular_below, split_batch_by_loop,
-                                  unconstrained_split)
+from cases.model import Model, ModelSource
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
+                                  check_state, split_batch_by_loop)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
     ("prismatic", 0): pin.JointModelPX, ("prismatic", 1): pin.JointModelPY, ("prismatic", 2): pin.JointModelPZ,
 }
 _UNALIGNED = {"revolute": pin.JointModelRevoluteUnaligned, "prismatic": pin.JointModelPrismaticUnaligned}
+#: Pinocchio joint types stored as ``(cos q, sin q)`` (URDF ``continuous``), by short name.
+_UNBOUNDED = ("JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned")
+
+
+class JointMapRow(NamedTuple):
+    """Our coordinate ``coordinate`` (of body ``body``) is the URDF joint ``joint``: Pinocchio's configuration
+    entries ``idx_q .. idx_q + nq - 1`` (``nq`` 2: ``(cos q, sin q)``) and velocity ``idx_v``. ``sign`` is +1 for
+    every row: the loader keeps each URDF joint's direction, so our ``q_i`` is the joint's position as it is."""
+
+    coordinate: int
+    body: str
+    joint: str
+    idx_q: int
+    idx_v: int
+    nq: int
+    sign: int
+
+
+@dataclass(frozen=True)
+class _Scales:
+    """The model sizes the definitions of the conditions use, read from the model the reference was built from:
+    total mass, length scale ``1 + sum |placement translation| + |COM|``, inertia scale ``sum m L^2 + tr I`` (as
+    ``cases.model.Model.length_scale`` / ``inertia_scale`` define them) and gravity."""
+
+    mass: float
+    length: float
+    inertia: float
+    gravity: np.ndarray
+
+    @property
+    def degenerate_floor(self) -> float:
+        """The smallest eigenvalue of ``J M^-1 J^T`` that is a direction and not rounding: ``(DEGENERATE_ROW L)^2 /
+        inertia scale`` (``formalisms.interface.DEGENERATE_ROW``)."""
+        return (DEGENERATE_ROW * self.length) ** 2 / self.inertia
 
 
 @dataclass(frozen=True)
 class _Compiled:
+    """A Pinocchio model the reference evaluates (from the file or from our data) and how our coordinates, bodies,
+    task point and constrained points map onto it."""
+
     model: pin.Model
-    order: np.ndarray  # order[k] = our coordinate index of Pinocchio's k-th velocity
-    task_frame: int    # frame id of the model's default task point
-    points: dict       # (body name, offset tuple) -> frame id of each constrained body point
+    order: np.ndarray   # order[k] = our coordinate index of Pinocchio's k-th velocity
+    plain: tuple        # (idx_q, our coordinate) arrays of the one-number configurations
+    circle: tuple       # (idx_q, our coordinate) arrays of the (cos q, sin q) configurations
+    joint_of: dict      # our body name -> Pinocchio joint id
+    task_frame: int     # frame id of the model's default task point
+    points: dict        # (body name, offset tuple) -> frame id of each constrained body point
+    scales: _Scales
+    joint_map: tuple[JointMapRow, ...] | None  # the file-built reference's map; None when built from our data
+
+    def configuration(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio's configuration(s) of our ``q`` (n,) or (N, n): (nq,) or (N, nq)."""
+        out = np.empty(q.shape[:-1] + (self.model.nq,))
+        out[..., self.plain[0]] = q[..., self.plain[1]]
+        out[..., self.circle[0]] = np.cos(q[..., self.circle[1]])
+        out[..., self.circle[0] + 1] = np.sin(q[..., self.circle[1]])
+        return out
 
 
-_CACHE: dict[str, _Compiled] = {}
+_CACHE: dict[tuple, _Compiled] = {}
 _LOCK = threading.Lock()
+
+
+# ------------------------------------------------------------------------------------ built from our data
 
 
 def _joint_model(joint: str, axis: np.ndarray):
@@ -87,7 +176,8 @@ def _depth_first(model: Model) -> list[int]:
     return order
 
 
-def _build(model: Model) -> _Compiled:
+def _build_from_data(model: Model) -> _Compiled:
+    """The reference of a model without a file source: a Pinocchio model of our bodies (module docstring)."""
     pm = pin.Model()
     pm.name = model.name
     joint_id = {}
@@ -102,17 +192,30 @@ def _build(model: Model) -> _Compiled:
     order = np.empty(model.n, dtype=int)
     for i, jid in joint_id.items():
         order[pm.joints[jid].idx_v] = i
+    joint_of = {model.bodies[i].name: jid for i, jid in joint_id.items()}
     tp = model.task_point()
-    task_frame = pm.addFrame(pin.Frame(f"task:{tp.name}", joint_id[model.body_index(tp.body)],
-                                       pin.SE3(np.eye(3), np.array(tp.offset)), pin.FrameType.OP_FRAME))
+    task_frame = _add_point_frame(pm, f"task:{tp.name}", joint_of[tp.body], tp.offset)
+    scales = _Scales(float(sum(b.mass for b in model.bodies)), model.length_scale, model.inertia_scale,
+                     np.array(model.gravity))
+    return _Compiled(pm, order, (np.arange(model.n), order), (np.zeros(0, int), np.zeros(0, int)), joint_of,
+                     task_frame, _constraint_frames(pm, model, joint_of), scales, None)
+
+
+def _add_point_frame(pm: pin.Model, name: str, joint: int, offset) -> int:
+    """A frame on joint ``joint`` at ``offset`` in its frame (no rotation); returns its id."""
+    return pm.addFrame(pin.Frame(name, joint, pin.SE3(np.eye(3), np.array(offset, dtype=float)),
+                                 pin.FrameType.OP_FRAME))
+
+
+def _constraint_frames(pm: pin.Model, model: Model, joint_of: dict) -> dict:
+    """A frame for each constrained body point of the declarations, on the body's joint: (body, offset) -> id."""
     points = {}
     for c in model.constraints:
         for body, offset in _constrained_points(c):
             if body is not None and (body, tuple(offset)) not in points:
-                points[(body, tuple(offset))] = pm.addFrame(pin.Frame(
-                    f"constraint:{c.name}:{len(points)}", joint_id[model.body_index(body)],
-                    pin.SE3(np.eye(3), np.array(offset)), pin.FrameType.OP_FRAME))
-    return _Compiled(pm, order, task_frame, points)
+                points[(body, tuple(offset))] = _add_point_frame(pm, f"constraint:{c.name}:{len(points)}",
+                                                                 joint_of[body], offset)
+    return points
 
 
 def _constrained_points(c) -> list:
@@ -124,21 +227,177 @@ def _constrained_points(c) -> list:
     return []
 
 
-def _compiled(model: Model) -> _Compiled:
-    key = model.digest()
+# ----------------------------------------------------------------------------------------- built from the file
+
+
+def _parent_joint(frame) -> int:
+    """The joint a frame is attached to (Pinocchio >= 3.1: ``parentJoint``; older: ``parent``)."""
+    return int(frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent)
+
+
+def _parent_frame(frame) -> int:
+    """The frame this one hangs from (Pinocchio >= 3.1: ``parentFrame``; older: ``previousFrame``)."""
+    return int(frame.parentFrame if hasattr(frame, "parentFrame") else frame.previousFrame)
+
+
+def _read_file(source: ModelSource) -> pin.Model:
+    """The file's Pinocchio model (``buildModelFromUrdf``, no root joint) placed in the model's world by the source's
+    ``g = (R, t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    try:
+        pm = pin.buildModelFromUrdf(source.path)
+    except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
+        raise ValueError(f"the reference cannot read '{source.path}', the {source.kind.upper()} file the model was "
+                         f"loaded from: {exc}") from exc
+    R, t = np.array(source.rotation), np.array(source.translation)
+    for j in range(1, pm.njoints):
+        if pm.parents[j] == 0:
+            X = pm.jointPlacements[j]
+            pm.jointPlacements[j] = pin.SE3(R @ X.rotation, R @ X.translation + t)
+    for k in range(len(pm.frames)):
+        frame = pm.frames[k]
+        if _parent_joint(frame) == 0:
+            frame.placement = pin.SE3(R @ frame.placement.rotation, R @ frame.placement.translation + t)
+            pm.frames[k] = frame
+    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear), np.zeros(3))
+    return pm
+
+
+def _moving_joint(pm: pin.Model, model: Model, i: int, path: str) -> int:
+    """The Pinocchio joint that moves the URDF link of our coordinate ``i`` (its body's name): the parent joint of
+    the link's BODY frame, which must hang directly from that joint's JOINT frame."""
+    link = model.bodies[i].name
+    where = f"the reference cannot map coordinate {i} (body '{link}') of model '{model.name}' to a joint of '{path}'"
+    if not pm.existFrame(link, pin.FrameType.BODY):
+        links = [f.name for f in pm.frames if f.type == pin.FrameType.BODY]
+        raise ValueError(f"{where}: the file has no link '{link}' (its links: {links}); the loader names each body "
+                         "after the link its joint moves, so the conversion (cases/urdf.py) or the file changed")
+    frame = pm.frames[pm.getFrameId(link, pin.FrameType.BODY)]
+    jid = _parent_joint(frame)
+    if jid == 0:
+        raise ValueError(f"{where}: link '{link}' is welded to the world in the file; no joint moves it, so it has "
+                         "no coordinate (check the conversion, cases/urdf.py)")
+    above = pm.frames[_parent_frame(frame)]
+    if above.type != pin.FrameType.JOINT or _parent_joint(above) != jid:
+        raise ValueError(f"{where}: link '{link}' is welded by the fixed joint '{above.name}' to a link that joint "
+                         f"'{pm.names[jid]}' moves; the coordinate of a joint belongs to the link it moves directly")
+    return jid
+
+
+def _map_joints(pm: pin.Model, model: Model, path: str) -> tuple[JointMapRow, ...]:
+    """The joint map of the module docstring: one row per coordinate, every Pinocchio joint used exactly once."""
+    rows, owner = [], {}
+    for i in range(model.n):
+        jid = _moving_joint(pm, model, i, path)
+        joint, name = pm.joints[jid], pm.names[jid]
+        if jid in owner:
+            raise ValueError(f"the reference cannot map model '{model.name}' to '{path}': coordinates {owner[jid]} "
+                             f"(body '{model.bodies[owner[jid]].name}') and {i} (body '{model.bodies[i].name}') "
+                             f"both belong to URDF joint '{name}'")
+        if joint.nv != 1 or joint.nq != (2 if joint.shortname() in _UNBOUNDED else 1):
+            raise ValueError(f"the reference cannot map coordinate {i} (body '{model.bodies[i].name}') of model "
+                             f"'{model.name}': URDF joint '{name}' of '{path}' is a {joint.shortname()} with nq "
+                             f"{joint.nq}, nv {joint.nv}; one coordinate maps to nv 1 (nq 1, or 2 for continuous)")
+        owner[jid] = i
+        rows.append(JointMapRow(i, model.bodies[i].name, name, joint.idx_q, joint.idx_v, joint.nq, 1))
+    unmapped = [pm.names[j] for j in range(1, pm.njoints) if j not in owner]
+    if unmapped:
+        raise ValueError(f"the reference cannot map model '{model.name}' to '{path}': URDF joint(s) {unmapped} move "
+                         f"no body of the model (bodies: {[b.name for b in model.bodies]}); the model must have one "
+                         "coordinate per movable joint of the file")
+    return tuple(rows)
+
+
+def _file_scales(pm: pin.Model, rows: tuple[JointMapRow, ...]) -> _Scales:
+    """:class:`_Scales` of the file's joints, summed in our coordinate order (the same numbers as our model's when
+    the conversion is right)."""
+    joints = [pm.getJointId(r.joint) for r in rows]
+    mass = float(sum(pm.inertias[j].mass for j in joints))
+    length = 1.0 + float(sum(np.linalg.norm(pm.jointPlacements[j].translation) + np.linalg.norm(pm.inertias[j].lever)
+                             for j in joints))
+    inertia = float(sum(pm.inertias[j].mass * length**2 + np.trace(pm.inertias[j].inertia) for j in joints))
+    return _Scales(mass, length, inertia, np.array(pm.gravity.linear))
+
+
+def _task_frame(pm: pin.Model, model: Model, joint_of: dict) -> int:
+    """The default task point's frame in the file-built model: the file's frame of the same name (a BODY frame
+    first: the loader's task points are leaf links), else, for a task point that is not a frame of the file, one
+    added at our body and offset (then read from our model: the only place the reference uses a placement of ours)."""
+    tp = model.task_point()
+    if pm.existFrame(tp.name, pin.FrameType.BODY):
+        return pm.getFrameId(tp.name, pin.FrameType.BODY)
+    if pm.existFrame(tp.name):
+        return pm.getFrameId(tp.name)
+    return _add_point_frame(pm, f"task:{tp.name}", joint_of[tp.body], tp.offset)
+
+
+def _build_from_file(model: Model) -> _Compiled:
+    """The reference of a model with a file source (module docstring)."""
+    pm = _read_file(model.source)
+    rows = _map_joints(pm, model, model.source.path)
+    joint_of = {r.body: pm.getJointId(r.joint) for r in rows}
+    order = np.empty(model.n, dtype=int)
+    order[[r.idx_v for r in rows]] = [r.coordinate for r in rows]
+
+    def pairs(nq: int) -> tuple:
+        return (np.array([r.idx_q for r in rows if r.nq == nq], dtype=int),
+                np.array([r.coordinate for r in rows if r.nq == nq], dtype=int))
+    return _Compiled(pm, order, pairs(1), pairs(2), joint_of, _task_frame(pm, model, joint_of),
+                     _constraint_frames(pm, model, joint_of), _file_scales(pm, rows), rows)
+
+
+# -------------------------------------------------------------------------------------------------- caches
+
+
+def _cached(key: tuple, build, model: Model) -> _Compiled:
     with _LOCK:
         hit = _CACHE.get(key)
         if hit is None:
-            hit = _CACHE[key] = _build(model)
+            hit = _CACHE[key] = build(model)
     return hit
 
 
-def to_pinocchio(model: Model) -> pin.Model:
-    """A ``pinocchio.Model`` of ``model`` (cached by ``model.digest()``; joint k = ``model.topological_order[k]``).
+def _from_data(model: Model) -> _Compiled:
+    """The Pinocchio model of our data (cached by ``model.digest()``)."""
+    return _cached(("data", model.digest()), _build_from_data, model)
 
-    Treat it as read-only: it is shared between calls.
-    """
-    return _compiled(model).model
+
+def _reference_key(model: Model) -> tuple:
+    return ("data", model.digest()) if model.source is None else ("file", model.digest(), model.source.key())
+
+
+def _reference(model: Model) -> _Compiled:
+    """What :func:`split` checks against: the file-built model for a model with a source, else :func:`_from_data`'s
+    (cached by the digest and the source)."""
+    if model.source is None:
+        return _from_data(model)
+    return _cached(_reference_key(model), _build_from_file, model)
+
+
+def to_pinocchio(model: Model) -> pin.Model:
+    """A ``pinocchio.Model`` of OUR data for ``model`` (cached by ``model.digest()``; joints in a depth-first order
+    of the bodies), whatever its source: the speed anchor and the harness's view. Treat it as read-only: it is
+    shared between calls."""
+    return _from_data(model).model
+
+
+def joint_map(model: Model) -> tuple[JointMapRow, ...] | None:
+    """How the file-built reference maps our coordinates to the file's joints (module docstring), one row per
+    coordinate; None for a model without a file source. A ValueError names what does not map."""
+    return None if model.source is None else _reference(model).joint_map
+
+
+def provenance(model: Model) -> str | None:
+    """One line for reports on what the reference was built from: "built from the file <path> (9 joints mapped by
+    link name, sign +1)", and whether the scene moved the file's world; None for a model without a file source."""
+    rows = joint_map(model)
+    if rows is None:
+        return None
+    signs = ", ".join(f"{s:+d}" for s in sorted({r.sign for r in rows}))
+    moved = "" if model.source.is_identity else "; the file's world placed by the scene's rigid transform"
+    return f"built from the file {model.source.path} ({len(rows)} joints mapped by link name, sign {signs}{moved})"
+
+
+# ------------------------------------------------------------------------------- the harness's kinematics
 
 
 def _sym(upper: np.ndarray) -> np.ndarray:
@@ -146,19 +405,62 @@ def _sym(upper: np.ndarray) -> np.ndarray:
     return np.triu(upper) + np.triu(upper, 1).T
 
 
-def mass_matrix(model: Model, q) -> np.ndarray:
-    """``M(q)`` from Pinocchio's CRBA in our coordinate order (for the harness's tolerance scales)."""
-    c = _compiled(model)
-    M_p = _sym(np.array(pin.crba(c.model, c.model.createData(), np.asarray(q, dtype=float)[c.order])))
+def _ours(order: np.ndarray, vec_p: np.ndarray) -> np.ndarray:
+    """A vector in Pinocchio's velocity order back in our coordinate order."""
+    out = np.empty(len(order))
+    out[order] = vec_p
+    return out
+
+
+def _ours_matrix(order: np.ndarray, M_p: np.ndarray) -> np.ndarray:
+    """A matrix in Pinocchio's velocity order (rows and columns) back in our coordinate order."""
     M = np.empty_like(M_p)
-    M[np.ix_(c.order, c.order)] = M_p
+    M[np.ix_(order, order)] = M_p
     return M
 
 
-def _inverse(M: np.ndarray) -> np.ndarray:
-    """``M^-1`` by Cholesky on CRBA's M: backward stable, where computeMinverse lost 256 eps on a single rotor (a fuzz
-    finding: ctrl 640.0000000000364 against the exact 640)."""
-    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
+def mass_matrix(model: Model, q) -> np.ndarray:
+    """``M(q)`` from Pinocchio's CRBA on the model of our data (:func:`to_pinocchio`), in our coordinate order: the
+    problem the formalisms are given, for the harness's tolerance scales."""
+    c = _from_data(model)
+    M_p = _sym(np.array(pin.crba(c.model, c.model.createData(), c.configuration(np.asarray(q, dtype=float)))))
+    return _ours_matrix(c.order, M_p)
+
+
+def bias_forces(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray]:
+    """``(C qd, g)`` from RNEA on the model of our data (:func:`to_pinocchio`), in our coordinate order: the problem
+    the formalisms are given."""
+    c = _from_data(model)
+    q, qd = (np.asarray(x, dtype=float) for x in (q, qd))
+    data = c.model.createData()
+    q_p = c.configuration(q)
+    g = np.array(pin.computeGeneralizedGravity(c.model, data, q_p))
+    Cqd = np.array(pin.rnea(c.model, data, q_p, qd[c.order], np.zeros(model.n))) - g
+    return _ours(c.order, Cqd), _ours(c.order, g)
+
+
+def task_jacobian(model: Model, q) -> np.ndarray:
+    """``J = D dp/dq`` (k x n, our coordinate order) of the default task point ``p`` in its task directions ``D``,
+    from the model of our data (:func:`to_pinocchio`): the problem the formalisms are given."""
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.computeJointJacobians(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    J_p = _task_rows(model, c, data)
+    J = np.empty_like(J_p)
+    J[:, c.order] = J_p
+    return J
+
+
+def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``phi(q)`` (k,), ``Jc = dphi/dq`` (k x n, our coordinate order) and ``Jcdot qd`` (k,) from Pinocchio's
+    kinematics of the model of our data (:func:`to_pinocchio`): the harness's view of the constraints the
+    formalisms are given (admissibility, projection onto the manifold)."""
+    q, qd = (np.asarray(x, dtype=float) for x in (q, qd))
+    c = _from_data(model)
+    phi, Jc_p, bias = _constraint_terms(model, c, c.model.createData(), q, qd)
+    Jc = np.empty_like(Jc_p)
+    Jc[:, c.order] = Jc_p
+    return phi, Jc, bias
 
 
 def _point_kinematics(c: _Compiled, data, body, offset, n: int):
@@ -197,7 +499,7 @@ def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray)
 
 def _constraint_terms(model: Model, c: _Compiled, data, q: np.ndarray, qd: np.ndarray):
     """phi, Jc (Pinocchio's coordinate order), Jcdot qd; leaves data with the kinematics at (q, qd, 0)."""
-    qp, vp = q[c.order], qd[c.order]
+    qp, vp = c.configuration(q), qd[c.order]
     pin.forwardKinematics(c.model, data, qp, vp, np.zeros(model.n))
     pin.computeJointJacobians(c.model, data, qp)
     pin.updateFramePlacements(c.model, data)
@@ -206,29 +508,83 @@ def _constraint_terms(model: Model, c: _Compiled, data, q: np.ndarray, qd: np.nd
             np.concatenate([r[2] for r in rows]))
 
 
-def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``phi(q)`` (k,), ``Jc = dphi/dq`` (k x n, our coordinate order) and ``Jcdot qd`` (k,) from Pinocchio's
-    kinematics; the harness's view of the constraints (admissibility, projection onto the manifold)."""
-    q, qd = (np.asarray(x, dtype=float) for x in (q, qd))
-    c = _compiled(model)
-    phi, Jc_p, bias = _constraint_terms(model, c, c.model.createData(), q, qd)
-    Jc = np.empty_like(Jc_p)
-    Jc[:, c.order] = Jc_p
-    return phi, Jc, bias
+# ------------------------------------------------------------------------------------ the reference's numerics
 
 
-def _task_inertia(model: Model, c: _Compiled, data, Minv_p: np.ndarray) -> dict:
-    """``task_inertia`` (eq. 22) of the default task point from the task frame's Jacobian (needs
-    computeJointJacobians) and ``M^-1``, and ``conditions["task_inertia"]``; NaN and inf where ``J M^-1 J^T`` is
-    numerically singular (below ``k eps`` times its largest eigenvalue)."""
+@dataclass(frozen=True)
+class _Dynamics:
+    """CRBA's M, its lower Cholesky factor L and its singular values (descending), RNEA's g and C qd at one state,
+    in Pinocchio's order."""
+
+    M: np.ndarray
+    L: np.ndarray
+    singular_values: np.ndarray
+    g: np.ndarray
+    Cqd: np.ndarray
+
+    @classmethod
+    def at(cls, c: _Compiled, data, q_p: np.ndarray, v_p: np.ndarray) -> "_Dynamics":
+        M = _sym(np.array(pin.crba(c.model, data, q_p)))
+        g = np.array(pin.computeGeneralizedGravity(c.model, data, q_p))
+        Cqd = np.array(pin.rnea(c.model, data, q_p, v_p, np.zeros(len(v_p)))) - g
+        return cls(M, scipy.linalg.cholesky(M, lower=True), np.linalg.svd(M, compute_uv=False), g, Cqd)
+
+
+def _conditioning(c: _Compiled, dyn: _Dynamics, tau: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+    """``(cond(M), accel_scale)`` from the singular values of M (for a symmetric positive definite M its
+    eigenvalues): ``accel_scale = ||M^-1||_2 H``, H the size of the generalized forces summed in ``B u - C qd - g``
+    (1-norms), including the configuration-robust magnitudes ``||M|| |qd|^2`` of the velocity products and
+    ``|gravity|_1 sqrt(m_total ||M||)`` of gravity (the definition the formalisms use; mass and gravity are the
+    reference model's: the file's, for a loaded model). ``tau`` and ``qd`` in any one order."""
+    s = dyn.singular_values
+    H = (np.abs(dyn.Cqd).sum() + np.abs(dyn.g).sum() + np.abs(tau).sum() + s[0] * float(qd @ qd)
+         + np.abs(c.scales.gravity).sum() * np.sqrt(c.scales.mass * s[0]))
+    return float(s[0] / s[-1]), float(H / s[-1])
+
+
+@dataclass(frozen=True)
+class _Gram:
+    """``G = X^T X`` (k x k) in its eigen-axes from the SVD of X (n x k): eigenvalues ``w`` (ascending, the squared
+    singular values, zero beyond rank n) and eigenvectors ``axes`` (columns). With ``X = L^-1 J^T`` and L the
+    Cholesky factor of M, ``G = J M^-1 J^T``: S for the constraint rows, A for the task Jacobian."""
+
+    w: np.ndarray
+    axes: np.ndarray
+
+    @classmethod
+    def of(cls, L: np.ndarray, J: np.ndarray) -> "_Gram":
+        X = scipy.linalg.solve_triangular(L, J.T, lower=True)
+        _, sigma, Vt = np.linalg.svd(X, full_matrices=True)
+        w = np.zeros(X.shape[1])
+        w[:len(sigma)] = sigma**2
+        return cls(w[::-1].copy(), Vt[::-1].T.copy())
+
+
+def _task_rows(model: Model, c: _Compiled, data) -> np.ndarray:
+    """The task Jacobian ``D J`` (k x n, Pinocchio's order): the task frame's ``LOCAL_WORLD_ALIGNED`` linear
+    Jacobian in the task directions. Needs computeJointJacobians."""
     J6 = np.array(pin.getFrameJacobian(c.model, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED)).reshape(6, model.n)
-    J = model.task_point().directions @ J6[:3]                  # A does not depend on the coordinate order
-    A = J @ Minv_p @ J.T
-    w = np.linalg.eigvalsh(A)
-    if not singular_below(model, w) < w[0]:
-        return {"task_inertia": np.full(A.shape, np.nan), "conditions": {"task_inertia": float("inf")}}
-    Lambda = np.linalg.inv(A)
+    return model.task_point().directions @ J6[:3]
+
+
+def _task_inertia(model: Model, c: _Compiled, data, L: np.ndarray) -> dict:
+    """``task_inertia`` (eq. 22) of the default task point, ``(J M^-1 J^T)^-1`` from the eigen-axes of
+    ``A = J M^-1 J^T`` (:class:`_Gram`; J from :func:`_task_rows`, needs computeJointJacobians), and
+    ``conditions["task_inertia"]`` = cond(A). A is numerically singular (NaN and inf) when its smallest eigenvalue
+    is at or below ``k eps`` times its largest or the degenerate floor, or any is not finite (the definition the
+    formalisms use)."""
+    A = _Gram.of(L, _task_rows(model, c, data))                 # A does not depend on the coordinate order
+    w = A.w
+    floor = max(len(w) * np.finfo(float).eps * w[-1], c.scales.degenerate_floor)
+    if not (np.all(np.isfinite(w)) and floor < w[0]):
+        return {"task_inertia": np.full((len(w), len(w)), np.nan), "conditions": {"task_inertia": float("inf")}}
+    Lambda = (A.axes / w) @ A.axes.T
     return {"task_inertia": 0.5 * (Lambda + Lambda.T), "conditions": {"task_inertia": float(w[-1] / w[0])}}
+
+
+def _input_power(model: Model, u: np.ndarray, qd: np.ndarray) -> tuple[float, np.ndarray]:
+    """``P_ctrl = u . (B^T qd)`` and per coordinate ``(B u)_i qd_i`` (DESIGN.md, power)."""
+    return float(u @ (model.input_map.T @ qd)), (model.input_map @ u) * qd
 
 
 def _joint_wrenches(c: _Compiled, data, q_p, v_p, a_p, fext=None) -> np.ndarray:
@@ -269,7 +625,7 @@ def _constraint_fext(model: Model, c: _Compiled, data, lam: np.ndarray) -> list:
     for con in model.constraints:
         part, start = lam[start:start + con.size], start + con.size
         for body, offset, force in _point_forces(c, data, con, part):
-            jid = c.model.getJointId(body)
+            jid = c.joint_of[body]
             local = np.array(data.oMi[jid].rotation).T @ force
             fext[jid] = fext[jid] + pin.Force(local, np.cross(offset, local))
     return fext
@@ -277,53 +633,76 @@ def _constraint_fext(model: Model, c: _Compiled, data, lam: np.ndarray) -> list:
 
 def split(model: Model, q, qd, u) -> Split:
     """Drift / control / total accelerations from Pinocchio (ABA twice; ``M^-1 B u`` by a Cholesky solve on CRBA's M:
-    computeMinverse lost 256 eps on a single rotor, a fuzz finding);
-    task drift from the classical acceleration of a frame at the default task point (getFrameClassicalAcceleration).
-    A constrained model goes through :func:`_constrained_split` (Pinocchio's KKT forward dynamics)."""
+    computeMinverse lost 256 eps on a single rotor, a fuzz finding); task drift from the classical acceleration of
+    the task frame (getFrameClassicalAcceleration); the conditions, powers and task inertia by the reference's own
+    numerics (module docstring). A constrained model goes through :func:`_constrained_split`."""
     q, qd, u = check_state(model, q, qd, u)
     if model.constraints:
         return _constrained_split(model, q, qd, u)
-    c = _compiled(model)
+    c = _reference(model)
     pm, order = c.model, c.order
     data = pm.createData()  # fresh Data: the result cannot depend on call history
     tau_ctrl = model.input_map @ u
-    qp, vp, tp = q[order], qd[order], tau_ctrl[order]
-    zero = np.zeros(model.n)
+    qp, vp, tp = c.configuration(q), qd[order], tau_ctrl[order]
 
     total_p = np.array(pin.aba(pm, data, qp, vp, tp))
-    drift_p = np.array(pin.aba(pm, data, qp, vp, zero))
+    drift_p = np.array(pin.aba(pm, data, qp, vp, np.zeros(model.n)))
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
-    M_p = _sym(np.array(pin.crba(pm, data, qp)))
-    Minv_p = _inverse(M_p)
-    g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
-    Cqd_p = np.array(pin.rnea(pm, data, qp, vp, zero)) - g_p
-
-    def ours(vec_p):
-        out = np.empty(model.n)
-        out[order] = vec_p
-        return out
-
-    M = np.empty((model.n, model.n))
-    M[np.ix_(order, order)] = M_p
+    dyn = _Dynamics.at(c, data, qp, vp)
+    M, Cqd, g = _ours_matrix(order, dyn.M), _ours(order, dyn.Cqd), _ours(order, dyn.g)
     ctrl = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), tau_ctrl)
-    Cqd, g = ours(Cqd_p), ours(g_p)
-    cond_M, accel_scale = conditioning(model, M, Cqd, g, tau_ctrl, qd)
+    cond_M, accel_scale = _conditioning(c, dyn, tau_ctrl, qd)
+    power, power_per = _input_power(model, u, qd)
     pin.computeJointJacobians(pm, data, qp)
-    return unconstrained_split(drift=ours(drift_p), ctrl=ctrl, total=ours(total_p), tau_ctrl=tau_ctrl, qd=qd,
-                               cond_M=cond_M, accel_scale=accel_scale,
-                               extras={"M": M, "Cqd": Cqd, "g": g},
-                               task_drift=model.task_point().directions @ np.array(task_accel),
-                               kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
-                               joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
-                               joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p),
-                               **_task_inertia(model, c, data, Minv_p))
+    inertia = _task_inertia(model, c, data, dyn.L)
+    return Split(drift=_ours(order, drift_p), ctrl=ctrl, total=_ours(order, total_p), lam=None, lam_drift=None,
+                 power_ctrl=power, power_ctrl_per_coord=power_per, power_constr=None, power_constr_per_coord=None,
+                 cond_M=cond_M, accel_scale=accel_scale, extras={"M": M, "Cqd": Cqd, "g": g},
+                 task_drift=model.task_point().directions @ np.array(task_accel), conditions=inertia["conditions"],
+                 kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
+                 joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
+                 joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p), task_inertia=inertia["task_inertia"])
 
 
-def _to_ours(order: np.ndarray, vec_p: np.ndarray) -> np.ndarray:
-    out = np.empty(len(order))
-    out[order] = vec_p
-    return out
+@dataclass(frozen=True)
+class _ConstraintConditions:
+    """Conditioning of the constrained problem at one state (the definitions the formalisms use): cond S
+    (``constraint``), over the directions kept (``constraint_kept``), the share of the KKT right-hand sides in S's
+    redundant directions (``constraint_consistency``), the rank, ``lam_scale`` and ``force_scale`` (the
+    accelerations the constraint force can produce: ``||M^-1|| ||Jc|| lam_scale``)."""
+
+    conditions: dict
+    rank: int
+    lam_scale: float
+    force_scale: float
+
+
+def _kept(c: _Compiled, S: _Gram) -> np.ndarray:
+    """The directions of S above ``max(CONSTRAINT_RCOND w_max, degenerate floor)``; the rest are redundant."""
+    return S.w > max(CONSTRAINT_RCOND * S.w[-1], c.scales.degenerate_floor)
+
+
+def _constraint_conditions(c: _Compiled, dyn: _Dynamics, S: _Gram, Jc_p: np.ndarray, bias: np.ndarray,
+                           forces: tuple, accel_scale: float) -> _ConstraintConditions:
+    """:class:`_ConstraintConditions` from S's eigen-axes. ``lam_scale = (|Jcdot qd|_1 + ||Jc|| accel_scale) /
+    w_kept_min``; the consistency is ``max |U_0^T r| / max(|r|, 1e-6 L accel_scale)`` over the right-hand sides
+    ``r = -Jcdot qd - Jc M^-1 f`` of ``forces`` (``B u - h`` and ``-h``), U_0 the redundant directions."""
+    kept = _kept(c, S)
+    w, rank = S.w, int(kept.sum())
+    w_max = max(float(w[-1]), c.scales.degenerate_floor)
+    jc_norm = float(np.linalg.norm(Jc_p, 2))
+    lam_scale = (np.abs(bias).sum() + jc_norm * accel_scale) / float(w[kept][0]) if rank else 0.0
+    inconsistency = 0.0
+    for f in forces if rank < len(w) else ():
+        r = -bias - Jc_p @ scipy.linalg.cho_solve((dyn.L, True), f)
+        size = max(float(np.linalg.norm(r)), 1e-6 * c.scales.length * accel_scale)
+        if size > 0.0:
+            inconsistency = max(inconsistency, float(np.linalg.norm(S.axes[:, ~kept].T @ r) / size))
+    return _ConstraintConditions(
+        {"constraint": float(w_max / w[0]) if w[0] > 0.0 else float("inf"), "constraint_consistency": inconsistency,
+         "constraint_kept": float(w_max / w[kept][0]) if rank else 1.0},
+        rank, float(lam_scale), jc_norm * float(lam_scale) / float(dyn.singular_values[-1]))
 
 
 def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias):
@@ -335,61 +714,64 @@ def _kkt(c: _Compiled, data, q_p, v_p, tau_p, Jc_p, bias):
 def _constrained_split(model: Model, q, qd, u) -> Split:
     """Eq. (12)-(17) with Pinocchio: total / lam and drift / lam_drift from ``pinocchio.forwardDynamics`` with
     our ``Jc`` and ``gamma = Jcdot qd``; ctrl = B_c B u with ``M^-1`` by Cholesky on CRBA's M (eq. 17)."""
-    c = _compiled(model)
+    c = _reference(model)
     pm, order = c.model, c.order
     data = pm.createData()
     phi, Jc_p, bias = _constraint_terms(model, c, data, q, qd)
     tau_ctrl = model.input_map @ u
-    qp, vp = q[order], qd[order]
-    M_p = _sym(np.array(pin.crba(pm, data, qp)))
-    g_p = np.array(pin.computeGeneralizedGravity(pm, data, qp))
-    Cqd_p = np.array(pin.rnea(pm, data, qp, vp, np.zeros(model.n))) - g_p
-    Minv_p = _inverse(M_p)
-    S = Jc_p @ Minv_p @ Jc_p.T
-    S_pinv, rows = _pinv_sym(model, S)
-    if rows.shape[1] == len(S):     # regular: the rows as declared
-        rows = np.eye(len(S))
+    qp, vp, tp = c.configuration(q), qd[order], tau_ctrl[order]
+    dyn = _Dynamics.at(c, data, qp, vp)
+    Minv_p = scipy.linalg.cho_solve((dyn.L, True), np.eye(model.n))
+    S = _Gram.of(dyn.L, Jc_p)
+    kept = _kept(c, S)
+    rows = np.eye(len(S.w)) if kept.all() else S.axes[:, kept]   # regular: the rows as declared
     # singular S: Pinocchio's KKT on the independent combinations of the rows, the redundant directions dropped as
     # the formalisms drop them; lam = rows lam_r is then the minimum-norm multiplier
     J_r, bias_r = rows.T @ Jc_p, rows.T @ bias
-    total_p, lam_r = _kkt(c, data, qp, vp, tau_ctrl[order], J_r, bias_r)
+    total_p, lam_r = _kkt(c, data, qp, vp, tp, J_r, bias_r)
     drift_p, lam_drift_r = _kkt(c, data, qp, vp, np.zeros(model.n), J_r, bias_r)
     lam, lam_drift = rows @ lam_r, rows @ lam_drift_r
+    S_pinv = (S.axes[:, kept] / S.w[kept]) @ S.axes[:, kept].T
     B_c = Minv_p - Minv_p @ Jc_p.T @ S_pinv @ Jc_p @ Minv_p
     pin.computeJointJacobians(pm, data, qp)                      # placements and Jacobians at q, afresh
     pin.updateFramePlacements(pm, data)
-    inertia = _task_inertia(model, c, data, Minv_p)
+    inertia = _task_inertia(model, c, data, dyn.L)
     fext, fext_drift = _constraint_fext(model, c, data, lam), _constraint_fext(model, c, data, lam_drift)
     wrenches = _joint_wrenches(c, data, qp, vp, total_p, fext), _joint_wrenches(c, data, qp, vp, drift_p, fext_drift)
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
-    M, Jc = np.empty_like(M_p), np.empty_like(Jc_p)
-    M[np.ix_(order, order)] = M_p
+
+    cond_M, accel_scale = _conditioning(c, dyn, tau_ctrl, qd)
+    cc = _constraint_conditions(c, dyn, S, Jc_p, bias, (tp - dyn.Cqd - dyn.g, -dyn.Cqd - dyn.g), accel_scale)
+    Jc = np.empty_like(Jc_p)
     Jc[:, order] = Jc_p
-    return constrained_split(
-        model, M=M, Cqd=_to_ours(order, Cqd_p), g=_to_ours(order, g_p), tau_ctrl=tau_ctrl, qd=qd, phi=phi, Jc=Jc,
-        bias=bias, drift=_to_ours(order, drift_p), ctrl=_to_ours(order, B_c @ tau_ctrl[order]),
-        total=_to_ours(order, total_p), lam=lam, lam_drift=lam_drift,
-        extras={"M": M, "Cqd": _to_ours(order, Cqd_p), "g": _to_ours(order, g_p)},
+    velocity = Jc @ qd
+    power, power_per = _input_power(model, u, qd)
+    force, force_drift = Jc.T @ lam, Jc.T @ lam_drift
+    Cqd, g = _ours(order, dyn.Cqd), _ours(order, dyn.g)
+    return Split(
+        drift=_ours(order, drift_p), ctrl=_ours(order, B_c @ tp), total=_ours(order, total_p), lam=lam,
+        lam_drift=lam_drift, power_ctrl=power, power_ctrl_per_coord=power_per,
+        power_constr=float(lam @ velocity), power_constr_per_coord=force * qd, cond_M=cond_M,
+        accel_scale=accel_scale + cc.force_scale, extras={"M": _ours_matrix(order, dyn.M), "Cqd": Cqd, "g": g},
         task_drift=model.task_point().directions @ np.array(task_accel),
+        conditions={**inertia["conditions"], **cc.conditions},
         kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)), joint_wrenches=wrenches[0],
-        joint_wrenches_drift=wrenches[1], **inertia)
+        joint_wrenches_drift=wrenches[1], task_inertia=inertia["task_inertia"], constraint_value=phi,
+        constraint_jacobian=Jc, constraint_bias=bias, constraint_velocity=velocity, constraint_force=force,
+        constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale)
 
 
-def _pinv_sym(model: Model, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pseudo-inverse of a symmetric positive semi-definite matrix, eigenvalues below CONSTRAINT_RCOND dropped, and
-    an orthonormal basis of its range (the kept eigenvectors)."""
-    w, U = np.linalg.eigh(S)
-    keep = w > redundant_below(model, w[-1])
-    return (U[:, keep] / w[keep]) @ U[:, keep].T, U[:, keep]
+# ------------------------------------------------------------------------------------------------- batches
 
 
-_POOLS: dict[str, tuple] = {}
+_POOLS: dict[tuple, tuple] = {}
 
 
 def _pools(model: Model) -> tuple:
-    """Pinocchio ModelPools of the model and of a gravity-free copy (for ``M^-1 tau = ABA(q, 0, tau)``), cached."""
-    key, pm = model.digest(), _compiled(model).model
+    """Pinocchio ModelPools of the reference model and of a gravity-free copy (for ``M^-1 tau = ABA(q, 0, tau)``),
+    cached with the reference."""
+    key, pm = _reference_key(model), _reference(model).model
     with _LOCK:
         if key not in _POOLS:
             still = pin.Model(pm)
@@ -399,16 +781,17 @@ def _pools(model: Model) -> tuple:
 
 
 def split_batch(model: Model, Q, QD, U) -> SplitBatch:
-    """N states with Pinocchio's batched ABA (``abaInParallel`` on one thread): total ``ABA(q, qd, B u)``, drift
-    ``ABA(q, qd, 0)``, ctrl ``ABA(q, 0, B u)`` of the gravity-free model, which is ``M^-1 B u`` (eq. 9) computed
-    directly. A constrained model goes state by state through :func:`split` (Pinocchio's KKT solve has no batched
-    form in its Python API)."""
+    """N states with Pinocchio's batched ABA (``abaInParallel`` on one thread) on the reference model of
+    :func:`split`: total ``ABA(q, qd, B u)``, drift ``ABA(q, qd, 0)``, ctrl ``ABA(q, 0, B u)`` of the gravity-free
+    model, which is ``M^-1 B u`` (eq. 9) computed directly. A constrained model goes state by state through
+    :func:`split` (Pinocchio's KKT solve has no batched form in its Python API)."""
     Q, QD, U = check_batch(model, Q, QD, U)
     if model.constraints or not len(Q):
         return split_batch_by_loop(split)(model, Q, QD, U)
-    order = _compiled(model).order
+    c = _reference(model)
+    order = c.order
     pool, still = _pools(model)
-    qp, vp = np.asfortranarray(Q[:, order].T), np.asfortranarray(QD[:, order].T)
+    qp, vp = np.asfortranarray(c.configuration(Q).T), np.asfortranarray(QD[:, order].T)
     tp = np.asfortranarray((U @ model.input_map.T)[:, order].T)
     rest = np.zeros_like(vp)
     out = {}
@@ -422,9 +805,10 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
 REFERENCE = Formalism(
     name="pinocchio",
     summary="External reference: Pinocchio's ABA (total, drift), CRBA (ctrl by Cholesky), RNEA (conditioning), "
-            "built from our model data",
+            "built from the model's file when it was loaded from one (URDF), else from our model data",
     split=split,
     split_batch=split_batch,
 )
 
-__all__ = ["REFERENCE", "constraint_kinematics", "split", "to_pinocchio"]
+__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "joint_map", "mass_matrix",
+           "provenance", "split", "split_batch", "task_jacobian", "to_pinocchio"]
