@@ -47,12 +47,9 @@ def _convert(case: str, key: str, value, default):
     return converted
 
 
-def load(name: str, **params) -> Model:
-    """Build the case ``name`` with ``params`` overriding its defaults.
-
-    Values may be strings (from a CLI ``--param k=v``); they are converted by the type of the parameter's default.
-    An unknown case or parameter, or a value that does not convert, raises :class:`CaseError` listing what is valid.
-    """
+def _overrides(name: str, params: dict) -> tuple[CaseInfo, dict]:
+    """The case ``name`` and ``params`` converted by the types of its defaults (:func:`_convert`), or a
+    :class:`CaseError` naming an unknown case or parameter and listing what is valid."""
     info = REGISTRY.get(name)
     if info is None:
         raise CaseError(f"unknown case '{name}'; valid cases: {', '.join(REGISTRY)}")
@@ -60,10 +57,30 @@ def load(name: str, **params) -> Model:
     if unknown:
         raise CaseError(f"case '{name}' has no parameter(s) {', '.join(map(repr, unknown))}; valid parameters "
                         f"with defaults: {_describe(info.parameters)}")
-    kwargs = {k: _convert(name, k, v, info.parameters[k]) for k, v in params.items()}
+    return info, {k: _convert(name, k, v, info.parameters[k]) for k, v in params.items()}
+
+
+def load(name: str, **params) -> Model:
+    """Build the case ``name`` with ``params`` overriding its defaults.
+
+    Values may be strings (from a CLI ``--param k=v``); they are converted by the type of the parameter's default.
+    An unknown case or parameter, or a value that does not convert, raises :class:`CaseError` listing what is valid.
+    """
+    info, kwargs = _overrides(name, params)
     return info.factory(**kwargs)
+
+
+def parameters(name: str, **params) -> dict:
+    """The typed parameters ``load(name, **params)`` builds the case with: every parameter of the case, its default
+    overridden by ``params`` converted as :func:`load` converts them. Raises :class:`CaseError` as :func:`load` does.
+
+        >>> cases.parameters("n_link_pendulum", n="3")
+        {'n': 3, 'm': 1.0, 'l': 1.0, 'g': 9.81}
+    """
+    info, kwargs = _overrides(name, params)
+    return {**info.parameters, **kwargs}
 
 
 __all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "Model", "ModelError", "PointOnCircle", "PointOnLine",
            "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_urdf", "load",
-           "names"]
+           "names", "parameters"]

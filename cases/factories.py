@@ -212,3 +212,59 @@ def panda() -> Model:
     from cases.urdf import from_urdf
 
     return from_urdf(panda_urdf_path(), name="panda")
+
+
+# ------------------------------------------------------------------------------- 3-D cases with closed forms
+# Each is built with the helpers above (``_rot``, ``_inertia``), so that a bug in them moves every backend together
+# and only the case's closed form (``crosscheck.closed_forms``, computed from the typed parameters) sees it.
+
+
+@register
+def rotor(m: float = 2.0, cx: float = 0.3, cy: float = -0.1, cz: float = 0.2, Ia: float = 0.04, Ib: float = 0.06,
+          Ic: float = 0.08, spin: float = 0.7, tilt: float = 0.5, azimuth: float = 0.3,
+          g: float = 9.81) -> Model:  # noqa: N803
+    """A 3-D rotor: one rigid body (offset COM, full rotated inertia) on a revolute joint about a tilted axis.
+
+    The joint sits at the world origin; its axis is z turned by ``tilt`` about y, then by ``azimuth`` about z:
+    a = (sin tilt cos azimuth, sin tilt sin azimuth, cos tilt). The COM is at (cx, cy, cz) in the body frame, the
+    COM inertia is ``R diag(Ia, Ib, Ic) R^T`` with R the rotation by ``spin`` about (1, 1, 1). Gravity (0, 0, -g).
+    Task point ``rim``: the body point (0.4, 0.1, -0.2), along world x.
+    """
+    _require(m > 0.0, f"rotor: m must be positive, got {m}")
+    axis = _rot(_Z, azimuth) @ _rot((0.0, 1.0, 0.0), tilt) @ np.array(_Z)
+    body = Body("rotor", None, "revolute", axis, m, com=(cx, cy, cz),
+                inertia=_inertia((Ia, Ib, Ic), _rot((1.0, 1.0, 1.0), spin)))
+    return build_model("rotor", [body], gravity=(0.0, 0.0, -g),
+                       task_points=[TaskPoint("rim", "rotor", (0.4, 0.1, -0.2), ((1.0, 0.0, 0.0),))])
+
+
+@register
+def inclined_slider(m: float = 1.5, incline: float = 0.4, azimuth: float = 0.8, g: float = 9.81) -> Model:
+    """A point mass on a prismatic joint along a tilted unit axis, under gravity (0, 0, -g).
+
+    The joint frame is turned by ``incline`` about -y, then by ``azimuth`` about z, and the mass slides along its x
+    axis: a = (cos incline cos azimuth, cos incline sin azimuth, sin incline), climbing at ``incline`` above the
+    horizontal. Task point ``mass``: the mass, along world z (its height).
+    """
+    _require(m > 0.0, f"inclined_slider: m must be positive, got {m}")
+    placement = _rot(_Z, azimuth) @ _rot((0.0, -1.0, 0.0), incline)
+    body = Body("slider", None, "prismatic", (1.0, 0.0, 0.0), m, rotation=placement)
+    return build_model("inclined_slider", [body], gravity=(0.0, 0.0, -g),
+                       task_points=[TaskPoint("mass", "slider", (0.0, 0.0, 0.0), (_Z,))])
+
+
+@register
+def spherical_pendulum(m: float = 1.0, l: float = 1.0, Ix: float = 0.04, Iy: float = 0.05, Iz: float = 0.03,
+                       g: float = 9.81) -> Model:  # noqa: E741, N803
+    """A spherical pendulum: a ball on two perpendicular revolute joints (x, then the gimbal's y), hanging along -z.
+
+    A massless gimbal turns about world x (q1) and carries the ball's joint about its own y (q2); the ball (mass m,
+    principal inertia diag(Ix, Iy, Iz) about its centre in its body frame; Iz > 0 keeps M regular where the ball
+    passes the x axis) hangs at (0, 0, -l) in its body frame: at (-l sin q2, l sin q1 cos q2, -l cos q1 cos q2).
+    Gravity (0, 0, -g). Task point ``ball``: its centre, along world x and y.
+    """
+    _require(m > 0.0 and l > 0.0 and Iz > 0.0, f"spherical_pendulum: m, l and Iz must be positive, got {m}, {l}, {Iz}")
+    bodies = [Body("gimbal", None, "revolute", (1.0, 0.0, 0.0), 0.0),
+              Body("ball", "gimbal", "revolute", (0.0, 1.0, 0.0), m, com=(0.0, 0.0, -l), inertia=np.diag([Ix, Iy, Iz]))]
+    return build_model("spherical_pendulum", bodies, gravity=(0.0, 0.0, -g),
+                       task_points=[TaskPoint("ball", "ball", (0.0, 0.0, -l), _PLANE)])

@@ -15,8 +15,9 @@ import pytest
 import cases
 from cases import CaseError, Model
 
-ALL = ["double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda", "double_pendulum_circle", "four_bar",
-       "slider_crank", "cartesian_pendulum", "double_pendulum_absolute_loop"]
+ALL = ["double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda", "rotor", "inclined_slider",
+       "spherical_pendulum", "double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
+       "double_pendulum_absolute_loop"]
 
 
 def _rodrigues(axis, angle):

@@ -1,0 +1,722 @@
+"""Closed forms of the built-in cases, and the gate's voter ``closed_form`` (issue 15, item 2).
+
+The five formalisms and the Pinocchio reference all read the same :class:`~cases.model.Model`: a bug in a case
+factory or in the model language (an inertia rotated the wrong way, a length read from the wrong parameter) moves all
+six together, and their vote cannot see it. A closed form does not read the model: it is bound to the case BY NAME
+and computes every quantity from the case's TYPED PARAMETERS (``cases.parameters``) and the state alone, from
+equations typed in from the article or derived by hand in the docstrings below. The only things it reads off the
+model are its shape (coordinates n, inputs m, constraint rows k) and its name, to refuse a model that is not the case
+it was written for (:class:`ClosedFormMismatch`, an error of the voter: a failure of the gate, never a silent NOT
+COMPARED).
+
+    >>> from crosscheck import closed_forms, gate
+    >>> voter = closed_forms.voter("double_pendulum", {"l2": "0.7"})     # None where no closed form exists
+    >>> outcome = gate.evaluate(cases.load("double_pendulum", l2="0.7"), state, [*backends, voter])
+
+Cases and their equations (:func:`coverage` says the same for one case):
+
+=============================  =====================================================================================
+double_pendulum                article section 3: eqs. (4)-(9), point masses plus planar disk inertias I1, I2
+n_link_pendulum                the Lagrangian in absolute angles (:func:`chain_terms`) mapped to relative angles
+acrobot                        Spong's equations, angles from hanging down (:func:`acrobot_terms`)
+double_pendulum_circle         article 5.6: eqs. (12)-(17) with one circle row (:func:`circle_terms`)
+cartesian_pendulum             the multiplier of eqs. (12)-(13) solved by hand (:func:`cartesian_lam`)
+double_pendulum_absolute_loop  the double pendulum's accelerations in the loop's coordinates, its multipliers the pins'
+                               forces by Newton's second law (:func:`pin_forces`)
+rotor                          one body on a tilted revolute joint (:func:`rotor_terms`)
+inclined_slider                a point mass on a tilted prismatic joint (:func:`slider_terms`)
+spherical_pendulum             a ball on two perpendicular revolute joints (:func:`spherical_terms`)
+=============================  =====================================================================================
+
+Each supplies drift, ctrl and total (eq. 9; eqs. 14, 15, 17 with constraints; ctrl ``B_c B u`` computed directly),
+the control power, the kinetic energy, the task drift and the task inertia (eq. 22, with ``conditions
+["task_inertia"]``), and on the constrained cases lam, lam_drift, the constraint kinematics, forces and power. The
+joint loads are not supplied (UNSUPPORTED: "not supplied by" in a report). cond(M), ``accel_scale`` and the
+constraint conditions are computed here, from these closed forms, by the definitions of
+the definitions of ``Split.accel_scale``, ``lam_scale`` and the conditions (no numeric helper of the harness is used).
+
+The double-pendulum formulas (:func:`article_M`, :func:`article_Cqd`, :func:`article_g`, :func:`pendulum_terms`)
+evaluate in double precision or, with ``lib=MPMATH``, in mpmath (:func:`pendulum_terms_mp`): one typing of eqs.
+(6)-(8) for both. The tests' ``tests/closed_forms.py`` re-exports this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Callable, Mapping
+
+import mpmath
+import numpy as np
+
+import cases
+from formalisms.interface import Formalism, Split, check_state
+
+EPS = float(np.finfo(float).eps)
+
+
+class ClosedFormMismatch(ValueError):
+    """The model given to a closed form is not the case and parameters it was bound to (another case's model, or a
+    shape that the parameters do not give): the message names the case, its parameters and what does not match."""
+
+
+@dataclass(frozen=True)
+class Arithmetic:
+    """What a closed form needs from a number system: ``sin``, ``cos`` and ``array`` (rows to a matrix, a list to a
+    vector): double precision (:data:`FLOAT`, numpy arrays) or mpmath (:data:`MPMATH`, mpmath matrices)."""
+
+    sin: Callable
+    cos: Callable
+    array: Callable
+
+
+FLOAT = Arithmetic(np.sin, np.cos, lambda rows: np.array(rows, dtype=float))
+MPMATH = Arithmetic(mpmath.sin, mpmath.cos, mpmath.matrix)
+
+
+# ------------------------------------------------------------------------------------- small linear algebra
+
+
+def inv2(M):
+    """The 2x2 inverse of article 4.7.2: M^-1 = (1 / det M) [[M22, -M12], [-M21, M11]], det M = M11 M22 - M12 M21
+    (the article writes M12^2: M is symmetric)."""
+    det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+    return np.array([[M[1, 1], -M[0, 1]], [-M[1, 0], M[0, 0]]]) / det
+
+
+def eigenvalues(A) -> np.ndarray:
+    """Ascending eigenvalues of a symmetric matrix: in closed form for 1x1 and 2x2 ``[[a, b], [b, c]]`` (the larger
+    ``(a + c) / 2 + hypot((a - c) / 2, b)``, the smaller ``det / larger``, which keeps the smaller one's relative
+    accuracy when it is tiny), numpy's ``eigvalsh`` beyond."""
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    if A.shape == (1, 1):
+        return A[0].copy()
+    if A.shape == (2, 2):
+        a, b, c = A[0, 0], 0.5 * (A[0, 1] + A[1, 0]), A[1, 1]
+        high = 0.5 * (a + c) + np.hypot(0.5 * (a - c), b)
+        low = (a * c - b * b) / high if high > 0.0 else 0.5 * (a + c) - np.hypot(0.5 * (a - c), b)
+        return np.array([low, high])
+    return np.linalg.eigvalsh(A)
+
+
+def condition(A) -> float:
+    """cond(A) of a symmetric positive (semi-)definite A (:func:`eigenvalues`), inf where A is numerically singular:
+    its smallest eigenvalue not above ``k eps`` times its largest (an eigensolver's absolute accuracy), or not
+    finite."""
+    w = eigenvalues(A)
+    return float(w[-1] / w[0]) if np.all(np.isfinite(w)) and w[0] > len(w) * EPS * w[-1] else float("inf")
+
+
+def task_inertia_square(J, M) -> tuple[np.ndarray, float]:
+    """Eq. (22) for a square task Jacobian: ``Lambda = (J M^-1 J^T)^-1 = J^-T M J^-1`` and ``cond(J M^-1 J^T) =
+    cond(Lambda)``, with J's 2x2 inverse (4.7.2); ``(NaN, inf)`` where J or Lambda is numerically singular."""
+    if J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0] == 0.0:
+        return np.full((2, 2), np.nan), float("inf")
+    Jinv = inv2(J)
+    Lambda = Jinv.T @ M @ Jinv
+    cond = condition(Lambda)
+    return (Lambda if np.isfinite(cond) else np.full((2, 2), np.nan)), cond
+
+
+def task_inertia(J, Minv) -> tuple[np.ndarray, float]:
+    """Eq. (22): ``Lambda = (J M^-1 J^T)^-1`` and ``cond(J M^-1 J^T)`` for a k x n J (k <= 2); ``(NaN, inf)`` where
+    ``J M^-1 J^T`` is numerically singular, and always when k > n (more task directions than joints)."""
+    J = np.atleast_2d(J)
+    A = J @ Minv @ J.T
+    cond = condition(A) if J.shape[0] <= J.shape[1] else float("inf")
+    if not np.isfinite(cond):
+        return np.full(A.shape, np.nan), cond
+    return (1.0 / A if A.shape == (1, 1) else inv2(A)), cond
+
+
+# --------------------------------------------------------------------- the double pendulum (article section 3)
+
+
+def endpoint_jacobian(t, l1=1.0, l2=1.0):
+    """Article eq. (5): J(q) = [[l1 cos t1 + l2 cos(t1 + t2), l2 cos(t1 + t2)],
+                                [l1 sin t1 + l2 sin(t1 + t2), l2 sin(t1 + t2)]]."""
+    c1, s1, c12, s12 = np.cos(t[0]), np.sin(t[0]), np.cos(t[0] + t[1]), np.sin(t[0] + t[1])
+    return np.array([[l1 * c1 + l2 * c12, l2 * c12], [l1 * s1 + l2 * s12, l2 * s12]])
+
+
+def tip_position(t, l1=1.0, l2=1.0):
+    """Article eq. (4): the tip (mass 2) at x2 = l1 sin t1 + l2 sin(t1 + t2), y2 = -l1 cos t1 - l2 cos(t1 + t2)."""
+    return np.array([l1 * np.sin(t[0]) + l2 * np.sin(t[0] + t[1]), -l1 * np.cos(t[0]) - l2 * np.cos(t[0] + t[1])])
+
+
+def tip_bias(t, td, l1=1.0, l2=1.0):
+    """``Jdot qd`` of the tip: eq. (4) differentiated twice at tdd = 0, with w = t1d + t2d,
+    (-l1 sin t1 t1d^2 - l2 sin(t1 + t2) w^2, l1 cos t1 t1d^2 + l2 cos(t1 + t2) w^2); the tip's classical
+    acceleration is ``endpoint_jacobian(t) @ tdd + tip_bias(t, td)`` (eq. 23). With l2 = 0 it is mass 1's."""
+    w = td[0] + td[1]
+    return np.array([-l1 * np.sin(t[0]) * td[0]**2 - l2 * np.sin(t[0] + t[1]) * w**2,
+                     l1 * np.cos(t[0]) * td[0]**2 + l2 * np.cos(t[0] + t[1]) * w**2])
+
+
+def article_M(t2, m1=1.0, m2=1.0, l1=1.0, l2=1.0, lib=FLOAT):
+    """Article eq. (6): M11 = (m1 + m2) l1^2 + m2 l2^2 + 2 m2 l1 l2 cos t2, M12 = M21 = m2 l2^2 + m2 l1 l2 cos t2,
+    M22 = m2 l2^2."""
+    c2 = lib.cos(t2)
+    M12 = m2 * l2**2 + m2 * l1 * l2 * c2
+    return lib.array([[(m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2, M12], [M12, m2 * l2**2]])
+
+
+def article_Cqd(t2, t1d, t2d, m2=1.0, l1=1.0, l2=1.0, lib=FLOAT):
+    """Article eq. (7): C qd = [-2 c t1d t2d - c t2d^2, c t1d^2] with c = m2 l1 l2 sin t2 (m1 does not enter)."""
+    c = m2 * l1 * l2 * lib.sin(t2)
+    return lib.array([-2 * c * t1d * t2d - c * t2d**2, c * t1d**2])
+
+
+def article_g(t1, t2, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81, lib=FLOAT):
+    """Article eq. (8): g(q) = [(m1 + m2) g l1 sin t1 + m2 g l2 sin(t1 + t2), m2 g l2 sin(t1 + t2)]."""
+    s12 = lib.sin(t1 + t2)
+    return lib.array([(m1 + m2) * g * l1 * lib.sin(t1) + m2 * g * l2 * s12, m2 * g * l2 * s12])
+
+
+def pendulum_terms(t, td, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81, lib=FLOAT):
+    """(M, C qd, g) of article eqs. (6), (7), (8) at angles ``t`` = (theta1, theta2) and rates ``td``."""
+    return (article_M(t[1], m1, m2, l1, l2, lib), article_Cqd(t[1], td[0], td[1], m2, l1, l2, lib),
+            article_g(t[0], t[1], m1, m2, l1, l2, g, lib))
+
+
+def _mp(*values):
+    """The arguments as mpmath numbers at the working precision, each float taken as its exact binary value."""
+    return [mpmath.mpf(float(x)) for x in values]
+
+
+def pendulum_terms_mp(t, td, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
+    """Eqs. (6), (7), (8) (:func:`pendulum_terms`) in mpmath at its working precision, every argument taken as its
+    exact binary value: (M, C qd, g) as mpmath matrices (2 x 2, 2 x 1, 2 x 1)."""
+    t1, t2, t1d, t2d, m1, m2, l1, l2, g = _mp(*t, *td, m1, m2, l1, l2, g)
+    return pendulum_terms((t1, t2), (t1d, t2d), m1, m2, l1, l2, g, MPMATH)
+
+
+def disk_inertia(I1=0.0, I2=0.0):  # noqa: N803
+    """What rotational inertias I1, I2 of the masses about z (``cases.double_pendulum(I1=.., I2=..)``, planar disks)
+    add to eq. (6): T gains 1/2 I1 t1d^2 + 1/2 I2 (t1d + t2d)^2, so M gains [[I1 + I2, I2], [I2, I2]] (C qd and g
+    are unchanged)."""
+    return np.array([[I1 + I2, I2], [I2, I2]])
+
+
+# ------------------------------------------------------------------------ planar chains in absolute angles
+
+
+def chain_terms(phi, phid, masses, lengths, g=9.81):
+    """(M, C qd, g) of a planar chain of point masses m_k at the ends of links l_k, hanging from a fixed pivot, in
+    the links' absolute angles phi (from hanging down; article 6.4.6 for two links).
+
+    Mass k sits at sum_{i<=k} l_i (sin phi_i, -cos phi_i). With mu_ij = sum_{k >= max(i, j)} m_k (the masses outboard
+    of both links) the Lagrangian is
+        T = 1/2 sum_ij mu_ij l_i l_j cos(phi_i - phi_j) phid_i phid_j,   V = -g sum_i mu_ii l_i cos phi_i,
+    and Lagrange's equations give M_ij = mu_ij l_i l_j cos(phi_i - phi_j),
+    (C qd)_i = sum_j mu_ij l_i l_j sin(phi_i - phi_j) phid_j^2, g_i = g mu_ii l_i sin phi_i.
+    Equal masses m and lengths l (``n_link_pendulum``): M_ij = m l^2 (n - max(i, j) + 1) cos(phi_i - phi_j)
+    (1-based i, j)."""
+    phi, phid, l = (np.asarray(x, dtype=float) for x in (phi, phid, lengths))
+    outboard = np.cumsum(np.asarray(masses, dtype=float)[::-1])[::-1]
+    idx = np.arange(len(phi))
+    mu = outboard[np.maximum.outer(idx, idx)]
+    d = np.subtract.outer(phi, phi)
+    M = mu * np.outer(l, l) * np.cos(d)
+    Cqd = (mu * np.outer(l, l) * np.sin(d)) @ phid**2
+    return M, Cqd, g * outboard * l * np.sin(phi)
+
+
+def absolute_terms(phi, phid, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
+    """(M, C qd, g) of the double pendulum in absolute angles phi = (theta1, theta1 + theta2) (article 6.4.6):
+    :func:`chain_terms` of two links, M = [[(m1 + m2) l1^2, m2 l1 l2 cos d], [m2 l1 l2 cos d, m2 l2^2]],
+    C qd = m2 l1 l2 sin(d) [phi2d^2, -phi1d^2], g = [(m1 + m2) g l1 sin phi1, m2 g l2 sin phi2], d = phi1 - phi2."""
+    return chain_terms(phi, phid, (m1, m2), (l1, l2), g)
+
+
+def chain_tip(phi, phid, lengths):
+    """The chain's last mass in absolute angles: its Jacobian ``dp/dphi`` (2 x n, columns l_i (cos phi_i,
+    sin phi_i)) and ``Jdot phid = sum_i l_i (-sin phi_i, cos phi_i) phid_i^2``."""
+    phi, phid, l = (np.asarray(x, dtype=float) for x in (phi, phid, lengths))
+    return (np.array([l * np.cos(phi), l * np.sin(phi)]),
+            np.array([-(l * np.sin(phi)) @ phid**2, (l * np.cos(phi)) @ phid**2]))
+
+
+def relative_to_absolute(n: int) -> np.ndarray:
+    """T with ``phi = T q``: lower-triangular ones (each absolute angle is the sum of the relative ones up to it).
+    T is constant, so ``M_q = T^T M_phi T``, ``h_q = T^T h_phi`` and ``J_q = J_phi T``."""
+    return np.tril(np.ones((n, n)))
+
+
+# ---------------------------------------------------------------------------------------------------- acrobot
+
+
+def acrobot_terms(q, qd, m1, m2, l1, lc1, lc2, I1, I2, g):  # noqa: N803
+    """(M, C qd, g) of Spong's acrobot (Spong 1995), with angles from hanging down (``cases.acrobot``; Spong's q1 is
+    from the horizontal, so his cos q1 is sin q1 here) and q2 relative; link i's COM at lci along it, Ii about it:
+        M11 = m1 lc1^2 + m2 (l1^2 + lc2^2 + 2 l1 lc2 cos q2) + I1 + I2,  M12 = m2 (lc2^2 + l1 lc2 cos q2) + I2,
+        M22 = m2 lc2^2 + I2;  C qd = [-2 h q1d q2d - h q2d^2, h q1d^2], h = m2 l1 lc2 sin q2;
+        g = [(m1 lc1 + m2 l1) g sin q1 + m2 lc2 g sin(q1 + q2), m2 lc2 g sin(q1 + q2)]."""
+    c2, h, s12 = np.cos(q[1]), m2 * l1 * lc2 * np.sin(q[1]), np.sin(q[0] + q[1])
+    M12 = m2 * (lc2**2 + l1 * lc2 * c2) + I2
+    M = np.array([[m1 * lc1**2 + m2 * (l1**2 + lc2**2 + 2.0 * l1 * lc2 * c2) + I1 + I2, M12],
+                  [M12, m2 * lc2**2 + I2]])
+    Cqd = np.array([-2.0 * h * qd[0] * qd[1] - h * qd[1]**2, h * qd[0]**2])
+    grav = np.array([(m1 * lc1 + m2 * l1) * g * np.sin(q[0]) + m2 * lc2 * g * s12, m2 * lc2 * g * s12])
+    return M, Cqd, grav
+
+
+# ------------------------------------------------------------------------------ constrained (article section 5)
+
+
+def circle_terms(t, td, l1=1.0, l2=1.0, xc=1.0, yc=-1.0, R=0.5):  # noqa: N803
+    """Article 5.6, the tip on the circle of centre c = (xc, yc) and radius R (``cases.double_pendulum_circle``):
+    ``phi = |x2 - c|^2 - R^2``, ``Jc = 2 (x2 - c)^T J`` with J of eq. (5), and
+    ``Jcdot qd = 2 |J qd|^2 + 2 (x2 - c) . (Jdot qd)`` (phi differentiated twice at qdd = 0), all by hand from eq. (4).
+    Returns ``(phi, Jc, Jcdot qd)``: a scalar, the row (2,), a scalar."""
+    d = tip_position(t, l1, l2) - np.array([xc, yc])
+    J = endpoint_jacobian(t, l1, l2)
+    v = J @ td
+    return d @ d - R**2, 2.0 * d @ J, 2.0 * v @ v + 2.0 * d @ tip_bias(t, td, l1, l2)
+
+
+def circle_state(beta, elbow=1.0, rate=0.0, l1=1.0, l2=1.0, xc=1.0, yc=-1.0, R=0.5):  # noqa: N803
+    """An admissible state of article 5.6, by hand: the tip at ``c + R (cos beta, sin beta)`` by the inverse
+    kinematics of eq. (4) (cosine rule; ``elbow`` = +-1 picks the sign of t2, i.e. the branch), and the velocity
+    ``rate`` times the unit null vector ``(Jc2, -Jc1) / |Jc|`` of ``Jc`` (5.1: ``Jc qd = 0``). Returns (t, td)."""
+    x, y = xc + R * np.cos(beta), yc + R * np.sin(beta)
+    t2 = elbow * np.arccos((x * x + y * y - l1**2 - l2**2) / (2.0 * l1 * l2))
+    t1 = np.arctan2(x, -y) - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))
+    t = np.array([t1, t2])
+    _, Jc, _ = circle_terms(t, np.zeros(2), l1, l2, xc, yc, R)
+    return t, rate * np.array([Jc[1], -Jc[0]]) / np.linalg.norm(Jc)
+
+
+def one_row_kkt(Minv, Jc, bias, f):
+    """Article 5.6's KKT system ``[[M, -Jc^T], [Jc, 0]] [qdd; lam] = [f; -Jcdot qd]`` (eqs. 12, 13) for one row, by
+    hand: with ``y = M^-1 Jc^T`` and ``S = Jc y``, ``lam = -(Jcdot qd + y . f) / S`` and ``qdd = M^-1 f + y lam``.
+    ``f = B u - C qd - g`` gives total and lam, ``f = -C qd - g`` the drift and lam_drift (eq. 14). Returns
+    ``(qdd, lam)``, lam a scalar."""
+    y = Minv @ Jc
+    lam = -(bias + y @ f) / (Jc @ y)
+    return Minv @ f + y * lam, lam
+
+
+def constrained_input_map(M, Jc):
+    """Article eq. (17): ``B_c = M^-1 [I - Jc^T (Jc M^-1 Jc^T)^-1 Jc M^-1]`` (full-rank ``Jc``, a row or k x n), so
+    that ``qdd_ctrl = B_c B u``."""
+    Jc = np.atleast_2d(Jc)
+    Minv = inv2(M) if np.shape(M) == (2, 2) else np.linalg.inv(M)
+    return Minv @ (np.eye(len(M)) - Jc.T @ np.linalg.solve(Jc @ Minv @ Jc.T, Jc @ Minv))
+
+
+def cartesian_lam(q, qd, u, m=1.0, L=1.0, g=9.81):  # noqa: N803
+    """The cartesian pendulum's multiplier (``cases.cartesian_pendulum``: q = p = (x, y), M = m I, B = I,
+    ``phi = |p|^2 - L^2`` so ``Jc = 2 p^T`` and ``Jcdot qd = 2 |v|^2``), eqs. (12)-(13) solved by hand:
+    ``lam = -m (|v|^2 + p . (gravity + u / m)) / (2 L^2)`` with gravity (0, -g); u = 0 gives lam_drift (eq. 14).
+    Plain arithmetic on the entries, so that it evaluates in mpmath too (:func:`cartesian_lam_mp`)."""
+    (x, y), (xd, yd), (ux, uy) = q, qd, u
+    return -m * (xd * xd + yd * yd + x * (ux / m) + y * (uy / m - g)) / (2 * L * L)
+
+
+def cartesian_lam_mp(q, qd, u, m=1.0, L=1.0, g=9.81):  # noqa: N803
+    """:func:`cartesian_lam` in mpmath at its working precision (arguments exact binary values); exact at a state
+    exactly on the circle, |p| = L."""
+    x, y, xd, yd, ux, uy, m, L, g = _mp(*q, *qd, *u, m, L, g)
+    return cartesian_lam((x, y), (xd, yd), (ux, uy), m, L, g)
+
+
+def absolute_loop_state(t, td, l1=1.0):
+    """The joint state (t, td) in the coordinates of ``cases.double_pendulum_absolute_loop``,
+    ``q = (x1, y1, phi1, x2, y2, phi2)``: link 1's pivot at the origin, link 2's at link 1's end
+    ``l1 (sin phi1, -cos phi1)``, absolute angles ``phi = (t1, t1 + t2)`` (6.4.6). Returns (q, qd)."""
+    p1, p1d = t[0], td[0]
+    q = np.array([0.0, 0.0, p1, l1 * np.sin(p1), -l1 * np.cos(p1), t[0] + t[1]])
+    qd = np.array([0.0, 0.0, p1d, l1 * np.cos(p1) * p1d, l1 * np.sin(p1) * p1d, td[0] + td[1]])
+    return q, qd
+
+
+def loop_to_joint(a):
+    """Absolute-loop accelerations (6,) (or rates) back to the joint coordinates: (phi1dd, phi2dd - phi1dd)."""
+    return np.array([a[2], a[5] - a[2]])
+
+
+def joint_to_loop(t, td, tdd, l1=1.0):
+    """Joint accelerations tdd at (t, td) in the absolute loop's coordinates: the shoulder pivot fixed, link 2's
+    pivot at mass 1's place, eq. (4) with l2 = 0 differentiated twice, angles ``phi = (t1, t1 + t2)``; td = 0 gives the
+    linear part alone (what maps ctrl)."""
+    a1 = endpoint_jacobian(t, l1, 0.0) @ tdd + tip_bias(t, td, l1, 0.0)
+    return np.array([0.0, 0.0, tdd[0], a1[0], a1[1], tdd[0] + tdd[1]])
+
+
+def pin_forces(t, td, tdd, m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81):
+    """The pins' forces on the double pendulum at accelerations tdd, by Newton's second law for the masses of
+    eq. (4) (the joint torques are couples): the elbow's on link 2, ``m2 (a2 - gravity)``, and the shoulder's on the
+    whole chain, ``m1 a1 + m2 a2 - (m1 + m2) gravity``, with a_i eq. (4) differentiated twice and gravity (0, -g).
+    Returns (shoulder, elbow), each (2,)."""
+    gravity = np.array([0.0, -g])
+    a1 = endpoint_jacobian(t, l1, 0.0) @ tdd + tip_bias(t, td, l1, 0.0)
+    a2 = endpoint_jacobian(t, l1, l2) @ tdd + tip_bias(t, td, l1, l2)
+    return m1 * a1 + m2 * a2 - (m1 + m2) * gravity, m2 * (a2 - gravity)
+
+
+def loop_terms(q, qd, m1, m2, l1, l2, g, I1, I2):  # noqa: N803
+    """(M, C qd, g) of the two free planar bodies of the absolute loop, q = (x1, y1, phi1, x2, y2, phi2), before the
+    pins. Body b (pivot (x, y), angle phi, mass m at l (sin phi, -cos phi) from it, I about z):
+        T = 1/2 m (xd^2 + yd^2) + m l phid (cos phi xd + sin phi yd) + 1/2 (m l^2 + I) phid^2,  V = m g (y - l cos phi),
+    so its block is M = [[m, 0, m l cos phi], [0, m, m l sin phi], [m l cos phi, m l sin phi, m l^2 + I]],
+    C qd = (-m l sin phi phid^2, m l cos phi phid^2, 0), g = (0, m g, m g l sin phi); the bodies do not couple."""
+    M, Cqd, grav = np.zeros((6, 6)), np.zeros(6), np.zeros(6)
+    for b, (m, l, inertia) in enumerate(((m1, l1, I1), (m2, l2, I2))):
+        k = slice(3 * b, 3 * b + 3)
+        phi, phid = q[3 * b + 2], qd[3 * b + 2]
+        c, s = np.cos(phi), np.sin(phi)
+        M[k, k] = [[m, 0.0, m * l * c], [0.0, m, m * l * s], [m * l * c, m * l * s, m * l * l + inertia]]
+        Cqd[k] = (-m * l * s * phid**2, m * l * c * phid**2, 0.0)
+        grav[k] = (0.0, m * g, m * g * l * s)
+    return M, Cqd, grav
+
+
+def loop_constraint(q, qd, l1):
+    """The absolute loop's pins (``PointsCoincide`` rows along x, y): the shoulder, link 1's pivot at the origin,
+    phi = (x1, y1); the elbow, link 2's pivot at link 1's end, phi = (x2 - x1 - l1 sin phi1, y2 - y1 + l1 cos phi1).
+    Jc = [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [-1, 0, -l1 cos phi1, 1, 0, 0], [0, -1, -l1 sin phi1, 0, 1, 0]] and
+    Jcdot qd = (0, 0, l1 sin phi1 phi1d^2, -l1 cos phi1 phi1d^2). Returns (phi (4,), Jc (4, 6), Jcdot qd (4,))."""
+    c, s, w2 = np.cos(q[2]), np.sin(q[2]), qd[2]**2
+    phi = np.array([q[0], q[1], q[3] - q[0] - l1 * s, q[4] - q[1] + l1 * c])
+    Jc = np.array([[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                   [-1.0, 0.0, -l1 * c, 1.0, 0.0, 0.0], [0.0, -1.0, -l1 * s, 0.0, 1.0, 0.0]])
+    return phi, Jc, np.array([0.0, 0.0, l1 * s * w2, -l1 * c * w2])
+
+
+# ------------------------------------------------------------------------------------------------- 3-D cases
+
+#: The rotor's task point in its body frame (``cases.rotor``: the point ``rim``, along world x).
+ROTOR_RIM = (0.4, 0.1, -0.2)
+
+
+def turn(a, v, angle):
+    """``v`` turned by ``angle`` about the unit axis ``a`` (Rodrigues): v cos + (a x v) sin + a (a . v)(1 - cos).
+    Its derivative in the angle is ``a x turn(a, v, angle)``."""
+    a, v = np.asarray(a, dtype=float), np.asarray(v, dtype=float)
+    return v * np.cos(angle) + np.cross(a, v) * np.sin(angle) + a * (a @ v) * (1.0 - np.cos(angle))
+
+
+def rotor_terms(q, qd, m, cx, cy, cz, Ia, Ib, Ic, spin, tilt, azimuth, g):  # noqa: N803
+    """``cases.rotor`` by hand: M (1x1), C qd, g and the task point's Jacobian and ``Jdot qd``.
+
+    Axis a = (sin tilt cos azimuth, sin tilt sin azimuth, cos tilt); principal axes P = cos(spin) 1 + sin(spin) K +
+    (1 - cos(spin)) k k^T with k = (1, 1, 1) / sqrt 3 and K = [k]x; COM c = (cx, cy, cz) (body frame, which is the
+    joint frame turned by q about a). The inertia about the joint axis is constant:
+        M = a . (P diag(Ia, Ib, Ic) P^T + m (|c|^2 1 - c c^T)) a = a . P diag P^T a + m |a x c|^2,
+    so C qd = 0; the COM's height is e_z . turn(a, c, q), V = m g e_z . turn(a, c, q), g(q) = m g (a x turn(a, c, q))_z.
+    The task point r = ROTOR_RIM at p = turn(a, r, q): J = (a x p)_x, Jdot qd = (a x (a x p))_x qd^2.
+    Returns (M, C qd, g, J, Jdot qd) as arrays (1, 1), (1,), (1,), (1, 1), (1,)."""
+    a = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)])
+    cs, ss = np.cos(spin), np.sin(spin)
+    K = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]]) / np.sqrt(3.0)
+    P = cs * np.eye(3) + ss * K + (1.0 - cs) * np.full((3, 3), 1.0 / 3.0)
+    c = np.array([cx, cy, cz])
+    pa = P.T @ a
+    M = pa @ (np.array([Ia, Ib, Ic]) * pa) + m * np.cross(a, c) @ np.cross(a, c)
+    grav = m * g * np.cross(a, turn(a, c, q[0]))[2]
+    p = turn(a, ROTOR_RIM, q[0])
+    J = np.cross(a, p)[0]
+    return (np.array([[M]]), np.zeros(1), np.array([grav]), np.array([[J]]),
+            np.array([np.cross(a, np.cross(a, p))[0] * qd[0]**2]))
+
+
+def slider_terms(m, incline, g):
+    """``cases.inclined_slider`` by hand: the slide a = (cos incline cos azimuth, cos incline sin azimuth,
+    sin incline), the mass at its origin + q a, so T = 1/2 m qd^2: M = m, C qd = 0, V = m g q sin(incline),
+    g = m g sin(incline); the task (the height) z = q sin(incline): J = sin(incline), Jdot qd = 0 (the azimuth does
+    not enter). Returns (M, C qd, g, J, Jdot qd) as arrays (1, 1), (1,), (1,), (1, 1), (1,)."""
+    s = np.sin(incline)
+    return np.array([[m]]), np.zeros(1), np.array([m * g * s]), np.array([[s]]), np.zeros(1)
+
+
+def spherical_terms(q, qd, m, l, Ix, Iy, Iz, g):  # noqa: E741, N803
+    """``cases.spherical_pendulum`` by hand: the ball at p = R_x(q1) R_y(q2) (0, 0, -l) =
+    (-l sin q2, l sin q1 cos q2, -l cos q1 cos q2), so |v|^2 = l^2 (cos^2 q2 q1d^2 + q2d^2); its angular velocity in
+    its own frame is R_y(q2)^T q1d e_x + q2d e_y = (cos q2 q1d, q2d, sin q2 q1d). Hence
+        M = diag((m l^2 + Ix) cos^2 q2 + Iz sin^2 q2, m l^2 + Iy),
+        C qd = (M11' q1d q2d, -1/2 M11' q1d^2) with M11' = dM11/dq2 = 2 (Iz - Ix - m l^2) sin q2 cos q2,
+        g = (m g l sin q1 cos q2, m g l cos q1 sin q2) from V = -m g l cos q1 cos q2;
+    the task (x, y) of the ball: J = [[0, -l c2], [l c1 c2, -l s1 s2]],
+    Jdot qd = (l s2 q2d^2, -l s1 c2 (q1d^2 + q2d^2) - 2 l c1 s2 q1d q2d). Returns (M, C qd, g, J, Jdot qd)."""
+    c1, s1, c2, s2 = np.cos(q[0]), np.sin(q[0]), np.cos(q[1]), np.sin(q[1])
+    dM11 = 2.0 * (Iz - Ix - m * l * l) * s2 * c2
+    M = np.diag([(m * l * l + Ix) * c2 * c2 + Iz * s2 * s2, m * l * l + Iy])
+    Cqd = np.array([dM11 * qd[0] * qd[1], -0.5 * dM11 * qd[0]**2])
+    grav = m * g * l * np.array([s1 * c2, c1 * s2])
+    J = np.array([[0.0, -l * c2], [l * c1 * c2, -l * s1 * s2]])
+    bias = np.array([l * s2 * qd[1]**2, -l * s1 * c2 * (qd[0]**2 + qd[1]**2) - 2.0 * l * c1 * s2 * qd[0] * qd[1]])
+    return M, Cqd, grav, J, bias
+
+
+# ---------------------------------------------------------------------------------------- assembling a Split
+
+
+@dataclass(frozen=True)
+class _Terms:
+    """One state's ``M qdd + C qd + g = tau (+ Jc^T lam)`` in closed form (tau = B u), with M's inverse, the total
+    mass and ``|gravity|_1`` (for accel_scale)."""
+
+    M: np.ndarray
+    Minv: np.ndarray
+    Cqd: np.ndarray
+    g: np.ndarray
+    tau: np.ndarray
+    mass: float
+    gravity: float
+
+    def accelerations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Eq. (9), each directly: drift ``-M^-1 (C qd + g)``, ctrl ``M^-1 B u``, total ``M^-1 (B u - C qd - g)``."""
+        return (-self.Minv @ (self.Cqd + self.g), self.Minv @ self.tau, self.Minv @ (self.tau - self.Cqd - self.g))
+
+
+@dataclass(frozen=True)
+class _Kkt:
+    """A constrained state's closed forms: phi, Jc, Jcdot qd and the multipliers with and without input."""
+
+    phi: np.ndarray
+    Jc: np.ndarray
+    bias: np.ndarray
+    lam: np.ndarray
+    lam_drift: np.ndarray
+
+
+def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) -> Split:
+    """The Split of one state from its closed forms; ``task`` = (task drift, Lambda, cond(J M^-1 J^T)).
+
+    cond(M) and ``accel_scale = ||M^-1|| H``, ``H = |C qd|_1 + |g|_1 + |B u|_1 + lambda_max(M) |qd|^2 + |gravity|_1
+    sqrt(m_total lambda_max(M))`` (the definition of ``Split.accel_scale``). With constraints (those
+    of ``constraint_conditioning``, full rank): ``S = Jc M^-1 Jc^T``, ``lam_scale = (|Jcdot qd|_1 + ||Jc|| accel_scale)
+    / lambda_min(S)``, ``accel_scale`` plus ``||M^-1|| ||Jc|| lam_scale``, conditions ``constraint`` =
+    ``constraint_kept`` = cond(S), ``constraint_consistency`` = 0; the constraint force ``Jc^T lam`` and its power."""
+    w = eigenvalues(t.M)
+    H = (np.abs(t.Cqd).sum() + np.abs(t.g).sum() + np.abs(t.tau).sum() + w[-1] * float(qd @ qd)
+         + t.gravity * np.sqrt(t.mass * w[-1]))
+    accel_scale = H / w[0]
+    task_drift, Lambda, task_cond = task
+    fields = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(t.tau @ qd), power_ctrl_per_coord=t.tau * qd,
+                  cond_M=w[-1] / w[0], task_drift=task_drift, kinetic_energy=0.5 * qd @ t.M @ qd,
+                  task_inertia=Lambda)
+    if kkt is None:
+        return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None,
+                     accel_scale=accel_scale, conditions={"task_inertia": task_cond}, **fields)
+    ws = eigenvalues(kkt.Jc @ t.Minv @ kkt.Jc.T)
+    jc_norm = float(np.linalg.norm(kkt.Jc, 2))
+    lam_scale = (np.abs(kkt.bias).sum() + jc_norm * accel_scale) / ws[0]
+    force, force_drift = kkt.Jc.T @ kkt.lam, kkt.Jc.T @ kkt.lam_drift
+    return Split(lam=kkt.lam, lam_drift=kkt.lam_drift, power_constr=float(force @ qd),
+                 power_constr_per_coord=force * qd,
+                 accel_scale=accel_scale + jc_norm * lam_scale / w[0],
+                 conditions={"task_inertia": task_cond, "constraint": ws[-1] / ws[0], "constraint_kept": ws[-1] / ws[0],
+                             "constraint_consistency": 0.0},
+                 constraint_value=kkt.phi, constraint_jacobian=kkt.Jc, constraint_bias=kkt.bias,
+                 constraint_velocity=kkt.Jc @ qd, constraint_force=force, constraint_force_drift=force_drift,
+                 constraint_rank=len(kkt.lam), lam_scale=lam_scale, **fields)
+
+
+def _task(J, bias, drift, inertia) -> tuple:
+    """(task drift ``J drift + Jdot qd`` (eq. 23), Lambda, cond) with ``inertia`` = (Lambda, cond)."""
+    return (J @ drift + bias, *inertia)
+
+
+# ------------------------------------------------------------------------------------ the closed forms by case
+
+
+def _double_pendulum(p, q, qd, u) -> Split:
+    """Article section 3: M (eq. 6, plus :func:`disk_inertia`), C qd (7), g (8), the split (9), the tip (4, 5)."""
+    l1, l2 = p["l1"], p["l2"]
+    M, Cqd, grav = pendulum_terms(q, qd, p["m1"], p["m2"], l1, l2, p["g"])
+    M = M + disk_inertia(p["I1"], p["I2"])
+    t = _Terms(M, inv2(M), Cqd, grav, u, p["m1"] + p["m2"], abs(p["g"]))
+    drift, ctrl, total = t.accelerations()
+    J = endpoint_jacobian(q, l1, l2)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)))
+
+
+def _n_link_pendulum(p, q, qd, u) -> Split:
+    """:func:`chain_terms` of n equal masses in absolute angles phi = T q (:func:`relative_to_absolute`), mapped to
+    the relative angles: M = T^T M_phi T, h = T^T h_phi; the tip :func:`chain_tip` with J_q = J_phi T."""
+    n, m, l = p["n"], p["m"], p["l"]
+    T = relative_to_absolute(n)
+    phi, phid = T @ q, T @ qd
+    M_phi, C_phi, g_phi = chain_terms(phi, phid, [m] * n, [l] * n, p["g"])
+    M = T.T @ M_phi @ T
+    t = _Terms(M, np.linalg.inv(M), T.T @ C_phi, T.T @ g_phi, u, n * m, abs(p["g"]))
+    drift, ctrl, total = t.accelerations()
+    J_phi, bias = chain_tip(phi, phid, [l] * n)
+    J = J_phi @ T
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, task_inertia(J, t.Minv)))
+
+
+def _acrobot(p, q, qd, u) -> Split:
+    """Spong's equations (:func:`acrobot_terms`), B = [[0], [1]], the tip of link 2 by eqs. (4), (5)."""
+    M, Cqd, grav = acrobot_terms(q, qd, p["m1"], p["m2"], p["l1"], p["lc1"], p["lc2"], p["I1"], p["I2"], p["g"])
+    t = _Terms(M, inv2(M), Cqd, grav, np.array([0.0, u[0]]), p["m1"] + p["m2"], abs(p["g"]))
+    drift, ctrl, total = t.accelerations()
+    J = endpoint_jacobian(q, p["l1"], p["l2"])
+    return _assemble(t, qd, drift, ctrl, total,
+                     _task(J, tip_bias(q, qd, p["l1"], p["l2"]), drift, task_inertia_square(J, M)))
+
+
+def _double_pendulum_circle(p, q, qd, u) -> Split:
+    """Article 5.6: eqs. (6)-(8), the circle row (:func:`circle_terms`), the KKT system by hand
+    (:func:`one_row_kkt`: eqs. 12-14) and ctrl = B_c u (eq. 17, :func:`constrained_input_map`)."""
+    l1, l2 = p["l1"], p["l2"]
+    M, Cqd, grav = pendulum_terms(q, qd, p["m1"], p["m2"], l1, l2, p["g"])
+    t = _Terms(M, inv2(M), Cqd, grav, u, p["m1"] + p["m2"], abs(p["g"]))
+    phi, Jc, bias = circle_terms(q, qd, l1, l2, p["xc"], p["yc"], p["R"])
+    drift, lam_drift = one_row_kkt(t.Minv, Jc, bias, -Cqd - grav)
+    total, lam = one_row_kkt(t.Minv, Jc, bias, u - Cqd - grav)
+    ctrl = constrained_input_map(M, Jc) @ u
+    J = endpoint_jacobian(q, l1, l2)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)),
+                     _Kkt(np.array([phi]), Jc.reshape(1, 2), np.array([bias]), np.array([lam]),
+                          np.array([lam_drift])))
+
+
+def _cartesian_pendulum(p, q, qd, u) -> Split:
+    """M = m I, h = (0, m g), B = I; lam by :func:`cartesian_lam`, so ``m qdd = m gravity + u + 2 lam p`` (eq. 12)
+    for total (and lam_drift, u = 0, for the drift); ctrl = B_c u (eq. 17); the task point is the bob (J = I)."""
+    m, L, g = p["m"], p["L"], p["g"]
+    M, gravity = m * np.eye(2), np.array([0.0, -g])
+    t = _Terms(M, np.eye(2) / m, np.zeros(2), np.array([0.0, m * g]), u, m, abs(g))
+    lam, lam_drift = cartesian_lam(q, qd, u, m, L, g), cartesian_lam(q, qd, np.zeros(2), m, L, g)
+    total, drift = gravity + (u + 2.0 * lam * q) / m, gravity + 2.0 * lam_drift * q / m
+    ctrl = constrained_input_map(M, 2.0 * q) @ u
+    return _assemble(t, qd, drift, ctrl, total, _task(np.eye(2), np.zeros(2), drift, task_inertia_square(np.eye(2), M)),
+                     _Kkt(np.array([q @ q - L * L]), 2.0 * q.reshape(1, 2), np.array([2.0 * qd @ qd]),
+                          np.array([lam]), np.array([lam_drift])))
+
+
+def _double_pendulum_absolute_loop(p, q, qd, u) -> Split:
+    """The double pendulum with disk inertias (eqs. 6-9 and :func:`disk_inertia`) at the joint state t = (phi1,
+    phi2 - phi1) (:func:`loop_to_joint`), its accelerations mapped to the loop (:func:`joint_to_loop`; ctrl by the
+    linear part), lam and lam_drift the pins' forces (:func:`pin_forces`) at total and drift; the loop's own M, C qd,
+    g (:func:`loop_terms`) for cond(M) and accel_scale, its pins (:func:`loop_constraint`). The tip is link 2's COM,
+    a free body's centre of mass: a force there only translates it, so Lambda = m2 I (cond 1)."""
+    m1, m2, l1, l2, g = p["m1"], p["m2"], p["l1"], p["l2"], p["g"]
+    th, thd = loop_to_joint(q), loop_to_joint(qd)
+    Mj, Cj, gj = pendulum_terms(th, thd, m1, m2, l1, l2, g)
+    Mj = Mj + disk_inertia(p["I1"], p["I2"])
+    joint = _Terms(Mj, inv2(Mj), Cj, gj, u, m1 + m2, abs(g))
+    drift_j, ctrl_j, total_j = joint.accelerations()
+    M, Cqd, grav = loop_terms(q, qd, m1, m2, l1, l2, g, p["I1"], p["I2"])
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, np.array([0.0, 0.0, u[0] - u[1], 0.0, 0.0, u[1]]), m1 + m2, abs(g))
+    phi, Jc, bias = loop_constraint(q, qd, l1)
+    lam, lam_drift = (np.concatenate(pin_forces(th, thd, a, m1, m2, l1, l2, g)) for a in (total_j, drift_j))
+    tip = endpoint_jacobian(th, l1, l2) @ drift_j + tip_bias(th, thd, l1, l2)
+    return _assemble(t, qd, joint_to_loop(th, thd, drift_j, l1), joint_to_loop(th, np.zeros(2), ctrl_j, l1),
+                     joint_to_loop(th, thd, total_j, l1), (tip, m2 * np.eye(2), 1.0),
+                     _Kkt(phi, Jc, bias, lam, lam_drift))
+
+
+def _one_joint(M, Cqd, grav, J, bias, u, qd, mass, g) -> Split:
+    """A 1-degree-of-freedom case from its (1x1) terms: eq. (9) with M^-1 = 1 / M, the task of eq. (23) and (22)."""
+    t = _Terms(M, 1.0 / M, Cqd, grav, u, mass, abs(g))
+    drift, ctrl, total = t.accelerations()
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, task_inertia(J, t.Minv)))
+
+
+def _rotor(p, q, qd, u) -> Split:
+    """:func:`rotor_terms`."""
+    keys = ("m", "cx", "cy", "cz", "Ia", "Ib", "Ic", "spin", "tilt", "azimuth", "g")
+    return _one_joint(*rotor_terms(q, qd, *(p[k] for k in keys)), u, qd, p["m"], p["g"])
+
+
+def _inclined_slider(p, q, qd, u) -> Split:
+    """:func:`slider_terms`."""
+    return _one_joint(*slider_terms(p["m"], p["incline"], p["g"]), u, qd, p["m"], p["g"])
+
+
+def _spherical_pendulum(p, q, qd, u) -> Split:
+    """:func:`spherical_terms`, eq. (9) with the diagonal M's inverse, the ball's task by eqs. (23), (22)."""
+    M, Cqd, grav, J, bias = spherical_terms(q, qd, p["m"], p["l"], p["Ix"], p["Iy"], p["Iz"], p["g"])
+    t = _Terms(M, np.diag(1.0 / np.diag(M)), Cqd, grav, u, p["m"], abs(p["g"]))
+    drift, ctrl, total = t.accelerations()
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, task_inertia_square(J, M)))
+
+
+# ------------------------------------------------------------------------------------------------- the voter
+
+UNCONSTRAINED = ("drift", "ctrl", "total", "additivity", "power_ctrl", "task_drift", "kinetic_energy", "task_inertia")
+CONSTRAINED = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr",
+               "power_constr_per_coord", "admissibility_drift", "admissibility_total", "constraint_value",
+               "constraint_velocity", "constraint_jacobian", "constraint_bias")
+
+
+@dataclass(frozen=True)
+class ClosedForm:
+    """One case's closed form: where its equations come from, the shape (n, m, k) its parameters give, and its
+    split from the typed parameters and a state."""
+
+    source: str
+    shape: Callable[[dict], tuple[int, int, int]]
+    split: Callable[[dict, np.ndarray, np.ndarray, np.ndarray], Split]
+
+    def supplies(self, params: dict) -> tuple[str, ...]:
+        """The compared quantities it supplies (the joint loads are not among them)."""
+        return UNCONSTRAINED + (CONSTRAINED if self.shape(params)[2] else ())
+
+
+CLOSED_FORMS: dict[str, ClosedForm] = {
+    "double_pendulum": ClosedForm("article section 3, eqs. (4)-(9), with planar disk inertias I1, I2",
+                                  lambda p: (2, 2, 0), _double_pendulum),
+    "n_link_pendulum": ClosedForm("the Lagrangian of n point masses in absolute angles, mapped to relative angles",
+                                  lambda p: (p["n"], p["n"], 0), _n_link_pendulum),
+    "acrobot": ClosedForm("Spong's acrobot equations, angles from hanging down", lambda p: (2, 1, 0), _acrobot),
+    "double_pendulum_circle": ClosedForm("article 5.6, eqs. (4)-(8), (12)-(17), one circle row",
+                                         lambda p: (2, 2, 1), _double_pendulum_circle),
+    "cartesian_pendulum": ClosedForm("the multiplier of eqs. (12)-(13) by hand, M = m I",
+                                     lambda p: (2, 2, 1), _cartesian_pendulum),
+    "double_pendulum_absolute_loop": ClosedForm(
+        "the double pendulum's eqs. (4)-(9) mapped to the loop, multipliers the pins' forces (Newton)",
+        lambda p: (6, 2, 4), _double_pendulum_absolute_loop),
+    "rotor": ClosedForm("one rigid body on a tilted revolute joint, by hand", lambda p: (1, 1, 0), _rotor),
+    "inclined_slider": ClosedForm("a point mass on a tilted prismatic joint, by hand", lambda p: (1, 1, 0),
+                                  _inclined_slider),
+    "spherical_pendulum": ClosedForm("a ball on two perpendicular revolute joints, by hand", lambda p: (2, 2, 0),
+                                     _spherical_pendulum),
+}
+
+
+def _describe(params: dict) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in params.items())
+
+
+def _checked_split(case: str, form: ClosedForm, params: dict, model, q, qd, u) -> Split:
+    """The closed form's split at (q, qd, u) after checking that ``model`` is the case it is bound to: its name (a
+    moved scene's ``case@frame`` included) and its shape (n, m, k) from the parameters; else ClosedFormMismatch."""
+    n, m, k = form.shape(params)
+    shapes = (("the number of coordinates n", model.n, n), ("the number of inputs m", model.m, m),
+              ("the number of constraint rows k", model.k, k))
+    problems = [f"{label} is {got}, the closed form's is {want}" for label, got, want in shapes if got != want]
+    if model.name.split("@")[0] != case:
+        problems.insert(0, f"the model is named '{model.name}', not '{case}'")
+    if problems:
+        raise ClosedFormMismatch(f"the closed form of case '{case}' ({_describe(params)}) does not match the model it "
+                                 f"was given: {'; '.join(problems)}")
+    q, qd, u = check_state(model, q, qd, u)
+    return form.split(params, q, qd, u)
+
+
+def voter(case: str, params: Mapping[str, object] | None = None) -> Formalism | None:
+    """The gate's voter ``closed_form`` for case ``case`` built with ``params`` (numbers or CLI strings, converted as
+    ``cases.load`` converts them; CaseError for an unknown parameter), or None when the case has no closed form. Its
+    ``split(model, q, qd, u)`` computes from the typed parameters alone and raises :class:`ClosedFormMismatch` for a
+    model that is not that case with those parameters."""
+    form = CLOSED_FORMS.get(case)
+    if form is None:
+        return None
+    typed = cases.parameters(case, **dict(params or {}))
+    return Formalism("closed_form", f"closed form of {case}: {form.source}", partial(_checked_split, case, form, typed))
+
+
+def coverage(case: str, params: Mapping[str, object] | None = None) -> str:
+    """For a report's line on ``case`` (the caller names the case): the closed form that votes on it with ``params``,
+    the typed parameters it is bound to and the quantities it supplies, or "none" and the cases that have one."""
+    form = CLOSED_FORMS.get(case)
+    if form is None:
+        return f"none (closed forms exist for {', '.join(CLOSED_FORMS)})"
+    typed = cases.parameters(case, **dict(params or {}))
+    return (f"{form.source}; bound to {_describe(typed)}; supplies {', '.join(form.supplies(typed))} (not the joint "
+            "loads)")

@@ -1,0 +1,327 @@
+"""The closed forms as the gate's voter ``closed_form`` (``crosscheck.closed_forms``, issue 15 item 2).
+
+Each closed form agrees with Pinocchio and with the five formalisms at drawn parameters and states (and in moved
+scenes); it is bound to its case by name and typed parameters, so a bug in a case factory or in the model language,
+which moves the six others together, leaves it the outlier; and a model that is not its case is a failure of the
+voter (ClosedFormMismatch), never a silent NOT COMPARED.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import cases
+import cases.factories
+import cases.model
+from crosscheck import backends, cli, closed_forms, frames, gate, reference, sampling, testing
+from crosscheck import tolerance as policy
+from crosscheck.compare import DISAGREE, suspect
+from crosscheck.sampling import State
+
+ALL = [backends.get(name) for name in backends.names()]
+REFERENCE = backends.get(backends.REFERENCE_NAME)
+CASES = list(closed_forms.CLOSED_FORMS)
+
+
+def _floats(low: float, high: float, small: float = 0.0) -> st.SearchStrategy[float]:
+    """Floats in [low, high], those below ``small`` in magnitude drawn as 0 (``crosscheck.testing``'s convention: a
+    length below 1 micrometre or an angle below 1e-9 rad only probes underflow, e.g. a COM 2e-16 m off the axis)."""
+    return st.floats(low, high, allow_nan=False, allow_infinity=False).map(lambda x: 0.0 if abs(x) < small else x)
+
+
+MASS, LENGTH, INERTIA = _floats(0.1, 5.0), _floats(0.2, 2.0), _floats(0.01, 1.0)
+GRAVITY, OFFSET = _floats(0.0, 20.0, testing.MIN_LENGTH), _floats(-0.5, 0.5, testing.MIN_LENGTH)
+ANGLE = _floats(-np.pi, np.pi, testing.MIN_VALUE)
+
+
+@st.composite
+def _circle(draw) -> dict:
+    """A circle well inside the tip's reachable annulus |l1 - l2| < r < l1 + l2, so that states can be projected."""
+    l1, l2 = draw(LENGTH), draw(LENGTH)
+    inner, outer = abs(l1 - l2), l1 + l2
+    d = inner + (outer - inner) * draw(_floats(0.3, 0.7))
+    R = min(d - inner, outer - d) * draw(_floats(0.2, 0.8))  # noqa: N806
+    at = draw(ANGLE)
+    return {"m1": draw(MASS), "m2": draw(MASS), "l1": l1, "l2": l2, "g": draw(GRAVITY), "xc": d * np.sin(at),
+            "yc": -d * np.cos(at), "R": R}
+
+
+@st.composite
+def _principal(draw) -> tuple[float, float, float]:
+    """Principal moments of a solid body: positive, the third between the other two's difference and sum."""
+    a, b = draw(_floats(0.01, 0.1)), draw(_floats(0.01, 0.1))
+    return a, b, abs(a - b) + (a + b - abs(a - b)) * draw(_floats(0.1, 0.9))
+
+
+def _rotor(draw) -> dict:
+    Ia, Ib, Ic = draw(_principal())  # noqa: N806
+    return {"m": draw(MASS), "cx": draw(OFFSET), "cy": draw(OFFSET), "cz": draw(OFFSET), "Ia": Ia, "Ib": Ib, "Ic": Ic,
+            "spin": draw(ANGLE), "tilt": draw(_floats(0.0, np.pi, testing.MIN_VALUE)), "azimuth": draw(ANGLE),
+            "g": draw(GRAVITY)}
+
+
+def _spherical(draw) -> dict:
+    Ix, Iy, Iz = draw(_principal())  # noqa: N806
+    return {"m": draw(MASS), "l": draw(LENGTH), "Ix": Ix, "Iy": Iy, "Iz": Iz, "g": draw(GRAVITY)}
+
+
+#: Drawn typed parameters per case (within each factory's domain; see the module doc of crosscheck.closed_forms).
+PARAMETERS = {
+    "double_pendulum": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "g": GRAVITY,
+                                              "I1": st.one_of(st.just(0.0), INERTIA),
+                                              "I2": st.one_of(st.just(0.0), INERTIA)}),
+    "n_link_pendulum": st.fixed_dictionaries({"n": st.integers(1, 6), "m": MASS, "l": LENGTH, "g": GRAVITY}),
+    "acrobot": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "lc1": _floats(0.1, 1.5),
+                                      "lc2": _floats(0.1, 1.5), "I1": INERTIA, "I2": INERTIA, "g": GRAVITY}),
+    "double_pendulum_circle": _circle(),
+    "cartesian_pendulum": st.fixed_dictionaries({"m": MASS, "L": _floats(0.3, 2.0), "g": GRAVITY}),
+    "double_pendulum_absolute_loop": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH,
+                                                            "g": GRAVITY, "I1": INERTIA, "I2": INERTIA}),
+    "rotor": st.composite(_rotor)(),
+    # (an incline of 1e-150 rad moves the mass 1e-150 m up per metre: below the backends' degenerate floor, their
+    # task inertia is NaN while the closed form's, m / sin^2, is finite; it then votes alone, NOT COMPARED)
+    "inclined_slider": st.fixed_dictionaries({"m": MASS, "incline": st.one_of(_floats(0.05, 1.5), _floats(-1.5, -0.05)),
+                                              "azimuth": ANGLE, "g": GRAVITY}),
+    "spherical_pendulum": st.composite(_spherical)(),
+}
+
+
+def test_every_closed_form_has_drawn_parameters():
+    assert set(PARAMETERS) == set(CASES)
+
+
+@pytest.mark.parametrize("case", CASES)
+@given(data=st.data())
+def test_closed_form_agrees_with_pinocchio_and_the_formalisms(case, data):
+    """At drawn parameters and admissible states: against Pinocchio alone (two voters, no vote to hide behind), then
+    against the five formalisms and Pinocchio as the gate compares them, with the frame and conservation checks in a
+    drawn moved scene (the voter accepts the moved model, ``case@frame``). It votes on every quantity it supplies."""
+    params = data.draw(PARAMETERS[case], label="params")
+    model = cases.load(case, **params)
+    state = data.draw(testing.states(model), label="state")
+    voter = closed_forms.voter(case, params)
+    pair = gate.evaluate(model, state, [voter, REFERENCE])
+    assert not pair.failed, testing.describe_failure(pair)
+    chosen = [*ALL, voter]
+    outcome = gate.evaluate(model, state, chosen)
+    frame = data.draw(testing.frames(), label="frame")
+    gate.add_checks(model, outcome, chosen, [], (frame, frames.move_scene(model, frame)), True)
+    assert not outcome.failed, testing.describe_failure(outcome)
+    broken = outcome.breakdowns.get("closed_form", {})
+    assert not policy.whole(broken), broken
+    for quantity in closed_forms.CLOSED_FORMS[case].supplies(cases.parameters(case, **params)):
+        if quantity not in policy.left_out(broken):     # its task inertia at a task singularity, as everyone's
+            assert "closed_form" in outcome.comparisons[quantity].voters, quantity
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_closed_form_on_the_gate_states_of_the_default_case(case):
+    """The default parameters at the gate's own sampled states (the home configuration q = 0 included): the closed
+    form is never the outlier and never raises."""
+    model = cases.load(case)
+    voter = closed_forms.voter(case, {})
+    for state in sampling.sample_states(model, 8, 0, case):
+        outcome = gate.evaluate(model, state, [*ALL, voter])
+        assert not outcome.failed, testing.describe_failure(outcome)
+
+
+def test_the_voter_reads_parameters_not_the_model():
+    """The split depends on the typed parameters alone: the model of other lengths (same name and shape) gives the
+    same numbers, and CLI strings give the same split as numbers."""
+    state = (np.array([0.4, -0.3]), np.array([1.0, 2.0]), np.array([0.5, -1.5]))
+    bound = closed_forms.voter("double_pendulum", {"l2": "0.7", "I1": "0.1"})
+    as_numbers = closed_forms.voter("double_pendulum", {"l2": 0.7, "I1": 0.1})
+    right, other = cases.load("double_pendulum", l2=0.7, I1=0.1), cases.load("double_pendulum", l2=1.3)
+    a, b, c = bound.split(right, *state), bound.split(other, *state), as_numbers.split(right, *state)
+    for quantity in ("drift", "ctrl", "total", "task_drift", "task_inertia", "kinetic_energy"):
+        assert np.array_equal(a.quantity(quantity), b.quantity(quantity)), quantity
+        assert np.array_equal(a.quantity(quantity), c.quantity(quantity)), quantity
+
+
+def test_double_pendulum_is_the_article_sanity_check():
+    """Article 4.7.3: theta = (pi/4, pi/6), rates (2, -1), m = l = 1, g = 9.81, tau = (5, -2): drift + ctrl = total,
+    and total solves eq. (2) with eqs. (6)-(8) by a dense solve."""
+    q, qd, u = np.array([np.pi / 4, np.pi / 6]), np.array([2.0, -1.0]), np.array([5.0, -2.0])
+    split = closed_forms.voter("double_pendulum", {}).split(cases.load("double_pendulum"), q, qd, u)
+    M, Cqd, g = closed_forms.pendulum_terms(q, qd)  # noqa: N806
+    assert np.allclose(split.total, np.linalg.solve(M, u - Cqd - g), rtol=1e-14, atol=0)
+    assert np.allclose(split.drift + split.ctrl, split.total, rtol=1e-14, atol=0)
+
+
+def test_n_link_with_two_links_is_the_article_double_pendulum():
+    """The absolute-angle Lagrangian (n = 2, equal masses) mapped to relative angles gives eqs. (6)-(8): two derivations
+    of the same machine agree to rounding."""
+    state = (np.array([0.9, -2.1]), np.array([1.5, -0.5]), np.array([2.0, 3.0]))
+    chain = closed_forms.voter("n_link_pendulum", {"n": 2, "m": 1.3, "l": 0.8})
+    article = closed_forms.voter("double_pendulum", {"m1": 1.3, "m2": 1.3, "l1": 0.8, "l2": 0.8})
+    a = chain.split(cases.load("n_link_pendulum", n=2, m=1.3, l=0.8), *state)
+    b = article.split(cases.load("double_pendulum", m1=1.3, m2=1.3, l1=0.8, l2=0.8), *state)
+    for quantity in ("drift", "ctrl", "total", "task_drift", "task_inertia"):
+        assert np.allclose(a.quantity(quantity), b.quantity(quantity), rtol=1e-13, atol=1e-13), quantity
+
+
+# ------------------------------------------------------------------------------------ injected factory bugs
+
+
+def _transposed_inertia(principal, rotation):
+    R = np.asarray(rotation, dtype=float)  # noqa: N806
+    return R.T @ np.diag(principal) @ R
+
+
+def _rotation_backwards(axis, angle):
+    k = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])  # noqa: N806
+    return np.eye(3) - np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def _disk_halved(izz):
+    return np.diag([izz / 2.0, izz / 2.0, izz / 2.0])
+
+
+def _l2_read_from_l1(monkeypatch):
+    info = cases.factories.REGISTRY["double_pendulum"]
+    wrong = dataclasses.replace(info, factory=lambda **kw: info.factory(**{**kw, "l2": kw.get("l1", 1.0)}))
+    monkeypatch.setitem(cases.factories.REGISTRY, "double_pendulum", wrong)
+
+
+def _placement_rotation_dropped(monkeypatch):
+    validate = cases.model._validate_body
+    monkeypatch.setattr(cases.model, "_validate_body", lambda problems, body: None if (b := validate(
+        problems, body)) is None else dataclasses.replace(b, rotation=np.eye(3)))
+
+
+#: name -> (how to inject it, case, parameters): each a realistic bug in shared code that all six others share.
+FACTORY_BUGS = {
+    "factory inertia R^T diag R": (lambda mp: mp.setattr(cases.factories, "_inertia", _transposed_inertia),
+                                   "rotor", {}),
+    "Rodrigues with the sine's sign flipped": (lambda mp: mp.setattr(cases.factories, "_rot", _rotation_backwards),
+                                               "inclined_slider", {}),
+    "planar disk with izz / 2 about z": (lambda mp: mp.setattr(cases.factories, "planar_disk", _disk_halved),
+                                         "double_pendulum", {"I1": 0.2, "I2": 0.3}),
+    "l2 read from l1": (_l2_read_from_l1, "double_pendulum", {"l1": 1.0, "l2": 0.6}),
+    "model language drops placement rotations": (_placement_rotation_dropped, "inclined_slider", {}),
+}
+
+
+@pytest.mark.parametrize("bug", FACTORY_BUGS)
+def test_a_factory_bug_makes_the_closed_form_the_outlier(bug, monkeypatch):
+    """With the bug injected every backend and Pinocchio agree on the wrong model; the closed form, computed from the
+    typed parameters, disagrees, and every disagreement points at it (``compare.suspect``)."""
+    inject, case, params = FACTORY_BUGS[bug]
+    inject(monkeypatch)
+    model = cases.load(case, **params)
+    voter = closed_forms.voter(case, params)
+    outcomes = [gate.evaluate(model, state, [*ALL, voter]) for state in sampling.sample_states(model, 3, 0, case)]
+    disagreements = [c for o in outcomes for c in o.comparisons.values() if c.verdict == DISAGREE]
+    assert {c.quantity for c in disagreements} >= {"drift", "total"}, bug
+    assert all(c.outlier == "closed_form" and suspect(c) == "closed_form" for c in disagreements), bug
+
+
+def test_without_the_bug_the_same_states_agree():
+    """The control for the test above: the same cases and parameters, no bug, no disagreement."""
+    for _, case, params in FACTORY_BUGS.values():
+        model = cases.load(case, **params)
+        voter = closed_forms.voter(case, params)
+        for state in sampling.sample_states(model, 3, 0, case):
+            assert not gate.evaluate(model, state, [*ALL, voter]).failed
+
+
+# ------------------------------------------------------------------------------------------------ mismatches
+
+STATE = State(0, (0.3, -0.2), (1.0, 0.5), (2.0,))
+
+
+def test_another_cases_model_is_a_mismatch():
+    """The double pendulum's voter given the acrobot: the name and the number of inputs do not match."""
+    voter = closed_forms.voter("double_pendulum", {})
+    with pytest.raises(closed_forms.ClosedFormMismatch) as info:
+        voter.split(cases.load("acrobot"), STATE.q, STATE.qd, STATE.u)
+    message = str(info.value)
+    assert "'double_pendulum'" in message and "named 'acrobot'" in message
+    assert "the number of inputs m is 1, the closed form's is 2" in message
+    assert "m1=1.0" in message                           # the parameters it was bound to
+
+
+def test_parameters_that_do_not_give_the_models_shape_are_a_mismatch():
+    voter = closed_forms.voter("n_link_pendulum", {"n": "3"})
+    model = cases.load("n_link_pendulum", n=4)
+    with pytest.raises(closed_forms.ClosedFormMismatch, match=r"n=3.*coordinates n is 4, the closed form's is 3"):
+        voter.split(model, np.zeros(4), np.zeros(4), np.zeros(4))
+
+
+def test_a_mismatch_fails_the_gate_as_an_error_of_the_voter():
+    """In the gate a mismatch is the voter's error at the state: the state fails, it is not NOT COMPARED."""
+    model = cases.load("double_pendulum_circle")
+    state = sampling.sample_states(model, 2, 0, "double_pendulum_circle")[1]
+    outcome = gate.evaluate(model, state, [*ALL, closed_forms.voter("double_pendulum", {})])
+    assert outcome.failed and outcome.errors["closed_form"].startswith("ClosedFormMismatch: ")
+    assert "constraint rows k is 1, the closed form's is 0" in outcome.errors["closed_form"]
+
+
+def test_cases_without_a_closed_form_have_no_voter():
+    for case in ("spatial_arm", "panda", "four_bar", "slider_crank"):
+        assert closed_forms.voter(case, {}) is None
+        assert closed_forms.coverage(case, {}).startswith("none (closed forms exist for double_pendulum, ")
+    assert set(CASES) <= set(cases.names())
+
+
+def test_unknown_parameters_are_refused_when_binding():
+    with pytest.raises(cases.CaseError, match="no parameter"):
+        closed_forms.voter("rotor", {"mass": 2.0})
+
+
+def test_coverage_names_the_source_the_parameters_and_the_quantities():
+    line = closed_forms.coverage("double_pendulum_circle", {"R": "0.4"})
+    assert line.startswith("article 5.6")
+    assert "bound to m1=1.0, m2=1.0, l1=1.0, l2=1.0, g=9.81, xc=1.0, yc=-1.0, R=0.4;" in line
+    assert "lam_drift" in line and "not the joint loads" in line
+    assert "lam" not in closed_forms.coverage("rotor", {})
+
+
+# ------------------------------------------------------------------------------------------------- new cases
+
+
+@pytest.mark.parametrize("case", ["rotor", "inclined_slider", "spherical_pendulum"])
+def test_new_cases_build_with_their_parameters(case):
+    params = cases.parameters(case)
+    model = cases.load(case, **params)
+    assert (model.n, model.m, model.k) == closed_forms.CLOSED_FORMS[case].shape(params)
+    assert case in {c.name for c in cases.catalog()}
+
+
+def test_rotor_is_three_dimensional():
+    """The rotor's inertia has off-diagonal terms and its axis is tilted (what makes the injected bugs visible)."""
+    body = cases.load("rotor").bodies[0]
+    assert np.abs(body.inertia - np.diag(np.diag(body.inertia))).max() > 1e-3
+    assert 0.1 < abs(body.axis[2]) < 0.99
+
+
+def test_pinocchio_agrees_with_the_rotor_closed_form_mass_matrix():
+    """M of the rotor by hand against Pinocchio's CRBA, at several parameter sets (the gate compares accelerations)."""
+    for params in ({}, {"tilt": 1.2, "spin": -2.0, "cx": -0.4}, {"tilt": 0.0, "Ia": 0.09, "Ib": 0.02, "Ic": 0.1}):
+        typed = cases.parameters("rotor", **params)
+        M = closed_forms.rotor_terms([0.3], [0.0], *(typed[k] for k in ("m", "cx", "cy", "cz", "Ia", "Ib", "Ic", "spin",
+                                                                      "tilt", "azimuth", "g")))[0]  # noqa: N806
+        assert np.allclose(M, reference.mass_matrix(cases.load("rotor", **params), [0.3]), rtol=1e-14, atol=0)
+
+
+def test_gate_on_the_new_cases_passes(tmp_path):
+    report = tmp_path / "new.md"
+    code = cli.main(["gate", "--case", "rotor", "--case", "inclined_slider", "--case", "spherical_pendulum",
+                     "--samples", "10", "--report", str(report)])
+    assert code == 0 and "**PASS**" in report.read_text()
+
+
+def test_case_parameters_are_typed_with_the_defaults_merged():
+    """``cases.parameters``, what the voter is bound to: CLI strings converted by the defaults' types, as ``load``."""
+    assert cases.parameters("n_link_pendulum", n="3", l="0.5") == {"n": 3, "m": 1.0, "l": 0.5, "g": 9.81}
+    assert cases.parameters("cartesian_pendulum") == {"m": 1.0, "L": 1.0, "g": 9.81}
+    with pytest.raises(cases.CaseError, match="not a valid int"):
+        cases.parameters("n_link_pendulum", n="2.5")
+    with pytest.raises(cases.CaseError, match="unknown case"):
+        cases.parameters("no_such_case")
