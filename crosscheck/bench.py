@@ -185,7 +185,8 @@ def errors(formalism, model: Model, Q, QD, U, exact: Sequence[precise.PreciseSpl
     """Median and max relative error of each quantity against the high-precision reference, over the states the
     harness would compare: a quantity a BREAKDOWN leaves out at a state (``crosscheck.tolerance.breakdown``: the
     method is ill-conditioned there, e.g. operational space at a task singularity) is not counted. Also returns the
-    number of states at which a BREAKDOWN left out any of these quantities. A quantity left out everywhere has no statistics (NaN)."""
+    number of states at which a BREAKDOWN left out any of these quantities. A quantity left out everywhere has no
+    statistics (NaN)."""
     found: dict[str, list[float]] = {name: [] for name in _quantities(model)}
     flagged = 0
     for q, qd, u, ref in zip(Q, QD, U, exact):

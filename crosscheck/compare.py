@@ -36,7 +36,9 @@ SEVERITY: tuple[tuple[float, str], ...] = ((10.0, "marginal"), (1e4, "clear"), (
 class Comparison:
     """Verdict for one quantity: the worst pairwise error/tolerance ratio and, when a vote allows, the outlier.
 
-    ``pairs`` maps (backend_a, backend_b) to the max-norm difference divided by the tolerance.
+    ``pairs`` maps (backend_a, backend_b) to the largest difference divided by its tolerance (entry by entry when
+    the tolerance is one per entry, e.g. per coordinate of an acceleration); ``tolerance`` is the tolerance where the
+    worst pair is worst.
     ``outlier`` is the backend whose removal makes all others agree while it disagrees with each of them;
     None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
     kept for a disagreement only, for the report. ``severity`` (:data:`SEVERITY`) is set for a disagreement;
@@ -80,25 +82,33 @@ def _as_vector(value) -> np.ndarray:
     return np.atleast_1d(np.asarray(value, dtype=float))
 
 
-def compare(quantity: str, values: dict[str, object], tol: float) -> Comparison:
-    """Compare ``values`` (backend name -> value, None or UNSUPPORTED) pairwise against ``tol``."""
+def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
+    """Compare ``values`` (backend name -> value, None or UNSUPPORTED) pairwise against ``tol``: one tolerance for
+    every entry, or an array of one per entry of the values (flattened)."""
     present = {k: _as_vector(v) for k, v in values.items() if v is not None and not isinstance(v, Unsupported)}
     skipped = tuple(k for k, v in values.items() if isinstance(v, Unsupported))
+    tols = np.asarray(tol, dtype=float).ravel()
     if len(present) < 2:
-        return Comparison(quantity, NOT_COMPARED, tol, 0.0, not_compared=skipped)
-    pairs = dict(zip(combinations(present, 2), _ratios(_pairwise(list(present.values())), tol).tolist()))
-    worst = max(pairs.values(), key=lambda r: np.inf if r != r else r)  # NaN is the worst
+        return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
+    ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
+    nan = np.isnan(ratios)
+    per_pair = np.where(nan.any(axis=1), np.nan, np.where(nan, -np.inf, ratios).max(axis=1))
+    pairs = dict(zip(combinations(present, 2), per_pair.tolist()))
+    worst_pair = int(np.argmax(np.where(np.isnan(per_pair), np.inf, per_pair)))    # NaN is the worst
+    worst = float(per_pair[worst_pair])
+    entry = int(np.argmax(np.where(nan[worst_pair], np.inf, ratios[worst_pair]))) if tols.size > 1 else 0
+    at = float(tols[entry])
     if not worst <= 1.0:
-        return Comparison(quantity, DISAGREE, tol, worst, pairs, _outlier(list(present), pairs), skipped, present,
+        return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
                           severity(worst))
-    return Comparison(quantity, AGREE, tol, worst, pairs, None, skipped)
+    return Comparison(quantity, AGREE, at, worst, pairs, None, skipped)
 
 
-def _ratios(differences: np.ndarray, tol: float) -> np.ndarray:
-    """error / tolerance; an exact match is 0 whatever the tolerance (a tolerance that underflows to 0 at a state at
-    rest, qd = 0, would otherwise make 0 / 0 a NaN and a false DISAGREE)."""
-    if 0.0 < tol < np.inf:                       # no division by zero and no inf / inf: nothing to silence
-        return np.where(differences == 0.0, 0.0, differences / tol)
+def _ratios(differences: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """error / tolerance entry by entry; an exact match is 0 whatever the tolerance (a tolerance that underflows to 0
+    at a state at rest, qd = 0, would otherwise make 0 / 0 a NaN and a false DISAGREE)."""
+    if tol.size not in (1, differences.shape[1]):
+        raise ValueError(f"{tol.size} tolerances for values of {differences.shape[1]} entries")
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(differences == 0.0, 0.0, differences / tol)
 
@@ -112,14 +122,14 @@ def _pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
-    """Max-norm differences of every pair (in ``itertools.combinations`` order), in one array operation; a scalar
-    (the exact voter) is compared with every entry."""
+    """Absolute differences of every pair (rows, in ``itertools.combinations`` order) entry by entry (columns), in one
+    array operation; a scalar (the exact voter) is compared with every entry."""
     size = max(v.size for v in vectors)
     if any(v.size not in (1, size) for v in vectors):
         raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
     V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
     i, j = _pair_indices(len(vectors))
-    return np.abs(V[i] - V[j]).max(axis=1)
+    return np.abs(V[i] - V[j])
 
 
 def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | None:
@@ -132,6 +142,11 @@ def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | Non
         if all(r <= 1.0 for r in without) and all(not r <= 1.0 for r in with_it):
             return suspect
     return None
+
+
+#: Voters that are not backends: a value known exactly (``exact``) and a condition the harness computed itself
+#: (``independent``, ``crosscheck.conditioning``). A disagreement is never blamed on them by elimination.
+NOT_BACKENDS = ("exact", "independent")
 
 
 def backend_of(voter: str) -> str:
@@ -147,7 +162,7 @@ def suspect(comp: Comparison) -> str | None:
     twice, in the joint chart and in the chart or the moved scene); else None."""
     if comp.outlier is not None:
         return backend_of(comp.outlier)
-    behind = {backend_of(v) for v in comp.voters} - {"exact"}
+    behind = {backend_of(v) for v in comp.voters} - set(NOT_BACKENDS)
     if len(behind) == 1:
         return behind.pop()
     pairs = comp.disagreeing_pairs
@@ -162,6 +177,9 @@ def vote(comp: Comparison) -> str:
     named = suspect(comp)
     if comp.outlier == "exact":
         return "outlier exact: the backends agree with each other against the exact value (the state or the claim)"
+    if comp.outlier == "independent":
+        return ("outlier independent: the backends agree with each other against the condition the harness computed "
+                "from Pinocchio's M and J")
     if comp.outlier is not None:
         return f"outlier {comp.outlier}"
     mine = [v for v in comp.voters if backend_of(v) == named]

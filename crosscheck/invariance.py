@@ -91,10 +91,13 @@ def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict 
     return value
 
 
-def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence[float]) -> float:
-    """The largest of the tolerances the contributing scales give, each multiplied by its gain (the norm of the
-    map that carried it into the chart)."""
-    return max(g * policy.tolerance(quantity, s) for s, g in zip(scales, gains))
+def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence):
+    """The largest of the tolerances the contributing scales give (entry by entry where they are per coordinate),
+    each carried by its gain: a number, or a matrix (``|Dpsi^-1|``, the map that carried joint-chart accelerations
+    into the chart) applied to a per-coordinate tolerance."""
+    carried = [g @ t if np.ndim(g) == 2 else g * t
+               for g, t in ((g, policy.tolerance(quantity, s)) for s, g in zip(scales, gains))]
+    return np.maximum.reduce(np.broadcast_arrays(*carried)) if any(np.ndim(c) for c in carried) else max(carried)
 
 
 def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping[str, Split],
@@ -118,10 +121,11 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
             errors[label] = f"{type(exc).__name__}: {exc}"
     if not native or not joint:
         return {}
-    gain = float(np.linalg.norm(np.linalg.inv(chart.jacobian(p)), 2))
+    inverse = np.linalg.inv(chart.jacobian(p))
+    gain = np.abs(inverse) if joint_scales is None or joint_scales.accel is not None else np.linalg.norm(inverse, 2)
     if joint_scales is None:
         joint_scales = policy.scales(joint.values(), model, q, qd)
-    at = [policy.scales(native.values(), model, q, qd), joint_scales]
+    at = [policy.scales(native.values(), model, q, qd, joint_chart=False), joint_scales]
     out = {}
     done: dict[str, dict] = {name: {} for name in joint}
     left_out = {name: policy.left_out(policy.breakdown(split)) for name, split in (*joint.items(), *native.items())}
@@ -150,12 +154,16 @@ def _load_scale(model: Model, u: np.ndarray) -> float:
 
 
 def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapping[str, Split],
-                 moved: Mapping[str, Split], original_scales: policy.Scales | None = None) -> dict[str, Comparison]:
+                 moved: Mapping[str, Split], original_scales: policy.Scales | None = None,
+                 moved_model: Model | None = None) -> dict[str, Comparison]:
     """Frame invariance at ``state``: each backend's split of the moved scene (``moved``) against the unmoved
     splits (``original``), for the joint quantities (all backends vote together) and, per backend, for each
     extra with a law in :data:`FRAME_LAWS` (the prediction from the unmoved extra against the moved one).
     ``original_scales``: ``tolerance.scales`` of all of ``original`` when the caller has them (used when every
-    original backend is also in ``moved``)."""
+    original backend is also in ``moved``); ``moved_model``: the moved scene (``frames.move_scene(model, frame)``,
+    made here when not given), whose geometry the moved answers' componentwise tolerance reads: its bodies sit up
+    to |t| farther from the world origin."""
+    moved_model = frames.move_scene(model, frame) if moved_model is None else moved_model
     q, qd = np.array(state.q), np.array(state.qd)
     both = [name for name in original if name in moved]
     if not both:
@@ -165,7 +173,7 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     # energy multiplies two such velocities. A task point on the joint axes has lever 0 unmoved (its acceleration is
     # exactly 0) but rounds on |t| moved (a fuzz finding): the moved scene's task lever adds |t|.
     reach = 1.0 + float(np.linalg.norm(frame.translation))
-    there = policy.scales([moved[n] for n in both], model, q, qd)
+    there = policy.scales([moved[n] for n in both], moved_model, q, qd)
     if original_scales is None or len(both) < len(original):
         original_scales = policy.scales([original[n] for n in both], model, q, qd)
     at = [original_scales, dataclasses.replace(there, lever=there.lever + reach - 1.0)]

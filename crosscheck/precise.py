@@ -15,7 +15,7 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
 * each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point
   Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
 * the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
-  lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``formalisms.interface.redundant_below`` dropped
+  lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``crosscheck.conditioning.redundant_below`` dropped
   (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
   lam_drift (eq. 14), and ``ctrl = B_c B u`` (eq. 17) computed directly.
 
@@ -39,7 +39,8 @@ from mpmath import mpf
 
 from cases.constraints import JointCoupling, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import check_state, redundant_below
+from crosscheck.conditioning import redundant_below
+from formalisms.interface import check_state
 
 #: Default working precision (significant decimal digits).
 DIGITS = 50

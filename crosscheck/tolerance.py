@@ -1,12 +1,24 @@
 """The tolerance policy: a tolerance is a claim about floating-point error, scaled by the problem.
 
-For joint accelerations, solving ``M x = b`` in floating point gives ``|dx| <~ eps ||M^-1|| (H + cond(M) ||b||)``
-with H the size of the summed terms; both parts are bounded by ``eps * cond(M) * accel_scale`` where
-``accel_scale = ||M^-1|| H`` (formalisms.interface.conditioning defines H). Power is a sum of products, so
-its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task acceleration ``J qdd + Jdot qd`` (eq. 23) maps
-the joint error through J, whose columns are at most a lever arm L long (1 for a prismatic joint), and adds
-the rounding of ``Jdot qd``, of size ``L |qd|^2``: its scale is ``L (cond(M) accel_scale + |qd|_1^2)``.
-The kinetic energy ``1/2 qd^T M qd`` carries the error of M's entries, ``eps ||M|| |qd|^2 <= 2 eps cond(M) T``.
+Joint accelerations (drift, ctrl, total, additivity) get one tolerance per coordinate, a componentwise bound
+(:func:`acceleration_bound`). Solving ``M x = b`` where M and b were formed with errors ``dM`` and ``db`` gives, to
+first order, ``|dx| <= |M^-1| (|db| + |dM| |x|)`` (absolute values entrywise). The sizes of ``db`` and ``dM`` are
+eps times the magnitudes of the terms each entry sums, which the model's geometry bounds body by body: a body k a
+joint i moves contributes to the force on joint i its weight and velocity-product forces times a lever no longer than
+P_k (the path length from the world origin to its COM: world-frame kinematics round on world distances), and to
+``M_ij`` a product ``m_k (P_k l_jk + l_ik P_k)`` of one world distance and one lever ``l`` about the joint (the
+differences of world positions that make a lever round on the positions). The Cholesky solve adds a backward error
+bounded by ``sqrt(M_ii M_jj)``. Summed over the subtrees this is far sharper than the normwise ``eps cond(M)
+||M^-1|| H`` it replaces: on a 3-D arm the small inertias of the wrist make cond(M) large, but the wrist's rows of
+``M^-1`` meet only the wrist's small forces (the normwise bound was 1e5 times the spread of correct backends on the
+Panda and spatial_arm; this one is within 1e2 to 1e4 of the true errors measured against the 50-digit reference).
+With constraints the multipliers' part stays normwise: ``cond(M) ||M^-1|| ||Jc|| lam_scale`` plus the short-row
+rounding below. Power is a sum of products, so its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task
+acceleration ``J qdd + Jdot qd`` (eq. 23) maps the joint error through J, whose columns are at most a lever arm L
+long (1 for a prismatic joint), and adds the rounding of ``Jdot qd``, of size ``L |qd|^2``: its scale is
+``L (sum_i acceleration_i + |qd|_1^2)``.
+The kinetic energy ``1/2 qd^T M qd`` carries the error of M's entries: ``|qd|^T (M-term bound) |qd|`` (the same
+per-entry magnitudes as the accelerations').
 
 Constrained models (article 5.2-5.5). The multipliers solve ``S lam = r`` with ``S = Jc M^-1 Jc^T``; their scale is
 ``lam_scale = ||S^+|| (|Jcdot qd| + ||Jc|| accel_scale)`` (``formalisms.interface.constraint_conditioning``), which
@@ -114,6 +126,9 @@ def quantities(model) -> tuple[str, ...]:
 #: 1e4 and 4.5 at 1e6 (the recomposition's floor grows like eps |Jdot qd| sqrt(cond)).
 BREAKDOWN_LIMITS: dict[str, float] = {
     "task": 1e3,                      # cond(J M^-1 J^T), operational space (article 6.3.4)
+    "task_jacobian": 1e3,             # L sqrt(||M^-1|| / lambda_min(J M^-1 J^T)), operational space: a task Jacobian
+                                      # short in every direction (cond 1) loses eps L / |J| in the recomposition;
+                                      # 0.18 of the tolerance at 9e3, 0.009 at 9e2; 286 the most on the gate's cases
     "constraint": 1e8,                # cond(Jc M^-1 Jc^T): redundant or degenerate constraints (5.6)
     "constraint_kept": 1e8,           # the same over the directions kept: nearly (not exactly) redundant rows
     "constraint_consistency": 1e-10,  # share of the KKT right-hand side S cannot reach: H_t is empty (5.4); it is
@@ -149,7 +164,10 @@ def left_out(conditions: dict[str, float]) -> set[str]:
 
 @dataclass(frozen=True)
 class Scales:
-    """Problem scales at one state: the median of what the backends report."""
+    """Problem scales at one state: the median of what the backends report, and (``accel``, ``accel_constraint``)
+    the componentwise acceleration bound of :func:`acceleration_bound` with the constraint part (module doc); without
+    ``accel`` (a chart's own coordinates, where the model's joint geometry does not apply) accelerations fall back
+    to the normwise ``cond(M) accel_scale``."""
 
     cond_M: float
     accel_scale: float
@@ -168,10 +186,17 @@ class Scales:
     task_size: float = 0.0
     minv: float = 0.0
     lam_rounding: float = 0.0
+    accel: np.ndarray | None = None
+    accel_constraint: float = 0.0
+    energy_terms: float | None = None
 
-    def of(self, kind: str) -> float:
+    def of(self, kind: str):
+        """The scale of ``kind`` (:data:`TOLERANCES`): a float, or for ``acceleration`` with the componentwise bound
+        one value per coordinate."""
         # the constraint force Jc^T lam carries the multipliers' short-row rounding into the accelerations
-        acceleration = self.cond_M * self.accel_scale + self.minv * self.jc * self.lam_rounding
+        rounding = self.minv * self.jc * self.lam_rounding
+        normwise = self.cond_M * self.accel_scale + rounding
+        acceleration = normwise if self.accel is None else self.accel + self.accel_constraint + rounding
         multiplier = self.cond_M * self.lam_scale + self.lam_rounding
         scale = {
             "load": self.cond_M * self.load,
@@ -180,14 +205,14 @@ class Scales:
             * (self.task_cond + self.lever * np.sqrt(self.task_size * self.minv)),
             "acceleration": acceleration,
             "power": self.power_scale,
-            "task": self.lever * (acceleration + self.rate_sq),
-            "energy": self.cond_M * self.energy,
+            "task": self.lever * (float(np.sum(acceleration)) + self.rate_sq),
+            "energy": self.cond_M * self.energy if self.energy_terms is None else self.energy_terms,
             "multiplier": multiplier,
             "constraint_force": self.jc * multiplier,
             "constraint_power": (self.jc * multiplier + self.lam_scale * self.kinematics) * self.rate,
             # Jc qdd: the error of the solve through Jc, plus Jc's own rounding (eps times the kinematics scale) times
             # qdd, which a row dropped as degenerate (rounding-size Jc, no multiplier) leaves whole
-            "admissibility": self.jc * acceleration + self.kinematics * (self.accel_scale + self.rate**2),
+            "admissibility": self.jc * normwise + self.kinematics * (self.accel_scale + self.rate**2),
             "constraint_kinematics": self.kinematics,
             "constraint_velocity": self.kinematics * self.rate,
             "constraint_rate": self.kinematics * self.rate**2,
@@ -243,15 +268,20 @@ class _Loads:
                    np.array([i for i, b in enumerate(model.bodies) if b.joint == "prismatic"], dtype=int))
 
 
-_LOADS: dict[int, tuple[weakref.ref, _Loads]] = {}   # id(model) -> (the model, its constants); models are immutable
+_CONSTANTS: dict[tuple[str, int], tuple[weakref.ref, object]] = {}   # (kind, id(model)) -> (the model, constants)
+
+
+def _constants(model, kind: type):
+    """``kind.of(model)`` (a model's constants), computed once per model: models are immutable."""
+    key = (kind.__name__, id(model))
+    entry = _CONSTANTS.get(key)
+    if entry is None or entry[0]() is not model:
+        entry = _CONSTANTS[key] = (weakref.ref(model, lambda _, key=key: _CONSTANTS.pop(key, None)), kind.of(model))
+    return entry[1]
 
 
 def _loads(model) -> _Loads:
-    entry = _LOADS.get(id(model))
-    if entry is None or entry[0]() is not model:
-        key = id(model)
-        entry = _LOADS[key] = (weakref.ref(model, lambda _, key=key: _LOADS.pop(key, None)), _Loads.of(model))
-    return entry[1]
+    return _constants(model, _Loads)
 
 
 def reach(model, q) -> float:
@@ -301,20 +331,107 @@ def _task_condition(split) -> float:
     return float(eig[-1] / eig[0]) if eig[0] > 0.0 else float("inf")
 
 
-_MINV: dict[int, tuple[weakref.ref, bytes, float]] = {}   # id(model) -> (the model, q's bytes, ||M^-1||): last q
+@dataclass(frozen=True)
+class _Mass:
+    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.reference.mass_matrix``): ``|M^-1|``
+    entrywise, ``||M^-1||_2`` and ``sqrt(diag M)``."""
+
+    abs_inverse: np.ndarray
+    inverse_norm: float
+    root_diagonal: np.ndarray
 
 
-def _minv_norm(model, q) -> float:
-    """``||M^-1||_2`` at q from Pinocchio's CRBA (``crosscheck.reference.mass_matrix``); the value at the model's
-    last q is kept, since the gate asks for it several times per state (joint chart, charts, moved scene)."""
+_MASS: dict[int, tuple[weakref.ref, bytes, _Mass]] = {}   # id(model) -> (the model, q's bytes, M's data): last q
+
+
+def _mass(model, q) -> _Mass:
+    """:class:`_Mass` at q; the value at the model's last q is kept, since the gate asks for it several times per
+    state (joint chart, charts, moved scene)."""
     key = np.asarray(q, dtype=float).tobytes()
-    entry = _MINV.get(id(model))
+    entry = _MASS.get(id(model))
     if entry is None or entry[0]() is not model or entry[1] != key:
+        import scipy.linalg
+
         from crosscheck.reference import mass_matrix
-        value = 1.0 / float(np.linalg.eigvalsh(mass_matrix(model, q))[0])
+        M = mass_matrix(model, q)
+        inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
+        value = _Mass(np.abs(inverse), 1.0 / float(np.linalg.eigvalsh(M)[0]), np.sqrt(np.diag(M)))
         ident = id(model)
-        entry = _MINV[ident] = (weakref.ref(model, lambda _, ident=ident: _MINV.pop(ident, None)), key, value)
+        entry = _MASS[ident] = (weakref.ref(model, lambda _, ident=ident: _MASS.pop(ident, None)), key, value)
     return entry[2]
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The model's constants in :func:`acceleration_bound`: ``moves[i, k]`` = 1 when joint i moves body k (i on k's
+    path from the world), the placement lengths ``|t_i|``, the COM offsets ``|c_k|``, masses, ``tr I_k`` and which
+    joints are revolute."""
+
+    moves: np.ndarray
+    placement: np.ndarray
+    com: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+    revolute: np.ndarray
+
+    @classmethod
+    def of(cls, model) -> "_Geometry":
+        n = model.n
+        moves = np.zeros((n, n))
+        for k in range(n):
+            i = k
+            while i >= 0:
+                moves[i, k] = 1.0
+                i = model.parent_index[i]
+        return cls(moves, np.array([float(np.linalg.norm(b.translation)) for b in model.bodies]),
+                   np.array([float(np.linalg.norm(b.com)) for b in model.bodies]),
+                   np.array([b.mass for b in model.bodies]),
+                   np.array([float(np.trace(b.inertia)) for b in model.bodies]),
+                   np.array([b.joint == "revolute" for b in model.bodies]))
+
+
+def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
+    """``(Mterm, f)``: the magnitudes of the terms each entry of M and of ``h = C qd + g`` sums (module doc).
+
+    Path lengths from the world origin (each joint's placement, plus the travel of a prismatic joint): joint i's
+    origin is at most ``O_i`` from the origin, body k's COM at most ``P_k``, and its lever about joint i at most
+    ``l_ik = P_k - O_i``. A revolute joint i rounds body k's terms on ``rho_ik = P_k`` (world positions) and turns
+    them by ``l_ik``; a prismatic one by 1 and 1. ``Mterm_ij = sum_k m_k (rho_ik l_jk + l_ik rho_jk) + tr I_k`` over
+    the bodies both joints move; ``f_i = sum_k rho_ik m_k (2 W_k V_k + |gravity|) + tr I_k W_k^2`` over the bodies
+    joint i moves, with ``W_k`` the angular rates and ``V_k = P_k W_k`` plus the sliding rates on k's path."""
+    geo = _constants(model, _Geometry)
+    q, rates = np.asarray(q, dtype=float), np.abs(np.asarray(qd, dtype=float))
+    travel = np.where(geo.revolute, 0.0, np.abs(q))
+    origin = geo.moves.T @ (geo.placement + travel) - travel          # O_k: body k's joint origin
+    P = origin + travel + geo.com                                      # P_k: body k's COM
+    lever = np.where(geo.revolute[:, None], P[None, :] - origin[:, None], 1.0) * geo.moves   # l_ik
+    rho = np.where(geo.revolute[:, None], P[None, :], 1.0) * geo.moves                         # rho_ik
+    angular = geo.moves.T @ np.where(geo.revolute, rates, 0.0)
+    speed = P * angular + geo.moves.T @ np.where(geo.revolute, 0.0, rates)
+    spin = geo.moves * geo.inertia
+    Mterm = (rho * geo.mass) @ lever.T + (lever * geo.mass) @ rho.T + spin @ geo.moves.T
+    f = rho @ (geo.mass * (2.0 * angular * speed + float(np.linalg.norm(model.gravity)))) + spin @ angular**2
+    return Mterm, f
+
+
+def acceleration_bound(model, q, qd, accelerations, forces=None) -> np.ndarray:
+    """The componentwise rounding bound of joint accelerations (module doc), without the factor eps: ``|M^-1| (f +
+    |forces| + Mterm |x| + d (d . |x|))`` with ``x`` = ``accelerations`` (the sizes the solves produced, e.g. ``|drift|
+    + |ctrl|``), ``forces`` any further generalized forces summed into the right-hand side (the constraint forces'
+    sizes), ``d = sqrt(diag M)`` (Cholesky's backward error) and M from Pinocchio's CRBA."""
+    mass = _mass(model, q)
+    Mterm, f = _entry_terms(model, q, qd)
+    x = np.abs(np.asarray(accelerations, dtype=float))
+    d = mass.root_diagonal
+    rhs = f + Mterm @ x + d * float(d @ x) + (0.0 if forces is None else np.abs(forces))
+    return mass.abs_inverse @ rhs
+
+
+def kinetic_energy_bound(model, q, qd) -> float:
+    """The rounding bound of ``T = 1/2 qd^T M qd`` without the factor eps: ``|qd|^T (Mterm + d d^T) |qd|``."""
+    Mterm, _ = _entry_terms(model, q, qd)
+    rates, d = np.abs(np.asarray(qd, dtype=float)), _mass(model, q).root_diagonal
+    return float(rates @ Mterm @ rates + (d @ rates) ** 2)
 
 
 def _task_inertia_scales(splits) -> dict[str, float]:
@@ -329,21 +446,40 @@ def _task_inertia_scales(splits) -> dict[str, float]:
             "task_size": _median([float(np.abs(Lambda).max()) for _, Lambda in voting])}
 
 
-def scales(splits, model=None, q=None, qd=None) -> Scales:
-    """Median scales over the backends' splits (an iterable of Split); the task and load scales need the model and
-    the state (``q``, ``qd``)."""
+def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True) -> Scales:
+    """Median scales over the backends' splits (an iterable of Split); the task, load and componentwise acceleration
+    scales need the model and the state (``q``, ``qd``). ``joint_chart=False`` for splits evaluated in a chart's own
+    coordinates p, where the joint geometry of :func:`acceleration_bound` does not apply (normwise scales there)."""
     splits = list(splits)
     constrained = [s for s in splits if s.constraint_jacobian is not None]
     rounding = {} if model is None else {id(s): _lam_rounding(model, s) for s in constrained}
     task = {} if model is None else {"lever": task_lever(model, q), "rate_sq": float(np.abs(qd).sum()) ** 2,
-                                     "minv": _minv_norm(model, q), **_load_scales(model, splits, q, qd, rounding)}
+                                     "minv": _mass(model, q).inverse_norm,
+                                     **_load_scales(model, splits, q, qd, rounding)}
     task.update(_task_inertia_scales(splits))
     energies = [s.kinetic_energy for s in splits if not isinstance(s.kinetic_energy, Unsupported)]
     if model is not None and constrained:
         task.update(_constraint_scales(model, constrained, q, qd, rounding))
+    if model is not None and joint_chart and splits:
+        task.update(_componentwise(model, splits, constrained, q, qd, task.get("minv", 0.0)))
     return Scales(cond_M=_median([s.cond_M for s in splits]), accel_scale=_median([s.accel_scale for s in splits]),
                   power_scale=_median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits]),
                   energy=_median(energies), **task)
+
+
+def _componentwise(model, splits, constrained, q, qd, minv: float) -> dict:
+    """``accel`` (:func:`acceleration_bound` at the median sizes of the voters' drift + ctrl, with the median
+    constraint forces ``|Jc|^T (|lam| + |lam_drift|)``), ``accel_constraint`` (the multipliers' normwise part,
+    ``cond(M) ||M^-1|| ||Jc|| lam_scale``) and ``energy_terms`` (:func:`kinetic_energy_bound`)."""
+    sizes = np.nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits], axis=0)
+    forces, constraint = None, 0.0
+    if constrained:
+        forces = np.nanmedian([np.abs(s.constraint_jacobian).T @ (np.abs(s.lam) + np.abs(s.lam_drift))
+                               for s in constrained], axis=0)
+        constraint = (_median([s.cond_M for s in splits]) * minv * _median([s.lam_scale for s in constrained])
+                      * _median([float(np.linalg.norm(s.constraint_jacobian, 2)) for s in constrained]))
+    return {"accel": acceleration_bound(model, q, qd, np.nan_to_num(sizes), forces),
+            "accel_constraint": constraint, "energy_terms": kinetic_energy_bound(model, q, qd)}
 
 
 def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
@@ -374,7 +510,11 @@ def _lam_rounding(model, split) -> float:
     return size * _loads(model).length * (model.n + 1) / float(sigma[rank - 1])
 
 
-def tolerance(quantity: str, at: Scales) -> float:
-    """Absolute tolerance for ``quantity`` (max-norm of a difference) at a state with these scales."""
+def tolerance(quantity: str, at: Scales):
+    """Absolute tolerance for ``quantity`` at a state with these scales: a float (for the max-norm of a difference),
+    or for the joint accelerations one per coordinate (:func:`acceleration_bound`)."""
     kind, factor = TOLERANCES[quantity]
-    return factor * EPS * max(at.of(kind), np.finfo(float).tiny)
+    scale = at.of(kind)
+    if np.ndim(scale):
+        return factor * EPS * np.maximum(scale, np.finfo(float).tiny)
+    return factor * EPS * max(scale, np.finfo(float).tiny)
