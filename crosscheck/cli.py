@@ -115,6 +115,17 @@ def _registry(args) -> registry.Registry | None:
         raise UsageError(str(exc)) from None
 
 
+def _required(args) -> list[str]:
+    """The backends named on the command line (``--formalism``, ``--plugin``) and not ``--optional``: each must take
+    part in some comparison."""
+    named = list(args.formalism or []) + [backends.load_plugin(spec).name for spec in args.plugin]
+    for name in args.optional:
+        if name not in named:
+            raise UsageError(f"--optional {name}: name it with --formalism or --plugin as well (named: "
+                             f"{', '.join(named) or 'none'})")
+    return [name for name in dict.fromkeys(named) if name not in args.optional]
+
+
 def cmd_gate(args) -> int:
     if args.samples < 1:
         raise UsageError("--samples must be at least 1")
@@ -132,8 +143,10 @@ def cmd_gate(args) -> int:
         raise UsageError("--frames must be 0 (off) or more")
     if args.workers < 1:
         raise UsageError("--workers must be at least 1 (1: every case in this process)")
-    checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation)
-    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers)
+    checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
+                    closed_forms=not args.no_closed_forms, self_test=not args.no_self_test)
+    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers,
+                      required=_required(args))
     applied = registry.apply(known, result) if known else None
     diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
@@ -157,6 +170,18 @@ def cmd_gate(args) -> int:
               f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
+    for case in result.cases:
+        for problem in case.coverage.problems if case.coverage else ():
+            print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
+    for name in result.absent:
+        print(f"FAIL: backend {name} took part in no comparison (it declined every case or was in BREAKDOWN "
+              f"everywhere); name it with --optional {name} if that is expected", file=sys.stderr)
+    if result.self_test is not None:
+        failures = result.self_test.failures()
+        for line in failures:
+            print(f"FAIL self-test: {line}", file=sys.stderr)
+        print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
+              "canaries caught and named", file=sys.stderr)
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
 
@@ -316,40 +341,75 @@ def _frame(name: str, seed: int, case: str) -> frames.Frame:
 DEFAULT_FAULTS_REPORT = "reports/faults.md"
 
 
+def _chosen_faults(args):
+    """(backend faults, common-mode faults) named by ``--fault`` (either catalog), or both whole catalogs."""
+    from crosscheck import common_mode, fault_catalog, faults
+
+    if not args.fault:
+        return list(fault_catalog.CATALOG), list(common_mode.CATALOG)
+    backend, shared = [], []
+    for name in args.fault:
+        if name in common_mode.names():
+            shared.append(common_mode.get(name))
+            continue
+        try:
+            backend.append(fault_catalog.get(name))
+        except faults.FaultError:
+            raise UsageError(f"unknown fault '{name}'; valid faults: {', '.join(fault_catalog.names())}; "
+                             f"common-mode: {', '.join(common_mode.names())}") from None
+    return backend, shared
+
+
 def cmd_faults(args) -> int:
-    """Inject each catalog fault in turn and hunt it with the default gate (``crosscheck.faults``)."""
+    """Inject each catalog fault in turn and hunt it with the default gate (``crosscheck.faults``), then each
+    common-mode fault in shared code (``crosscheck.common_mode``), then measure the sensitivity table
+    (``crosscheck.sensitivity``); exit 0 only when every fault is caught and the 3-D claim is met."""
     import time
 
-    from crosscheck import fault_catalog, faults
+    from crosscheck import common_mode, faults, sensitivity
 
     if args.samples < 1:
         raise UsageError("--samples must be at least 1")
-    try:
-        chosen = [fault_catalog.get(name) for name in args.fault] if args.fault else list(fault_catalog.CATALOG)
-    except faults.FaultError as exc:
-        raise UsageError(str(exc)) from None
+    if args.sensitivity_states < 0:
+        raise UsageError("--sensitivity-states must be 0 (skip) or more")
+    chosen, shared = _chosen_faults(args)
     if args.list:
-        width = max(len(f.name) for f in chosen)
+        width = max([len(f.name) for f in [*chosen, *shared]], default=0)
         for f in chosen:
             print(f"{f.name:{width}s}  {f.backend:17s}  {f.target}{' (derivation)' if f.derived else ''}\n"
                   f"{'':{width}s}  {f.bug}")
+        for f in shared:
+            print(f"{f.name:{width}s}  {'shared: ' + f.area:17s}  {', '.join(f.targets)}\n{'':{width}s}  {f.bug} "
+                  f"Guard: {f.guard}.")
         return 0
     known = _registry(args)
     start = time.perf_counter()
-    hunts = []
+    hunts, shared_hunts = [], []
     for fault in chosen:
         hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known))
         print(faults.line(hunts[-1]), flush=True)
+    for fault in shared:
+        shared_hunts.append(common_mode.hunt(fault, samples=args.samples, seed=args.seed, known=known))
+        print(common_mode.line(shared_hunts[-1]), flush=True)
+    table = None
+    if args.sensitivity_states and not args.fault:
+        table = sensitivity.run(faults.default_backends(), args.sensitivity_states, args.seed,
+                                lambda line: print(line, file=sys.stderr, flush=True))
     seconds = time.perf_counter() - start
     summary = faults.summarize(hunts)
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
-    report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed))
+    report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed)
+                      + common_mode.render(shared_hunts) + ("\n".join(sensitivity.render(table)) if table else ""))
+    missed = sum(not h.caught for h in shared_hunts)
+    claim = table is None or table.claim_met()
     print(f"caught {summary.caught}/{summary.faults} ({100 * summary.rate:.0f} %); states needed median "
           f"{summary.median_states:g}, max {summary.max_states}; outlier named = faulty backend for "
-          f"{summary.named_faulty}/{summary.caught}; {seconds:.1f} s; report written to {report}")
-    return 0 if summary.caught == summary.faults else 1
+          f"{summary.named_faulty}/{summary.caught}; common-mode caught {len(shared_hunts) - missed}/"
+          f"{len(shared_hunts)}" + ("" if table is None else f"; 3-D sensitivity claim {'met' if claim else 'NOT met'}")
+          + f"; {seconds:.1f} s; report written to {report}")
+    return 0 if summary.caught == summary.faults and not missed and claim else 1
 
 
 def _shard(text: str) -> tuple[int, int]:
@@ -463,6 +523,13 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
     gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
+    gate.add_argument("--no-closed-forms", action="store_true",
+                      help="leave the article's closed forms (voter closed_form) out of the vote")
+    gate.add_argument("--no-self-test", action="store_true",
+                      help="skip the self-test canaries (known tiny faults the gate must catch)")
+    gate.add_argument("--optional", action="append", default=[], metavar="NAME",
+                      help="a backend named with --formalism or --plugin that may take part in no comparison "
+                           "(otherwise that fails the run)")
     gate.add_argument("--registry", metavar="PATH", help="divergence registry of known, explained divergences "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
@@ -499,6 +566,8 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--report", default=DEFAULT_FAULTS_REPORT,
                       help=f"markdown report path (default {DEFAULT_FAULTS_REPORT})")
     hunt.add_argument("--list", action="store_true", help="print the catalog (or the chosen faults) and exit")
+    hunt.add_argument("--sensitivity-states", type=int, default=30, metavar="N",
+                      help="states per case for the sensitivity table (default 30; 0: skip it; skipped with --fault)")
     hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")

@@ -19,21 +19,26 @@ from typing import Callable, Sequence
 import cases
 from cases.model import Model
 from crosscheck import charts as chart_catalog
-from crosscheck import conservation, frames, invariance
+from crosscheck import conditioning, conservation, frames, invariance
+from crosscheck import coverage as coverage_of
 from crosscheck import tolerance as tolerance_policy
 from crosscheck.backends import load_plugins, plugin_specs
-from crosscheck.compare import DISAGREE, Comparison, compare, worst_of
+from crosscheck.compare import DISAGREE, Comparison, backend_of, compare, worst_of
 from crosscheck.sampling import State, sample_states
 from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split
 
 
 @dataclass(frozen=True)
 class Checks:
-    """Which invariance and conservation checks the gate runs besides the cross-backend comparison."""
+    """Which checks the gate runs besides the cross-backend comparison: invariance and conservation, the closed
+    forms of the cases that have them (``crosscheck.closed_forms``) and the self-test canaries
+    (``crosscheck.selftest``)."""
 
     charts: bool = True
     frames: int = 2
     conservation: bool = True
+    closed_forms: bool = True
+    self_test: bool = True
 
 
 @dataclass(frozen=True)
@@ -48,6 +53,15 @@ class CaseSpec:
         if self.urdf is not None:
             return cases.from_urdf(self.urdf, name=self.name)
         return cases.load(self.name, **dict(self.params))
+
+    def closed_form(self):
+        """The ``closed_form`` voter bound to this built-in case and its parameters (``crosscheck.closed_forms``),
+        None when the case has none (a URDF file never has one)."""
+        if self.urdf is not None:
+            return None
+        from crosscheck import closed_forms
+
+        return closed_forms.voter(self.name, dict(self.params))
 
     def cli_args(self) -> str:
         """The command-line arguments that select this case."""
@@ -105,23 +119,43 @@ class CaseOutcome:
     per_state_s: dict[str, float] = field(default_factory=dict)
     charts: tuple[str, ...] = ()
     frames: tuple[frames.Frame, ...] = ()
+    coverage: coverage_of.Coverage | None = None
+    closed_form: str = ""
 
     @property
     def failed(self) -> bool:
-        return any(s.failed for s in self.states)
+        return any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
+
+    def voted(self) -> set[str]:
+        """The backends that took part in at least one comparison or check of this case."""
+        return {backend_of(v) for s in self.states for c in [*s.comparisons.values(), *s.checks.values()]
+                for v in c.voters}
 
 
 @dataclass
 class GateResult:
+    """A gate run. ``required`` are the backends named on the command line without ``--optional``: each must take
+    part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
+    ``self_test`` the canaries' outcome (``crosscheck.selftest``), None when skipped."""
+
     seed: int
     samples: int
     backends: tuple[str, ...]
     cases: list[CaseOutcome]
     checks: Checks = Checks()
+    required: tuple[str, ...] = ()
+    self_test: object = None
+
+    @property
+    def absent(self) -> tuple[str, ...]:
+        """The required backends that took part in no comparison of any case."""
+        voted = set().union(*(case.voted() for case in self.cases)) if self.cases else set()
+        return tuple(name for name in self.required if name not in voted)
 
     @property
     def passed(self) -> bool:
-        return not any(c.failed for c in self.cases)
+        return (not any(c.failed for c in self.cases) and not self.absent
+                and (self.self_test is None or self.self_test.passed))
 
 
 def run_backends(model: Model, state: State, backends: Sequence[Formalism],
@@ -151,21 +185,35 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
 
     A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
     out of the comparisons (all, or the quantities the condition concerns) and of the tolerance scales: its answer
-    is not trusted there, and it is not a bug. A backend that raises ``ModelNotSupported`` (written for other
-    mechanisms) is NOT COMPARED: it joins every comparison as UNSUPPORTED, so the report lists it as not supplied.
-    The tolerance scales of the trusted splits are kept in ``outcome.scales`` for the checks (:func:`add_checks`).
+    is not trusted there, and it is not a bug. That is a claim, and it is audited (``crosscheck.conditioning``):
+    the ``conditions: <name>`` checks compare every reported condition with the harness's own, and a BREAKDOWN where
+    the problem is well-conditioned is dropped, so that backend votes. A backend that raises ``ModelNotSupported``
+    (written for other mechanisms) is NOT COMPARED: it joins every comparison as UNSUPPORTED, so the report lists it
+    as not supplied. The tolerance scales of the trusted splits are kept in ``outcome.scales`` for the checks
+    (:func:`add_checks`).
     """
     outcome = run_backends(model, state, backends, clock)
-    unsupported = [b.name for b in backends if b.name not in outcome.splits and b.name not in outcome.errors]
-    if outcome.trusted:
-        at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
-        for quantity in tolerance_policy.quantities(model):
-            values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
-            values.update(dict.fromkeys(unsupported, UNSUPPORTED))
-            if quantity in tolerance_policy.EXACT:
-                values["exact"] = tolerance_policy.EXACT[quantity]
-            outcome.comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
+    outcome.checks.update(conditioning.audit(model, state, outcome.splits, outcome.breakdowns))
+    compare_all(model, outcome, [b.name for b in backends if b.name not in outcome.splits
+                                 and b.name not in outcome.errors])
     return outcome
+
+
+def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] = ()) -> None:
+    """The comparison of each quantity in the tolerance table among ``outcome``'s trusted splits (the ``unsupported``
+    backends joining as UNSUPPORTED), with the tolerance scales of those splits kept in ``outcome.scales``."""
+    state = outcome.state
+    outcome.comparisons.clear()
+    outcome.scales = None
+    if not outcome.trusted:
+        return
+    at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
+    for quantity in tolerance_policy.quantities(model):
+        values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
+        values.update(dict.fromkeys(unsupported, UNSUPPORTED))
+        if quantity in tolerance_policy.EXACT:
+            values["exact"] = tolerance_policy.EXACT[quantity]
+        outcome.comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
@@ -185,7 +233,8 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
         frame, moved = scene
         there = run_backends(moved, state, backends)
         outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
-        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales))
+        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales,
+                                                      moved))
     if do_conservation and trusted:
         outcome.checks.update(conservation.checks(model, state, trusted, outcome.scales))
 
@@ -200,6 +249,7 @@ class CaseSetup:
     charts: tuple[chart_catalog.Chart, ...]
     scenes: tuple[tuple[frames.Frame, Model], ...]
     conservation: bool
+    voters: tuple[Formalism, ...] = ()
 
     @classmethod
     def build(cls, spec: CaseSpec, seed: int, checks: Checks = Checks()) -> "CaseSetup":
@@ -207,7 +257,8 @@ class CaseSetup:
         case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
         case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
         scenes = tuple((frame, frames.move_scene(model, frame)) for frame in case_frames)
-        return cls(spec, model, tuple(case_charts), scenes, checks.conservation)
+        closed = spec.closed_form() if checks.closed_forms else None
+        return cls(spec, model, tuple(case_charts), scenes, checks.conservation, (closed,) if closed else ())
 
     def scene(self, state: State) -> tuple[frames.Frame, Model] | None:
         """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
@@ -215,8 +266,9 @@ class CaseSetup:
 
     def evaluate(self, state: State, backends: Sequence[Formalism],
                  clock: dict[str, list[float]] | None = None) -> StateOutcome:
-        """Everything the gate does at one state: the comparisons (:func:`evaluate`) and the checks
-        (:func:`add_checks`)."""
+        """Everything the gate does at one state: the comparisons (:func:`evaluate`) among ``backends`` and the case's
+        own voters (its closed form), and the checks (:func:`add_checks`)."""
+        backends = [*backends, *self.voters]
         outcome = evaluate(self.model, state, backends, clock)
         add_checks(self.model, outcome, backends, self.charts, self.scene(state), self.conservation)
         return outcome
@@ -227,20 +279,35 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     setup = CaseSetup.build(spec, seed, checks)
     clock: dict[str, list[float]] = {}
     outcomes = []
-    for state in sample_states(setup.model, samples, seed, spec.name):
+    states = sample_states(setup.model, samples, seed, spec.name)
+    for state in states:
         outcomes.append(setup.evaluate(state, backends, clock))
         if progress:
             progress(spec.name, state.index + 1)
     first = {name: times[0] for name, times in clock.items()}
     rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
     return CaseOutcome(spec, setup.model, outcomes, first, rest, tuple(c.name for c in setup.charts),
-                       tuple(frame for frame, _ in setup.scenes))
+                       tuple(frame for frame, _ in setup.scenes), coverage_of.measure(setup.model, states),
+                       _closed_form_coverage(spec, checks))
+
+
+def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
+    """What the case's closed form covers, in words, for the report ("" when closed forms are off)."""
+    if not checks.closed_forms:
+        return ""
+    if spec.urdf is not None:
+        return "none (a model file; its reference is built from the file)"
+    from crosscheck import closed_forms
+
+    return closed_forms.coverage(spec.name, dict(spec.params))
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
              progress: Callable[[str, int], None] | None = None, checks: Checks = Checks(),
-             workers: int = 0) -> GateResult:
-    """Run the gate over the cases; the result passes when no state shows a disagreement or an error.
+             workers: int = 0, required: Sequence[str] = ()) -> GateResult:
+    """Run the gate over the cases; the result passes when no state shows a disagreement or an error, no case's
+    sample is degenerate (``crosscheck.coverage``), every ``required`` backend took part in some comparison and the
+    self-test canaries are caught (``crosscheck.selftest``, unless ``checks.self_test`` is off).
 
     ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
     outcomes are the same as in this process and come back in case order, so the report is too (its timings
@@ -251,7 +318,12 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
         outcomes = _in_pool(specs, backends, samples, seed, progress, checks, count)
     else:
         outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
-    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks)
+    self_test = None
+    if checks.self_test:
+        from crosscheck import selftest
+
+        self_test = selftest.run()
+    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required), self_test)
 
 
 def _picklable(backends: Sequence[Formalism]) -> bool:

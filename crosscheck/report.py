@@ -11,7 +11,7 @@ import shlex
 
 import numpy as np
 
-from crosscheck import backends, charts
+from crosscheck import backends, charts, reference
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
@@ -279,6 +279,74 @@ def _breakdown_section(result: GateResult) -> list[str]:
     return lines + [""]
 
 
+def _self_test_section(result: GateResult) -> list[str]:
+    """The canaries (``crosscheck.selftest``): each known fault, where it was injected, whether the gate caught it
+    and named its backend, and the ratio."""
+    test = result.self_test
+    if test is None:
+        return ["## Self-test", "", "Skipped (`--no-self-test`): this run did not prove it can see small errors.", ""]
+    lines = ["## Self-test: canaries", "",
+             "Known tiny faults injected into one backend's answer at fixed states; each must be caught and its "
+             "backend named, or the gate has lost sensitivity. Sizes are calibrated so that each is caught at "
+             "2 to 10 times its tolerance: a tolerance loosened tenfold misses them.", "",
+             "| canary | case | backend | caught by | error/tolerance | named | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for r in test.results:
+        c = r.canary
+        size = f" ({c.size:.0e})" if c.size else ""
+        verdict = f"skipped: {r.skipped}" if r.skipped else "ok" if r.passed else "**FAIL**"
+        lines.append(f"| {c.kind}{size} | {c.case} #{c.state} | {c.backend} | {r.quantity} | {r.ratio:.3g} | "
+                     f"{'yes' if r.named else 'no'} | {verdict} |")
+    return lines + [""] + [f"- **{line}**" for line in test.failures()] + ([""] if test.failures() else [])
+
+
+def _span(rows: np.ndarray) -> str:
+    return ", ".join(f"[{lo:.3g}, {hi:.3g}]" for lo, hi in rows) if len(rows) else "-"
+
+
+def _coverage_section(result: GateResult) -> list[str]:
+    """What each case's sample spans (``crosscheck.coverage``), and what made a sample degenerate."""
+    lines = ["## Sampling coverage", "",
+             "The ranges of q, qd and u over the sampled states (per coordinate, [min, max]); a sample whose rates or "
+             "inputs are all zero, or whose configurations lie in a sliver of the joint ranges, fails.", "",
+             "| case | states | q | qd | u | rank Jc | verdict |", "|---|---|---|---|---|---|---|"]
+    problems = []
+    for case in result.cases:
+        cov = case.coverage
+        if cov is None:
+            continue
+        rank = "-" if cov.constraint_rank is None else "..".join(map(str, sorted(set(cov.constraint_rank))))
+        lines.append(f"| {case.spec.name} | {cov.states} | {_span(cov.q)} | {_span(cov.qd)} | {_span(cov.u)} | "
+                     f"{rank} | {'**degenerate**' if cov.degenerate else 'ok'} |")
+        problems += [f"- **{case.spec.name}**: {p}" for p in cov.problems]
+    return lines + [""] + problems + ([""] if problems else [])
+
+
+def _voters_section(result: GateResult) -> list[str]:
+    """Backends that checked nothing: a required one that took part in no comparison (a failure), any backend in no
+    comparison of a case or in BREAKDOWN at most of its states (flagged), and what each case's closed form covers."""
+    lines = []
+    for name in result.absent:
+        lines.append(f"- **FAIL: {name} took part in no comparison** (named on the command line; it declined every "
+                     f"case or was in BREAKDOWN everywhere). Name it with `--optional {name}` if that is expected.")
+    for case in result.cases:
+        voted = case.voted()
+        silent = [name for name in result.backends if name not in voted]
+        if silent:
+            lines.append(f"- {case.spec.name}: took part in no comparison: {', '.join(silent)}")
+        for name in result.backends:
+            broken = sum(bool(s.breakdowns.get(name)) for s in case.states)
+            if broken > len(case.states) / 2:
+                lines.append(f"- {case.spec.name}: **{name} in BREAKDOWN at {broken} of {len(case.states)} states** "
+                             "(it checks little here)")
+        if case.closed_form:
+            lines.append(f"- {case.spec.name}: closed form: {case.closed_form}")
+        built = reference.provenance(case.model) if reference.REFERENCE.name in result.backends else None
+        if built:
+            lines.append(f"- {case.spec.name}: the reference (pinocchio) is {built}")
+    return (["Voters:", ""] + lines + [""]) if lines else []
+
+
 def _verdict_line(key: str, comp: Comparison) -> str:
     """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
     disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
@@ -406,6 +474,7 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
     registry as applied to ``result`` (``crosscheck.registry.apply``), if any."""
     verdict = "PASS" if result.passed else "FAIL"
     n_states = sum(len(c.states) for c in result.cases)
+    test = result.self_test
     failed = [(c, s) for c in result.cases for s in c.states if s.failed]
     broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
     known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in _all(s))
@@ -415,11 +484,14 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
              f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
              f"{broken} state(s) with a backend in BREAKDOWN.", "",
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
+             "- self-test: " + ("skipped" if test is None else f"{sum(r.passed for r in test.results)} of "
+                                f"{len(test.results)} canaries caught and named"),
              _registry_line(applied),
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
                                                      for q, (k, f) in TOLERANCES.items()),
-             "  (acceleration scale = cond(M) ||M^-1|| H, H the size of the forces summed; median over backends;",
-             "  task scale = L (acceleration scale + |qd|_1^2), L the task point's lever arm)",
+             "  (accelerations: one tolerance per coordinate, |M^-1| (f + Mterm |x| + d d.|x|), the sizes of the terms"
+             " summed in M and h (crosscheck.tolerance.acceleration_bound);",
+             "  task scale = L (sum of the acceleration scales + |qd|_1^2), L the task point's lever arm)",
              "- severity of a DISAGREE by error/tolerance: " + ", ".join(
                  f"{name} up to {bound:g}" if bound != float("inf") else f"{name} above (or NaN)"
                  for bound, name in SEVERITY),
@@ -428,6 +500,7 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
              "Comparisons per verdict (quantities and checks) and states:", ""]
     lines += _counts_rows(result) + [""]
     lines += _suspects_section(result)
+    lines += _voters_section(result)
     lines += ["Per quantity:", "",
               "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
               "at state | not supplied by |",
@@ -442,6 +515,8 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
                                    full=False)
         if len(failed) > MAX_LISTED_FAILURES:
             lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
+    lines += _self_test_section(result)
+    lines += _coverage_section(result)
     lines += _known_section(result)
     lines += _registry_section(applied)
     lines += _breakdown_section(result)

@@ -23,7 +23,7 @@ import cases
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
 from crosscheck.compare import NOT_COMPARED
-from crosscheck.gate import CaseSpec, run_gate
+from crosscheck.gate import CaseSpec, Checks, run_gate
 from formalisms.interface import Unsupported
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,13 +109,26 @@ def test_buggy_plugin_fails_and_is_named_as_outlier(tmp_path):
     assert commands and all(f"--plugin {BUGGY}" in line for line in commands)   # the outlier runs again
 
 
+def test_a_named_plugin_that_declines_every_case_fails_unless_optional(tmp_path, capsys):
+    """Issue 15: a backend named on the command line that takes part in no comparison (here: written for the double
+    pendulum only, run on the acrobot) checks nothing; that fails the run unless it is named with --optional."""
+    code, report = _gate(tmp_path, "--plugin", GOOD, "--case", "acrobot", "--samples", "2")
+    assert code == 1 and "**FAIL: closed_form_pendulum took part in no comparison**" in report
+    assert "backend closed_form_pendulum took part in no comparison" in capsys.readouterr().err
+    code, _ = _gate(tmp_path, "--plugin", GOOD, "--case", "acrobot", "--samples", "2", "--optional",
+                    "closed_form_pendulum")
+    assert code == 0
+
+
 def test_unsupported_model_is_not_compared_not_failed(tmp_path):
-    code, report = _gate(tmp_path, "--plugin", GOOD, "--case", "acrobot", "--samples", "4")
+    code, report = _gate(tmp_path, "--plugin", GOOD, "--case", "acrobot", "--samples", "4", "--optional",
+                         "closed_form_pendulum")
     assert code == 0 and "**PASS**" in report and "raised" not in report
     rows = _summary_rows(report, "acrobot")
     assert rows and all("closed_form_pendulum" in row["not supplied by"] for row in rows.values())
     result = run_gate([CaseSpec("acrobot")], [backends.get("pinocchio"), backends.get("newton_euler"),
-                                              backends.get("closed_form_pendulum")], samples=3, seed=0)
+                                              backends.get("closed_form_pendulum")], samples=3, seed=0,
+                        checks=Checks(closed_forms=False))
     for state in result.cases[0].states:
         assert "closed_form_pendulum" not in state.splits and not state.errors
         assert all("closed_form_pendulum" in c.not_compared for c in state.comparisons.values())
@@ -130,7 +143,8 @@ def test_unsupported_model_is_not_compared_not_failed(tmp_path):
 
 def test_unsupported_model_is_not_evaluated_in_charts(tmp_path):
     """A chart-capable plugin is not asked for chart answers on a model its split does not support."""
-    code, report = _gate(tmp_path, "--plugin", "probe_plugins:CHART_CAPABLE", "--case", "acrobot", "--samples", "2")
+    code, report = _gate(tmp_path, "--plugin", "probe_plugins:CHART_CAPABLE", "--case", "acrobot", "--samples", "2",
+                         "--optional", "chart_capable")
     assert code == 0 and "raised" not in report
 
 

@@ -76,7 +76,7 @@ def test_the_suppliers_agree_on_every_built_in_case_and_in_every_chart_and_frame
         outcome = setup.evaluate(state, evaluated)
         comparison = outcome.comparisons["task_inertia"]
         assert comparison.verdict == AGREE, (case, state.index, comparison.worst_ratio)
-        assert len(comparison.voters) >= 3 and set(comparison.voters) <= set(SUPPLIERS)
+        assert len(comparison.voters) >= 3 and set(comparison.voters) <= {*SUPPLIERS, "closed_form"}
         checks = {k: c for k, c in outcome.checks.items() if k.endswith(": task_inertia")}
         assert "frame: task_inertia" in checks and any(k.startswith("chart") for k in checks)
         assert all(c.verdict == AGREE for c in checks.values()), {k: c.worst_ratio for k, c in checks.items()}
@@ -107,7 +107,8 @@ def test_at_a_task_singularity_it_is_left_out_not_failed():
         assert outcome.breakdowns[name] == {"task_inertia": np.inf}
         assert np.all(np.isnan(outcome.splits[name].task_inertia))
         assert name in outcome.comparisons["drift"].voters
-    assert outcome.breakdowns["operational_space"] == {"task": np.inf}
+    assert set(outcome.breakdowns["operational_space"]) == {"task", "task_jacobian"}
+    assert outcome.breakdowns["operational_space"]["task"] == np.inf
     assert outcome.comparisons["task_inertia"].verdict == NOT_COMPARED
     assert not outcome.failed
 

@@ -16,7 +16,7 @@ from crosscheck.report import render
 from formalisms.interface import Formalism
 
 ALL = [backends.get(name) for name in backends.names()]
-QUICK = Checks(charts=False, frames=0, conservation=False)
+QUICK = Checks(charts=False, frames=0, conservation=False, closed_forms=False, self_test=False)
 
 
 # ----------------------------------------------------------------------------------------------- severity
