@@ -88,9 +88,14 @@ class Fault:
 
 
 def _resolve(fault: Fault) -> tuple[Any, str, Any]:
-    """``(owner, attribute name, original)`` of the fault's target; a class attribute is read from the class's own
-    dictionary, so the very object there is restored."""
-    module, _, path = fault.target.partition(":")
+    """``(owner, attribute name, original)`` of the fault's target (:func:`resolve`)."""
+    return resolve(fault.name, fault.target)
+
+
+def resolve(fault: str, target: str) -> tuple[Any, str, Any]:
+    """``(owner, attribute name, original)`` of ``target`` (``"module:attribute"``, the attribute possibly dotted);
+    a class attribute is read from the class's own dictionary, so the very object there is restored."""
+    module, _, path = target.partition(":")
     owner: Any = importlib.import_module(module)
     *parents, name = path.split(".")
     try:
@@ -98,9 +103,21 @@ def _resolve(fault: Fault) -> tuple[Any, str, Any]:
             owner = getattr(owner, part)
         original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
     except (AttributeError, KeyError):
-        raise FaultError(f"fault '{fault.name}': target '{fault.target}' does not exist (has the backend been "
-                         "refactored? update the catalog)") from None
+        raise FaultError(f"fault '{fault}': target '{target}' does not exist (has the code been refactored? update "
+                         "the catalog)") from None
     return owner, name, original
+
+
+@contextmanager
+def patched(fault: str, target: str, replace: Callable[[Any], Any]) -> Iterator[Any]:
+    """Within the block ``target`` is ``replace(original)`` (yielded); on exit, also on error, the original is back."""
+    owner, name, original = resolve(fault, target)
+    faulty = replace(original)
+    setattr(owner, name, faulty)
+    try:
+        yield faulty
+    finally:
+        setattr(owner, name, original)
 
 
 @contextmanager
@@ -150,14 +167,10 @@ _DERIVATION_CACHES: dict[str, Callable[[], Any]] = {
 def injected(fault: Fault) -> Iterator[Any]:
     """Within the block the fault's target is ``fault.replace(original)`` (yielded) and, for a ``derived`` fault, the
     backend's derivation caches are empty; on exit, also on error, the original object and caches are put back."""
-    owner, name, original = _resolve(fault)
     with ExitStack() as stack:
         if fault.derived:
             stack.enter_context(_DERIVATION_CACHES[fault.module]())
-        faulty = fault.replace(original)
-        setattr(owner, name, faulty)
-        stack.callback(setattr, owner, name, original)
-        yield faulty
+        yield stack.enter_context(patched(fault.name, fault.target, fault.replace))
 
 
 # ------------------------------------------------------------------------------------------------ outputs

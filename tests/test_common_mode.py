@@ -1,0 +1,41 @@
+"""Common-mode faults (crosscheck.common_mode): bugs in code every backend shares are caught by the gate itself,
+each by the guard outside the vote that exists for it, and the patches are fully removed afterwards."""
+
+from __future__ import annotations
+
+import pytest
+
+from crosscheck import common_mode, faults
+
+
+def test_the_catalog_has_at_least_ten_faults_over_every_shared_area():
+    names = common_mode.names()
+    assert len(names) >= 10 and len(set(names)) == len(names)
+    assert {f.area for f in common_mode.CATALOG} >= {"URDF conversion", "case factories", "constraint declarations",
+                                                    "sampling", "charts", "frames", "comparison", "tolerance"}
+    for fault in common_mode.CATALOG:
+        for target in fault.targets:
+            faults.resolve(fault.name, target)                   # every target exists
+        assert fault.bug.endswith(".") and fault.guard
+
+
+#: How each guard's catch shows in SharedHunt.by and .detail: (a fragment of by, a fragment of detail).
+GUARDS = {"the reference built from the file": ("#", "outlier pinocchio"),
+          "the closed forms": ("#", "outlier closed_form"),
+          "the sampling coverage": ("coverage", ""),
+          "the self-test canaries": ("self-test", ""),
+          "the chart checks": ("#", "chart"),
+          "the frame checks": ("#", "frame"),
+          "the exact values": ("#", "outlier exact"),
+          "the conditions audit": ("#", "conditions")}
+
+
+@pytest.mark.parametrize("fault", common_mode.CATALOG, ids=common_mode.names())
+def test_the_gate_catches_the_shared_fault_by_its_guard(fault):
+    before = [faults.resolve(fault.name, target)[2] for target in fault.targets]
+    found = common_mode.hunt(fault)
+    assert found.caught, f"the gate misses {fault.name}: {found.detail}"
+    expected = [catch for guard, catch in GUARDS.items() if guard in fault.guard]
+    assert expected and any(by in found.by and mark in found.detail for by, mark in expected), (
+        fault.guard, found.by, found.detail)
+    assert [faults.resolve(fault.name, target)[2] for target in fault.targets] == before   # restored
