@@ -10,7 +10,8 @@ and :func:`audit` compares each backend's report with it:
 * ``conditions: <name>`` (a check, voted like any comparison, the independent value voting as ``independent``):
   condition numbers agree when their logarithms differ by less than their rounding, ``100 eps kappa cond(M)``
   relative (the smallest eigenvalue of ``J M^-1 J^T`` carries an absolute error of eps ``||A|| cond(M)``), values
-  above twice the limit counting as equal (broken is broken); the consistency shares agree within their limit;
+  above twice the limit counting as equal (broken is broken); the consistency shares, a rounding-dominated share
+  near its limit, agree unless one is below a hundredth of the limit and the other above it;
 * a BREAKDOWN where the independent condition is below half its limit (for ``constraint_consistency``, a share of
   the right-hand side, below a hundredth of it) is a false claim: the check fails, and the backend is put back into
   the vote at that state, where its answers are compared like any other.
@@ -152,11 +153,12 @@ def _margin(name: str) -> float:
 
 
 def _saturated(name: str, value: float) -> float:
-    """A condition as compared: above twice its limit all values are one (broken); condition numbers on a log scale
-    (their rounding is relative), the consistency share as it is."""
+    """A condition as compared, on a log scale: above twice its limit all values are one (broken); condition numbers
+    from 1 (their rounding is relative), the consistency share from a hundredth of its limit (below that it is
+    rounding of an empty part of the right-hand side: consistent is consistent)."""
     limit = policy.BREAKDOWN_LIMITS[name]
     value = min(value, 2.0 * limit) if value == value else value
-    return value if name == "constraint_consistency" else float(np.log(max(value, 1.0)))
+    return float(np.log(max(value, limit / _margin(name) if name in MARGIN else 1.0)))
 
 
 def audit(model: Model, state, splits: Mapping, breakdowns: dict[str, dict[str, float]]) -> dict[str, Comparison]:
@@ -179,7 +181,7 @@ def audit(model: Model, state, splits: Mapping, breakdowns: dict[str, dict[str, 
                 breakdowns.get(backend, {}).pop(name, None)
         values = {backend: _saturated(name, v) for backend, v in reported.items()}
         values["independent"] = _saturated(name, kappa)
-        tol = limit if name == "constraint_consistency" else float(
+        tol = float(np.log(margin)) if name in MARGIN else float(
             np.log(1.0 + max(1e-9, 100.0 * EPS * min(kappa, 2.0 * limit) * truth["M"])))
         out[f"conditions: {name}"] = compare(name, values, tol)
     for backend in [b for b, broken in breakdowns.items() if not broken]:

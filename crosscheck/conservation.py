@@ -58,7 +58,7 @@ def checks(model: Model, state: State, splits: Mapping[str, Split],
     ``tolerance.scales`` at the state when the caller has them (computed here otherwise)."""
     q, qd = np.array(state.q), np.array(state.qd)
     if at is None:
-        at = policy.scales(splits.values(), model, q, qd)
+        at = policy.scales(splits.values(), model, q, qd, u=state.u)
     M = geometric.metric(model, q)
     force = at.accel_scale * np.linalg.norm(M, 2) / at.cond_M       # H = accel_scale * lambda_min(M)
     at_drift, at_total, tol = _energy_rates(model, q, qd, splits, force, at.cond_M)

@@ -207,7 +207,7 @@ def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] 
     outcome.scales = None
     if not outcome.trusted:
         return
-    at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd)
+    at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd, u=state.u)
     for quantity in tolerance_policy.quantities(model):
         values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
         values.update(dict.fromkeys(unsupported, UNSUPPORTED))
@@ -225,7 +225,7 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
     state, trusted = outcome.state, outcome.trusted
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
     if trusted and outcome.scales is None:
-        outcome.scales = tolerance_policy.scales(trusted.values(), model, state.q, state.qd)
+        outcome.scales = tolerance_policy.scales(trusted.values(), model, state.q, state.qd, u=state.u)
     for chart in case_charts:
         outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors,
                                                       outcome.scales))

@@ -124,8 +124,8 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     inverse = np.linalg.inv(chart.jacobian(p))
     gain = np.abs(inverse) if joint_scales is None or joint_scales.accel is not None else np.linalg.norm(inverse, 2)
     if joint_scales is None:
-        joint_scales = policy.scales(joint.values(), model, q, qd)
-    at = [policy.scales(native.values(), model, q, qd, joint_chart=False), joint_scales]
+        joint_scales = policy.scales(joint.values(), model, q, qd, u=u)
+    at = [policy.scales(native.values(), model, q, qd, joint_chart=False, u=u), joint_scales]
     out = {}
     done: dict[str, dict] = {name: {} for name in joint}
     left_out = {name: policy.left_out(policy.breakdown(split)) for name, split in (*joint.items(), *native.items())}
@@ -173,9 +173,10 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     # energy multiplies two such velocities. A task point on the joint axes has lever 0 unmoved (its acceleration is
     # exactly 0) but rounds on |t| moved (a fuzz finding): the moved scene's task lever adds |t|.
     reach = 1.0 + float(np.linalg.norm(frame.translation))
-    there = policy.scales([moved[n] for n in both], moved_model, q, qd)
+    u = np.array(state.u)
+    there = policy.scales([moved[n] for n in both], moved_model, q, qd, u=u)
     if original_scales is None or len(both) < len(original):
-        original_scales = policy.scales([original[n] for n in both], model, q, qd)
+        original_scales = policy.scales([original[n] for n in both], model, q, qd, u=u)
     at = [original_scales, dataclasses.replace(there, lever=there.lever + reach - 1.0)]
     out = {}
     for quantity in _invariant(model):

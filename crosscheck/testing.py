@@ -397,16 +397,17 @@ def assert_backends_agree(model: Model, state: sampling.State, backends: Sequenc
     return outcome
 
 
-def assert_split_close(a: Split, b: Split, model: Model, q, qd, names: tuple[str, str] = ("a", "b")) -> None:
+def assert_split_close(a: Split, b: Split, model: Model, q, qd, names: tuple[str, str] = ("a", "b"), u=None) -> None:
     """Compare two splits of ``model`` at ``(q, qd)`` quantity by quantity (``crosscheck.tolerance.quantities``)
-    with the harness's tolerance policy (scales from both splits; quantities with an exact value also against it).
+    with the harness's tolerance policy (scales from both splits, and from the inputs ``u`` when given; quantities
+    with an exact value also against it).
     The splits are compared as given (a BREAKDOWN is not looked at). Raises AssertionError naming each quantity
     that differs, with the ratio, the tolerance and both values.
 
         >>> a = formalisms.get("newton_euler").split(model, q, qd, u)
         >>> testing.assert_split_close(a, my_split(model, q, qd, u), model, q, qd, names=("newton_euler", "mine"))
     """
-    at = policy.scales([a, b], model, np.asarray(q, dtype=float), np.asarray(qd, dtype=float))
+    at = policy.scales([a, b], model, np.asarray(q, dtype=float), np.asarray(qd, dtype=float), u=u)
     bad = []
     for quantity in policy.quantities(model):
         values = {names[0]: a.quantity(quantity), names[1]: b.quantity(quantity)}

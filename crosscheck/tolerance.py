@@ -446,10 +446,11 @@ def _task_inertia_scales(splits) -> dict[str, float]:
             "task_size": _median([float(np.abs(Lambda).max()) for _, Lambda in voting])}
 
 
-def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True) -> Scales:
+def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True, u=None) -> Scales:
     """Median scales over the backends' splits (an iterable of Split); the task, load and componentwise acceleration
     scales need the model and the state (``q``, ``qd``). ``joint_chart=False`` for splits evaluated in a chart's own
-    coordinates p, where the joint geometry of :func:`acceleration_bound` does not apply (normwise scales there)."""
+    coordinates p, where the joint geometry of :func:`acceleration_bound` does not apply (normwise scales there).
+    With the inputs ``u`` the power's scale is the size of its terms, ``|qd| . (|B| |u|)`` (:func:`power_scale`)."""
     splits = list(splits)
     constrained = [s for s in splits if s.constraint_jacobian is not None]
     rounding = {} if model is None else {id(s): _lam_rounding(model, s) for s in constrained}
@@ -462,9 +463,19 @@ def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True) -> Sca
         task.update(_constraint_scales(model, constrained, q, qd, rounding))
     if model is not None and joint_chart and splits:
         task.update(_componentwise(model, splits, constrained, q, qd, task.get("minv", 0.0)))
+    power = _median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits])
+    if model is not None and u is not None:
+        power = max(power, power_scale(model, qd, u))
     return Scales(cond_M=_median([s.cond_M for s in splits]), accel_scale=_median([s.accel_scale for s in splits]),
-                  power_scale=_median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits]),
-                  energy=_median(energies), **task)
+                  power_scale=power, energy=_median(energies), **task)
+
+
+def power_scale(model, qd, u) -> float:
+    """The size of the terms summed in ``u . (B^T qd)``, ``|qd| . (|B| |u|)``: a backend may sum them in any order
+    (``(B u) . qd`` or ``u . (B^T qd)``), and ``B u`` can cancel to far less than its terms (a fuzz finding: B's row
+    (1.17, -1.1) at u = (-9.4, -10) gives (B u)_i = 0.037 from terms of 11, and the powers differed by 1.2 times a
+    tolerance built from ``|(B u)_i qd_i|``)."""
+    return float(np.abs(np.asarray(qd, dtype=float)) @ (np.abs(model.input_map) @ np.abs(np.asarray(u, dtype=float))))
 
 
 def _componentwise(model, splits, constrained, q, qd, minv: float) -> dict:

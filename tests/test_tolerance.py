@@ -129,3 +129,18 @@ def test_3d_cases_see_a_relative_1e_10_error_in_m_c_qd_and_g(case):
             canary = selftest.Canary(case, state.index, "newton_euler", kind, 1e-10)
             caught[kind] += selftest._judge(canary, model, outcome).passed
     assert all(caught.values()), caught
+
+
+def test_the_power_tolerance_covers_an_input_map_that_cancels():
+    """A fuzz finding: B's row (1.17, -1.1) at u = (-9.375, -10) gives (B u)_i = 0.037 from terms of 11; backends that
+    sum u . (B^T qd) and (B u) . qd differed by 1.2 times a tolerance built from |(B u)_i qd_i|. The scale is the
+    size of the terms, |qd| . (|B| |u|)."""
+    model = cases.build_model("cancelling_inputs", [
+        cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.0142, 0.0111, 0.0111])),
+        cases.Body("b1", "b0", "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.0069, 0.0045, 0.0036])),
+        cases.Body("b2", "b1", "revolute", (0, 0, 1), 1.0, inertia=np.diag([0.0372, 0.0350, 0.0042]))],
+        input_map=[[0.0, 0.0], [0.0, 0.0], [1.1693832857249644, -1.1]])
+    state = State(0, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (-9.375, -10.0))
+    outcome = evaluate(model, state, ALL)
+    assert outcome.comparisons["power_ctrl"].verdict == AGREE
+    assert outcome.scales.power_scale == pytest.approx(1.1693832857249644 * 9.375 + 1.1 * 10.0)
