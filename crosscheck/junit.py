@@ -5,7 +5,10 @@ A testcase fails when one of its comparisons is DISAGREE at some state: the ``<f
 and the worst state (error/tolerance, severity, vote), its text one line per failing state with the reproduce
 command. KNOWN comparisons (``crosscheck.registry``) pass, with the registry's reason in ``<system-out>``; a
 testcase whose every comparison is NOT COMPARED is ``<skipped>``. Backend errors are an ``<error>`` testcase;
-states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>``.
+states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>``. Each case also has a ``sampling
+coverage`` testcase (failing on a degenerate sample, ``crosscheck.coverage``), and the run a ``self-test`` suite
+(one testcase per canary, ``crosscheck.selftest``) and a ``backends`` suite (a required backend that took part in no
+comparison fails), so that every reason the gate fails shows on a dashboard.
 """
 
 from __future__ import annotations
@@ -93,6 +96,9 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
                         ("case", case.spec.cli_args())):
         ET.SubElement(properties, "property", name=name, value=str(value))
     outcomes = [_testcase(suite, case, name, found, result.seed) for name, found in _groups(case).items()]
+    if case.coverage is not None:
+        outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "sampling coverage",
+                                "; ".join(case.coverage.problems)))
     errors = [s for s in case.states if s.errors]
     if errors:
         element = ET.SubElement(suite, "testcase", classname=f"crosscheck.{case.spec.name}", name="backend errors")
@@ -108,12 +114,45 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
     return counts
 
 
+def _simple(suite: ET.Element, classname: str, name: str, failure: str) -> str:
+    """A testcase that fails with ``failure`` (passes when it is empty); returns its outcome."""
+    element = ET.SubElement(suite, "testcase", classname=classname, name=name)
+    if failure:
+        ET.SubElement(element, "failure", type="FAIL", message=failure)
+        return "failure"
+    return "passed"
+
+
+def _run_suite(root: ET.Element, name: str, cases: list[tuple[str, str]]) -> dict[str, int]:
+    """A suite of the run as a whole: (testcase name, failure message or "") each."""
+    suite = ET.SubElement(root, "testsuite", name=name)
+    outcomes = [_simple(suite, f"crosscheck.{name}", case, failure) for case, failure in cases]
+    counts = {"tests": len(outcomes), "failures": outcomes.count("failure"), "errors": 0, "skipped": 0}
+    suite.attrib.update({k: str(v) for k, v in counts.items()})
+    return counts
+
+
+def _self_test_cases(result: GateResult) -> list[tuple[str, str]]:
+    test = result.self_test
+    out = [(f"unusable state {where}", "the backends disagree there without any fault") for where in test.unusable]
+    return out + [(r.canary.describe(), "" if r.passed else ("not caught" if not r.caught else "not named")
+                   + f" (error/tolerance {r.ratio:.3g})") for r in test.results]
+
+
 def to_xml(result: GateResult) -> ET.ElementTree:
     """The JUnit document of a gate run."""
     root = ET.Element("testsuites", name="crosscheck gate")
     totals = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
-    for case in result.cases:
-        for k, v in _suite(root, case, result).items():
+    counts = [_suite(root, case, result) for case in result.cases]
+    if result.self_test is not None:
+        counts.append(_run_suite(root, "self-test", _self_test_cases(result)))
+    if result.required:
+        absent = set(result.absent)
+        counts.append(_run_suite(root, "backends", [
+            (f"{name} takes part", "took part in no comparison (name it with --optional if expected)"
+             if name in absent else "") for name in result.required]))
+    for count in counts:
+        for k, v in count.items():
             totals[k] += v
     root.attrib.update({k: str(v) for k, v in totals.items()})
     tree = ET.ElementTree(root)

@@ -4,6 +4,7 @@ BREAKDOWN listed, NOT COMPARED skipped."""
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 import xml.etree.ElementTree as ET
 
@@ -36,10 +37,13 @@ def test_a_passing_gate_has_one_suite_per_case_and_one_testcase_per_quantity_and
                       checks=Checks(charts=True, frames=1, conservation=True))
     root = _parsed(result, tmp_path)
     suites = root.findall("testsuite")
-    assert [s.get("name") for s in suites] == ["double_pendulum", "slider_crank"]
+    assert [s.get("name") for s in suites] == ["double_pendulum", "slider_crank", "self-test"]
+    canaries = _cases(suites[-1])
+    assert len(canaries) == len(result.self_test.results) and all(tc.find("failure") is None
+                                                                  for tc in canaries.values())
     for suite, case in zip(suites, result.cases):
         families = {check_family(k) for s in case.states for k in s.checks}
-        assert set(_cases(suite)) == set(quantities(case.model)) | families
+        assert set(_cases(suite)) == set(quantities(case.model)) | families | {"sampling coverage"}
         assert int(suite.get("tests")) == len(suite.findall("testcase"))
         assert suite.get("failures") == "0" and suite.get("errors") == "0"
         assert {p.get("name"): p.get("value") for p in suite.iter("property")}["case"] == f"--case {case.spec.name}"
@@ -103,9 +107,27 @@ def test_not_compared_is_skipped_and_backend_errors_are_errors(tmp_path):
     assert int(suite.get("skipped")) == sum(tc.find("skipped") is not None for tc in testcases.values())
 
 
+def test_a_degenerate_sample_a_missed_canary_and_an_absent_backend_fail_on_the_dashboard(tmp_path, monkeypatch):
+    """Every reason the gate fails shows as a failing testcase, not only a DISAGREE."""
+    from crosscheck import coverage, selftest
+
+    result = run_gate([CaseSpec("acrobot")], ALL, 3, 0, checks=QUICK)
+    result.cases[0].coverage = dataclasses.replace(result.cases[0].coverage, problems=("every joint rate is 0",))
+    r = result.self_test = selftest.SelfTest((selftest.CanaryResult(selftest.CANARIES[0], False, False, 0.3, "-"),))
+    result.required = ("nobody",)
+    root = _parsed(result, tmp_path)
+    suites = {s.get("name"): s for s in root.findall("testsuite")}
+    assert _cases(suites["acrobot"])["sampling coverage"].find("failure").get("message") == "every joint rate is 0"
+    assert _cases(suites["self-test"])[r.results[0].canary.describe()].find("failure") is not None
+    assert _cases(suites["backends"])["nobody takes part"].find("failure") is not None
+    assert root.get("failures") == "3" and not result.passed and isinstance(result.cases[0].coverage,
+                                                                            coverage.Coverage)
+
+
 def test_the_gate_writes_junit_next_to_the_report(tmp_path):
     path = tmp_path / "ci" / "junit.xml"
     assert cli.main(["gate", "--case", "acrobot", "--samples", "2", "--frames", "0", "--no-charts", "--no-registry",
                      "--report", str(tmp_path / "gate.md"), "--junit", str(path)]) == 0
     root = ET.parse(path).getroot()
-    assert [s.get("name") for s in root.findall("testsuite")] == ["acrobot"] and root.get("failures") == "0"
+    assert [s.get("name") for s in root.findall("testsuite")] == ["acrobot", "self-test"]
+    assert root.get("failures") == "0"
