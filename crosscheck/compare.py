@@ -20,14 +20,14 @@ from formalisms.interface import Unsupported
 AGREE, DISAGREE, KNOWN, NOT_COMPARED = "agree", "DISAGREE", "KNOWN", "NOT COMPARED"
 
 #: Severity of a DISAGREE from its worst error/tolerance ratio r: (upper bound on r, name), the first band that
-#: holds. The tolerance is 100 eps times the problem's scale, so r counts rounding budgets, and on the double
-#: pendulum r ~ 2.5e9 (median; 1e8 to 1e10 over states) times the relative error of a perturbed parameter:
+#: holds. The tolerance is 100 eps times the sizes of the summed terms, so r counts rounding budgets, and on the
+#: double pendulum r ~ 2.5e11 (median; 4e10 to 1.3e12 over states) times the relative error of a perturbed mass:
 #:
-#: - marginal, 1 < r <= 10: within the reach of rounding the tolerance model under-estimates (README, "Breakdown":
-#:   unflagged states near a task singularity reach 7.8); look at the conditioning before the physics;
-#: - clear, 10 < r <= 1e4: no rounding explains it, but the answers match to 6-9 digits (a mass off by a relative
-#:   1e-8 gives median r = 250): a parameter wrong in a late digit, a truncated constant, a lost-precision formula;
-#: - gross, r > 1e4 or NaN: a relative error of ~1e-6 or more (mass off by 1e-6: median r = 2.5e4); a wrong term,
+#: - marginal, 1 < r <= 10: within the reach of rounding the tolerance model may under-estimate near an
+#:   ill-conditioned state (look at the conditioning before the physics), or an error in the 10th digit;
+#: - clear, 10 < r <= 1e4: no rounding explains it, but the answers match to 7-10 digits (a mass off by a relative
+#:   1e-8 gives median r = 2.5e3): a parameter wrong in a late digit, a truncated constant, a lost-precision formula;
+#: - gross, r > 1e4 or NaN: a relative error of ~1e-7 or more (mass off by 1e-6: median r = 2.5e5); a wrong term,
 #:   sign or factor gives r = 1e10 and more.
 SEVERITY: tuple[tuple[float, str], ...] = ((10.0, "marginal"), (1e4, "clear"), (np.inf, "gross"))
 

@@ -8,8 +8,9 @@ the gate would say PASS. So the harness computes every condition the backends re
 and :func:`audit` compares each backend's report with it:
 
 * ``conditions: <name>`` (a check, voted like any comparison, the independent value voting as ``independent``):
-  condition numbers agree when their logarithms differ by less than their rounding, ``100 eps kappa cond(M)``
-  relative (the smallest eigenvalue of ``J M^-1 J^T`` carries an absolute error of eps ``||A|| cond(M)``), values
+  condition numbers agree when their logarithms differ by less than their rounding, ``100 eps (kappa cond(M) +
+  L (n + 1) / sigma_min)`` relative (the smallest eigenvalue of ``J M^-1 J^T`` carries an absolute error of eps
+  ``||A|| cond(M)``, and a row of J as short as sigma_min is relatively imprecise by eps L / sigma_min), values
   above twice the limit counting as equal (broken is broken); the consistency shares, a rounding-dominated share
   near its limit, agree unless one is below a hundredth of the limit and the other above it;
 * a BREAKDOWN where the independent condition is below half its limit (for ``constraint_consistency``, a share of
@@ -44,7 +45,7 @@ EPS = float(np.finfo(float).eps)
 CONSTRAINT_RCOND = 1e-10
 DEGENERATE_ROW = 1e-8
 #: A BREAKDOWN claim is false when the independent condition is below its limit divided by this (the consistency
-#: share: by the second value), and missed when above the limit times it.
+#: share, a rounding-dominated quantity near its limit, by the entry here; condition numbers by the default).
 MARGIN = {"constraint_consistency": 100.0}
 DEFAULT_MARGIN = 2.0
 
@@ -124,17 +125,30 @@ def constraint_conditions(model: Model, M: np.ndarray, Jc: np.ndarray, bias: np.
                                 float(jc_norm * lam_scale / np.linalg.eigvalsh(M)[0]))
 
 
+def _short(model: Model, J: np.ndarray) -> float:
+    """``L (n + 1) / sigma``, sigma the smallest non-zero singular value of the rows J: a row is a sum of lever-sized
+    terms and rounds at ``eps L`` however short it comes out, so a short row is relatively imprecise by this much
+    times eps, and so is every eigenvalue of ``J M^-1 J^T`` it makes (a degenerate row below the floor too: its
+    eigenvalue still sets cond S; a fuzz finding, a point 2e-9 m off its line, cond S 1.4 differing by 8e-8)."""
+    sigma = np.linalg.svd(J, compute_uv=False) if J.size else np.zeros(0)
+    sigma = sigma[sigma > 0.0]
+    return model.length_scale * (model.n + 1) / float(sigma.min()) if sigma.size else 1.0
+
+
 def independent(model: Model, q, qd, u) -> dict[str, float]:
     """Every condition a backend may report at the state, from Pinocchio's M, ``C qd``, ``g``, task Jacobian and
-    constraint kinematics, by this module's own code (module doc), and ``"M"``: cond(M)."""
+    constraint kinematics, by this module's own code (module doc), ``"M"``: cond(M), and the relative rounding of the
+    rows the conditions are made of (:func:`_short`), ``"rows task"`` and ``"rows constraint"``."""
     from crosscheck.reference import bias_forces, mass_matrix, task_jacobian
 
     q, qd, u = (np.asarray(x, dtype=float) for x in (q, qd, u))
     M = mass_matrix(model, q)
     factor = scipy.linalg.cho_factor(M)
     eig = np.linalg.eigvalsh(M)
-    task, short = _task_conditions(model, q, factor, 1.0 / float(eig[0]), task_jacobian(model, q))
-    out = {"M": float(eig[-1] / eig[0]), "task": task, "task_inertia": task, "task_jacobian": short}
+    J = task_jacobian(model, q)
+    task, short = _task_conditions(model, q, factor, 1.0 / float(eig[0]), J)
+    out = {"M": float(eig[-1] / eig[0]), "task": task, "task_inertia": task, "task_jacobian": short,
+           "rows task": _short(model, J), "rows constraint": 1.0}
     if model.constraints:
         from crosscheck.reference import constraint_kinematics
 
@@ -144,7 +158,7 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
         cc = constraint_conditions(model, M, Jc, bias, (tau - Cqd - g, -Cqd - g),
                                    normwise_scales(model, M, Cqd, g, tau, qd)[1])
         out.update({"constraint": cc.cond_S, "constraint_kept": cc.cond_kept,
-                    "constraint_consistency": cc.inconsistency})
+                    "constraint_consistency": cc.inconsistency, "rows constraint": _short(model, Jc)})
     return out
 
 
@@ -181,8 +195,9 @@ def audit(model: Model, state, splits: Mapping, breakdowns: dict[str, dict[str, 
                 breakdowns.get(backend, {}).pop(name, None)
         values = {backend: _saturated(name, v) for backend, v in reported.items()}
         values["independent"] = _saturated(name, kappa)
+        rows = truth["rows constraint" if name.startswith("constraint") else "rows task"]
         tol = float(np.log(margin)) if name in MARGIN else float(
-            np.log(1.0 + max(1e-9, 100.0 * EPS * min(kappa, 2.0 * limit) * truth["M"])))
+            np.log(1.0 + max(1e-9, 100.0 * EPS * (min(kappa, 2.0 * limit) * truth["M"] + rows))))
         out[f"conditions: {name}"] = compare(name, values, tol)
     for backend in [b for b, broken in breakdowns.items() if not broken]:
         del breakdowns[backend]

@@ -65,15 +65,33 @@ def test_an_operational_space_backend_with_a_garbage_inverse_cannot_hide_behind_
 
 
 def test_a_missed_breakdown_is_flagged():
-    """A backend that reports a well-conditioned task where the harness finds it singular (the stretched double
-    pendulum) disagrees in the conditions check."""
+    """A backend that reports a well-conditioned task where the harness finds it ill-conditioned (the double pendulum
+    nearly stretched, theta2 = 1e-4: cond 1e8) disagrees in the conditions check. (Exactly stretched, J's shortest
+    row is rounding and no condition is determined; the backend's garbage is then compared.)"""
     import dataclasses
 
     correct = osc.split
     model = cases.load("double_pendulum")
-    state = State(0, (0.3, 0.0), (1.0, 2.0), (1.0, 1.0))
+    state = State(0, (0.3, 1e-4), (1.0, 2.0), (1.0, 1.0))
     fake = interface.Formalism("operational_space", "", lambda m, q, qd, u: dataclasses.replace(
         correct(m, q, qd, u), conditions={"task": 10.0, "task_jacobian": 10.0}))
     outcome = evaluate(model, state, [b for b in ALL if b.name != "operational_space"] + [fake])
     check = outcome.checks["conditions: task"]
     assert check.verdict == DISAGREE and suspect(check) == "operational_space"
+
+
+def test_a_row_a_few_nanometres_long_rounds_its_condition_numbers():
+    """A fuzz finding: a point 2.35e-9 m off its line (a degenerate row below the floor, dropped by every backend);
+    cond S, 1.4, is made of that row's eigenvalue, which rounds at eps L / |row| relative (4e-7), and the backends'
+    values differed by 8e-8 against a tolerance of 1e-9. The rounding of short rows is in the audit's tolerance."""
+    from cases import PointOnLine
+
+    spinner = np.diag([0.25, 0.25, 0.025])
+    model = cases.build_model("short_row", [
+        cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=spinner),
+        cases.Body("b1", "b0", "revolute", (0, 0, 1), 1.0, inertia=spinner),
+        cases.Body("b2", None, "revolute", (0, 0, 1), 1.0, com=(0, 0.5, 0), translation=(0, 1, 0))],
+        task_points=[cases.TaskPoint("tip", "b2", (0, 0, 0), directions=[[1, 0, 0]])],
+        constraints=[PointOnLine("c0", "b2", (0.5, 0, 0), (0.5, 1, 0), [[1, 0, 0]])])
+    outcome = evaluate(model, State(0, (0.0, 0.0, 4.706175195600791e-09), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), ALL)
+    assert outcome.checks["conditions: constraint"].verdict != DISAGREE and not outcome.failed
