@@ -16,7 +16,7 @@ def clean() -> selftest.SelfTest:
 
 def test_every_canary_is_caught_and_named(clean):
     assert clean.passed, clean.failures()
-    assert {r.canary.kind for r in clean.results} == {"mass matrix", "velocity products", "gravity",
+    assert {r.canary.kind for r in clean.results} == {"mass matrix", "velocity products", "gravity", "one entry",
                                                      "multiplier sign", "not a number"}
 
 

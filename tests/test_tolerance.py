@@ -70,13 +70,13 @@ def test_tolerance_still_catches_a_small_modelling_error():
 
 def test_acceleration_bound_of_a_single_pendulum_in_closed_form():
     """A point mass m at distance l on one revolute joint: M = m l^2, the entry's terms m (P l + l P) = 2 m l^2
-    (P = l = the lever), the forces m l (2 l qd^2 + g), d = sqrt(M); so |M^-1| (f + Mterm |x| + d d |x|) =
-    2 qd^2 + g / l + 3 |x|."""
+    (P = l = the lever), the forces m l (2 l qd^2 + g) + m (l qd)^2, d = sqrt(M); so |M^-1| (f + Mterm |x| +
+    d d |x|) = 3 qd^2 + g / l + 3 |x|."""
     m, l, g = 2.0, 0.5, 9.81
     model = cases.load("n_link_pendulum", n=1, m=m, l=l, g=g)
     q, qd, x = np.array([0.3]), np.array([1.5]), np.array([-4.0])
     bound = tolerance.acceleration_bound(model, q, qd, x)
-    assert bound == pytest.approx([2 * 1.5**2 + g / l + 3 * 4.0], rel=1e-14)
+    assert bound == pytest.approx([3 * 1.5**2 + g / l + 3 * 4.0], rel=1e-14)
     assert tolerance.kinetic_energy_bound(model, q, qd) == pytest.approx(3 * m * l**2 * 1.5**2, rel=1e-14)
 
 
