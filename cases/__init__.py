@@ -2,8 +2,9 @@
 
     >>> import cases
     >>> cases.names()
-    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'double_pendulum_circle', 'four_bar',
-     'slider_crank', 'cartesian_pendulum', 'double_pendulum_absolute_loop']
+    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'rotor', 'inclined_slider',
+     'spherical_pendulum', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum',
+     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this

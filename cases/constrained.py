@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cases.constraints import XY_PLANE, PointOnCircle, PointsCoincide
-from cases.factories import _PLANE, _Z, _require, planar_disk, register
+from cases.constraints import XY_PLANE, JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.factories import _PLANE, _Z, _require, double_pendulum, planar_disk, register
 from cases.model import Body, Model, TaskPoint, build_model
 
 _X, _Y = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
@@ -141,5 +141,49 @@ def double_pendulum_absolute_loop(m1: float = 1.0, m2: float = 1.0, l1: float = 
                        task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)], constraints=constraints)
 
 
-__all__ = ["cartesian_pendulum", "double_pendulum_absolute_loop", "double_pendulum_circle", "four_bar",
-           "slider_crank"]
+@register
+def double_pendulum_rail(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 1.0, g: float = 9.81,
+                         x0: float = 0.0, y0: float = -1.2, incline: float = 0.3) -> Model:
+    """The double pendulum with its tip in a straight rail: a ``PointOnLine`` row, phi = n . (p_tip - o).
+
+    The article's double pendulum (``double_pendulum``: point masses, relative angles) with its tip held on the
+    rail through o = (x0, y0) at ``incline`` rad from the x axis: one row, normal n = (-sin incline, cos incline),
+    so lam is the rail's force on the tip along n; one degree of freedom. The rail must pass within the tip's reach
+    (its distance from the shoulder below l1 + l2: at l1 + l2 it only touches the reach, stretched, where the row
+    vanishes); a rail at distance |l1 - l2| touches the inner edge of the reach, and the row vanishes there too.
+    Task point ``tip``.
+    """
+    _positive("double_pendulum_rail", m1=m1, m2=m2, l1=l1, l2=l2)
+    normal = (-np.sin(incline), np.cos(incline), 0.0)
+    distance = abs(normal[0] * x0 + normal[1] * y0)
+    _require(distance < l1 + l2,
+             f"double_pendulum_rail: the rail through ({x0}, {y0}) at incline {incline} passes {distance} from the "
+             f"shoulder, beyond the tip's reach l1 + l2 = {l1 + l2}, so no configuration satisfies the constraint")
+    bodies = double_pendulum(m1=m1, m2=m2, l1=l1, l2=l2, g=g).bodies
+    rail = PointOnLine("tip_on_rail", "link2", (0.0, -l2, 0.0), (x0, y0, 0.0), (normal,))
+    return build_model("double_pendulum_rail", bodies, gravity=(0.0, -g, 0.0), constraints=[rail],
+                       task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])
+
+
+@register
+def geared_pendulums(m1: float = 1.0, l1: float = 0.5, m2: float = 2.0, l2: float = 1.0, ratio: float = -2.0,
+                     offset: float = 0.0, spacing: float = 1.5, g: float = 9.81) -> Model:
+    """Two rod pendulums on parallel axes geared together: a ``JointCoupling`` row, phi = q1 - ratio q2 - offset.
+
+    The pinion (a uniform rod, m1, l1) hangs from the origin, the wheel (m2, l2) from (spacing, 0); the gear holds
+    q1 = ratio q2 + offset (one degree of freedom). Meshing gears turn opposite ways: ratio = -R_wheel / R_pinion
+    (default -2, a pinion of half the wheel's radius). ``Jc^T lam = (lam, -ratio lam)``: lam is the gear's torque
+    on the pinion, -ratio lam the torque on the wheel. ``spacing`` (the pitch radii's sum) places the wheel and
+    enters no dynamics. Task point ``pinion_tip``, the pinion rod's end, along x (singular with the pinion level).
+    """
+    _positive("geared_pendulums", m1=m1, l1=l1, m2=m2, l2=l2, spacing=spacing)
+    _require(np.isfinite(ratio) and ratio != 0.0,
+             f"geared_pendulums: ratio must be finite and non-zero, got {ratio} (a zero ratio locks the pinion)")
+    bodies = [_rod("pinion", None, m1, l1), _rod("wheel", None, m2, l2, (spacing, 0.0, 0.0))]
+    gear = JointCoupling("gear", ("pinion", "wheel"), (1.0, -ratio), offset)
+    return build_model("geared_pendulums", bodies, gravity=(0.0, -g, 0.0), constraints=[gear],
+                       task_points=[TaskPoint("pinion_tip", "pinion", (0.0, -l1, 0.0), (_X,))])
+
+
+__all__ = ["cartesian_pendulum", "double_pendulum_absolute_loop", "double_pendulum_circle", "double_pendulum_rail",
+           "four_bar", "geared_pendulums", "slider_crank"]

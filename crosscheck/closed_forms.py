@@ -26,14 +26,25 @@ double_pendulum_absolute_loop  the double pendulum's accelerations in the loop's
 rotor                          one body on a tilted revolute joint (:func:`rotor_terms`)
 inclined_slider                a point mass on a tilted prismatic joint (:func:`slider_terms`)
 spherical_pendulum             a ball on two perpendicular revolute joints (:func:`spherical_terms`)
+four_bar                       three uniform rods (:func:`rod_chain_terms`: a rod is three point masses) in absolute
+                               angles mapped to relative (:func:`four_bar_terms`), the loop's two rows
+                               (:func:`four_bar_loop`); minimum-norm multipliers at the change points
+slider_crank                   two rods and a point-mass slider (:func:`slider_crank_terms`), the wrist pin's two rows
+                               (:func:`wrist_pin`)
+double_pendulum_rail           eqs. (4)-(8) with the tip on a straight rail, a ``PointOnLine`` row (:func:`rail_terms`)
+geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` row (:func:`gear_terms`,
+                               :func:`gear_constraint`)
 =============================  =====================================================================================
 
 Each supplies drift, ctrl and total (eq. 9; eqs. 14, 15, 17 with constraints; ctrl ``B_c B u`` computed directly),
 the control power, the kinetic energy, the task drift and the task inertia (eq. 22, with ``conditions
 ["task_inertia"]``), and on the constrained cases lam, lam_drift, the constraint kinematics, forces and power. The
 joint loads are not supplied (UNSUPPORTED: "not supplied by" in a report). cond(M), ``accel_scale`` and the
-constraint conditions are computed here, from these closed forms, by the definitions of
-the definitions of ``Split.accel_scale``, ``lam_scale`` and the conditions (no numeric helper of the harness is used).
+constraint conditions are computed here, from these closed forms, by the definitions of ``Split.accel_scale``,
+``lam_scale`` and the conditions (no numeric helper of the harness is used). Where S = Jc M^-1 Jc^T is singular (the
+four-bar's change points) a closed form follows the backends' rule for redundant rows (:class:`Rule`, with the
+model's length and inertia scales typed in from the factory): the minimum-norm multipliers and the same
+``constraint``, ``constraint_kept`` and ``constraint_consistency`` conditions (:func:`_constrained`).
 
 The double-pendulum formulas (:func:`article_M`, :func:`article_Cqd`, :func:`article_g`, :func:`pendulum_terms`)
 evaluate in double precision or, with ``lib=MPMATH``, in mpmath (:func:`pendulum_terms_mp`): one typing of eqs.
@@ -48,9 +59,10 @@ from typing import Callable, Mapping
 
 import mpmath
 import numpy as np
+import scipy.linalg
 
 import cases
-from formalisms.interface import Formalism, Split, check_state
+from formalisms.interface import CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, check_state
 
 EPS = float(np.finfo(float).eps)
 
@@ -237,10 +249,57 @@ def chain_tip(phi, phid, lengths):
             np.array([-(l * np.sin(phi)) @ phid**2, (l * np.cos(phi)) @ phid**2]))
 
 
+def chain_position(phi, lengths):
+    """The chain's last point in absolute angles: ``sum_i l_i (sin phi_i, -cos phi_i)`` from the pivot (eq. 4 for two
+    links); :func:`chain_tip` is its Jacobian and ``Jdot phid``. A negative l_i walks link i back from its end."""
+    phi, l = np.asarray(phi, dtype=float), np.asarray(lengths, dtype=float)
+    return np.array([l @ np.sin(phi), -(l @ np.cos(phi))])
+
+
 def relative_to_absolute(n: int) -> np.ndarray:
     """T with ``phi = T q``: lower-triangular ones (each absolute angle is the sum of the relative ones up to it).
-    T is constant, so ``M_q = T^T M_phi T``, ``h_q = T^T h_phi`` and ``J_q = J_phi T``."""
+    T is constant, so ``M_q = T^T M_phi T``, ``h_q = T^T h_phi`` (:func:`to_joint`) and ``J_q = J_phi T``."""
     return np.tril(np.ones((n, n)))
+
+
+#: T of a two-link chain in relative angles plus one more coordinate (``four_bar``: the rocker's angle;
+#: ``slider_crank``: the slider's x): ``phi = T q = (q1, q1 + q2, q3)``.
+CHAIN_AND_ONE = scipy.linalg.block_diag(relative_to_absolute(2), np.eye(1))
+
+
+def to_joint(T, M, Cqd, g):
+    """(M, C qd, g) in coordinates phi mapped to q, where ``phi = T q`` with T constant: the Lagrangian in q is the
+    one in phi at ``T q``, so Lagrange's equations give ``(T^T M T, T^T C qd, T^T g)``."""
+    return T.T @ M @ T, T.T @ Cqd, T.T @ g
+
+
+def stack_terms(*terms):
+    """(M, C qd, g) of independent subsystems (no shared coordinate, no coupling) side by side: M block-diagonal,
+    C qd and g concatenated."""
+    return (scipy.linalg.block_diag(*(t[0] for t in terms)), np.concatenate([t[1] for t in terms]),
+            np.concatenate([t[2] for t in terms]))
+
+
+def rod_chain_terms(phi, phid, masses, lengths, g=9.81):
+    """(M, C qd, g) of a planar chain of uniform rods hanging from a fixed pivot, in the rods' absolute angles phi
+    (from hanging down): rod k of mass m_k and length l_k, its COM at mid-length and ``m_k l_k^2 / 12`` about it
+    (``cases.constrained._rod``).
+
+    In the plane a rigid body's T and V depend only on its mass, its COM and its moment about the COM, so a uniform
+    rod is the three point masses m/6 at its pivot, 2m/3 at its middle and m/6 at its end (mass m, COM at l/2,
+    moment 2 (m/6) (l/2)^2 = m l^2/12). The chain of rods is then :func:`chain_terms`'s chain of point masses on
+    half-links l_k/2, two per rod at the rod's angle, with 2 m_k/3 at the middle of rod k and m_k/6 + m_{k+1}/6 at
+    its end (the first rod's pivot mass does not move); with E the constant matrix repeating each angle
+    (half-link angles E phi), ``M = E^T M_half E``, ``C qd = E^T (C qd)_half``, ``g = E^T g_half`` (:func:`to_joint`).
+    Two rods, d = phi1 - phi2:
+        M = [[(m1/3 + m2) l1^2, m2 l1 l2/2 cos d], [m2 l1 l2/2 cos d, m2 l2^2/3]],
+        C qd = m2 l1 l2/2 sin(d) (phi2d^2, -phi1d^2),  g = g ((m1/2 + m2) l1 sin phi1, m2 l2/2 sin phi2);
+    one rod: M = m l^2/3, C qd = 0, g = m g l/2 sin phi."""
+    m, l = np.asarray(masses, dtype=float), np.asarray(lengths, dtype=float)
+    E = np.repeat(np.eye(len(m)), 2, axis=0)
+    half_masses = np.column_stack([2.0 * m / 3.0, (m + np.append(m[1:], 0.0)) / 6.0]).ravel()
+    terms = chain_terms(E @ phi, E @ phid, half_masses, np.repeat(l / 2.0, 2), g)
+    return to_joint(E, *terms)
 
 
 # ---------------------------------------------------------------------------------------------------- acrobot
@@ -297,12 +356,86 @@ def one_row_kkt(Minv, Jc, bias, f):
     return Minv @ f + y * lam, lam
 
 
-def constrained_input_map(M, Jc):
-    """Article eq. (17): ``B_c = M^-1 [I - Jc^T (Jc M^-1 Jc^T)^-1 Jc M^-1]`` (full-rank ``Jc``, a row or k x n), so
-    that ``qdd_ctrl = B_c B u``."""
+def constrained_input_map(M, Jc, Spinv=None):  # noqa: N803
+    """Article eq. (17): ``B_c = M^-1 [I - Jc^T S^+ Jc M^-1]`` with ``S = Jc M^-1 Jc^T`` (``Jc`` a row or k x n), so
+    that ``qdd_ctrl = B_c B u``: ``S^+ = S^-1`` for a full-rank ``Jc``, else ``Spinv``, the pseudo-inverse over S's
+    kept eigen-directions (:meth:`Spectrum.pinv`)."""
     Jc = np.atleast_2d(Jc)
     Minv = inv2(M) if np.shape(M) == (2, 2) else np.linalg.inv(M)
-    return Minv @ (np.eye(len(M)) - Jc.T @ np.linalg.solve(Jc @ Minv @ Jc.T, Jc @ Minv))
+    projected = np.linalg.solve(Jc @ Minv @ Jc.T, Jc @ Minv) if Spinv is None else Spinv @ Jc @ Minv
+    return Minv @ (np.eye(len(M)) - Jc.T @ projected)
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """``S = Jc M^-1 Jc^T`` split by the backends' rule (:class:`Rule`): its eigenvalues ``w`` ascending
+    (:func:`eigenvalues`), their eigen-directions ``V`` (columns), which are ``kept`` (the others are redundant
+    directions) and ``w_max``, the largest eigenvalue taken at least the degenerate floor."""
+
+    w: np.ndarray
+    V: np.ndarray
+    kept: np.ndarray
+    w_max: float
+
+    @property
+    def rank(self) -> int:
+        return int(self.kept.sum())
+
+    def pinv(self) -> np.ndarray:
+        """``S^+ = V_k diag(1 / w_k) V_k^T`` over the kept directions: ``S^-1`` at full rank; otherwise the
+        minimum-norm multipliers ``S^+ r`` (the accelerations and ``Jc^T lam`` stay unique)."""
+        V = self.V[:, self.kept]
+        return (V / self.w[self.kept]) @ V.T
+
+    def conditions(self) -> dict[str, float]:
+        """``"constraint"`` = ``w_max / w_min`` (inf when ``w_min <= 0``) and ``"constraint_kept"`` = ``w_max`` over
+        the smallest kept eigenvalue (1 when none is kept): the definitions in ``Split``'s docstring."""
+        return {"constraint": self.w_max / self.w[0] if self.w[0] > 0.0 else float("inf"),
+                "constraint_kept": self.w_max / self.w[self.kept][0] if self.rank else 1.0}
+
+    def inconsistency(self, residuals, least: float) -> float:
+        """``"constraint_consistency"``: the largest share ``|V_0^T r| / max(|r|, least)`` of the KKT right-hand
+        sides ``r = -Jcdot qd - Jc M^-1 f`` in the redundant directions V_0 (0 when there are none, or r = 0):
+        non-zero means ``H_t`` is empty (eq. 16)."""
+        V0 = self.V[:, ~self.kept]
+        shares = [np.linalg.norm(V0.T @ r) / size for r in residuals if (size := max(np.linalg.norm(r), least)) > 0]
+        return float(max(shares, default=0.0)) if V0.shape[1] else 0.0
+
+
+@dataclass(frozen=True)
+class Rule:
+    """The backends' rule for redundant and degenerate constraint rows (``formalisms.interface``): an eigenvalue of
+    S at or below ``max(CONSTRAINT_RCOND w[-1], floor)`` is a redundant direction, ``floor = (DEGENERATE_ROW L)^2 /
+    inertia``. The model's scales are written here from the case's parameters, not read off the model: ``length``
+    L is ``Model.length_scale`` (1 m plus every body's placement and COM offsets, |translation| + |com|), ``inertia``
+    is ``Model.inertia_scale`` (``sum_k m_k L^2 + tr I_k``); L also sets the consistency share's least |r|,
+    ``1e-6 L accel_scale``."""
+
+    length: float
+    inertia: float
+
+    @classmethod
+    def of(cls, *bodies: tuple[float, float, float]) -> Rule:
+        """From each massive body's (mass, |translation| + |com|, tr I), typed in from its case factory (massless
+        bodies at the origin add nothing)."""
+        length = 1.0 + sum(offset for _, offset, _ in bodies)
+        return cls(length, sum(mass * length**2 + trace for mass, _, trace in bodies))
+
+    @property
+    def floor(self) -> float:
+        return (DEGENERATE_ROW * self.length) ** 2 / self.inertia
+
+    def spectrum(self, S) -> Spectrum:
+        """S's :class:`Spectrum` under this rule."""
+        w = eigenvalues(S)
+        return Spectrum(w, np.linalg.eigh(np.atleast_2d(S))[1], w > max(CONSTRAINT_RCOND * w[-1], self.floor),
+                        max(float(w[-1]), self.floor))
+
+
+def rod_body(mass, length, placed=0.0) -> tuple[float, float, float]:
+    """A uniform rod's entry of :meth:`Rule.of` (``cases.constrained._rod``): its COM l/2 beyond its joint, placed
+    ``placed`` from its parent's frame, ``tr diag(m l^2/12, 0, m l^2/12) = m l^2/6``."""
+    return mass, placed + length / 2.0, mass * length**2 / 6.0
 
 
 def cartesian_lam(q, qd, u, m=1.0, L=1.0, g=9.81):  # noqa: N803
@@ -382,6 +515,104 @@ def loop_constraint(q, qd, l1):
     Jc = np.array([[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
                    [-1.0, 0.0, -l1 * c, 1.0, 0.0, 0.0], [0.0, -1.0, -l1 * s, 0.0, 1.0, 0.0]])
     return phi, Jc, np.array([0.0, 0.0, l1 * s * w2, -l1 * c * w2])
+
+
+# --------------------------------------------------------------- closed loops of rods, a rail and a gear
+
+
+def four_bar_terms(q, qd, crank, coupler, rocker, m, g):
+    """(M, C qd, g) of ``cases.four_bar``'s open tree (before the loop closes): crank and coupler a chain of uniform
+    rods from the origin, the rocker a rod on its own pivot (where the pivot is does not enter its dynamics), each of
+    mass m. In absolute angles ``phi = T q = (q1, q1 + q2, q3)`` (:data:`CHAIN_AND_ONE`) the chain and the rocker
+    are :func:`rod_chain_terms` side by side (:func:`stack_terms`: they do not couple), mapped to q by
+    :func:`to_joint`. With a, b, c the crank, coupler and rocker lengths and d = phi1 - phi2:
+        M_phi = [[4/3 m a^2, m a b/2 cos d, 0], [m a b/2 cos d, m b^2/3, 0], [0, 0, m c^2/3]],
+        C_phi qd = m a b/2 sin(d) (phi2d^2, -phi1d^2, 0),  g_phi = m g (3/2 a sin phi1, b/2 sin phi2, c/2 sin phi3)."""
+    T = CHAIN_AND_ONE
+    phi, phid = T @ q, T @ qd
+    return to_joint(T, *stack_terms(rod_chain_terms(phi[:2], phid[:2], (m, m), (crank, coupler), g),
+                                    rod_chain_terms(phi[2:], phid[2:], (m,), (rocker,), g)))
+
+
+def four_bar_loop(q, qd, crank, coupler, rocker, ground):
+    """The four-bar's loop (``PointsCoincide`` rows x, y): ``phi = p_coupler_end - p_rocker_end``, with e(phi) =
+    (sin phi, -cos phi), ``phi = a e(phi1) + b e(phi2) - c e(phi3) - (ground, 0)``: the chain crank, coupler, rocker
+    walked back (length -c) from the origin, less the rocker's pivot (:func:`chain_position`). Its Jacobian and
+    ``Jcdot qd`` in absolute angles are :func:`chain_tip`'s with lengths (a, b, -c), so with w = q1d + q2d
+        Jc = [[a c1 + b c12, b c12, -c c3], [a s1 + b s12, b s12, -c s3]],
+        Jcdot qd = (-a s1 q1d^2 - b s12 w^2 + c s3 q3d^2, a c1 q1d^2 + b c12 w^2 - c c3 q3d^2).
+    Jc loses rank where the four links are collinear (a change point, possible only when a +- b = +-c + ground).
+    Returns (phi (2,), Jc (2, 3), Jcdot qd (2,))."""
+    phi, phid, lengths = CHAIN_AND_ONE @ q, CHAIN_AND_ONE @ qd, (crank, coupler, -rocker)
+    J, bias = chain_tip(phi, phid, lengths)
+    return chain_position(phi, lengths) - np.array([ground, 0.0]), J @ CHAIN_AND_ONE, bias
+
+
+def link_point(q, qd, crank, along):
+    """A point ``along`` the second link of a two-link chain in relative angles, as the first two coordinates of
+    ``q`` (``four_bar``'s ``coupler_mid``, along = coupler / 2): its Jacobian (2 x n) and ``Jdot qd``, by
+    :func:`chain_tip` with lengths (crank, along) and ``J_q = J_phi T`` (:data:`CHAIN_AND_ONE`'s first rows)."""
+    T = CHAIN_AND_ONE[:2, :len(q)]
+    J, bias = chain_tip(T @ q, T @ qd, (crank, along))
+    return J @ T, bias
+
+
+def slider_crank_terms(q, qd, crank, rod, m_crank, m_rod, m_slider, g):
+    """(M, C qd, g) of ``cases.slider_crank``'s open tree: crank and connecting rod a chain of uniform rods
+    (:func:`rod_chain_terms` in absolute angles, mapped to q by :func:`to_joint` with :data:`CHAIN_AND_ONE`) and the
+    slider, a point mass on a prismatic joint along x: ``T = 1/2 m_slider xd^2`` and a constant V (its height is the
+    offset), so its block is ``M = m_slider``, ``C qd = g = 0``. With a, r the crank and rod lengths, d = phi1 - phi2:
+        M_phi = [[(m_crank/3 + m_rod) a^2, m_rod a r/2 cos d, 0], [m_rod a r/2 cos d, m_rod r^2/3, 0],
+                 [0, 0, m_slider]],  C_phi qd = m_rod a r/2 sin(d) (phi2d^2, -phi1d^2, 0),
+        g_phi = g ((m_crank/2 + m_rod) a sin phi1, m_rod r/2 sin phi2, 0)."""
+    T = CHAIN_AND_ONE
+    phi, phid = T @ q, T @ qd
+    slider = (np.array([[m_slider]]), np.zeros(1), np.zeros(1))
+    return to_joint(T, *stack_terms(rod_chain_terms(phi[:2], phid[:2], (m_crank, m_rod), (crank, rod), g), slider))
+
+
+def wrist_pin(q, qd, crank, rod, offset):
+    """The slider-crank's wrist pin (``PointsCoincide`` rows x, y): ``phi = p_rod_end - p_slider = a e(phi1) +
+    r e(phi2) - (x, offset)`` (:func:`chain_position`, e(phi) = (sin phi, -cos phi)); ``Jc`` is the chain's
+    Jacobian (:func:`chain_tip`, :func:`link_point` with along = r) with the column (-1, 0) of x, ``Jcdot qd`` the
+    chain's (x enters linearly):
+        Jc = [[a c1 + r c12, r c12, -1], [a s1 + r s12, r s12, 0]],
+        Jcdot qd = (-a s1 q1d^2 - r s12 w^2, a c1 q1d^2 + r c12 w^2), w = q1d + q2d.
+    Full rank everywhere: the second row vanishes only with crank and rod both vertical, their end at height
+    +-a +-r, which cannot meet the slider's line since r > a + |offset|. Returns (phi, Jc, Jcdot qd)."""
+    J, bias = link_point(q, qd, crank, rod)
+    J[0, 2] = -1.0
+    return chain_position(CHAIN_AND_ONE[:2] @ q, (crank, rod)) - np.array([q[2], offset]), J, bias
+
+
+def rail_normal(incline):
+    """The normal of a rail at ``incline`` rad from the x axis, ``n = (-sin incline, cos incline)``: the one row of
+    ``cases.double_pendulum_rail``'s ``PointOnLine``."""
+    return np.array([-np.sin(incline), np.cos(incline)])
+
+
+def rail_terms(t, td, l1=1.0, l2=1.0, x0=0.0, y0=-1.2, incline=0.3):
+    """The double pendulum's tip on the straight rail through o = (x0, y0) with normal n (:func:`rail_normal`),
+    ``cases.double_pendulum_rail``'s ``PointOnLine``: ``phi = n . (x2 - o)`` with x2 of eq. (4), ``Jc = n^T J``
+    (eq. 5) and ``Jcdot qd = n . (Jdot qd)`` (:func:`tip_bias`; a straight line has no curvature term, compare
+    :func:`circle_terms`). Returns (phi (1,), Jc (1, 2), Jcdot qd (1,))."""
+    n = rail_normal(incline)
+    return (np.array([n @ (tip_position(t, l1, l2) - np.array([x0, y0]))]), (n @ endpoint_jacobian(t, l1, l2))[None],
+            np.array([n @ tip_bias(t, td, l1, l2)]))
+
+
+def gear_terms(q, qd, m1, l1, m2, l2, g):
+    """(M, C qd, g) of ``cases.geared_pendulums`` before the gear couples them: two uniform rods on their own pivots,
+    :func:`rod_chain_terms` of one rod each side by side: ``M = diag(m1 l1^2/3, m2 l2^2/3)``, ``C qd = 0``,
+    ``g = g (m1 l1/2 sin q1, m2 l2/2 sin q2)``."""
+    return stack_terms(rod_chain_terms(q[:1], qd[:1], (m1,), (l1,), g), rod_chain_terms(q[1:], qd[1:], (m2,), (l2,), g))
+
+
+def gear_constraint(q, ratio, offset):
+    """The gear (``JointCoupling`` with coefficients (1, -ratio)): ``phi = q1 - ratio q2 - offset``, the constant
+    row ``Jc = (1, -ratio)``, ``Jcdot qd = 0``; so ``Jc^T lam = (lam, -ratio lam)``: lam is the gear's torque on
+    the pinion (joint 1), ``-ratio lam`` the torque on the wheel. Returns (phi (1,), Jc (1, 2), Jcdot qd (1,))."""
+    return np.array([q[0] - ratio * q[1] - offset]), np.array([[1.0, -ratio]]), np.zeros(1)
 
 
 # ------------------------------------------------------------------------------------------------- 3-D cases
@@ -469,30 +700,63 @@ class _Terms:
         """Eq. (9), each directly: drift ``-M^-1 (C qd + g)``, ctrl ``M^-1 B u``, total ``M^-1 (B u - C qd - g)``."""
         return (-self.Minv @ (self.Cqd + self.g), self.Minv @ self.tau, self.Minv @ (self.tau - self.Cqd - self.g))
 
+    def forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """The right-hand sides ``f`` of eq. (12): ``B u - C qd - g`` (total) and ``-C qd - g`` (drift, eq. 14)."""
+        return self.tau - self.Cqd - self.g, -self.Cqd - self.g
+
+    def accel_scale(self, qd) -> float:
+        """``accel_scale = ||M^-1|| H``, ``H = |C qd|_1 + |g|_1 + |B u|_1 + lambda_max(M) |qd|^2 + |gravity|_1
+        sqrt(m_total lambda_max(M))`` (the definition of ``Split.accel_scale``, before the constraint force)."""
+        w = eigenvalues(self.M)
+        return (np.abs(self.Cqd).sum() + np.abs(self.g).sum() + np.abs(self.tau).sum() + w[-1] * float(qd @ qd)
+                + self.gravity * np.sqrt(self.mass * w[-1])) / w[0]
+
 
 @dataclass(frozen=True)
 class _Kkt:
-    """A constrained state's closed forms: phi, Jc, Jcdot qd and the multipliers with and without input."""
+    """A constrained state's closed forms: phi, Jc, Jcdot qd, the multipliers with and without input, and the
+    rule (with the case's scales) that decides S's redundant directions."""
 
     phi: np.ndarray
     Jc: np.ndarray
     bias: np.ndarray
     lam: np.ndarray
     lam_drift: np.ndarray
+    rule: Rule
+
+
+def _residuals(t: _Terms, Jc, bias) -> list[np.ndarray]:
+    """The KKT right-hand sides ``r = -Jcdot qd - Jc M^-1 f`` for total and drift (:meth:`_Terms.forces`): eliminating
+    qdd from eqs. (12), (13) leaves ``S lam = r``."""
+    return [-bias - Jc @ t.Minv @ f for f in t.forces()]
+
+
+def _constrained(t: _Terms, phi, Jc, bias, rule: Rule) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Kkt]:
+    """Eqs. (12)-(17) by the range-space method under the backends' rule (:class:`Rule`): with ``S^+`` the
+    pseudo-inverse over S's kept eigen-directions (:meth:`Spectrum.pinv`), ``lam = S^+ r`` and ``qdd = M^-1 (f +
+    Jc^T lam)`` (:func:`_residuals`: r; f = B u - h for total and lam, -h for the drift and lam_drift of eq. 14),
+    and ``ctrl = B_c B u`` with eq. (17)'s B_c (:func:`constrained_input_map`), directly. At full rank the KKT
+    solution of 5.6; at a change point the minimum-norm multipliers, with the equations along the redundant
+    directions dropped where H_t is empty, as every backend does. Returns (drift, ctrl, total, :class:`_Kkt`)."""
+    Spinv = rule.spectrum(Jc @ t.Minv @ Jc.T).pinv()
+    lam, lam_drift = (Spinv @ r for r in _residuals(t, Jc, bias))
+    f_total, f_drift = t.forces()
+    return (t.Minv @ (f_drift + Jc.T @ lam_drift), constrained_input_map(t.M, Jc, Spinv) @ t.tau,
+            t.Minv @ (f_total + Jc.T @ lam), _Kkt(phi, Jc, bias, lam, lam_drift, rule))
 
 
 def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) -> Split:
     """The Split of one state from its closed forms; ``task`` = (task drift, Lambda, cond(J M^-1 J^T)).
 
-    cond(M) and ``accel_scale = ||M^-1|| H``, ``H = |C qd|_1 + |g|_1 + |B u|_1 + lambda_max(M) |qd|^2 + |gravity|_1
-    sqrt(m_total lambda_max(M))`` (the definition of ``Split.accel_scale``). With constraints (those
-    of ``constraint_conditioning``, full rank): ``S = Jc M^-1 Jc^T``, ``lam_scale = (|Jcdot qd|_1 + ||Jc|| accel_scale)
-    / lambda_min(S)``, ``accel_scale`` plus ``||M^-1|| ||Jc|| lam_scale``, conditions ``constraint`` =
-    ``constraint_kept`` = cond(S), ``constraint_consistency`` = 0; the constraint force ``Jc^T lam`` and its power."""
+    cond(M) and ``accel_scale`` (:meth:`_Terms.accel_scale`). With constraints, by the definitions in ``Split``'s
+    docstring and the backends' rule (:class:`Rule`, :class:`Spectrum` of ``S = Jc M^-1 Jc^T``): ``lam_scale =
+    (|Jcdot qd|_1 + ||Jc|| accel_scale) / w_kept`` (w_kept the smallest kept eigenvalue of S; 0 when none is kept),
+    ``accel_scale`` plus ``||M^-1|| ||Jc|| lam_scale``, the conditions ``constraint``, ``constraint_kept``
+    (:meth:`Spectrum.conditions`) and ``constraint_consistency`` (:meth:`Spectrum.inconsistency` of the KKT
+    right-hand sides, least |r| ``1e-6 L accel_scale``), the rank of S; the constraint force ``Jc^T lam`` and its
+    power."""
     w = eigenvalues(t.M)
-    H = (np.abs(t.Cqd).sum() + np.abs(t.g).sum() + np.abs(t.tau).sum() + w[-1] * float(qd @ qd)
-         + t.gravity * np.sqrt(t.mass * w[-1]))
-    accel_scale = H / w[0]
+    accel_scale = t.accel_scale(qd)
     task_drift, Lambda, task_cond = task
     fields = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(t.tau @ qd), power_ctrl_per_coord=t.tau * qd,
                   cond_M=w[-1] / w[0], task_drift=task_drift, kinetic_energy=0.5 * qd @ t.M @ qd,
@@ -500,18 +764,18 @@ def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) 
     if kkt is None:
         return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None,
                      accel_scale=accel_scale, conditions={"task_inertia": task_cond}, **fields)
-    ws = eigenvalues(kkt.Jc @ t.Minv @ kkt.Jc.T)
+    S = kkt.rule.spectrum(kkt.Jc @ t.Minv @ kkt.Jc.T)
     jc_norm = float(np.linalg.norm(kkt.Jc, 2))
-    lam_scale = (np.abs(kkt.bias).sum() + jc_norm * accel_scale) / ws[0]
+    lam_scale = (np.abs(kkt.bias).sum() + jc_norm * accel_scale) / S.w[S.kept][0] if S.rank else 0.0
+    consistency = S.inconsistency(_residuals(t, kkt.Jc, kkt.bias), 1e-6 * kkt.rule.length * accel_scale)
     force, force_drift = kkt.Jc.T @ kkt.lam, kkt.Jc.T @ kkt.lam_drift
     return Split(lam=kkt.lam, lam_drift=kkt.lam_drift, power_constr=float(force @ qd),
                  power_constr_per_coord=force * qd,
                  accel_scale=accel_scale + jc_norm * lam_scale / w[0],
-                 conditions={"task_inertia": task_cond, "constraint": ws[-1] / ws[0], "constraint_kept": ws[-1] / ws[0],
-                             "constraint_consistency": 0.0},
+                 conditions={"task_inertia": task_cond, **S.conditions(), "constraint_consistency": consistency},
                  constraint_value=kkt.phi, constraint_jacobian=kkt.Jc, constraint_bias=kkt.bias,
                  constraint_velocity=kkt.Jc @ qd, constraint_force=force, constraint_force_drift=force_drift,
-                 constraint_rank=len(kkt.lam), lam_scale=lam_scale, **fields)
+                 constraint_rank=S.rank, lam_scale=lam_scale, **fields)
 
 
 def _task(J, bias, drift, inertia) -> tuple:
@@ -539,9 +803,8 @@ def _n_link_pendulum(p, q, qd, u) -> Split:
     n, m, l = p["n"], p["m"], p["l"]
     T = relative_to_absolute(n)
     phi, phid = T @ q, T @ qd
-    M_phi, C_phi, g_phi = chain_terms(phi, phid, [m] * n, [l] * n, p["g"])
-    M = T.T @ M_phi @ T
-    t = _Terms(M, np.linalg.inv(M), T.T @ C_phi, T.T @ g_phi, u, n * m, abs(p["g"]))
+    M, Cqd, grav = to_joint(T, *chain_terms(phi, phid, [m] * n, [l] * n, p["g"]))
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, u, n * m, abs(p["g"]))
     drift, ctrl, total = t.accelerations()
     J_phi, bias = chain_tip(phi, phid, [l] * n)
     J = J_phi @ T
@@ -558,6 +821,44 @@ def _acrobot(p, q, qd, u) -> Split:
                      _task(J, tip_bias(q, qd, p["l1"], p["l2"]), drift, task_inertia_square(J, M)))
 
 
+# The scales of each constrained case's rule (:meth:`Rule.of`: mass, |translation| + |com|, tr I per massive body),
+# typed in from its factory.
+
+
+def _double_pendulum_rule(p) -> Rule:
+    """The point-mass double pendulum (``cases.double_pendulum``'s bodies, the circle's and the rail's): mass 1 at l1
+    from the shoulder, link 2 placed l1 down with its mass l2 beyond, no rotational inertia."""
+    return Rule.of((p["m1"], p["l1"], 0.0), (p["m2"], p["l1"] + p["l2"], 0.0))
+
+
+def _cartesian_rule(p) -> Rule:
+    """The bob at the origin of its slides (the carriage is massless)."""
+    return Rule.of((p["m"], 0.0, 0.0))
+
+
+def _absolute_loop_rule(p) -> Rule:
+    """Each link's mass l_i from its massless carriages, ``planar_disk(I_i)`` of trace 2 I_i."""
+    return Rule.of((p["m1"], p["l1"], 2.0 * p["I1"]), (p["m2"], p["l2"], 2.0 * p["I2"]))
+
+
+def _four_bar_rule(p) -> Rule:
+    """Three rods (:func:`rod_body`): the crank at the origin, the coupler placed ``crank`` down the crank, the rocker
+    at (ground, 0)."""
+    return Rule.of(rod_body(p["m"], p["crank"]), rod_body(p["m"], p["coupler"], p["crank"]),
+                   rod_body(p["m"], p["rocker"], p["ground"]))
+
+
+def _slider_crank_rule(p) -> Rule:
+    """Two rods (:func:`rod_body`) and the slider placed |offset| from the origin, a point mass."""
+    return Rule.of(rod_body(p["m_crank"], p["crank"]), rod_body(p["m_rod"], p["rod"], p["crank"]),
+                   (p["m_slider"], abs(p["offset"]), 0.0))
+
+
+def _gear_rule(p) -> Rule:
+    """Two rods (:func:`rod_body`), the wheel's placed ``spacing`` from the origin."""
+    return Rule.of(rod_body(p["m1"], p["l1"]), rod_body(p["m2"], p["l2"], p["spacing"]))
+
+
 def _double_pendulum_circle(p, q, qd, u) -> Split:
     """Article 5.6: eqs. (6)-(8), the circle row (:func:`circle_terms`), the KKT system by hand
     (:func:`one_row_kkt`: eqs. 12-14) and ctrl = B_c u (eq. 17, :func:`constrained_input_map`)."""
@@ -571,7 +872,7 @@ def _double_pendulum_circle(p, q, qd, u) -> Split:
     J = endpoint_jacobian(q, l1, l2)
     return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)),
                      _Kkt(np.array([phi]), Jc.reshape(1, 2), np.array([bias]), np.array([lam]),
-                          np.array([lam_drift])))
+                          np.array([lam_drift]), _double_pendulum_rule(p)))
 
 
 def _cartesian_pendulum(p, q, qd, u) -> Split:
@@ -585,7 +886,7 @@ def _cartesian_pendulum(p, q, qd, u) -> Split:
     ctrl = constrained_input_map(M, 2.0 * q) @ u
     return _assemble(t, qd, drift, ctrl, total, _task(np.eye(2), np.zeros(2), drift, task_inertia_square(np.eye(2), M)),
                      _Kkt(np.array([q @ q - L * L]), 2.0 * q.reshape(1, 2), np.array([2.0 * qd @ qd]),
-                          np.array([lam]), np.array([lam_drift])))
+                          np.array([lam]), np.array([lam_drift]), _cartesian_rule(p)))
 
 
 def _double_pendulum_absolute_loop(p, q, qd, u) -> Split:
@@ -607,7 +908,59 @@ def _double_pendulum_absolute_loop(p, q, qd, u) -> Split:
     tip = endpoint_jacobian(th, l1, l2) @ drift_j + tip_bias(th, thd, l1, l2)
     return _assemble(t, qd, joint_to_loop(th, thd, drift_j, l1), joint_to_loop(th, np.zeros(2), ctrl_j, l1),
                      joint_to_loop(th, thd, total_j, l1), (tip, m2 * np.eye(2), 1.0),
-                     _Kkt(phi, Jc, bias, lam, lam_drift))
+                     _Kkt(phi, Jc, bias, lam, lam_drift, _absolute_loop_rule(p)))
+
+
+def _four_bar(p, q, qd, u) -> Split:
+    """The open tree's M, C qd, g (:func:`four_bar_terms`), the loop (:func:`four_bar_loop`), eqs. (12)-(17) under
+    the backends' rule (:func:`_constrained`: minimum-norm multipliers at the change points), the task point
+    ``coupler_mid`` by :func:`link_point` (eqs. 23, 22 with the open tree's M)."""
+    a, b, c, m, g = p["crank"], p["coupler"], p["rocker"], p["m"], p["g"]
+    M, Cqd, grav = four_bar_terms(q, qd, a, b, c, m, g)
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, u, 3.0 * m, abs(g))
+    drift, ctrl, total, kkt = _constrained(t, *four_bar_loop(q, qd, a, b, c, p["ground"]), _four_bar_rule(p))
+    J, bias = link_point(q, qd, a, b / 2.0)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, task_inertia(J, t.Minv)), kkt)
+
+
+def _slider_crank(p, q, qd, u) -> Split:
+    """The open tree's M, C qd, g (:func:`slider_crank_terms`), the wrist pin (:func:`wrist_pin`), eqs. (12)-(17)
+    (:func:`_constrained`); the task is the slider's x: J = (0, 0, 1), Jdot qd = 0, Lambda = 1 / (M^-1)_33 =
+    m_slider (M is block-diagonal), cond 1."""
+    a, r, e = p["crank"], p["rod"], p["offset"]
+    ms = p["m_slider"]
+    M, Cqd, grav = slider_crank_terms(q, qd, a, r, p["m_crank"], p["m_rod"], ms, p["g"])
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, u, p["m_crank"] + p["m_rod"] + ms, abs(p["g"]))
+    drift, ctrl, total, kkt = _constrained(t, *wrist_pin(q, qd, a, r, e), _slider_crank_rule(p))
+    J = np.array([[0.0, 0.0, 1.0]])
+    return _assemble(t, qd, drift, ctrl, total, _task(J, np.zeros(1), drift, task_inertia(J, t.Minv)), kkt)
+
+
+def _double_pendulum_rail(p, q, qd, u) -> Split:
+    """Eqs. (6)-(8), the rail row (:func:`rail_terms`), eqs. (12)-(17) (:func:`_constrained`), the tip by
+    eqs. (4), (5)."""
+    l1, l2 = p["l1"], p["l2"]
+    M, Cqd, grav = pendulum_terms(q, qd, p["m1"], p["m2"], l1, l2, p["g"])
+    t = _Terms(M, inv2(M), Cqd, grav, u, p["m1"] + p["m2"], abs(p["g"]))
+    drift, ctrl, total, kkt = _constrained(t, *rail_terms(q, qd, l1, l2, p["x0"], p["y0"], p["incline"]),
+                                           _double_pendulum_rule(p))
+    J = endpoint_jacobian(q, l1, l2)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)),
+                     kkt)
+
+
+def _geared_pendulums(p, q, qd, u) -> Split:
+    """Two rods (:func:`gear_terms`, M diagonal) coupled by the gear (:func:`gear_constraint`), eqs. (12)-(17)
+    (:func:`_constrained`: with ``S = 1 / M11 + ratio^2 / M22`` the gear's torque is ``lam = (ratio (M^-1 f)_2 -
+    (M^-1 f)_1) / S``); the task is the pinion rod's end along x: ``J = (l1 cos q1, 0)``, ``Jdot qd = -l1 sin q1
+    q1d^2`` (:func:`chain_tip` of one link)."""
+    m1, l1, m2, l2 = p["m1"], p["l1"], p["m2"], p["l2"]
+    M, Cqd, grav = gear_terms(q, qd, m1, l1, m2, l2, p["g"])
+    t = _Terms(M, np.diag(1.0 / np.diag(M)), Cqd, grav, u, m1 + m2, abs(p["g"]))
+    drift, ctrl, total, kkt = _constrained(t, *gear_constraint(q, p["ratio"], p["offset"]), _gear_rule(p))
+    J, bias = chain_tip(q[:1], qd[:1], (l1,))
+    J = np.array([[J[0, 0], 0.0]])
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias[:1], drift, task_inertia(J, t.Minv)), kkt)
 
 
 def _one_joint(M, Cqd, grav, J, bias, u, qd, mass, g) -> Split:
@@ -646,12 +999,14 @@ CONSTRAINED = ("lam", "lam_drift", "constraint_force", "constraint_force_drift",
 
 @dataclass(frozen=True)
 class ClosedForm:
-    """One case's closed form: where its equations come from, the shape (n, m, k) its parameters give, and its
-    split from the typed parameters and a state."""
+    """One case's closed form: where its equations come from, the shape (n, m, k) its parameters give, its split
+    from the typed parameters and a state, and (constrained cases) the scales of the backends' rule for redundant
+    rows from the typed parameters (:class:`Rule`; equal to the model's ``length_scale`` and ``inertia_scale``)."""
 
     source: str
     shape: Callable[[dict], tuple[int, int, int]]
     split: Callable[[dict, np.ndarray, np.ndarray, np.ndarray], Split]
+    rule: Callable[[dict], Rule] | None = None
 
     def supplies(self, params: dict) -> tuple[str, ...]:
         """The compared quantities it supplies (the joint loads are not among them)."""
@@ -665,17 +1020,27 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
                                   lambda p: (p["n"], p["n"], 0), _n_link_pendulum),
     "acrobot": ClosedForm("Spong's acrobot equations, angles from hanging down", lambda p: (2, 1, 0), _acrobot),
     "double_pendulum_circle": ClosedForm("article 5.6, eqs. (4)-(8), (12)-(17), one circle row",
-                                         lambda p: (2, 2, 1), _double_pendulum_circle),
+                                         lambda p: (2, 2, 1), _double_pendulum_circle, _double_pendulum_rule),
     "cartesian_pendulum": ClosedForm("the multiplier of eqs. (12)-(13) by hand, M = m I",
-                                     lambda p: (2, 2, 1), _cartesian_pendulum),
+                                     lambda p: (2, 2, 1), _cartesian_pendulum, _cartesian_rule),
     "double_pendulum_absolute_loop": ClosedForm(
         "the double pendulum's eqs. (4)-(9) mapped to the loop, multipliers the pins' forces (Newton)",
-        lambda p: (6, 2, 4), _double_pendulum_absolute_loop),
+        lambda p: (6, 2, 4), _double_pendulum_absolute_loop, _absolute_loop_rule),
     "rotor": ClosedForm("one rigid body on a tilted revolute joint, by hand", lambda p: (1, 1, 0), _rotor),
     "inclined_slider": ClosedForm("a point mass on a tilted prismatic joint, by hand", lambda p: (1, 1, 0),
                                   _inclined_slider),
     "spherical_pendulum": ClosedForm("a ball on two perpendicular revolute joints, by hand", lambda p: (2, 2, 0),
                                      _spherical_pendulum),
+    "four_bar": ClosedForm("three uniform rods by hand (absolute angles mapped to relative), the loop's two rows, "
+                           "eqs. (12)-(17) with minimum-norm multipliers at the change points",
+                           lambda p: (3, 3, 2), _four_bar, _four_bar_rule),
+    "slider_crank": ClosedForm("two uniform rods and a point-mass slider by hand, the wrist pin's two rows, "
+                               "eqs. (12)-(17)", lambda p: (3, 3, 2), _slider_crank, _slider_crank_rule),
+    "double_pendulum_rail": ClosedForm("article section 3, eqs. (4)-(8), with the tip's PointOnLine row, "
+                                       "eqs. (12)-(17)", lambda p: (2, 2, 1), _double_pendulum_rail,
+                                       _double_pendulum_rule),
+    "geared_pendulums": ClosedForm("two uniform rods by hand coupled by a JointCoupling gear, eqs. (12)-(17)",
+                                   lambda p: (2, 2, 1), _geared_pendulums, _gear_rule),
 }
 
 

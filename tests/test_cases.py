@@ -17,7 +17,7 @@ from cases import CaseError, Model
 
 ALL = ["double_pendulum", "n_link_pendulum", "acrobot", "spatial_arm", "panda", "rotor", "inclined_slider",
        "spherical_pendulum", "double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
-       "double_pendulum_absolute_loop"]
+       "double_pendulum_absolute_loop", "double_pendulum_rail", "geared_pendulums"]
 
 
 def _rodrigues(axis, angle):
