@@ -175,13 +175,28 @@ def _signed_pairwise(pairwise):
     return faulty
 
 
-def _circle_radius_squared(validate):
-    from cases.constraints import PointOnCircle
-
-    def faulty(problems, c, bodies):
-        out = validate(problems, c, bodies)
-        return dataclasses.replace(out, radius=out.radius**2) if isinstance(out, PointOnCircle) else out
+def _rod_inertia_about_end(rod):
+    def faulty(name, parent, mass, length, *args):
+        body = rod(name, parent, mass, length, *args)
+        return dataclasses.replace(body, inertia=4.0 * np.asarray(body.inertia))
     return faulty
+
+
+def _declaration_changed(kind_name: str, change):
+    """A replacement for ``cases.constraints.validate`` that alters the validated declarations of one kind."""
+    def replace(validate):
+        def faulty(problems, c, bodies):
+            out = validate(problems, c, bodies)
+            return change(out) if type(out).__name__ == kind_name else out
+        return faulty
+    return replace
+
+
+_circle_radius_squared = _declaration_changed("PointOnCircle", lambda c: dataclasses.replace(c, radius=c.radius**2))
+_line_normal_swapped = _declaration_changed(
+    "PointOnLine", lambda c: dataclasses.replace(c, normals=np.asarray(c.normals)[:, [1, 0, 2]]))
+_coupling_reversed = _declaration_changed(
+    "JointCoupling", lambda c: dataclasses.replace(c, coefficients=np.asarray(c.coefficients)[::-1]))
 
 
 def _scaled(factor: float):
@@ -202,6 +217,10 @@ CATALOG: list[SharedFault] = [
                 ("cases.factories:_inertia",), lambda f: lambda principal, rotation: f(principal,
                                                                                      np.asarray(rotation).T),
                 "the closed forms (rotor)"),
+    SharedFault("factory-rod-inertia-about-its-end", "case factories",
+                "The constrained cases' uniform rods get the inertia m l^2 / 3 (about an end) for m l^2 / 12 (about "
+                "the COM).",
+                ("cases.constrained:_rod",), _rod_inertia_about_end, "the closed forms (four_bar, slider_crank)"),
     SharedFault("sampling-rates-never-sampled", "sampling",
                 "The sampler leaves every joint rate at 0 (qd drawn but never stored).",
                 ("crosscheck.sampling:sample_states", "crosscheck.gate:sample_states",
@@ -244,6 +263,13 @@ CATALOG: list[SharedFault] = [
                 "A point-on-circle declaration is validated into a circle of radius R^2 (phi = |d|^2 - R^4).",
                 ("cases.constraints:validate",), _circle_radius_squared,
                 "the closed forms (double_pendulum_circle, cartesian_pendulum)"),
+    SharedFault("constraint-line-normal-swapped", "constraint declarations",
+                "A point-on-line declaration is validated with its normal's x and y components swapped.",
+                ("cases.constraints:validate",), _line_normal_swapped, "the closed forms (double_pendulum_rail)"),
+    SharedFault("constraint-coupling-coefficients-reversed", "constraint declarations",
+                "A joint coupling is validated with its coefficients in reverse order (the gear ratio applied to the "
+                "wrong joint).",
+                ("cases.constraints:validate",), _coupling_reversed, "the closed forms (geared_pendulums)"),
     SharedFault("interface-redundancy-threshold-too-high", "interface constants",
                 "The relative eigenvalue below which a constraint direction counts as redundant is 1e-2, not 1e-10 "
                 "(every backend imports it).",
