@@ -42,6 +42,13 @@ def test_a_term_hook_changes_its_backends_answer_by_the_size_of_the_term(backend
     assert np.array_equal(formalism.split(model, state.q, state.qd, state.u).drift, before)
 
 
+def test_the_families_are_the_default_gates_cases():
+    import cases
+
+    members = [case for family in sensitivity.FAMILIES.values() for case in family]
+    assert sorted(members) == sorted(cases.names()) and len(set(members)) == len(members)
+
+
 def test_the_table_renders_per_family_and_the_claim():
     m = sensitivity.Measurement("newton_euler", "g", "panda", 20, 800.0, 3, "drift", 1.2e-11, True)
     table = sensitivity.Table((m,), 20)
