@@ -511,15 +511,18 @@ def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict
 
 
 def _lam_rounding(model, split) -> float:
-    """``|lam|_1 (T / sigma_r(Jc))``: a row of Jc is a sum of terms of size T (the kinematics scale over the length
-    scale) and rounds at ``eps T`` however small it comes out, so a short row (a point 5e-5 m off a joint axis) has a
-    relative error ``eps T / sigma_r`` that lam, ``S^-1 r``, inherits (a fuzz finding: lam = -1.4e5 off by 2000 eps,
-    1.6 times a tolerance built from lam_scale alone). sigma_r is Jc's smallest kept singular value."""
+    """``(|lam|_1 + lam_scale) (T / sigma_r(Jc))``: a row of Jc is a sum of terms of size T (the kinematics scale over
+    the length scale) and rounds at ``eps T`` however small it comes out, so a short row (a point 5e-5 m off a joint
+    axis) has a relative error ``eps T / sigma_r`` that lam, ``S^-1 r``, inherits (a fuzz finding: lam = -1.4e5 off by
+    2000 eps, 1.6 times a tolerance built from lam_scale alone); and that rounding, times the free accelerations in
+    ``r = -Jcdot qd - Jc a``, is up to ``eps T accel_scale ||S^+||``, at most ``eps T lam_scale / sigma_r``, however
+    small lam (a fuzz finding: a slide 1.8e-8 rad off the level, a row 1.5e-8 long, a rounding entry 1e-16 in it
+    times a free acceleration of 6.6 moved lam from -6.3 to -3.1). sigma_r is Jc's smallest kept singular value."""
     sigma = np.linalg.svd(split.constraint_jacobian, compute_uv=False)
     rank = split.constraint_rank or 0
     if rank == 0:
         return 0.0
-    size = max(float(np.abs(split.lam).sum()), float(np.abs(split.lam_drift).sum()))
+    size = max(float(np.abs(split.lam).sum()), float(np.abs(split.lam_drift).sum())) + split.lam_scale
     if not (np.isfinite(size) and sigma[rank - 1] > 0.0):
         return 0.0                   # an answer that is not finite fails on its own; it must not blur the tolerance
     return size * _loads(model).length * (model.n + 1) / float(sigma[rank - 1])

@@ -144,3 +144,19 @@ def test_the_power_tolerance_covers_an_input_map_that_cancels():
     outcome = evaluate(model, state, ALL)
     assert outcome.comparisons["power_ctrl"].verdict == AGREE
     assert outcome.scales.power_scale == pytest.approx(1.1693832857249644 * 9.375 + 1.1 * 10.0)
+
+
+def test_the_multiplier_tolerance_covers_a_short_row_times_the_free_accelerations():
+    """A fuzz finding: a slide 1.8e-8 rad off the level makes a constraint row 1.5e-8 long; one backend's Jc carries a
+    rounding entry of 1e-16 in the other column, which times the free acceleration there (6.6) moved its lam from
+    -6.3 to -3.1. The rounding of a short row reaches lam through lam_scale, not through |lam|."""
+    from cases import PointsCoincide
+
+    model = cases.build_model("nearly_level_slide", [
+        cases.Body("b0", None, "revolute", (0, 1, 0), 1.0, inertia=np.diag([0.25, 0.25, 0.025]),
+                   translation=(0, 0, 0.75)),
+        cases.Body("b1", "b0", "prismatic", (0, 1, 1.8090348739139062e-08), 1.0, translation=(0, 0, 0.25))],
+        task_points=[cases.TaskPoint("tip", "b1", (0, 0, 0), directions=[[1, 0, 0]])],
+        constraints=[PointsCoincide("c0", "b0", (0, 0, 0), "b1", (0, 0, -0.25), directions=[[1, 0, 0]])])
+    outcome = evaluate(model, State(0, (1.0, 0.0), (0.0, 0.0), (0.0, 0.0)), ALL)
+    assert not outcome.failed, [k for k, c in outcome.comparisons.items() if c.verdict == DISAGREE]
