@@ -303,7 +303,9 @@ def cmd_eval(args) -> int:
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
     u, tau_p = _inputs(args, model, chart, p)
-    splits, unsupported = _chart_splits(model, chart, p, pd, u, tau_p, _backends(args.formalism))
+    chosen = _backends(args.formalism)
+    closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too
+    splits, unsupported = _chart_splits(model, chart, p, pd, u, tau_p, chosen + ([closed] if closed else []))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
            for name, (_, split) in splits.items()}
     if args.json:
