@@ -278,7 +278,7 @@ CATALOG: list[SharedFault] = [
                  "formalisms.screw.conditioning:CONSTRAINT_RCOND",
                  "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
                  "crosscheck.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
-                "the conditions audit and the exact H_t residual"),
+                "the closed forms, the conditions audit and the exact H_t residual"),
 ]
 
 

@@ -197,6 +197,10 @@ def hint(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> 
     if all(c.outlier == "exact" for c in failing.values()):
         return (f"the backends agree with each other against the exact value in {', '.join(failing)}: the state "
                 "(not admissible?) or the exact claim, not a backend")
+    if all(c.outlier == "closed_form" for c in failing.values()):
+        return (f"every backend and the reference agree with each other against the article's closed form in "
+                f"{', '.join(failing)}: suspect code they all share (the model or its constraint declarations, the "
+                "interface constants, the harness) or the closed form itself, not one backend")
     who = _suspect(failing, outcome.trusted)
     names = ", ".join(failing)
     if who == REFERENCE_NAME and model.source is not None:

@@ -427,8 +427,9 @@ def acceleration_bound(model, q, qd, accelerations, forces=None) -> np.ndarray:
     Mterm, f = _entry_terms(model, q, qd)
     x = np.abs(np.asarray(accelerations, dtype=float))
     d = mass.root_diagonal
-    rhs = f + Mterm @ x + d * float(d @ x) + (0.0 if forces is None else np.abs(forces))
-    return mass.abs_inverse @ rhs
+    with np.errstate(over="ignore", invalid="ignore"):       # an overflowed answer has no finite bound: inf
+        rhs = f + Mterm @ x + d * float(d @ x) + (0.0 if forces is None else np.abs(forces))
+        return mass.abs_inverse @ rhs
 
 
 def kinetic_energy_bound(model, q, qd) -> float:

@@ -21,7 +21,7 @@ import cases.constrained
 import cases.constraints
 import cases.factories
 import cases.model
-from crosscheck import backends, cli, closed_forms, frames, gate, reference, sampling, testing
+from crosscheck import backends, cli, closed_forms, diagnosis, frames, gate, reference, sampling, testing
 from crosscheck import tolerance as policy
 from crosscheck.compare import DISAGREE, suspect
 from crosscheck.sampling import State
@@ -358,6 +358,8 @@ def test_a_factory_bug_makes_the_closed_form_the_outlier(bug, monkeypatch):
     disagreements = [c for o in outcomes for c in o.comparisons.values() if c.verdict == DISAGREE]
     assert {c.quantity for c in disagreements} >= {"drift", "total"}, bug
     assert all(c.outlier == "closed_form" and suspect(c) == "closed_form" for c in disagreements), bug
+    failed = next(o for o in outcomes if o.failed)
+    assert "suspect code they all share" in diagnosis.hint(model, failed, [*ALL, voter]), bug
 
 
 def test_without_the_bug_the_same_states_agree():
