@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from cases.constraints import XY_PLANE, JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
-from cases.factories import _PLANE, _Z, _require, double_pendulum, planar_disk, register
+from cases.factories import _PLANE, _Z, _positive, _require, double_pendulum, planar_disk, register
 from cases.model import Body, Model, TaskPoint, build_model
 
 _X, _Y = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
@@ -22,11 +22,6 @@ def _rod(name: str, parent: str | None, mass: float, length: float, at=_ORIGIN) 
     """A uniform planar rod on a revolute z joint at ``at`` (parent frame), hanging along -y at q = 0."""
     inertia = np.diag([mass * length**2 / 12.0, 0.0, mass * length**2 / 12.0])
     return Body(name, parent, "revolute", _Z, mass, com=(0.0, -length / 2.0, 0.0), inertia=inertia, translation=at)
-
-
-def _positive(case: str, **values: float) -> None:
-    for key, value in values.items():
-        _require(value > 0.0, f"{case}: {key} must be positive, got {value}")
 
 
 @register

@@ -81,6 +81,18 @@ def _require(cond: bool, message: str) -> None:
         raise CaseError(message)
 
 
+def _positive(case: str, **values: float) -> None:
+    """Masses and lengths of a case: positive (a link's direction is the joint angle's job, not its length's sign;
+    a zero mass or length is a different mechanism, usually one with a singular mass matrix)."""
+    for key, value in values.items():
+        _require(value > 0.0, f"{case}: {key} must be positive, got {value}")
+
+
+#: Most links ``n_link_pendulum`` builds: the symbolic Euler–Lagrange derivation grows about as n^3, and a gate run
+#: beyond this would take hours without a word.
+MAX_LINKS = 60
+
+
 # ---------------------------------------------------------------------------------------------- planar
 
 
@@ -93,6 +105,7 @@ def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float
     Mass 1 at (l1 sin t1, -l1 cos t1), mass 2 (task point ``tip``) at eq. (4). ``I1``, ``I2`` (default 0, the
     article's point masses) give each mass a rotational inertia about z (:func:`planar_disk`).
     """
+    _positive("double_pendulum", m1=m1, m2=m2, l1=l1, l2=l2)
     bodies = [
         Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0), inertia=planar_disk(I1)),
         Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), inertia=planar_disk(I2),
@@ -110,7 +123,8 @@ def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81)
     """
     _require(isinstance(n, (int, np.integer)) and not isinstance(n, bool),
              f"n_link_pendulum: n must be an integer, got {n!r}")
-    _require(n >= 1, f"n_link_pendulum: n must be at least 1 (number of links), got {n}")
+    _require(1 <= n <= MAX_LINKS, f"n_link_pendulum: n (the number of links) must be from 1 to {MAX_LINKS}, got {n}")
+    _positive("n_link_pendulum", m=m, l=l)
     bodies = []
     for i in range(1, n + 1):
         bodies.append(Body(f"link{i}", None if i == 1 else f"link{i - 1}", "revolute", _Z, m,
@@ -129,6 +143,7 @@ def acrobot(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 2.0, 
     (y): diag(Ii, 0, Ii), which is positive semi-definite and satisfies the triangle inequality.
     Task point ``tip``: the end of link 2.
     """
+    _positive("acrobot", m1=m1, m2=m2, l1=l1, l2=l2)
     bodies = [
         Body("link1", None, "revolute", _Z, m1, com=(0.0, -lc1, 0.0), inertia=np.diag([I1, 0.0, I1])),
         Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -lc2, 0.0), inertia=np.diag([I2, 0.0, I2]),

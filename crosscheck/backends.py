@@ -27,8 +27,10 @@ import sys
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 import formalisms
-from formalisms.interface import Formalism, Split
+from formalisms.interface import Formalism, Split, Unsupported
 
 REFERENCE_NAME = "pinocchio"
 
@@ -54,11 +56,19 @@ class _Checked:
     name: str
     function: Callable[..., Any]
 
-    def __call__(self, *args, **kwargs) -> Split:
-        out = self.function(*args, **kwargs)
+    def __call__(self, model, *args, **kwargs) -> Split:
+        out = self.function(model, *args, **kwargs)
         if not isinstance(out, Split):
             raise TypeError(f"plugin '{self.name}' returned {type(out).__name__}, not a formalisms.interface.Split "
                             "(build one with crosscheck.assemble.unconstrained_split or constrained_split)")
+        sizes = {"drift": model.n, "lam": model.k if model.constraints else None}
+        for key, size in sizes.items():
+            value = getattr(out, key)
+            shape = None if value is None or isinstance(value, Unsupported) else np.shape(value)
+            if shape != (None if size is None else (size,)):
+                raise TypeError(f"plugin '{self.name}' returned {key} of shape {shape} for model '{model.name}', "
+                                f"which has {model.n} joints and {model.k} constraint rows (expected "
+                                f"{None if size is None else (size,)})")
         return out
 
 

@@ -20,7 +20,7 @@ import cases
 from cases.model import ModelError
 from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
-from crosscheck import diagnosis, junit, registry
+from crosscheck import diagnosis, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import KNOWN, worst_of
 from crosscheck.report import render
@@ -44,11 +44,35 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _vector(text: str, label: str) -> list[float]:
-    parts = [p for p in text.replace(",", " ").split() if p]
+    """Comma-separated numbers (spaces allowed around them); an empty entry or a non-number is an error, never
+    skipped, and so is a number that is not finite (``1e309`` reads as inf)."""
+    parts = [p.strip() for p in text.split(",")] if text.strip() else []
     try:
-        return [float(p) for p in parts]
+        values = [float(p) for p in parts if p]
     except ValueError:
         raise UsageError(f"--{label} takes comma-separated numbers, got '{text}'") from None
+    if len(values) < len(parts):
+        raise UsageError(f"--{label} has an empty entry (position {parts.index('') + 1}) in '{text}'; give one "
+                         "number per coordinate, separated by commas")
+    preflight.check_vector(label, np.array(values))
+    return values
+
+
+#: Largest seed: numpy's and Hypothesis' generators take any non-negative integer; 2^63 - 1 keeps it one int64.
+MAX_SEED = 2**63 - 1
+#: Most rigid frame changes a gate run samples (``--frames``); ``eval --frame gK`` takes K below it.
+MAX_FRAMES = 16
+
+
+def _seed(text: str) -> int:
+    """``--seed``: an integer from 0 to :data:`MAX_SEED`."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"takes an integer from 0 to {MAX_SEED}, got '{text}'") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"takes an integer from 0 to {MAX_SEED}, got {value}")
+    return value
 
 
 def _params(pairs: list[str]) -> tuple[tuple[str, str], ...]:
@@ -129,20 +153,24 @@ def _required(args) -> list[str]:
 def cmd_gate(args) -> int:
     if args.samples < 1:
         raise UsageError("--samples must be at least 1")
+    if not 0 <= args.frames <= MAX_FRAMES:
+        raise UsageError(f"--frames takes 0 (off) to {MAX_FRAMES} frame changes per case, got {args.frames}")
+    if args.workers < 1:
+        raise UsageError("--workers must be at least 1 (1: every case in this process)")
     specs = _specs(args)
     chosen = _backends(args.formalism)
-    for spec in specs:  # build every model first so bad input fails before any work
-        spec.build()
+    for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
+        preflight.check_model(model)
     known = _registry(args)
+    placeholder = "# crosscheck gate\n\nThe run writing this report has not finished (interrupted or failed).\n"
+    report = preflight.claim_output(args.report, "report", placeholder)
+    if args.junit:
+        preflight.claim_output(args.junit, "junit", "")
 
     def progress(case, done):
         if done == args.samples:
             print(f"  {case}: {done} states evaluated", file=sys.stderr)
 
-    if args.frames < 0:
-        raise UsageError("--frames must be 0 (off) or more")
-    if args.workers < 1:
-        raise UsageError("--workers must be at least 1 (1: every case in this process)")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test)
     result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers,
@@ -150,8 +178,6 @@ def cmd_gate(args) -> int:
     applied = registry.apply(known, result) if known else None
     diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
-    report = Path(args.report)
-    report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(render(result, command, applied))
     if args.junit:
         junit.write(result, args.junit)
@@ -174,8 +200,11 @@ def cmd_gate(args) -> int:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
     for name in result.absent:
-        print(f"FAIL: backend {name} took part in no comparison (it declined every case or was in BREAKDOWN "
-              f"everywhere); name it with --optional {name} if that is expected", file=sys.stderr)
+        raised = [s.errors[name] for case in result.cases for s in case.states if name in s.errors]
+        why = (f"it raised at {len(raised)} states, first: {raised[0]}" if raised
+               else "it declined every case or was in BREAKDOWN everywhere")
+        print(f"FAIL: backend {name} took part in no comparison ({why}); name it with --optional {name} if that "
+              "is expected", file=sys.stderr)
     if result.self_test is not None:
         failures = result.self_test.failures()
         for line in failures:
@@ -238,16 +267,35 @@ def _chart_split(backend, model, chart, p, pd, u, tau_p) -> tuple[str, object]:
     return "joint chart, mapped by Dpsi^-1", dataclasses.replace(split, **mapped)
 
 
-def _chart_splits(model, chart, p, pd, u, tau_p, chosen) -> tuple[dict[str, tuple[str, object]], dict[str, str]]:
-    """Per backend: (how it was evaluated, split in the chart); and the backends written for other models
-    (``ModelNotSupported``): name -> their reason."""
-    out, unsupported = {}, {}
+def _non_finite(split) -> list[str]:
+    """The fields of ``split`` holding NaN or inf at a finite state: the backend failed, unless a condition it
+    reports in BREAKDOWN covers the field (a task singularity's Lambda is inf; ``tolerance.left_out``)."""
+    broken = policy.breakdown(split)
+    if policy.whole(broken):
+        return []
+    excused = policy.left_out(broken) | {"conditions"}
+    return [key for key in split.__dataclass_fields__ if key not in excused
+            and isinstance(value := getattr(split, key), (float, np.ndarray)) and not np.all(np.isfinite(value))]
+
+
+def _chart_splits(model, chart, p, pd, u, tau_p, chosen):
+    """Per backend: (how it was evaluated, split in the chart); the backends written for other models
+    (``ModelNotSupported``): name -> their reason; and the backends that failed at this valid state (raised, or
+    answered NaN or inf): name -> what happened, as the gate reports a backend error."""
+    out, unsupported, errors = {}, {}, {}
     for backend in chosen:
         try:
             out[backend.name] = _chart_split(backend, model, chart, p, pd, u, tau_p)
         except ModelNotSupported as exc:
             unsupported[backend.name] = str(exc)
-    return out, unsupported
+            continue
+        except Exception as exc:  # a backend that raises on a valid state has failed: report it, exit 1
+            errors[backend.name] = f"{type(exc).__name__}: {_one_line(exc)}"
+            continue
+        bad = _non_finite(out[backend.name][1])
+        if bad:
+            errors[backend.name] = f"non-finite values (NaN or inf) in {', '.join(bad)}"
+    return out, unsupported, errors
 
 
 #: eval accepts a constrained state when |phi| and |Jc qd| are below this times the model's length scale squared
@@ -295,24 +343,27 @@ def cmd_eval(args) -> int:
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
                                      param=args.param))[0]
     model = spec.build()
+    preflight.check_model(model)
     if args.frame is not None:
         model = frames.move_scene(model, _frame(args.frame, args.seed, spec.name))
     chart = charts.get(args.chart or "identity", model, args.seed, spec.name)
     p = _length(_vector(args.q, "q"), model.n, "q")
     pd = _length(_vector(args.qd, "qd"), model.n, "qd") if args.qd is not None else np.zeros(model.n)
+    _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
     u, tau_p = _inputs(args, model, chart, p)
     chosen = _backends(args.formalism)
     closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too
-    splits, unsupported = _chart_splits(model, chart, p, pd, u, tau_p, chosen + ([closed] if closed else []))
+    splits, unsupported, errors = _chart_splits(model, chart, p, pd, u, tau_p, chosen + ([closed] if closed else []))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
            for name, (_, split) in splits.items()}
     if args.json:
         print(json.dumps({"case": spec.name, "params": dict(spec.params), "chart": chart.name,
                           "frame": args.frame, "q": p.tolist(), "qd": pd.tolist(), "u": u.tolist(),
-                          "tau": tau_p.tolist(), "formalisms": out, "not_supported": unsupported}, indent=1))
-        return 0
+                          "tau": tau_p.tolist(), "formalisms": out, "not_supported": unsupported,
+                          "errors": errors}, indent=1))
+        return 1 if errors else 0
     where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
     print(f"case {model.name}{where}: q = {p.tolist()}, qd = {pd.tolist()}, u = {u.tolist()}, "
           f"generalized force = {tau_p.tolist()}")
@@ -331,12 +382,26 @@ def cmd_eval(args) -> int:
             print(f"  {key:22s} {values[key]}")
     for name, reason in unsupported.items():
         print(f"{name}: NOT COMPARED ({reason})")
-    return 0
+    for name, error in errors.items():
+        print(f"{name}: ERROR at this state: {error}")
+    return 1 if errors else 0
+
+
+def _in_chart_domain(chart, p, pd) -> None:
+    """The chart maps (p, pd) to a finite joint state below the state limit, or a UsageError says it does not."""
+    with np.errstate(all="ignore"):
+        q, qd = chart.q_of(p), chart.jacobian(p) @ pd
+    try:
+        preflight.check_vector("q (mapped to joint coordinates)", q)
+        preflight.check_vector("qd (mapped to joint coordinates)", qd)
+    except preflight.PreflightError as exc:
+        raise UsageError(f"chart {chart.name}: {exc}") from None
 
 
 def _frame(name: str, seed: int, case: str) -> frames.Frame:
-    if not (name.startswith("g") and name[1:].isdigit()):
-        raise UsageError(f"--frame takes a sampled frame name g0, g1, ... (as in the gate report), got '{name}'")
+    if not (name.startswith("g") and name[1:].isdigit() and int(name[1:]) < MAX_FRAMES):
+        raise UsageError(f"--frame takes a sampled frame name g0 ... g{MAX_FRAMES - 1} (as in the gate report), "
+                         f"got '{name}'")
     return frames.sampled(seed, case, int(name[1:]) + 1)[-1]
 
 
@@ -385,6 +450,8 @@ def cmd_faults(args) -> int:
                   f"Guard: {f.guard}.")
         return 0
     known = _registry(args)
+    report = preflight.claim_output(args.report, "report", "# crosscheck faults\n\nThe run writing this report "
+                                    "has not finished (interrupted or failed).\n")
     start = time.perf_counter()
     hunts, shared_hunts = [], []
     for fault in chosen:
@@ -399,8 +466,6 @@ def cmd_faults(args) -> int:
                                 lambda line: print(line, file=sys.stderr, flush=True))
     seconds = time.perf_counter() - start
     summary = faults.summarize(hunts)
-    report = Path(args.report)
-    report.parent.mkdir(parents=True, exist_ok=True)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed)
                       + common_mode.render(shared_hunts) + ("\n".join(sensitivity.render(table)) if table else ""))
@@ -519,7 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (one --case)")
     gate.add_argument("--model", action="append", default=[], metavar="PATH", help="a URDF file (repeatable)")
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
-    gate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     gate.add_argument("--report", default=DEFAULT_REPORT, help=f"markdown report path (default {DEFAULT_REPORT})")
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
@@ -551,7 +616,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--tau", help="instead of --u: the generalized force in the chart (a covector, n entries)")
     ev.add_argument("--chart", choices=charts.names(), help="evaluate in this chart q = psi(p) (default identity)")
     ev.add_argument("--frame", help="move the scene by the gate's sampled frame g0, g1, ... (with --seed)")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the gate run (the affine chart, the frames)")
+    ev.add_argument("--seed", type=_seed, default=0, help="seed of the gate run (the affine chart, the frames)")
     ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     ev.add_argument("--project", action="store_true",
                     help="constrained case: move the state onto the constraint manifold first (else it is refused)")
@@ -564,7 +629,7 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--fault", action="append", default=[], metavar="NAME",
                       help="run only this fault (repeatable; default: the whole catalog, see --list)")
     hunt.add_argument("--samples", type=int, default=100, help="at most this many states per case (default 100)")
-    hunt.add_argument("--seed", type=int, default=0, help="random seed of the gate's states (default 0)")
+    hunt.add_argument("--seed", type=_seed, default=0, help="random seed of the gate's states (default 0)")
     hunt.add_argument("--report", default=DEFAULT_FAULTS_REPORT,
                       help=f"markdown report path (default {DEFAULT_FAULTS_REPORT})")
     hunt.add_argument("--list", action="store_true", help="print the catalog (or the chosen faults) and exit")
@@ -579,7 +644,7 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--examples", type=int, help="examples to generate over all shards (default 100 when --minutes "
                     "is not given)")
     fz.add_argument("--minutes", type=float, help="run for this long instead (the chunks in flight then finish)")
-    fz.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    fz.add_argument("--seed", type=_seed, default=0, help="campaign seed (default 0)")
     fz.add_argument("--workers", type=int, default=1, help="worker processes (default 1; 0: in this process)")
     fz.add_argument("--shard", default="0/1", metavar="i/N", help="run the chunks k with k %% N == i (default 0/1)")
     fz.add_argument("--out", default=".crosscheck/fuzz", metavar="DIR",
@@ -640,7 +705,8 @@ def main(argv: list[str] | None = None) -> int:
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
     except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
-            backends.PluginError, charts.ChartError, sampling.ProjectionError, FileNotFoundError) as exc:
+            backends.PluginError, charts.ChartError, sampling.ProjectionError, preflight.PreflightError,
+            OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
 

@@ -125,8 +125,9 @@ def _vanished(value: float, at_state: float, tol: float) -> bool:
 
 
 def _times(value: float, at_state: float, tol: float) -> str:
-    """``0`` when the error vanished, else its multiple of the error at the state (``x4``)."""
-    if not (value == value and at_state > 0.0):
+    """``0`` when the error vanished, else its multiple of the error at the state (``x4``); "not measurable" when
+    either is NaN or the error at the state is 0 or inf (an inf there would make every variant look vanished)."""
+    if not (value == value and 0.0 < at_state < np.inf):
         return "not measurable"
     return "0" if _vanished(value, at_state, tol) else f"x{value / at_state:.3g}"
 

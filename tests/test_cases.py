@@ -115,9 +115,12 @@ def test_string_parameters_convert_by_the_default_type():
         cases.load("double_pendulum", l1="long")
 
 
-def test_n_link_pendulum_needs_at_least_one_link():
-    with pytest.raises(CaseError, match="at least 1"):
-        cases.load("n_link_pendulum", n=0)
+def test_n_link_pendulum_takes_from_one_link_to_its_limit():
+    from cases.factories import MAX_LINKS
+
+    for n in (0, MAX_LINKS + 1):
+        with pytest.raises(CaseError, match=f"must be from 1 to {MAX_LINKS}, got {n}"):
+            cases.load("n_link_pendulum", n=n)
     assert cases.load("n_link_pendulum", n=1).n == 1
 
 

@@ -135,7 +135,7 @@ def test_eval_json_matches_article_closed_form(capsys):
     (["eval", "--case", "double_pendulum", "--q=0.1"], "--q has 1 entries; this model needs 2"),
     (["eval", "--case", "double_pendulum", "--q=0.1,nan"], "q has non-finite entries"),
     (["eval", "--case", "double_pendulum", "--q=0.1,abc"], "--q takes comma-separated numbers"),
-    (["eval", "--case", "double_pendulum", "--param", "m1=-1", "--q=0,0"], "negative mass -1.0"),
+    (["eval", "--case", "double_pendulum", "--param", "m1=-1", "--q=0,0"], "m1 must be positive, got -1.0"),
     (["eval", "--case", "double_pendulum", "--param", "mass=2", "--q=0,0"],
      "has no parameter(s) 'mass'; valid parameters"),
     (["eval", "--case", "double_pendulum", "--q=0,0", "--formalism", "hamilton"], "valid: euler_lagrange"),
