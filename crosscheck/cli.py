@@ -491,6 +491,8 @@ def cmd_fuzz(args) -> int:
 
     if args.examples is not None and args.minutes is not None:
         raise UsageError("give either --examples or --minutes, not both")
+    if args.minutes is not None and not 0.0 < args.minutes < np.inf:
+        raise UsageError(f"--minutes takes a positive, finite number of minutes, got {args.minutes}")
     bound = {"examples": args.examples, "minutes": args.minutes}
     if args.examples is None and args.minutes is None:
         bound["examples"] = fuzz.DEFAULT_EXAMPLES
@@ -546,6 +548,7 @@ def cmd_stability(args) -> int:
     (``crosscheck.stability``), written to DIR/stability.md and its charts. Exit 0: it measures."""
     from crosscheck import stability
 
+    preflight.claim_directory(args.out, "out")
     report = stability.write_report(Path(args.out), quick=args.quick,
                                     progress=lambda path, i, n: print(f"{path}: {i}/{n}", file=sys.stderr,
                                                                       flush=True))
@@ -558,6 +561,7 @@ def cmd_bench(args) -> int:
     stability maps (reports/stability.md), so one command regenerates both reports. Exit 0: it measures."""
     from crosscheck import bench, bench_report
 
+    preflight.claim_directory(args.out, "out")
     plan = bench.QUICK if args.quick else bench.FULL
     names = args.formalism or None
     for name in names or []:

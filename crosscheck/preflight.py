@@ -20,6 +20,8 @@ Each problem is a :class:`PreflightError`: the command line reports it in one li
 
 from __future__ import annotations
 
+import dataclasses
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +30,17 @@ from cases.model import Model
 
 EPS = float(np.finfo(float).eps)
 
-#: Largest magnitude of each kind of quantity (SI units; module docstring).
-LIMITS = {"mass": 1e12, "length": 1e12, "inertia": 1e36, "gravity": 1e12, "state": 1e12}
+#: Largest magnitude of each kind of quantity (SI units; module docstring). A ``ratio`` is a coupling coefficient.
+LIMITS = {"mass": 1e12, "length": 1e12, "inertia": 1e36, "gravity": 1e12, "state": 1e12, "ratio": 1e12}
+#: Smallest non-zero mass: a model whose masses are all 1e-300 kg has a mass matrix of subnormal numbers, and its
+#: constraint solve (``Jc M^-1 Jc^T`` ~ 1e300) loses every digit; a zero mass is a massless body, which is fine.
+MIN_MASS = 1e-12
+#: Smallest reach (largest placement or COM offset) of a model with any length at all: the gate's length floors and
+#: its frame moves are of 1 m (``Model.length_scale``, ``crosscheck.frames``), so a model 1e-100 m long drowns in the
+#: rounding of its world positions (the operational-space Cholesky fails on it); 1e-6 m and 1e-9 m still pass.
+MIN_REACH = 1e-6
+#: Constraint fields that are unit directions or names, not magnitudes.
+_NOT_MAGNITUDES = {"name", "body", "body_a", "body_b", "joints", "directions", "normals", "plane"}
 
 #: Configurations at which M is probed: q = 0 and this many more, drawn from a fixed generator.
 PROBES = 4
@@ -58,6 +69,21 @@ def _magnitudes(model: Model) -> list[str]:
     for tp in model.task_points:
         problems += _too_large(f"task point '{tp.name}' offset", "length", tp.offset)
     problems += _too_large("gravity", "gravity", model.gravity)
+    for c in model.constraints:
+        for f in dataclasses.fields(c):
+            if f.name not in _NOT_MAGNITUDES:
+                kind = "ratio" if f.name == "coefficients" else "length"
+                problems += _too_large(f"constraint '{c.name}' {f.name}", kind, getattr(c, f.name))
+    reach = max(float(np.abs(np.concatenate([b.translation, b.com])).max()) for b in model.bodies)
+    if 0.0 < reach < MIN_REACH:
+        problems.append(f"the model's longest placement or COM offset is {reach:.3g} m, below {MIN_REACH:.0e} m: its "
+                        "geometry drowns in the rounding of 1 m world positions (the gate's frame moves); express "
+                        "lengths in a smaller unit")
+    light = [f"'{b.name}' ({b.mass:.3g} kg)" for b in model.bodies if 0.0 < b.mass < MIN_MASS]
+    if light:
+        problems.append(f"bodies {', '.join(light)} are lighter than {MIN_MASS:.0e} kg, where the mass matrix and "
+                        "the constraint solve lose their digits to underflow; give a mass of at least that, or "
+                        "0 for a massless body")
     return problems
 
 
@@ -126,6 +152,21 @@ def claim_output(path: str | Path, label: str, placeholder: str) -> Path:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(placeholder)
+    except OSError as exc:
+        raise PreflightError(f"--{label} {path} cannot be written: {exc.strerror or exc}") from None
+    return path
+
+
+def claim_directory(path: str | Path, label: str) -> Path:
+    """Make sure the run can write files in the directory ``path`` before it starts (created if missing); a file in
+    its place or an unwritable place is a :class:`PreflightError` naming the option."""
+    path = Path(path)
+    blocking = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise PreflightError(f"--{label} {path} cannot be a report directory: {blocking} is a file")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
     except OSError as exc:
         raise PreflightError(f"--{label} {path} cannot be written: {exc.strerror or exc}") from None
     return path

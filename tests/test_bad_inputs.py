@@ -61,8 +61,11 @@ def _refused(argv, capsys) -> str:
 
 @pytest.mark.parametrize("argv, fragment", [
     # a mass matrix singular everywhere: a point mass on a joint axis, a mass 1e-300 times the other
-    (["eval", *DP, "--param", "I2=0", "--param", "l2=1e-200", "--q=0.1,0.2"], "singular at every probed"),
-    (["eval", *DP, "--param", "m2=1e-300", "--q=0.1,0.2"], "joint velocity (link2 +1) moves no mass"),
+    (["eval", *DP, "--param", "I2=0", "--param", "l2=1e-200", "--q=0.1,0.2"], "velocity (link2 +1) moves no mass"),
+    (["eval", *DP, "--param", "m2=1e-300", "--q=0.1,0.2"], "bodies 'link2' (1e-300 kg) are lighter than 1e-12 kg"),
+    (["gate", "--case", "n_link_pendulum", "--param", "l=1e-100"], "longest placement or COM offset is 1e-100 m"),
+    (["gate", "--case", "cartesian_pendulum", "--param", "L=1e300"], "constraint 'rod' radius has magnitude 1e+300"),
+    (["gate", "--case", "geared_pendulums", "--param", "ratio=1e300"], "'gear' coefficients has magnitude 1e+300"),
     # magnitudes beyond the double-precision range of the tolerance policy
     (["gate", *DP, "--param", "m1=1e300"], "body 'link1' mass has magnitude 1e+300, above the mass limit"),
     (["gate", *DP, "--param", "g=1e308"], "gravity has magnitude 1e+308"),
@@ -84,6 +87,8 @@ def _refused(argv, capsys) -> str:
     (["fuzz", "--seed", "-1"], "--seed: takes an integer from 0 to"),
     (["eval", *DP, "--q=0,0", "--frame", "g99"], "--frame takes a sampled frame name g0 ... g15"),
     (["gate", *DP, "--frames", "17"], "--frames takes 0 (off) to 16"),
+    # unbounded or misdirected work
+    (["fuzz", "--minutes", "inf"], "--minutes takes a positive, finite number of minutes, got inf"),
 ])
 def test_bad_input_is_refused_in_one_line(argv, fragment, capsys):
     assert fragment in _refused(argv, capsys)
@@ -150,3 +155,10 @@ def test_an_infinite_error_is_not_measurable_never_zero():
     assert diagnosis._times(1.0, np.inf, 1e-12) == "not measurable"
     assert diagnosis._times(np.nan, 1.0, 1e-12) == "not measurable"
     assert diagnosis._times(4.0, 1.0, 1e-12) == "x4"
+
+
+@pytest.mark.parametrize("command", [["bench", "--quick", "--no-stability"], ["stability", "--quick"]])
+def test_a_report_directory_that_is_a_file_is_refused_before_the_run(tmp_path, capsys, command):
+    (tmp_path / "file").write_text("")
+    err = _refused([*command, "--out", str(tmp_path / "file")], capsys)
+    assert "is a file" in err
