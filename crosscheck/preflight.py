@@ -3,17 +3,22 @@ of double precision, output paths that can be written.
 
 A model can be well formed (``cases.model.build_model`` accepts it) and still be outside what the gate can judge:
 
-* **Magnitudes.** Every mass, length, inertia, gravity and state entry must lie below :data:`LIMITS`. The backends and
-  the tolerance policy form products of up to about ten model quantities (``m L^2 qd^2`` squared in a norm,
-  ``cond(M)`` times a scale); with each factor below 1e12 (1e36 for an inertia, a mass times a length squared) they
-  stay far below the double range (1e308), so nothing overflows to inf and no bound turns into NaN.
+* **Magnitudes.** Every mass, length (placements, COM and task offsets, constraint geometry), inertia, gravity,
+  coupling ratio and state entry must lie below :data:`LIMITS`. The backends and the tolerance policy form products
+  of up to about ten model quantities (``m L^2 qd^2`` squared in a norm, ``cond(M)`` times a scale); with each factor
+  below 1e12 (1e36 for an inertia, a mass times a length squared) they stay far below the double range (1e308), so
+  nothing overflows to inf and no bound turns into NaN. From below, a non-zero mass is at least :data:`MIN_MASS`
+  and a model with any length at all reaches at least :data:`MIN_REACH` (underflow; the 1 m floors of the policy).
 * **A regular mass matrix.** The gate's error bounds are first order in the rounding of M (``crosscheck.tolerance``):
   they hold while ``n eps cond(M)`` is small. A model whose M is singular at every configuration (a point mass on
-  a joint axis with no rotational inertia about it; a mass 1e-300 times the others) has no acceleration to compare:
+  a joint axis with no rotational inertia about it; a mass 1e-13 times the others) has no acceleration to compare:
   every backend is right to fail on it. :func:`check_model` evaluates M (the reference's CRBA on the model's own
-  data) at :data:`PROBES` configurations and refuses the model when ``cond(M) > MAX_COND_M(n)`` at all of them,
+  data) at :data:`PROBES` configurations and refuses the model when ``cond(M) >`` :func:`max_cond_m` at all of them,
   naming the joint velocity that carries no kinetic energy. A singular configuration of a regular model (a
   measure-zero set) is the gate's BREAKDOWN, not a bad model.
+
+Output paths (:func:`claim_output`, :func:`claim_directory`) are checked by writing them before the run, so an
+unwritable path fails in one line at once and not after the whole run, and no earlier report survives a failed run.
 
 Each problem is a :class:`PreflightError`: the command line reports it in one line with exit code 2.
 """

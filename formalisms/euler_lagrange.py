@@ -525,11 +525,15 @@ def cached_source(model: Model, chart: Chart | None = None) -> str:
 
 
 def _write(path: Path, data: bytes) -> None:
-    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
-        fh.write(data)
-    os.replace(fh.name, path)
+    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it. A cache
+    that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home) only costs the derivation next time."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
+            fh.write(data)
+        os.replace(fh.name, path)
+    except OSError:
+        return
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:

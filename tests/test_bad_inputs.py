@@ -162,3 +162,11 @@ def test_a_report_directory_that_is_a_file_is_refused_before_the_run(tmp_path, c
     (tmp_path / "file").write_text("")
     err = _refused([*command, "--out", str(tmp_path / "file")], capsys)
     assert "is a file" in err
+
+
+def test_an_unwritable_derivation_cache_costs_time_not_the_backend(tmp_path, monkeypatch, capsys):
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path / "file"))
+    argv = ["eval", *DP, "--param", "m1=1.2345", "--q=0.1,0.2", "--formalism", "euler_lagrange"]
+    assert cli.main(argv) == 0
+    assert "ERROR" not in capsys.readouterr().out
