@@ -220,7 +220,8 @@ def panda_urdf_path():
 
 @register
 def panda() -> Model:
-    """Franka Emika Panda from example-robot-data's URDF via Pinocchio: 7 arm joints + 2 finger joints (mimic ignored).
+    """Franka Emika Panda from example-robot-data's URDF via Pinocchio: 7 arm joints + 2 finger joints, the second
+    finger coupled to the first by the URDF's ``<mimic>`` (a ``JointCoupling``, ``mimic:panda_finger_joint2``).
 
     Joint order is Pinocchio's; the default task point is ``panda_hand_tcp``.
     """

@@ -20,18 +20,41 @@ Pinocchio stores as ``(cos q, sin q)``, is one angle ``q`` here):
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
 first, so they are the default; the rest keep Pinocchio's frame order. Leaves welded to the universe are
-skipped. Pinocchio 4 ignores ``<mimic>`` by default, so a mimicked joint is an independent coordinate here
-(Panda: 7 arm joints + 2 finger joints = 9).
+skipped.
+
+Mimic joints: a joint ``A`` with ``<mimic joint="J" multiplier="m" offset="o"/>`` (defaults m = 1, o = 0) keeps its
+own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
+``JointCoupling("mimic:A", (body of A, body of J), (1, -m), o)`` (``cases.constraints``), in Pinocchio's joint
+order of ``A``. The mimic joint keeps its column of the identity input map. Pinocchio is asked to ignore the tags
+(``mimic=False``), so the tags are read from the XML here, and the reference reads them from the file again and
+checks the declaration (``crosscheck.reference``). Panda: 9 coordinates, ``panda_finger_joint2`` mimics
+``panda_finger_joint1``, one constraint row. Refused (:class:`~cases.model.ModelError`, naming the joint): a mimic of
+a joint that does not exist, of itself, of a fixed joint or of a joint that is itself a mimic (a chain), a mimic on
+a fixed joint, a multiplier that is 0, not a number or not finite, an offset that is not a finite number.
+
+Before Pinocchio parses, the file is read here and checked to be a URDF tree: XML whose root is ``<robot>``, every
+joint attaching two distinct links that exist, no link the child of two joints, no chain of joints that closes on
+itself (a cycle Pinocchio would drop silently) and one root link. A URDF describes a tree; a closed loop belongs in
+the model's constraint declarations (``cases.constraints.PointsCoincide``). What urdfdom (Pinocchio's parser) prints
+while it rejects a file becomes part of the :class:`UrdfError`, one message.
 
 Pinocchio is imported inside :func:`from_urdf`, so importing :mod:`cases` does not import it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
+import os
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
+from cases.constraints import JointCoupling
 from cases.model import Body, Model, ModelError, ModelSource, TaskPoint, build_model
 
 
@@ -39,13 +62,206 @@ class UrdfError(ValueError):
     """A URDF file cannot be read or parsed (the message names the path)."""
 
 
+class Mimic(NamedTuple):
+    """A URDF ``<mimic>`` tag of joint ``joint``: ``q_joint = multiplier * q_mimicked + offset``."""
+
+    joint: str
+    mimicked: str
+    multiplier: float
+    offset: float
+
+
 _UNIT = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
+_LOOP_HINT = ("a URDF describes a tree; declare a closed loop as a constraint of the model "
+              "(cases.constraints.PointsCoincide)")
+
+
+# ------------------------------------------------------------------------------------------------ the XML
+
+
+def _read_robot(path: Path) -> ET.Element:
+    """The file's ``<robot>`` element. FileNotFoundError for a missing path; UrdfError for a directory, a file that
+    cannot be read, text that is not XML and XML whose root is not ``<robot>``."""
+    if path.is_dir():
+        raise UrdfError(f"URDF path '{path}' is a directory, not a file")
+    if not path.exists():
+        raise FileNotFoundError(f"URDF file not found: '{path}'")
+    try:
+        text = path.read_bytes()
+    except OSError as exc:
+        raise UrdfError(f"cannot read URDF file '{path}': {exc.strerror or exc}") from None
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise UrdfError(f"URDF file '{path}' is not XML ({exc})" if text.strip() else
+                        f"URDF file '{path}' is empty") from None
+    if root.tag != "robot":
+        raise UrdfError(f"URDF file '{path}' is XML whose root element is <{root.tag}>, not <robot>")
+    return root
+
+
+def _joint_links(robot: ET.Element) -> dict[str, tuple[str | None, str | None]]:
+    """URDF joint name -> (parent link, child link), None where the tag or its ``link`` is missing (urdfdom
+    reports those)."""
+    out = {}
+    for joint in robot.findall("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        out[joint.get("name")] = (None if parent is None else parent.get("link"),
+                                  None if child is None else child.get("link"))
+    return out
+
+
+def _tree_problems(robot: ET.Element) -> list[str]:
+    """What keeps the joints from forming one tree of links: a joint on an unknown link or on one link twice, a link
+    that is the child of two joints, a chain of joints that closes on itself, more than one root link."""
+    links = {link.get("name") for link in robot.findall("link")}
+    joints = _joint_links(robot)
+    names = [j.get("name") for j in robot.findall("joint")]
+    problems = [f"joint name '{name}' is used by {names.count(name)} joints; each URDF joint needs its own name"
+                for name in sorted(set(names) - {None}) if names.count(name) > 1]
+    problems += [f"{names.count(None)} <joint> element(s) have no name attribute"] if None in names else []
+    if problems:
+        return problems
+    parent_joint: dict[str, list[str]] = {}
+    for name, (parent, child) in joints.items():
+        if parent is None or child is None:
+            problems.append(f"joint '{name}' has no <{'parent' if parent is None else 'child'} link=\"...\"/>")
+            continue
+        unknown = [link for link in (parent, child) if link not in links]
+        if unknown:
+            problems.append(f"joint '{name}' names link(s) {unknown} that the file does not define")
+        elif parent == child:
+            problems.append(f"joint '{name}' attaches link '{child}' to itself; {_LOOP_HINT}")
+        else:
+            parent_joint.setdefault(child, []).append(name)
+    problems += [f"link '{child}' is the child of {len(owners)} joints {owners}; {_LOOP_HINT}"
+                 for child, owners in parent_joint.items() if len(owners) > 1]
+    if problems:
+        return problems
+    problems += _cycles(joints, parent_joint)
+    roots = sorted(link for link in links if link not in parent_joint)
+    if len(roots) > 1 and not problems:
+        problems.append(f"links {roots} have no parent joint; a URDF tree has one root link")
+    return problems
+
+
+def _cycles(joints: dict, parent_joint: dict[str, list[str]]) -> list[str]:
+    """One problem per chain of joints that closes on itself (each link has one parent joint here)."""
+    found, problems = set(), []
+    for start in parent_joint:
+        seen, link = [], start
+        while link in parent_joint and link not in seen:
+            seen.append(link)
+            link = joints[parent_joint[link][0]][0]
+        if link in seen:
+            cycle = [parent_joint[x][0] for x in seen[seen.index(link):]]
+            if frozenset(cycle) not in found:
+                found.add(frozenset(cycle))
+                problems.append(f"joints {cycle} form a closed chain (each is the parent of the next one's link), so "
+                                f"their links never reach the root; {_LOOP_HINT}")
+    return problems
+
+
+def _mimics(robot: ET.Element, problems: list[str]) -> list[Mimic]:
+    """The ``<mimic>`` tags (module docstring), appending to ``problems`` the ones that cannot be a coupling."""
+    types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
+    tags = [(j.get("name"), j.find("mimic")) for j in robot.findall("joint") if j.find("mimic") is not None]
+    mimicking = {name for name, _ in tags}
+    problems += [f"joint '{j.get('name')}' has {len(j.findall('mimic'))} <mimic> tags; a joint follows one joint"
+                 for j in robot.findall("joint") if len(j.findall("mimic")) > 1]
+    out = []
+    for name, tag in tags:
+        where = f"joint '{name}' mimics joint '{tag.get('joint')}'"
+        n_before = len(problems)
+        multiplier = _mimic_number(problems, where, tag, "multiplier", 1.0)
+        offset = _mimic_number(problems, where, tag, "offset", 0.0)
+        problems += _mimic_problems(where, name, tag.get("joint"), types, mimicking)
+        if multiplier == 0.0:
+            problems.append(f"{where} with multiplier 0, which would lock it at its offset; remove the mimic and "
+                            "make the joint fixed")
+        if len(problems) == n_before:
+            out.append(Mimic(name, tag.get("joint"), multiplier, offset))
+    return out
+
+
+def _mimic_problems(where: str, name: str, target: str | None, types: dict, mimicking: set) -> list[str]:
+    """Why joint ``name`` cannot follow joint ``target`` (``types``: joint name -> URDF type), if it cannot."""
+    problems = []
+    if target is None:
+        problems.append(f"joint '{name}' has a <mimic> without a joint attribute; name the joint it follows")
+    elif target not in types:
+        problems.append(f"{where}, which does not exist (joints: {sorted(types)})")
+    elif target == name:
+        problems.append(f"{where}, itself")
+    elif target in mimicking:
+        problems.append(f"{where}, which itself mimics another joint; a mimic chain is not supported: let "
+                        f"'{name}' mimic the joint at the start of the chain")
+    elif types[target] == "fixed":
+        problems.append(f"{where}, a fixed joint with no coordinate")
+    if types[name] == "fixed":
+        problems.append(f"{where}, but is itself a fixed joint with no coordinate")
+    return problems
+
+
+def _mimic_number(problems: list[str], where: str, tag: ET.Element, attribute: str, default: float) -> float:
+    """A finite number from the mimic tag's ``attribute`` (``default`` if absent), else NaN and a problem."""
+    text = tag.get(attribute)
+    if text is None:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        problems.append(f"{where} with {attribute} {text!r}; give a finite number")
+    return value
+
+
+# ----------------------------------------------------------------------------------------------- Pinocchio
+
+
+def _parse(pin, path: Path):
+    """``pinocchio.buildModelFromUrdf(path)``, with urdfdom's printout (C++, on file descriptor 2) made part of the
+    UrdfError instead of extra lines on the console. An error urdfdom reports is fatal even when Pinocchio returns a
+    model: urdfdom skips what it cannot read (a link whose inertial has a NaN becomes massless), so that model is
+    not the file's. Whatever else it printed is passed on."""
+    with _fd2_captured() as printed:
+        try:
+            pm, error = pin.buildModelFromUrdf(str(path)), None
+        except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
+            pm, error = None, exc
+    reasons = [line.split(":", 1)[1].strip() for line in printed[0].splitlines() if line.startswith("Error:")]
+    if error is None and not reasons:
+        sys.stderr.write(printed[0])
+        return pm
+    if error is not None:
+        detail = " ".join(str(error).split()) + (f" (urdfdom: {'; '.join(reasons)})" if reasons else "")
+    else:
+        detail = f"urdfdom reported errors and skipped what it could not read: {'; '.join(reasons)}"
+    raise UrdfError(f"could not parse URDF file '{path}': {detail}")
+
+
+@contextlib.contextmanager
+def _fd2_captured():
+    """File descriptor 2 redirected to a temporary file; yields a one-item list that holds the text afterwards."""
+    printed = [""]
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield printed
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            printed[0] = tmp.read().decode(errors="replace")
 
 
 def _joint_kind(jm) -> tuple[str, np.ndarray] | None:
     """(our joint type, axis) for a supported Pinocchio joint model, else None."""
     short = jm.shortname()
-    kind = short[len("JointModel"):] if short.startswith("JointModel") else short
+    kind = short.removeprefix("JointModel")
     if kind in ("RX", "RY", "RZ"):
         return "revolute", np.array(_UNIT[kind[1]])
     if kind in ("RUBX", "RUBY", "RUBZ"):
@@ -79,46 +295,21 @@ def _frame_previous(frame) -> int:
     return int(frame.parentFrame if hasattr(frame, "parentFrame") else frame.previousFrame)
 
 
-def from_urdf(path, name: str | None = None) -> Model:
-    """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring).
-
-    Raises :class:`FileNotFoundError` if the file does not exist, :class:`UrdfError` if Pinocchio cannot parse
-    it, and :class:`~cases.model.ModelError` naming every joint whose type has no one-coordinate equivalent
-    here (floating, planar, spherical, mimic, helical, ...), or if the converted model is invalid.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"URDF file not found: '{path}'")
-    try:
-        import pinocchio as pin
-    except ImportError as exc:  # pragma: no cover - pin is a declared dependency
-        raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
-                          "(pip install pin)") from exc
-    try:
-        pm = pin.buildModelFromUrdf(str(path))
-    except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
-        raise UrdfError(f"could not parse URDF file '{path}': {exc}") from exc
-    model_name = name if name is not None else pm.name or path.stem
-
+def _links_of(pin, pm) -> dict[int, str | None]:
+    """Pinocchio joint index -> the link it moves: the BODY frame hanging right after that joint's JOINT frame
+    (the universe, 0 -> None)."""
     frames = list(pm.frames)
-    body_type, joint_types = pin.FrameType.BODY, (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT)
-
-    # The link each joint moves: the BODY frame hanging right after that joint's JOINT frame.
-    joint_frame = {}
-    for k, f in enumerate(frames):
-        if f.type == pin.FrameType.JOINT:
-            joint_frame[_frame_parent_joint(f)] = k
-    link_of = {0: None}
+    joint_frame = {_frame_parent_joint(f): k for k, f in enumerate(frames) if f.type == pin.FrameType.JOINT}
+    link_of: dict[int, str | None] = {0: None}
     for j in range(1, pm.njoints):
-        link = pm.names[j]
-        jf = joint_frame.get(j)
-        for f in frames:
-            if f.type == body_type and _frame_parent_joint(f) == j and jf is not None and _frame_previous(f) == jf:
-                link = f.name
-                break
-        link_of[j] = link
+        link_of[j] = next((f.name for f in frames if f.type == pin.FrameType.BODY and _frame_parent_joint(f) == j
+                           and j in joint_frame and _frame_previous(f) == joint_frame[j]), pm.names[j])
+    return link_of
 
-    problems: list[str] = []
+
+def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
+    """One body per Pinocchio joint (module docstring); a joint type with no one-coordinate equivalent is a
+    problem."""
     bodies: list[Body] = []
     for j in range(1, pm.njoints):
         jm = pm.joints[j]
@@ -132,31 +323,62 @@ def from_urdf(path, name: str | None = None) -> Model:
             problems.append(f"joint '{pm.names[j]}' has {jm.nv} velocities, expected 1")
             continue
         joint, axis = kind
-        placement = pm.jointPlacements[j]
-        inertia = pm.inertias[j]
+        placement, inertia = pm.jointPlacements[j], pm.inertias[j]
         bodies.append(Body(name=link_of[j], parent=link_of[pm.parents[j]], joint=joint, axis=axis,
                            mass=float(inertia.mass), com=np.array(inertia.lever),
                            inertia=np.array(inertia.inertia), rotation=np.array(placement.rotation),
                            translation=np.array(placement.translation)))
+    return bodies
+
+
+def _couplings(pm, link_of: dict, mimics: list[Mimic]) -> list[JointCoupling]:
+    """The mimic tags as joint couplings on the bodies the joints move, in Pinocchio's order of the mimic joints."""
+    by_joint = sorted(mimics, key=lambda m: pm.getJointId(m.joint))
+    return [JointCoupling(f"mimic:{m.joint}", (link_of[pm.getJointId(m.joint)], link_of[pm.getJointId(m.mimicked)]),
+                          (1.0, -m.multiplier), m.offset) for m in by_joint]
+
+
+def _task_points(pin, pm, link_of: dict) -> list[TaskPoint]:
+    """One task point per leaf link not welded to the universe (module docstring), tool centre points first."""
+    joint_types = (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT)
+    has_child = {_frame_previous(f) for f in pm.frames if f.type in joint_types}
+    leaves = [TaskPoint(f.name, link_of[_frame_parent_joint(f)], np.array(f.placement.translation))
+              for k, f in enumerate(pm.frames)
+              if f.type == pin.FrameType.BODY and k not in has_child and _frame_parent_joint(f) != 0]
+    return sorted(leaves, key=lambda tp: 0 if "tcp" in tp.name.lower() else 1)  # stable: tool centre points first
+
+
+def from_urdf(path, name: str | None = None) -> Model:
+    """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring).
+
+    Raises :class:`FileNotFoundError` if the path does not exist, :class:`UrdfError` if it cannot be read or
+    parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no one-coordinate equivalent
+    here (floating, planar, spherical, helical, ...), every mimic tag that is no coupling and every joint that keeps
+    the links from forming a tree, or if the converted model is invalid.
+    """
+    path = Path(path)
+    robot = _read_robot(path)
+    model_name = name if name is not None else robot.get("name") or path.stem
+    problems = _tree_problems(robot)
+    mimics = _mimics(robot, problems)
     if problems:
         raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
-    if not bodies:
-        raise ModelError(model_name, [f"URDF file '{path}' has no movable joint"])
-
-    # Leaf links: BODY frames no joint (moving or fixed) hangs from.
-    has_child = {_frame_previous(f) for f in frames if f.type in joint_types}
-    leaves = []
-    for k, f in enumerate(frames):
-        if f.type != body_type or k in has_child:
-            continue
-        parent = _frame_parent_joint(f)
-        if parent == 0:
-            continue  # welded to the universe: it never moves
-        leaves.append(TaskPoint(f.name, link_of[parent], np.array(f.placement.translation)))
-    leaves.sort(key=lambda tp: 0 if "tcp" in tp.name.lower() else 1)  # stable: tool centre points first
-
+    try:
+        import pinocchio as pin
+    except ImportError as exc:  # pragma: no cover - pin is a declared dependency
+        raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
+                          "(pip install pin)") from exc
+    pm = _parse(pin, path)
+    link_of = _links_of(pin, pm)
+    bodies = _bodies(pm, link_of, problems)
+    if not bodies and not problems:
+        problems.append(f"URDF file '{path}' has no movable joint")
+    if problems:
+        raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
+    leaves = _task_points(pin, pm, link_of)
     try:
         return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
-                           task_points=leaves if leaves else None, source=ModelSource("urdf", str(path.resolve())))
+                           task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
+                           source=ModelSource("urdf", str(path.resolve())))
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
         raise ModelError(model_name, list(exc.problems) + [f"(from URDF file '{path}')"]) from None

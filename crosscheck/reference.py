@@ -10,7 +10,10 @@ Which Pinocchio model
   model it takes only what a state means and what is asked: the coordinate order (by body name, the explicit
   joint map below), the input map B, the task point (by name; see :func:`_task_frame`) and its directions, and
   the constraint declarations. A bug in our URDF conversion then moves the five formalisms and not the
-  reference, and the vote names the reference as the outlier.
+  reference, and the vote names the reference as the outlier. The file's ``<mimic>`` tags (Pinocchio is asked to
+  ignore them) are read from the XML here too: each must be declared on the model as the loader's coupling
+  ``mimic:<joint>`` of the two joints the joint map gives, else the reference refuses the model
+  (:func:`_check_mimics`), so a mimic the conversion drops, invents or attaches to another joint is not voted on.
 * A model without a source (factories, fuzz, a moved copy built in code) is checked against a ``pinocchio.Model``
   built from OUR model data (:func:`to_pinocchio`): joints added in a depth-first order of ``model.bodies``,
   each with its placement, axis and inertia.
@@ -68,6 +71,7 @@ use our coordinate order.
 from __future__ import annotations
 
 import threading
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -307,6 +311,51 @@ def _map_joints(pm: pin.Model, model: Model, path: str) -> tuple[JointMapRow, ..
     return tuple(rows)
 
 
+def _file_mimics(path: str) -> list[tuple[str, str, float, float]]:
+    """The file's ``<mimic>`` tags, read from the XML (Pinocchio is asked to ignore them, as the loader does):
+    (joint, the joint it mimics, multiplier (default 1), offset (default 0))."""
+    try:
+        joints = ET.parse(path).getroot().findall("joint")
+        return [(j.get("name"), j.find("mimic").get("joint"), float(j.find("mimic").get("multiplier", 1.0)),
+                 float(j.find("mimic").get("offset", 0.0))) for j in joints if j.find("mimic") is not None]
+    except (OSError, ET.ParseError, ValueError) as exc:
+        raise ValueError(f"the reference cannot read the <mimic> tags of '{path}': {exc}") from exc
+
+
+def _coupling_row(model: Model, c) -> np.ndarray:
+    """A joint coupling's row of ``Jc`` in our coordinates."""
+    row = np.zeros(model.n)
+    for name, coeff in zip(c.joints, c.coefficients):
+        row[model.body_index(name)] += coeff
+    return row
+
+
+def _check_mimics(model: Model, rows: tuple[JointMapRow, ...], path: str) -> None:
+    """Every ``<mimic>`` of the file (joint A mimics J: ``q_A = m q_J + o``) is declared on the model as the
+    constraint ``mimic:A``, a joint coupling whose row is a multiple ``s (e_A - m e_J)`` with offset ``s o``, A and J
+    mapped to our coordinates by the joint map; and every declaration named ``mimic:...`` is a mimic of the file.
+    The loader declares them (cases/urdf.py); a ValueError names the mimic and the file."""
+    coordinate = {r.joint: r.coordinate for r in rows}
+    declared = {c.name: c for c in model.constraints if c.name.startswith("mimic:")}
+    where = f"the reference cannot check model '{model.name}' against '{path}'"
+    for joint, mimicked, m, o in _file_mimics(path):
+        if joint not in coordinate or mimicked not in coordinate:
+            raise ValueError(f"{where}: joint '{joint}' mimics '{mimicked}', and the joint map gives one of them no "
+                             f"coordinate (mapped: {sorted(coordinate)})")
+        c = declared.pop(f"mimic:{joint}", None)
+        expected = np.zeros(model.n)
+        expected[coordinate[joint]], expected[coordinate[mimicked]] = 1.0, -m
+        row = _coupling_row(model, c) if isinstance(c, JointCoupling) else np.zeros(model.n)
+        s = row[coordinate[joint]]
+        if s == 0.0 or np.abs(row - s * expected).max() > 1e-12 * abs(s) or abs(c.offset - s * o) > 1e-12 * abs(s):
+            raise ValueError(f"{where}: joint '{joint}' mimics '{mimicked}' (q = {m!r} q + {o!r}), and the model "
+                             f"declares {'no joint coupling' if c is None else repr(c)} 'mimic:{joint}' with that "
+                             f"row (coordinates {coordinate[joint]}, {coordinate[mimicked]}); check the loader's "
+                             "mimic couplings (cases/urdf.py)")
+    if declared:
+        raise ValueError(f"{where}: the model declares {sorted(declared)}, but the file has no such <mimic> tag")
+
+
 def _file_scales(pm: pin.Model, rows: tuple[JointMapRow, ...]) -> _Scales:
     """:class:`_Scales` of the file's joints, summed in our coordinate order (the same numbers as our model's when
     the conversion is right)."""
@@ -334,6 +383,7 @@ def _build_from_file(model: Model) -> _Compiled:
     """The reference of a model with a file source (module docstring)."""
     pm = _read_file(model.source)
     rows = _map_joints(pm, model, model.source.path)
+    _check_mimics(model, rows, model.source.path)
     joint_of = {r.body: pm.getJointId(r.joint) for r in rows}
     order = np.empty(model.n, dtype=int)
     order[[r.idx_v for r in rows]] = [r.coordinate for r in rows]
@@ -479,9 +529,7 @@ def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray)
     """phi, Jc (Pinocchio order) and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
     n = model.n
     if isinstance(con, JointCoupling):
-        row = np.zeros(n)
-        for name, coeff in zip(con.joints, con.coefficients):
-            row[model.body_index(name)] += coeff
+        row = _coupling_row(model, con)
         return np.array([row @ q - con.offset]), row[c.order][None, :], np.zeros(1)
     if isinstance(con, PointsCoincide):
         pa, Ja, aa = _point_kinematics(c, data, con.body_a, con.offset_a, n)

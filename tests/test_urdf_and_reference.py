@@ -84,18 +84,21 @@ def test_reference_from_converted_panda_matches_pinocchio_urdf(panda_path):
 
 
 def test_reference_split_on_panda_against_direct_pinocchio(panda_path):
+    """The panda is constrained by its finger mimic (q8 = q7): against Pinocchio's own reduced mimic model
+    (``mimic=True``: 8 coordinates, q = G q_r), total = G M_r^-1 (G^T u - h_r); cond_M is the full model's."""
     model = cases.load("panda")
-    direct = pin.buildModelFromUrdf(panda_path)
+    direct, full = pin.buildModelFromUrdf(panda_path, mimic=True), pin.buildModelFromUrdf(panda_path)
     data = direct.createData()
     rng = np.random.default_rng(3)
-    q, qd, u = rng.uniform(-1, 1, 9), rng.uniform(-1, 1, 9), rng.uniform(-3, 3, 9)
-    s = REFERENCE.split(model, q, qd, u)
-    M = _sym(pin.crba(direct, data, q))
-    h = pin.rnea(direct, data, q, qd, np.zeros(9))
-    _close(s.drift, np.linalg.solve(M, -h), 1e-8)
-    _close(s.ctrl, np.linalg.solve(M, u), 1e-8)
-    _close(s.total, np.linalg.solve(M, u - h), 1e-8)
-    assert s.cond_M == pytest.approx(np.linalg.cond(M), rel=1e-8)
+    G = np.vstack([np.eye(8), np.eye(8)[7]])
+    q_r, qd_r, u = rng.uniform(-1, 1, 8), rng.uniform(-1, 1, 8), rng.uniform(-3, 3, 9)
+    s = REFERENCE.split(model, G @ q_r, G @ qd_r, u)
+    M = _sym(pin.crba(direct, data, q_r))
+    h = pin.rnea(direct, data, q_r, qd_r, np.zeros(8))
+    _close(s.drift, G @ np.linalg.solve(M, -h), 1e-8)
+    _close(s.ctrl, G @ np.linalg.solve(M, G.T @ u), 1e-8)
+    _close(s.total, G @ np.linalg.solve(M, G.T @ u - h), 1e-8)
+    assert s.cond_M == pytest.approx(np.linalg.cond(_sym(pin.crba(full, full.createData(), G @ q_r))), rel=1e-8)
 
 
 # ---------------------------------------------------------------------------------------------- tiny URDF
