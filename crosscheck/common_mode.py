@@ -269,7 +269,9 @@ CATALOG: list[SharedFault] = [
     SharedFault("constraint-coupling-coefficients-reversed", "constraint declarations",
                 "A joint coupling is validated with its coefficients in reverse order (the gear ratio applied to the "
                 "wrong joint).",
-                ("cases.constraints:validate",), _coupling_reversed, "the closed forms (geared_pendulums)"),
+                ("cases.constraints:validate",), _coupling_reversed,
+                "the closed forms (geared_pendulums) and the frame checks (the Panda's finger mimic: a moved scene is "
+                "validated again, reversed twice, and its multiplier changes sign)"),
     SharedFault("interface-redundancy-threshold-too-high", "interface constants",
                 "The relative eigenvalue below which a constraint direction counts as redundant is 1e-2, not 1e-10 "
                 "(every backend imports it).",

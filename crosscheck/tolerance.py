@@ -12,8 +12,11 @@ bounded by ``sqrt(M_ii M_jj)``. Summed over the subtrees this is far sharper tha
 ||M^-1|| H`` it replaces: on a 3-D arm the small inertias of the wrist make cond(M) large, but the wrist's rows of
 ``M^-1`` meet only the wrist's small forces (the normwise bound was 1e5 times the spread of correct backends on the
 Panda and spatial_arm; this one is within 1e2 to 1e4 of the true errors measured against the 50-digit reference).
-With constraints the multipliers' part stays normwise: ``cond(M) ||M^-1|| ||Jc|| lam_scale`` plus the short-row
-rounding below. Power is a sum of products, so its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task
+With constraints the multipliers add ``M^-1 Jc^T dlam``: per joint the smaller of the normwise ``cond(M) ||M^-1||
+||Jc|| lam_scale`` and a componentwise first-order bound through ``S = Jc M^-1 Jc^T``
+(:func:`_multiplier_accelerations`; the Panda's finger coupling leaves the arm's tolerance as tight as without it),
+with the short-row rounding below.
+Power is a sum of products, so its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task
 acceleration ``J qdd + Jdot qd`` (eq. 23) maps the joint error through J, whose columns are at most a lever arm L
 long (1 for a prismatic joint), and adds the rounding of ``Jdot qd``, of size ``L |qd|^2``: its scale is
 ``L (sum_i acceleration_i + |qd|_1^2)``.
@@ -71,7 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle
-from formalisms.interface import Unsupported
+from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
 EPS = float(np.finfo(float).eps)
 
@@ -187,16 +190,17 @@ class Scales:
     minv: float = 0.0
     lam_rounding: float = 0.0
     accel: np.ndarray | None = None
-    accel_constraint: float = 0.0
+    accel_constraint: np.ndarray | float = 0.0
     energy_terms: float | None = None
 
     def of(self, kind: str):
         """The scale of ``kind`` (:data:`TOLERANCES`): a float, or for ``acceleration`` with the componentwise bound
         one value per coordinate."""
-        # the constraint force Jc^T lam carries the multipliers' short-row rounding into the accelerations
+        # the constraint force Jc^T lam carries the multipliers' short-row rounding into the accelerations (in the
+        # componentwise bound it is part of accel_constraint)
         rounding = self.minv * self.jc * self.lam_rounding
         normwise = self.cond_M * self.accel_scale + rounding
-        acceleration = normwise if self.accel is None else self.accel + self.accel_constraint + rounding
+        acceleration = normwise if self.accel is None else self.accel + self.accel_constraint
         multiplier = self.cond_M * self.lam_scale + self.lam_rounding
         scale = {
             "load": self.cond_M * self.load,
@@ -333,9 +337,10 @@ def _task_condition(split) -> float:
 
 @dataclass(frozen=True)
 class _Mass:
-    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.reference.mass_matrix``): ``|M^-1|``
+    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.reference.mass_matrix``): ``M^-1``, ``|M^-1|``
     entrywise, ``||M^-1||_2`` and ``sqrt(diag M)``."""
 
+    inverse: np.ndarray
     abs_inverse: np.ndarray
     inverse_norm: float
     root_diagonal: np.ndarray
@@ -355,7 +360,7 @@ def _mass(model, q) -> _Mass:
         from crosscheck.reference import mass_matrix
         M = mass_matrix(model, q)
         inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
-        value = _Mass(np.abs(inverse), 1.0 / float(np.linalg.eigvalsh(M)[0]), np.sqrt(np.diag(M)))
+        value = _Mass(inverse, np.abs(inverse), 1.0 / float(np.linalg.eigvalsh(M)[0]), np.sqrt(np.diag(M)))
         ident = id(model)
         entry = _MASS[ident] = (weakref.ref(model, lambda _, ident=ident: _MASS.pop(ident, None)), key, value)
     return entry[2]
@@ -467,7 +472,7 @@ def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True, u=None
     if model is not None and constrained:
         task.update(_constraint_scales(model, constrained, q, qd, rounding))
     if model is not None and joint_chart and splits:
-        task.update(_componentwise(model, splits, constrained, q, qd, task.get("minv", 0.0)))
+        task.update(_componentwise(model, splits, constrained, q, qd, task))
     power = _median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits])
     if model is not None and u is not None:
         power = max(power, power_scale(model, qd, u))
@@ -483,19 +488,56 @@ def power_scale(model, qd, u) -> float:
     return float(np.abs(np.asarray(qd, dtype=float)) @ (np.abs(model.input_map) @ np.abs(np.asarray(u, dtype=float))))
 
 
-def _componentwise(model, splits, constrained, q, qd, minv: float) -> dict:
+def _componentwise(model, splits, constrained, q, qd, scales: dict) -> dict:
     """``accel`` (:func:`acceleration_bound` at the median sizes of the voters' drift + ctrl, with the median
-    constraint forces ``|Jc|^T (|lam| + |lam_drift|)``), ``accel_constraint`` (the multipliers' normwise part,
-    ``cond(M) ||M^-1|| ||Jc|| lam_scale``) and ``energy_terms`` (:func:`kinetic_energy_bound`)."""
+    constraint forces ``|Jc|^T (|lam| + |lam_drift|)``), ``accel_constraint`` (the multipliers' part, module doc)
+    and ``energy_terms`` (:func:`kinetic_energy_bound`)."""
     sizes = np.nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits], axis=0)
     forces, constraint = None, 0.0
     if constrained:
         forces = np.nanmedian([np.abs(s.constraint_jacobian).T @ (np.abs(s.lam) + np.abs(s.lam_drift))
                                for s in constrained], axis=0)
-        constraint = (_median([s.cond_M for s in splits]) * minv * _median([s.lam_scale for s in constrained])
-                      * _median([float(np.linalg.norm(s.constraint_jacobian, 2)) for s in constrained]))
-    return {"accel": acceleration_bound(model, q, qd, np.nan_to_num(sizes), forces),
-            "accel_constraint": constraint, "energy_terms": kinetic_energy_bound(model, q, qd)}
+    accel = acceleration_bound(model, q, qd, np.nan_to_num(sizes), forces)
+    if constrained:
+        constraint = _multiplier_accelerations(model, constrained, q, qd, accel, _median([s.cond_M for s in splits]),
+                                               scales)
+    return {"accel": accel, "accel_constraint": constraint, "energy_terms": kinetic_energy_bound(model, q, qd)}
+
+
+def _multiplier_accelerations(model, constrained, q, qd, accel: np.ndarray, cond_M: float,
+                              scales: dict) -> np.ndarray:
+    """What the multipliers' error does to each joint acceleration, ``M^-1 Jc^T dlam`` (they enter the accelerations
+    only through the constraint force): per joint the smaller of two bounds of it (so their minimum is one too).
+
+    Normwise: ``||M^-1|| (||Jc||_2 cond(M) lam_scale + ||Jc^T||_inf lam_rounding)``.
+    Componentwise, to first order in ``S lam = r``, ``S = Jc X``, ``X = M^-1 Jc^T``: ``dlam = S^+ (dr - dS lam)``, with
+    ``|dr| <= |Jc| a + k`` (the free accelerations' rounding ``a``, :func:`acceleration_bound` at the answers' sizes
+    and constraint forces, and the rounding ``k`` of ``Jcdot qd``, the kinematics scale times ``|qd|_1^2``) and
+    ``|dS lam| <= |Jc| a'`` with ``a' = |M^-1| (Mterm + d d^T) |X| |lam|`` the rounding of the solve for X (the
+    entry terms of :func:`acceleration_bound`); so ``|X| (|S^+| (|Jc| (a + a') + k) + lam_rounding)``. The normwise
+    bound carries ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers, ``||M^-1||``
+    about their inverse mass) made the arm joints' drift tolerance 50 times looser than without the coupling, and the
+    1e-10 canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite the normwise bound
+    stands alone."""
+    mass = _mass(model, q)
+    lam_error, lam_rounding = scales.get("lam_scale", 0.0), scales.get("lam_rounding", 0.0)
+    Jc = np.nanmedian([s.constraint_jacobian for s in constrained], axis=0)
+    lam = np.nanmedian([np.abs(s.lam) + np.abs(s.lam_drift) for s in constrained], axis=0)
+    norm2 = _median([float(np.linalg.norm(s.constraint_jacobian, 2)) for s in constrained])
+    normwise = mass.inverse_norm * (norm2 * cond_M * lam_error + float(np.abs(Jc).sum(axis=0).max()) * lam_rounding)
+    with np.errstate(over="ignore", invalid="ignore"):
+        X = mass.inverse @ Jc.T
+        if not np.all(np.isfinite(Jc @ X)):
+            return np.full(model.n, normwise)
+        w, V = np.linalg.eigh(Jc @ X)
+        kept = w > CONSTRAINT_RCOND * max(float(w.max()), 0.0)
+        S_plus = np.abs((V[:, kept] / w[kept]) @ V[:, kept].T)
+        x = np.abs(X) @ lam
+        Mterm, _ = _entry_terms(model, q, qd)
+        solve = accel + mass.abs_inverse @ (Mterm @ x + mass.root_diagonal * float(mass.root_diagonal @ x))
+        dr = np.abs(Jc) @ solve + scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2
+        componentwise = np.abs(X) @ (S_plus @ dr + lam_rounding)
+        return np.fmin(componentwise, normwise)
 
 
 def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
@@ -519,6 +561,8 @@ def _lam_rounding(model, split) -> float:
     ``r = -Jcdot qd - Jc a``, is up to ``eps T accel_scale ||S^+||``, at most ``eps T lam_scale / sigma_r``, however
     small lam (a fuzz finding: a slide 1.8e-8 rad off the level, a row 1.5e-8 long, a rounding entry 1e-16 in it
     times a free acceleration of 6.6 moved lam from -6.3 to -3.1). sigma_r is Jc's smallest kept singular value."""
+    if all(isinstance(c, JointCoupling) for c in model.constraints):
+        return 0.0                   # a coupling's row is its coefficients, exact: no kinematics rounds in it
     sigma = np.linalg.svd(split.constraint_jacobian, compute_uv=False)
     rank = split.constraint_rank or 0
     if rank == 0:

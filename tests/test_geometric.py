@@ -23,11 +23,12 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from closed_forms import absolute_terms, article_M, endpoint_jacobian, inv2, pendulum_terms
+from scenes import panda_arm
 from crosscheck import charts
 from formalisms import geometric as geo
 from formalisms.interface import StateError
 
-PENDULUM, SPATIAL_ARM, PANDA = cases.load("double_pendulum"), cases.load("spatial_arm"), cases.load("panda")
+PENDULUM, SPATIAL_ARM, PANDA = cases.load("double_pendulum"), cases.load("spatial_arm"), panda_arm()
 angle = st.floats(-np.pi, np.pi)
 rate = st.floats(-5.0, 5.0)
 torque = st.floats(-20.0, 20.0)

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 import cases
 from closed_forms import endpoint_jacobian, pendulum_terms
+from scenes import panda_arm
 from crosscheck import backends, reference, report
 from crosscheck import tolerance as policy
 from crosscheck.gate import CaseSpec, run_gate
@@ -29,7 +30,9 @@ EPS = np.finfo(float).eps
 
 @functools.lru_cache(maxsize=None)
 def model_of(name, **params):
-    return cases.load(name, **params)
+    """The case ``name``; the Panda without its finger coupling (``scenes.panda_arm``): these are tests of the
+    unconstrained task space."""
+    return panda_arm() if name == "panda" else cases.load(name, **params)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from closed_forms import endpoint_jacobian, pendulum_terms
+from scenes import panda_arm
 from crosscheck import backends, frames, precise, report
 from crosscheck.gate import CaseSpec, run_gate
 from crosscheck.sampling import sample_states
@@ -29,7 +30,7 @@ from formalisms.interface import StateError
 from formalisms.screw import dynamics, kinematics, lie
 
 G = 9.81
-SPATIAL_ARM, PANDA = cases.load("spatial_arm"), cases.load("panda")
+SPATIAL_ARM, PANDA = cases.load("spatial_arm"), panda_arm()
 
 finite = st.floats(-1.0, 1.0)
 vec3 = st.tuples(finite, finite, finite).map(np.array)
