@@ -499,26 +499,30 @@ def _componentwise(model, splits, constrained, q, qd, scales: dict) -> dict:
                                for s in constrained], axis=0)
     accel = acceleration_bound(model, q, qd, np.nan_to_num(sizes), forces)
     if constrained:
-        constraint = _multiplier_accelerations(model, constrained, q, qd, accel, _median([s.cond_M for s in splits]),
-                                               scales)
+        constraint = _multiplier_accelerations(model, constrained, q, qd, np.nan_to_num(sizes),
+                                               _median([s.cond_M for s in splits]), scales)
     return {"accel": accel, "accel_constraint": constraint, "energy_terms": kinetic_energy_bound(model, q, qd)}
 
 
-def _multiplier_accelerations(model, constrained, q, qd, accel: np.ndarray, cond_M: float,
+def _multiplier_accelerations(model, constrained, q, qd, sizes: np.ndarray, cond_M: float,
                               scales: dict) -> np.ndarray:
-    """What the multipliers' error does to each joint acceleration, ``M^-1 Jc^T dlam`` (they enter the accelerations
-    only through the constraint force): per joint the smaller of two bounds of it (so their minimum is one too).
+    """What the constraint solve adds to the joint accelerations' rounding: per joint the smaller of two bounds of it
+    (so their minimum is one too).
 
-    Normwise: ``||M^-1|| (||Jc||_2 cond(M) lam_scale + ||Jc^T||_inf lam_rounding)``.
-    Componentwise, to first order in ``S lam = r``, ``S = Jc X``, ``X = M^-1 Jc^T``: ``dlam = S^+ (dr - dS lam)``, with
-    ``|dr| <= |Jc| a + k`` (the free accelerations' rounding ``a``, :func:`acceleration_bound` at the answers' sizes
-    and constraint forces, and the rounding ``k`` of ``Jcdot qd``, the kinematics scale times ``|qd|_1^2``) and
-    ``|dS lam| <= |Jc| a'`` with ``a' = |M^-1| (Mterm + d d^T) |X| |lam|`` the rounding of the solve for X (the
-    entry terms of :func:`acceleration_bound`); so ``|X| (|S^+| (|Jc| (a + a') + k) + lam_rounding)``. The normwise
-    bound carries ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers, ``||M^-1||``
-    about their inverse mass) made the arm joints' drift tolerance 50 times looser than without the coupling, and the
-    1e-10 canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite the normwise bound
-    stands alone."""
+    Normwise: ``||M^-1|| (||Jc||_2 cond(M) lam_scale + ||Jc^T||_inf lam_rounding)``, the multipliers' error through
+    the constraint force ``M^-1 Jc^T dlam``.
+    Componentwise, to first order in the KKT system ``[[M, Jc^T], [Jc, 0]] (qdd, -lam) = (tau - h, -Jcdot qd)``: a
+    backward error ``(r1, r2)`` moves qdd by ``G r1 + X S^+ r2`` with ``X = M^-1 Jc^T``, ``S = Jc X`` and ``G = M^-1 -
+    X S^+ X^T`` (the constrained response). ``|r1|`` is the unconstrained solve's (:func:`acceleration_bound`'s
+    right-hand side at the answers' sizes and constraint forces) plus ``max|Jc| |lam|_1`` in every joint (a basis of
+    the constraint rows rounds into their structural zeros: a fuzz finding, two couplings where the null-space
+    basis of one leaked 5.7e-15 of the other's multiplier into joints an exact solve leaves at rest); ``|r2|`` is
+    the rounding of ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``max|Jc| |qdd|_1`` and the S solve's
+    ``||S|| |lam|_1``; the short-row rounding ``lam_rounding`` enters through ``|X|``. The normwise bound carries
+    ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers, ``||M^-1||`` about their
+    inverse mass) made the arm joints' drift tolerance 50 times looser than without the coupling, and the 1e-10
+    canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite the normwise bound stands
+    alone."""
     mass = _mass(model, q)
     lam_error, lam_rounding = scales.get("lam_scale", 0.0), scales.get("lam_rounding", 0.0)
     Jc = np.nanmedian([s.constraint_jacobian for s in constrained], axis=0)
@@ -531,12 +535,14 @@ def _multiplier_accelerations(model, constrained, q, qd, accel: np.ndarray, cond
             return np.full(model.n, normwise)
         w, V = np.linalg.eigh(Jc @ X)
         kept = w > CONSTRAINT_RCOND * max(float(w.max()), 0.0)
-        S_plus = np.abs((V[:, kept] / w[kept]) @ V[:, kept].T)
-        x = np.abs(X) @ lam
-        Mterm, _ = _entry_terms(model, q, qd)
-        solve = accel + mass.abs_inverse @ (Mterm @ x + mass.root_diagonal * float(mass.root_diagonal @ x))
-        dr = np.abs(Jc) @ solve + scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2
-        componentwise = np.abs(X) @ (S_plus @ dr + lam_rounding)
+        S_plus = (V[:, kept] / w[kept]) @ V[:, kept].T
+        Mterm, f = _entry_terms(model, q, qd)
+        d, jc_max, lam_1 = mass.root_diagonal, float(np.abs(Jc).max()), float(lam.sum())
+        r1 = f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + jc_max * lam_1
+        r2 = (scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2 + jc_max * float(sizes.sum())
+              + float(w.max()) * lam_1)
+        G = mass.inverse - X @ S_plus @ X.T
+        componentwise = np.abs(G) @ r1 + np.abs(X @ S_plus).sum(axis=1) * r2 + np.abs(X).sum(axis=1) * lam_rounding
         return np.fmin(componentwise, normwise)
 
 
