@@ -16,21 +16,47 @@ W processes (spawned, each loading the plugins by their specs; a worker process 
 The campaign directory holds ``campaign.json`` (the parameters; a run in a directory with the same parameters
 resumes, skipping the chunks already logged and not interrupted), ``chunks.jsonl`` (one line per chunk, appended as
 each ends), ``findings/ID.json`` (written atomically as soon as a chunk ends with a failure, or is interrupted with
-one in hand) and ``report.md`` (written at the end, also after Ctrl-C). A finding's ID hashes the model digest, the
-state and the failing check keys, so the same failure found by a shard and by the unsharded run has the same ID.
+one in hand) and ``report.md`` (written at the end, also after an interruption). A finding's ID hashes the model
+digest, the state and the failing check keys, so the same failure found by a shard and by the unsharded run has the
+same ID. Files are written like any other (their mode follows the umask).
+
+Interruptions and crashes. Interrupting a campaign by any signal at any time and resuming it (the same command
+again) gives the same findings as an uninterrupted run:
+
+- SIGINT or SIGTERM, to the campaign's process alone or to its whole process group, is an orderly stop: no chunk
+  starts any more, every chunk in flight is interrupted (the parent sets a flag each worker watches, so a signal
+  to the parent alone reaches them), saves the failure it holds (shrunk or not, marked ``interrupted``) and is
+  logged as interrupted; the chunks get ``INTERRUPT_GRACE`` seconds for that. The report is written, the run recorded
+  as interrupted (the command exits 130). A signal never breaks a save or a log append: only a chunk's Hypothesis
+  run is broken into, once; otherwise the signal is noted and acted on at the next example or chunk.
+- SIGKILL of the campaign or of a worker loses nothing already logged or saved: files are replaced atomically,
+  the chunk log is append-only and a torn last line (a crash mid-append) is ignored, and dropped at the next append;
+  workers notice their parent is gone and exit at once. A worker that dies (SIGKILL, the OOM killer) stops the
+  campaign in the same orderly way, with an error naming its chunk. Corrupt files give errors naming them.
+- An interrupted chunk runs again on resume; its run to the end replaces the failure the interrupted run saved: a
+  saved copy of a finding from a chunk that ended takes precedence over one from an interrupted chunk, and a finding
+  of an interrupted chunk that no chunk of the log lists any more is deleted.
+- One run at a time per campaign directory: a run (and ``merge`` into its ``--out``) holds a lock on ``DIR/.lock``,
+  which the OS releases when the process ends however it ends; a second run is refused, naming the first's pid.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import contextlib
+import dataclasses
+import fcntl
 import hashlib
 import itertools
 import json
 import math
+import multiprocessing
 import os
+import queue as queues
+import secrets
 import shutil
+import signal
 import tempfile
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -59,15 +85,21 @@ CHUNK_EXAMPLES = 10
 SHRINK_CALLS = 300
 #: Chunks a worker process runs before it is replaced (the backends cache compiled code per model).
 CHUNKS_PER_PROCESS = 4
-#: Seconds the campaign waits, after Ctrl-C, for the chunks in flight to save what they found.
-INTERRUPT_GRACE = 3.0
+#: Seconds the campaign waits, after an interruption, for the chunks in flight to save what they hold and report
+#: (they stop within a fraction of a second unless a backend is stuck in compiled code).
+INTERRUPT_GRACE = 5.0
+#: Seconds between a worker's checks of the stop flag and of its parent; between the pool loop's checks.
+POLL = 0.1
+#: Seconds a chunk's result may take to arrive after its worker exited before the worker counts as lost.
+LOST_AFTER = 2.0
 #: The parameters that make two runs parts of one campaign (merge and resume require them equal).
 IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "backends", "plugins",
             "shrink_calls", "charts", "frames", "conservation")
 
 
 class FuzzError(ValueError):
-    """Bad campaign input: a directory of another campaign, an unknown finding, incompatible shards."""
+    """A campaign that cannot run or go on: bad input (a directory of another campaign or in use, a corrupt file, an
+    unknown finding, incompatible shards) or a worker process lost."""
 
 
 @dataclass(frozen=True)
@@ -148,6 +180,96 @@ def chunk_size(cfg: FuzzConfig, k: int) -> int:
     if cfg.examples is None:
         return cfg.chunk_examples
     return min(cfg.chunk_examples, cfg.examples - k * cfg.chunk_examples)
+
+
+# ------------------------------------------------------------------------------------------------ interrupts
+
+
+@dataclass
+class _Interrupts:
+    """How this process takes SIGINT and SIGTERM (module doc): ``requested`` once one came; ``phase`` is ``"idle"``
+    (no chunk running here), ``"chunk"`` (a chunk setting up or saving) or ``"test"`` (its Hypothesis run);
+    ``worker`` in a pool worker process, ``stop`` there the campaign's stop flag (:func:`_watch`)."""
+
+    requested: bool = False
+    phase: str = "idle"
+    worker: bool = False
+    stop: object = None
+
+    def on_signal(self, signum: int, frame) -> None:
+        """The first signal during a chunk's Hypothesis run raises KeyboardInterrupt there (the chunk saves the
+        failure in hand); any other only sets ``requested``, which the property and the loops poll. In a worker's
+        chunk, SIGTERM once an interrupt is under way or once the campaign's ``stop`` flag is set ends the process:
+        that is how the pool stops its workers, and a worker must not outlive it."""
+        first, self.requested = not self.requested, True
+        if self.worker and signum == signal.SIGTERM and (not first or self.stop.value):
+            raise SystemExit(128 + signum)
+        if self.phase == "test" and first:
+            raise KeyboardInterrupt
+
+    def poll(self) -> None:
+        """Called at each example: an interrupt noted outside the Hypothesis run stops the chunk now."""
+        if self.requested:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def during(self, phase: str) -> Iterator[None]:
+        before, self.phase = self.phase, phase
+        try:
+            yield
+        finally:
+            self.phase = before
+
+    @contextlib.contextmanager
+    def chunk(self) -> Iterator[None]:
+        """A chunk runs here. A worker takes SIGTERM by :meth:`on_signal` only meanwhile; idle, the default action
+        ends it at once. (A Python handler runs in the main thread, and a signal the kernel hands to another thread
+        does not wake the main thread from a blocking wait: an idle worker waiting for a task would outlive the
+        pool's SIGTERM.)"""
+        if self.worker:
+            signal.signal(signal.SIGTERM, self.on_signal)
+        try:
+            with self.during("chunk"):
+                yield
+        finally:
+            if self.worker:
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+_INTERRUPTS = _Interrupts()
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def _signals_handled() -> Iterator[None]:
+    """SIGINT and SIGTERM taken by :data:`_INTERRUPTS` while in the block (in the main thread; elsewhere Python
+    cannot set handlers), the previous handlers restored after."""
+    _INTERRUPTS.requested = False
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {signum: signal.signal(signum, _INTERRUPTS.on_signal) for signum in _SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        _INTERRUPTS.requested = False
+
+
+def _watch(stop, parent: int, main_thread: int) -> None:
+    """A worker's watcher thread: the campaign's stop flag interrupts the worker's main thread (as SIGINT would);
+    the death of the parent ends the worker at once (a SIGKILLed campaign leaves no worker writing into its
+    directory; the chunk runs again on resume). The flag is a lock-free shared byte: a worker killed while it held a
+    lock (a multiprocessing Event's) would block every other process that takes it."""
+    while not stop.value:
+        if os.getppid() != parent:
+            os._exit(1)
+        time.sleep(POLL)
+    signal.pthread_kill(main_thread, signal.SIGINT)
+    while os.getppid() == parent:
+        time.sleep(POLL)
+    os._exit(1)
 
 
 # ------------------------------------------------------------------------------------------------ one chunk
@@ -271,6 +393,7 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
 
     @given(st.data())
     def backends_agree(data):
+        _INTERRUPTS.poll()
         model = data.draw(testing.models(cfg.max_bodies, cfg.constraints), label="model")
         count = data.draw(st.integers(1, cfg.max_states), label="number of states")
         states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
@@ -315,53 +438,132 @@ def _no_local_constants():
 def run_chunk(cfg: FuzzConfig, k: int, progress: Callable[[int, int, float], None] | None = None) -> dict:
     """Run chunk ``k`` (module doc); save its finding, if any, in ``cfg.out``; return its log record.
 
-    Ctrl-C during the chunk ends it: a failure in hand (shrunk or not) is saved, the record says ``interrupted``.
+    An interrupt (Ctrl-C, SIGINT or SIGTERM, the campaign's stop flag) ends the chunk: a failure in hand (shrunk or
+    not) is saved marked ``interrupted``, and so is the record.
     """
-    chosen = [backends.get(name) for name in cfg.backends]
-    rec = _Recorder(cfg.shrink_calls, progress)
-    test = settings(max_examples=chunk_size(cfg, k), database=None, deadline=None, derandomize=False,
-                    phases=(Phase.generate, Phase.target, Phase.shrink), report_multiple_bugs=False,
-                    suppress_health_check=list(HealthCheck), verbosity=Verbosity.quiet)(_property(cfg, chosen, rec))
-    test = hypothesis_seed(chunk_seed(cfg.seed, k))(test)
-    start, interrupted, shrunk = time.perf_counter(), False, True
-    try:
-        with np.errstate(all="ignore"), _no_local_constants():  # NaN and inf are compared and reported
-            test()
-    except KeyboardInterrupt:
-        interrupted, shrunk = True, False
-    except _ShrinkBudget:
-        shrunk = False
-    except Exception as exc:
-        if rec.last_failure is None:   # not a failing example: a bug of the campaign itself
-            raise
-        shrunk = isinstance(exc, AssertionError)   # else Hypothesis could not replay it (flaky): as found
-    findings = []
-    if rec.last_failure is not None:
-        campaign = {"seed": cfg.seed, "chunk": k, "chunk_seed": chunk_seed(cfg.seed, k)}
-        finding = {**rec.last_failure, "campaign": campaign, "shrunk": shrunk}
-        save_finding(Path(cfg.out), finding)
-        findings.append(finding["id"])
-    return {"chunk": k, "examples": rec.examples, "shrink_calls": rec.shrinking, "states": rec.states,
-            "models": len(rec.models), "worst_ratio": rec.worst, "worst_key": rec.worst_key,
-            "worst_agreeing": rec.agreeing, "worst_agreeing_key": rec.agreeing_key,
-            "seconds": round(time.perf_counter() - start, 3), "findings": findings, "interrupted": interrupted}
+    with _INTERRUPTS.chunk():
+        chosen = [backends.get(name) for name in cfg.backends]
+        rec = _Recorder(cfg.shrink_calls, progress)
+        test = settings(max_examples=chunk_size(cfg, k), database=None, deadline=None, derandomize=False,
+                        phases=(Phase.generate, Phase.target, Phase.shrink), report_multiple_bugs=False,
+                        suppress_health_check=list(HealthCheck), verbosity=Verbosity.quiet)(_property(cfg, chosen, rec))
+        test = hypothesis_seed(chunk_seed(cfg.seed, k))(test)
+        start, interrupted, shrunk = time.perf_counter(), False, True
+        try:
+            with np.errstate(all="ignore"), _no_local_constants(), _INTERRUPTS.during("test"):  # NaN, inf reported
+                test()
+        except KeyboardInterrupt:
+            interrupted, shrunk = True, False
+        except _ShrinkBudget:
+            shrunk = False
+        except Exception as exc:
+            if rec.last_failure is None:   # not a failing example: a bug of the campaign itself
+                raise
+            shrunk = isinstance(exc, AssertionError)   # else Hypothesis could not replay it (flaky): as found
+        findings = []
+        if rec.last_failure is not None:
+            campaign = {"seed": cfg.seed, "chunk": k, "chunk_seed": chunk_seed(cfg.seed, k), "interrupted": interrupted}
+            finding = {**rec.last_failure, "campaign": campaign, "shrunk": shrunk}
+            save_finding(Path(cfg.out), finding)
+            findings.append(finding["id"])
+        return {"chunk": k, "examples": rec.examples, "shrink_calls": rec.shrinking, "states": rec.states,
+                "models": len(rec.models), "worst_ratio": rec.worst, "worst_key": rec.worst_key,
+                "worst_agreeing": rec.agreeing, "worst_agreeing_key": rec.agreeing_key,
+                "seconds": round(time.perf_counter() - start, 3), "findings": findings, "interrupted": interrupted}
 
 
 # ------------------------------------------------------------------------------------------------ storage
 
 
 def _write_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` by a file holding ``text`` in one step (a reader sees the old file or the new one, a crash
+    leaves at worst a ``.tmp`` file beside it); created with mode 0o666 less the umask, like any file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as fh:
-        fh.write(text)
-    os.replace(fh.name, path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    try:
+        with open(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """The campaign directory ``out``, created if need be, locked for this run while in the block (``DIR/.lock``,
+    ``fcntl.flock``, holding the pid of the run; the OS releases the lock when the process ends however it ends)."""
+    _campaign_dir(out)
+    try:
+        fd = os.open(out / ".lock", os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise FuzzError(f"cannot write in campaign directory {out}: {exc.strerror or exc}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise FuzzError(f"campaign directory {out} is in use by another run (pid {holder}); wait for it or give "
+                            "another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _campaign_dir(out: Path) -> None:
+    """Create ``out`` (and its parents); :class:`FuzzError` if it is a file or cannot be created."""
+    if out.exists() and not out.is_dir():
+        raise FuzzError(f"--out {out} is a file, not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FuzzError(f"cannot create campaign directory {out}: {exc.strerror or exc}") from None
+
+
+#: The keys of a chunk's log record and of a saved finding (:func:`run_chunk`).
+CHUNK_KEYS = ("chunk", "examples", "shrink_calls", "states", "models", "worst_ratio", "worst_key", "worst_agreeing",
+              "worst_agreeing_key", "seconds", "findings", "interrupted")
+FINDING_KEYS = ("id", "model", "state", "chart", "frame", "checks", "backends", "failing", "errors", "worst_ratio",
+                "campaign", "shrunk")
+
+
+def _parsed(text: str | bytes, keys: Sequence[str]) -> dict:
+    """The JSON object ``text`` with every one of ``keys``; ValueError saying what is wrong otherwise."""
+    value = json.loads(text)
+    if not isinstance(value, dict):
+        raise ValueError(f"a JSON {type(value).__name__}, not an object")
+    missing = [key for key in keys if key not in value]
+    if missing:
+        raise ValueError(f"no {', '.join(missing)}")
+    return value
+
+
+def _read_finding(path: Path) -> dict:
+    """The finding saved in ``path``; :class:`FuzzError` naming the file if it is not one."""
+    try:
+        finding = _parsed(path.read_bytes(), FINDING_KEYS)
+        if not isinstance(finding["campaign"], dict) or "chunk" not in finding["campaign"]:
+            raise ValueError("no campaign chunk")
+    except ValueError as exc:
+        raise FuzzError(f"{path} is not a finding file ({exc}); delete it (to find it again, delete as well the lines "
+                        f"of chunks.jsonl that list {path.stem}, then resume)") from None
+    return finding
+
+
+def _precedence(finding: dict) -> tuple[bool, int]:
+    """Which saved copy of a finding is kept, lowest first: one from a chunk that ran to its end before one from an
+    interrupted chunk (perhaps not shrunk), then the one of the lowest chunk."""
+    return bool(finding["campaign"].get("interrupted", False)), finding["campaign"]["chunk"]
 
 
 def save_finding(out: Path, finding: dict) -> bool:
-    """Write ``findings/ID.json`` atomically; a finding already saved from an earlier chunk is kept (so the stored
-    copy does not depend on which shard or worker finished first). Returns whether it was written."""
+    """Write ``findings/ID.json`` atomically unless the copy there takes precedence (:func:`_precedence`: so the
+    stored copy does not depend on which shard or worker finished first, nor on interruptions; a chunk run again
+    replaces its earlier copy). Returns whether it was written."""
     path = out / "findings" / f"{finding['id']}.json"
-    if path.exists() and json.loads(path.read_text())["campaign"]["chunk"] <= finding["campaign"]["chunk"]:
+    if path.exists() and _precedence(_read_finding(path)) < _precedence(finding):
         return False
     _write_atomic(path, json.dumps(finding, indent=1))
     return True
@@ -369,29 +571,84 @@ def save_finding(out: Path, finding: dict) -> bool:
 
 def load_findings(out: Path) -> list[dict]:
     """The saved findings, ordered by chunk then ID."""
-    found = [json.loads(p.read_text()) for p in sorted((out / "findings").glob("*.json"))]
+    found = [_read_finding(p) for p in sorted((out / "findings").glob("*.json"))]
     return sorted(found, key=lambda f: (f["campaign"]["chunk"], f["id"]))
 
 
+def _prune(out: Path) -> None:
+    """Delete what an interruption or a crash left behind: temporary files, and the findings saved by interrupted
+    chunks that no chunk of the log lists any more (their chunk ran again to its end without reproducing them)."""
+    for tmp in [*out.glob("*.tmp"), *(out / "findings").glob("*.tmp")]:
+        tmp.unlink(missing_ok=True)
+    listed = {i for r in load_chunks(out) for i in r["findings"]}
+    for path in sorted((out / "findings").glob("*.json")):
+        finding = _read_finding(path)
+        if finding["campaign"].get("interrupted") and finding["id"] not in listed:
+            path.unlink()
+
+
+def _final(records: Iterable[dict]) -> list[dict]:
+    """One record per chunk, ordered by chunk: the last one that ran to its end, else the last one."""
+    final: dict[int, dict] = {}
+    for r in records:
+        kept = final.get(r["chunk"])
+        if kept is None or kept["interrupted"] or not r["interrupted"]:
+            final[r["chunk"]] = r
+    return sorted(final.values(), key=lambda r: r["chunk"])
+
+
 def load_chunks(out: Path) -> list[dict]:
-    """The chunk log, one record per chunk (the last record of a chunk logged twice), ordered by chunk."""
+    """The chunk log, one record per chunk (:func:`_final`), ordered by chunk. A torn last line (a crash while it
+    was appended) is skipped; any other line that is not a record is corruption: :class:`FuzzError` naming it."""
     path = out / "chunks.jsonl"
-    records = [json.loads(line) for line in path.read_text().splitlines() if line] if path.exists() else []
-    return sorted({r["chunk"]: r for r in records}.values(), key=lambda r: r["chunk"])
+    lines = path.read_bytes().split(b"\n") if path.exists() else []
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(_parsed(line, CHUNK_KEYS))
+        except ValueError as exc:
+            if number == len(lines):   # no newline after it: torn; the next append drops it
+                continue
+            raise FuzzError(f"{path} line {number} is not a chunk record ({exc}): the log is corrupt; delete that "
+                            "line (its chunk runs again on resume)") from None
+    return _final(records)
 
 
 def _append_chunk(out: Path, record: dict) -> None:
-    with open(out / "chunks.jsonl", "a") as fh:
-        fh.write(json.dumps(record) + "\n")
+    """Append ``record`` to the chunk log, after dropping a torn last line (or ending a whole one)."""
+    with open(out / "chunks.jsonl", "a+b") as fh:
+        size = fh.seek(0, os.SEEK_END)
+        if size and os.pread(fh.fileno(), 1, size - 1) != b"\n":
+            fh.seek(0)
+            text = fh.read()
+            head = text[:text.rfind(b"\n") + 1]
+            try:
+                _parsed(text[len(head):], CHUNK_KEYS)
+                fh.write(b"\n")
+            except ValueError:
+                fh.truncate(len(head))
+        fh.write((json.dumps(record) + "\n").encode())
 
 
 def load_campaign(out: Path) -> dict | None:
+    """``campaign.json`` of ``out`` (None if there is none); :class:`FuzzError` if it is not a campaign file."""
     path = out / "campaign.json"
-    return json.loads(path.read_text()) if path.exists() else None
+    if not path.exists():
+        return None
+    try:
+        campaign = _parsed(path.read_bytes(), ("identity", "runs"))
+        if not isinstance(campaign["identity"], dict) or not isinstance(campaign["runs"], list):
+            raise ValueError("identity is not an object or runs not a list")
+    except ValueError as exc:
+        raise FuzzError(f"{path} is not a campaign file: {exc}; remove it or give another --out") from None
+    return campaign
 
 
 def _prepare(cfg: FuzzConfig) -> dict:
-    """Create or resume the campaign directory: ``campaign.json`` must hold the same parameters."""
+    """Create or resume the campaign directory (locked by the caller): ``campaign.json`` must hold the same
+    parameters."""
     out = Path(cfg.out)
     found = load_campaign(out)
     if found is not None and found["identity"] != cfg.identity():
@@ -400,7 +657,6 @@ def _prepare(cfg: FuzzConfig) -> dict:
                         + ", ".join(f"{k} {a!r} there, {b!r} here" for k, (a, b) in diff.items())
                         + "); give another --out or remove it")
     campaign = found or {"identity": cfg.identity(), "runs": []}
-    out.mkdir(parents=True, exist_ok=True)
     _write_atomic(out / "campaign.json", json.dumps(campaign, indent=1))
     return campaign
 
@@ -458,11 +714,13 @@ def _until(deadline: float | None, ks: Iterable[int]) -> Iterator[int]:
 
 def _in_process(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
     """Chunks one after another in this process (the derivation cache pointed at ``cache`` meanwhile), until one is
-    interrupted."""
+    interrupted or an interrupt is requested."""
     before = os.environ.get("CROSSCHECK_CACHE")
     os.environ["CROSSCHECK_CACHE"] = cache
     try:
         for k in plan:
+            if _INTERRUPTS.requested:
+                return
             record = run_chunk(cfg, k, display.example)
             yield record
             if record["interrupted"]:
@@ -478,11 +736,17 @@ _QUEUE = None
 _LIMITS = None
 
 
-def _init_worker(plugins: Sequence[str], cache: str, queue) -> None:
-    """A worker process: the campaign's derivation cache, one BLAS thread, the plugins, the progress queue."""
+def _init_worker(plugins: Sequence[str], cache: str, queue, stop, parent: int) -> None:
+    """A worker process: its interrupts (module doc: SIGINT and, during a chunk, SIGTERM handled as in the campaign;
+    the stop flag and the parent watched), the campaign's derivation cache, one BLAS thread, the plugins, the
+    progress queue."""
     global _QUEUE, _LIMITS
     from threadpoolctl import threadpool_limits
 
+    _INTERRUPTS.worker, _INTERRUPTS.stop, _INTERRUPTS.requested = True, stop, bool(stop.value)
+    signal.signal(signal.SIGINT, _INTERRUPTS.on_signal)   # SIGTERM: see _Interrupts.chunk
+    threading.Thread(target=_watch, args=(stop, parent, threading.get_ident()), daemon=True).start()
+    queue.cancel_join_thread()   # exiting never waits on the queue (whose lock a killed worker may hold)
     os.environ["CROSSCHECK_CACHE"] = cache
     _LIMITS = threadpool_limits(limits=1, user_api="blas")
     backends.load_plugins(plugins)
@@ -490,53 +754,99 @@ def _init_worker(plugins: Sequence[str], cache: str, queue) -> None:
 
 
 def _worker_chunk(cfg: FuzzConfig, k: int) -> dict:
-    return run_chunk(cfg, k, lambda examples, states, ratio: _QUEUE.put((examples, states, ratio)))
+    """Chunk ``k`` in a worker: the worker's pid to the queue first (the pool loop watches that it lives), then the
+    chunk's progress."""
+    _QUEUE.put(("start", k, os.getpid()))
+    return run_chunk(cfg, k, lambda examples, states, ratio: _QUEUE.put(("example", examples, states, ratio)))
 
 
-def _finished(pending: dict, queue, display: _Display) -> list[dict]:
-    """Wait (showing progress) until chunks in flight end; their records."""
-    while True:
-        while not queue.empty():
-            display.example(*queue.get())
-        ready = [k for k, result in pending.items() if result.ready()]
-        if ready:
-            return [pending.pop(k).get() for k in ready]
-        time.sleep(0.1)
+class _Flight:
+    """The chunks in flight in a worker pool: their pending results, the process running each (from the workers'
+    ``start`` messages), their progress shown on ``display``."""
 
+    def __init__(self, cfg: FuzzConfig, pool, queue, display: _Display):
+        self.cfg, self.pool, self.queue, self.display = cfg, pool, queue, display
+        self.pending: dict = {}
+        self.pids: dict[int, int] = {}
 
-def _grace(pending: dict) -> Iterator[dict]:
-    """The records of the chunks in flight that end within ``INTERRUPT_GRACE`` seconds."""
-    deadline = time.monotonic() + INTERRUPT_GRACE
-    while pending and time.monotonic() < deadline:
-        for k in [k for k, result in pending.items() if result.ready()]:
-            yield pending.pop(k).get()
-        time.sleep(0.05)
+    def start(self, ks: Iterable[int]) -> None:
+        for k in ks:
+            self.pending[k] = self.pool.apply_async(_worker_chunk, (self.cfg, k))
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                kind, *message = self.queue.get_nowait()
+            except queues.Empty:
+                return
+            if kind == "start":
+                self.pids[message[0]] = message[1]
+            else:
+                self.display.example(*message)
+
+    def ended(self) -> list[dict]:
+        """The records of the chunks that ended since the last call."""
+        self._drain()
+        ready = [k for k, result in self.pending.items() if result.ready()]
+        for k in ready:
+            self.pids.pop(k, None)
+        return [self.pending.pop(k).get() for k in ready]
+
+    def lost(self) -> tuple[int, int] | None:
+        """(chunk, pid) of a chunk whose worker process is gone without returning it (killed), else None; the chunk
+        is no longer waited for."""
+        alive = {p.pid for p in multiprocessing.active_children()}
+        for k, pid in self.pids.items():
+            if pid not in alive:
+                self.pending[k].wait(LOST_AFTER)   # its result may still be on its way
+                if not self.pending[k].ready():
+                    del self.pending[k], self.pids[k]
+                    return k, pid
+        return None
+
+    def wait(self) -> tuple[list[dict], tuple[int, int] | None]:
+        """Until a chunk ends, an interrupt is requested or a worker is lost: the records of the chunks that ended
+        and the lost (chunk, pid)."""
+        while True:
+            done, lost = self.ended(), self.lost()
+            if done or lost or _INTERRUPTS.requested:
+                return done, lost
+            time.sleep(POLL)
+
+    def grace(self) -> Iterator[dict]:
+        """The records of the chunks in flight that end within ``INTERRUPT_GRACE`` seconds."""
+        deadline = time.monotonic() + INTERRUPT_GRACE
+        while self.pending and time.monotonic() < deadline:
+            yield from self.ended()
+            time.sleep(POLL / 2)
 
 
 def _in_pool(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
     """Chunks in ``cfg.workers`` spawned processes, at most one in flight per worker, records in completion order.
-    On Ctrl-C (in this process, or a chunk reporting it was interrupted) no chunk starts any more, and the chunks in
-    flight get ``INTERRUPT_GRACE`` seconds to save what they hold and report."""
-    import multiprocessing
-
+    On an interrupt (of this process, or a chunk reporting one) or a lost worker, no chunk starts any more and the
+    stop flag interrupts the chunks in flight, which get ``INTERRUPT_GRACE`` seconds to save what they hold and
+    report; a lost worker then raises :class:`FuzzError`."""
     ctx = multiprocessing.get_context("spawn")
-    queue = ctx.Queue()
-    pool = ctx.Pool(cfg.workers, initializer=_init_worker, initargs=(cfg.plugins, cache, queue),
+    queue, stop = ctx.Queue(), ctx.RawValue("b", 0)
+    pool = ctx.Pool(cfg.workers, initializer=_init_worker, initargs=(cfg.plugins, cache, queue, stop, os.getpid()),
                     maxtasksperchild=CHUNKS_PER_PROCESS)
-    pending = {k: pool.apply_async(_worker_chunk, (cfg, k)) for k in itertools.islice(plan, cfg.workers)}
+    flight = _Flight(cfg, pool, queue, display)
     try:
-        while pending:
-            try:
-                done = _finished(pending, queue, display)
-            except KeyboardInterrupt:
-                yield from _grace(pending)
-                raise
+        flight.start(itertools.islice(plan, cfg.workers))
+        while flight.pending:
+            done, lost = flight.wait()
             yield from done
-            if any(record["interrupted"] for record in done):
-                yield from _grace(pending)
+            if lost or _INTERRUPTS.requested or any(record["interrupted"] for record in done):
+                stop.value = 1
+                yield from flight.grace()
+                if lost:
+                    raise FuzzError(f"the worker process running chunk {lost[0]} (pid {lost[1]}) died; the chunks in "
+                                    "flight were stopped and the report written: run the same command again to resume "
+                                    f"(chunk {lost[0]} runs again)")
                 return
-            pending.update({k: pool.apply_async(_worker_chunk, (cfg, k)) for k in itertools.islice(plan, len(done))})
+            flight.start(itertools.islice(plan, len(done)))
     finally:
+        stop.value = 1   # first: a worker takes the pool's SIGTERM after it as the end (_Interrupts.on_signal)
         pool.terminate()
         pool.join()
 
@@ -550,30 +860,37 @@ class CampaignResult:
 
 
 def run_campaign(cfg: FuzzConfig, command: str = "", console=None) -> CampaignResult:
-    """Run the campaign ``cfg`` (from :func:`config`): chunks logged as they end, findings saved as they are found,
-    the report written at the end, after Ctrl-C too (``interrupted`` is then set)."""
-    campaign = _prepare(cfg)
+    """Run the campaign ``cfg`` (from :func:`config`) in its directory, locked for the run: chunks logged as they
+    end, findings saved as they are found, the report written at the end, also after an interruption (SIGINT or
+    SIGTERM: ``interrupted`` is then set) or an error (re-raised after). Module doc: what survives what."""
     out = Path(cfg.out)
-    logged = {r["chunk"] for r in load_chunks(out) if not r["interrupted"]}   # an interrupted chunk runs again
-    deadline = None if cfg.minutes is None else time.monotonic() + 60.0 * cfg.minutes
-    plan = _until(deadline, (k for k in planned_chunks(cfg) if k not in logged))
-    total = None if cfg.examples is None else sum(chunk_size(cfg, k) for k in planned_chunks(cfg) if k not in logged)
-    cache = tempfile.mkdtemp(prefix="crosscheck-fuzz-cache-")
-    start, interrupted = time.perf_counter(), False
-    runner = _in_process if cfg.workers == 0 else _in_pool
-    try:
-        with _Display(total, console) as display:
-            for record in runner(cfg, plan, cache, display):
-                _append_chunk(out, record)
-                display.chunk(record)
-                interrupted |= record["interrupted"]
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        shutil.rmtree(cache, ignore_errors=True)
-        _record_run(cfg, campaign, time.perf_counter() - start, interrupted)
-        write_report(out, command)
-    return CampaignResult(out, load_chunks(out), load_findings(out), interrupted)
+    with _locked(out), _signals_handled():
+        campaign = _prepare(cfg)
+        _prune(out)
+        logged = {r["chunk"] for r in load_chunks(out) if not r["interrupted"]}   # an interrupted chunk runs again
+        deadline = None if cfg.minutes is None else time.monotonic() + 60.0 * cfg.minutes
+        plan = _until(deadline, (k for k in planned_chunks(cfg) if k not in logged))
+        total = None if cfg.examples is None else sum(chunk_size(cfg, k) for k in planned_chunks(cfg)
+                                                      if k not in logged)
+        cache = tempfile.mkdtemp(prefix="crosscheck-fuzz-cache-")
+        start, interrupted, ended = time.perf_counter(), False, False
+        runner = _in_process if cfg.workers == 0 else _in_pool
+        try:
+            with _Display(total, console) as display, contextlib.closing(runner(cfg, plan, cache, display)) as records:
+                for record in records:
+                    _append_chunk(out, record)
+                    display.chunk(record)
+                    interrupted |= record["interrupted"]
+            ended = True
+        except KeyboardInterrupt:
+            pass
+        finally:
+            interrupted = interrupted or not ended or _INTERRUPTS.requested
+            shutil.rmtree(cache, ignore_errors=True)
+            _prune(out)
+            _record_run(cfg, campaign, time.perf_counter() - start, interrupted)
+            write_report(out, command)
+        return CampaignResult(out, load_chunks(out), load_findings(out), interrupted)
 
 
 # ------------------------------------------------------------------------------------------------ replay, merge
@@ -586,7 +903,7 @@ def find(out: Path, finding: str) -> dict:
     if len(matches) != 1:
         what = "matches several findings" if matches else "is not a finding"
         raise FuzzError(f"'{finding}' {what} in {out}; valid IDs: {', '.join(ids) or 'none (no findings saved)'}")
-    return json.loads((out / "findings" / f"{matches[0]}.json").read_text())
+    return _read_finding(out / "findings" / f"{matches[0]}.json")
 
 
 def scene_of(finding: dict) -> tuple[Model, State, charts.Chart, frames.Frame]:
@@ -609,8 +926,9 @@ def replay(finding: dict, names: Sequence[str] | None = None) -> StateOutcome:
 
 
 def merge(dirs: Sequence[Path], out: Path, command: str = "") -> CampaignResult:
-    """Combine campaign directories (shards) into ``out``: the same parameters required, findings de-duplicated by
-    ID, chunk logs combined (a chunk in several keeps one record), runs listed; the report written."""
+    """Combine campaign directories (shards) into ``out`` (locked meanwhile, like a run's): the same parameters
+    required, findings de-duplicated by ID, chunk logs combined (a chunk in several keeps one record,
+    :func:`_final`), runs listed; the report written."""
     campaigns = []
     for d in dirs:
         found = load_campaign(Path(d))
@@ -621,19 +939,20 @@ def merge(dirs: Sequence[Path], out: Path, command: str = "") -> CampaignResult:
         if c["identity"] != campaigns[0]["identity"]:
             raise FuzzError(f"cannot merge {d} with {dirs[0]}: the campaigns' parameters differ "
                             f"({c['identity']} vs {campaigns[0]['identity']})")
-    existing = load_campaign(out)
-    if existing is not None and existing["identity"] != campaigns[0]["identity"]:
-        raise FuzzError(f"{out} holds another campaign; give another --out")
-    runs = (existing or {"runs": []})["runs"] + [r for c in campaigns for r in c["runs"]]
-    out.mkdir(parents=True, exist_ok=True)
-    _write_atomic(out / "campaign.json", json.dumps({"identity": campaigns[0]["identity"], "runs": runs}, indent=1))
-    records = {r["chunk"]: r for d in [out, *map(Path, dirs)] for r in load_chunks(d)}
-    _write_atomic(out / "chunks.jsonl", "".join(json.dumps(records[k]) + "\n" for k in sorted(records)))
-    for d in dirs:
-        for finding in load_findings(Path(d)):
-            save_finding(out, finding)
-    write_report(out, command)
-    return CampaignResult(out, load_chunks(out), load_findings(out), False)
+    with _locked(out):
+        existing = load_campaign(out)
+        if existing is not None and existing["identity"] != campaigns[0]["identity"]:
+            raise FuzzError(f"{out} holds another campaign; give another --out")
+        runs = (existing or {"runs": []})["runs"] + [r for c in campaigns for r in c["runs"]]
+        _write_atomic(out / "campaign.json", json.dumps({"identity": campaigns[0]["identity"], "runs": runs}, indent=1))
+        records = _final(r for d in [out, *map(Path, dirs)] for r in load_chunks(d))
+        _write_atomic(out / "chunks.jsonl", "".join(json.dumps(r) + "\n" for r in records))
+        for d in dirs:
+            for finding in load_findings(Path(d)):
+                save_finding(out, finding)
+        _prune(out)
+        write_report(out, command)
+        return CampaignResult(out, load_chunks(out), load_findings(out), False)
 
 
 # ------------------------------------------------------------------------------------------------ report
@@ -667,7 +986,9 @@ def describe_model(d: dict) -> list[str]:
 def _finding_section(f: dict, out: Path) -> list[str]:
     s, chart, frame = f["state"], f["chart"], f["frame"]
     camp = f["campaign"]
-    how = "shrunk" if f["shrunk"] else "NOT fully shrunk (interrupted or shrinking budget spent)"
+    how = "shrunk" if f["shrunk"] else "NOT fully shrunk (" + (
+        "interrupted: resuming the campaign runs its chunk again" if camp.get("interrupted")
+        else "interrupted or shrinking budget spent") + ")"
     lines = [f"### Finding `{f['id']}`", "",
              f"Chunk {camp['chunk']} (campaign seed {camp['seed']}), {how}; worst error/tolerance "
              f"{f['worst_ratio']:.3g}.", "",

@@ -168,3 +168,26 @@ def test_ctrl_c_after_a_finding_is_saved_leaves_it_on_disk(dropped_coriolis, mon
     assert result.interrupted and len(result.findings) == 1
     assert (result.out / "findings" / f"{result.findings[0]['id']}.json").exists()
     assert result.findings[0]["id"] in (result.out / "report.md").read_text()
+
+
+def test_resuming_after_ctrl_c_while_shrinking_gives_the_uninterrupted_findings(dropped_coriolis, monkeypatch,
+                                                                              tmp_path):
+    """The failure saved when a chunk was interrupted mid-shrink is replaced by its chunk's run to the end: one failure
+    is not counted twice (the same finding files as an uninterrupted run, the same report)."""
+    whole = campaign(tmp_path / "whole", **FAULT)
+    original = fuzz._Recorder.example
+
+    def interrupted(self, model):
+        if self.last_failure is not None:
+            raise KeyboardInterrupt
+        original(self, model)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(fuzz._Recorder, "example", interrupted)
+        partial = campaign(tmp_path / "resumed", **FAULT)
+    assert partial.interrupted and not partial.findings[0]["shrunk"]
+    assert partial.findings[0]["id"] not in {f["id"] for f in whole.findings}
+    resumed = campaign(tmp_path / "resumed", **FAULT)
+    assert resumed.findings == whole.findings
+    assert records(resumed) == records(whole)
+    assert stable(resumed) == stable(whole)
