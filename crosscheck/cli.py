@@ -60,6 +60,19 @@ def _vector(text: str, label: str) -> list[float]:
 
 #: Largest seed: numpy's and Hypothesis' generators take any non-negative integer; 2^63 - 1 keeps it one int64.
 MAX_SEED = 2**63 - 1
+#: Worker processes per CPU at most (``--workers`` of gate and fuzz): each holds the backends, Pinocchio and the
+#: models' compiled code (hundreds of MB), and more processes than CPUs only share them.
+WORKERS_PER_CPU = 2
+
+
+def _workers(count: int, least: int) -> int:
+    """``--workers``: from ``least`` to :data:`WORKERS_PER_CPU` per CPU."""
+    most = WORKERS_PER_CPU * (os.cpu_count() or 1)
+    if not least <= count <= most:
+        raise UsageError(f"--workers takes {least} to {most} ({WORKERS_PER_CPU} per CPU) processes, got {count}")
+    return count
+
+
 #: Most rigid frame changes a gate run samples (``--frames``); ``eval --frame gK`` takes K below it.
 MAX_FRAMES = 16
 
@@ -155,8 +168,7 @@ def cmd_gate(args) -> int:
         raise UsageError("--samples must be at least 1")
     if not 0 <= args.frames <= MAX_FRAMES:
         raise UsageError(f"--frames takes 0 (off) to {MAX_FRAMES} frame changes per case, got {args.frames}")
-    if args.workers < 1:
-        raise UsageError("--workers must be at least 1 (1: every case in this process)")
+    _workers(args.workers, 1)
     specs = _specs(args)
     chosen = _backends(args.formalism)
     for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
@@ -499,7 +511,7 @@ def cmd_fuzz(args) -> int:
     if args.chunk_examples is not None:
         bound["chunk_examples"] = args.chunk_examples
     try:
-        cfg = fuzz.config(seed=args.seed, workers=args.workers, shard=_shard(args.shard), out=args.out,
+        cfg = fuzz.config(seed=args.seed, workers=_workers(args.workers, 0), shard=_shard(args.shard), out=args.out,
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints], charts=not args.no_charts,

@@ -141,7 +141,7 @@ def test_eval_json_matches_article_closed_form(capsys):
     (["eval", "--case", "double_pendulum", "--q=0,0", "--formalism", "hamilton"], "valid: euler_lagrange"),
     (["eval", "--model", "/no/such/robot.urdf", "--q=0"], "/no/such/robot.urdf"),
     (["gate", "--samples", "0"], "--samples must be at least 1"),
-    (["gate", "--workers", "0"], "--workers must be at least 1"),
+    (["gate", "--workers", "0"], "--workers takes 1 to"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_exits_2_with_one_line(argv, fragment, capsys):
