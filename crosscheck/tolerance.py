@@ -514,15 +514,15 @@ def _multiplier_accelerations(model, constrained, q, qd, sizes: np.ndarray, cond
     Componentwise, to first order in the KKT system ``[[M, Jc^T], [Jc, 0]] (qdd, -lam) = (tau - h, -Jcdot qd)``: a
     backward error ``(r1, r2)`` moves qdd by ``G r1 + X S^+ r2`` with ``X = M^-1 Jc^T``, ``S = Jc X`` and ``G = M^-1 -
     X S^+ X^T`` (the constrained response). ``|r1|`` is the unconstrained solve's (:func:`acceleration_bound`'s
-    right-hand side at the answers' sizes and constraint forces) plus ``max|Jc| |lam|_1`` in every joint (a basis of
-    the constraint rows rounds into their structural zeros: a fuzz finding, two couplings where the null-space
-    basis of one leaked 5.7e-15 of the other's multiplier into joints an exact solve leaves at rest); ``|r2|`` is
-    the rounding of ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``max|Jc| |qdd|_1`` and the S solve's
-    ``||S|| |lam|_1``; the short-row rounding ``lam_rounding`` enters through ``|X|``. The normwise bound carries
-    ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers, ``||M^-1||`` about their
-    inverse mass) made the arm joints' drift tolerance 50 times looser than without the coupling, and the 1e-10
-    canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite the normwise bound stands
-    alone."""
+    right-hand side at the answers' sizes and constraint forces) plus ``T |lam|_1`` in every joint, T the rounding
+    size of Jc's entries (:func:`_row_rounding`; the rows round into their structural zeros: a fuzz finding, two
+    couplings where the null-space basis of one leaked 5.7e-15 of the other's multiplier into joints an exact solve
+    leaves at rest); ``|r2|`` is the rounding of ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``T
+    |qdd|_1`` and the S solve's ``||S|| |lam|_1``; the short-row rounding ``lam_rounding`` enters through ``|X|``.
+    The normwise bound carries ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers,
+    ``||M^-1||`` about their inverse mass) made the arm joints' drift tolerance 50 times looser than without the
+    coupling, and the 1e-10 canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite
+    the normwise bound stands alone."""
     mass = _mass(model, q)
     lam_error, lam_rounding = scales.get("lam_scale", 0.0), scales.get("lam_rounding", 0.0)
     Jc = np.nanmedian([s.constraint_jacobian for s in constrained], axis=0)
@@ -537,13 +537,22 @@ def _multiplier_accelerations(model, constrained, q, qd, sizes: np.ndarray, cond
         kept = w > CONSTRAINT_RCOND * max(float(w.max()), 0.0)
         S_plus = (V[:, kept] / w[kept]) @ V[:, kept].T
         Mterm, f = _entry_terms(model, q, qd)
-        d, jc_max, lam_1 = mass.root_diagonal, float(np.abs(Jc).max()), float(lam.sum())
-        r1 = f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + jc_max * lam_1
-        r2 = (scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2 + jc_max * float(sizes.sum())
+        d, row, lam_1 = mass.root_diagonal, _row_rounding(model, Jc), float(lam.sum())
+        r1 = f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + row * lam_1
+        r2 = (scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2 + row * float(sizes.sum())
               + float(w.max()) * lam_1)
         G = mass.inverse - X @ S_plus @ X.T
         componentwise = np.abs(G) @ r1 + np.abs(X @ S_plus).sum(axis=1) * r2 + np.abs(X).sum(axis=1) * lam_rounding
         return np.fmin(componentwise, normwise)
+
+
+def _row_rounding(model, Jc: np.ndarray) -> float:
+    """The size at which an entry of Jc rounds, eps aside: a joint coupling's row is its coefficients (``max|Jc|``,
+    exact, but a backend's basis of the rows mixes them at that size); a geometric row is a sum of lever-sized terms,
+    ``L (n + 1)`` with L the model's length scale, however small it comes out (:func:`_lam_rounding`; a fuzz finding:
+    a row 8.7e-4 long holding a multiplier of 1e4 put 3e-12 into a structural zero of a moved scene)."""
+    geometric = any(not isinstance(c, JointCoupling) for c in model.constraints)
+    return max(float(np.abs(Jc).max()), _loads(model).length * (model.n + 1) if geometric else 0.0)
 
 
 def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
