@@ -14,7 +14,7 @@ bounded by ``sqrt(M_ii M_jj)``. Summed over the subtrees this is far sharper tha
 Panda and spatial_arm; this one is within 1e2 to 1e4 of the true errors measured against the 50-digit reference).
 With constraints the multipliers add ``M^-1 Jc^T dlam``: per joint the smaller of the normwise ``cond(M) ||M^-1||
 ||Jc|| lam_scale`` and a componentwise first-order bound through ``S = Jc M^-1 Jc^T``
-(:func:`_multiplier_accelerations`; the Panda's finger coupling leaves the arm's tolerance as tight as without it),
+(:func:`_constrained_bound`; the Panda's finger coupling leaves the arm's tolerance as tight as without it),
 with the short-row rounding below.
 Power is a sum of products, so its error is a multiple of ``eps * sum_i |(B u)_i qd_i|``. A task
 acceleration ``J qdd + Jdot qd`` (eq. 23) maps the joint error through J, whose columns are at most a lever arm L
@@ -167,8 +167,8 @@ def left_out(conditions: dict[str, float]) -> set[str]:
 
 @dataclass(frozen=True)
 class Scales:
-    """Problem scales at one state: the median of what the backends report, and (``accel``, ``accel_constraint``)
-    the componentwise acceleration bound of :func:`acceleration_bound` with the constraint part (module doc); without
+    """Problem scales at one state: the median of what the backends report, and ``accel`` the componentwise
+    acceleration bound of :func:`acceleration_bound` (with constraints :func:`_constrained_bound`; module doc); without
     ``accel`` (a chart's own coordinates, where the model's joint geometry does not apply) accelerations fall back
     to the normwise ``cond(M) accel_scale``."""
 
@@ -190,17 +190,16 @@ class Scales:
     minv: float = 0.0
     lam_rounding: float = 0.0
     accel: np.ndarray | None = None
-    accel_constraint: np.ndarray | float = 0.0
     energy_terms: float | None = None
 
     def of(self, kind: str):
         """The scale of ``kind`` (:data:`TOLERANCES`): a float, or for ``acceleration`` with the componentwise bound
         one value per coordinate."""
         # the constraint force Jc^T lam carries the multipliers' short-row rounding into the accelerations (in the
-        # componentwise bound it is part of accel_constraint)
+        # componentwise bound it is part of accel)
         rounding = self.minv * self.jc * self.lam_rounding
         normwise = self.cond_M * self.accel_scale + rounding
-        acceleration = normwise if self.accel is None else self.accel + self.accel_constraint
+        acceleration = normwise if self.accel is None else self.accel
         multiplier = self.cond_M * self.lam_scale + self.lam_rounding
         scale = {
             "load": self.cond_M * self.load,
@@ -338,10 +337,11 @@ def _task_condition(split) -> float:
 @dataclass(frozen=True)
 class _Mass:
     """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.reference.mass_matrix``): ``M^-1``, ``|M^-1|``
-    entrywise, ``||M^-1||_2`` and ``sqrt(diag M)``."""
+    entrywise, ``||M||_2``, ``||M^-1||_2`` and ``sqrt(diag M)``."""
 
     inverse: np.ndarray
     abs_inverse: np.ndarray
+    norm: float
     inverse_norm: float
     root_diagonal: np.ndarray
 
@@ -360,7 +360,9 @@ def _mass(model, q) -> _Mass:
         from crosscheck.reference import mass_matrix
         M = mass_matrix(model, q)
         inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
-        value = _Mass(inverse, np.abs(inverse), 1.0 / float(np.linalg.eigvalsh(M)[0]), np.sqrt(np.diag(M)))
+        eigenvalues = np.linalg.eigvalsh(M)
+        value = _Mass(inverse, np.abs(inverse), float(eigenvalues[-1]), 1.0 / float(eigenvalues[0]),
+                      np.sqrt(np.diag(M)))
         ident = id(model)
         entry = _MASS[ident] = (weakref.ref(model, lambda _, ident=ident: _MASS.pop(ident, None)), key, value)
     return entry[2]
@@ -490,31 +492,34 @@ def power_scale(model, qd, u) -> float:
 
 def _componentwise(model, splits, constrained, q, qd, scales: dict) -> dict:
     """``accel`` (:func:`acceleration_bound` at the median sizes of the voters' drift + ctrl, with the median
-    constraint forces ``|Jc|^T (|lam| + |lam_drift|)``), ``accel_constraint`` (the multipliers' part, module doc)
-    and ``energy_terms`` (:func:`kinetic_energy_bound`)."""
-    sizes = np.nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits], axis=0)
-    forces, constraint = None, 0.0
+    constraint forces ``|Jc|^T (|lam| + |lam_drift|)``; with constraints :func:`_constrained_bound`) and
+    ``energy_terms`` (:func:`kinetic_energy_bound`)."""
+    sizes = np.nan_to_num(np.nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits], axis=0))
+    forces = None
     if constrained:
         forces = np.nanmedian([np.abs(s.constraint_jacobian).T @ (np.abs(s.lam) + np.abs(s.lam_drift))
                                for s in constrained], axis=0)
-    accel = acceleration_bound(model, q, qd, np.nan_to_num(sizes), forces)
+    accel = acceleration_bound(model, q, qd, sizes, forces)
     if constrained:
-        constraint = _multiplier_accelerations(model, constrained, q, qd, np.nan_to_num(sizes),
-                                               _median([s.cond_M for s in splits]), scales)
-    return {"accel": accel, "accel_constraint": constraint, "energy_terms": kinetic_energy_bound(model, q, qd)}
+        accel = _constrained_bound(model, constrained, q, qd, sizes, accel, _median([s.cond_M for s in splits]),
+                                   scales)
+    return {"accel": accel, "energy_terms": kinetic_energy_bound(model, q, qd)}
 
 
-def _multiplier_accelerations(model, constrained, q, qd, sizes: np.ndarray, cond_M: float,
-                              scales: dict) -> np.ndarray:
-    """What the constraint solve adds to the joint accelerations' rounding: per joint the smaller of two bounds of it
-    (so their minimum is one too).
+def _constrained_bound(model, constrained, q, qd, sizes: np.ndarray, accel: np.ndarray, cond_M: float,
+                       scales: dict) -> np.ndarray:
+    """The joint accelerations' rounding with constraints: per joint the smaller of two bounds of it (so their
+    minimum is one too).
 
-    Normwise: ``||M^-1|| (||Jc||_2 cond(M) lam_scale + ||Jc^T||_inf lam_rounding)``, the multipliers' error through
-    the constraint force ``M^-1 Jc^T dlam``.
+    Normwise: ``accel`` (:func:`acceleration_bound` with the constraint forces) plus the multipliers' error through
+    the constraint force ``M^-1 Jc^T dlam``, ``||M^-1|| (||Jc||_2 cond(M) lam_scale + ||Jc^T||_inf lam_rounding)``.
     Componentwise, to first order in the KKT system ``[[M, Jc^T], [Jc, 0]] (qdd, -lam) = (tau - h, -Jcdot qd)``: a
     backward error ``(r1, r2)`` moves qdd by ``G r1 + X S^+ r2`` with ``X = M^-1 Jc^T``, ``S = Jc X`` and ``G = M^-1 -
     X S^+ X^T`` (the constrained response). ``|r1|`` is the unconstrained solve's (:func:`acceleration_bound`'s
-    right-hand side at the answers' sizes and constraint forces) plus ``T |lam|_1`` in every joint, T the rounding
+    right-hand side at the answers' sizes and constraint forces), plus ``||M|| ||qdd||`` (the normwise backward
+    error of the orthogonal factorizations the backends' constrained solves use: SVD, QR, eigh mix heavy and light
+    rows; a fuzz finding, a 100 kg base beside 1 g links, geometric's ctrl 4e-9 off at 1000 rad/s^2 against 5e-10),
+    plus ``T |lam|_1`` in every joint, T the rounding
     size of Jc's entries (:func:`_row_rounding`; the rows round into their structural zeros: a fuzz finding, two
     couplings where the null-space basis of one leaked 5.7e-15 of the other's multiplier into joints an exact solve
     leaves at rest); ``|r2|`` is the rounding of ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``T
@@ -528,17 +533,19 @@ def _multiplier_accelerations(model, constrained, q, qd, sizes: np.ndarray, cond
     Jc = np.nanmedian([s.constraint_jacobian for s in constrained], axis=0)
     lam = np.nanmedian([np.abs(s.lam) + np.abs(s.lam_drift) for s in constrained], axis=0)
     norm2 = _median([float(np.linalg.norm(s.constraint_jacobian, 2)) for s in constrained])
-    normwise = mass.inverse_norm * (norm2 * cond_M * lam_error + float(np.abs(Jc).sum(axis=0).max()) * lam_rounding)
+    normwise = accel + mass.inverse_norm * (norm2 * cond_M * lam_error
+                                            + float(np.abs(Jc).sum(axis=0).max()) * lam_rounding)
     with np.errstate(over="ignore", invalid="ignore"):
         X = mass.inverse @ Jc.T
         if not np.all(np.isfinite(Jc @ X)):
-            return np.full(model.n, normwise)
+            return normwise
         w, V = np.linalg.eigh(Jc @ X)
         kept = w > CONSTRAINT_RCOND * max(float(w.max()), 0.0)
         S_plus = (V[:, kept] / w[kept]) @ V[:, kept].T
         Mterm, f = _entry_terms(model, q, qd)
         d, row, lam_1 = mass.root_diagonal, _row_rounding(model, Jc), float(lam.sum())
-        r1 = f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + row * lam_1
+        r1 = (f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + row * lam_1
+              + mass.norm * float(np.linalg.norm(sizes)))
         r2 = (scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2 + row * float(sizes.sum())
               + float(w.max()) * lam_1)
         G = mass.inverse - X @ S_plus @ X.T
