@@ -516,14 +516,17 @@ def _constrained_bound(model, constrained, q, qd, sizes: np.ndarray, accel: np.n
     Componentwise, to first order in the KKT system ``[[M, Jc^T], [Jc, 0]] (qdd, -lam) = (tau - h, -Jcdot qd)``: a
     backward error ``(r1, r2)`` moves qdd by ``G r1 + X S^+ r2`` with ``X = M^-1 Jc^T``, ``S = Jc X`` and ``G = M^-1 -
     X S^+ X^T`` (the constrained response). ``|r1|`` is the unconstrained solve's (:func:`acceleration_bound`'s
-    right-hand side at the answers' sizes and constraint forces), plus ``||M|| ||qdd||`` (the normwise backward
+    right-hand side, at the sizes of the free accelerations ``|qdd| + |X| |lam|`` a range-space solve forms first
+    and cancels: a fuzz finding, a coupling holding a joint driven at 2560 rad/s^2 left 1.5e-10 against 1.2e-10
+    computed at the answer's 0, and with the constraint forces), plus ``||M|| ||qdd||`` (the normwise backward
     error of the orthogonal factorizations the backends' constrained solves use: SVD, QR, eigh mix heavy and light
     rows; a fuzz finding, a 100 kg base beside 1 g links, geometric's ctrl 4e-9 off at 1000 rad/s^2 against 5e-10),
     plus ``T |lam|_1`` in every joint, T the rounding
     size of Jc's entries (:func:`_row_rounding`; the rows round into their structural zeros: a fuzz finding, two
     couplings where the null-space basis of one leaked 5.7e-15 of the other's multiplier into joints an exact solve
-    leaves at rest); ``|r2|`` is the rounding of ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``T
-    |qdd|_1`` and the S solve's ``||S|| |lam|_1``; the short-row rounding ``lam_rounding`` enters through ``|X|``.
+    leaves at rest); ``|r2|`` is ``|Jc| |M^-1| |r1|`` (the free accelerations' error in ``Jc a``), the rounding of
+    ``Jcdot qd`` (the kinematics scale times ``|qd|_1^2``), ``T`` times the free accelerations and the S solve's
+    ``||S|| |lam|_1``; the short-row rounding ``lam_rounding`` enters through ``|X|``.
     The normwise bound carries ``||M^-1||`` and ``cond(M)`` into every joint: the Panda's finger mimic (15 g fingers,
     ``||M^-1||`` about their inverse mass) made the arm joints' drift tolerance 50 times looser than without the
     coupling, and the 1e-10 canaries in C qd went unseen. Jc is the median of the voters'; where S is not finite
@@ -544,12 +547,13 @@ def _constrained_bound(model, constrained, q, qd, sizes: np.ndarray, accel: np.n
         S_plus = (V[:, kept] / w[kept]) @ V[:, kept].T
         Mterm, f = _entry_terms(model, q, qd)
         d, row, lam_1 = mass.root_diagonal, _row_rounding(model, Jc), float(lam.sum())
-        r1 = (f + Mterm @ sizes + d * float(d @ sizes) + np.abs(Jc).T @ lam + row * lam_1
-              + mass.norm * float(np.linalg.norm(sizes)))
-        r2 = (scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2 + row * float(sizes.sum())
-              + float(w.max()) * lam_1)
+        free = sizes + np.abs(X) @ lam          # the unconstrained accelerations a range-space solve forms first
+        r1 = (f + Mterm @ free + d * float(d @ free) + np.abs(Jc).T @ lam + row * lam_1
+              + mass.norm * float(np.linalg.norm(free)))
+        r2 = (np.abs(Jc) @ (mass.abs_inverse @ r1) + scales.get("kinematics", 0.0) * scales.get("rate", 0.0) ** 2
+              + row * float(free.sum()) + float(w.max()) * lam_1)
         G = mass.inverse - X @ S_plus @ X.T
-        componentwise = np.abs(G) @ r1 + np.abs(X @ S_plus).sum(axis=1) * r2 + np.abs(X).sum(axis=1) * lam_rounding
+        componentwise = np.abs(G) @ r1 + np.abs(X @ S_plus) @ r2 + np.abs(X).sum(axis=1) * lam_rounding
         return np.fmin(componentwise, normwise)
 
 
