@@ -4,16 +4,35 @@ A model is plain data. Every backend reads the same fields and derives its own k
 
 Frames and conventions
 ----------------------
-* Body ``i`` is attached to its parent (another body, or the fixed world when ``parent`` is None) by a
-  one-degree-of-freedom joint. The joint frame sits at the fixed placement ``(rotation, translation)``
-  expressed in the parent's body frame; the body frame is the joint frame moved by the joint:
-  ``X_body = X_parent * (rotation, translation) * motion(q_i)`` with ``motion`` a rotation by ``q_i`` about
-  ``axis`` (revolute) or a translation by ``q_i * axis`` (prismatic). ``axis`` is a unit vector in the joint frame.
+* Body ``i`` is attached to its parent (another body, or the fixed world when ``parent`` is None) by a joint.
+  The joint frame sits at the fixed placement ``(rotation, translation)`` expressed in the parent's body frame;
+  the body frame is the joint frame moved by the joint: ``X_body = X_parent * (rotation, translation) * motion(q_i)``
+  with ``q_i`` the joint's block of coordinates and ``motion`` (article 2.1-2.2, 6.2):
+
+  ===========  ===  ===  ======================================================================================
+  joint        nq   nv   motion(q_i); velocity v_i
+  ===========  ===  ===  ======================================================================================
+  revolute     1    1    rotation by ``q_i`` about ``axis``; ``v_i = qd_i``
+  prismatic    1    1    translation by ``q_i * axis``; ``v_i = qd_i``
+  spherical    4    3    ``(R(quat), 0)``, ``q_i`` = quaternion ``(x, y, z, w)``; ``v_i`` = angular velocity of the
+                         body relative to the joint frame, in the body frame (``R^T Rdot = [v_i]x``)
+  free         7    6    ``(R(quat), p)``, ``q_i = (p, x, y, z, w)``; ``v_i = (R^T pdot, w)``: the body twist, linear
+                         velocity of the body origin then angular velocity, both in the body frame
+  ===========  ===  ===  ======================================================================================
+
+  These are Pinocchio's conventions (``JointModelSpherical``, ``JointModelFreeFlyer``), so a state means the same
+  to both tools. ``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` for a unit quaternion; a state's quaternions must be
+  unit (``formalisms.interface.check_state``). The accelerations of a state are in velocity space: the time
+  derivative of ``v`` (of the body twist for a free joint, not the second derivative of ``p``). ``axis`` is a unit
+  vector in the joint frame for a revolute or prismatic joint, and the zero vector for a spherical or free joint
+  (they have none). ``cases.configuration`` holds the group operations (neutral configuration, integration).
 * ``com`` (centre of mass) and ``inertia`` (3x3 rotational inertia about the COM) are in the body frame.
   A point mass has ``inertia = 0``.
-* Coordinate ``q_i`` belongs to body ``i`` in the order the bodies are given; ``topological_order`` lists the
-  bodies parents-first for the recursions.
-* ``input_map`` is ``B`` of ``M qdd + h = B u`` (n x m, DESIGN.md conventions; default identity).
+* The coordinates ``q`` (``nq`` of them) and the velocities ``v`` (``nv = n``, the degrees of freedom) are the
+  bodies' joint blocks in the order the bodies are given: body ``i``'s are ``q[q_index[i] : q_index[i] + nq_i]``
+  and ``v[v_index[i] : v_index[i] + nv_i]``. With revolute and prismatic joints only, ``nq = nv = n`` and body
+  ``i`` owns coordinate ``i``. ``topological_order`` lists the bodies parents-first for the recursions.
+* ``input_map`` is ``B`` of ``M vdot + h = B u`` (nv x m, DESIGN.md conventions; default identity).
 * Gravity is a vector in the world frame (m/s^2); the potential is ``V = -sum m_i gravity . p_com_i``.
 * A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
   from two prismatic joints and a revolute one. Every joint must still move some mass.
@@ -35,9 +54,15 @@ import numpy as np
 from cases import constraints as constraint_decl
 from cases.validation import as_array, finite, frozen, orthonormal_rows
 
-JOINT_TYPES = ("revolute", "prismatic")
+#: Joint types with their numbers of coordinates and of velocities (nq, nv) (module docstring).
+JOINT_DOF = {"revolute": (1, 1), "prismatic": (1, 1), "spherical": (4, 3), "free": (7, 6)}
+JOINT_TYPES = tuple(JOINT_DOF)
+#: The joints whose configuration is a Lie group (SO(3), SE(3)) and carries a unit quaternion.
+GROUP_JOINTS = ("spherical", "free")
 #: File formats a model can be loaded from (:attr:`ModelSource.kind`).
-SOURCE_KINDS = ("urdf",)
+SOURCE_KINDS = ("urdf", "mjcf")
+#: How a file's root is attached (:attr:`ModelSource.root`): welded to the world, or on a free joint added above it.
+SOURCE_ROOTS = ("fixed", "free")
 
 
 class ModelError(ValueError):
@@ -85,7 +110,8 @@ class ModelSource:
     """Where a loaded model came from: the file (``kind`` one of :data:`SOURCE_KINDS`, ``path``: the URDF loader
     stores it absolute) and the rigid transform ``(rotation, translation)`` that places the file's world frame in
     the model's world (the identity for a model fresh from the loader; a moved scene composes it:
-    ``crosscheck.frames``).
+    ``crosscheck.frames``). ``root`` says how the loader attached the file's root link: ``"fixed"`` as the file has
+    it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
     A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
     gravity ``g`` is ``rotation @ g``."""
 
@@ -93,11 +119,12 @@ class ModelSource:
     path: str
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    root: str = "fixed"
 
     def moved(self, rotation: np.ndarray, translation: np.ndarray) -> "ModelSource":
         """The source of the scene moved by ``g = (rotation, translation)``: placement ``g * (R, t)``."""
         R, t = np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float)
-        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t)
+        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root)
 
     @property
     def is_identity(self) -> bool:
@@ -107,7 +134,7 @@ class ModelSource:
     def key(self) -> str:
         """A stable text of every field (for caches of whatever is built from the file)."""
         placement = np.concatenate([np.ravel(self.rotation), np.ravel(self.translation)]).astype("<f8")
-        return f"{self.kind}:{self.path}:{placement.tobytes().hex()}"
+        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}"
 
     def __eq__(self, other) -> bool:
         return isinstance(other, ModelSource) and self.key() == other.key()
@@ -132,8 +159,42 @@ class Model:
 
     @property
     def n(self) -> int:
-        """Number of generalized coordinates (one per joint)."""
-        return len(self.bodies)
+        """Number of degrees of freedom: the size of v, of the accelerations and of M (``nv``)."""
+        return self.nv
+
+    @functools.cached_property
+    def nv(self) -> int:
+        """Number of velocity coordinates (module docstring: one per revolute or prismatic joint, 3 per spherical,
+        6 per free joint)."""
+        return sum(JOINT_DOF[b.joint][1] for b in self.bodies)
+
+    @functools.cached_property
+    def nq(self) -> int:
+        """Number of configuration coordinates (4 per spherical and 7 per free joint: the quaternion)."""
+        return sum(JOINT_DOF[b.joint][0] for b in self.bodies)
+
+    @functools.cached_property
+    def q_index(self) -> tuple[int, ...]:
+        """Where each body's block of ``q`` starts."""
+        return tuple(np.cumsum([0] + [JOINT_DOF[b.joint][0] for b in self.bodies[:-1]]).tolist())
+
+    @functools.cached_property
+    def v_index(self) -> tuple[int, ...]:
+        """Where each body's block of ``v`` (and of the accelerations, and of M's rows) starts."""
+        return tuple(np.cumsum([0] + [JOINT_DOF[b.joint][1] for b in self.bodies[:-1]]).tolist())
+
+    @functools.cached_property
+    def velocity_labels(self) -> tuple[str, ...]:
+        """A name per velocity coordinate: the body's for a revolute or prismatic joint, ``body.wx``, ``body.wy``,
+        ``body.wz`` for a spherical joint and ``body.vx`` ... ``body.wz`` for a free one (body-frame components)."""
+        parts = {"spherical": ("wx", "wy", "wz"), "free": ("vx", "vy", "vz", "wx", "wy", "wz")}
+        return tuple(label for b in self.bodies
+                     for label in ([f"{b.name}.{p}" for p in parts[b.joint]] if b.joint in parts else [b.name]))
+
+    @functools.cached_property
+    def group_joints(self) -> tuple[int, ...]:
+        """The bodies on a spherical or free joint (a configuration on a Lie group), in body order."""
+        return tuple(i for i, b in enumerate(self.bodies) if b.joint in GROUP_JOINTS)
 
     @property
     def k(self) -> int:
@@ -229,7 +290,11 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
     if body.joint not in JOINT_TYPES:
         problems.append(f"{where} has joint type {body.joint!r}; valid types: {list(JOINT_TYPES)}")
     axis = as_array(problems, f"{where} joint axis", body.axis, (3,))
-    if axis is not None:
+    if axis is not None and body.joint in GROUP_JOINTS:
+        if np.any(axis):
+            problems.append(f"{where} has a {body.joint} joint, which has no axis, but axis {axis.tolist()}; "
+                            "give axis=(0, 0, 0)")
+    elif axis is not None:
         norm = np.linalg.norm(axis)
         if norm < 1e-12:
             problems.append(f"{where} has a zero joint axis {axis.tolist()}")
@@ -311,7 +376,7 @@ def _input_map(problems: list[str], input_map, n: int) -> np.ndarray:
     if B.ndim == 1 and B.shape[0] == n:
         B = B.reshape(n, 1)
     if B.ndim != 2 or B.shape[0] != n:
-        problems.append(f"input map B has shape {B.shape}, expected ({n}, m) for {n} joints")
+        problems.append(f"input map B has shape {B.shape}, expected ({n}, m) for {n} degrees of freedom")
     else:
         finite(problems, "input map B", B)
     return B
@@ -361,6 +426,8 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
         problems.append(f"source kind {source.kind!r} is not one of {list(SOURCE_KINDS)}")
     if not isinstance(source.path, str) or not source.path:
         problems.append(f"source path must be a non-empty string, got {source.path!r}")
+    if source.root not in SOURCE_ROOTS:
+        problems.append(f"source root {source.root!r} is not one of {list(SOURCE_ROOTS)}")
     rotation = as_array(problems, "source rotation", source.rotation, (3, 3))
     if rotation is not None and (np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-9
                                  or np.linalg.det(rotation) < 0):
@@ -368,7 +435,7 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
     translation = as_array(problems, "source translation", source.translation, (3,))
     if len(problems) > n_before:
         return None
-    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3))
+    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root)
 
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
@@ -387,7 +454,7 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     valid = [_validate_body(problems, b) for b in bodies]
     parent, order = _topology(problems, bodies)
     g = as_array(problems, "gravity", gravity, (3,))
-    n = len(bodies)
+    n = sum(JOINT_DOF.get(b.joint, (1, 1))[1] for b in bodies)
     B = _input_map(problems, input_map, n)
     names = {b.name for b in bodies}
     if task_points is None:
@@ -401,6 +468,13 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if not problems:
         _moving_mass(problems, valid, parent)
     constraints = tuple(constraint_decl.validate(problems, c, names) for c in constraints)
+    joint_of = {b.name: b.joint for b in bodies}
+    for c in constraints:
+        for j in getattr(c, "joints", ()) if isinstance(c, constraint_decl.JointCoupling) else ():
+            if joint_of.get(j) in GROUP_JOINTS:
+                problems.append(f"constraint '{c.name}' couples the {joint_of[j]} joint of body '{j}'; a joint "
+                                "coupling relates joint values (revolute or prismatic joints), and a quaternion is "
+                                "not one: constrain a point of the body instead")
     declared = [c.name for c in constraints if c is not None]
     if len(set(declared)) < len(declared):
         problems.append(f"constraint names repeat: {declared}; give each constraint its own name")

@@ -10,6 +10,10 @@ With the joint frame ``J' = J R_i`` and axis ``R_i^T a``, the body frame becomes
 about ``R_i^T a`` seen in ``J R_i`` is the rotation about ``a`` in ``J``); a child's placement, expressed in ``B'``,
 is ``(R_p^T rotation R_i, R_p^T translation)``; body-fixed points (COM, task points, constrained points) turn by
 ``R_i^T``, inertias by ``R_i^T I R_i``. World-fixed data (gravity, circle centres, lines, task directions) stay.
+
+A body on a spherical or free joint keeps its frame (``R_i = I``): its coordinates are its orientation (and position)
+in the joint frame and its velocities are body-frame components (``cases.model``), so turning the frame would change
+what a state means. Its children's placements still turn with their own frames.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ def general_3d(model: Model, seed: int = 0) -> Model:
     joint coordinates, written as general 3-D bodies. Deterministic for a given seed."""
     rng = np.random.default_rng(seed)
     turn = {b.name: _rotation(rng) for b in model.bodies}
+    turn.update({model.bodies[i].name: np.eye(3) for i in model.group_joints})     # module doc: states keep meaning
     bodies = []
     for b in model.bodies:
         R, Rp = turn[b.name], (np.eye(3) if b.parent is None else turn[b.parent])

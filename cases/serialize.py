@@ -66,6 +66,8 @@ def model_to_dict(model: Model) -> dict:
     if model.source is not None:
         d["source"] = {"kind": model.source.kind, "path": model.source.path,
                        "rotation": _plain(model.source.rotation), "translation": _plain(model.source.translation)}
+        if model.source.root != "fixed":      # written only when not the default, so older dicts read the same
+            d["source"]["root"] = model.source.root
     return d
 
 
@@ -152,7 +154,8 @@ def _source(d: dict) -> ModelSource | None:
     if value is None:
         return None
     return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
-                       _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"))
+                       _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"),
+                       _text(value, "root", "source") if "root" in value else "fixed")
 
 
 def model_from_dict(d: dict) -> Model:

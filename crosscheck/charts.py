@@ -139,6 +139,30 @@ def identity(n: int) -> AffineChart:
     return AffineChart("identity", np.eye(n), np.zeros(n))
 
 
+@dataclass(frozen=True)
+class GroupIdentity(Chart):
+    """The joint coordinates of a model with spherical or free joints, as the identity chart: ``p`` is q itself
+    (``nq`` entries, quaternions included) and ``pd`` the velocity v (``nv``), so ``Dpsi`` is the nv x nv identity
+    between velocities. Only evaluation uses it (``crosscheck eval``); the gate samples no chart for such models."""
+
+    nv: int = 0
+
+    def _params(self) -> tuple:
+        return (self.nv,)
+
+    def q_of(self, p) -> np.ndarray:
+        return np.array(p, dtype=float)
+
+    def p_of(self, q) -> np.ndarray:
+        return np.array(q, dtype=float)
+
+    def jacobian(self, p) -> np.ndarray:
+        return np.eye(self.nv)
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        return np.zeros(self.nv)
+
+
 def is_planar_serial(model: Model) -> bool:
     """A single chain of revolute joints whose axes are all parallel in the world (the chain is planar)."""
     if any(model.parent_index[i] != i - 1 for i in range(model.n)):
@@ -185,6 +209,11 @@ def names() -> list[str]:
 def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Chart:
     """The built-in chart ``name`` for ``model`` (``affine`` is drawn from ``seed`` and the case name)."""
     case = model.name if case is None else case
+    if not applies(model):
+        if name == "identity":
+            return GroupIdentity("identity", model.nv)
+        raise ChartError(f"chart '{name}' does not apply to model '{model.name}': its spherical or free joints have "
+                         "quaternion coordinates, which a joint-coordinate chart cannot map")
     makers = {"identity": lambda: identity(model.n), "absolute": lambda: absolute(model),
               "affine": lambda: random_affine(model, seed, case), "nonlinear": lambda: nonlinear(model)}
     if name not in makers:
@@ -192,9 +221,18 @@ def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Char
     return makers[name]()
 
 
+def applies(model: Model) -> bool:
+    """Whether the joint-coordinate charts apply: a chart ``q = psi(p)`` maps real coordinates to real coordinates,
+    and a spherical or free joint's coordinates are a unit quaternion (a point of the group, not of R^4), so a model
+    with one has none of these charts."""
+    return not model.group_joints
+
+
 def sampled(model: Model, seed: int, case: str) -> list[Chart]:
     """The charts the gate checks for a model: every built-in one but identity (the joint chart itself), with
-    ``absolute`` only for a planar serial chain."""
+    ``absolute`` only for a planar serial chain; none for a model with spherical or free joints (:func:`applies`)."""
+    if not applies(model):
+        return []
     return [get(name, model, seed, case) for name in names()
             if name != "identity" and (name != "absolute" or is_planar_serial(model))]
 

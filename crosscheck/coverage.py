@@ -31,6 +31,10 @@ from crosscheck import sampling
 #: is measured against the promise, not against itself.
 REVOLUTE_SPAN = 2.0 * np.pi
 PRISMATIC_SPAN = 1.0
+#: The spans of each joint's coordinates: a quaternion's components range over [-1, 1] (span 2), a free base's
+#: position over the prismatic span.
+_SPANS = {"revolute": (REVOLUTE_SPAN,), "prismatic": (PRISMATIC_SPAN,), "spherical": (2.0,) * 4,
+          "free": (PRISMATIC_SPAN,) * 3 + (2.0,) * 4}
 #: A coordinate's sampled range below this fraction of its promised span is a sliver.
 SLIVER = 0.1
 #: The sliver test needs this many states (fewer uniform draws may cluster by chance).
@@ -65,15 +69,15 @@ def _ranks(model: Model, Q: np.ndarray) -> tuple[int, int] | None:
         return None
     from crosscheck.reference import constraint_kinematics
 
-    ranks = [int(np.linalg.matrix_rank(constraint_kinematics(model, q, np.zeros(model.n))[1])) for q in Q]
+    ranks = [int(np.linalg.matrix_rank(constraint_kinematics(model, q, np.zeros(model.nv))[1])) for q in Q]
     return min(ranks), max(ranks)
 
 
 def measure(model: Model, states: Sequence[sampling.State]) -> Coverage:
     """The coverage of ``states`` of ``model`` and its problems (module doc)."""
     Q, QD, U = (np.array([getattr(s, name) for s in states], dtype=float).reshape(len(states), size)
-                for name, size in (("q", model.n), ("qd", model.n), ("u", model.m)))
-    span = np.array([REVOLUTE_SPAN if b.joint == "revolute" else PRISMATIC_SPAN for b in model.bodies])
+                for name, size in (("q", model.nq), ("qd", model.nv), ("u", model.m)))
+    span = np.array([span for b in model.bodies for span in _SPANS[b.joint]])
     ranks = _ranks(model, Q)
     problems = []
     if len(states) >= 2 and not np.any(QD) and not (ranks is not None and ranks[0] == model.n):
@@ -86,9 +90,10 @@ def measure(model: Model, states: Sequence[sampling.State]) -> Coverage:
         width = np.ptp(Q, axis=0)
         thin = width < SLIVER * span
         if thin.all() if model.constraints else thin.any():
-            which = ", ".join(f"q{i} ({model.bodies[i].name}) spans {width[i]:.3g} of {span[i]:.3g}"
+            owner = [b.name for b in model.bodies for _ in _SPANS[b.joint]]
+            which = ", ".join(f"q{i} ({owner[i]}) spans {width[i]:.3g} of {span[i]:.3g}"
                               for i in np.flatnonzero(thin))
             problems.append(f"the configurations lie in a sliver of the joint ranges: {which} (below "
                             f"{SLIVER:g} of the sampling span)")
-    return Coverage(len(states), _ranges(Q, model.n), _ranges(QD, model.n), _ranges(U, model.m), span, ranks,
+    return Coverage(len(states), _ranges(Q, model.nq), _ranges(QD, model.nv), _ranges(U, model.m), span, ranks,
                     tuple(problems))

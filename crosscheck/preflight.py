@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cases import configuration
 from cases.model import Model
 
 EPS = float(np.finfo(float).eps)
@@ -99,8 +100,8 @@ def max_cond_m(n: int) -> float:
 
 def _probe_configurations(model: Model) -> list[np.ndarray]:
     rng = np.random.default_rng(20261125)
-    span = np.array([np.pi if b.joint == "revolute" else model.length_scale for b in model.bodies])
-    return [np.zeros(model.n)] + [rng.uniform(-span, span) for _ in range(PROBES - 1)]
+    return [configuration.neutral(model)] + [configuration.random_configuration(model, rng, np.pi, model.length_scale)
+                                             for _ in range(PROBES - 1)]
 
 
 def _singular_everywhere(model: Model) -> str | None:
@@ -116,7 +117,7 @@ def _singular_everywhere(model: Model) -> str | None:
             return None
         worst = (q, w, V[:, 0]) if worst is None else worst
     q, w, null = worst
-    joints = [f"{b.name} {v:+.3g}" for b, v in zip(model.bodies, null) if abs(v) > 1e-3]
+    joints = [f"{name} {v:+.3g}" for name, v in zip(model.velocity_labels, null) if abs(v) > 1e-3]
     return (f"the mass matrix is singular at every probed configuration (cond(M) > {max_cond_m(model.n):.2g}, the "
             f"limit where the tolerance policy's first-order bounds hold; at q = 0 its eigenvalues are "
             f"{np.array2string(w, precision=3)}): the joint velocity ({', '.join(joints)}) moves no mass or "

@@ -80,7 +80,7 @@ import pinocchio as pin
 import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
-from cases.model import Model, ModelSource
+from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
                                   check_state, split_batch_by_loop)
 
@@ -94,8 +94,10 @@ _UNBOUNDED = ("JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelR
 
 
 class JointMapRow(NamedTuple):
-    """Our coordinate ``coordinate`` (of body ``body``) is the URDF joint ``joint``: Pinocchio's configuration
-    entries ``idx_q .. idx_q + nq - 1`` (``nq`` 2: ``(cos q, sin q)``) and velocity ``idx_v``. ``sign`` is +1 for
+    """Our body ``coordinate`` (its index; with revolute and prismatic joints only, the index of its coordinate),
+    named ``body``, moves by the file's joint ``joint``: Pinocchio's configuration entries ``idx_q .. idx_q + nq - 1``
+    (``nq`` 2 for a one-coordinate joint: ``(cos q, sin q)``; 4 and 7 for a spherical and a free joint, their
+    quaternion blocks as ours) and velocities from ``idx_v``. ``sign`` is +1 for
     every row: the loader keeps each URDF joint's direction, so our ``q_i`` is the joint's position as it is."""
 
     coordinate: int
@@ -131,7 +133,7 @@ class _Compiled:
     task point and constrained points map onto it."""
 
     model: pin.Model
-    order: np.ndarray   # order[k] = our coordinate index of Pinocchio's k-th velocity
+    order: np.ndarray   # order[k] = our index of Pinocchio's k-th velocity
     plain: tuple        # (idx_q, our coordinate) arrays of the one-number configurations
     circle: tuple       # (idx_q, our coordinate) arrays of the (cos q, sin q) configurations
     joint_of: dict      # our body name -> Pinocchio joint id
@@ -139,6 +141,7 @@ class _Compiled:
     points: dict        # (body name, offset tuple) -> frame id of each constrained body point
     scales: _Scales
     joint_map: tuple[JointMapRow, ...] | None  # the file-built reference's map; None when built from our data
+    body_of_joint: dict  # Pinocchio joint id -> our body index
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio's configuration(s) of our ``q`` (n,) or (N, n): (nq,) or (N, nq)."""
@@ -157,6 +160,10 @@ _LOCK = threading.Lock()
 
 
 def _joint_model(joint: str, axis: np.ndarray):
+    if joint == "spherical":
+        return pin.JointModelSpherical()
+    if joint == "free":
+        return pin.JointModelFreeFlyer()
     for k in range(3):
         unit = np.zeros(3)
         unit[k] = 1.0
@@ -193,16 +200,20 @@ def _build_from_data(model: Model) -> _Compiled:
         pm.appendBodyToJoint(jid, pin.Inertia(float(b.mass), np.array(b.com), np.array(b.inertia)), pin.SE3.Identity())
         joint_id[i] = jid
     pm.gravity = pin.Motion(np.array(model.gravity), np.zeros(3))
-    order = np.empty(model.n, dtype=int)
-    for i, jid in joint_id.items():
-        order[pm.joints[jid].idx_v] = i
+    order, q_pin, q_ours = np.empty(model.nv, dtype=int), np.empty(model.nq, dtype=int), np.empty(model.nq, dtype=int)
+    for i, jid in joint_id.items():     # joint blocks map as wholes: same conventions (cases.model)
+        joint = pm.joints[jid]
+        order[joint.idx_v:joint.idx_v + joint.nv] = model.v_index[i] + np.arange(joint.nv)
+        q_pin[joint.idx_q:joint.idx_q + joint.nq] = np.arange(joint.idx_q, joint.idx_q + joint.nq)
+        q_ours[joint.idx_q:joint.idx_q + joint.nq] = model.q_index[i] + np.arange(joint.nq)
     joint_of = {model.bodies[i].name: jid for i, jid in joint_id.items()}
     tp = model.task_point()
     task_frame = _add_point_frame(pm, f"task:{tp.name}", joint_of[tp.body], tp.offset)
     scales = _Scales(float(sum(b.mass for b in model.bodies)), model.length_scale, model.inertia_scale,
                      np.array(model.gravity))
-    return _Compiled(pm, order, (np.arange(model.n), order), (np.zeros(0, int), np.zeros(0, int)), joint_of,
-                     task_frame, _constraint_frames(pm, model, joint_of), scales, None)
+    return _Compiled(pm, order, (q_pin, q_ours), (np.zeros(0, int), np.zeros(0, int)), joint_of,
+                     task_frame, _constraint_frames(pm, model, joint_of), scales, None,
+                     {jid: i for i, jid in joint_id.items()})
 
 
 def _add_point_frame(pm: pin.Model, name: str, joint: int, offset) -> int:
@@ -245,10 +256,13 @@ def _parent_frame(frame) -> int:
 
 
 def _read_file(source: ModelSource) -> pin.Model:
-    """The file's Pinocchio model (``buildModelFromUrdf``, no root joint) placed in the model's world by the source's
-    ``g = (R, t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    """The file's Pinocchio model (``cases.urdf.read_file``: ``buildModelFromUrdf``, with a free-flyer root joint when
+    the source's root is "free", or ``buildModelFromMJCF``) placed in the model's world by the source's ``g = (R,
+    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    from cases.urdf import read_file
+
     try:
-        pm = pin.buildModelFromUrdf(source.path)
+        pm = read_file(pin, source.kind, source.path, source.root)
     except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
         raise ValueError(f"the reference cannot read '{source.path}', the {source.kind.upper()} file the model was "
                          f"loaded from: {exc}") from exc
@@ -290,19 +304,21 @@ def _moving_joint(pm: pin.Model, model: Model, i: int, path: str) -> int:
 def _map_joints(pm: pin.Model, model: Model, path: str) -> tuple[JointMapRow, ...]:
     """The joint map of the module docstring: one row per coordinate, every Pinocchio joint used exactly once."""
     rows, owner = [], {}
-    for i in range(model.n):
+    for i, body in enumerate(model.bodies):
         jid = _moving_joint(pm, model, i, path)
         joint, name = pm.joints[jid], pm.names[jid]
         if jid in owner:
-            raise ValueError(f"the reference cannot map model '{model.name}' to '{path}': coordinates {owner[jid]} "
-                             f"(body '{model.bodies[owner[jid]].name}') and {i} (body '{model.bodies[i].name}') "
-                             f"both belong to URDF joint '{name}'")
-        if joint.nv != 1 or joint.nq != (2 if joint.shortname() in _UNBOUNDED else 1):
-            raise ValueError(f"the reference cannot map coordinate {i} (body '{model.bodies[i].name}') of model "
-                             f"'{model.name}': URDF joint '{name}' of '{path}' is a {joint.shortname()} with nq "
-                             f"{joint.nq}, nv {joint.nv}; one coordinate maps to nv 1 (nq 1, or 2 for continuous)")
+            raise ValueError(f"the reference cannot map model '{model.name}' to '{path}': bodies "
+                             f"'{model.bodies[owner[jid]].name}' and '{body.name}' both belong to joint '{name}'")
+        nq, nv = JOINT_DOF[body.joint]
+        kind = {"JointModelFreeFlyer": "free", "JointModelSpherical": "spherical"}.get(joint.shortname(), "scalar")
+        ours = body.joint if body.joint in GROUP_JOINTS else "scalar"
+        if kind != ours or joint.nv != nv or joint.nq != (2 if joint.shortname() in _UNBOUNDED else nq):
+            raise ValueError(f"the reference cannot map body '{body.name}' ({body.joint} joint, nq {nq}, nv {nv}) of "
+                             f"model '{model.name}': joint '{name}' of '{path}' is a {joint.shortname()} with nq "
+                             f"{joint.nq}, nv {joint.nv}")
         owner[jid] = i
-        rows.append(JointMapRow(i, model.bodies[i].name, name, joint.idx_q, joint.idx_v, joint.nq, 1))
+        rows.append(JointMapRow(i, body.name, name, joint.idx_q, joint.idx_v, joint.nq, 1))
     unmapped = [pm.names[j] for j in range(1, pm.njoints) if j not in owner]
     if unmapped:
         raise ValueError(f"the reference cannot map model '{model.name}' to '{path}': URDF joint(s) {unmapped} move "
@@ -322,11 +338,11 @@ def _file_mimics(path: str) -> list[tuple[str, str, float, float]]:
         raise ValueError(f"the reference cannot read the <mimic> tags of '{path}': {exc}") from exc
 
 
-def _coupling_row(model: Model, c) -> np.ndarray:
-    """A joint coupling's row of ``Jc`` in our coordinates."""
-    row = np.zeros(model.n)
+def _coupling_row(model: Model, c, index: str = "v_index") -> np.ndarray:
+    """A joint coupling's row over our velocities (``Jc``; ``index="q_index"``: over our coordinates, for phi)."""
+    row = np.zeros(model.nv if index == "v_index" else model.nq)
     for name, coeff in zip(c.joints, c.coefficients):
-        row[model.body_index(name)] += coeff
+        row[getattr(model, index)[model.body_index(name)]] += coeff
     return row
 
 
@@ -335,7 +351,7 @@ def _check_mimics(model: Model, rows: tuple[JointMapRow, ...], path: str) -> Non
     constraint ``mimic:A``, a joint coupling whose row is a multiple ``s (e_A - m e_J)`` with offset ``s o``, A and J
     mapped to our coordinates by the joint map; and every declaration named ``mimic:...`` is a mimic of the file.
     The loader declares them (cases/urdf.py); a ValueError names the mimic and the file."""
-    coordinate = {r.joint: r.coordinate for r in rows}
+    coordinate = {r.joint: model.v_index[r.coordinate] for r in rows}     # a mimic joint has one velocity
     declared = {c.name: c for c in model.constraints if c.name.startswith("mimic:")}
     where = f"the reference cannot check model '{model.name}' against '{path}'"
     for joint, mimicked, m, o in _file_mimics(path):
@@ -343,9 +359,9 @@ def _check_mimics(model: Model, rows: tuple[JointMapRow, ...], path: str) -> Non
             raise ValueError(f"{where}: joint '{joint}' mimics '{mimicked}', and the joint map gives one of them no "
                              f"coordinate (mapped: {sorted(coordinate)})")
         c = declared.pop(f"mimic:{joint}", None)
-        expected = np.zeros(model.n)
+        expected = np.zeros(model.nv)
         expected[coordinate[joint]], expected[coordinate[mimicked]] = 1.0, -m
-        row = _coupling_row(model, c) if isinstance(c, JointCoupling) else np.zeros(model.n)
+        row = _coupling_row(model, c) if isinstance(c, JointCoupling) else np.zeros(model.nv)
         s = row[coordinate[joint]]
         if s == 0.0 or np.abs(row - s * expected).max() > 1e-12 * abs(s) or abs(c.offset - s * o) > 1e-12 * abs(s):
             raise ValueError(f"{where}: joint '{joint}' mimics '{mimicked}' (q = {m!r} q + {o!r}), and the model "
@@ -385,14 +401,18 @@ def _build_from_file(model: Model) -> _Compiled:
     rows = _map_joints(pm, model, model.source.path)
     _check_mimics(model, rows, model.source.path)
     joint_of = {r.body: pm.getJointId(r.joint) for r in rows}
-    order = np.empty(model.n, dtype=int)
-    order[[r.idx_v for r in rows]] = [r.coordinate for r in rows]
-
-    def pairs(nq: int) -> tuple:
-        return (np.array([r.idx_q for r in rows if r.nq == nq], dtype=int),
-                np.array([r.coordinate for r in rows if r.nq == nq], dtype=int))
-    return _Compiled(pm, order, pairs(1), pairs(2), joint_of, _task_frame(pm, model, joint_of),
-                     _constraint_frames(pm, model, joint_of), _file_scales(pm, rows), rows)
+    order = np.empty(model.nv, dtype=int)
+    for r in rows:
+        nv = JOINT_DOF[model.bodies[r.coordinate].joint][1]
+        order[r.idx_v:r.idx_v + nv] = model.v_index[r.coordinate] + np.arange(nv)
+    circle = [r for r in rows if r.nq == 2]           # a continuous joint: (cos q, sin q) of our one coordinate
+    plain = [(r.idx_q + k, model.q_index[r.coordinate] + k) for r in rows if r.nq != 2 for k in range(r.nq)]
+    pairs = (np.array([p[0] for p in plain], dtype=int), np.array([p[1] for p in plain], dtype=int))
+    circles = (np.array([r.idx_q for r in circle], dtype=int),
+               np.array([model.q_index[r.coordinate] for r in circle], dtype=int))
+    return _Compiled(pm, order, pairs, circles, joint_of, _task_frame(pm, model, joint_of),
+                     _constraint_frames(pm, model, joint_of), _file_scales(pm, rows), rows,
+                     {joint_of[r.body]: model.body_index(r.body) for r in rows})
 
 
 # -------------------------------------------------------------------------------------------------- caches
@@ -501,6 +521,23 @@ def task_jacobian(model: Model, q) -> np.ndarray:
     return J
 
 
+def centroidal_momentum_map(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rate of the centroidal momentum ``h_G = (P, L_G)`` (linear momentum, angular momentum about the centre of
+    mass; world axes) as an affine function of the accelerations, ``dh_G/dt = A_G qdd + b``: ``(A_G, b, c)`` with
+    ``A_G`` (6 x nv, our order) from Pinocchio's ``ccrba``, ``b = dh_G/dt`` at ``qdd = 0``
+    (``computeCentroidalMomentumTimeVariation``) and c the centre of mass (world), from the model of our data
+    (:func:`to_pinocchio`): the harness's view, for the momentum checks of ``crosscheck.conservation``."""
+    c = _from_data(model)
+    data = c.model.createData()
+    q_p, v_p = c.configuration(np.asarray(q, dtype=float)), np.asarray(qd, dtype=float)[c.order]
+    A_p = np.array(pin.ccrba(c.model, data, q_p, v_p)).reshape(6, model.nv)
+    A = np.empty_like(A_p)
+    A[:, c.order] = A_p
+    rate = pin.computeCentroidalMomentumTimeVariation(c.model, data, q_p, v_p, np.zeros(model.nv))
+    b = np.concatenate([np.array(data.dhg.linear), np.array(data.dhg.angular)]) if rate is not None else None
+    return A, b, np.array(data.com[0])
+
+
 def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``phi(q)`` (k,), ``Jc = dphi/dq`` (k x n, our coordinate order) and ``Jcdot qd`` (k,) from Pinocchio's
     kinematics of the model of our data (:func:`to_pinocchio`): the harness's view of the constraints the
@@ -529,8 +566,8 @@ def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray)
     """phi, Jc (Pinocchio order) and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
     n = model.n
     if isinstance(con, JointCoupling):
-        row = _coupling_row(model, con)
-        return np.array([row @ q - con.offset]), row[c.order][None, :], np.zeros(1)
+        phi = _coupling_row(model, con, "q_index") @ q - con.offset
+        return np.array([phi]), _coupling_row(model, con)[c.order][None, :], np.zeros(1)
     if isinstance(con, PointsCoincide):
         pa, Ja, aa = _point_kinematics(c, data, con.body_a, con.offset_a, n)
         pb, Jb, ab = _point_kinematics(c, data, con.body_b, con.offset_b, n)
@@ -642,10 +679,10 @@ def _joint_wrenches(c: _Compiled, data, q_p, v_p, a_p, fext=None) -> np.ndarray:
         pin.rnea(c.model, data, q_p, v_p, a_p)
     else:
         pin.rnea(c.model, data, q_p, v_p, a_p, fext)
-    out = np.empty((len(c.order), 6))
-    for jid in range(1, c.model.njoints):
+    out = np.empty((len(c.body_of_joint), 6))
+    for jid, body in c.body_of_joint.items():
         f = data.f[jid]
-        out[c.order[c.model.joints[jid].idx_v]] = np.concatenate([f.linear, f.angular])
+        out[body] = np.concatenate([f.linear, f.angular])
     return out
 
 

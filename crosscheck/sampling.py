@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cases import configuration
 from cases.model import Model
 
 #: Sampling ranges: revolute angles (rad), prismatic displacements (m), joint rates (rad/s or m/s), inputs.
@@ -49,46 +50,55 @@ def case_rng(seed: int, case: str) -> np.random.Generator:
     return np.random.default_rng([seed, zlib.crc32(case.encode())])
 
 
-def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]:
-    """``count`` states: q uniform over one turn (revolute) or +-0.5 m (prismatic), qd and u uniform.
+def _configuration(model: Model, rng: np.random.Generator) -> np.ndarray:
+    """A random configuration: angles over one turn, displacements (and free-base positions) +-0.5 m, orientations
+    uniform on SO(3) (``cases.configuration.random_configuration``)."""
+    return configuration.random_configuration(model, rng, ANGLE_RANGE, DISPLACEMENT_RANGE)
 
-    State 0 has the home configuration ``q = 0`` (qd and u still random): serial chains are often singular
-    there (the stretched double pendulum of article 6.3.4), so every gate run visits one such boundary state.
-    A constrained model's q and qd are then made admissible (module doc); state 0 starts its projection at q = 0.
+
+def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]:
+    """``count`` states: q uniform over one turn (revolute) or +-0.5 m (prismatic; a free base's position),
+    orientations of spherical and free joints uniform on SO(3), qd and u uniform.
+
+    State 0 has the home configuration (``q = 0``, identity orientations; qd and u still random): serial chains are
+    often singular there (the stretched double pendulum of article 6.3.4), so every gate run visits one such boundary
+    state. A constrained model's q and qd are then made admissible (module doc); state 0 starts its projection at
+    home.
     """
     rng = case_rng(seed, case)
-    span = np.array([ANGLE_RANGE if b.joint == "revolute" else DISPLACEMENT_RANGE for b in model.bodies])
     states = []
     for i in range(count):
-        q = rng.uniform(-span, span)
+        q = _configuration(model, rng)
         if i == 0:
-            q = np.zeros(model.n)
-        qd = rng.uniform(-RATE_RANGE, RATE_RANGE, model.n)
+            q = configuration.neutral(model)
+        qd = rng.uniform(-RATE_RANGE, RATE_RANGE, model.nv)
         u = rng.uniform(-INPUT_RANGE, INPUT_RANGE, model.m)
         if model.constraints:
-            q, qd = admissible(model, q, qd, rng, span)
+            q, qd = admissible(model, q, qd, rng)
         states.append(State(i, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist())))
     return states
 
 
 def project_configuration(model: Model, q) -> np.ndarray:
-    """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps (halved until |phi| shrinks),
-    iterated down to rounding; :class:`ProjectionError` saying how far it got when it ends above ``PHI_TOL``."""
+    """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps in velocity space (``Jc`` is
+    ``dphi`` along the velocities; a step moves q by ``cases.configuration.integrate``, on the group for spherical
+    and free joints), halved until |phi| shrinks, iterated down to rounding; :class:`ProjectionError` saying how far it
+    got when it ends above ``PHI_TOL``."""
     from crosscheck.reference import constraint_kinematics
 
     q = np.array(q, dtype=float)
-    zero, tol = np.zeros(model.n), PHI_TOL * model.length_scale ** 2
+    zero, tol = np.zeros(model.nv), PHI_TOL * model.length_scale ** 2
     phi, Jc, _ = constraint_kinematics(model, q, zero)
     for _ in range(NEWTON_STEPS):
         step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
         while t > 1e-6:
-            phi_new, Jc_new, _ = constraint_kinematics(model, q + t * step, zero)
+            phi_new, Jc_new, _ = constraint_kinematics(model, configuration.integrate(model, q, t * step), zero)
             if np.abs(phi_new).max() < np.abs(phi).max():
                 break
             t *= 0.5
         else:               # no step reduces |phi| any more: converged to rounding, or stuck
             break
-        q, phi, Jc = q + t * step, phi_new, Jc_new
+        q, phi, Jc = configuration.integrate(model, q, t * step), phi_new, Jc_new
     if np.abs(phi).max() <= tol:
         return q
     raise ProjectionError(f"model '{model.name}': Gauss–Newton did not reach the constraint manifold from the start "
@@ -103,14 +113,14 @@ def project_velocity(model: Model, q, qd) -> np.ndarray:
     of the result, not of the removed part, which can dwarf a small remaining qd."""
     from crosscheck.reference import constraint_kinematics
 
-    _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.n))
+    _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
     _, sigma, Vt = np.linalg.svd(Jc)
     rank = int(np.sum(sigma > VELOCITY_RCOND * sigma.max())) if sigma.size and sigma.max() > 0.0 else 0
     N = Vt[rank:].T
     return N @ (N.T @ np.asarray(qd, dtype=float))
 
 
-def admissible(model: Model, q, qd, rng: np.random.Generator, span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def admissible(model: Model, q, qd, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """An admissible state from a sampled one: q projected (restarting from fresh random configurations when the
     projection fails), then qd projected onto the tangent space."""
     error = None
@@ -119,5 +129,5 @@ def admissible(model: Model, q, qd, rng: np.random.Generator, span: np.ndarray) 
             q = project_configuration(model, q)
             return q, project_velocity(model, q, qd)
         except ProjectionError as exc:
-            error, q = exc, rng.uniform(-span, span)
+            error, q = exc, _configuration(model, rng)
     raise ProjectionError(f"{error} (and {RESTARTS - 1} random restarts failed as well)")

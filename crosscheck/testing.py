@@ -34,7 +34,7 @@ from hypothesis import assume
 from hypothesis import strategies as st
 
 from cases import constraints as decl
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.model import JOINT_DOF, Body, Model, TaskPoint, build_model
 from crosscheck import backends as backend_registry
 from crosscheck import charts as chart_catalog
 from crosscheck import frames as frame_tools
@@ -163,19 +163,23 @@ def _arm(com: np.ndarray, axis: np.ndarray) -> float:
 
 @functools.lru_cache(maxsize=None)
 @st.composite
-def _body(draw, i: int) -> Body:
-    """Body ``i``: parent the previous body (shrinking toward a serial chain), an earlier one, or the world."""
+def _body(draw, i: int, group: bool = False) -> Body:
+    """Body ``i``: parent the previous body (shrinking toward a serial chain), an earlier one, or the world. With
+    ``group`` its joint may also be spherical, or free when it hangs from the world; a body on either is solid (a
+    point mass at a ball joint's centre would not resist every rotation)."""
     back = draw(st.integers(0, i))
     parent = None if back == i else f"b{i - 1 - back}"
-    joint = draw(st.sampled_from(("revolute", "prismatic")))
-    axis = draw(axes())
+    kinds = ("revolute", "prismatic") + (("spherical", "free") if group and parent is None else
+                                         ("spherical",) if group else ())
+    joint = draw(st.sampled_from(kinds))
+    axis = np.zeros(3) if joint in ("spherical", "free") else draw(axes())
     translation = draw(vectors(PLACEMENT_RANGE))
     rotation = draw(rotations())
     mass = float(10.0 ** draw(_floats(*MASS_DECADES)))
     com = draw(vectors(OFFSET_RANGE))
     solid = mass * draw(_unit_inertias())
     wants_solid = draw(st.booleans())
-    point = not wants_solid and (joint == "prismatic" or _arm(com, axis) >= MIN_ARM)
+    point = not wants_solid and (joint == "prismatic" or joint == "revolute" and _arm(com, axis) >= MIN_ARM)
     return Body(f"b{i}", parent, joint, axis, mass, com=com, inertia=np.zeros((3, 3)) if point else solid,
                 rotation=rotation, translation=translation)
 
@@ -191,10 +195,36 @@ def _input_maps(n: int) -> st.SearchStrategy:
     return st.one_of(st.none(), selection, dense)
 
 
+def _quaternion(x) -> list[float]:
+    """A drawn 4-vector normalized (x, y, z, w); one too short to normalize stands for the identity."""
+    v = np.array(x, dtype=float)
+    norm = np.linalg.norm(v)
+    return (v / norm).tolist() if norm > 1e-3 else [0.0, 0.0, 0.0, 1.0]
+
+
+@functools.lru_cache(maxsize=None)
+def quaternions() -> st.SearchStrategy[list[float]]:
+    """Unit quaternions ``(x, y, z, w)``: a drawn 4-vector normalized (shrinking toward the identity)."""
+    return st.tuples(*[_floats(-1.0, 1.0)] * 3, _floats(-1.0, 1.0).map(lambda w: 1.0 - w)).map(_quaternion)
+
+
+def _joint_values(joint: str) -> st.SearchStrategy[list[float]]:
+    """One joint's block of q over ``crosscheck.sampling``'s ranges (``cases.model`` conventions)."""
+    d = sampling.DISPLACEMENT_RANGE
+    if joint == "spherical":
+        return quaternions()
+    if joint == "free":
+        return st.tuples(_values(-d, d), _values(-d, d), _values(-d, d), quaternions()).map(
+            lambda x: [x[0], x[1], x[2], *x[3]])
+    span = sampling.ANGLE_RANGE if joint == "revolute" else d
+    return _values(-span, span).map(lambda x: [x])
+
+
 def configurations(model: Model) -> st.SearchStrategy[np.ndarray]:
-    """Joint positions over ``crosscheck.sampling``'s ranges: one turn (revolute), +-0.5 m (prismatic)."""
-    spans = [sampling.ANGLE_RANGE if b.joint == "revolute" else sampling.DISPLACEMENT_RANGE for b in model.bodies]
-    return st.tuples(*[_values(-s, s) for s in spans]).map(lambda q: np.array(q, dtype=float))
+    """Configurations over ``crosscheck.sampling``'s ranges: one turn (revolute), +-0.5 m (prismatic, a free base's
+    position), unit quaternions (spherical and free joints)."""
+    return st.tuples(*[_joint_values(b.joint) for b in model.bodies]).map(
+        lambda blocks: np.array([x for block in blocks for x in block], dtype=float))
 
 
 def body_poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -205,7 +235,8 @@ def body_poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
     ids = [pm.getJointId(b.name) for b in model.bodies]
     q_pin = np.zeros(pm.nq)
     for i, jid in enumerate(ids):
-        q_pin[pm.joints[jid].idx_q] = q[i]
+        nq = pm.joints[jid].nq
+        q_pin[pm.joints[jid].idx_q:pm.joints[jid].idx_q + nq] = q[model.q_index[i]:model.q_index[i] + nq]
     pin.forwardKinematics(pm, data, q_pin)
     return [(np.array(data.oMi[jid].rotation), np.array(data.oMi[jid].translation)) for jid in ids]
 
@@ -213,7 +244,8 @@ def body_poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
 @st.composite
 def _task_point(draw, model: Model) -> TaskPoint:
     """A task point on a body (shrinking toward the last), with 1 to min(3, n) task directions."""
-    body = model.bodies[model.n - 1 - draw(st.integers(0, model.n - 1))]
+    count = len(model.bodies)
+    body = model.bodies[count - 1 - draw(st.integers(0, count - 1))]
     offset = draw(vectors(OFFSET_RANGE))
     rows = draw(st.integers(1, min(3, model.n)))
     return TaskPoint("tip", body.name, offset, draw(rotations())[:rows])
@@ -227,21 +259,23 @@ def _point(poses, i: int, offset: np.ndarray) -> np.ndarray:
 @st.composite
 def _constraint(draw, model: Model, q0: np.ndarray, poses, budget: int, name: str):
     """One declaration that holds at ``q0`` (where the bodies have ``poses``), with at most ``budget`` rows."""
-    kinds = ["JointCoupling", "PointsCoincide", "PointOnCircle", "PointOnLine"]
+    scalar = [j for j, b in enumerate(model.bodies) if b.joint in ("revolute", "prismatic")]
+    kinds = (["JointCoupling"] if scalar else []) + ["PointsCoincide", "PointOnCircle", "PointOnLine"]
     kind = draw(st.sampled_from(kinds))
     names = [b.name for b in model.bodies]
-    a = draw(st.integers(0, model.n - 1))
+    a = draw(st.integers(0, len(model.bodies) - 1))
     offset = draw(vectors(OFFSET_RANGE))
     p = _point(poses, a, offset)
     frame = draw(rotations())
-    if kind == "JointCoupling":
-        others = [j for j in range(model.n) if j != a]
-        joints = [a] + draw(st.lists(st.sampled_from(others), max_size=1))
+    if kind == "JointCoupling":   # couples joint values: revolute and prismatic joints only
+        a = a if a in scalar else scalar[a % len(scalar)]       # no extra draw: scalar-only models draw as before
+        others = [j for j in scalar if j != a]
+        joints = [a] + (draw(st.lists(st.sampled_from(others), max_size=1)) if others else [])
         coefficients = [draw(st.sampled_from((1.0, -1.0, 2.0, 0.5))) for _ in joints]
         return decl.JointCoupling(name, tuple(names[j] for j in joints), tuple(coefficients),
-                                  float(sum(c * q0[j] for c, j in zip(coefficients, joints))))
+                                  float(sum(c * q0[model.q_index[j]] for c, j in zip(coefficients, joints))))
     if kind == "PointsCoincide":
-        other = draw(st.sampled_from([None] + [j for j in range(model.n) if j != a]))
+        other = draw(st.sampled_from([None] + [j for j in range(len(model.bodies)) if j != a]))
         rows = draw(st.integers(1, min(3, budget)))
         if other is None:
             return decl.PointsCoincide(name, names[a], offset, None, p, frame[:rows])
@@ -273,7 +307,7 @@ def _constraints(draw, model: Model, required: bool) -> list:
 
 @st.composite
 def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodies: int = 1,
-           name: str = "drawn") -> Model:
+           name: str = "drawn", group: bool = False) -> Model:
     """Random valid models: kinematic trees of ``min_bodies`` to ``max_bodies`` bodies.
 
     Each body hangs from the previous one, an earlier one or the world, by a revolute or prismatic joint about an
@@ -281,6 +315,9 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     ``MASS_DECADES``, its COM offset drawn, its inertia a point mass or a random positive definite one (see
     :data:`MIN_ARM`: M is positive definite everywhere). Gravity is standard or random, B the identity, a selection
     of joints or a dense matrix (possibly underactuated), the task point on a drawn body with 1-3 task directions.
+
+    ``group``: joints may also be spherical, and free where a body hangs from the world (configurations on SO(3) and
+    SE(3): ``cases.model``).
 
     ``constraints``: False none, True at least one, None either. Declarations (joint couplings, points coinciding
     with another body's point or pinned to the world, points on circles and lines) are placed so that a drawn
@@ -290,9 +327,9 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
         raise ValueError("models(constraints=True) needs max_bodies >= 2 (a constraint leaves fewer rows than joints)")
     low = max(min_bodies, 2) if constraints else min_bodies
     n = draw(st.integers(low, max_bodies))
-    bodies = [draw(_body(i)) for i in range(n)]
+    bodies = [draw(_body(i, group)) for i in range(n)]
     gravity = draw(st.one_of(st.just(np.array(STANDARD_GRAVITY)), vectors(GRAVITY_RANGE)))
-    input_map = draw(_input_maps(n))
+    input_map = draw(_input_maps(sum(JOINT_DOF[b.joint][1] for b in bodies)))
     base = build_model(name, bodies, gravity=gravity, input_map=input_map)
     task = draw(_task_point(base))
     wanted = draw(st.booleans()) if constraints is None else constraints
@@ -322,7 +359,10 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
 
 
 def chart_names(model: Model) -> list[str]:
-    """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain."""
+    """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain; the
+    identity alone for a model with spherical or free joints (``crosscheck.charts.applies``)."""
+    if not chart_catalog.applies(model):
+        return ["identity"]
     return [name for name in ("identity", "nonlinear", "affine", "absolute")
             if name != "absolute" or chart_catalog.is_planar_serial(model)]
 

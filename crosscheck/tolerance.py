@@ -74,6 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle
+from cases.model import JOINT_DOF
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
 EPS = float(np.finfo(float).eps)
@@ -231,12 +232,20 @@ def task_lever(model, q) -> float:
     tp = model.task_point()
     lever, i = float(np.linalg.norm(tp.offset)), model.body_index(tp.body)
     while i >= 0:
-        body = model.bodies[i]
-        lever += float(np.linalg.norm(body.translation))
-        if body.joint == "prismatic":
-            lever += abs(float(q[i])) + 1.0
+        lever += float(np.linalg.norm(model.bodies[i].translation)) + _travel(model, q, i)
+        if model.bodies[i].joint in ("prismatic", "free"):
+            lever += 1.0
         i = model.parent_index[i]
     return lever
+
+
+def _travel(model, q, i: int) -> float:
+    """How far body i's joint has carried its origin from the joint frame: ``|q_i|`` for a prismatic joint, the
+    position's norm for a free one, 0 for a rotation (``cases.model``)."""
+    joint, start = model.bodies[i].joint, model.q_index[i]
+    if joint == "prismatic":
+        return abs(float(q[start]))
+    return float(np.linalg.norm(np.asarray(q, dtype=float)[start:start + 3])) if joint == "free" else 0.0
 
 
 def load_gain(model) -> float:
@@ -254,7 +263,8 @@ def load_gain(model) -> float:
 @dataclass(frozen=True)
 class _Loads:
     """The model's constants in the load scale (module doc): its length scale, total mass, ``sum_k tr I_k`` (a bound
-    on ``sum |I_k|_2``), weight ``m_total |gravity|``, the gain G and the indices of its prismatic joints."""
+    on ``sum |I_k|_2``), weight ``m_total |gravity|``, the gain G and the indices in q of the travels of its prismatic
+    joints and free bases' positions."""
 
     length: float
     mass: float
@@ -268,7 +278,8 @@ class _Loads:
         return cls(model.length_scale, sum(b.mass for b in model.bodies),
                    sum(float(np.trace(b.inertia)) for b in model.bodies),
                    sum(b.mass for b in model.bodies) * float(np.linalg.norm(model.gravity)), load_gain(model),
-                   np.array([i for i, b in enumerate(model.bodies) if b.joint == "prismatic"], dtype=int))
+                   np.array([model.q_index[i] + k for i, b in enumerate(model.bodies)
+                             for k in range({"prismatic": 1, "free": 3}.get(b.joint, 0))], dtype=int))
 
 
 _CONSTANTS: dict[tuple[str, int], tuple[weakref.ref, object]] = {}   # (kind, id(model)) -> (the model, constants)
@@ -289,7 +300,7 @@ def _loads(model) -> _Loads:
 
 def reach(model, q) -> float:
     """The model's reach R: its length scale (1 m plus every placement and COM offset) plus the travel of its
-    prismatic joints; no lever arm within the tree is longer."""
+    prismatic joints and free bases; no lever arm within the tree is longer."""
     constants = _loads(model)
     return constants.length + float(np.abs(np.asarray(q, dtype=float)[constants.prismatic]).sum())
 
@@ -370,31 +381,43 @@ def _mass(model, q) -> _Mass:
 
 @dataclass(frozen=True)
 class _Geometry:
-    """The model's constants in :func:`acceleration_bound`: ``moves[i, k]`` = 1 when joint i moves body k (i on k's
-    path from the world), the placement lengths ``|t_i|``, the COM offsets ``|c_k|``, masses, ``tr I_k`` and which
-    joints are revolute."""
+    """The model's constants in :func:`acceleration_bound`, per velocity coordinate (column) j and body k:
+    ``moves[j, k]`` = 1 when column j moves body k (j's body on k's path from the world), ``body[j]`` the body whose
+    joint owns column j, ``revolute[j]`` whether column j turns (a revolute joint, a spherical joint's three and a
+    free joint's last three columns) rather than slides; per body the placement lengths ``|t_k|``, the COM offsets
+    ``|c_k|``, masses, ``tr I_k``, ``ancestors[k, a]`` = 1 when body a is on k's path (k included), and ``travel``
+    the q indices whose sizes carry a body's origin (a prismatic joint's value, a free base's position) with the
+    body each belongs to. Revolute and prismatic joints only: one column per body, the matrices as before."""
 
     moves: np.ndarray
+    body: np.ndarray
     placement: np.ndarray
     com: np.ndarray
     mass: np.ndarray
     inertia: np.ndarray
     revolute: np.ndarray
+    ancestors: np.ndarray
+    travel: tuple[np.ndarray, np.ndarray]
 
     @classmethod
     def of(cls, model) -> "_Geometry":
-        n = model.n
-        moves = np.zeros((n, n))
-        for k in range(n):
-            i = k
-            while i >= 0:
-                moves[i, k] = 1.0
-                i = model.parent_index[i]
-        return cls(moves, np.array([float(np.linalg.norm(b.translation)) for b in model.bodies]),
+        count = len(model.bodies)
+        ancestors = np.zeros((count, count))
+        for k in range(count):
+            a = k
+            while a >= 0:
+                ancestors[k, a] = 1.0
+                a = model.parent_index[a]
+        body = np.array([i for i, b in enumerate(model.bodies) for _ in range(JOINT_DOF[b.joint][1])], dtype=int)
+        turns = {"revolute": [True], "prismatic": [False], "spherical": [True] * 3, "free": [False] * 3 + [True] * 3}
+        revolute = np.array([t for b in model.bodies for t in turns[b.joint]])
+        travel_q = [(model.q_index[i] + k, i) for i, b in enumerate(model.bodies)
+                    for k in range({"prismatic": 1, "free": 3}.get(b.joint, 0))]
+        return cls(ancestors.T[body], body, np.array([float(np.linalg.norm(b.translation)) for b in model.bodies]),
                    np.array([float(np.linalg.norm(b.com)) for b in model.bodies]),
                    np.array([b.mass for b in model.bodies]),
-                   np.array([float(np.trace(b.inertia)) for b in model.bodies]),
-                   np.array([b.joint == "revolute" for b in model.bodies]))
+                   np.array([float(np.trace(b.inertia)) for b in model.bodies]), revolute, ancestors,
+                   (np.array([t[0] for t in travel_q], dtype=int), np.array([t[1] for t in travel_q], dtype=int)))
 
 
 def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
@@ -411,11 +434,11 @@ def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
     backends against a tolerance that had no term for it)."""
     geo = _constants(model, _Geometry)
     q, rates = np.asarray(q, dtype=float), np.abs(np.asarray(qd, dtype=float))
-    travel = np.where(geo.revolute, 0.0, np.abs(q))
-    origin = geo.moves.T @ (geo.placement + travel) - travel          # O_k: body k's joint origin
+    travel = np.bincount(geo.travel[1], np.abs(q[geo.travel[0]]), minlength=len(geo.mass))   # per body
+    origin = geo.ancestors @ (geo.placement + travel) - travel        # O_k: body k's joint origin
     P = origin + travel + geo.com                                      # P_k: body k's COM
-    lever = np.where(geo.revolute[:, None], P[None, :] - origin[:, None], 1.0) * geo.moves   # l_ik
-    rho = np.where(geo.revolute[:, None], P[None, :], 1.0) * geo.moves                         # rho_ik
+    lever = np.where(geo.revolute[:, None], P[None, :] - origin[geo.body][:, None], 1.0) * geo.moves   # l_jk
+    rho = np.where(geo.revolute[:, None], P[None, :], 1.0) * geo.moves                                # rho_jk
     angular = geo.moves.T @ np.where(geo.revolute, rates, 0.0)
     speed = P * angular + geo.moves.T @ np.where(geo.revolute, 0.0, rates)
     spin = geo.moves * geo.inertia

@@ -27,6 +27,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
+from cases.configuration import UNIT_TOL
 from cases.model import Model
 
 
@@ -94,7 +95,7 @@ class Split:
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).
-    joint_wrenches       (n, 6) row ``i`` = ``[force(3), moment(3)]`` the parent exerts on body ``i`` through joint
+    joint_wrenches       (bodies, 6) row ``i`` = ``[force(3), moment(3)]`` the parent exerts on body ``i`` through joint
                          ``i`` at ``qdd = total`` (article 6.1.5, 7.2), moment about body ``i``'s origin, both in body
                          frame ``i``; gravity and the constraint forces of ``lam`` included (point forces applied to the
                          bodies; a joint coupling's torque ``c_j lam`` is carried by its joints, like an actuator, so
@@ -164,7 +165,7 @@ class Split:
         constrained = self.lam is not None and not isinstance(self.lam, Unsupported)
         k = int(np.size(self.lam)) if constrained else 0
         shapes = {"drift": (n,), "ctrl": (n,), "total": (n,), "power_ctrl_per_coord": (n,),
-                  "joint_wrenches": (n, 6), "joint_wrenches_drift": (n, 6), "lam": (k,), "lam_drift": (k,),
+                  "lam": (k,), "lam_drift": (k,),
                   "power_constr_per_coord": (n,), "constraint_value": (k,), "constraint_jacobian": (k, n),
                   "constraint_bias": (k,), "constraint_velocity": (k,), "constraint_force": (n,),
                   "constraint_force_drift": (n,)}
@@ -178,6 +179,14 @@ class Split:
                 raise ValueError(f"a formalism returned {name} of shape {arr.shape}, expected {shape}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        for name in ("joint_wrenches", "joint_wrenches_drift"):
+            value = getattr(self, name)
+            if not isinstance(value, Unsupported):
+                arr = np.array(value, dtype=float)
+                if arr.ndim != 2 or arr.shape[1] != 6:
+                    raise ValueError(f"a formalism returned {name} of shape {arr.shape}, expected (bodies, 6)")
+                arr.setflags(write=False)
+                object.__setattr__(self, name, arr)
         for name in ("task_drift", "task_inertia"):
             value = getattr(self, name)
             if not isinstance(value, Unsupported):
@@ -258,10 +267,10 @@ def _numeric(label: str, value, kind: str) -> np.ndarray:
 
 
 def check_batch(model: Model, Q, QD, U) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return (Q, QD, U) as float arrays of shapes (N, n), (N, n), (N, m), or raise :class:`StateError` naming what
-    does not fit."""
+    """Return (Q, QD, U) as float arrays of shapes (N, nq), (N, nv), (N, m), or raise :class:`StateError` naming
+    what does not fit (as :func:`check_state`)."""
     out = []
-    for label, value, size in (("Q", Q, model.n), ("QD", QD, model.n), ("U", U, model.m)):
+    for label, value, size in (("Q", Q, model.nq), ("QD", QD, model.nv), ("U", U, model.m)):
         arr = _numeric(label, value, "array")
         if arr.ndim != 2 or arr.shape[1] != size:
             raise StateError(f"{label} must have shape (N, {size}) for model '{model.name}' (one row per state), "
@@ -273,6 +282,7 @@ def check_batch(model: Model, Q, QD, U) -> tuple[np.ndarray, np.ndarray, np.ndar
     if not len(out[0]) == len(out[1]) == len(out[2]):
         raise StateError(f"Q, QD and U must have the same number of rows (states), got {len(out[0])}, "
                          f"{len(out[1])} and {len(out[2])}")
+    _unit_quaternions(model, out[0], "Q")
     return out[0], out[1], out[2]
 
 
@@ -285,7 +295,7 @@ def split_batch_by_loop(split: Callable[[Model, np.ndarray, np.ndarray, np.ndarr
         def stack(name: str, width: int) -> np.ndarray:
             return np.array([getattr(s, name) for s in splits], dtype=float).reshape(len(Q), width)
         lam = (stack("lam", model.k), stack("lam_drift", model.k)) if model.k else (None, None)
-        return SplitBatch(stack("drift", model.n), stack("ctrl", model.n), stack("total", model.n), *lam)
+        return SplitBatch(stack("drift", model.nv), stack("ctrl", model.nv), stack("total", model.nv), *lam)
     return split_batch
 
 
@@ -307,10 +317,26 @@ class Formalism:
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
 
 
+def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:
+    """A :class:`StateError` naming the first quaternion of ``q`` (a spherical or free joint's ``(x, y, z, w)``,
+    ``cases.model``) whose norm is not 1 to ``UNIT_TOL``: a rotation is never built from a non-unit quaternion."""
+    for i in model.group_joints:
+        start = model.q_index[i] + (3 if model.bodies[i].joint == "free" else 0)
+        quat = q[..., start:start + 4]
+        norm = np.sqrt(np.sum(quat * quat, axis=-1))
+        bad = np.flatnonzero(~(np.abs(norm - 1.0) <= UNIT_TOL))
+        if bad.size:
+            where = f"{label}[{start}:{start + 4}]" if q.ndim == 1 else f"{label}[{bad[0]}, {start}:{start + 4}]"
+            raise StateError(f"{where}, the quaternion (x, y, z, w) of body '{model.bodies[i].name}', has norm "
+                             f"{float(np.ravel(norm)[bad[0]])!r}, not 1 (to {UNIT_TOL:g}): a rotation needs a unit "
+                             "quaternion; divide it by its norm")
+
+
 def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return (q, qd, u) as float arrays, or raise :class:`StateError` naming what does not fit."""
+    """Return (q, qd, u) as float arrays (q of length ``nq``, qd of ``nv``, u of ``m``), or raise
+    :class:`StateError` naming what does not fit (a length, a non-finite entry, a quaternion that is not unit)."""
     out = []
-    for label, value, size in (("q", q, model.n), ("qd", qd, model.n), ("u", u, model.m)):
+    for label, value, size in (("q", q, model.nq), ("qd", qd, model.nv), ("u", u, model.m)):
         arr = _numeric(label, value, "vector")
         if arr.ndim != 1:
             raise StateError(f"{label} must be a 1-D vector of length {size}, got an array of shape {arr.shape}")
@@ -319,6 +345,7 @@ def check_state(model: Model, q, qd, u) -> tuple[np.ndarray, np.ndarray, np.ndar
         if not np.all(np.isfinite(arr)):
             raise StateError(f"{label} has non-finite entries: {arr.tolist()}")
         out.append(arr)
+    _unit_quaternions(model, out[0], "q")
     return out[0], out[1], out[2]
 
 
@@ -337,13 +364,13 @@ def chart_vectors(model: Model, **vectors) -> list[np.ndarray]:
     return out
 
 
-def joint_vectors(model: Model, *vectors) -> list[np.ndarray]:
-    """The arguments as float vectors of length n (e.g. ``q, qd, qdd`` of an inverse-dynamics call), or a
-    :class:`StateError` naming the sizes."""
-    out = [np.asarray(v, dtype=float).reshape(-1) for v in vectors]
-    if any(v.size != model.n for v in out):
-        raise StateError(f"model '{model.name}' needs {model.n} joint values per vector; got sizes "
-                         f"{[v.size for v in out]}")
+def joint_vectors(model: Model, q, *rates) -> list[np.ndarray]:
+    """``q`` (length ``nq``) and the ``rates`` (e.g. ``qd, qdd`` of an inverse-dynamics call, length ``nv``) as float
+    vectors, or a :class:`StateError` naming the sizes."""
+    out = [np.asarray(v, dtype=float).reshape(-1) for v in (q, *rates)]
+    if out[0].size != model.nq or any(v.size != model.nv for v in out[1:]):
+        raise StateError(f"model '{model.name}' needs {model.nq} coordinates and {model.nv} values per velocity-like "
+                         f"vector; got sizes {[v.size for v in out]}")
     return out
 
 

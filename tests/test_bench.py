@@ -91,8 +91,9 @@ def test_general_3d_is_the_same_scene(case):
     """Turning every body frame changes the model's numbers, not its physics: equal drift, ctrl, total, lam."""
     minimal = cases.load(case)
     general = general_3d(minimal, seed=1)
-    assert general.digest() != minimal.digest()
-    assert not any(np.array_equal(a.axis, b.axis) for a, b in zip(minimal.bodies, general.bodies))
+    assert general.digest() != minimal.digest() or len(minimal.bodies) == len(minimal.group_joints)
+    assert not any(np.array_equal(a.axis, b.axis) for a, b in zip(minimal.bodies, general.bodies)
+                   if a.joint in ("revolute", "prismatic"))
     for s in sampling.sample_states(minimal, 3, 1, case):
         a, b = reference.split(minimal, s.q, s.qd, s.u), reference.split(general, s.q, s.qd, s.u)
         for name in ("drift", "ctrl", "total"):
