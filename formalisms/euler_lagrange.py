@@ -25,6 +25,43 @@ Derivation (symbolic, from the model data and the chart alone), in coordinates `
 In a chart these are the chart's own M_p, C_p pd and g_p (different entries, article 6.4.6), never the joint
 ones mapped; the accelerations they give are the chart's ``pdd``, equal to the joint ones mapped by
 ``qdd = Dpsi pdd + (d/dt Dpsi) pd`` (9.1), which is what the tests check.
+Group joints (spherical and free; article 2.1-2.2, 6.2, 6.4). A quaternion is not a coordinate: its four entries are
+tied by ``|quat| = 1`` and its velocity is not ``d quat / dt`` (``cases.model``: v is the body angular velocity,
+the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL COORDINATES around the state:
+  * Chart. ``q(xi) = q (+) xi``, Pinocchio's ``integrate`` on the right: spherical ``R(xi) = R0 exp([xi]x)``; free
+    ``(R, p)(xi) = (R0, p0) exp6(xi)`` on SE(3), ``xi = (rho, phi)`` a twist in the order (linear, angular),
+    ``exp6`` the exponential of the 4x4 ``Xi = [[[phi]x, rho], [0, 0]]``. Revolute and prismatic coordinates stay
+    themselves; the chart has nv coordinates, in v's order (:func:`_local_coordinates`, :func:`_local_motions`).
+    The state's orientation ``R0 = R(quat)`` (formed here: ``I + 2 w [u]x + 2 [u]x^2``) and position ``p0`` are
+    PARAMETERS of the derivation (symbols that are not differentiated), so a model is derived once, not per state;
+    the code is evaluated at ``xi = 0`` with the state's q (:func:`_at_origin`).
+  * Velocity. Write the joint's motion ``E(xi) = exp(X(xi))``, X linear in xi (``[xi]x``, or ``Xi``). The joint's
+    relative velocity in the body frame is ``[v] = E^-1 Edot`` (the placement and R0 are constant). At ``xi = 0``:
+    ``E = I``, ``Edot = X(xid)``, so ``v = xid`` (dexp(0) = I).
+  * Acceleration: ``d/dt v = xidd`` exactly at ``xi = 0``. ``d/dt [v] = -E^-1 Edot E^-1 Edot + E^-1 Eddot``, at 0
+    ``-X(xid)^2 + Eddot``. With ``E = I + X + X^2/2 + O(|xi|^3)``, ``Eddot = X(xidd) + d^2/dt^2 (X^2/2)`` and
+    ``d^2/dt^2 (X(xi)^2 / 2) = X(xid)^2 + (X(xi) X(xidd) + X(xidd) X(xi)) / 2`` is ``X(xid)^2`` at 0 (the second-order
+    term is symmetric in its two factors): the two squares cancel and ``d/dt [v] = X(xidd)``. Equivalently ``v =
+    dexp_-xi xid = (I - ad_xi / 2 + O(|xi|^2)) xid``, so ``vdot = xidd - ad_xid xid / 2 = xidd`` at 0, since
+    ``ad_a a = 0`` (``a x a = 0``; for a twist ``(w x v + v x w, w x w) = 0``). So the accelerations this chart
+    gives ARE the v-space accelerations of the contract, with no correction term.
+  * Forces. A v-space force f has power ``f . v = f . dexp_-xi xid``: its chart covector ``dexp_-xi^T f`` is f at 0,
+    so ``B u`` and ``Jc^T lam`` enter unchanged; ``T = 1/2 v^T M v`` gives ``M_xi(0) = M``. The Euler–Lagrange
+    equations at 0, ``M(0) xidd + C(0, xid) xid + g(0) = B u (+ Jc^T lam)``, hold for every xidd = vdot, so they
+    ARE ``M vdot + nle(q, v) = tau``: ``g(0) = rnea(q, 0, 0)`` and ``C(0, v) v = rnea(q, v, 0) - g`` (what
+    :func:`terms` returns for such a model). Constraints likewise: ``Jc = dphi/dxi (0)`` is the v-space Jacobian,
+    and ``d^2/dt^2 phi = Jc xidd + xid^T (d^2 phi / dxi^2) xid`` gives ``Jcdot v = v^T (d^2 phi/dxi^2)(0) v``.
+  * Truncation (:data:`EXP_ORDER` = 2). At ``xi = 0`` the equations use ``M``, ``dM/dxi``, ``dV/dxi``, ``phi``,
+    ``dphi/dxi`` and ``d^2 phi/dxi^2``: T's coefficients (M is a quadratic form in the poses' first derivatives) to
+    first order in xi, V to first and phi to second order, i.e. derivatives of the poses of order at most 2 in xi
+    (any order in the other coordinates). ``E_2 = I + X + X^2/2`` agrees with ``exp(X)`` to ``O(|xi|^3)``, and
+    its first and second derivatives at 0 with exp's (the 4x4 series is SE(3)'s: rotation ``sum [phi]x^k / k!``,
+    translation ``sum [phi]x^(k-1) rho / k!``), so every number evaluated at 0 is exact, although ``E_2`` is not a
+    rotation away from 0 (the T written with it differs from the true one by ``O(|xi|^2) |xid|^2``). The closed forms
+    (Rodrigues, ``V(phi)``) would bring ``sin|xi| / |xi|`` and its removable 0/0 into symbolic differentiation.
+    ``tests/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
+  * Caches and charts. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`). Charts
+    ``q = psi(p)`` are charts of joint coordinates: :func:`split_chart` refuses such a model (ModelNotSupported).
 The derivation is staged: every pose entry and every derivative of one is a named intermediate, and
 derivatives go through a memoized chain rule (forward-mode differentiation done symbolically), so the
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
@@ -32,9 +69,10 @@ project with sympy's API, because pure-Python sympy takes minutes on a 9-joint a
 Compilation: plain Python source evaluated with ``math``, the staged definitions in order with repeated
 subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); one call returns M, C pd, g, the
 kinetic energy T and the constraint terms phi, Jc, Jcdot pd at the state. The source is cached on disk keyed by
-the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart) and a hash
-of this module, so a second process loads it instead of re-deriving; its compiled code object is cached beside it
-(compiling a 9-joint arm's source takes most of a second, loading the code milliseconds).
+the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
+with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
+process loads it instead of re-deriving; its compiled code object is cached beside it (compiling a 9-joint arm's
+source takes most of a second, loading the code milliseconds).
 Batches (:func:`split_batch`): the same code run with numpy's ``sin`` and ``cos`` on columns of states (each
 coordinate an array with one entry per state) gives every state's M, C qd, g and constraint terms in one call;
 the solves below are written for one state or a stack alike (batched Cholesky, substitution over the stack), with
@@ -69,11 +107,13 @@ import symengine as sp
 
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Split, SplitBatch,
-                                  chart_vectors, check_batch, check_state)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, ModelNotSupported, Split,
+                                  SplitBatch, chart_vectors, check_batch, check_state)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
+_NO_CHARTS = ("Euler–Lagrange: charts q = psi(p) are joint-coordinate charts, and a model with spherical or free "
+              "joints is derived in local exponential coordinates around each state instead")
 
 
 def _exact(x: float) -> sp.Expr:
@@ -202,9 +242,12 @@ def _joint_rotation(axis: sp.DenseMatrix, s: sp.Symbol, c: sp.Symbol) -> sp.Dens
     return sp.eye(3) + s * K + (1 - c) * (K * K)
 
 
-def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatrix]]:
-    """World rotation and origin of every body frame as staged functions of p (module docstring, step 1)."""
-    poses: list = [None] * model.n
+def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[sp.DenseMatrix, sp.DenseMatrix]]:
+    """World rotation and origin of every body frame as staged functions of p (module docstring, step 1); a body
+    on a spherical or free joint moves by its local motion ``local[i] = (R_m, p_m)`` (:func:`_local_motions`), a
+    revolute or prismatic one by its coordinate (index ``v_index[i]``, which is ``i`` without group joints)."""
+    local = local or {}
+    poses: list = [None] * len(model.bodies)
     for i in model.topological_order:
         body = model.bodies[i]
         parent = model.parent_index[i]
@@ -212,12 +255,87 @@ def _poses(model: Model, st: _Staged) -> list[tuple[sp.DenseMatrix, sp.DenseMatr
         R_joint = R_par * _matrix(body.rotation)
         p_joint = p_par + R_par * _matrix(body.translation)
         axis = _matrix(body.axis)
-        if body.joint == "revolute":
-            R, p = R_joint * _joint_rotation(axis, *st.angle(i)), p_joint
+        if i in local:
+            R_m, p_m = local[i]
+            R, p = R_joint * R_m, p_joint + R_joint * p_m
+        elif body.joint == "revolute":
+            R, p = R_joint * _joint_rotation(axis, *st.angle(model.v_index[i])), p_joint
         else:
-            R, p = R_joint, p_joint + R_joint * axis * st.joint[i]
+            R, p = R_joint, p_joint + R_joint * axis * st.joint[model.v_index[i]]
         poses[i] = (R.applyfunc(st.name), p.applyfunc(st.name))
     return poses
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Spherical and free joints: local exponential coordinates around the state (module docstring, "Group joints")
+# ----------------------------------------------------------------------------------------------------------
+
+#: The truncation order of the exponential series in the local chart: 2 is exact for everything the Euler–Lagrange
+#: equations evaluate at ``xi = 0`` (module docstring, "Group joints"); ``tests/test_group_euler_lagrange.py``
+#: compares it with orders 3 and 4, and shows that order 1 is wrong.
+EXP_ORDER = 2
+#: The cache key of the chart of the group joints (part of what is derived, so part of :func:`cache_key`).
+GROUP_CHART = "local-exponential:q(+)xi=q*exp(xi) on the right:twist(linear,angular):order{order}"
+
+
+def _quaternion_rotation(st: _Staged, quat: Sequence) -> sp.DenseMatrix:
+    """``R(quat) = I + 2 w [u]x + 2 [u]x^2`` of a unit quaternion ``(x, y, z, w) = (u, w)`` (cases.model), its
+    entries named; the quaternion's entries are parameters of the derivation, not coordinates."""
+    K = _skew(sp.DenseMatrix(list(quat[:3])))
+    return (sp.eye(3) + 2 * quat[3] * K + 2 * (K * K)).applyfunc(st.name)
+
+
+def _exp_series(X: sp.DenseMatrix, order: int) -> sp.DenseMatrix:
+    """The matrix exponential's series truncated after ``X^order / order!``: ``sum_{k <= order} X^k / k!``."""
+    term, total = sp.eye(X.rows), sp.eye(X.rows)
+    for k in range(1, order + 1):
+        term = (term * X).applyfunc(lambda e: sp.expand(e / k))
+        total = total + term
+    return total
+
+
+def _local_coordinates(model: Model) -> tuple[list, list, list]:
+    """The symbols of the local chart (module docstring, "Group joints"): ``coordinates`` (nv, in v's order: the
+    joint value ``q{q_index}`` of a revolute or prismatic body, ``xi{v_index + a}`` for a group joint's local
+    coordinates), ``configuration`` (nq: ``q0 ..``, the state's q; a group joint's entries are parameters) and
+    ``local`` (the xi, set to 0 in the generated code)."""
+    configuration = list(sp.symbols(f"q0:{model.nq}"))
+    coordinates: list = [None] * model.nv
+    local = []
+    for i, body in enumerate(model.bodies):
+        iq, iv = model.q_index[i], model.v_index[i]
+        if i in model.group_joints:
+            size = 3 if body.joint == "spherical" else 6
+            xi = list(sp.symbols(f"xi{iv}:{iv + size}"))
+            coordinates[iv:iv + size] = xi
+            local += xi
+        else:
+            coordinates[iv] = configuration[iq]
+    return coordinates, configuration, local
+
+
+def _local_motions(model: Model, st: _Staged, configuration: list, order: int) -> dict:
+    """``i -> (R_m, p_m)``, the motion of each group joint as a function of its local coordinates xi, with the
+    state's orientation (and position) as parameters: spherical ``R_m = R0 exp([xi]x)``, ``p_m = 0``; free
+    ``(R_m, p_m) = (R0, p0) exp6(xi)`` on SE(3) with ``xi = (rho, phi)`` (linear, angular), the 4x4 series of
+    ``Xi = [[phi]x, rho; 0, 0]``: rotation ``sum [phi]x^k / k!``, translation ``sum [phi]x^(k-1) rho / k!``; both
+    series truncated at ``order`` (:data:`EXP_ORDER`)."""
+    out = {}
+    for i in model.group_joints:
+        iq, iv = model.q_index[i], model.v_index[i]
+        if model.bodies[i].joint == "spherical":
+            R0 = _quaternion_rotation(st, configuration[iq:iq + 4])
+            E = _exp_series(_skew(sp.DenseMatrix(st.coordinates[iv:iv + 3])), order).applyfunc(st.name)
+            out[i] = (R0 * E, sp.zeros(3, 1))
+        else:
+            p0, R0 = sp.DenseMatrix(configuration[iq:iq + 3]), _quaternion_rotation(st, configuration[iq + 3:iq + 7])
+            rho, phi = st.coordinates[iv:iv + 3], st.coordinates[iv + 3:iv + 6]
+            Xi = sp.zeros(4, 4)
+            Xi[:3, :3] = _skew(sp.DenseMatrix(phi))
+            Xi[:3, 3] = sp.DenseMatrix(rho)
+            E = _exp_series(Xi, order).applyfunc(st.name)
+            out[i] = (R0 * E[:3, :3], p0 + R0 * E[:3, 3])
+    return out
 
 
 def _com(R: sp.DenseMatrix, p: sp.DenseMatrix, com) -> sp.DenseMatrix:  # noqa: N803
@@ -265,8 +383,8 @@ def _constraint_rows(model: Model, st: _Staged, poses) -> list:
             rows.extend(_matrix(c.directions) * (_point(model, st, poses, c.body_a, c.offset_a) - b))
         elif isinstance(c, PointOnLine):
             rows.extend(_matrix(c.normals) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.origin)))
-        else:  # JointCoupling: sum_j c_j q_j - offset, with q = psi(p)
-            rows.append(sp.Add(*[_exact(a) * st.joint[model.body_index(j)]
+        else:  # JointCoupling: sum_j c_j q_j - offset, with q = psi(p) (revolute and prismatic joints only)
+            rows.append(sp.Add(*[_exact(a) * st.joint[model.v_index[model.body_index(j)]]
                                  for j, a in zip(c.joints, c.coefficients)]) - _exact(c.offset))
     return rows
 
@@ -330,7 +448,10 @@ class Derivation(NamedTuple):
     """The symbolic dynamics in one chart. ``M``, ``Cqd`` (= C pd), ``g``, ``T``, ``V`` and the constraint terms
     ``phi`` (k), ``Jc`` (k rows of n) and ``bias`` (= Jcdot pd, k) use the staged intermediates
     (``staged.needed(...)`` lists their definitions in evaluation order); ``coordinates`` and ``rates`` are the
-    symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p)."""
+    symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p). With spherical or free joints
+    (module docstring, "Group joints") ``coordinates`` are the local chart's (joint values and xi, nv of them),
+    ``configuration`` the nq symbols of the state's q (the quaternions and free positions are parameters) and
+    ``local`` the xi, which the generated code sets to 0; both are empty without group joints."""
 
     M: sp.DenseMatrix
     Cqd: sp.DenseMatrix
@@ -344,6 +465,8 @@ class Derivation(NamedTuple):
     rates: list
     joint: list
     staged: _Staged
+    configuration: tuple = ()
+    local: tuple = ()
 
 
 def _christoffel_first(dm, i: int, j: int, k: int) -> sp.Expr:
@@ -352,20 +475,30 @@ def _christoffel_first(dm, i: int, j: int, k: int) -> sp.Expr:
     return HALF * (dm(i, j, k) + dm(i, k, j) - dm(j, k, i))
 
 
-def derivation(model: Model, chart: Chart | None = None) -> Derivation:
+def derivation(model: Model, chart: Chart | None = None, order: int | None = None) -> Derivation:
     """Symbolic ``M``, ``C pd``, ``g`` (article 4.7.1, eqs. 6–8), the energies T, V and the constraint terms
     ``phi``, ``Jc``, ``Jcdot pd`` (article 5.7, eq. 13) in the chart ``q = psi(p)`` (article 6.4.6: the Lagrangian
     and phi with q = psi(p) substituted, then the same steps); ``chart=None`` (or an identity chart) is the joint
-    chart, derived with the coordinates themselves as q (module docstring)."""
+    chart, derived with the coordinates themselves as q (module docstring). A model with spherical or free joints
+    is derived in the local exponential chart around the state (module docstring, "Group joints"; ``order`` is the
+    truncation of its exponential series, :data:`EXP_ORDER` by default), and only in the joint chart
+    (:class:`ModelNotSupported` otherwise)."""
     n = model.n
+    order = EXP_ORDER if order is None else order
     joint_chart = chart_key(model, chart) == JOINT_CHART
+    if model.group_joints and not joint_chart:
+        raise ModelNotSupported(_NO_CHARTS)
     letter = "q" if joint_chart else "p"
-    x = list(sp.symbols(f"{letter}0:{n}"))
+    configuration, local = [], []
+    if model.group_joints:
+        x, configuration, local = _local_coordinates(model)
+    else:
+        x = list(sp.symbols(f"{letter}0:{n}"))
     xd = list(sp.symbols(f"{letter}d0:{n}"))
     st = _Staged(x)
     if not joint_chart:
         st.set_joint(_psi(model, chart, x))
-    poses = _poses(model, st)
+    poses = _poses(model, st, _local_motions(model, st, configuration, order) if local else None)
     T, V = _energies(model, st, poses, xd)
     dT = [T.diff(v) for v in xd]
     M = sp.zeros(n, n)
@@ -381,7 +514,8 @@ def derivation(model: Model, chart: Chart | None = None) -> Derivation:
         sp.Add(*[_christoffel_first(dm, i, j, k) * xd[j] * xd[k] for j in range(n) for k in range(n)])
         for i in range(n)])
     g = sp.DenseMatrix([st.diff(V, i) for i in range(n)])
-    return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses, xd), x, xd, list(st.joint), st)
+    return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses, xd), x, xd, list(st.joint), st,
+                      tuple(configuration), tuple(local))
 
 
 def derive(model: Model, chart: Chart | None = None):
@@ -462,30 +596,68 @@ class _Source:
         raise TypeError(f"Euler–Lagrange codegen: unexpected expression {e!r}")
 
 
-def generate_source(model: Model, chart: Chart | None = None) -> str:
+def _at_origin(definitions: list, outputs: dict, T: sp.Expr, local: Sequence) -> tuple[list, dict, sp.Expr]:
+    """The definitions and outputs evaluated at ``xi = 0`` (module docstring, "Group joints"), symbolically: each
+    definition in order with the local coordinates set to 0 and every earlier definition that became a number or a
+    symbol substituted (constant propagation), then only the definitions the outputs still use. Exact: every
+    definition is a polynomial in the named intermediates, so this is the value of the derived expressions at 0."""
+    value: dict = {s: ZERO for s in local}
+
+    def at(e):
+        sub = {f: value[f] for f in e.free_symbols if f in value}
+        return e.subs(sub) if sub else e
+
+    kept = {}
+    for s, e in definitions:
+        e = at(e)
+        if _is_atom(e):
+            value[s] = e
+        else:
+            kept[s] = e
+    outputs = {label: [at(e) for e in exprs] for label, exprs in outputs.items()}
+    T = at(T)
+    used: set = set()
+    stack = [f for e in [e for v in outputs.values() for e in v] + [T] for f in e.free_symbols if f in kept]
+    while stack:
+        s = stack.pop()
+        if s not in used:
+            used.add(s)
+            stack.extend(f for f in kept[s].free_symbols if f in kept)
+    return [(s, e) for s, e in kept.items() if s in used], outputs, T
+
+
+def generate_source(model: Model, chart: Chart | None = None, order: int | None = None) -> str:
     """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T, phi, Jc, bias)`` in the chart (``Jc`` row by row,
     the constraint tuples empty without constraints): the staged definitions in creation order (each reads only
     earlier ones), shared subexpressions as temporaries, then the outputs (the arguments are named ``q, qd`` in the
-    joint chart and ``p, pd`` in any other)."""
-    d = derivation(model, chart)
+    joint chart and ``p, pd`` in any other). With spherical or free joints ``x`` is the state's q (nq entries) and
+    the code is the local chart's derivation at ``xi = 0`` (:func:`_at_origin`; ``order`` of the exponential
+    series, module docstring "Group joints")."""
+    order = EXP_ORDER if order is None else order
+    d = derivation(model, chart, order)
     n = model.n
     upper = [d.M[i, j] for i in range(n) for j in range(i, n)]
     outputs = {"M_upper": upper, "Cqd": list(d.Cqd), "g": list(d.g), "phi": d.phi,
                "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
     definitions = d.staged.needed([e for v in outputs.values() for e in v] + [d.T])
-    code = _Source([e for _, e in definitions] + [e for v in outputs.values() for e in v] + [d.T])
+    T = d.T
+    if d.local:
+        definitions, outputs, T = _at_origin(definitions, outputs, T, d.local)
+    code = _Source([e for _, e in definitions] + [e for v in outputs.values() for e in v] + [T])
     key = chart_key(model, chart)
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
+    if d.local:
+        where = f"local exponential coordinates at xi = 0 ({GROUP_CHART.format(order=order)})"
     x, xd = ("q", "qd") if key == JOINT_CHART else ("p", "pd")
     for s, e in definitions:
         code.assign(s, e)
     for label, exprs in outputs.items():
         code.lines.append(f"    {label} = ({''.join(code.ref(e) + ', ' for e in exprs)})")
-    code.lines.append(f"    T = {code.ref(d.T)}")
+    code.lines.append(f"    T = {code.ref(T)}")
     return "\n".join([
         f"# Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by crosscheck",
         f"def evaluate({x}, {xd}):",
-        f"    {', '.join(map(str, d.coordinates))}, = {x}",
+        f"    {', '.join(map(str, d.configuration or d.coordinates))}, = {x}",
         f"    {', '.join(map(str, d.rates))}, = {xd}",
         *code.lines,
         "    return M_upper, Cqd, g, T, phi, Jc, bias"]) + "\n"
@@ -507,6 +679,8 @@ def _cache_dir() -> Path:
 def cache_key(model: Model, chart: Chart | None = None) -> str:
     """The disk-cache key: a digest of (model digest, chart key or ``"identity"``, hash of this module)."""
     parts = (model.digest(), chart_key(model, chart))
+    if model.group_joints:  # the local chart of the group joints is part of what is derived
+        parts += (GROUP_CHART.format(order=EXP_ORDER),)
     return hashlib.sha256("\0".join(parts).encode() + b"\0" + _DERIVATION_HASH).hexdigest()[:32]
 
 
@@ -610,7 +784,8 @@ class ConstraintTerms(NamedTuple):
 
 def evaluate(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> tuple[Terms, ConstraintTerms]:
     """The dynamics and the constraint terms at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint
-    chart), from one call of the compiled derivation."""
+    chart), from one call of the compiled derivation. With spherical or free joints ``x`` is the state's q (nq
+    entries) and ``xd`` its v: the local chart at ``xi = 0`` (module docstring, "Group joints")."""
     n = model.n
     M_upper, Cqd, g, T, phi, Jc, bias = _compiled(model, _ref(model, chart))(
         np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())
@@ -652,7 +827,9 @@ def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | N
 
 
 def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Numeric ``M(q)``, ``C(q, qd) qd`` and ``g(q)`` of eq. (2) from the compiled derivation."""
+    """Numeric ``M(q)``, ``C(q, qd) qd`` and ``g(q)`` of eq. (2) from the compiled derivation. With spherical or
+    free joints (q of nq entries, qd = v of nv) these are the local exponential chart's at ``xi = 0`` (module
+    docstring, "Group joints"): M in v-space, ``C qd = rnea(q, v, 0) - g`` and ``g = rnea(q, 0, 0)``."""
     M, Cqd, g, _ = evaluate_terms(model, q, qd)
     return M, Cqd, g
 
@@ -956,7 +1133,11 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     ``tau_p`` is the generalized force in the chart, a covector (``Dpsi^T B u`` for an input u); the control
     power is ``tau_p . pd`` (= ``u . B^T qd``, chart-invariant) and the kinetic energy T is the chart's own
     (chart-invariant, 9.1). The task acceleration is not computed here (UNSUPPORTED).
+    A model with spherical or free joints has no such charts here (:class:`ModelNotSupported`: it is derived in
+    local exponential coordinates, module docstring "Group joints").
     """
+    if model.group_joints:
+        raise ModelNotSupported(_NO_CHARTS)
     chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     if model.constraints:
@@ -1005,7 +1186,8 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
 FORMALISM = Formalism(
     name="euler_lagrange",
     summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq; "
-            "re-derived in any chart q = psi(p) (6.4.6); constraints by a scaled, rank-revealing KKT solve (5.6)",
+            "re-derived in any chart q = psi(p) (6.4.6); ball and free joints in local exponential coordinates at "
+            "xi = 0 (2.1-2.2); constraints by a scaled, rank-revealing KKT solve (5.6)",
     split=split,
     split_chart=split_chart,
     split_batch=split_batch,

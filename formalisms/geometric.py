@@ -85,6 +85,51 @@ the rank and the consistency of ``S lam = r`` (its share in S's redundant direct
 the task inertia ``Lambda = (J M^-1 J^T)^-1`` from the QR of the whitened task covectors ``L^-1 J^T``, whose triangle
 is the Cholesky factor of ``J M^-1 J^T`` (``Lambda = R^-1 R^-T``, its condition from R's singular values).
 
+Spherical and free joints: the group chart (article 2.1-2.2 configurations on SO(3) and SE(3) and body twists,
+6.2 the exponential map, 6.4 "the globe, not the map"). Such a joint's configuration lives on a Lie group, which no
+single chart covers (its four quaternion numbers are not coordinates). The backend therefore does what 6.4 asks and
+works on the manifold itself, in the chart centred at the current configuration that the group's left-invariant
+(body-frame) structure provides: the exponential chart with the exponential on the right,
+
+    spherical   R(xi) = R0 exp([xi]x)                 (xi in R^3)
+    free        X(xi) = X0 exp6(xi),  exp6(xi) = exp([[ [w]x, rho ], [0, 0]]),  xi = (rho, w) (linear, angular)
+
+with ``R0 = R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` and ``X0 = (R0, position)`` read from q (``cases.model``);
+revolute and prismatic joints keep their own coordinate. Along a motion through the chart's origin the body velocity
+is ``X^-1 Xdot = dexp_{-xi}(xid) = xid - 1/2 ad_xi xid + O(|xi|^2 |xid|)``, so at ``xi = 0``
+
+    v = xid,      d/dt v = xidd - 1/2 ad_xid xid = xidd        (ad_x x = [x, x] = 0):
+
+the chart's ``(pd, pdd)`` at the origin are the model's velocity v (the body angular velocity, the body twist:
+Pinocchio's convention) and acceleration ``vdot``, so eqs. (24)-(25) in this chart at ``xi = 0`` are the equations of
+motion in v-space with nothing transformed (the tests check both identities, through this chart and with the exact
+exponential). The chart's metric is ``M_xi = A(xi)^T M(q (+) xi) A(xi)`` with ``A = dexp_{-xi}``: at 0 it is the
+v-space mass matrix, and its derivatives ``d_k M_xi = D_k M - 1/2 (ad_k^T M + M ad_k)`` (``D_k`` along the curve
+``q (+) h e_k``, ``ad_k`` the bracket with the k-th unit velocity in its joint's block) carry the group's structure
+into the connection: for one free body (M constant in v-space) the first-kind contraction is
+``M Gamma(v, v) = -ad_v^T M v``, and eq. (25) becomes Euler–Poincaré's ``M vdot = ad_v^* (M v)`` (Euler's equations
+``I wd + w x I w = 0``, tested in closed form).
+
+The exponential is written as its Taylor polynomial of degree :data:`EXP_ORDER` = 2 (:func:`_exp_series`), because
+casadi differentiates expressions and the closed forms (``sin|w| / |w|``, ...) are not differentiable as written at
+the one point used, ``xi = 0``. This is exact, not an approximation: every output of the compiled Function is a
+derivative of order at most 2 in the chart coordinates at ``xi = 0`` (M and dV first, dM, ``Jdot pd``, ``Jcdot pd``
+and ``dE/dp`` second), and there the polynomial of degree 2 has exactly the exponential's derivatives up to order 2
+(the tests: degrees 2, 3 and 6 give the same numbers, degree 1 does not). The expressions are built and
+differentiated in the chart coordinates p (nv of them) and then evaluated at the origin (``casadi.substitute``:
+a revolute or prismatic coordinate at its value in q, ``xi = 0``), so the Functions take the configuration q (nq
+numbers, unit quaternions) and the velocity v. Everything downstream (the connection, the split, the constrained
+null-space method, the batches) is unchanged and reads v-space numbers: M is nv x nv, Jc and J are taken along v.
+
+For such a model the public geometric objects (:func:`metric`, :func:`metric_derivatives`, :func:`christoffel`,
+:func:`energy`, :func:`drift_field`, :func:`energy_rate`) take q (nq) and rates of nv and are those of this chart at
+``xi = 0``: ``metric`` the v-space mass matrix, ``metric_derivatives`` the chart's ``d_k M_xi`` above (with the ``ad``
+terms, not the derivative of the v-space matrix alone), ``christoffel`` its connection (``M Gamma(v, v)`` is the
+v-space velocity-product vector ``C(q, v) v``), ``energy_rate`` exact because ``pd = v`` and ``pdd = vdot`` there.
+The conservation checks (``crosscheck.conservation``) compare these with the Euler–Lagrange backend's and Pinocchio's
+terms in the same chart (v-space). Joint-coordinate charts ``q = psi(p)`` do not apply (:func:`split_chart` and the
+``chart`` argument raise ModelNotSupported); joint couplings relate revolute and prismatic coordinates only.
+
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
 digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one
@@ -99,7 +144,8 @@ connection, raised after contracting), batched Cholesky solves, the constrained 
 
 Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
 objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
-:func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``); the same machinery for any metric,
+:func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``; with spherical or free joints in
+the group chart at ``xi = 0``); the same machinery for any metric,
 :func:`christoffel_of` and :func:`curvature_of`; the shared formula :func:`christoffel_symbols`.
 """
 
@@ -117,8 +163,8 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  chart_vectors, check_state)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, ModelNotSupported, Split, SplitBatch,
+                                  StateError, check_batch, chart_vectors, check_state, joint_vectors)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -291,6 +337,88 @@ def _frames(model: Model, q: list) -> tuple[list, list]:
     return R, o
 
 
+# ------------------------------------------------------------------- spherical and free joints: the group chart
+
+#: Degree of the truncated exponential series of the group chart (module docstring, "Spherical and free joints").
+#: Every output of the compiled Function is a derivative of order at most 2 in the chart coordinates, taken at
+#: xi = 0, where the series of degree 2 has exactly the derivatives of exp up to order 2.
+EXP_ORDER = 2
+
+
+def _hat(w) -> ca.SX:
+    """``[w]x``, the skew matrix of the 3-vector ``w`` (so3)."""
+    return ca.vertcat(ca.horzcat(0, -w[2], w[1]), ca.horzcat(w[2], 0, -w[0]), ca.horzcat(-w[1], w[0], 0))
+
+
+def _quaternion_rotation(quat) -> ca.SX:
+    """``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` of the unit quaternion ``(x, y, z, w)`` (cases.model)."""
+    K = _hat(quat[0:3])
+    return ca.DM.eye(3) + 2 * quat[3] * K + 2 * ca.mtimes(K, K)
+
+
+def _exp_series(X: ca.SX, order: int) -> ca.SX:
+    """``sum_{k <= order} X^k / k!``: the group exponential (of SO(3) for ``X = [w]x``, of SE(3) for the 4x4
+    ``[[w]x, rho; 0, 0]``) truncated to its Taylor polynomial of degree ``order`` at 0. It is not a group element
+    away from 0, but its partial derivatives at ``X = 0`` up to order ``order`` are exactly those of exp (they are
+    the Taylor coefficients), and the chart is only ever differentiated at 0 (:data:`EXP_ORDER`). Written as a
+    polynomial, casadi differentiates it at 0 where the closed form's ``sin|w| / |w|`` has no derivative."""
+    E, term = ca.SX.eye(X.shape[0]), ca.SX.eye(X.shape[0])
+    for k in range(1, order + 1):
+        term = ca.mtimes(term, X) / k
+        E = E + term
+    return E
+
+
+def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int) -> tuple[list, list, list]:
+    """``(R, o, values)``: the world rotations and origins of every body frame (SX, parents first) in the group chart
+    of the configuration ``q`` (SX, nq): revolute and prismatic joints in their own coordinate ``p[v_index[i]]``
+    (their joint values, ``values[i]``), a spherical joint at ``R0 exp([xi]x)`` and a free joint at ``X0 exp6(xi)``
+    (``xi = p[v_index[i]:]``, twist order (linear, angular); ``R0 = R(quat)``, ``X0 = (R(quat), position)`` read
+    from ``q``; ``values[i]`` None: a group has no joint value)."""
+    nb = len(model.bodies)
+    R: list = [None] * nb
+    o: list = [None] * nb
+    values: list = [None] * nb
+    for i in model.topological_order:
+        body, parent = model.bodies[i], model.parent_index[i]
+        if parent < 0:
+            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
+        else:
+            Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
+            oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
+        a, v = model.q_index[i], model.v_index[i]
+        if body.joint == "revolute":
+            values[i] = p[v]
+            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(p[v]), ca.cos(p[v]))), oj
+        elif body.joint == "prismatic":
+            values[i] = p[v]
+            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * p[v]
+        elif body.joint == "spherical":
+            E = _exp_series(_hat(p[v:v + 3]), exp_order)
+            R[i], o[i] = ca.mtimes(ca.mtimes(Rj, _quaternion_rotation(q[a:a + 4])), E), oj
+        else:  # free: X0 exp6(xi), xi = (rho, w): the motion (R0 E_R, position + R0 E_p)
+            twist = ca.vertcat(ca.horzcat(_hat(p[v + 3:v + 6]), p[v:v + 3]), ca.SX.zeros(1, 4))
+            E = _exp_series(twist, exp_order)
+            R0 = _quaternion_rotation(q[a + 3:a + 7])
+            R[i] = ca.mtimes(ca.mtimes(Rj, R0), E[:3, :3])
+            o[i] = oj + ca.mtimes(Rj, q[a:a + 3] + ca.mtimes(R0, E[:3, 3]))
+    return R, o, values
+
+
+def _chart_origin(model: Model, q: ca.SX) -> ca.SX:
+    """The group chart's coordinates of the configuration ``q`` itself (nv): a revolute or prismatic joint's value,
+    ``xi = 0`` for a spherical or free joint."""
+    parts = []
+    for i, body in enumerate(model.bodies):
+        parts.append(q[model.q_index[i]] if body.joint in ("revolute", "prismatic") else
+                     ca.SX.zeros(3 if body.joint == "spherical" else 6))
+    return ca.vertcat(*parts)
+
+
+_NO_CHARTS = ("model '{}' has spherical or free joints: its configuration lives on a Lie group, and joint-coordinate "
+              "charts q = psi(p) do not apply (the geometric backend works in the group chart q (+) xi)")
+
+
 def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
     """World position ``o_b + R_b offset`` of the point ``offset`` (body frame) of ``body`` (SX 3-vector)."""
     b = model.body_index(body)
@@ -370,10 +498,16 @@ class _Compiled:
     ``[M_upper, dM_upper (column k = d/dp_k of M_upper), dV/dp, T, vec J, Jdot pd, phi, vec Jc, Jcdot pd]``
     (``M_upper``: the upper triangle of M, row by row; vec column-major; ``k`` task rows, ``kc`` constraint rows)
     from a single SX Function call; the index arrays below read M, dM (``[k, i, j]``), dV, T, J, Jdot pd, phi, Jc and
-    Jcdot pd out of it. ``energy`` (``[T, V, dE/dp, dE/dpd]``) is built on first use."""
+    Jcdot pd out of it. ``energy`` (``[T, V, dE/dp, dE/dpd]``) is built on first use. For a model with spherical or
+    free joints both take ``(q, v)``: the configuration (nq) in place of p, every derivative in p taken at the group
+    chart's origin (module docstring, "Spherical and free joints")."""
 
-    def __init__(self, n: int, k: int, kc: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX):
+    def __init__(self, n: int, k: int, kc: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX,
+                 point: ca.SX | None = None, origin: ca.SX | None = None):
         self.n, self.k, self.p, self.pd, self.T, self.V = n, k, p, pd, T, V
+        # a model with group joints: the Functions take the configuration ``point`` (nq) and evaluate every
+        # derivative in p at the group chart's origin ``p = origin(point)`` (module docstring); otherwise point = p
+        self.point, self.origin = (p, None) if point is None else (point, origin)
         rows, cols = np.triu_indices(n)
         nu = rows.size
         upper = np.empty((n, n), dtype=np.intp)  # position of M[i, j] in M_upper
@@ -388,22 +522,28 @@ class _Compiled:
         self.phi_slice = slice(at, at + kc)
         self.Jc_index = at + kc + np.arange(kc * n).reshape(n, kc).T
         self.Jc_bias_slice = slice(at + kc + kc * n, at + 2 * kc + kc * n)
-        self.evaluate = _Evaluator("geometric", p, pd, out)
+        self.evaluate = _Evaluator("geometric", self.point, pd, self._at_origin(out))
         self._energy: _Evaluator | None = None
+
+    def _at_origin(self, expression: ca.SX) -> ca.SX:
+        """``expression`` (of p, pd) at the chart's origin: p replaced by ``origin(point)`` for a group model."""
+        return expression if self.origin is None else ca.substitute(expression, self.p, self.origin)
 
     @property
     def energy(self) -> _Evaluator:
         """``(p, pd) -> [T, V, dE/dp, dE/dpd]`` with ``E = T + V`` (automatic differentiation of the energies)."""
         if self._energy is None:
             E = self.T + self.V
-            self._energy = _Evaluator("geometric_energy", self.p, self.pd,
-                                      ca.vertcat(self.T, self.V, ca.gradient(E, self.p), ca.gradient(E, self.pd)))
+            self._energy = _Evaluator("geometric_energy", self.point, self.pd, self._at_origin(
+                ca.vertcat(self.T, self.V, ca.gradient(E, self.p), ca.gradient(E, self.pd))))
         return self._energy
 
 
-def _compile(model: Model, chart) -> _Compiled:
+def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     """Kinematics, energies, metric, task map and constraints of ``model`` in ``chart`` as one SX Function (module
-    docstring).
+    docstring). A model with spherical or free joints is built in its group chart (:func:`_group_frames`, the
+    exponential truncated to degree ``exp_order``) and its Functions take the configuration q (nq), every derivative
+    taken at the chart's origin; it has no other chart (ModelNotSupported).
 
     The metric is the Hessian of T in pd, taken in closed form: ``c_i' = Jc_i pd`` and ``w_i = Jw_i pd`` are linear in
     pd (``Jc_i = dc_i/dp``, ``Jw_i = dw_i/dpd``), so ``d^2 T / dpd^2 = sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i``
@@ -413,8 +553,15 @@ def _compile(model: Model, chart) -> _Compiled:
     """
     n = model.n
     p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
-    q = _joint_coordinates(model, chart, p)
-    R, o = _frames(model, q)
+    point = None
+    if model.group_joints:
+        if chart is not None:
+            raise ModelNotSupported(_NO_CHARTS.format(model.name))
+        point = ca.SX.sym("q", model.nq)
+        R, o, q = _group_frames(model, point, p, exp_order)
+    else:
+        q = _joint_coordinates(model, chart, p)
+        R, o = _frames(model, q)
     T, V, M = ca.SX(0), ca.SX(0), ca.SX.zeros(n, n)
     gravity = ca.DM(model.gravity)
     for i, body in enumerate(model.bodies):
@@ -446,7 +593,8 @@ def _compile(model: Model, chart) -> _Compiled:
     Jc = ca.jacobian(phi, p)
     Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
     out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd, phi, ca.vec(Jc), Jc_bias)
-    return _Compiled(n=n, k=x.shape[0], kc=phi.shape[0], p=p, pd=pd, T=T, V=V, out=out)
+    return _Compiled(n=n, k=x.shape[0], kc=phi.shape[0], p=p, pd=pd, T=T, V=V, out=out, point=point,
+                     origin=None if point is None else _chart_origin(model, point))
 
 
 _LOCK = threading.Lock()
@@ -778,7 +926,9 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
 def split(model: Model, q, qd, u) -> Split:
     """The drift-control split (eq. 9) in the joint chart from eqs. (24)-(25): ``drift = -Gamma(qd, qd) - grad V``,
     ``ctrl = M^-1 B u``, ``total = M^-1 (B u - dV/dq) - Gamma(qd, qd)``; with constraints the same equations
-    projected onto the constraint distribution (eqs. 12-17, module docstring)."""
+    projected onto the constraint distribution (eqs. 12-17, module docstring). With spherical or free joints, q has
+    nq entries (unit quaternions), qd is v (nv) and the accelerations are ``vdot``: the same equations in the group
+    chart at ``xi = 0`` (module docstring, "Spherical and free joints")."""
     q, qd, u = check_state(model, q, qd, u)
     return _split(model, None, q, qd, model.input_map @ u)
 
@@ -790,36 +940,56 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
     ``tau_p`` is the generalized force in the chart (a covector, ``Dpsi^T B u``); the accelerations returned are
     ``pdd``; ``power_ctrl = tau_p . pd`` (per coordinate ``tau_p_i pd_i``). ``chart=None`` is the joint chart.
     With constraints, ``phi(psi(p))`` is differentiated in p, so ``Jc`` is the chart's ``Jc_q Dpsi`` and ``lam`` is
-    the joint chart's.
+    the joint chart's. A model with spherical or free joints has no joint-coordinate charts: ModelNotSupported.
     """
+    if model.group_joints:
+        raise ModelNotSupported(_NO_CHARTS.format(model.name))
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     return _split(model, chart, p, pd, tau_p)
 
 
+def _vectors(model: Model, chart, p, **rates) -> list[np.ndarray]:
+    """The point ``p`` and the ``rates`` (velocity-like vectors) of the public geometric objects as float vectors:
+    :func:`chart_vectors` (n each) for a model with revolute and prismatic joints only; for one with spherical or
+    free joints, the configuration q (nq, unit quaternions) and rates of nv (StateError otherwise) in the group chart
+    (ModelNotSupported for any other ``chart``)."""
+    if not model.group_joints:
+        return chart_vectors(model, p=p, **rates)
+    if chart is not None:
+        raise ModelNotSupported(_NO_CHARTS.format(model.name))
+    out = joint_vectors(model, p, *rates.values())
+    for label, value in zip(("q", *rates), out):
+        if not np.all(np.isfinite(value)):
+            raise StateError(f"{label} has non-finite entries: {value.tolist()}")
+    check_state(model, out[0], np.zeros(model.nv), np.zeros(model.m))   # the quaternions are unit
+    return out
+
+
 def metric(model: Model, p, chart=None) -> np.ndarray:
     """The kinetic-energy metric ``M_p = d^2 T / dpd^2`` (n x n) at ``p`` in ``chart`` (joint chart when None)."""
-    (p,) = chart_vectors(model, p=p)
+    (p,) = _vectors(model, chart, p)
     return _evaluate(model, chart, p, np.zeros(model.n)).M
 
 
 def metric_derivatives(model: Model, p, chart=None) -> np.ndarray:
     """The partial derivatives of the metric, ``dM[k, i, j] = d M_ij / dp_k`` (n, n, n), by automatic
-    differentiation (so ``Mdot = sum_k dM[k] pd_k``)."""
-    (p,) = chart_vectors(model, p=p)
+    differentiation (so ``Mdot = sum_k dM[k] pd_k``). With spherical or free joints those of the group chart's metric
+    at ``xi = 0``: ``D_k M - 1/2 (ad_k^T M + M ad_k)`` (module docstring)."""
+    (p,) = _vectors(model, chart, p)
     return _evaluate(model, chart, p, np.zeros(model.n)).dM
 
 
 def christoffel(model: Model, p, chart=None) -> np.ndarray:
     """The Levi-Civita connection of the kinetic-energy metric at ``p``: ``Gamma[i, j, k] = Gamma^i_jk`` (n, n, n),
     symmetric in (j, k); ``Gamma(pd, pd)^i = Gamma^i_jk pd^j pd^k`` is the drift's velocity-product term."""
-    (p,) = chart_vectors(model, p=p)
+    (p,) = _vectors(model, chart, p)
     pt = _evaluate(model, chart, p, np.zeros(model.n))
     return christoffel_symbols(pt.M, pt.dM, _metric_factor(model, chart, pt.M, p))[0]
 
 
 def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
     """``(T, V)``: kinetic and potential energy at ``(p, pd)`` in ``chart``."""
-    p, pd = chart_vectors(model, p=p, pd=pd)
+    p, pd = _vectors(model, chart, p, pd=pd)
     values = _compiled(model, chart).energy(p, pd)
     return float(values[0]), float(values[1])
 
@@ -827,7 +997,7 @@ def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
 def drift_field(model: Model, p, pd, chart=None) -> np.ndarray:
     """The intrinsic drift field of eq. (25) on TQ in ``chart``: ``(pd, -Gamma(pd, pd) - grad V)``, shape (2n,); with
     constraints the constrained drift of eq. (14) (the free one projected onto ``H_t``)."""
-    p, pd = chart_vectors(model, p=p, pd=pd)
+    p, pd = _vectors(model, chart, p, pd=pd)
     s = _split(model, chart, p, pd, np.zeros(model.n))
     return np.concatenate([pd, s.drift])
 
@@ -849,7 +1019,7 @@ class EnergyRate:
 
 def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
     """:class:`EnergyRate` of ``E = T + V`` at ``(p, pd)`` with acceleration ``pdd``, in ``chart``."""
-    p, pd, pdd = chart_vectors(model, p=p, pd=pd, pdd=pdd)
+    p, pd, pdd = _vectors(model, chart, p, pd=pd, pdd=pdd)
     n = model.n
     values = _compiled(model, chart).energy(p, pd)
     dE_dp, dE_dpd = values[2:2 + n], values[2 + n:]

@@ -11,6 +11,31 @@ article's two-pass algorithm (6.1.3):
   other external loads on the body (the constraint forces below). ``(f, n)`` is the load the parent exerts on the
   body through its joint; the joint torque is its component along the joint axis.
 
+Spherical and free joints (article 2.1-2.2: the configuration of such a joint is a point of the Lie group SO(3) or
+SE(3), not a vector of angles; 6.2, 6.4: velocities live in the tangent space, here as body-frame twists). The
+conventions are the model's (``cases.model``, Pinocchio's): a ball joint's coordinates are a unit quaternion
+``(x, y, z, w)``, its velocity the body's angular velocity ``w_rel`` relative to the joint frame, in the body frame;
+a free joint's coordinates are ``(p, quat)``, its velocity the body twist ``(v_lin, w_rel)`` with ``v_lin = R^T pdot``
+the velocity of the body origin relative to the joint frame, in the body frame. The accelerations are the time
+derivatives of these velocities. In the backend's 3-vector language such a joint is ``nv`` motions of the body
+frame, the columns of its motion subspace ``(S_w, S_v)`` (the relative angular velocity ``S_w v_i`` and origin
+velocity ``S_v v_i``): ``(I, 0)`` for a ball, ``([0 I], [I 0])`` for a free joint.
+
+* placements: ``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` formed here from the quaternion's entries; the body
+  origin sits at the joint origin (ball) or at ``p`` in the joint frame (free);
+* forward pass: ``w = w_in + w_rel``, ``wd = wd_in + d/dt w_rel + w_in x w_rel``, ``a = a_origin + (w_in + w) x v_lin +
+  d/dt v_lin`` with ``w_in``, ``wd_in`` the parent's and ``a_origin`` the acceleration of the parent's point at the
+  body origin, all in the body frame (``_group_motion``);
+* backward pass: unchanged, ``(f, n)`` is the full load the joint transmits; its projection onto the joint's
+  columns, ``S_w^T n + S_v^T f``, is the generalized force: the whole moment about the ball's centre, the whole body
+  wrench ``[f, n]`` of a free joint (for a free joint to the world, the input's wrench on the body);
+* ``M`` column ``j`` is the backward pass of the unit motion ``vdot = e_j`` at rest, as for 1-DOF joints, and a
+  point's Jacobian column (``Jc`` is ``k x nv``) that motion's point acceleration; ``Jdot v`` the point acceleration
+  at ``vdot = 0``. Every velocity-like vector has ``nv`` entries, ``q`` has ``nq``; the power is ``(B u)_i v_i``.
+
+A joint-coordinate chart ``q = psi(p)`` does not apply to a model with such joints, and the backend has no
+``split_chart``.
+
 The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``.
 
 Constraints (article 5; DESIGN.md, constraints). ``phi``, ``Jc`` and ``Jcdot qd`` come from the recursion's own
@@ -49,12 +74,14 @@ from typing import Callable
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
-from cases.model import Model
+from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
                                   check_state, joint_vectors)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
+#: Velocities per joint type (``cases.model.JOINT_DOF``).
+_NV = {joint: nv for joint, (_, nv) in JOINT_DOF.items()}
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -108,20 +135,36 @@ def _axis_rotation(axis: np.ndarray, angle) -> np.ndarray:
 # Kinematics and the two passes, for one state (q of shape (n,)) or a batch (q of shape (n, *B))
 # ----------------------------------------------------------------------------------------------------------
 
+def _quaternion_rotation(quat: np.ndarray) -> np.ndarray:
+    """``R(quat) = I + 2 w [v]x + 2 [v]x^2`` of a unit quaternion ``(x, y, z, w)`` (4, *B) (article 2.1-2.2: an
+    orientation is a point of SO(3); ``cases.model``), written out entry by entry, shape (3, 3, *B)."""
+    x, y, z, w = quat
+    return np.array([[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+                     [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+                     [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)]])
+
+
 def _placements(model: Model, q: np.ndarray):
     """Per body: rotation ``P`` (parent frame <- body frame), body origin ``r`` in the parent frame, and the
-    world <- body rotation ``W``. ``X_body = X_parent * (rotation, translation) * motion(q_i)``."""
+    world <- body rotation ``W``. ``X_body = X_parent * (rotation, translation) * motion(q_i)``, with ``q_i`` body
+    ``i``'s block ``q[q_index[i]:]``: a revolute angle, a prismatic displacement, a spherical joint's quaternion
+    (``motion = (R(quat), 0)``) or a free joint's ``(p, quat)`` (``motion = (R(quat), p)``)."""
     batch = np.shape(q)[1:]
-    P, r, W = [None] * model.n, [None] * model.n, [None] * model.n
+    P, r, W = [None] * len(model.bodies), [None] * len(model.bodies), [None] * len(model.bodies)
     for i in model.topological_order:
-        b, p = model.bodies[i], model.parent_index[i]
+        b, p, k = model.bodies[i], model.parent_index[i], model.q_index[i]
         if b.joint == "revolute":
-            R = _axis_rotation(b.axis, q[i])
+            R = _axis_rotation(b.axis, q[k])
             P[i] = (b.rotation @ R.reshape(3, -1)).reshape(R.shape)
             r[i] = _column(b.translation, batch)
-        else:
+        elif b.joint == "prismatic":
             P[i] = _column(b.rotation, batch)
-            r[i] = _column(b.translation, batch) + np.multiply.outer(b.rotation @ b.axis, q[i])
+            r[i] = _column(b.translation, batch) + np.multiply.outer(b.rotation @ b.axis, q[k])
+        else:
+            free = b.joint == "free"
+            R = _quaternion_rotation(q[k + 3:k + 7] if free else q[k:k + 4])
+            P[i] = (b.rotation @ R.reshape(3, -1)).reshape(R.shape)
+            r[i] = _column(b.translation, batch) + (_cmv(b.rotation, q[k:k + 3]) if free else 0.0)
         W[i] = P[i] if p < 0 else _mm(W[p], P[i])
     return P, r, W
 
@@ -129,43 +172,79 @@ def _placements(model: Model, q: np.ndarray):
 def _origins(model: Model, kin) -> list[np.ndarray]:
     """World position of every body-frame origin: ``o_i = o_parent + W_parent r_i``."""
     _, r, W = kin
-    origin = [None] * model.n
+    origin = [None] * len(model.bodies)
     for i in model.topological_order:
         p = model.parent_index[i]
         origin[i] = r[i] if p < 0 else origin[p] + _mv(W[p], r[i])
     return origin
 
 
+def _group_motion(joint: str, w_in, wd_in, a_origin, v, vd):
+    """A spherical or free joint's step of the forward pass (article 2.2, 6.1.3), body frame: ``w_in``, ``wd_in``,
+    ``a_origin`` are the parent's angular velocity, angular acceleration and the classical acceleration of the point
+    of the parent that coincides with the body origin, all in the body frame; ``v``, ``vd`` the joint's velocity
+    block and its time derivative: the relative angular velocity ``w_rel`` (spherical: ``v``; free: ``v[3:]``) and, for
+    a free joint, the velocity ``v_lin = v[:3]`` of the body origin relative to the joint frame, in the body frame.
+
+        w  = w_in + w_rel
+        wd = wd_in + d/dt w_rel + w_in x w_rel
+        a  = a_origin + (w_in + w) x v_lin + d/dt v_lin
+
+    The last line is ``R^T`` of ``d/dt (R v_lin)`` (``pdot = R v_lin``, ``Rdot = R [w_rel]x``) plus the parent's
+    Coriolis term ``2 w_in x v_lin``."""
+    if joint == "spherical":
+        return w_in + v, wd_in + vd + _cross(w_in, v), a_origin
+    v_lin, w_rel = v[:3], v[3:]
+    w = w_in + w_rel
+    return w, wd_in + vd[3:] + _cross(w_in, w_rel), a_origin + _cross(w_in + w, v_lin) + vd[:3]
+
+
 def _forward(model: Model, kin, qd: np.ndarray, qdd: np.ndarray):
     """Forward pass, base to tip: angular velocity ``w``, angular acceleration ``wd`` and the classical
-    acceleration ``a`` of each body-frame origin (n x 3 x *B each, body frame)."""
+    acceleration ``a`` of each body-frame origin (n x 3 x *B each, body frame). ``qd``, ``qdd``: the velocities
+    (nv, *B) and their time derivatives; body ``i`` reads its block at ``v_index[i]`` (:func:`_group_motion` for a
+    spherical or free joint)."""
     P, r, _ = kin
-    w, wd, a = [None] * model.n, [None] * model.n, [None] * model.n
+    w, wd, a = [None] * len(model.bodies), [None] * len(model.bodies), [None] * len(model.bodies)
     zero = np.zeros((3,) + np.shape(qd)[1:])
     for i in model.topological_order:
-        b, p = model.bodies[i], model.parent_index[i]
+        b, p, k = model.bodies[i], model.parent_index[i], model.v_index[i]
         w_p, wd_p, a_p = (zero, zero, zero) if p < 0 else (w[p], wd[p], a[p])
         E = P[i].swapaxes(0, 1)                             # body <- parent
-        w_in, s = _mv(E, w_p), np.multiply.outer(b.axis, qd[i])      # s: joint rate along the axis
+        w_in = _mv(E, w_p)
         a_origin = _mv(E, a_p + _cross(wd_p, r[i]) + _cross(w_p, _cross(w_p, r[i])))
         if b.joint == "revolute":
+            s = np.multiply.outer(b.axis, qd[k])            # s: joint rate along the axis
             w[i] = w_in + s
-            wd[i] = _mv(E, wd_p) + np.multiply.outer(b.axis, qdd[i]) + _cross(w_in, s)
+            wd[i] = _mv(E, wd_p) + np.multiply.outer(b.axis, qdd[k]) + _cross(w_in, s)
             a[i] = a_origin
-        else:
+        elif b.joint == "prismatic":
+            s = np.multiply.outer(b.axis, qd[k])
             w[i] = w_in
             wd[i] = _mv(E, wd_p)
-            a[i] = a_origin + 2.0 * _cross(w[i], s) + np.multiply.outer(b.axis, qdd[i])
+            a[i] = a_origin + 2.0 * _cross(w[i], s) + np.multiply.outer(b.axis, qdd[k])
+        else:
+            nv = _NV[b.joint]
+            w[i], wd[i], a[i] = _group_motion(b.joint, w_in, _mv(E, wd_p), a_origin, qd[k:k + nv], qdd[k:k + nv])
     return np.array(w), np.array(wd), np.array(a)
 
 
 def _paths(model: Model) -> list[list[int]]:
-    """Per body, the joints on its path from the root, root first (the body's own joint last)."""
-    path = [None] * model.n
+    """Per body, the velocities of the joints on its path from the root, root first (the body's own joint's block
+    last): indices into ``v``."""
+    path = [None] * len(model.bodies)
     for i in model.topological_order:
-        p = model.parent_index[i]
-        path[i] = ([] if p < 0 else path[p]) + [i]
+        p, k = model.parent_index[i], model.v_index[i]
+        path[i] = ([] if p < 0 else path[p]) + list(range(k, k + _NV[model.bodies[i].joint]))
     return path
+
+
+def _subspace(joint: str) -> tuple[np.ndarray, np.ndarray]:
+    """The motion subspace of a spherical or free joint in the body frame: ``(S_w, S_v)`` (3 x nv each), the
+    relative angular velocity ``S_w v_i`` and velocity of the body origin ``S_v v_i`` its velocity block produces.
+    Spherical ``(I, 0)``; free ``([0 I], [I 0])`` (the body twist: linear, then angular)."""
+    eye, zero = np.eye(3), np.zeros((3, 3))
+    return (eye, zero) if joint == "spherical" else (np.hstack([zero, eye]), np.hstack([eye, zero]))
 
 
 def _unit_motions(model: Model, kin) -> tuple[list, list]:
@@ -174,14 +253,18 @@ def _unit_motions(model: Model, kin) -> tuple[list, list]:
 
     At ``qd = 0`` every ``w`` vanishes, and body ``i`` moves only under the joints on its path from the root
     (:func:`_paths`), so body ``i`` carries ``wd`` and ``a`` for those motions only, on a second axis
-    (3, len(path), *B).
+    (3, len(path), *B). A spherical or free joint contributes one motion per velocity: the columns of its motion
+    subspace (:func:`_subspace`), ``wd = S_w e``, ``a = S_v e``.
     """
     P, r, _ = kin
-    wd, a = [None] * model.n, [None] * model.n
+    wd, a = [None] * len(model.bodies), [None] * len(model.bodies)
     for i in model.topological_order:
         b, p = model.bodies[i], model.parent_index[i]
-        unit = _column(b.axis, r[i].shape[1:])[:, None]            # qdd_i = 1 along the axis
-        own_wd, own_a = (unit, np.zeros_like(unit)) if b.joint == "revolute" else (np.zeros_like(unit), unit)
+        if b.joint in ("revolute", "prismatic"):
+            unit = _column(b.axis, r[i].shape[1:])[:, None]        # qdd_i = 1 along the axis
+            own_wd, own_a = (unit, np.zeros_like(unit)) if b.joint == "revolute" else (np.zeros_like(unit), unit)
+        else:                                                      # the columns of the joint's motion subspace
+            own_wd, own_a = (_column(S, r[i].shape[1:]) for S in _subspace(b.joint))
         if p < 0:
             wd[i], a[i] = own_wd, own_a
             continue
@@ -232,7 +315,7 @@ def _backward(model: Model, kin, motion, gravity: bool, external: np.ndarray | N
     further loads applied to the bodies."""
     P, r, W = kin
     w, wd, a = motion
-    f, n = [0.0] * model.n, [0.0] * model.n                  # the children's loads, summed
+    f, n = [0.0] * len(model.bodies), [0.0] * len(model.bodies)  # the children's loads, summed
     for i in reversed(model.topological_order):
         F, N = _body_load(model, i, W[i], w[i], wd[i], a[i], gravity)
         f[i], n[i] = f[i] + F, n[i] + N
@@ -265,12 +348,24 @@ def _task_acceleration(model: Model, kin, motion) -> np.ndarray:
 
 
 def _joint_torques(model: Model, f: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """``tau_i = axis . n_i`` (revolute) or ``axis . f_i`` (prismatic), shape (n, *B)."""
-    return np.array([_cmv(b.axis, n[i] if b.joint == "revolute" else f[i]) for i, b in enumerate(model.bodies)])
+    """The generalized forces: each joint load projected onto the joint's velocity columns, ``S_w^T n_i + S_v^T
+    f_i``, shape (nv, *B): ``axis . n_i`` (revolute) or ``axis . f_i`` (prismatic), the whole moment ``n_i`` about the
+    ball's centre (spherical), the whole load ``[f_i, n_i]`` (free: the body wrench, dual of the body twist)."""
+    if not model.group_joints:
+        return np.array([_cmv(b.axis, n[i] if b.joint == "revolute" else f[i]) for i, b in enumerate(model.bodies)])
+    blocks = []
+    for i, b in enumerate(model.bodies):
+        if b.joint in ("revolute", "prismatic"):
+            blocks.append(_cmv(b.axis, n[i] if b.joint == "revolute" else f[i])[None])
+        else:
+            blocks.append(n[i] if b.joint == "spherical" else np.concatenate([f[i], n[i]]))
+    return np.concatenate(blocks)
 
 
 def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarray:
-    """RNEA: the generalized force ``M qdd + C qd (+ g)`` of eq. (2), from eq. (18) and (19) body by body."""
+    """RNEA: the generalized force ``M qdd + C qd (+ g)`` of eq. (2), from eq. (18) and (19) body by body. ``q`` has
+    ``nq`` entries (quaternions for ball and free joints), ``qd`` and ``qdd`` ``nv`` (velocities and their time
+    derivatives, module docstring); the result has ``nv``."""
     q, qd, qdd = joint_vectors(model, q, qd, qdd)
     f, n = _recursion(model, _placements(model, q), qd, qdd, gravity)
     return _joint_torques(model, f, n)
@@ -281,29 +376,42 @@ def _mass_matrix(model: Model, kin, units) -> np.ndarray:
 
     Body ``i``'s load under the motions of its path (:func:`_unit_motions`) sums the loads of its subtree; its axis
     component is ``M[i, j]`` for ``j`` on the path, and symmetry gives ``M[j, i]`` (the entries off the paths are
-    zero: neither joint moves the other's subtree)."""
+    zero: neither joint moves the other's subtree). A spherical or free joint's rows are the projections ``S_w^T n
+    + S_v^T f`` onto its velocity columns (:func:`_subspace`); its own diagonal block is symmetrized (the two
+    triangles are the same numbers, formed by different cross products)."""
     P, r, _ = kin
     wd, a = units
     path = _paths(model)
-    M = np.zeros((model.n, model.n) + r[0].shape[1:])
-    f, n = [0.0] * model.n, [0.0] * model.n                  # the children's loads under the parent's motions
+    M = np.zeros((model.nv, model.nv) + r[0].shape[1:])
+    f, n = [0.0] * len(model.bodies), [0.0] * len(model.bodies)  # children's loads, parent's motions
     for i in reversed(model.topological_order):
         F, N = _body_load(model, i, None, None, wd[i], a[i], gravity=False)
         f_i, n_i = f[i] + F, n[i] + N
-        b, p = model.bodies[i], model.parent_index[i]
-        column = _cmv(b.axis, n_i if b.joint == "revolute" else f_i)
-        M[i, path[i]] = column
-        M[path[i], i] = column
+        b, p, k = model.bodies[i], model.parent_index[i], model.v_index[i]
+        if b.joint in ("revolute", "prismatic"):
+            own = 1
+            column = _cmv(b.axis, n_i if b.joint == "revolute" else f_i)
+            M[k, path[i]] = column
+            M[path[i], k] = column
+        else:                                                # S^T [f; n] over the joint's velocity columns
+            S_w, S_v = _subspace(b.joint)
+            own = S_w.shape[1]
+            block = _cmv(S_w.T, n_i) + _cmv(S_v.T, f_i)     # (own, len(path), *B)
+            M[k:k + own, path[i]] = block
+            M[path[i], k:k + own] = block.swapaxes(0, 1)
+            diagonal = block[:, -own:]
+            M[k:k + own, k:k + own] = 0.5 * (diagonal + diagonal.swapaxes(0, 1))
         if p >= 0:                                           # the parent does not move under joint i: drop it
             E, r_i = _over_motions(P[i], 2), _over_motions(r[i], 1)
-            fp = _mv(E, f_i[:, :-1])
+            fp = _mv(E, f_i[:, :-own])
             f[p] = f[p] + fp
-            n[p] = n[p] + _mv(E, n_i[:, :-1]) + _cross(r_i, fp)
+            n[p] = n[p] + _mv(E, n_i[:, :-own]) + _cross(r_i, fp)
     return M
 
 
 def mass_matrix(model: Model, q) -> np.ndarray:
-    """``M(q)`` of eq. (2), column ``j`` = RNEA with ``qd = 0``, no gravity and ``qdd = e_j`` (:func:`_mass_matrix`).
+    """``M(q)`` of eq. (2) (nv x nv, ``q`` of ``nq`` entries), column ``j`` = RNEA with ``qd = 0``, no gravity and
+    ``qdd = e_j`` (:func:`_mass_matrix`).
 
     The placements are computed once and shared by the columns."""
     (q,) = joint_vectors(model, q)
@@ -314,8 +422,9 @@ def mass_matrix(model: Model, q) -> np.ndarray:
 def joint_reactions(model: Model, q, qd, qdd) -> np.ndarray:
     """Full joint loads (6.1.5), gravity included: row ``i`` = ``[force(3), moment(3)]`` the parent exerts on
     body ``i`` through joint ``i``, moment about the body-frame origin (the joint origin on body ``i``'s side),
-    both in body frame ``i``. The actuated component (along the axis) is included. No constraint forces: for a
-    constrained model, ``split``'s extras carry the reactions with the loop forces applied."""
+    both in body frame ``i`` (one row per body; ``q`` of ``nq`` entries, ``qd`` and ``qdd`` of ``nv``). The actuated
+    component (along the axis; the whole moment of a ball joint, the whole load of a free joint) is included. No
+    constraint forces: for a constrained model, ``split``'s extras carry the reactions with the loop forces applied."""
     q, qd, qdd = joint_vectors(model, q, qd, qdd)
     return np.hstack(_recursion(model, _placements(model, q), qd, qdd, gravity=True))
 
@@ -369,9 +478,9 @@ def _point_kinematics(model: Model, kin, units, bias_motion) -> Callable[[str | 
 
     def point(body: str | None, offset: np.ndarray) -> _Point:
         if body is None:
-            return _Point(None, offset, _column(offset, batch), np.zeros((3, model.n) + batch), np.zeros((3,) + batch))
+            return _Point(None, offset, _column(offset, batch), np.zeros((3, model.nv) + batch), np.zeros((3,) + batch))
         i = model.body_index(body)
-        J = np.zeros((3, model.n) + batch)
+        J = np.zeros((3, model.nv) + batch)
         J[:, path[i]] = _mv(_over_motions(W[i], 2), units[1][i] + _cross(units[0][i], offset))
         return _Point(i, offset, origins[i] + _mv(W[i], offset), J, _point_acceleration(kin, bias_motion, i, offset))
 
@@ -412,12 +521,16 @@ def _line(model: Model, c, point, q, qd) -> _Rows:
 
 
 def _coupling(model: Model, c, point, q, qd) -> _Rows:
-    """``phi = sum_j c_j q_j - offset``: a constant row, no bias, and no point force (a joint torque)."""
-    row = np.zeros(model.n)
+    """``phi = sum_j c_j q_j - offset``: a constant row, no bias, and no point force (a joint torque). The joints are
+    revolute or prismatic (``cases.model``), whose coordinate ``q[q_index]`` and velocity ``v[v_index]`` are one."""
+    row, row_q = np.zeros(model.nv), np.zeros(model.nq)
     for name, coefficient in zip(c.joints, c.coefficients):
-        row[model.body_index(name)] += coefficient
+        i = model.body_index(name)
+        row[model.v_index[i]] += coefficient
+        row_q[model.q_index[i]] += coefficient
     batch = q.shape[1:]
-    return _Rows((np.tensordot(row, q, axes=1) - c.offset)[None], _column(row[None, :], batch), np.zeros((1,) + batch))
+    return _Rows((np.tensordot(row_q, q, axes=1) - c.offset)[None], _column(row[None, :], batch),
+                 np.zeros((1,) + batch))
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -440,7 +553,7 @@ def _constraint_rows(model: Model, kin, units, bias_motion, q: np.ndarray, qd: n
 def _constraint_loads(model: Model, kin, rows: list[_Rows], lam: np.ndarray) -> np.ndarray:
     """The point forces of the multipliers ``lam`` (one state) as external loads on the bodies (n x 6, rows
     ``[force, moment about the body origin]`` in body frame ``i``), for the backward pass."""
-    loads, start = np.zeros((model.n, 6)), 0
+    loads, start = np.zeros((len(model.bodies), 6)), 0
     for r in rows:
         part, start = lam[start:start + len(r.phi)], start + len(r.phi)
         for i, offset, F in r.loads:
@@ -663,7 +776,7 @@ def split(model: Model, q, qd, u) -> Split:
     """
     q, qd, u = check_state(model, q, qd, u)
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
-    zero = np.zeros(model.n)
+    zero = np.zeros(model.nv)
     c_qd = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=False))
     g = _joint_torques(model, *_recursion(model, kin, zero, zero, gravity=True))
     L = _cholesky(model, M[..., None], q[:, None])
@@ -729,7 +842,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:  # noqa: N803
               for s in range(0, len(Q), BLOCK)]
     if not blocks:
         lam = (np.zeros((0, model.k)),) * 2 if model.k else (None, None)
-        return SplitBatch(np.zeros((0, model.n)), np.zeros((0, model.n)), np.zeros((0, model.n)), *lam)
+        return SplitBatch(np.zeros((0, model.nv)), np.zeros((0, model.nv)), np.zeros((0, model.nv)), *lam)
     stack = (lambda name: None if getattr(blocks[0], name) is None
              else np.concatenate([getattr(b, name) for b in blocks]))
     return SplitBatch(*(stack(name) for name in ("drift", "ctrl", "total", "lam", "lam_drift")))

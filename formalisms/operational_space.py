@@ -21,6 +21,37 @@ qd_j``, with ``cdot_j = odot_j x z_j + o_j x zdot_j`` (``zdot_j`` prismatic). Th
 sums, ``Jdot_w qd``, ``sum c_j qd_j`` and ``sum cdot_j qd_j``; a point's velocity and bias then cost O(1), not a
 sum over the joints per point.
 
+Spherical and free joints (article 2.1-2.2: a configuration on the Lie groups SO(3) and SE(3); conventions of
+``cases.model``, Pinocchio's). The velocities ``qd`` (``nv`` of them) are not the derivatives of the coordinates ``q``
+(``nq``, with unit quaternions ``(x, y, z, w)``), so the Jacobians are over the velocities: a "column" above is one
+velocity, and a joint owns one column per velocity. The poses use ``motion(q_i) = (R(quat), 0)`` (spherical) or
+``(R(quat), p)`` (free), ``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` formed here, so body ``i`` on such a joint
+has ``R_i = R_joint R(quat)`` and ``o_i = o_joint`` (spherical) or ``o_joint + R_joint p`` (free), ``R_joint`` and
+``o_joint`` its joint frame in the world. Its velocities are in the body frame: a spherical joint's ``v_i`` is the
+body's angular velocity relative to its joint frame, a free joint's ``(R(quat)^T pdot, omega)`` the body twist
+(article 6.2: linear velocity of the body origin, then angular velocity). Their world images are ``R_i v``, so
+each velocity is a column along a body axis ``z = R_i e_a`` (a column of ``R_i``):
+
+    angular velocity a (spherical, free):  a ROTATION column about ``z = R_i e_a`` through ``o_i``, exactly a
+                                           revolute column (linear ``z x (p - o_i)``, angular ``z``)
+    linear velocity a (free):              a TRANSLATION column along ``z = R_i e_a``, as a prismatic one
+                                           (linear ``z``, angular 0): ``R_i (R(quat)^T pdot) = R_joint pdot``
+
+(``R_i v_lin = R_joint pdot`` is the body origin's velocity relative to the joint frame; the rotation columns pass
+through ``o_i``: the body twist's angular part turns the body about its origin.) So every formula above holds column by
+column, with ``o_j`` the owning body's origin and ``zdot_k = w_j x z_k`` the rate of an axis fixed in body ``j``
+(for a revolute or prismatic joint ``w_j x z_j`` is its parent's ``w x z_j``, the same vector). The classical bias is
+the time derivative of the columns along the motion, times the velocities, which is what the accelerations of a
+state need: they are ``d/dt`` of the velocities (``vdot``, not ``qdd``), and ``pddot = J vdot + Jdot v`` holds for
+any velocities. Kane's projection below holds for such generalized speeds too (article 6.4: M is the kinetic-energy
+metric in the frame of the velocities), so ``M`` is ``nv x nv``, ``C qd``, ``g``, ``B``, ``Jc`` have ``nv``
+columns or entries, and nothing downstream of the kinematics changes. A joint coupling relates one-number
+coordinates only (``cases.model``): its row uses ``q_index`` and ``v_index``. No chart is evaluated here
+(``FORMALISM.split_chart`` is None), so joint-coordinate charts never reach this backend. The task point may sit on
+any body (below a free base or a ball joint); a task with more rows than directions its point can move in is
+singular at every state, e.g. three task directions on a body hanging from a fixed ball joint (the point cannot move
+along its radius): a BREAKDOWN there (below), as the stretched double pendulum is at one configuration.
+
 Batches: every function below takes one state or a batch (a leading axis ``...`` on each state-dependent array);
 ``split`` evaluates one state, ``split_batch`` blocks of states, through the same code.
 
@@ -108,14 +139,18 @@ from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, S
 
 @dataclass(frozen=True)
 class Kinematics:
-    """World-frame kinematics of every body at ``(q, qd)`` (rows indexed by body = coordinate index), of one state
-    or, with a leading batch axis ``...`` on every state-dependent field, of a batch of states.
+    """World-frame kinematics of every body at ``(q, qd)``, of one state or, with a leading batch axis ``...`` on
+    every state-dependent field, of a batch of states. Rows ``b`` are bodies, rows ``n`` velocity columns (one per
+    entry of ``qd``; with revolute and prismatic joints only, column ``i`` is body ``i``'s joint).
 
-    R (..., n, 3, 3) world <- body rotations; o (..., n, 3) body origins; z (..., n, 3) joint axes; revolute (n,)
-    joint kinds; moves (n, n) ``moves[i, j]``: joint ``j`` moves body ``i`` (``j == i`` or an ancestor); qd (..., n)
-    joint rates; w (..., n, 3) angular velocities; odot (..., n, 3) origin velocities; zdot (..., n, 3) axis rates
-    ``w_j x z_j``; the sums over the joints moving each body (..., n, 3) (module docstring, column offsets):
-    w_bias = ``Jdot_w qd`` = sum ``zdot_j qd_j`` (revolute), c_qd = sum ``c_j qd_j``, cdot_qd = sum ``cdot_j qd_j``.
+    R (..., b, 3, 3) world <- body rotations; o (..., b, 3) body origins; z (..., n, 3) column axes; revolute (n,)
+    column kinds (a rotation column, module docstring: revolute, or an angular velocity of a spherical or free joint;
+    else a translation); moves (b, n) ``moves[i, k]``: column ``k`` moves body ``i`` (its joint is ``i``'s own or an
+    ancestor's); qd (..., n) velocities; w (..., b, 3) angular velocities; odot (..., b, 3) origin velocities;
+    zdot (..., n, 3) axis rates ``w_j x z_k`` (``j`` the column's body); the sums over the columns moving each body
+    (..., b, 3) (module docstring, column offsets): w_bias = ``Jdot_w qd`` = sum ``zdot_k qd_k`` (rotation columns),
+    c_qd = sum ``c_k qd_k``, cdot_qd = sum ``cdot_k qd_k``; owner (n,) the body of each column and column_origin
+    (..., n, 3) its origin ``o_j`` (the point a rotation column turns about).
     """
 
     R: np.ndarray
@@ -130,6 +165,8 @@ class Kinematics:
     w_bias: np.ndarray
     c_qd: np.ndarray
     cdot_qd: np.ndarray
+    owner: np.ndarray
+    column_origin: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -200,14 +237,38 @@ def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(angles)[..., None, None] * K + (1.0 - np.cos(angles))[..., None, None] * (K @ K)
 
 
+def _quaternion_rotations(quat: np.ndarray) -> np.ndarray:
+    """``R(quat) = I + 2 w [v]x + 2 [v]x^2`` (stacked (..., 3, 3)) of unit quaternions ``(x, y, z, w) = (v, w)``
+    (..., 4) (``cases.model``; article 2.1: a spherical joint's configuration on SO(3))."""
+    x, y, z, w = np.moveaxis(quat, -1, 0)
+    zero = np.zeros_like(x)
+    K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+    return np.eye(3) + 2.0 * w[..., None, None] * K + 2.0 * (K @ K)
+
+
+def _columns(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """``(owner, rotation)``: the body of each velocity column (n,) and whether it is a rotation column (module
+    docstring, group joints): a revolute joint's, and the angular velocities of spherical and free joints; the
+    prismatic and the free joints' linear velocities are translation columns."""
+    owner, rotation = [], []
+    for i, body in enumerate(model.bodies):
+        kinds = {"revolute": (True,), "prismatic": (False,), "spherical": (True,) * 3,
+                 "free": (False,) * 3 + (True,) * 3}[body.joint]
+        owner += [i] * len(kinds)
+        rotation += kinds
+    return np.array(owner, dtype=int), np.array(rotation, dtype=bool)
+
+
 def _moves(model: Model) -> np.ndarray:
-    """``moves[i, j]``: joint ``j`` is body ``i``'s own joint or one of its ancestors' joints."""
-    moves = np.zeros((model.n, model.n), dtype=bool)
+    """``moves[i, k]`` (bodies x velocity columns): column ``k`` belongs to body ``i``'s own joint or to one of its
+    ancestors' joints."""
+    owner, _ = _columns(model)
+    moves = np.zeros((len(model.bodies), model.n), dtype=bool)
     for i in model.topological_order:
         p = model.parent_index[i]
         if p >= 0:
             moves[i] = moves[p]
-        moves[i, i] = True
+        moves[i, owner == i] = True
     return moves
 
 
@@ -238,43 +299,56 @@ def _angular_columns(kin: Kinematics, body: np.ndarray) -> np.ndarray:
 
 
 def kinematics(model: Model, q, qd) -> Kinematics:
-    """World poses from ``X_body = X_parent * (rotation, translation) * motion(q_i)``; angular velocities, origin
-    velocities and axis rates as Jacobian sums (module docstring)."""
+    """World poses from ``X_body = X_parent * (rotation, translation) * motion(q_i)`` (``q`` of ``nq`` entries, the
+    quaternions of spherical and free joints turned into rotations here); angular velocities, origin velocities and
+    axis rates as sums over the velocity columns (``qd`` of ``nv`` entries; module docstring)."""
     q, qd, _ = check_state(model, q, qd, np.zeros(model.m))
     return _kinematics(model, q, qd)
 
 
 def _kinematics(model: Model, q: np.ndarray, qd: np.ndarray) -> Kinematics:
-    n, batch = model.n, q.shape[:-1]
-    revolute = np.array([b.joint == "revolute" for b in model.bodies])
+    n, batch, count = model.n, q.shape[:-1], len(model.bodies)
+    owner, revolute = _columns(model)
+    turns = np.array([b.joint == "revolute" for b in model.bodies])
     axes = np.array([b.axis for b in model.bodies])
     local = np.array([b.rotation for b in model.bodies])
-    motion = _axis_rotations(axes, np.where(revolute, q, 0.0))
-    R, o, z = np.empty(batch + (n, 3, 3)), np.empty(batch + (n, 3)), np.empty(batch + (n, 3))
+    plain = not model.group_joints                    # one column per body: column rows are body rows
+    motion = _axis_rotations(axes, np.where(turns, q if plain else q[..., list(model.q_index)], 0.0))
+    R, o, z = np.empty(batch + (count, 3, 3)), np.empty(batch + (count, 3)), np.empty(batch + (n, 3))
     for i in model.topological_order:
-        b, p = model.bodies[i], model.parent_index[i]
+        b, p, k, j = model.bodies[i], model.parent_index[i], model.v_index[i], model.q_index[i]
         if p < 0:
             joint_frame, o_joint = local[i], b.translation
         else:
             joint_frame, o_joint = R[..., p, :, :] @ local[i], o[..., p, :] + R[..., p, :, :] @ b.translation
-        z[..., i, :] = joint_frame @ axes[i]
+        if b.joint == "spherical" or b.joint == "free":       # module docstring, group joints
+            free = b.joint == "free"
+            R[..., i, :, :] = joint_frame @ _quaternion_rotations(q[..., j + 3 * free:j + 3 * free + 4])
+            o[..., i, :] = (o_joint + _mv(joint_frame, q[..., j:j + 3])) if free else o_joint
+            z[..., k:k + 3 + 3 * free, :] = np.concatenate([_t(R[..., i, :, :])] * (1 + free), axis=-2)
+            continue
+        z[..., k, :] = joint_frame @ axes[i]
         R[..., i, :, :] = joint_frame @ motion[..., i, :, :]
-        o[..., i, :] = o_joint if revolute[i] else o_joint + q[..., i, None] * z[..., i, :]
+        o[..., i, :] = o_joint if turns[i] else o_joint + q[..., j, None] * z[..., k, :]
     moves = _moves(model)
+    of_columns = (lambda rows: rows) if plain else (lambda rows: rows[..., owner, :])   # body rows -> column rows
+    origin = of_columns(o)
     rates, revolute_rates = moves * qd[..., None, :], moves * np.where(revolute, qd, 0.0)[..., None, :]
     w = revolute_rates @ z
-    c_qd = rates @ _column_offsets(z, o, revolute)
+    c_qd = rates @ _column_offsets(z, origin, revolute)
     odot = _cross(w, o) + c_qd
-    zdot = _cross(w, z)
-    cdot = np.where(revolute[:, None], _cross(odot, z) + _cross(o, zdot), zdot)
-    return Kinematics(R, o, z, revolute, moves, qd, w, odot, zdot, revolute_rates @ zdot, c_qd, rates @ cdot)
+    zdot = _cross(of_columns(w), z)
+    cdot = np.where(revolute[:, None], _cross(of_columns(odot), z) + _cross(origin, zdot), zdot)
+    return Kinematics(R, o, z, revolute, moves, qd, w, odot, zdot, revolute_rates @ zdot, c_qd, rates @ cdot,
+                      owner, origin)
 
 
 def point_jacobian(kin: Kinematics, body: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Geometric Jacobians ``(J_v, J_w)``, each (..., k, 3, n), of the world points ``points`` (..., k, 3) fixed in
     bodies ``body`` (k,): linear column ``z_j x (p - o_j)`` (revolute) or ``z_j`` (prismatic), angular column
     ``z_j`` (revolute) or 0, for every joint ``j`` moving the body; zero columns elsewhere."""
-    return _linear_columns(kin.z, kin.o, kin.revolute, kin.moves[body], points), _angular_columns(kin, body)
+    return (_linear_columns(kin.z, kin.column_origin, kin.revolute, kin.moves[body], points),
+            _angular_columns(kin, body))
 
 
 def point_velocity(kin: Kinematics, body: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -312,7 +386,7 @@ def _terms(model: Model, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.nd
     heavy, spinning = np.flatnonzero(mass > 0.0), np.flatnonzero(np.abs(inertia).sum(axis=(1, 2)) > 0.0)
     com = kin.o[..., heavy, :] + _mv(kin.R[..., heavy, :, :], np.array([model.bodies[i].com for i in heavy]))
     root_m = np.sqrt(mass[heavy])[:, None]
-    Jv = _flat(_linear_columns(kin.z, kin.o, kin.revolute, kin.moves[heavy], com) * root_m[..., None])
+    Jv = _flat(_linear_columns(kin.z, kin.column_origin, kin.revolute, kin.moves[heavy], com) * root_m[..., None])
     a_bias = root_m * point_bias(kin, heavy, com, point_velocity(kin, heavy, com))
     I_world = _world_inertia(kin.R[..., spinning, :, :], inertia[spinning])
     Jw = _angular_columns(kin, spinning)
@@ -341,7 +415,7 @@ def _point_kinematics(model: Model, kin: Kinematics, body: str | None,
                 np.zeros(batch + (3,)))
     i = np.array([model.body_index(body)])
     p = kin.o[..., i, :] + _mv(kin.R[..., i, :, :], offset)
-    Jv = _linear_columns(kin.z, kin.o, kin.revolute, kin.moves[i], p)
+    Jv = _linear_columns(kin.z, kin.column_origin, kin.revolute, kin.moves[i], p)
     return p[..., 0, :], Jv[..., 0, :, :], point_bias(kin, i, p, point_velocity(kin, i, p))[..., 0, :]
 
 
@@ -363,12 +437,17 @@ def _cond(model: Model, eig: np.ndarray) -> float | np.ndarray:
 
 def _task_lever(model: Model, q: np.ndarray) -> float:
     """An upper bound on the length of the task Jacobian's columns: the placements along the task point's chain, the
-    point's offset, and for a prismatic joint its travel plus 1 (its unit column)."""
+    point's offset, and for a prismatic joint its travel plus 1 (its unit column), for a free joint its position's
+    length plus 1 (its unit linear columns; a spherical joint's rotation columns add no length)."""
     tp = model.task_point()
     lever, i = float(np.linalg.norm(tp.offset)), model.body_index(tp.body)
     while i >= 0:
-        body = model.bodies[i]
-        travel = abs(float(q[i])) + 1.0 if body.joint == "prismatic" else 0.0
+        body, j = model.bodies[i], model.q_index[i]
+        travel = 0.0
+        if body.joint == "prismatic":
+            travel = abs(float(q[j])) + 1.0
+        elif body.joint == "free":
+            travel = float(np.linalg.norm(q[j:j + 3])) + 1.0
         lever += float(np.linalg.norm(body.translation)) + travel
         i = model.parent_index[i]
     return lever
@@ -465,11 +544,14 @@ def _line(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, 
 
 
 def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """JointCoupling: ``sum_j c_j q_j - offset``, a constant row, zero bias."""
-    row = np.zeros(model.n)
-    row[[model.body_index(name) for name in c.joints]] = c.coefficients
+    """JointCoupling: ``sum_j c_j q_j - offset``, a constant row, zero bias (the coupled joints are revolute or
+    prismatic: their coordinate ``q_j`` and velocity are one entry each, at ``q_index`` and ``v_index``)."""
+    bodies = [model.body_index(name) for name in c.joints]
+    row, position = np.zeros(model.n), np.zeros(model.nq)
+    row[[model.v_index[i] for i in bodies]] = c.coefficients
+    position[[model.q_index[i] for i in bodies]] = c.coefficients
     batch = q.shape[:-1]
-    return (q @ row - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
+    return (q @ position - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.

@@ -13,31 +13,40 @@ joints); one Cholesky factor of ``M`` then gives ``drift = M^-1 (-h)`` (eq. 10, 
 ``total = M^-1 (B u - h)``, each solved on its own. With constraints, total / lam and drift / lam_drift (eq. 14) come
 from Gauss's principle in the Udwadia–Kalaba form on the same factor, and ``ctrl = B_c B u`` (eq. 17) directly.
 
+Spherical and free joints (article 2.1-2.2: the configuration on SO(3) and SE(3), not in a chart; 6.2; 6.4.2: the
+configuration manifold itself): a joint's quaternion (and position) block is turned into its group element ``g_i``
+here (:func:`lie.quaternion_rotation`, the exponential of the rotation vector), its velocity block is the body twist
+of ``g_i`` on constant unit-twist columns, ``(linear, angular)`` for a free joint, and the recursions are the screw
+ones (:mod:`~formalisms.screw.kinematics`, :mod:`~formalisms.screw.dynamics`): ``V_i = Ad_{g_i^-1 M^-1} V_parent +
+E_i v_i``, the accelerations with ``ad``, the wrenches back with ``ad*``. ``q`` has ``nq`` entries and everything
+velocity-like (``qd``, the accelerations, the rows of ``M``, the columns of ``B`` and ``Jc``) ``nv``; the per-body
+arrays below have one row per body. This backend has no ``split_chart``, so no chart of the group is ever needed.
+
 ``split_batch`` evaluates N states in one pass of the same functions (kinematics, inertias, recursion, rows and
 solves all take a leading state axis; :mod:`~formalisms.screw.linalg` factors the N mass matrices at once), in
 blocks of :data:`BLOCK` states; ``split`` is that pass for one state, plus the extras below.
 
 extras (numpy arrays, row ``i`` = body ``i`` in model order; twists ``(w, v)``, wrenches ``(moment, force)``):
 
-``poses``                  (n, 4, 4) ``T_i``, world <- body ``i`` (eq. 20).
-``twists_space``           (n, 6) ``V_s,i = J_s,i qd``: ``[V_s] = Tdot T^-1``, world frame (``v`` is the velocity
+``poses``                  (nb, 4, 4) ``T_i``, world <- body ``i`` (eq. 20).
+``twists_space``           (nb, 6) ``V_s,i = J_s,i qd``: ``[V_s] = Tdot T^-1``, world frame (``v`` is the velocity
                            of the body-fixed point at the world origin).
-``twists_body``            (n, 6) ``V_b,i = Ad_{T_i^-1} V_s,i``: ``[V_b] = T^-1 Tdot``, body frame ``i`` (``v`` is
+``twists_body``            (nb, 6) ``V_b,i = Ad_{T_i^-1} V_s,i``: ``[V_b] = T^-1 Tdot``, body frame ``i`` (``v`` is
                            the velocity of the body-frame origin).
-``accelerations_space``    (n, 6) ``Vdot_s,i = J_s,i qdd + Jdot_s,i qd`` at ``qdd = total``, world frame.
-``wrenches_body``          (n, 6) at ``qdd = total``: the wrench the parent exerts on body ``i`` through joint ``i``
+``accelerations_space``    (nb, 6) ``Vdot_s,i = J_s,i qdd + Jdot_s,i qd`` at ``qdd = total``, world frame.
+``wrenches_body``          (nb, 6) at ``qdd = total``: the wrench the parent exerts on body ``i`` through joint ``i``
                            (gravity and the constraint wrenches included), about body ``i``'s origin, in body
                            frame ``i``.
-``wrenches_body_drift``    (n, 6) the same at ``qdd = drift`` (with the drift's constraint wrenches).
-``wrenches_space``         (n, 6) ``F_s,i = Ad_{T_i^-1}^T F_b,i``: ``wrenches_body`` expressed in the world frame
+``wrenches_body_drift``    (nb, 6) the same at ``qdd = drift`` (with the drift's constraint wrenches).
+``wrenches_space``         (nb, 6) ``F_s,i = Ad_{T_i^-1}^T F_b,i``: ``wrenches_body`` expressed in the world frame
                            (moment about the world origin), so that ``F_s . V_s = F_b . V_b``.
 
 Constrained models also report (article 7.2, "constraint wrenches"; eq. 27's ``W_constr``):
 
-``constraint_wrenches_space``        (n, 6) the wrench all constraint forces of ``lam`` exert on body ``i``, world
+``constraint_wrenches_space``        (nb, 6) the wrench all constraint forces of ``lam`` exert on body ``i``, world
                                      frame, moment about the world origin (:mod:`~formalisms.screw.constraints`);
                                      ``sum_i J_s,i^T W_i = Jc^T lam``.
-``constraint_wrenches_space_drift``  (n, 6) the same for ``lam_drift``.
+``constraint_wrenches_space_drift``  (nb, 6) the same for ``lam_drift``.
 
 The split also carries the compared joint loads ``joint_wrenches`` (``joint_wrenches_drift``): ``wrenches_body``
 (``wrenches_body_drift``) in ``[force, moment]`` order, with the torques ``c_j lam`` of any joint coupling added back
@@ -86,9 +95,9 @@ def _task_inertia(kin: Kinematics, factor: Cholesky) -> tuple[np.ndarray, float]
 
 def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | None = None) -> np.ndarray:  # noqa: N803
     """Body wrenches ``(moment, force)`` as the compared joint loads ``[force, moment]``, each joint's coupling
-    torque ``torques[j]`` (None: no coupling) added along its body screw axis ``B_j``."""
+    torque ``torques[j]`` (per velocity column; None: no coupling) added along its body screw axis ``B_j``."""
     if torques is not None:
-        F_body = F_body + torques[:, None] * kin.screws.body_axes
+        F_body = F_body + kinematics.joint_twists(kin, torques)
     return np.concatenate([F_body[:, 3:], F_body[:, :3]], axis=1)
 
 
@@ -201,7 +210,7 @@ def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Choles
 
 
 def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int | None = None) -> Cholesky:  # noqa: N803
-    """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, n); a ValueError
+    """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, nq); a ValueError
     naming the model, the first state whose M is not positive definite (``first``: the stack's offset in a batch; None
     for one state) and its eigenvalues."""
     factor = Cholesky.of(M)

@@ -15,7 +15,9 @@ and the force a unit multiplier applies:
 * PointsCoincide: ``Jc = D (J_a - J_b)``, ``Jcdot qd = D (a_a - a_b)``; ``D^T`` at ``p_a`` on body a and ``-D^T``
   at ``p_b`` on body b (none on the world);
 * PointOnLine: ``Jc = N J``, ``Jcdot qd = N a``; ``N^T`` at ``p``;
-* JointCoupling: the constant row ``c``, no bias; the torques ``c_j`` on the joints.
+* JointCoupling: the constant row ``c`` (``phi = sum_j c_j q_j - offset``; the couplings join revolute and prismatic
+  joints only, so ``q_j`` is at ``Model.q_index[j]`` and its row entry at ``Model.v_index[j]``), no bias; the torques
+  ``c_j`` on the joints.
 
 Constraint wrenches. A force ``f`` at the world point ``p`` is the space wrench ``(p x f, f)`` (moment about the
 world origin). A coupling's torque ``tau = c_j lam`` on joint ``j`` is the wrench ``tau B_j`` (the body screw axis
@@ -63,7 +65,7 @@ class ConstraintTerms:
     """The constraint rows at a state (leading axes ``...`` those of the state): ``phi`` (..., k), ``jacobian``
     ``Jc`` (..., k, n), ``bias`` ``Jcdot qd`` (..., k), and ``coupling`` (k,): the rows of joint couplings. At one
     state also ``unit_wrenches`` (k, n, 6): the space wrench ``(moment about the world origin, force)`` a unit
-    multiplier of row ``r`` exerts on body ``i``."""
+    multiplier of row ``r`` exerts on body ``i`` (k, nb, 6)."""
 
     phi: np.ndarray
     jacobian: np.ndarray
@@ -73,15 +75,15 @@ class ConstraintTerms:
 
     @cached_property
     def unit_wrenches(self) -> np.ndarray:
-        """(k, n, 6), one state: the declarations' unit wrenches, in row order."""
+        """(k, nb, 6), one state: the declarations' unit wrenches, in row order."""
         return np.concatenate([load() for load in self.loads])
 
     def wrenches(self, lam: np.ndarray) -> np.ndarray:
-        """The constraint wrench on every body (n, 6), space frame, for the multipliers ``lam`` (one state)."""
+        """The constraint wrench on every body (nb, 6), space frame, for the multipliers ``lam`` (one state)."""
         return np.einsum("r,rib->ib", lam, self.unit_wrenches)
 
     def coupling_torques(self, lam: np.ndarray) -> np.ndarray:
-        """The joint torques (n,) of the couplings' multipliers, ``(coupling rows of Jc)^T lam``: what the
+        """The joint torques (nv,) of the couplings' multipliers, ``(coupling rows of Jc)^T lam``: what the
         couplings make each joint carry, like an actuator (one state)."""
         return self.jacobian[self.coupling].T @ lam[self.coupling]
 
@@ -141,30 +143,32 @@ def _circle(kin: Kinematics, c, point, q, qd):
     v = np.einsum("...an,...n->...a", x.J, qd) @ c.plane.T
     return (np.sum(d * d, axis=-1, keepdims=True) - c.radius**2, np.einsum("...a,...an->...n", grad, x.J)[..., None, :],
             2.0 * np.sum(v * v, axis=-1, keepdims=True) + np.sum(grad * x.a, axis=-1, keepdims=True),
-            _force_wrenches(kin.model.n, [(x, grad[:, None])]))
+            _force_wrenches(len(kin.model.bodies), [(x, grad[:, None])]))
 
 
 def _coincide(kin: Kinematics, c, point, q, qd):
     xa, xb = point(c.body_a, c.offset_a), point(c.body_b, c.offset_b)
     D = c.directions
     return ((xa.p - xb.p) @ D.T, _rows_of(D, xa.J - xb.J), (xa.a - xb.a) @ D.T,
-            _force_wrenches(kin.model.n, [(xa, D.T), (xb, -D.T)]))
+            _force_wrenches(len(kin.model.bodies), [(xa, D.T), (xb, -D.T)]))
 
 
 def _line(kin: Kinematics, c, point, q, qd):
     x = point(c.body, c.offset)
     N = c.normals
-    return (x.p - c.origin) @ N.T, _rows_of(N, x.J), x.a @ N.T, _force_wrenches(kin.model.n, [(x, N.T)])
+    return (x.p - c.origin) @ N.T, _rows_of(N, x.J), x.a @ N.T, _force_wrenches(len(kin.model.bodies), [(x, N.T)])
 
 
 def _coupling(kin: Kinematics, c, point, q, qd):
     model = kin.model
-    row = np.zeros(model.n)
+    row, coordinates = np.zeros(model.nv), np.zeros(model.nq)   # the same vector without group joints
     for name, coefficient in zip(c.joints, c.coefficients):
-        row[model.body_index(name)] += coefficient
+        j = model.body_index(name)
+        row[model.v_index[j]] += coefficient
+        coordinates[model.q_index[j]] += coefficient
 
     def build() -> np.ndarray:
-        W = np.zeros((1, model.n, 6))
+        W = np.zeros((1, len(model.bodies), 6))
         for name, coefficient in zip(c.joints, c.coefficients):
             j = model.body_index(name)
             wrench = coefficient * (kin.to_body[j].T @ kin.screws.body_axes[j])   # Ad_{T_j^-1}^T (c_j B_j)
@@ -174,7 +178,7 @@ def _coupling(kin: Kinematics, c, point, q, qd):
         return W
 
     batch = q.shape[:-1]
-    return ((q @ row - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,)),
+    return ((q @ coordinates - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,)),
             build)
 
 
@@ -183,7 +187,8 @@ _DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine:
 
 
 def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:
-    """The rows of every declaration of ``kin.model``, in model order (module docstring); ``q``, ``qd`` (..., n)."""
+    """The rows of every declaration of ``kin.model``, in model order (module docstring); ``q`` (..., nq), ``qd``
+    (..., nv)."""
     model: Model = kin.model
     point = _point_kinematics(kin, qd)
     parts = []

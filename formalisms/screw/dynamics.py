@@ -20,6 +20,13 @@ summing it loses digits ``eps |p|^2`` to cancellation. All functions take a stac
   adjoint transposed carries the child's wrench to the parent. ``F_i`` is the wrench the parent exerts on body ``i``
   through joint ``i`` and its generalized force is ``tau_i = B_i^T F_i`` (``B_i`` the body screw axis).
 
+Spherical and free joints (article 2.1-2.2, 6.2): the same two passes, with the body twists and accelerations of a
+group joint (:mod:`~formalisms.screw.kinematics`: ``V_i = Ad_{g_i^-1 M^-1} V_parent + E_i v_i``, the acceleration
+with the ``ad`` term); the backward pass is unchanged, and the joint's generalized forces are the projections ``tau_j
+= E_j^T F_i`` on its constant unit twists: a spherical joint carries the moment ``m`` (body frame) and a free joint
+``(f, m)``, all of ``F_i``, in the order ``(linear, angular)`` of its velocity block. So a free root's ``F_i`` is the
+input's wrench on it (zero when unactuated), and ``M``'s block of a free body is ``E^T G E``, ``G`` reordered.
+
 Sign convention: the article writes eq. (27) as ``I Vdot + ad*_V (I V) + W_g = W_ctrl + ...`` with the coadjoint
 ``ad*_V = -ad_V^T`` (Featherstone's ``V x*``) and ``W_g`` the gravity load moved to the left side (``-W_gravity``);
 with the transpose ``ad_V^T`` it reads ``G Vdot - ad_V^T (G V) - W_gravity``, as here.
@@ -38,11 +45,11 @@ from formalisms.screw.kinematics import Kinematics
 
 
 def spatial_inertias(model: Model) -> np.ndarray:
-    """``G_i`` (n, 6, 6) about body ``i``'s origin, for twists ``(w, v)``: with ``C = [c_i]``,
+    """``G_i`` (nb, 6, 6) about body ``i``'s origin, for twists ``(w, v)``: with ``C = [c_i]``,
     ``G = [[I_c - m C C, m C], [-m C, m 1]]`` (the COM inertia moved to the origin by the parallel-axis rule)."""
     mass = np.array([b.mass for b in model.bodies])[:, None, None]
     C = lie.hat3(np.array([b.com for b in model.bodies]))
-    G = np.empty((model.n, 6, 6))
+    G = np.empty((len(model.bodies), 6, 6))
     G[:, :3, :3] = np.array([b.inertia for b in model.bodies]) - mass * (C @ C)
     G[:, :3, 3:] = mass * C
     G[:, 3:, :3] = -mass * C
@@ -67,14 +74,14 @@ class Inertias:
         return cls(G, G[:, :3, :3], lie.vee3(G[:, :3, 3:]), G[:, 3, 3])
 
     def apply(self, V: np.ndarray) -> np.ndarray:  # noqa: N803
-        """``G_i V_i = (I_o w + h x v, m v - h x w)``, ``h = m c``, for twists ``V = (w, v)`` (..., n, 6) in the body
+        """``G_i V_i = (I_o w + h x v, m v - h x w)``, ``h = m c``, for twists ``V = (w, v)`` (..., nb, 6) in the body
         frames: the spatial momentum about the body origins."""
         w, v, h = V[..., :3], V[..., 3:], self.first_moment
         return lie.join(lie.rotate(self.rotational, w) + lie.cross(h, v), self.mass[:, None] * v - lie.cross(h, w))
 
 
 def mass_matrix_of(kin: Kinematics, G: Inertias) -> np.ndarray:  # noqa: N803
-    """``M`` (..., n, n) of eq. (2) as ``sum_i J_b,i^T G_i J_b,i`` (module docstring), symmetrized exactly; ``G`` the
+    """``M`` (..., nv, nv) of eq. (2) as ``sum_i J_b,i^T G_i J_b,i`` (module docstring), symmetrized exactly; ``G`` the
     bodies' inertias (:meth:`Inertias.of`)."""
     columns = kin.body_columns                                   # [..., i, j, :] = J_b,i e_j
     momenta = columns @ np.swapaxes(G.matrix, -1, -2)            # [..., i, j, :] = G_i J_b,i e_j
@@ -84,7 +91,7 @@ def mass_matrix_of(kin: Kinematics, G: Inertias) -> np.ndarray:  # noqa: N803
 
 def gravity_wrenches(model: Model, kin: Kinematics) -> np.ndarray:
     """``W_gravity,i = (c x m g_i, m g_i)`` with ``g_i = R_i^T g``: the weight of body ``i`` acting at its COM, as a
-    wrench in body frame ``i`` about its origin (..., n, 6)."""
+    wrench in body frame ``i`` about its origin (..., nb, 6)."""
     mass = np.array([b.mass for b in model.bodies])[:, None]
     g = lie.rotate_back(kin.poses[..., :3, :3], np.asarray(model.gravity, dtype=float))
     return lie.join(lie.cross(mass * np.array([b.com for b in model.bodies]), g), mass * g)
@@ -101,11 +108,11 @@ def _wrench_to_parent(Ad_child_parent: np.ndarray, F_child: np.ndarray) -> np.nd
 def wrenches(kin: Kinematics, G: Inertias, qd: np.ndarray, qdd: np.ndarray | None, gravity,  # noqa: N803
              external: np.ndarray | None = None) -> np.ndarray:
     """Eq. (27) in body frames (module docstring) with the bodies' inertias ``G`` (:meth:`Inertias.of`), for rates
-    ``qd``, ``qdd`` (None: zero) (..., n), the weight ``gravity`` (1 on, 0 off) and ``external`` (..., n, 6), when
+    ``qd``, ``qdd`` (None: zero) (..., nv), the weight ``gravity`` (1 on, 0 off) and ``external`` (..., nb, 6), when
     given, further wrenches applied to the bodies, ``(moment about body i's origin, force)`` in body frame ``i``;
     the leading axes broadcast.
 
-    Returns (..., n, 6): the wrench ``(moment, force)`` the parent exerts on body ``i`` through joint ``i``, about
+    Returns (..., nb, 6): the wrench ``(moment, force)`` the parent exerts on body ``i`` through joint ``i``, about
     body ``i``'s origin in body frame ``i``.
     """
     model = kin.model
@@ -122,8 +129,9 @@ def wrenches(kin: Kinematics, G: Inertias, qd: np.ndarray, qdd: np.ndarray | Non
 
 
 def generalized_forces(kin: Kinematics, F: np.ndarray) -> np.ndarray:  # noqa: N803
-    """``tau_i = B_i^T F_i`` (..., n) from the body wrenches the joints carry."""
-    return lie.dot(kin.screws.body_axes, F)
+    """``tau_j = E_j^T F_i`` (..., nv) from the body wrenches the joints carry (..., nb, 6): ``B_i^T F_i`` for a
+    screw joint, the components of ``F_i`` along a group joint's unit twists."""
+    return lie.dot(kin.screws.unit_twists, kinematics.at_columns(kin, F))
 
 
 def terms(kin: Kinematics, G: Inertias,  # noqa: N803

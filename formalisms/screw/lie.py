@@ -96,6 +96,36 @@ def exp6(S: np.ndarray, theta=1.0) -> np.ndarray:
     return T
 
 
+def quaternion_rotation(quat: np.ndarray) -> np.ndarray:
+    """The element of SO(3) a unit quaternion ``(x, y, z, w)`` stands for (article 2.1), as an exponential.
+
+    A unit quaternion is ``(sin(x/2) n, cos(x/2))`` for the rotation by the angle ``x`` about the unit axis ``n``, and
+    ``-quat`` is the same rotation; so with the sign chosen for ``w >= 0`` (half angle in ``[0, pi/2]``) the rotation
+    vector is ``phi = 2 atan2(|u|, w) u / |u|`` (``u = (x, y, z)``; ``phi = 2 u / w`` at ``u = 0``) and ``R =
+    exp([phi])`` (:func:`exp3`, Rodrigues). This is ``I + 2 w [u] + 2 [u]^2`` (``cases.model``) for a unit quaternion;
+    a quaternion off unit length by ``d`` gives the rotation of its normalization (the polynomial would be off
+    orthogonal by ``2 d``).
+    """
+    quat = np.asarray(quat, dtype=float)
+    sign = np.where(quat[..., 3] < 0.0, -1.0, 1.0)
+    u, w = sign[..., None] * quat[..., :3], sign * quat[..., 3]
+    s = np.linalg.norm(u, axis=-1)
+    some = s > 0.0
+    scale = np.where(some, 2.0 * np.arctan2(s, w) / np.where(some, s, 1.0), 2.0 / np.where(some, 1.0, w))
+    return exp3(scale[..., None] * u)
+
+
+def transform(R: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:  # noqa: N803
+    """The SE(3) element ``[[R, p], [0, 1]]`` (4x4) of rotations (..., 3, 3) and translations (..., 3) (None: 0)."""
+    R = np.asarray(R, dtype=float)
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    if p is not None:
+        T[..., :3, 3] = p
+    T[..., 3, 3] = 1.0
+    return T
+
+
 def log3(R: np.ndarray) -> np.ndarray:
     """The rotation vector ``phi`` with ``exp3(phi) = R`` and ``|phi| = x`` in ``[0, pi]``.
 
