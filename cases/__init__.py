@@ -13,11 +13,30 @@ package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do,
 
 from __future__ import annotations
 
-from cases import constrained  # registers the constrained cases
+from cases import constrained, floating  # noqa: F401 (register the constrained and the Lie-group cases)
 from cases.factories import REGISTRY, CaseError, CaseInfo
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
+
+
+def from_file(path, name: str | None = None, base: str | None = None) -> Model:
+    """A model file by its extension: ``.urdf`` through :func:`from_urdf` (with ``base`` "fixed" or "free"; None: as
+    the file says, with a notice when it is fixed), ``.xml`` or ``.mjcf`` through ``cases.mjcf.from_mjcf`` (whose free
+    joints are in the file: ``base`` must be None). Anything else is a UrdfError naming the extensions."""
+    from pathlib import Path
+
+    suffix = Path(path).suffix.lower()
+    if suffix in (".xml", ".mjcf"):
+        from cases.mjcf import from_mjcf
+
+        if base is not None:
+            raise UrdfError(f"'{path}' is an MJCF file, whose free joints are declared in it (<freejoint/>); a base "
+                            "applies to URDF files only")
+        return from_mjcf(path, name=name)
+    if suffix != ".urdf":
+        raise UrdfError(f"'{path}' is not a model file this loads: give a .urdf (URDF) or a .xml / .mjcf (MJCF) file")
+    return from_urdf(path, name=name, base=base)
 
 
 def names() -> list[str]:
@@ -83,5 +102,6 @@ def parameters(name: str, **params) -> dict:
 
 
 __all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "Model", "ModelError", "PointOnCircle", "PointOnLine",
-           "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_urdf", "load",
+           "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_file",
+           "from_urdf", "load",
            "names", "parameters"]

@@ -206,16 +206,22 @@ PANDA_URDF = "cmeel.prefix/share/example-robot-data/robots/panda_description/urd
 
 def panda_urdf_path():
     """Path of the Franka Panda URDF shipped by the ``example-robot-data`` package (v6 has no python module)."""
+    return robot_data_path(PANDA_URDF, "panda")
+
+
+def robot_data_path(relative: str, case: str):
+    """Path of a file the ``example-robot-data`` package ships (``relative`` to its distribution), for case
+    ``case``; ImportError / FileNotFoundError saying how to install it."""
     import importlib.metadata
 
     try:
         dist = importlib.metadata.distribution("example-robot-data")
     except importlib.metadata.PackageNotFoundError as exc:
-        raise ImportError("the 'panda' case needs the Franka Panda URDF from the 'example-robot-data' package: "
+        raise ImportError(f"the '{case}' case needs a URDF from the 'example-robot-data' package: "
                           "pip install example-robot-data") from exc
-    path = dist.locate_file(PANDA_URDF)
+    path = dist.locate_file(relative)
     if not path.exists():
-        raise FileNotFoundError(f"the 'panda' case: example-robot-data {dist.version} is installed but has no "
+        raise FileNotFoundError(f"the '{case}' case: example-robot-data {dist.version} is installed but has no "
                                 f"'{path}'; reinstall it (pip install --force-reinstall example-robot-data)")
     return path
 
@@ -229,7 +235,7 @@ def panda() -> Model:
     """
     from cases.urdf import from_urdf
 
-    return from_urdf(panda_urdf_path(), name="panda")
+    return from_urdf(panda_urdf_path(), name="panda", base="fixed")
 
 
 # ------------------------------------------------------------------------------- 3-D cases with closed forms

@@ -12,10 +12,24 @@ Pinocchio stores as ``(cos q, sin q)``, is one angle ``q`` here):
   our parent body frame;
 * axis: from the joint type (RX/RY/RZ, RUBX/RUBY/RUBZ = continuous, PX/PY/PZ -> unit axes;
   RevoluteUnaligned, RevoluteUnboundedUnaligned, PrismaticUnaligned -> their motion subspace's axis);
+  FreeFlyer (a URDF ``floating`` joint, or the one ``base="free"`` adds) -> a ``free`` joint, Spherical (an MJCF
+  ball, :mod:`cases.mjcf`) -> a ``spherical`` one, both with Pinocchio's conventions, which are ours
+  (``cases.model``);
 * mass, com, inertia about the COM: ``model.inertias[j]`` (joint frame = our body frame);
 * gravity: ``model.gravity.linear``;
 * source: ``ModelSource("urdf", <absolute path>)`` with the identity placement, so the external reference
   (``crosscheck.reference``) builds its own model from the file and never from this conversion.
+
+The base. A URDF tree hangs from one root link. With ``base="fixed"`` the root link is welded to the world (its
+mass does not move and is left out, Pinocchio's reading of the file); with ``base="free"`` the loader adds a free
+joint above it (``pinocchio.buildModelFromUrdf(path, JointModelFreeFlyer())``), so the root link is a floating base
+with its mass. A file whose root joint is already ``floating`` (from a ``world`` link) loads free either way, and
+``base="fixed"`` is refused for it. Left out (``base=None``), a file without a floating root joint loads fixed with
+one :class:`BaseNotice` warning saying so and how to float it. The source records the choice
+(``ModelSource.root``), so the reference reads the file the same way.
+
+Inputs: the identity's columns of every joint velocity but a free joint's, whose six velocities are unactuated
+(a floating base has no motor to the world).
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
@@ -55,11 +69,19 @@ from typing import NamedTuple
 import numpy as np
 
 from cases.constraints import JointCoupling
-from cases.model import Body, Model, ModelError, ModelSource, TaskPoint, build_model
+from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoint, build_model
 
 
 class UrdfError(ValueError):
     """A URDF file cannot be read or parsed (the message names the path)."""
+
+
+class BaseNotice(UserWarning):
+    """A URDF file loaded with a fixed base because no base was asked for (module docstring, "The base")."""
+
+
+#: The ``base`` values of :func:`from_urdf`.
+BASES = ("fixed", "free")
 
 
 class Mimic(NamedTuple):
@@ -220,14 +242,14 @@ def _mimic_number(problems: list[str], where: str, tag: ET.Element, attribute: s
 # ----------------------------------------------------------------------------------------------- Pinocchio
 
 
-def _parse(pin, path: Path):
-    """``pinocchio.buildModelFromUrdf(path)``, with urdfdom's printout (C++, on file descriptor 2) made part of the
-    UrdfError instead of extra lines on the console. An error urdfdom reports is fatal even when Pinocchio returns a
-    model: urdfdom skips what it cannot read (a link whose inertial has a NaN becomes massless), so that model is
-    not the file's. Whatever else it printed is passed on."""
+def _parse(pin, path: Path, root: str = "fixed"):
+    """``pinocchio.buildModelFromUrdf(path)`` (:func:`read_file`), with urdfdom's printout (C++, on file
+    descriptor 2) made part of the UrdfError instead of extra lines on the console. An error urdfdom reports is fatal
+    even when Pinocchio returns a model: urdfdom skips what it cannot read (a link whose inertial has a NaN becomes
+    massless), so that model is not the file's. Whatever else it printed is passed on."""
     with _fd2_captured() as printed:
         try:
-            pm, error = pin.buildModelFromUrdf(str(path)), None
+            pm, error = read_file(pin, "urdf", str(path), root), None
         except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
             pm, error = None, exc
     reasons = [line.split(":", 1)[1].strip() for line in printed[0].splitlines() if line.startswith("Error:")]
@@ -272,6 +294,8 @@ def _joint_kind(jm) -> tuple[str, np.ndarray] | None:
         return "revolute", _subspace(jm)[3:]
     if kind == "PrismaticUnaligned":
         return "prismatic", _subspace(jm)[:3]
+    if kind in ("FreeFlyer", "Spherical"):
+        return ("free" if kind == "FreeFlyer" else "spherical"), np.zeros(3)
     return None
 
 
@@ -308,19 +332,15 @@ def _links_of(pin, pm) -> dict[int, str | None]:
 
 
 def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
-    """One body per Pinocchio joint (module docstring); a joint type with no one-coordinate equivalent is a
-    problem."""
+    """One body per Pinocchio joint (module docstring); a joint type with no equivalent here is a problem."""
     bodies: list[Body] = []
     for j in range(1, pm.njoints):
         jm = pm.joints[j]
         kind = _joint_kind(jm)
         if kind is None:
-            problems.append(f"joint '{pm.names[j]}' has Pinocchio type {jm.shortname()}, which has no "
-                            "one-coordinate revolute/prismatic equivalent (supported: revolute, continuous, "
-                            "prismatic, fixed)")
-            continue
-        if jm.nv != 1:  # pragma: no cover - every supported kind has one velocity
-            problems.append(f"joint '{pm.names[j]}' has {jm.nv} velocities, expected 1")
+            problems.append(f"joint '{pm.names[j]}' has Pinocchio type {jm.shortname()}, which has no equivalent "
+                            "here (supported: revolute, continuous, prismatic, fixed, floating; MJCF hinge, slide, "
+                            "ball, free, one joint per body)")
             continue
         joint, axis = kind
         placement, inertia = pm.jointPlacements[j], pm.inertias[j]
@@ -329,6 +349,14 @@ def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
                            inertia=np.array(inertia.inertia), rotation=np.array(placement.rotation),
                            translation=np.array(placement.translation)))
     return bodies
+
+
+def _actuated(bodies: list[Body]) -> np.ndarray:
+    """B: the identity's columns of every joint velocity but a free joint's. A file's joints are driven; a free joint
+    (a floating base) is not: no motor acts between it and the world (``B u`` has zero base rows)."""
+    driven = [j == "driven" for b in bodies for j in (["free"] * 6 if b.joint == "free" else
+                                                       ["driven"] * JOINT_DOF[b.joint][1])]
+    return np.eye(len(driven))[:, driven]
 
 
 def _couplings(pm, link_of: dict, mimics: list[Mimic]) -> list[JointCoupling]:
@@ -348,19 +376,60 @@ def _task_points(pin, pm, link_of: dict) -> list[TaskPoint]:
     return sorted(leaves, key=lambda tp: 0 if "tcp" in tp.name.lower() else 1)  # stable: tool centre points first
 
 
-def from_urdf(path, name: str | None = None) -> Model:
-    """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring).
+def _root(robot: ET.Element) -> tuple[str | None, str | None]:
+    """(the root link, the name of its floating joint when the tree hangs from it by one, else None)."""
+    joints = [j for j in robot.findall("joint")]
+    children = {j.find("child").get("link") for j in joints if j.find("child") is not None}
+    roots = [link.get("name") for link in robot.findall("link") if link.get("name") not in children]
+    if len(roots) != 1:
+        return None, None
+    floating = [j.get("name") for j in joints if j.get("type") == "floating"
+                and j.find("parent") is not None and j.find("parent").get("link") == roots[0]]
+    return roots[0], (floating[0] if floating else None)
+
+
+def _base(path: Path, robot: ET.Element, base: str | None, problems: list[str]) -> tuple[str, str | None]:
+    """(the source root, "fixed" or "free", for ``base``; the notice to give once the file has loaded, or None)
+    (module docstring, "The base"); a problem for an unknown ``base`` or a fixed base under a floating root joint."""
+    root, floating = _root(robot)
+    if base not in (None, *BASES):
+        problems.append(f"base must be one of {list(BASES)} (or left out), got {base!r}")
+        return "fixed", None
+    if floating is not None:
+        if base == "fixed":
+            problems.append(f"the root joint '{floating}' of '{path}' is floating; the file floats its base, so it "
+                            "cannot be loaded with base='fixed' (make that joint fixed in the file instead)")
+        return "fixed", None    # Pinocchio reads the floating joint itself: no joint is added
+    notice = None if base is not None else (
+        f"'{path}' has no joint between its root link '{root}' and the world: loaded with a fixed base (to float it: "
+        "--base free, or cases.from_urdf(path, base='free'))")
+    return base or "fixed", notice
+
+
+def read_file(pin, kind: str, path: str, root: str = "fixed"):
+    """The Pinocchio model of a file as the loaders read it: ``buildModelFromUrdf`` (with a ``JointModelFreeFlyer``
+    root joint for ``root="free"``) or ``buildModelFromMJCF``. The reference (``crosscheck.reference``) reads the
+    file with this call too, so both see the same joints."""
+    if kind == "mjcf":
+        return pin.buildModelFromMJCF(path)
+    return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if root == "free" else pin.buildModelFromUrdf(path)
+
+
+def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
+    """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring), with a
+    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`).
 
     Raises :class:`FileNotFoundError` if the path does not exist, :class:`UrdfError` if it cannot be read or
-    parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no one-coordinate equivalent
-    here (floating, planar, spherical, helical, ...), every mimic tag that is no coupling and every joint that keeps
-    the links from forming a tree, or if the converted model is invalid.
+    parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no equivalent here (planar,
+    helical, ...), every mimic tag that is no coupling and every joint that keeps the links from forming a tree, or
+    if the converted model is invalid.
     """
     path = Path(path)
     robot = _read_robot(path)
     model_name = name if name is not None else robot.get("name") or path.stem
     problems = _tree_problems(robot)
     mimics = _mimics(robot, problems)
+    root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
     if problems:
         raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
     try:
@@ -368,17 +437,30 @@ def from_urdf(path, name: str | None = None) -> Model:
     except ImportError as exc:  # pragma: no cover - pin is a declared dependency
         raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
                           "(pip install pin)") from exc
-    pm = _parse(pin, path)
+    source = ModelSource("urdf", str(path.resolve()), root=root)
+    model = convert(pin, _parse(pin, path, root), model_name, source, mimics)
+    if notice is not None:
+        import warnings
+
+        warnings.warn(BaseNotice(notice), stacklevel=2)
+    return model
+
+
+def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = ()) -> Model:
+    """Our :class:`Model` of a parsed Pinocchio model (module docstring): bodies, gravity, task points, the mimic
+    couplings and the file's ``source``; a ModelError naming the file for what cannot be converted."""
+    problems: list[str] = []
     link_of = _links_of(pin, pm)
     bodies = _bodies(pm, link_of, problems)
+    where = f"(from {source.kind.upper()} file '{source.path}')"
     if not bodies and not problems:
-        problems.append(f"URDF file '{path}' has no movable joint")
+        problems.append(f"{source.kind.upper()} file '{source.path}' has no movable joint")
     if problems:
-        raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
+        raise ModelError(model_name, problems + [where])
     leaves = _task_points(pin, pm, link_of)
     try:
-        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
+        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear), input_map=_actuated(bodies),
                            task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
-                           source=ModelSource("urdf", str(path.resolve())))
+                           source=source)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
-        raise ModelError(model_name, list(exc.problems) + [f"(from URDF file '{path}')"]) from None
+        raise ModelError(model_name, list(exc.problems) + [where]) from None

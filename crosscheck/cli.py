@@ -11,12 +11,15 @@ import json
 import os
 import shlex
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 import cases
+import cases.urdf
+from cases import configuration
 from cases.model import ModelError
 from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
@@ -107,7 +110,11 @@ def _specs(args) -> list[CaseSpec]:
         if name not in cases.names():
             raise UsageError(f"unknown case '{name}'; valid cases: {', '.join(cases.names())}")
     specs = [CaseSpec(name, params) for name in names]
-    specs += [CaseSpec(Path(path).stem, urdf=path) for path in args.model]
+    base = getattr(args, "base", None)
+    if base is not None and not args.model:
+        raise UsageError("--base applies to a --model URDF file (fixed: the root link welded to the world; free: a "
+                         "free joint added above it)")
+    specs += [CaseSpec(Path(path).stem, path=path, base=base) for path in args.model]
     return specs
 
 
@@ -353,14 +360,17 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
+                                     base=args.base,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
     if args.frame is not None:
         model = frames.move_scene(model, _frame(args.frame, args.seed, spec.name))
     chart = charts.get(args.chart or "identity", model, args.seed, spec.name)
-    p = _length(_vector(args.q, "q"), model.n, "q")
-    pd = _length(_vector(args.qd, "qd"), model.n, "qd") if args.qd is not None else np.zeros(model.n)
+    p = _length(_vector(args.q, "q"), model.nq if chart.name == "identity" else model.n, "q")
+    pd = _length(_vector(args.qd, "qd"), model.nv, "qd") if args.qd is not None else np.zeros(model.nv)
+    if chart.name == "identity":
+        p = _unit_quaternions(model, p, args.normalize)
     _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
@@ -397,6 +407,20 @@ def cmd_eval(args) -> int:
     for name, error in errors.items():
         print(f"{name}: ERROR at this state: {error}")
     return 1 if errors else 0
+
+
+def _unit_quaternions(model, q: np.ndarray, normalize: bool) -> np.ndarray:
+    """``q`` when its quaternions (spherical and free joints, ``(x, y, z, w)``) are unit; with ``normalize`` each
+    divided by its norm; otherwise a UsageError naming each one that is not."""
+    if normalize:
+        try:
+            return configuration.normalized(model, q)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    problems = configuration.quaternion_problems(model, q)
+    if problems:
+        raise UsageError("; ".join(problems) + " (or pass --normalize)")
+    return q
 
 
 def _in_chart_domain(chart, p, pd) -> None:
@@ -514,7 +538,8 @@ def cmd_fuzz(args) -> int:
         cfg = fuzz.config(seed=args.seed, workers=_workers(args.workers, 0), shard=_shard(args.shard), out=args.out,
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
-                          constraints=fuzz.CONSTRAINT_CHOICES[args.constraints], charts=not args.no_charts,
+                          constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
+                          group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation, **bound)
         result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
     except fuzz.FuzzError as exc:
@@ -598,7 +623,10 @@ def build_parser() -> argparse.ArgumentParser:
     gate = sub.add_parser("gate", help="sample states per case, compare every backend, write a report")
     gate.add_argument("--case", action="append", default=[], help="a built-in case (repeatable; default: all)")
     gate.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (one --case)")
-    gate.add_argument("--model", action="append", default=[], metavar="PATH", help="a URDF file (repeatable)")
+    gate.add_argument("--model", action="append", default=[], metavar="PATH",
+                      help="a URDF (.urdf) or MJCF (.xml) file (repeatable)")
+    gate.add_argument("--base", choices=("fixed", "free"),
+                      help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
@@ -625,7 +653,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("eval", help="evaluate the backends at one state")
     ev.add_argument("--case", help="a built-in case")
     ev.add_argument("--param", action="append", default=[], metavar="K=V", help="case parameter (repeatable)")
-    ev.add_argument("--model", metavar="PATH", help="a URDF file instead of --case")
+    ev.add_argument("--model", metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file instead of --case")
+    ev.add_argument("--base", choices=("fixed", "free"),
+                    help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros)")
     ev.add_argument("--u", help="actuator inputs, one per column of B (default zeros)")
@@ -636,6 +666,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     ev.add_argument("--project", action="store_true",
                     help="constrained case: move the state onto the constraint manifold first (else it is refused)")
+    ev.add_argument("--normalize", action="store_true",
+                    help="divide each quaternion of --q (spherical and free joints) by its norm (else a quaternion "
+                         "that is not unit is refused)")
     ev.add_argument("--json", action="store_true", help="print JSON")
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
@@ -672,6 +705,9 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
     fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
                     help="constrained models (default sometimes)")
+    fz.add_argument("--joints", choices=["all", "scalar"], default="all",
+                    help="joint types drawn: all (revolute, prismatic, spherical, free; default) or scalar (revolute "
+                         "and prismatic only)")
     fz.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     fz.add_argument("--no-frames", action="store_true", help="skip the frame invariance checks")
     fz.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
@@ -712,7 +748,24 @@ def build_parser() -> argparse.ArgumentParser:
 BLAS_THREADS = 1
 
 
+def _notice(message, category, filename, lineno, file=None, line=None) -> None:
+    """A loader's notice (``cases.urdf.BaseNotice``) as one line; other warnings as Python prints them."""
+    if issubclass(category, cases.urdf.BaseNotice):
+        print(f"crosscheck: notice: {message}", file=sys.stderr if file is None else file)
+    else:
+        _show_warning(message, category, filename, lineno, file, line)
+
+
+_show_warning = warnings.showwarning
+
+
 def main(argv: list[str] | None = None) -> int:
+    with warnings.catch_warnings():     # the loaders' notices as one line each, for this command only
+        warnings.showwarning = _notice
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)

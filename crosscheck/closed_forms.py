@@ -34,6 +34,7 @@ slider_crank                   two rods and a point-mass slider (:func:`slider_c
 double_pendulum_rail           eqs. (4)-(8) with the tip on a straight rail, a ``PointOnLine`` row (:func:`rail_terms`)
 geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` row (:func:`gear_terms`,
                                :func:`gear_constraint`)
+free_body                      Newton's and Euler's equations in the body frame (:func:`free_body_terms`)
 =============================  =====================================================================================
 
 Each supplies drift, ctrl and total (eq. 9; eqs. 14, 15, 17 with constraints; ctrl ``B_c B u`` computed directly),
@@ -963,6 +964,42 @@ def _geared_pendulums(p, q, qd, u) -> Split:
     return _assemble(t, qd, drift, ctrl, total, _task(J, bias[:1], drift, task_inertia(J, t.Minv)), kkt)
 
 
+#: The free body's centre of mass and task point ``marker`` in its body frame (``cases.free_body``).
+FREE_BODY_COM = np.array([0.05, -0.03, 0.02])
+FREE_BODY_MARKER = np.array([0.2, 0.1, -0.05])
+
+
+def _hat(a) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def free_body_terms(q, v, m, I1, I2, I3, g):  # noqa: N803
+    """``cases.free_body`` by hand, in the body frame (the free joint's conventions, ``cases.model``): q = (p, x, y,
+    z, w), R = I + 2 w [e]x + 2 [e]x^2 with e = (x, y, z); v = (v_o, w) the body twist (velocity of the body origin,
+    angular velocity, both in the body frame). With the centre of mass c = FREE_BODY_COM and I_c = diag(I1, I2, I3)
+    about it, the momentum about the origin is ``(p_lin, L) = M v`` with
+        M = [[m 1, -m [c]x], [m [c]x, I_c - m [c]x^2]],
+    and Newton's and Euler's equations in a frame turning with the body (Euler's equations with the COM off the
+    origin) are ``d/dt p_lin + w x p_lin = f`` and ``d/dt L + w x L + v_o x p_lin = n_o``, so
+        C qd = (w x p_lin, w x L + v_o x p_lin),   g = -(m R^T gravity, c x m R^T gravity)   (gravity (0, 0, -g)),
+    and ``B u`` is the body wrench (force, moment about the origin). At ``c = 0`` the angular rows are Euler's
+    ``I w' + w x I w = n``. The marker r = FREE_BODY_MARKER is at ``p + R r``: its velocity ``R (v_o + w x r)``, so
+    ``J = R [1, -[r]x]`` and ``Jdot qd = R (w x (v_o + w x r))``. Returns (M, C qd, g, J, Jdot qd)."""
+    e, w4 = np.asarray(q[3:6], dtype=float), float(q[6])
+    R = np.eye(3) + 2.0 * w4 * _hat(e) + 2.0 * _hat(e) @ _hat(e)
+    c, r = FREE_BODY_COM, FREE_BODY_MARKER
+    C = _hat(c)
+    M = np.block([[m * np.eye(3), -m * C], [m * C, np.diag([I1, I2, I3]) - m * C @ C]])
+    vo, w = np.asarray(v[:3], dtype=float), np.asarray(v[3:], dtype=float)
+    lin, ang = np.split(M @ np.concatenate([vo, w]), 2)
+    Cqd = np.concatenate([np.cross(w, lin), np.cross(w, ang) + np.cross(vo, lin)])
+    weight = m * R.T @ np.array([0.0, 0.0, -g])
+    grav = -np.concatenate([weight, np.cross(c, weight)])
+    J = R @ np.hstack([np.eye(3), -_hat(r)])
+    bias = R @ np.cross(w, vo + np.cross(w, r))
+    return M, Cqd, grav, J, bias
+
+
 def _one_joint(M, Cqd, grav, J, bias, u, qd, mass, g) -> Split:
     """A 1-degree-of-freedom case from its (1x1) terms: eq. (9) with M^-1 = 1 / M, the task of eq. (23) and (22)."""
     t = _Terms(M, 1.0 / M, Cqd, grav, u, mass, abs(g))
@@ -987,6 +1024,17 @@ def _spherical_pendulum(p, q, qd, u) -> Split:
     t = _Terms(M, np.diag(1.0 / np.diag(M)), Cqd, grav, u, p["m"], abs(p["g"]))
     drift, ctrl, total = t.accelerations()
     return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, task_inertia_square(J, M)))
+
+
+def _free_body(p, q, qd, u) -> Split:
+    """:func:`free_body_terms`; eq. (9) with M^-1 from numpy (6 x 6), the marker's task by eqs. (23), (22)."""
+    M, Cqd, grav, J, bias = free_body_terms(q, qd, p["m"], p["I1"], p["I2"], p["I3"], p["g"])
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, u, p["m"], abs(p["g"]))
+    drift, ctrl, total = t.accelerations()
+    A = J @ t.Minv @ J.T
+    cond = condition(A)
+    Lambda = np.linalg.inv(A) if np.isfinite(cond) else np.full((3, 3), np.nan)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, (Lambda, cond)))
 
 
 # ------------------------------------------------------------------------------------------------- the voter
@@ -1039,6 +1087,8 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
     "double_pendulum_rail": ClosedForm("article section 3, eqs. (4)-(8), with the tip's PointOnLine row, "
                                        "eqs. (12)-(17)", lambda p: (2, 2, 1), _double_pendulum_rail,
                                        _double_pendulum_rule),
+    "free_body": ClosedForm("Newton's and Euler's equations of a free rigid body in its own frame, by hand",
+                            lambda p: (6, 6, 0), _free_body),
     "geared_pendulums": ClosedForm("two uniform rods by hand coupled by a JointCoupling gear, eqs. (12)-(17)",
                                    lambda p: (2, 2, 1), _geared_pendulums, _gear_rule),
 }

@@ -199,6 +199,12 @@ _coupling_reversed = _declaration_changed(
     "JointCoupling", lambda c: dataclasses.replace(c, coefficients=np.asarray(c.coefficients)[::-1]))
 
 
+def _about_z(quat: np.ndarray) -> np.ndarray:
+    """A quaternion's rotation about z alone: its x and y components dropped, renormalized."""
+    kept = np.array([0.0, 0.0, quat[2], quat[3]])
+    return kept / np.linalg.norm(kept)
+
+
 def _scaled(factor: float):
     return lambda f: lambda *args, **kw: factor * f(*args, **kw)
 
@@ -233,8 +239,17 @@ CATALOG: list[SharedFault] = [
                 "the self-test canaries (their states are sampled) or the sampling coverage"),
     SharedFault("sampling-projection-skipped", "sampling",
                 "Constrained states are not projected onto the constraint manifold (q and qd used as drawn).",
-                ("crosscheck.sampling:admissible",), lambda f: lambda model, q, qd, rng, span: (q, qd),
+                ("crosscheck.sampling:admissible",), lambda f: lambda model, q, qd, rng: (q, qd),
                 "the self-test canaries (their states are sampled) or the exact values (phi, Jc qd)"),
+    SharedFault("sampling-orientations-about-z-only", "sampling",
+                "The sampler's orientations of spherical and free joints are rotations about z only (the x and y "
+                "components of a drawn quaternion dropped), not uniform on SO(3).",
+                ("cases.configuration:random_quaternion",), lambda f: lambda rng: _about_z(f(rng)),
+                "the sampling coverage"),
+    SharedFault("factory-floating-com-negated", "case factories",
+                "The Lie-group case factories place each body's centre of mass at -c in the body frame.",
+                ("cases.floating:Body",), _body_with(lambda kw: {**kw, "com": -np.asarray(kw["com"], dtype=float)}),
+                "the closed forms (free_body)"),
     SharedFault("charts-rate-term-dropped", "charts",
                 "Joint accelerations are mapped into a chart by Dpsi^-1 qdd alone, without the (d/dt Dpsi) pd term.",
                 ("crosscheck.charts:acceleration_to_chart",),

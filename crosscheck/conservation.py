@@ -10,6 +10,22 @@ Christoffel identities. For the Christoffel-consistent ``C`` (``C_ij = sum_k Gam
 ``Mdot - 2C`` is skew-symmetric, and ``C qd = M Gamma(qd, qd)`` equals the velocity-product vector that the
 Euler–Lagrange derivation (Christoffel symbols of the first kind, symbolically) and Pinocchio (RNEA) compute,
 when those backends are among the ones evaluated.
+
+Momentum (Noether, article 9.2). Under the drift of an unconstrained model the only external loads are gravity and
+the reactions of the joints that hold the tree to the world, and those do no work along the joints' own freedoms:
+the momentum conjugate to each freedom changes only by gravity's share. With ``m`` the total mass, ``c`` the centre
+of mass, ``P`` the linear momentum and ``L_G`` the angular momentum about c (world axes):
+
+* every root on a free joint (a floating system): ``dP/dt = m g`` and ``dL_G/dt = 0``; with zero gravity both are
+  conserved;
+* one root, on a revolute joint with world axis ``a`` through ``O``: ``d/dt a . L_O = a . ((c - O) x m g)``
+  (``L_O = L_G + (c - O) x P``), conserved when ``a`` is parallel to gravity; on a spherical joint centred at O, the
+  whole ``dL_O/dt = (c - O) x m g``; on a prismatic joint along ``a``: ``d/dt a . P = m a . g``.
+
+Each backend's drift is put through one momentum bookkeeping, the harness's ``dh_G/dt = A_G qdd + b`` (Pinocchio's
+centroidal map on the model's data, ``crosscheck.reference.centroidal_momentum_map``), and the exact rates vote
+with them. A drift the comparison accepts moves the rate by up to ``|A_G|`` times its tolerance, and the rate's own
+rounding is eps times the terms it sums; the tolerance is their sum.
 """
 
 from __future__ import annotations
@@ -54,7 +70,7 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
 
 def checks(model: Model, state: State, splits: Mapping[str, Split],
            at: policy.Scales | None = None) -> dict[str, Comparison]:
-    """Energy-rate and Christoffel checks at ``state`` for the (trusted) ``splits``; ``at``: their
+    """Energy-rate, Christoffel and momentum checks at ``state`` for the (trusted) ``splits``; ``at``: their
     ``tolerance.scales`` at the state when the caller has them (computed here otherwise)."""
     q, qd = np.array(state.q), np.array(state.qd)
     if at is None:
@@ -68,6 +84,7 @@ def checks(model: Model, state: State, splits: Mapping[str, Split],
     out = {"conservation: energy rate at drift": compare("dE/dt", {**at_drift, "exact": 0.0}, tol),
            "conservation: energy rate at total - power": compare("dE/dt - P", {**at_total, "exact": 0.0}, tol)}
     out.update(_christoffel(model, q, qd, splits, at, M, force))
+    out.update(momentum_checks(model, state, splits, at))
     return out
 
 
@@ -93,3 +110,56 @@ def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: policy.Sc
     return {"conservation: Mdot - 2C skew-symmetric": compare("N + N^T", {"N + N^T": (N + N.T).ravel(),
                                                                           "exact": np.zeros(N.size)}, size),
             "conservation: C qd = M Gamma(qd, qd)": compare("C qd", Cqd, FACTOR * EPS * at.cond_M * force)}
+
+
+def _momentum_rows(model: Model, c: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(R, exact)``: the checked rates are ``R (dh_G/dt)`` with R (r x 6) picking momentum components (about the
+    root's point) and ``exact`` (r,) their value under the drift (module doc); None
+    when no momentum law applies (constrained, several roots not all free, or no law for the root's joint)."""
+    roots = [i for i, p in enumerate(model.parent_index) if p < 0]
+    if model.constraints:
+        return None
+    m, g = sum(b.mass for b in model.bodies), np.asarray(model.gravity, dtype=float)
+    if all(model.bodies[i].joint == "free" for i in roots):
+        return np.eye(6), np.concatenate([m * g, np.zeros(3)])
+    if len(roots) != 1:
+        return None
+    root = model.bodies[roots[0]]
+    lever = c - np.asarray(root.translation, dtype=float)            # c - O, O the root joint's origin (world)
+    about_O = np.zeros((3, 6))                                        # L_O = L_G + (c - O) x P
+    about_O[:, 3:] = np.eye(3)
+    about_O[:, :3] = np.array([[0.0, -lever[2], lever[1]], [lever[2], 0.0, -lever[0]], [-lever[1], lever[0], 0.0]])
+    moment = np.cross(lever, m * g)
+    axis = np.asarray(root.rotation, dtype=float) @ np.asarray(root.axis, dtype=float)
+    if root.joint == "spherical":
+        return about_O, moment
+    if root.joint == "revolute":
+        return axis @ about_O[None], np.array([axis @ moment])
+    if root.joint == "prismatic":
+        row = np.concatenate([axis, np.zeros(3)])[None]
+        return row, np.array([m * axis @ g])
+    return None
+
+
+def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
+                    at: policy.Scales | None = None) -> dict[str, Comparison]:
+    """The momentum law of the model's roots under each backend's drift (module doc, "Momentum"); empty when no
+    law applies."""
+    from crosscheck.reference import centroidal_momentum_map
+
+    q, qd = np.array(state.q), np.array(state.qd)
+    A, b, c = centroidal_momentum_map(model, q, qd)
+    rows = _momentum_rows(model, c)
+    if rows is None or not splits:
+        return {}
+    R, exact = rows
+    if at is None:
+        at = policy.scales(splits.values(), model, q, qd, u=state.u)
+    Q, bias = R @ A, R @ b
+    rates = {name: Q @ s.drift + bias if np.all(np.isfinite(s.drift)) else np.full(len(exact), np.nan)
+             for name, s in splits.items()}
+    size = np.max([np.abs(Q) @ np.abs(s.drift) for s in splits.values() if np.all(np.isfinite(s.drift))]
+                  + [np.zeros(len(exact))], axis=0)
+    tol = (np.abs(Q) @ np.broadcast_to(policy.tolerance("drift", at), (model.nv,))
+           + FACTOR * EPS * (size + np.abs(bias) + np.abs(exact) + np.abs(R) @ np.abs(b)))
+    return {"conservation: momentum rate at drift (Noether)": compare("dh/dt", {**rates, "exact": exact}, tol)}

@@ -99,7 +99,7 @@ def _prismatic_axis_in_parent_frame(placements):
         P, r, W = placements(model, q)
         for i, body in enumerate(model.bodies):
             if body.joint == "prismatic":
-                r[i] = body.translation + q[i] * body.axis
+                r[i] = body.translation + q[model.q_index[i]] * body.axis
         return P, r, W
     return faulty
 
@@ -324,7 +324,67 @@ GEOMETRIC = [
 ]
 
 
-CATALOG: list[Fault] = EULER_LAGRANGE + NEWTON_EULER + SCREW + OPERATIONAL_SPACE + GEOMETRIC
+# ------------------------------------------------------------------------ Lie groups: spherical and free joints
+
+
+def _quaternion_read_as_wxyz(axis: int):
+    """A rotation-from-quaternion function fed a stored ``(x, y, z, w)`` read as ``(w, x, y, z)``: the function then
+    sees ``(x, y, z, w) = (y, z, w, x)`` of the stored components."""
+    return lambda f: lambda quat, *rest: f(np.roll(quat, -1, axis=axis), *rest)
+
+
+def _twist_rate_as_position_acceleration(group_motion):
+    """Newton–Euler's free-joint step with ``d/dt v_lin`` taken as the body-frame second derivative of the position,
+    without the ``(w_in + w) x v_lin`` of a turning frame."""
+    def faulty(joint, w_in, wd_in, a_origin, v, vd):
+        w, wd, a = group_motion(joint, w_in, wd_in, a_origin, v, vd)
+        if joint == "free":
+            a = a - np.array([(w_in + w)[1] * v[2] - (w_in + w)[2] * v[1], (w_in + w)[2] * v[0] - (w_in + w)[0] * v[2],
+                              (w_in + w)[0] * v[1] - (w_in + w)[1] * v[0]])
+        return w, wd, a
+    return faulty
+
+
+def _free_twist_order_swapped(unit_twists: dict) -> dict:
+    """The free joint's unit twists for a velocity block read as (angular, linear) instead of (linear, angular)."""
+    return {**unit_twists, "free": np.roll(unit_twists["free"], 3, axis=0)}
+
+
+GROUP = [
+    Fault("ne-quaternion-read-wxyz", NE,
+          "The quaternion of a spherical or free joint is read in the (w, x, y, z) order of some libraries (Eigen's "
+          "constructor, MuJoCo) instead of the stored (x, y, z, w).",
+          "formalisms.newton_euler:_quaternion_rotation", _quaternion_read_as_wxyz(0)),
+    Fault("ne-free-twist-rate-as-position-acceleration", NE,
+          "A free joint's acceleration is used as the body-frame second derivative of its position: d/dt of the "
+          "body twist misses (w_in + w) x v_lin (world and body base velocity confused).",
+          "formalisms.newton_euler:_group_motion", _twist_rate_as_position_acceleration),
+    Fault("screw-quaternion-conjugated", "screw",   # (SCREW is the list of screw faults by now)
+          "The rotation of a quaternion is built as its inverse R^T (the passive, frame-rotation convention mixed "
+          "with the active one).",
+          "formalisms.screw.lie:quaternion_rotation", lambda f: lambda quat: np.swapaxes(f(quat), -1, -2)),
+    Fault("screw-free-twist-order-swapped", "screw",
+          "A free joint's velocity block is taken as (angular, linear), the order of the (w, v) twists, instead of "
+          "Pinocchio's (linear, angular).",
+          "formalisms.screw.kinematics:GROUP_UNIT_TWISTS", _free_twist_order_swapped),
+    Fault("osc-quaternion-read-wxyz", OSC,
+          "The quaternion of a spherical or free joint is read in the (w, x, y, z) order instead of (x, y, z, w).",
+          "formalisms.operational_space:_quaternion_rotations", _quaternion_read_as_wxyz(-1)),
+    Fault("el-exponential-first-order", EL,
+          "The local exponential chart around the state is cut to exp(X) = I + X, so dexp is taken as the identity "
+          "near the state and the velocity products of the group joints lose their 1/2 ad term.",
+          "formalisms.euler_lagrange:_exp_series", lambda f: lambda X, order: f(X, 1), derived=True),
+    Fault("el-quaternion-transposed", EL,
+          "The rotation of a quaternion is its transpose (the passive convention).",
+          "formalisms.euler_lagrange:_quaternion_rotation", lambda f: lambda st, quat: f(st, quat).T, derived=True),
+    Fault("geo-coadjoint-term-dropped", GEO,
+          "The group chart's exponential is cut to first order, which drops the Euler–Poincaré coadjoint term "
+          "(-ad*_v M v, the gyroscopic wrench) from the metric's Christoffel symbols.",
+          "formalisms.geometric:_exp_series", lambda f: lambda X, order: f(X, 1), derived=True),
+]
+
+
+CATALOG: list[Fault] = EULER_LAGRANGE + NEWTON_EULER + SCREW + OPERATIONAL_SPACE + GEOMETRIC + GROUP
 
 
 def names() -> list[str]:

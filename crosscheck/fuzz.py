@@ -93,8 +93,8 @@ POLL = 0.1
 #: Seconds a chunk's result may take to arrive after its worker exited before the worker counts as lost.
 LOST_AFTER = 2.0
 #: The parameters that make two runs parts of one campaign (merge and resume require them equal).
-IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "backends", "plugins",
-            "shrink_calls", "charts", "frames", "conservation")
+IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "group_joints", "backends",
+            "plugins", "shrink_calls", "charts", "frames", "conservation")
 
 
 class FuzzError(ValueError):
@@ -106,7 +106,9 @@ class FuzzError(ValueError):
 class FuzzConfig:
     """A campaign's parameters. ``examples`` bounds the run (examples generated over all shards, in chunks of
     ``chunk_examples``), else ``minutes`` does; ``workers`` 0 runs in this process (tests, debugging).
-    ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones. ``charts``,
+    ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones.
+    ``group_joints``: the drawn trees may have spherical joints, and free joints on bodies hung from the world
+    (``crosscheck.testing.models(group=True)``). ``charts``,
     ``frames`` and ``conservation`` turn the gate's checks on or off (the chart and frame are drawn either way)."""
 
     seed: int = 0
@@ -121,6 +123,7 @@ class FuzzConfig:
     max_bodies: int = 4
     max_states: int = 4
     constraints: bool | None = None
+    group_joints: bool = True
     shrink_calls: int = SHRINK_CALLS
     charts: bool = True
     frames: bool = True
@@ -364,7 +367,8 @@ def evaluate(model: Model, state: State, chart: charts.Chart, frame: frames.Fram
     ``chart``, the frame check on the scene moved by ``frame`` and the conservation checks."""
     outcome = gate.evaluate(model, state, chosen)
     scene = (frame, frames.move_scene(model, frame)) if checks["frames"] else None
-    gate.add_checks(model, outcome, chosen, [chart] if checks["charts"] else [], scene, checks["conservation"])
+    in_chart = [chart] if checks["charts"] and charts.applies(model) else []   # none for group joints
+    gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"])
     return outcome
 
 
@@ -394,7 +398,7 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
     @given(st.data())
     def backends_agree(data):
         _INTERRUPTS.poll()
-        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints), label="model")
+        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints), label="model")
         count = data.draw(st.integers(1, cfg.max_states), label="number of states")
         states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
         chart_spec = data.draw(testing.chart_specs(model), label="chart (name, seed)")

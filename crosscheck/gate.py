@@ -43,21 +43,23 @@ class Checks:
 
 @dataclass(frozen=True)
 class CaseSpec:
-    """How to build one case: a built-in factory with parameters, or a URDF file."""
+    """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
+    URDF ``base`` ("fixed", "free", or None: the file's own; ``cases.from_file``)."""
 
     name: str
     params: tuple[tuple[str, str], ...] = ()
-    urdf: str | None = None
+    path: str | None = None
+    base: str | None = None
 
     def build(self) -> Model:
-        if self.urdf is not None:
-            return cases.from_urdf(self.urdf, name=self.name)
+        if self.path is not None:
+            return cases.from_file(self.path, name=self.name, base=self.base)
         return cases.load(self.name, **dict(self.params))
 
     def closed_form(self):
         """The ``closed_form`` voter bound to this built-in case and its parameters (``crosscheck.closed_forms``),
-        None when the case has none (a URDF file never has one)."""
-        if self.urdf is not None:
+        None when the case has none (a model file never has one)."""
+        if self.path is not None:
             return None
         from crosscheck import closed_forms
 
@@ -65,8 +67,8 @@ class CaseSpec:
 
     def cli_args(self) -> str:
         """The command-line arguments that select this case."""
-        if self.urdf is not None:
-            return f"--model {self.urdf}"
+        if self.path is not None:
+            return f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
         return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params])
 
 
@@ -295,7 +297,7 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
     """What the case's closed form covers, in words, for the report ("" when closed forms are off)."""
     if not checks.closed_forms:
         return ""
-    if spec.urdf is not None:
+    if spec.path is not None:
         return "none (a model file; its reference is built from the file)"
     from crosscheck import closed_forms
 

@@ -28,6 +28,11 @@ def _vec(x) -> str:
     return "[" + ", ".join(f"{v:.10g}" for v in np.ravel(x)) + "]" if hasattr(x, "__len__") else f"{x:.10g}"
 
 
+def _no_chart(model) -> str:
+    """Why a case has no chart checked: "-", or that joint-coordinate charts do not apply to its group joints."""
+    return "-" if charts.applies(model) else "none apply (spherical or free joints: quaternion coordinates)"
+
+
 def _arg(values) -> str:
     return ",".join(repr(float(v)) for v in values)
 
@@ -182,7 +187,7 @@ def _checks_section(result: GateResult) -> list[str]:
               f"worst error/tolerance {worst:.3g}" for family, (cases, states, comps, worst, bad) in totals.items()]
     lines += ["", "| case | check | states | comparisons | DISAGREE | worst error/tolerance | tolerance at worst | "
               "quantity | at state |", "|---|---|---|---|---|---|---|---|---|"] + rows + [""]
-    charts_used = [f"{case.spec.name}: {', '.join(case.charts) or '-'}" for case in result.cases]
+    charts_used = [f"{case.spec.name}: {', '.join(case.charts) or _no_chart(case.model)}" for case in result.cases]
     frames_used = [f"{case.spec.name}: " + "; ".join(
         f"{f.name} = (R = {_vec(f.rotation.ravel())}, t = {_vec(f.translation)})" for f in case.frames)
         for case in result.cases if case.frames]
@@ -218,9 +223,11 @@ def _transfer(per_coord: np.ndarray) -> float:
 
 
 def _coordinates(model, per_coord: np.ndarray, sign: float) -> str:
-    """The joints (by body name) the constraint feeds (sign +1) or drains (sign -1), largest first."""
+    """The velocity coordinates (by body name, with its component for a ball or free joint: ``Model.velocity_labels``)
+    the constraint feeds (sign +1) or drains (sign -1), largest first."""
     order = np.argsort(-sign * per_coord)
-    picked = [f"{model.bodies[i].name} ({per_coord[i]:+.3g} W)" for i in order if sign * per_coord[i] > 0.0]
+    labels = model.velocity_labels
+    picked = [f"{labels[i]} ({per_coord[i]:+.3g} W)" for i in order if sign * per_coord[i] > 0.0]
     return ", ".join(picked[:2]) or "-"
 
 

@@ -106,6 +106,14 @@ def _rail(draw) -> dict:
             "y0": float(y0), "incline": incline}
 
 
+def _free_body(draw) -> dict:
+    """Principal moments on the triangle inequality's right side: the third between the others' difference and sum,
+    10-90 % of the way (a flat body at the boundary is a different scene)."""
+    I1, I2 = draw(INERTIA), draw(INERTIA)
+    I3 = abs(I1 - I2) + (I1 + I2 - abs(I1 - I2)) * draw(_floats(0.1, 0.9))
+    return {"m": draw(MASS), "I1": I1, "I2": I2, "I3": I3, "g": draw(st.one_of(st.just(0.0), GRAVITY))}
+
+
 #: Drawn typed parameters per case (within each factory's domain; see the module doc of crosscheck.closed_forms).
 PARAMETERS = {
     "double_pendulum": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "g": GRAVITY,
@@ -127,6 +135,7 @@ PARAMETERS = {
     "four_bar": st.composite(_four_bar)(),
     "slider_crank": st.composite(_slider_crank)(),
     "double_pendulum_rail": st.composite(_rail)(),
+    "free_body": st.composite(_free_body)(),
     "geared_pendulums": st.fixed_dictionaries({"m1": MASS, "l1": LENGTH, "m2": MASS, "l2": LENGTH,
                                                "ratio": st.one_of(_floats(-3.0, -0.3), _floats(0.3, 3.0)),
                                                "offset": ANGLE, "spacing": _floats(0.5, 3.0), "g": GRAVITY}),

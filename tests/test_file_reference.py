@@ -331,7 +331,7 @@ def test_a_joint_with_more_than_one_velocity_is_named(chain_path, tmp_path):
     model = from_urdf(chain_path)
     planar = _write(tmp_path, CHAIN.replace('name="j_b" type="continuous"', 'name="j_b" type="planar"'), "planar")
     moved_to = _rebuilt(model, source=ModelSource("urdf", planar))
-    with pytest.raises(ValueError, match="URDF joint 'j_b' .* JointModelPlanar with nq 4, nv 3") as info:
+    with pytest.raises(ValueError, match="joint 'j_b' of .* is a JointModelPlanar with nq 4, nv 3") as info:
         reference.joint_map(moved_to)
     assert planar in str(info.value) and "body 'b'" in str(info.value)
 
@@ -425,7 +425,7 @@ def test_conversion_bug_makes_the_reference_the_outlier_on_a_branched_urdf(bug, 
 def test_gate_on_a_clean_loaded_urdf_passes_with_moved_scenes(branched_path):
     """The whole gate (charts, two moved scenes whose reference is built from the file, conservation) on the
     branched URDF: no disagreement, so the file-built reference is consistent with itself in every scene."""
-    spec = gate.CaseSpec("branched", urdf=branched_path)
+    spec = gate.CaseSpec("branched", path=branched_path)
     result = gate.run_gate([spec], [get(n) for n in names()], samples=4, seed=1)
     assert result.passed, [(s.index, s.errors, {k: c.worst_ratio for k, c in {**s.comparisons, **s.checks}.items()
                                                  if c.verdict == DISAGREE}) for s in result.cases[0].states]

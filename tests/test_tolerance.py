@@ -170,8 +170,8 @@ CONSTRAINT_SOLVE_FINDINGS = sorted((Path(__file__).parent / "findings").glob("*.
 
 @pytest.mark.parametrize("path", CONSTRAINT_SOLVE_FINDINGS, ids=lambda p: p.stem)
 def test_the_componentwise_constraint_bound_covers_its_campaign_findings(path):
-    """Findings of campaigns (seeds 5150 and 5151 constraints-always, 1125, 2611) against the first componentwise bounds of
-    the constraint solve, each from a rounding source they lacked (tests/findings/*.json, the saved findings, exact
+    """Findings of campaigns (seeds 5150 and 5151 constraints-always, 1125, 2611) against the first componentwise bounds
+    of the constraint solve, each from a rounding source they lacked (tests/findings/*.json, the saved findings, exact
     to the bit): a null-space basis mixing two couplings (5.7e-15 where the tolerance was 1e-26), rows rounding into
     their structural zeros in a moved scene (a row 8.7e-4 long, lam 1e4: 3e-12 against 1.2e-12), an orthogonal
     factorization's normwise backward error (a 100 kg base beside 1 g links: 4e-9 against 5e-10), the free

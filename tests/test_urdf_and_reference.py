@@ -225,15 +225,25 @@ def test_tiny_urdf_dynamics_match_pinocchio_with_continuous_joint_chart(tiny_pat
     _compare_dynamics(ours, direct, to_direct_q, np.random.default_rng(11))
 
 
-@pytest.mark.parametrize("joint_type, pin_type", [("floating", "FreeFlyer"), ("planar", "Planar")])
-def test_unsupported_joint_type_is_named(tmp_path, joint_type, pin_type):
-    urdf = TINY.replace('<joint name="j_b" type="continuous">', f'<joint name="j_b" type="{joint_type}">')
+def test_unsupported_joint_type_is_named(tmp_path):
+    urdf = TINY.replace('<joint name="j_b" type="continuous">', '<joint name="j_b" type="planar">')
     path = tmp_path / "bad.urdf"
     path.write_text(urdf)
     with pytest.raises(ModelError) as info:
         from_urdf(path)
     msg = str(info.value)
-    assert "j_b" in msg and pin_type in msg and str(path) in msg
+    assert "j_b" in msg and "Planar" in msg and str(path) in msg
+
+
+def test_a_floating_joint_loads_as_a_free_joint(tmp_path):
+    """A URDF ``floating`` joint is Pinocchio's FreeFlyer: our ``free`` joint (nq 7, nv 6), same state layout."""
+    urdf = TINY.replace('<joint name="j_b" type="continuous">', '<joint name="j_b" type="floating">')
+    path = tmp_path / "floating.urdf"
+    path.write_text(urdf)
+    model = from_urdf(path, base="fixed")
+    direct = pin.buildModelFromUrdf(str(path))
+    assert [b.joint for b in model.bodies].count("free") == 1
+    assert (model.nq, model.nv) == (direct.nq, direct.nv) == (9, 8)
 
 
 def test_missing_and_unparsable_files_name_the_path(tmp_path):

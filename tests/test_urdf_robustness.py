@@ -217,8 +217,6 @@ BAD = {
     "zero axis": (_robot([_link("base"), _link("a")], [_joint("j1", "base", "a", axis="0 0 0")]), "zero joint axis"),
     "NaN origin": (_robot([_link("base"), _link("a")], [_joint("j1", "base", "a", xyz="nan 0 0")]),
                    r"urdfdom: Unable to parse component \[nan\]"),
-    "floating": (_robot([_link("base"), _link("a")], [_joint("j1", "base", "a", kind="floating")]),
-                 "JointModelFreeFlyer"),
     "planar": (_robot([_link("base"), _link("a")], [_joint("j1", "base", "a", kind="planar")]), "JointModelPlanar"),
     "mimic of a missing joint": (_chain(_joint("j1", "base", "a"), _joint("j2", "a", "b", extra=_mimic("nope")),
                                         _joint("j3", "b", "c")), "mimics joint 'nope', which does not exist"),
