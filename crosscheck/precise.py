@@ -7,11 +7,12 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
 
 * kinematics in the world frame per body, parents first: rotation R, origin p, joint axis a and origin o, angular
   velocity w, origin velocity v, and at ``qdd = 0`` the angular acceleration and the origin's classical acceleration;
-  each joint's unit twist at the world origin, ``S = (a, o x a)`` (revolute) or ``(0, a)`` (prismatic);
-* ``M`` from composite bodies (CRBA): the momentum ``(L, P)`` of body i's subtree moving with ``S_i`` paired with
-  ``S_j`` for each ancestor j, ``M_ij = a_j . L + v_j . P``;
+  each velocity column's unit twist at the world origin (angular part, velocity of the point at the world origin),
+  ``S = (a, o x a)`` (revolute) or ``(0, a)`` (prismatic); spherical and free joints below;
+* ``M`` from composite bodies (CRBA): the momentum ``(L, P)`` of body i's subtree moving with ``S_c`` (c a column of
+  body i) paired with ``S_d`` for each column d of i and of its ancestors, ``M_cd = a_d . L + v_d . P``;
 * ``h = C qd + g`` by a recursive Newton–Euler pass at ``qdd = 0``: each body's ``m (a_com - gravity)`` and
-  ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_j``;
+  ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_c``;
 * each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point
   Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
 * the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
@@ -19,13 +20,41 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
   (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
   lam_drift (eq. 14), and ``ctrl = B_c B u`` (eq. 17) computed directly.
 
+Group joints (``cases.model``; article 2.1-2.2, 6.2, 6.4). With the joint frame ``(Rj, o)`` (the parent's frame
+times the placement) and the parent's ``w0, alpha0`` and origin ``p0, v0, acc0``, a body on a
+
+* spherical joint, ``q_i = (x, y, z, w)``, ``v_i = omega`` (body frame): ``R = Rj R(quat)``, ``p = o``; its columns
+  are the rotations about the body's own axes through its origin, ``S_k = (e_k, p x e_k)`` with ``e_k = R[:, k]``;
+  ``w = w0 + R omega``, ``alpha = alpha0 + w0 x R omega`` (at ``omegadot = 0``, ``d/dt (R omega) = w x R omega``
+  and ``w x R omega = w0 x R omega``); the origin moves with the parent: ``v = v0 + w0 x r``,
+  ``acc = acc0 + alpha0 x r + w0 x (w0 x r)``, ``r = p - p0`` (as for a revolute joint);
+* free joint, ``q_i = (p_q, x, y, z, w)``, ``v_i = (nu, omega)`` = ``(R(quat)^T pdot_q, omega)``, the body twist:
+  ``R = Rj R(quat)``, ``p = o + Rj p_q``; its columns are the translations along the body's axes, then the rotations
+  about them through its origin: ``S_k = (0, e_k)``, ``S_{3+k} = (e_k, p x e_k)``; ``w``, ``alpha`` as for the
+  spherical joint; ``v = v0 + w0 x r + R nu`` and, at ``(nudot, omegadot) = 0``, ``acc = acc0 + alpha0 x r +
+  w0 x (w0 x r) + (w0 + w) x R nu`` (the term ``w0 x R nu`` from the moving joint frame, ``w x R nu`` from
+  ``d/dt (R nu)``: the acceleration is the derivative of the body twist, not ``R pdd_q``; for a free body hanging
+  from the world, ``acc = w x v``).
+
+Since each column's twist is fixed in the moving body (spherical, free) or in the parent (revolute, prismatic), the
+world ``S`` changes with the motion; the Newton–Euler pass with these accelerations at zero ``vdot`` gives ``h``
+in velocity space, and ``M`` and the point Jacobians use the same columns, so ``M vdot + h = B u + Jc^T lam`` with
+``vdot`` the time derivative of ``v``. A joint coupling joins 1-DOF joints (``cases.constraints``): ``phi`` reads
+their q entries (``q_index``), ``Jc`` their velocity columns.
+
 Exactness. q, qd, u and the model's numbers are taken as their exact binary values (``mpf(float)``), so the result is
 the exact answer for those inputs, to ``digits``. Two kinds of model data are unit or orthogonal only to rounding in
 float, and are made exactly so first: joint axes are normalized, and placement rotations are replaced by the nearest
 rotation (polar decomposition), so that the bodies are rigid; the change is at the level of the float data's own
-rounding (``cases.model`` validates both to a few eps). Constraint directions are used as given.
+rounding (``cases.model`` validates both to a few eps). Constraint directions are used as given. A quaternion
+``(x, y, z, w)`` of q is taken exactly and normalized in mpmath before ``R(quat) = I + 2 w [u]x + 2 [u]x^2`` (u =
+``(x, y, z)``) is formed: the float quaternion is unit only to about 1e-16 (``check_state`` accepts 1e-12), and
+the rigid rotation of the normalized quaternion is the exact meaning taken here. Pinocchio does not normalize, so
+float backends that follow it differ from this reference by about ``| |quat| - 1 |`` (1e-16 for a quaternion
+normalized in float).
 
-Cost: O(n^2) multiprecision operations per state plus Cholesky (n^3 / 6); see the report of issue 7 for timings.
+Cost: O(n^2) multiprecision operations per state plus Cholesky (n^3 / 6), n = nv; see the report of issue 7 for
+timings (Solo12, nv 18: about 12 ms per split, 75 ms with its 12 contact rows, on gmpy).
 """
 
 from __future__ import annotations
@@ -38,7 +67,7 @@ import numpy as np
 from mpmath import mpf
 
 from cases.constraints import JointCoupling, PointOnLine, PointsCoincide
-from cases.model import Model
+from cases.model import GROUP_JOINTS, JOINT_DOF, Model
 from crosscheck.conditioning import redundant_below
 from formalisms.interface import check_state
 
@@ -95,12 +124,13 @@ class _Body:
 
     parent: int
     revolute: bool
-    axis: tuple
+    axis: tuple       # unit (revolute, prismatic); zero for a group joint, which has none
     mass: mpf
     com: tuple
     inertia: tuple
     rotation: tuple
     translation: tuple
+    joint: str        # cases.model joint type (spherical and free: group joints)
 
 
 @dataclass(frozen=True)
@@ -112,6 +142,8 @@ class _Data:
     gravity: tuple
     B: tuple
     rows: tuple       # per declaration, its numbers as mpf (see _constraint_data)
+    q_index: tuple    # where body i's block of q starts
+    cols: tuple       # body i's velocity columns (indices into v, M's rows): range(v_index[i], v_index[i] + nv_i)
 
 
 def _vec(x) -> tuple:
@@ -158,11 +190,13 @@ def _constraint_data(model: Model, c) -> tuple:
 @functools.lru_cache(maxsize=32)
 def _prepare(model: Model, prec: int) -> _Data:
     """The model's data at binary precision ``prec`` (the mpmath context must be at that precision)."""
-    bodies = tuple(_Body(int(model.parent_index[i]), b.joint == "revolute", _unit(b.axis), mpf(b.mass),
-                         _vec(b.com), _mat(b.inertia), _nearest_rotation(_mat(b.rotation)), _vec(b.translation))
+    bodies = tuple(_Body(int(model.parent_index[i]), b.joint == "revolute",
+                         _ZERO3 if b.joint in GROUP_JOINTS else _unit(b.axis), mpf(b.mass), _vec(b.com),
+                         _mat(b.inertia), _nearest_rotation(_mat(b.rotation)), _vec(b.translation), b.joint)
                    for i, b in enumerate(model.bodies))
+    cols = tuple(tuple(range(v, v + JOINT_DOF[b.joint][1])) for v, b in zip(model.v_index, model.bodies))
     return _Data(bodies, tuple(model.topological_order), _vec(model.gravity), _mat(model.input_map),
-                 tuple(_constraint_data(model, c) for c in model.constraints))
+                 tuple(_constraint_data(model, c) for c in model.constraints), tuple(model.q_index), cols)
 
 
 def _check_digits(digits) -> int:
@@ -177,7 +211,8 @@ def _check_digits(digits) -> int:
 
 @dataclass(frozen=True)
 class _Kin:
-    """World-frame kinematics of every body at (q, qd) and qdd = 0 (lists indexed by body)."""
+    """World-frame kinematics of every body at (q, qd) and qdd = 0 (lists indexed by body, ``S`` by velocity
+    column)."""
 
     R: list
     p: list        # body origin
@@ -185,7 +220,7 @@ class _Kin:
     v: list        # origin velocity
     alpha: list    # angular acceleration at qdd = 0
     acc: list      # origin classical acceleration at qdd = 0
-    S: list        # joint unit twist at the world origin: (angular, linear)
+    S: list        # each velocity column's unit twist at the world origin: (angular, linear)
     inertia: list  # COM inertia in the world frame, R I R^T (None for a point mass)
 
 
@@ -197,11 +232,46 @@ def _axis_rotation(a, angle):
     return tuple(tuple((1 if i == j else 0) + s * K[i][j] + (1 - c) * K2[i][j] for j in range(3)) for i in range(3))
 
 
+def _quaternion_rotation(x, y, z, w):
+    """``R = I + 2 w [u]x + 2 [u]x^2`` of the quaternion ``(u, w) = (x, y, z, w)`` normalized first (module doc)."""
+    s = 1 / mpmath.sqrt(mpmath.fsum((x * x, y * y, z * z, w * w)))
+    x, y, z, w = x * s, y * s, z * s, w * s
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+
+
+def _group_joint(b: _Body, q, qd, qi: int, vi: int, parent: tuple, Rj, o) -> tuple:
+    """``(R, p, w, v, alpha, acc, S)`` of a body on a spherical or free joint (module doc, group joints): ``parent``
+    is ``(R0, p0, w0, v0, alpha0, acc0)``, ``Rj``, ``o`` the joint frame's rotation and origin."""
+    R0, p0, w0, v0, al0, ac0 = parent
+    free = b.joint == "free"
+    quat = q[qi + 3:qi + 7] if free else q[qi:qi + 4]
+    R = _matmul(Rj, _quaternion_rotation(*quat))
+    axes = _transpose(R)                                    # the body's axes in the world: R e_k
+    w_rel = _matvec(R, qd[vi + 3:vi + 6] if free else qd[vi:vi + 3])
+    w = _add(w0, w_rel)
+    alpha = _add(al0, _cross(w0, w_rel))                    # d/dt (R omega_b) = w x R omega_b = w0 x R omega_b
+    p = _add(o, _matvec(Rj, q[qi:qi + 3])) if free else o
+    r = _sub(p, p0)
+    v = _add(v0, _cross(w0, r))
+    acc = _add(_add(ac0, _cross(al0, r)), _cross(w0, _cross(w0, r)))
+    if free:
+        v_rel = _matvec(R, qd[vi:vi + 3])                   # R nu: the body-frame linear velocity in the world
+        v = _add(v, v_rel)
+        acc = _add(acc, _cross(_add(w0, w), v_rel))         # w0 x R nu + d/dt (R nu) at nudot = 0
+        S = [(_ZERO3, e) for e in axes] + [(e, _cross(p, e)) for e in axes]
+    else:
+        S = [(e, _cross(p, e)) for e in axes]
+    return R, p, w, v, alpha, acc, S
+
+
 def _kinematics(data: _Data, q, qd) -> _Kin:
     """One pass parents first: ``X_body = X_parent * placement * motion(q_i)`` (``cases.model``), velocities and the
-    accelerations at qdd = 0 (a prismatic joint adds its Coriolis term ``2 w_parent x a qd_i``)."""
-    n = len(q)
-    kin = _Kin(*([None] * n for _ in range(8)))
+    accelerations at qdd = 0 (a prismatic joint adds its Coriolis term ``2 w_parent x a qd_i``; group joints:
+    :func:`_group_joint`)."""
+    n = len(data.bodies)
+    kin = _Kin(*([None] * n for _ in range(6)), [None] * len(qd), [None] * n)
     identity = ((mpf(1), 0, 0), (0, mpf(1), 0), (0, 0, mpf(1)))
     for i in data.order:
         b = data.bodies[i]
@@ -212,22 +282,32 @@ def _kinematics(data: _Data, q, qd) -> _Kin:
             R0, p0, w0, v0, al0, ac0 = kin.R[j], kin.p[j], kin.w[j], kin.v[j], kin.alpha[j], kin.acc[j]
         Rj = _matmul(R0, b.rotation)                       # joint frame
         o = _add(p0, _matvec(R0, b.translation))           # joint origin
+        if b.joint in GROUP_JOINTS:
+            R, p, w, v, alpha, acc, S = _group_joint(b, q, qd, data.q_index[i], data.cols[i][0],
+                                                     (R0, p0, w0, v0, al0, ac0), Rj, o)
+            kin.R[i], kin.p[i], kin.w[i], kin.v[i], kin.alpha[i], kin.acc[i] = R, p, w, v, alpha, acc
+            for c, twist in zip(data.cols[i], S):
+                kin.S[c] = twist
+            if any(x for row in b.inertia for x in row):
+                kin.inertia[i] = _matmul(_matmul(R, b.inertia), _transpose(R))
+            continue
+        qi = data.cols[i][0]                                # the 1-DOF joint's velocity column
         a = _matvec(Rj, b.axis)                            # joint axis (world)
         if b.revolute:
-            R, p = _matmul(Rj, _axis_rotation(b.axis, q[i])), o
-            w, alpha = _add(w0, _scale(qd[i], a)), _add(al0, _scale(qd[i], _cross(w0, a)))
+            R, p = _matmul(Rj, _axis_rotation(b.axis, q[data.q_index[i]])), o
+            w, alpha = _add(w0, _scale(qd[qi], a)), _add(al0, _scale(qd[qi], _cross(w0, a)))
             S = (a, _cross(o, a))
         else:
-            R, p = Rj, _add(o, _scale(q[i], a))
+            R, p = Rj, _add(o, _scale(q[data.q_index[i]], a))
             w, alpha = w0, al0
             S = (_ZERO3, a)
         r = _sub(p, p0)
         v = _add(v0, _cross(w0, r))
         acc = _add(_add(ac0, _cross(al0, r)), _cross(w0, _cross(w0, r)))
         if not b.revolute:
-            v = _add(v, _scale(qd[i], a))
-            acc = _add(acc, _scale(2 * qd[i], _cross(w0, a)))
-        kin.R[i], kin.p[i], kin.w[i], kin.v[i], kin.alpha[i], kin.acc[i], kin.S[i] = R, p, w, v, alpha, acc, S
+            v = _add(v, _scale(qd[qi], a))
+            acc = _add(acc, _scale(2 * qd[qi], _cross(w0, a)))
+        kin.R[i], kin.p[i], kin.w[i], kin.v[i], kin.alpha[i], kin.acc[i], kin.S[qi] = R, p, w, v, alpha, acc, S
         if any(x for row in b.inertia for x in row):
             kin.inertia[i] = _matmul(_matmul(R, b.inertia), _transpose(R))
     return kin
@@ -246,7 +326,7 @@ def _ancestors(data: _Data, i: int):
 def _mass_matrix(data: _Data, kin: _Kin) -> list:
     """CRBA: composite mass, first moment h = sum m c and inertia about the world origin per subtree; then
     ``M_ij = a_j . L + v_j . P`` with ``(L, P) = (I_o a_i + h x v_i, m v_i + a_i x h)`` the subtree's momentum at
-    unit rate of joint i."""
+    unit rate of velocity column i (``S_i = (a_i, v_i)``), for every column j of the body or of its ancestors."""
     n = len(data.bodies)
     mass, first, second = [None] * n, [None] * n, [None] * n
     for i, b in enumerate(data.bodies):
@@ -261,19 +341,23 @@ def _mass_matrix(data: _Data, kin: _Kin) -> list:
         if j >= 0:
             mass[j], first[j] = mass[j] + mass[i], _add(first[j], first[i])
             second[j] = tuple(_add(second[j][r], second[i][r]) for r in range(3))
-    M = [[mpf(0)] * n for _ in range(n)]
+    nv = len(kin.S)
+    M = [[mpf(0)] * nv for _ in range(nv)]
     for i in range(n):
-        wi, vi = kin.S[i]
-        L = _add(_matvec(second[i], wi), _cross(first[i], vi))
-        P = _add(_scale(mass[i], vi), _cross(wi, first[i]))
-        for j in _ancestors(data, i):
-            wj, vj = kin.S[j]
-            M[i][j] = M[j][i] = _dot(wj, L) + _dot(vj, P)
+        for ci in data.cols[i]:
+            wi, vi = kin.S[ci]
+            L = _add(_matvec(second[i], wi), _cross(first[i], vi))
+            P = _add(_scale(mass[i], vi), _cross(wi, first[i]))
+            for j in _ancestors(data, i):
+                for cj in data.cols[j]:
+                    wj, vj = kin.S[cj]
+                    M[ci][cj] = M[cj][ci] = _dot(wj, L) + _dot(vj, P)
     return M
 
 
 def _bias(data: _Data, kin: _Kin) -> list:
-    """``h = C qd + g``: Newton–Euler at qdd = 0, each body's wrench about the world origin summed over subtrees."""
+    """``h = C qd + g``: Newton–Euler at qdd = 0, each body's wrench about the world origin summed over subtrees and
+    paired with each of the body's velocity columns."""
     n = len(data.bodies)
     force, moment = [None] * n, [None] * n
     for i, b in enumerate(data.bodies):
@@ -289,14 +373,14 @@ def _bias(data: _Data, kin: _Kin) -> list:
         j = data.bodies[i].parent
         if j >= 0:
             force[j], moment[j] = _add(force[j], force[i]), _add(moment[j], moment[i])
-    return [_dot(kin.S[i][0], moment[i]) + _dot(kin.S[i][1], force[i]) for i in range(n)]
+    return [_dot(kin.S[c][0], moment[i]) + _dot(kin.S[c][1], force[i]) for i in range(n) for c in data.cols[i]]
 
 
 # ----------------------------------------------------------------------------------------------- constraints
 
 
 def _point(data: _Data, kin: _Kin, n: int, body, offset):
-    """World position, velocity, linear Jacobian (3 rows of n) and classical acceleration at qdd = 0 of the point
+    """World position, velocity, linear Jacobian (3 rows of nv) and classical acceleration at qdd = 0 of the point
     ``offset`` of ``body``; a world point (body None) is fixed."""
     zero = [mpf(0)] * n
     if body is None:
@@ -308,9 +392,10 @@ def _point(data: _Data, kin: _Kin, n: int, body, offset):
     acc = _add(_add(kin.acc[body], _cross(kin.alpha[body], r)), _cross(w, _cross(w, r)))
     J = [list(zero) for _ in range(3)]
     for j in _ancestors(data, body):
-        col = _add(kin.S[j][1], _cross(kin.S[j][0], x))
-        for r_ in range(3):
-            J[r_][j] = col[r_]
+        for c in data.cols[j]:
+            col = _add(kin.S[c][1], _cross(kin.S[c][0], x))
+            for r_ in range(3):
+                J[r_][c] = col[r_]
     return x, vel, J, acc
 
 
@@ -323,15 +408,17 @@ def _project_jacobian(D, J):
 
 
 def _rows(data: _Data, kin: _Kin, q, decl):
-    """phi, Jc and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
-    n = len(q)
+    """phi, Jc and Jcdot qd of one declaration (the formulas of ``cases.constraints``; a coupling joins 1-DOF joints,
+    whose velocity is their coordinate's rate)."""
+    n = len(kin.S)
     kind = decl[0]
     if kind == "coupling":
         _, joints, coefficients, offset = decl
-        row = [mpf(0)] * n
+        row, row_q = [mpf(0)] * n, [mpf(0)] * len(q)
         for j, c in zip(joints, coefficients):
-            row[j] += c
-        return [mpmath.fdot(row, q) - offset], [row], [mpf(0)]
+            row[data.cols[j][0]] += c
+            row_q[data.q_index[j]] += c
+        return [mpmath.fdot(row_q, q) - offset], [row], [mpf(0)]
     if kind == "coincide":
         _, a, b, D = decl
         xa, _, Ja, aa = _point(data, kin, n, *a)
@@ -430,7 +517,8 @@ class _RangeSpace:
 @dataclass(frozen=True)
 class PreciseSplit:
     """The exact split at one state, to ``digits`` significant digits: ``drift``, ``ctrl``, ``total`` (n mpf each),
-    ``lam``, ``lam_drift`` (k mpf each; None when the model has no constraints).
+    ``lam``, ``lam_drift`` (k mpf each; None when the model has no constraints). n = nv: accelerations in velocity
+    space (``cases.model``).
 
     The mpf values keep their digits, but mpmath rounds every new result to its context's precision (15 digits by
     default): do arithmetic on them inside ``mpmath.workdps(digits)``, or use :func:`relative_error`."""
@@ -484,7 +572,7 @@ def split(model: Model, q, qd, u, digits: int = DIGITS) -> PreciseSplit:
 
 
 def mass_matrix(model: Model, q, digits: int = DIGITS) -> mpmath.matrix:
-    """``M(q)`` (n x n) to ``digits`` significant digits, e.g. for exact condition numbers."""
+    """``M(q)`` (nv x nv) to ``digits`` significant digits, e.g. for exact condition numbers."""
     digits = _check_digits(digits)
     with mpmath.workdps(digits):
         q, qd, _ = _state(model, q, np.zeros(model.n), np.zeros(model.m))
@@ -493,7 +581,7 @@ def mass_matrix(model: Model, q, digits: int = DIGITS) -> mpmath.matrix:
 
 
 def bias_forces(model: Model, q, qd, digits: int = DIGITS) -> tuple:
-    """``h = C(q, qd) qd + g(q)`` (n mpf) to ``digits`` significant digits (article eq. 7, 8 for the double
+    """``h = C(q, qd) qd + g(q)`` (nv mpf) to ``digits`` significant digits (article eq. 7, 8 for the double
     pendulum)."""
     digits = _check_digits(digits)
     with mpmath.workdps(digits):

@@ -133,7 +133,44 @@ def test_agrees_with_pinocchio_on_random_trees(data):
     _assert_pinocchio_close(model, state.q, state.qd, state.u, harness_tolerance)
 
 
-@pytest.mark.parametrize("case", ["panda", "double_pendulum_absolute_loop", "four_bar"])
+@settings(max_examples=30, deadline=None)
+@given(st.data())
+def test_agrees_with_pinocchio_on_random_group_trees(data):
+    """On random trees with spherical and free joints (constraints sometimes) Pinocchio's error against the exact
+    answer is within the harness's own tolerance for it: quaternions, body-frame velocity columns and their bias
+    accelerations mean the same in both."""
+    model = data.draw(testing.models(max_bodies=3, group=True, constraints=None))
+    state = data.draw(testing.states(model))
+
+    def harness_tolerance(name, ref):
+        return policy.tolerance(name, policy.scales([ref], model, np.array(state.q), np.array(state.qd)))
+
+    _assert_pinocchio_close(model, state.q, state.qd, state.u, harness_tolerance)
+
+
+def test_free_body_drift_is_eulers_equations_to_30_digits():
+    """The torque-free body (free joint, COM c off the body origin, zero gravity): the angular drift is Euler's
+    ``wd = -I^-1 (w x I w)`` and the body-frame linear drift keeps the COM's world velocity ``R (v + w x c)``
+    constant: ``vd = -w x (v + w x c) - wd x c`` (the derivative of the body twist, not of p's second derivative)."""
+    model = cases.load("free_body")
+    body = model.bodies[0]
+    quaternion = np.array([0.3, -0.5, 0.1, 0.8]) / np.linalg.norm([0.3, -0.5, 0.1, 0.8])
+    q = [0.1, -0.2, 0.3, *quaternion]
+    for qd in ((0.4, -0.3, 0.2, 1.5, -2.0, 0.7), (0.0, 0.0, 0.0, -3.0, 0.5, 2.5), (1.0, 2.0, -0.5, 0.0, 0.0, 0.0)):
+        result = precise.split(model, q, qd, np.zeros(model.m))
+        with mpmath.workdps(CLOSED_FORM_DIGITS):
+            inertia = mpmath.matrix([[mpmath.mpf(float(x)) for x in row] for row in body.inertia])
+            c = mpmath.matrix([mpmath.mpf(float(x)) for x in body.com])
+            v, w = (mpmath.matrix([mpmath.mpf(x) for x in part]) for part in (qd[:3], qd[3:]))
+            cross = (lambda a, b: mpmath.matrix([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                                                 a[0] * b[1] - a[1] * b[0]]))
+            wd = -mpmath.lu_solve(inertia, cross(w, inertia * w))
+            vd = -cross(w, v + cross(w, c)) - cross(wd, c)
+            expected = list(vd) + list(wd)
+        assert precise.relative_error(result.drift, expected) < 1e-30, qd
+
+
+@pytest.mark.parametrize("case", ["panda", "double_pendulum_absolute_loop", "four_bar", "solo12_standing"])
 def test_more_digits_change_the_answer_below_the_precision(case):
     """From 40 to 60 digits every quantity moves by less than 1e-30 (relative): the answer is converged; and the
     directly computed ctrl adds up with the drift to the total to the working precision."""
