@@ -198,12 +198,120 @@ def random_affine(model: Model, seed: int, case: str, max_cond: float = 10.0) ->
             return AffineChart("affine", A, rng.uniform(-1.0, 1.0, n))
 
 
+@dataclass(frozen=True)
+class EulerZYX(Chart):
+    """ZYX Euler angles for every spherical and free joint's orientation (article 6.4, 9.1: a map of the globe).
+
+    ``p`` has one entry per velocity coordinate (``nv``): a revolute or prismatic joint keeps its coordinate; a
+    spherical joint's block is ``(yaw, pitch, roll)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``; a free joint's block is
+    its position (as in q) then those three angles. ``psi(p)`` is the whole q (``nq`` entries), the quaternion
+    ``qz(yaw) qy(pitch) qx(roll)`` from the half angles' sines and cosines, so a formalism can derive in p
+    (``split_chart``). ``Dpsi`` maps ``pd`` to the velocity v: per spherical block the body angular velocity
+    ``w = E(pitch, roll) (yaw, pitch, roll)dot`` with ``E = [[-s_p, 0, 1], [c_p s_r, c_r, 0], [c_p c_r, -s_r, 0]]``, per
+    free block also ``v_lin = R^T pdot``. ``E`` is singular at pitch = +-pi/2 (gimbal lock): the chart then has no
+    coordinates for the motion, and the gate leaves its chart check out there (:data:`GIMBAL_LIMIT`)."""
+
+    joints: tuple = ()
+
+    def _params(self) -> tuple:
+        return self.joints
+
+    def _blocks(self):
+        """(joint type, start in p, start in q) per body."""
+        k = j = 0
+        for joint in self.joints:
+            yield joint, k, j
+            k += {"spherical": 3, "free": 6}.get(joint, 1)
+            j += {"spherical": 4, "free": 7}.get(joint, 1)
+
+    @staticmethod
+    def _quaternion(yaw, pitch, roll, sin, cos) -> list:
+        cy, sy, cp, sp = cos(yaw / 2), sin(yaw / 2), cos(pitch / 2), sin(pitch / 2)
+        cr, sr = cos(roll / 2), sin(roll / 2)
+        return [sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+                cr * cp * cy + sr * sp * sy]
+
+    def psi(self, p, sin=math.sin, cos=math.cos) -> list:
+        out = []
+        for joint, k, _ in self._blocks():
+            if joint == "spherical":
+                out += self._quaternion(p[k], p[k + 1], p[k + 2], sin, cos)
+            elif joint == "free":
+                out += [p[k], p[k + 1], p[k + 2]] + self._quaternion(p[k + 3], p[k + 4], p[k + 5], sin, cos)
+            else:
+                out.append(p[k])
+        return out
+
+    @staticmethod
+    def _angles(quat) -> list[float]:
+        x, y, z, w = quat
+        R = np.eye(3) + 2.0 * w * _skew((x, y, z)) + 2.0 * _skew((x, y, z)) @ _skew((x, y, z))
+        return [math.atan2(R[1, 0], R[0, 0]), math.asin(max(-1.0, min(1.0, -R[2, 0]))), math.atan2(R[2, 1], R[2, 2])]
+
+    def p_of(self, q) -> np.ndarray:
+        q, out = np.asarray(q, dtype=float), []
+        for joint, _, j in self._blocks():
+            if joint == "spherical":
+                out += self._angles(q[j:j + 4])
+            elif joint == "free":
+                out += list(q[j:j + 3]) + self._angles(q[j + 3:j + 7])
+            else:
+                out.append(q[j])
+        return np.array(out)
+
+    @staticmethod
+    def _rates(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """E (pd of (yaw, pitch, roll) -> body angular velocity) and its derivatives by pitch and by roll."""
+        sp, cp, sr, cr = math.sin(pitch), math.cos(pitch), math.sin(roll), math.cos(roll)
+        E = np.array([[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]])
+        dE_pitch = np.array([[-cp, 0.0, 0.0], [-sp * sr, 0.0, 0.0], [-sp * cr, 0.0, 0.0]])
+        dE_roll = np.array([[0.0, 0.0, 0.0], [cp * cr, -sr, 0.0], [-cp * sr, -cr, 0.0]])
+        return E, dE_pitch, dE_roll
+
+    def _rotation(self, angles) -> np.ndarray:
+        quat = self._quaternion(*angles, math.sin, math.cos)
+        return np.eye(3) + 2.0 * quat[3] * _skew(quat[:3]) + 2.0 * _skew(quat[:3]) @ _skew(quat[:3])
+
+    def jacobian(self, p) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        D = np.eye(len(p))
+        for joint, k, _ in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                D[a:a + 3, a:a + 3] = self._rates(p[a + 1], p[a + 2])[0]
+                if joint == "free":
+                    D[k:k + 3, k:k + 3] = self._rotation(p[a:a + 3]).T
+        return D
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        p, pd = np.asarray(p, dtype=float), np.asarray(pd, dtype=float)
+        out = np.zeros(len(p))
+        for joint, k, _ in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                E, dE_pitch, dE_roll = self._rates(p[a + 1], p[a + 2])
+                out[a:a + 3] = (pd[a + 1] * dE_pitch + pd[a + 2] * dE_roll) @ pd[a:a + 3]
+                if joint == "free":       # d/dt (R^T pdot) at pdd = 0: -w x (R^T pdot), w = E adot (body frame)
+                    w = E @ pd[a:a + 3]
+                    out[k:k + 3] = -np.cross(w, self._rotation(p[a:a + 3]).T @ pd[k:k + 3])
+        return out
+
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+#: cond(Dpsi) above which a chart of the orientation has lost a direction (gimbal lock, :class:`EulerZYX`): its
+#: coordinates cannot express the motion, so the chart check is left out at that state (a BREAKDOWN of the chart).
+GIMBAL_LIMIT = 1e4
+
+
 def nonlinear(model: Model, a: float = 0.5) -> NonlinearChart:
     return NonlinearChart("nonlinear", a)
 
 
 def names() -> list[str]:
-    return ["identity", "absolute", "affine", "nonlinear"]
+    return ["identity", "absolute", "affine", "nonlinear", "zyx"]
 
 
 def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Chart:
@@ -212,8 +320,13 @@ def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Char
     if not applies(model):
         if name == "identity":
             return GroupIdentity("identity", model.nv)
+        if name == "zyx":
+            return EulerZYX("zyx", tuple(b.joint for b in model.bodies))
         raise ChartError(f"chart '{name}' does not apply to model '{model.name}': its spherical or free joints have "
-                         "quaternion coordinates, which a joint-coordinate chart cannot map")
+                         "quaternion coordinates, which a joint-coordinate chart cannot map (its chart: zyx)")
+    if name == "zyx":
+        raise ChartError(f"chart 'zyx' (Euler angles of spherical and free joints) does not apply to model "
+                         f"'{model.name}', which has none")
     makers = {"identity": lambda: identity(model.n), "absolute": lambda: absolute(model),
               "affine": lambda: random_affine(model, seed, case), "nonlinear": lambda: nonlinear(model)}
     if name not in makers:
@@ -232,8 +345,8 @@ def sampled(model: Model, seed: int, case: str) -> list[Chart]:
     """The charts the gate checks for a model: every built-in one but identity (the joint chart itself), with
     ``absolute`` only for a planar serial chain; none for a model with spherical or free joints (:func:`applies`)."""
     if not applies(model):
-        return []
-    return [get(name, model, seed, case) for name in names()
+        return [get("zyx", model, seed, case)]
+    return [get(name, model, seed, case) for name in names() if name != "zyx"
             if name != "identity" and (name != "absolute" or is_planar_serial(model))]
 
 

@@ -367,7 +367,8 @@ def evaluate(model: Model, state: State, chart: charts.Chart, frame: frames.Fram
     ``chart``, the frame check on the scene moved by ``frame`` and the conservation checks."""
     outcome = gate.evaluate(model, state, chosen)
     scene = (frame, frames.move_scene(model, frame)) if checks["frames"] else None
-    in_chart = [chart] if checks["charts"] and charts.applies(model) else []   # none for group joints
+    # the identity of a model with group joints is q itself, which no backend evaluates "in a chart"
+    in_chart = [chart] if checks["charts"] and (charts.applies(model) or chart.name != "identity") else []
     gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"])
     return outcome
 

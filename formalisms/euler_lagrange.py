@@ -60,8 +60,29 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     rotation away from 0 (the T written with it differs from the true one by ``O(|xi|^2) |xid|^2``). The closed forms
     (Rodrigues, ``V(phi)``) would bring ``sin|xi| / |xi|`` and its removable 0/0 into symbolic differentiation.
     ``tests/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
-  * Caches and charts. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`). Charts
-    ``q = psi(p)`` are charts of joint coordinates: :func:`split_chart` refuses such a model (ModelNotSupported).
+  * Caches. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`).
+Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g. ``crosscheck.charts.EulerZYX``,
+ZYX Euler angles per spherical or free joint). Such a chart has nv coordinates p and its ``psi`` returns the WHOLE q
+(nq entries), each quaternion a function of p that is unit for every p; the derivation is then the scalar charts'
+one, steps 0-4, with the poses of the group joints written through psi:
+  * ``q = psi(p)`` is formed with the staged ``sin`` and ``cos`` (:meth:`_Staged.trig`: ``sin(e)``, ``cos(e)`` of a
+    chart's half angle ``e`` are named symbols with seeded derivatives ``cos(e) de/dp_j``, ``-sin(e) de/dp_j``);
+    a revolute or prismatic joint reads its coordinate at ``q_index`` (:attr:`_Staged.joint_index`).
+  * A group joint's motion is ``R(quat(p)) = I + 2 w [u]x + 2 [u]x^2`` of psi's quaternion block (a rotation for
+    every p, since the block is unit), and for a free joint the translation ``X_joint = (R, pos(p))`` with ``pos``
+    psi's position block (:func:`_chart_motions`); the body poses compose as for any joint (:func:`_poses`).
+  * Everything after the poses is unchanged and exact: T(p, pd) with the body velocities from differentiating
+    the poses in p (``R_dot = sum_j dR/dp_j pd_j``, ``c_dot`` likewise), so the angular velocity enters through
+    the rotational energy ``1/2 tr(R_dot J R_dot^T) = 1/2 w^T I w`` and the Euler-rate map ``w = E(p) pd`` is never
+    formed; ``M_p = d^2 T/d pd^2``, the Christoffel symbols of M_p in p, ``g_p = dV/dp``, ``phi(psi(p))`` and its
+    derivatives. The accelerations are the chart's ``pdd`` (no truncation, no local chart), the multipliers the
+    joint chart's, ``Jc_p = Jc Dpsi`` with ``Dpsi`` the chart's map from pd to v, which this module never forms.
+  * :func:`chart_key` validates such a chart (:func:`_group_chart_refusal`: psi evaluates on nv symbols, returns nq
+    entries, and its quaternion blocks are unit to 1e-12 at a few fixed points); any other chart of a model with
+    group joints (a chart of scalar coordinates, the harness's group identity) is ModelNotSupported. The cache key
+    holds the chart's key and :data:`GROUP_IN_CHART`. At gimbal lock (``Dpsi`` singular) M_p is singular: there and
+    within ~1e-8 rad of it the Cholesky factorization fails with a ValueError naming the chart (the harness leaves
+    out states with cond(Dpsi) > 1e4); closer than that to the lock the answers lose accuracy as cond(M_p) grows.
 The derivation is staged: every pose entry and every derivative of one is a named intermediate, and
 derivatives go through a memoized chain rule (forward-mode differentiation done symbolically), so the
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
@@ -112,8 +133,9 @@ from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Forma
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
-_NO_CHARTS = ("Euler–Lagrange: charts q = psi(p) are joint-coordinate charts, and a model with spherical or free "
-              "joints is derived in local exponential coordinates around each state instead")
+_NO_CHARTS = ("Euler–Lagrange: a model with spherical or free joints is derived in a chart q = psi(p) only when psi "
+              "returns its whole q ({nq} entries, every quaternion block unit for every p, e.g. the zyx chart); "
+              "{reason}")
 
 
 def _exact(x: float) -> sp.Expr:
@@ -145,6 +167,10 @@ class _Staged:
     def __init__(self, coordinates: list[sp.Symbol]):
         self.coordinates = coordinates
         self.joint: list[sp.Expr] = list(coordinates)
+        #: Where body i's revolute or prismatic coordinate is in ``joint``: ``Model.v_index`` (None) when ``joint``
+        #: has one entry per velocity, ``Model.q_index`` when it is a whole q of a model with group joints.
+        self.joint_index: Sequence[int] | None = None
+        self._trig: dict = {}
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
         self._coordinate = {s: k for k, s in enumerate(coordinates)}
         self._depends: dict[sp.Symbol, frozenset[int]] = {}
@@ -182,6 +208,24 @@ class _Staged:
             dq = self.diff(q, j)
             self._derivative[(s, j)], self._derivative[(c, j)] = c * dq, -s * dq
         return s, c
+
+    def trig(self, e) -> tuple[sp.Expr, sp.Expr]:
+        """Symbols for ``sin(e)`` and ``cos(e)`` of any expression in the coordinates (a chart's half angles), once
+        per ``e``, with their derivatives seeded as in :meth:`angle`: ``d sin(e)/dp_j = cos(e) de/dp_j``."""
+        e = sp.sympify(e)
+        if e not in self._trig:
+            s, c = self.name(sp.sin(e)), self.name(sp.cos(e))
+            for j in sorted(self.dependencies(e)):
+                de = self.diff(e, j)
+                self._derivative[(s, j)], self._derivative[(c, j)] = c * de, -s * de
+            self._trig[e] = (s, c)
+        return self._trig[e]
+
+    def sin(self, e) -> sp.Expr:
+        return self.trig(e)[0]
+
+    def cos(self, e) -> sp.Expr:
+        return self.trig(e)[1]
 
     def diff(self, expr: sp.Expr, k: int) -> sp.Expr:
         """Total derivative ``d expr / d p_k``: sum and product rules in one pass, chain rule at symbols."""
@@ -244,9 +288,12 @@ def _joint_rotation(axis: sp.DenseMatrix, s: sp.Symbol, c: sp.Symbol) -> sp.Dens
 
 def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[sp.DenseMatrix, sp.DenseMatrix]]:
     """World rotation and origin of every body frame as staged functions of p (module docstring, step 1); a body
-    on a spherical or free joint moves by its local motion ``local[i] = (R_m, p_m)`` (:func:`_local_motions`), a
-    revolute or prismatic one by its coordinate (index ``v_index[i]``, which is ``i`` without group joints)."""
+    on a spherical or free joint moves by its motion ``local[i] = (R_m, p_m)`` (:func:`_local_motions` in the local
+    chart, :func:`_chart_motions` in a chart ``q = psi(p)``), a revolute or prismatic one by its coordinate
+    (``joint[v_index[i]]``, or ``joint[q_index[i]]`` when ``joint`` is a whole q: ``_Staged.joint_index``; both are
+    ``i`` without group joints)."""
     local = local or {}
+    index = model.v_index if st.joint_index is None else st.joint_index
     poses: list = [None] * len(model.bodies)
     for i in model.topological_order:
         body = model.bodies[i]
@@ -259,9 +306,9 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
             R_m, p_m = local[i]
             R, p = R_joint * R_m, p_joint + R_joint * p_m
         elif body.joint == "revolute":
-            R, p = R_joint * _joint_rotation(axis, *st.angle(model.v_index[i])), p_joint
+            R, p = R_joint * _joint_rotation(axis, *st.angle(index[i])), p_joint
         else:
-            R, p = R_joint, p_joint + R_joint * axis * st.joint[model.v_index[i]]
+            R, p = R_joint, p_joint + R_joint * axis * st.joint[index[i]]
         poses[i] = (R.applyfunc(st.name), p.applyfunc(st.name))
     return poses
 
@@ -276,6 +323,8 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
 EXP_ORDER = 2
 #: The cache key of the chart of the group joints (part of what is derived, so part of :func:`cache_key`).
 GROUP_CHART = "local-exponential:q(+)xi=q*exp(xi) on the right:twist(linear,angular):order{order}"
+#: The same for a chart ``q = psi(p)`` of a model with group joints (with the chart's own key).
+GROUP_IN_CHART = "group joints through q=psi(p):R(quat)=I+2w[u]x+2[u]x^2,free position from q"
 
 
 def _quaternion_rotation(st: _Staged, quat: Sequence) -> sp.DenseMatrix:
@@ -338,6 +387,21 @@ def _local_motions(model: Model, st: _Staged, configuration: list, order: int) -
     return out
 
 
+def _chart_motions(model: Model, st: _Staged) -> dict:
+    """``i -> (R_m, p_m)``, the motion of each group joint in a chart whose ``psi`` returns the whole q (module
+    docstring, "Group joints in a chart"): ``R_m = R(quat(p)) = I + 2 w [u]x + 2 [u]x^2`` of the quaternion block
+    of ``q = psi(p)`` (named intermediates of p, so their derivatives go through the chain rule), ``p_m = 0`` for a
+    spherical joint and the position block of q for a free one (``X_joint = (R(quat), p)``, cases.model)."""
+    out = {}
+    for i in model.group_joints:
+        iq = model.q_index[i]
+        if model.bodies[i].joint == "spherical":
+            out[i] = (_quaternion_rotation(st, st.joint[iq:iq + 4]), sp.zeros(3, 1))
+        else:
+            out[i] = (_quaternion_rotation(st, st.joint[iq + 3:iq + 7]), sp.DenseMatrix(st.joint[iq:iq + 3]))
+    return out
+
+
 def _com(R: sp.DenseMatrix, p: sp.DenseMatrix, com) -> sp.DenseMatrix:  # noqa: N803
     """World position of a body's COM ``p + R com`` (``com`` in the body frame)."""
     return p + R * _matrix(com)
@@ -384,7 +448,8 @@ def _constraint_rows(model: Model, st: _Staged, poses) -> list:
         elif isinstance(c, PointOnLine):
             rows.extend(_matrix(c.normals) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.origin)))
         else:  # JointCoupling: sum_j c_j q_j - offset, with q = psi(p) (revolute and prismatic joints only)
-            rows.append(sp.Add(*[_exact(a) * st.joint[model.v_index[model.body_index(j)]]
+            index = model.v_index if st.joint_index is None else st.joint_index
+            rows.append(sp.Add(*[_exact(a) * st.joint[index[model.body_index(j)]]
                                  for j, a in zip(c.joints, c.coefficients)]) - _exact(c.offset))
     return rows
 
@@ -404,28 +469,61 @@ def _constraints(model: Model, st: _Staged, poses, pd) -> tuple[list, list, list
 # Charts
 # ----------------------------------------------------------------------------------------------------------
 
-def _psi(model: Model, chart: Chart, p: list) -> list:
-    """``chart.psi`` evaluated on SymEngine symbols (the chart is written against generic scalar operations)."""
+def _psi(model: Model, chart: Chart, p: list, st: _Staged | None = None) -> list:
+    """``chart.psi`` evaluated on SymEngine symbols (the chart is written against generic scalar operations); with
+    ``st`` its ``sin`` and ``cos`` are the staged, seeded ones (:meth:`_Staged.trig`), whose symbols are
+    intermediates of p. It must return the model's ``nq`` joint coordinates (``n`` without group joints)."""
     if not callable(getattr(chart, "psi", None)):
         raise TypeError(f"Euler–Lagrange: {chart!r} is not a chart (no psi(p, sin, cos))")
-    q = list(chart.psi(list(p), sp.sin, sp.cos))
+    q = list(chart.psi(list(p), sp.sin, sp.cos) if st is None else chart.psi(list(p), st.sin, st.cos))
     name = getattr(chart, "name", "?")
-    if len(q) != model.n:
+    if len(q) != model.nq:
         raise ValueError(f"chart '{name}' returns {len(q)} joint coordinates but model '{model.name}' has "
-                         f"{model.n}")
+                         f"{model.nq}")
     q = [sp.sympify(e) for e in q]
-    stray = set().union(*(e.free_symbols for e in q)) - set(p)
+    stray = set().union(*(e.free_symbols for e in q)) - set(p) - (set() if st is None else set(st.definitions))
     if stray:
         raise ValueError(f"chart '{name}': psi uses symbols {sorted(map(str, stray))} that are not coordinates")
     return q
 
 
 _JOINT_CHART_MEMO: dict[tuple[int, str], bool] = {}
+_GROUP_CHART_MEMO: dict[tuple, str | None] = {}
+#: Points of p (as multiples of a fixed pattern) where a chart of a model with group joints must give unit quaternions.
+_UNIT_PROBES = (0.0, 0.37, -1.21, 2.9)
+
+
+def _group_chart_refusal(model: Model, chart: Chart) -> str | None:
+    """Why ``chart`` cannot carry a model with spherical or free joints here, or None when it can: its ``psi`` must
+    evaluate on ``nv`` coordinates, return the whole q (``nq`` entries) and give every quaternion block unit length
+    (to 1e-12, at a few fixed points; then ``R(quat)`` is a rotation, module docstring "Group joints in a chart")."""
+    name = getattr(chart, "name", "?")
+    p = list(sp.symbols(f"p0:{model.nv}"))
+    try:
+        q = chart.psi(list(p), sp.sin, sp.cos)
+        size = len(q)
+    except Exception as exc:  # a chart written for other models (scalar coordinates, the group identity)
+        return f"chart '{name}' does not evaluate on {model.nv} coordinates ({type(exc).__name__}: {exc})"
+    if size != model.nq:
+        return (f"chart '{name}' returns {size} coordinates, not the {model.nq} of q (a joint-coordinate chart of "
+                f"the velocities is not a chart of the group)")
+    pattern = np.cos(np.arange(model.nv) * 1.7 + 0.3)
+    for scale in _UNIT_PROBES:
+        q = np.array(chart.psi(list(scale * pattern), math.sin, math.cos), dtype=float)
+        for i in model.group_joints:
+            start = model.q_index[i] + (3 if model.bodies[i].joint == "free" else 0)
+            norm = float(np.linalg.norm(q[start:start + 4]))
+            if not abs(norm - 1.0) <= 1e-12:
+                return (f"chart '{name}' gives body '{model.bodies[i].name}' a quaternion of norm {norm!r} at "
+                        f"p = {(scale * pattern).tolist()}")
+    return None
 
 
 def chart_key(model: Model, chart: Chart | None) -> str:
     """The cache key of a chart: ``"identity"`` for ``None`` and for a chart whose ``psi`` returns its
-    coordinates unchanged (the joint chart, whatever it is called), else ``chart.key``."""
+    coordinates unchanged (the joint chart, whatever it is called), else ``chart.key``. For a model with spherical
+    or free joints any chart is validated first (:func:`_group_chart_refusal`: psi returns the whole q with unit
+    quaternions), and one that is not such a chart is :class:`ModelNotSupported`."""
     if chart is None:
         return JOINT_CHART
     if not callable(getattr(chart, "psi", None)):
@@ -433,6 +531,13 @@ def chart_key(model: Model, chart: Chart | None) -> str:
     key = getattr(chart, "key", None)
     if not isinstance(key, str) or not key:
         raise TypeError(f"Euler–Lagrange: chart {chart!r} has no key (a stable digest of its definition)")
+    if model.group_joints:  # a chart of the group: psi returns the whole q; never the joint (local) chart
+        memo = (model.nq, tuple(b.joint for b in model.bodies), key)
+        if memo not in _GROUP_CHART_MEMO:
+            _GROUP_CHART_MEMO[memo] = _group_chart_refusal(model, chart)
+        if _GROUP_CHART_MEMO[memo] is not None:
+            raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason=_GROUP_CHART_MEMO[memo]))
+        return key
     memo = (model.n, key)
     if memo not in _JOINT_CHART_MEMO:
         p = list(sp.symbols(f"p0:{model.n}"))
@@ -481,24 +586,30 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
     and phi with q = psi(p) substituted, then the same steps); ``chart=None`` (or an identity chart) is the joint
     chart, derived with the coordinates themselves as q (module docstring). A model with spherical or free joints
     is derived in the local exponential chart around the state (module docstring, "Group joints"; ``order`` is the
-    truncation of its exponential series, :data:`EXP_ORDER` by default), and only in the joint chart
-    (:class:`ModelNotSupported` otherwise)."""
+    truncation of its exponential series, :data:`EXP_ORDER` by default), or in a chart whose ``psi`` returns the
+    whole q (the zyx chart; module docstring, "Group joints in a chart": the poses ``R(quat(psi(p)))``), any other
+    chart being :class:`ModelNotSupported`."""
     n = model.n
     order = EXP_ORDER if order is None else order
     joint_chart = chart_key(model, chart) == JOINT_CHART
-    if model.group_joints and not joint_chart:
-        raise ModelNotSupported(_NO_CHARTS)
     letter = "q" if joint_chart else "p"
     configuration, local = [], []
-    if model.group_joints:
+    if model.group_joints and joint_chart:
         x, configuration, local = _local_coordinates(model)
     else:
         x = list(sp.symbols(f"{letter}0:{n}"))
     xd = list(sp.symbols(f"{letter}d0:{n}"))
     st = _Staged(x)
-    if not joint_chart:
+    motions = None
+    if model.group_joints and not joint_chart:  # psi(p) is the whole q, its sin and cos staged (seeded)
+        st.set_joint(_psi(model, chart, x, st))
+        st.joint_index = model.q_index
+        motions = _chart_motions(model, st)
+    elif not joint_chart:
         st.set_joint(_psi(model, chart, x))
-    poses = _poses(model, st, _local_motions(model, st, configuration, order) if local else None)
+    elif local:
+        motions = _local_motions(model, st, configuration, order)
+    poses = _poses(model, st, motions)
     T, V = _energies(model, st, poses, xd)
     dT = [T.diff(v) for v in xd]
     M = sp.zeros(n, n)
@@ -648,6 +759,8 @@ def generate_source(model: Model, chart: Chart | None = None, order: int | None 
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
     if d.local:
         where = f"local exponential coordinates at xi = 0 ({GROUP_CHART.format(order=order)})"
+    elif model.group_joints:
+        where += f" ({GROUP_IN_CHART})"
     x, xd = ("q", "qd") if key == JOINT_CHART else ("p", "pd")
     for s, e in definitions:
         code.assign(s, e)
@@ -679,8 +792,8 @@ def _cache_dir() -> Path:
 def cache_key(model: Model, chart: Chart | None = None) -> str:
     """The disk-cache key: a digest of (model digest, chart key or ``"identity"``, hash of this module)."""
     parts = (model.digest(), chart_key(model, chart))
-    if model.group_joints:  # the local chart of the group joints is part of what is derived
-        parts += (GROUP_CHART.format(order=EXP_ORDER),)
+    if model.group_joints:  # how the group joints are derived is part of the key: the local chart, or psi's q
+        parts += (GROUP_CHART.format(order=EXP_ORDER) if parts[1] == JOINT_CHART else GROUP_IN_CHART,)
     return hashlib.sha256("\0".join(parts).encode() + b"\0" + _DERIVATION_HASH).hexdigest()[:32]
 
 
@@ -1133,12 +1246,14 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     ``tau_p`` is the generalized force in the chart, a covector (``Dpsi^T B u`` for an input u); the control
     power is ``tau_p . pd`` (= ``u . B^T qd``, chart-invariant) and the kinetic energy T is the chart's own
     (chart-invariant, 9.1). The task acceleration is not computed here (UNSUPPORTED).
-    A model with spherical or free joints has no such charts here (:class:`ModelNotSupported`: it is derived in
-    local exponential coordinates, module docstring "Group joints").
+    A model with spherical or free joints is evaluated in a chart whose ``psi`` returns its whole q (the zyx chart:
+    ``p``, ``pd``, ``tau_p`` have nv entries; module docstring, "Group joints in a chart"); any other chart is
+    :class:`ModelNotSupported` (:func:`chart_key`).
     """
-    if model.group_joints:
-        raise ModelNotSupported(_NO_CHARTS)
-    chart_key(model, chart)  # validates the chart first: a wrong object is a TypeError, not a StateError
+    # validates the chart first: a wrong object is a TypeError, not a StateError
+    if chart_key(model, chart) == JOINT_CHART and model.group_joints:
+        raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
+                                                  "entries, v of nv) is split's"))
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     if model.constraints:
         return _solve_constrained(model, *evaluate(model, p, pd, chart), tau_p, p, pd, chart=chart.name)
@@ -1187,7 +1302,8 @@ FORMALISM = Formalism(
     name="euler_lagrange",
     summary="symbolic energies T, V; M = Hessian of T, C qd from Christoffel symbols of the first kind, g = dV/dq; "
             "re-derived in any chart q = psi(p) (6.4.6); ball and free joints in local exponential coordinates at "
-            "xi = 0 (2.1-2.2); constraints by a scaled, rank-revealing KKT solve (5.6)",
+            "xi = 0 (2.1-2.2), or through R(quat(psi(p))) in a chart of the group (zyx); constraints by a scaled, "
+            "rank-revealing KKT solve (5.6)",
     split=split,
     split_chart=split_chart,
     split_batch=split_batch,

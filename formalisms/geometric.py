@@ -127,8 +127,30 @@ For such a model the public geometric objects (:func:`metric`, :func:`metric_der
 terms, not the derivative of the v-space matrix alone), ``christoffel`` its connection (``M Gamma(v, v)`` is the
 v-space velocity-product vector ``C(q, v) v``), ``energy_rate`` exact because ``pd = v`` and ``pdd = vdot`` there.
 The conservation checks (``crosscheck.conservation``) compare these with the Euler–Lagrange backend's and Pinocchio's
-terms in the same chart (v-space). Joint-coordinate charts ``q = psi(p)`` do not apply (:func:`split_chart` and the
-``chart`` argument raise ModelNotSupported); joint couplings relate revolute and prismatic coordinates only.
+terms in the same chart (v-space). Joint couplings relate revolute and prismatic coordinates only.
+
+Charts of the group (article 6.4 "a map of the globe", 6.4.6, 9.1). A chart whose ``psi`` returns the whole q (nq
+entries) from nv coordinates p, such as the harness's ZYX Euler-angle chart (``crosscheck.charts.EulerZYX``: a
+spherical block ``(yaw, pitch, roll)``, a free block ``(position, yaw, pitch, roll)``, revolute and prismatic
+coordinates as they are, each quaternion written with sines and cosines of the half angles), is evaluated natively,
+exactly as a chart of a model with revolute and prismatic joints only: ``q = psi(p)`` is substituted into the
+kinematics (:func:`_chart_group_frames`), each joint at its own ``motion(q_i)``, ``(R(quat), 0)`` for a spherical
+joint and ``(R(quat), position)`` for a free one, ``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` the polynomial of psi's
+quaternion (a rotation for every p, since that quaternion is unit as a function of p), and everything is derived in p
+by automatic differentiation: the body velocities ``w_i = vee(R_i^T R_i')`` and ``c_i' = Jc_i pd`` with
+``' = (d/dp) pd``, so ``M_p = sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i`` (which is ``Dpsi^T M Dpsi`` with the
+chart's own ``Dpsi``, never formed), its derivatives, eq. (25) and the rest unchanged. No exponential and no group
+chart is involved (the Euler angles are ordinary coordinates on an open set of the group, away from gimbal lock), and
+the chart's velocity-product terms (the Euler-angle rates' ``(d/dt Dpsi) pd``) come out of the Christoffel symbols of
+``M_p``. :func:`split_chart` then returns ``pdd``
+(nv), ``tau_p = Dpsi^T B u`` as given, ``Jc = dphi(psi(p))/dp``, ``Jcdot pd`` in p, ``Jc^T lam`` as a covector in p, the
+chart-invariant multipliers, kinetic energy, power, task drift and task inertia, and cond of ``M_p``; the public
+geometric objects take ``chart=`` with p and rates of nv. At gimbal lock (pitch = +-pi/2) ``M_p`` is singular (the
+chart has no coordinates for the motion): the split raises the not-positive-definite ValueError there, or reports
+cond(M_p) of order 1/eps when rounding leaves the factor positive, and the harness skips such states. Any other
+chart (one whose psi fails on nv coordinates, such as the group's identity chart ``p = q``, or returns another number
+of entries, or quaternions that are not unit at seeded test points), and ``chart=None`` in :func:`split_chart` (the
+group chart itself: :func:`split`), raise ModelNotSupported with the reason.
 
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
@@ -145,7 +167,8 @@ connection, raised after contracting), batched Cholesky solves, the constrained 
 Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
 objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
 :func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``; with spherical or free joints in
-the group chart at ``xi = 0``); the same machinery for any metric,
+the group chart at ``xi = 0`` when ``chart`` is None, or in a chart whose psi returns the whole q); the same machinery
+for any metric,
 :func:`christoffel_of` and :func:`curvature_of`; the shared formula :func:`christoffel_symbols`.
 """
 
@@ -415,8 +438,85 @@ def _chart_origin(model: Model, q: ca.SX) -> ca.SX:
     return ca.vertcat(*parts)
 
 
-_NO_CHARTS = ("model '{}' has spherical or free joints: its configuration lives on a Lie group, and joint-coordinate "
-              "charts q = psi(p) do not apply (the geometric backend works in the group chart q (+) xi)")
+_NO_CHARTS = ("model '{model}' has spherical or free joints: its configuration lives on a Lie group, so a chart "
+              "q = psi(p) applies only when psi returns the whole q ({nq} entries, each quaternion unit for every p, "
+              "as the zyx chart does: crosscheck.charts.EulerZYX); chart '{chart}' {reason}")
+
+#: Chart points at which :func:`_group_chart_coordinates` checks that psi's quaternions are unit (seeded, so a
+#: chart is accepted or refused the same way every time).
+UNIT_CHECK_POINTS = 3
+
+
+def _refuse_chart(model: Model, chart, reason: str) -> ModelNotSupported:
+    return ModelNotSupported(_NO_CHARTS.format(model=model.name, nq=model.nq, chart=_chart_name(chart), reason=reason))
+
+
+def _check_group_chart(model: Model, chart) -> None:
+    """A chart given for a model with spherical or free joints must at least be a chart object (``psi`` and ``key``);
+    whether its psi returns the whole q is decided when it is compiled (:func:`_group_chart_coordinates`)."""
+    if chart is not None and model.group_joints and not (callable(getattr(chart, "psi", None))
+                                                         and hasattr(chart, "key")):
+        raise _refuse_chart(model, chart, "is not a chart q = psi(p) (no psi or no key)")
+
+
+def _group_chart_coordinates(model: Model, chart, p: ca.SX) -> list:
+    """``q = psi(p)`` (nq SX scalars) of a model with spherical or free joints in ``chart``, whose ``p`` has nv entries
+    (the Euler-angle chart: a revolute or prismatic coordinate as it is, a spherical block (yaw, pitch, roll), a free
+    block (position, yaw, pitch, roll)). Refused (ModelNotSupported) unless psi, evaluated in casadi's sin and cos,
+    returns nq entries whose quaternion blocks are unit at :data:`UNIT_CHECK_POINTS` seeded points (the rotation
+    ``R(quat)`` of :func:`_quaternion_rotation` is then a rotation for every p: an identity of psi, not a number of the
+    state)."""
+    ps = [p[i] for i in range(model.nv)]
+    try:
+        q = list(chart.psi(ps, ca.sin, ca.cos))
+    except Exception as exc:  # the group's identity chart (p = q) has no psi of nv coordinates
+        raise _refuse_chart(model, chart, f"gives no psi of the {model.nv} velocity coordinates "
+                                          f"({type(exc).__name__}: {exc})") from None
+    if len(q) != model.nq:
+        raise _refuse_chart(model, chart, f"returns {len(q)} entries")
+    q = [ca.SX(qi) for qi in q]
+    blocks = [model.q_index[i] + (3 if model.bodies[i].joint == "free" else 0) for i in model.group_joints]
+    norms = ca.Function("unit", [p], [ca.vertcat(*[ca.sumsqr(ca.vertcat(*q[a:a + 4])) for a in blocks])])
+    rng = np.random.default_rng(17)
+    for _ in range(UNIT_CHECK_POINTS):
+        off = np.abs(np.array(norms(rng.uniform(-math.pi, math.pi, model.nv))).ravel() - 1.0)
+        if not np.all(off <= 1e-12):
+            raise _refuse_chart(model, chart, f"has quaternions that are not unit (|quat|^2 - 1 up to {off.max():.3g})")
+    return q
+
+
+def _chart_group_frames(model: Model, q: list) -> tuple[list, list, list]:
+    """``(R, o, values)`` of a model with spherical or free joints at ``q = psi(p)`` (nq SX expressions of the chart
+    coordinates, :func:`_group_chart_coordinates`): each joint's own ``motion(q_i)`` (``cases.model``), nothing else.
+    A revolute or prismatic joint by its value ``q[q_index[i]]`` (``values[i]``), a spherical joint at
+    ``(R(quat), 0)``, a free joint at ``(R(quat), position)``, ``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` the
+    polynomial of psi's quaternion (a rotation for every p), so the body rotations and origins are functions of p
+    and every velocity and derivative is taken in p by automatic differentiation (``values[i]`` None for a group
+    joint)."""
+    nb = len(model.bodies)
+    R: list = [None] * nb
+    o: list = [None] * nb
+    values: list = [None] * nb
+    for i in model.topological_order:
+        body, parent = model.bodies[i], model.parent_index[i]
+        if parent < 0:
+            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
+        else:
+            Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
+            oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
+        a = model.q_index[i]
+        if body.joint == "revolute":
+            values[i] = q[a]
+            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(q[a]), ca.cos(q[a]))), oj
+        elif body.joint == "prismatic":
+            values[i] = q[a]
+            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * q[a]
+        elif body.joint == "spherical":
+            R[i], o[i] = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a:a + 4]))), oj
+        else:  # free: (R(quat), position), the position in the joint frame
+            R[i] = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a + 3:a + 7])))
+            o[i] = oj + ca.mtimes(Rj, ca.vertcat(*q[a:a + 3]))
+    return R, o, values
 
 
 def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
@@ -543,7 +643,9 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     """Kinematics, energies, metric, task map and constraints of ``model`` in ``chart`` as one SX Function (module
     docstring). A model with spherical or free joints is built in its group chart (:func:`_group_frames`, the
     exponential truncated to degree ``exp_order``) and its Functions take the configuration q (nq), every derivative
-    taken at the chart's origin; it has no other chart (ModelNotSupported).
+    taken at the chart's origin; in a ``chart`` whose psi returns the whole q (:func:`_group_chart_coordinates`,
+    ModelNotSupported otherwise) it is built from ``q = psi(p)`` (:func:`_chart_group_frames`) and its Functions take
+    p (nv), as for a model with revolute and prismatic joints only (module docstring, "Charts of the group").
 
     The metric is the Hessian of T in pd, taken in closed form: ``c_i' = Jc_i pd`` and ``w_i = Jw_i pd`` are linear in
     pd (``Jc_i = dc_i/dp``, ``Jw_i = dw_i/dpd``), so ``d^2 T / dpd^2 = sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i``
@@ -554,11 +656,11 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     n = model.n
     p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
     point = None
-    if model.group_joints:
-        if chart is not None:
-            raise ModelNotSupported(_NO_CHARTS.format(model.name))
+    if model.group_joints and chart is None:
         point = ca.SX.sym("q", model.nq)
         R, o, q = _group_frames(model, point, p, exp_order)
+    elif model.group_joints:        # a chart whose psi returns the whole q (module docstring, "Charts of the group")
+        R, o, q = _chart_group_frames(model, _group_chart_coordinates(model, chart, p))
     else:
         q = _joint_coordinates(model, chart, p)
         R, o = _frames(model, q)
@@ -940,10 +1042,14 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
     ``tau_p`` is the generalized force in the chart (a covector, ``Dpsi^T B u``); the accelerations returned are
     ``pdd``; ``power_ctrl = tau_p . pd`` (per coordinate ``tau_p_i pd_i``). ``chart=None`` is the joint chart.
     With constraints, ``phi(psi(p))`` is differentiated in p, so ``Jc`` is the chart's ``Jc_q Dpsi`` and ``lam`` is
-    the joint chart's. A model with spherical or free joints has no joint-coordinate charts: ModelNotSupported.
+    the joint chart's. A model with spherical or free joints is evaluated in a chart whose psi returns the whole q
+    from nv coordinates (the ZYX Euler-angle chart; module docstring, "Charts of the group"): p, pd, tau_p have nv
+    entries and the accelerations are ``pdd``, not ``vdot``. Any other chart, and ``chart=None`` (use :func:`split`
+    for the group chart), is ModelNotSupported.
     """
-    if model.group_joints:
-        raise ModelNotSupported(_NO_CHARTS.format(model.name))
+    if model.group_joints and chart is None:
+        raise _refuse_chart(model, chart, "is the group chart itself: use split (q of nq entries, v)")
+    _check_group_chart(model, chart)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     return _split(model, chart, p, pd, tau_p)
 
@@ -952,11 +1058,11 @@ def _vectors(model: Model, chart, p, **rates) -> list[np.ndarray]:
     """The point ``p`` and the ``rates`` (velocity-like vectors) of the public geometric objects as float vectors:
     :func:`chart_vectors` (n each) for a model with revolute and prismatic joints only; for one with spherical or
     free joints, the configuration q (nq, unit quaternions) and rates of nv (StateError otherwise) in the group chart
-    (ModelNotSupported for any other ``chart``)."""
-    if not model.group_joints:
+    when ``chart`` is None, else the chart's p and rates (nv each; ModelNotSupported for a chart whose psi does not
+    return the whole q, :func:`_check_group_chart` here and :func:`_group_chart_coordinates` when compiled)."""
+    if not model.group_joints or chart is not None:
+        _check_group_chart(model, chart)
         return chart_vectors(model, p=p, **rates)
-    if chart is not None:
-        raise ModelNotSupported(_NO_CHARTS.format(model.name))
     out = joint_vectors(model, p, *rates.values())
     for label, value in zip(("q", *rates), out):
         if not np.all(np.isfinite(value)):

@@ -16,7 +16,12 @@
   ``cases.configuration.integrate``, not of the backend; away from 0 the same check sees the difference), and the
   exponential series truncated after the second order is exact at ``xi = 0`` (orders 3 and 4 give the same numbers,
   order 1 does not).
-* The chart is part of the disk-cache key; charts ``q = psi(p)`` are refused (ModelNotSupported); derivation time.
+* The chart is part of the disk-cache key; charts ``q = psi(p)`` of scalar coordinates are refused
+  (ModelNotSupported); derivation time.
+* The zyx chart (``crosscheck.charts.EulerZYX``, issue 17): ``split_chart`` derived in Euler angles through
+  ``R(quat(psi(p)))`` against the reference mapped into the chart with the harness's Dpsi (cases, constrained
+  variants, solo12_standing, random trees), the gate's own chart check (with solo12), M_p in closed form, its
+  cache entry, charts that are not charts of the group refused, and cold derivation time in the chart.
 
 All derivations go to a scratch cache (fixture ``fresh_derivation_cache``), so they test the current code.
 """
@@ -35,7 +40,7 @@ from hypothesis import strategies as st
 import cases
 from cases import PointOnCircle, PointsCoincide, build_model
 from cases import configuration as geometry  # the harness's group operations (the backend has its own)
-from crosscheck import reference, sampling, testing
+from crosscheck import charts, reference, sampling, testing
 from crosscheck import tolerance as policy
 from formalisms import euler_lagrange as el
 from formalisms.interface import ModelNotSupported, Unsupported
@@ -412,3 +417,222 @@ def test_each_case_derives_in_seconds(name):
     start = time.perf_counter()
     el.generate_source(model_of(name))
     assert time.perf_counter() - start < 20.0
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The zyx chart (issue 17): split_chart in Euler angles, derived in p with the poses R(quat(psi(p)))
+# ----------------------------------------------------------------------------------------------------------
+
+#: States whose chart Jacobian is worse conditioned than this are near gimbal lock (pitch = +-pi/2): left out.
+CHART_COND = 1e3
+
+
+def chart_arguments(model, chart, q, qd, u):
+    """``(p, pd, tau_p)`` of a joint state, as the gate's chart check forms them (``crosscheck.invariance``)."""
+    p = chart.p_of(q)
+    return p, charts.velocity_to_chart(chart, p, qd), charts.force_to_chart(chart, p, model.input_map @ u)
+
+
+def assert_chart_agrees_with_reference(model, q, qd, u) -> dict[str, float] | None:
+    """``el.split_chart`` in the zyx chart against ``crosscheck.reference.split`` mapped into the chart with the
+    harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the ctrl without
+    the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
+    conditions), covariant ones mapped (``Jc_p = Jc Dpsi``, ``Jcdot_p pd = Jcdot v + Jc (d/dt Dpsi) pd``,
+    ``Jc_p^T lam = Dpsi^T Jc^T lam``) and ``cond_M`` that of ``M_p = Dpsi^T M Dpsi``; each within ``RTOL`` of its
+    scale. None (nothing compared) near gimbal lock. Returns each field's error over its scale."""
+    chart = charts.get("zyx", model)
+    p, pd, tau_p = chart_arguments(model, chart, q, qd, u)
+    D = chart.jacobian(p)
+    if np.linalg.cond(D) >= CHART_COND:
+        return None
+    got, ref = el.split_chart(model, chart, p, pd, tau_p), reference.split(model, q, qd, u)
+    rate = chart.jacobian_rate(p, pd)
+    errors: dict[str, float] = {}
+
+    def check(name, a, b, scale):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        assert a.shape == b.shape, f"{model.name} {name}: shape {a.shape} against {b.shape}"
+        err = float(np.max(np.abs(a - b), initial=0.0))
+        errors[name] = err / (scale + 1e-300)
+        assert err <= RTOL * scale + 1e-300, (
+            f"{model.name} zyx {name}: differs by {err:.3e} (tolerance {RTOL * scale:.3e})\n  q = {q.tolist()}\n"
+            f"  qd = {qd.tolist()}\n  u = {u.tolist()}\n  euler_lagrange: {a.tolist()}\n  mapped reference: "
+            f"{b.tolist()}")
+
+    inverse = float(np.linalg.norm(np.linalg.inv(D), 2))
+    accel = inverse * (ref.accel_scale + np.abs(rate).sum())
+    for name in ("drift", "ctrl", "total"):
+        expected = charts.acceleration_to_chart(chart, p, pd, getattr(ref, name), with_rate=name != "ctrl")
+        check(name, getattr(got, name), expected, accel)
+    assert got.drift.shape == (model.nv,)
+    check("kinetic_energy", got.kinetic_energy, ref.kinetic_energy, ref.kinetic_energy)
+    power = max(float(np.abs(tau_p) @ np.abs(pd)), float(np.abs(model.input_map @ u) @ np.abs(qd)))
+    check("power_ctrl", got.power_ctrl, ref.power_ctrl, power)
+    check("power_ctrl_per_coord", got.power_ctrl_per_coord, tau_p * pd, power)
+    M_p = D.T @ reference.mass_matrix(model, q) @ D
+    cond = float(np.linalg.cond(M_p))
+    check("cond_M", got.cond_M, cond, _relative_scale(cond, cond))
+    for name in ("task_drift", "task_inertia"):
+        assert isinstance(getattr(got, name), Unsupported)
+    if not model.constraints:
+        assert got.lam is None and got.constraint_jacobian is None and not got.conditions
+        return errors
+    broken = bool(policy.breakdown(got) or policy.breakdown(ref))
+    cond_S = ref.conditions["constraint_kept"]
+    L, velocity = model.length_scale, float(np.abs(qd).sum())
+    Jc = ref.constraint_jacobian
+    check("constraint_value", got.constraint_value, ref.constraint_value, L)
+    check("constraint_jacobian", got.constraint_jacobian, Jc @ D, L * np.linalg.norm(D, 2))
+    check("constraint_velocity", got.constraint_velocity, ref.constraint_velocity, L * velocity)
+    check("constraint_bias", got.constraint_bias, ref.constraint_bias + Jc @ rate,
+          L * (velocity**2 + np.abs(rate).sum() * np.linalg.norm(D, 2)))
+    force = float(np.linalg.norm(Jc, 2)) * ref.lam_scale * (1.0 + 1e-6 * cond_S)
+    for name in ("constraint_force", "constraint_force_drift"):
+        check(name, getattr(got, name), D.T @ getattr(ref, name), force * np.linalg.norm(D, 2))
+    check("power_constr", got.power_constr, ref.power_constr, force * velocity)
+    if not broken:
+        assert got.constraint_rank == ref.constraint_rank
+        for key in ("constraint", "constraint_kept"):  # S = Jc_p M_p^-1 Jc_p^T = Jc M^-1 Jc^T: invariant
+            check(f"conditions[{key}]", got.conditions[key], ref.conditions[key],
+                  _relative_scale(ref.conditions[key], cond_S))
+        for name in ("lam", "lam_drift"):
+            check(name, getattr(got, name), getattr(ref, name), ref.lam_scale * (1.0 + 1e-6 * cond_S))
+    return errors
+
+
+@pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12_standing",))
+def test_zyx_chart_agrees_with_the_reference_mapped_into_the_chart(name):
+    model = model_of(name)
+    compared = [assert_chart_agrees_with_reference(model, *state)
+                for state in states_of(model, count=2 if name.startswith("solo") else 5, seed=41)]
+    assert sum(e is not None for e in compared) >= 2, "every sampled state near gimbal lock: nothing compared"
+
+
+@pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12",))
+def test_zyx_chart_check_of_the_gate(name, tmp_path, monkeypatch):
+    """The gate's own chart check (``crosscheck.invariance.chart_checks`` through ``testing.assert_backends_agree``):
+    the backend's native answers in the zyx chart against Pinocchio's joint-chart split mapped into it, on every
+    quantity the gate compares there (the checks exist: the backend is not left out of the chart). First the cold
+    derivation and compilation in the chart (an empty cache), in seconds: measured 0.03-0.3 s for the cases, 1.1 s +
+    0.3 s compile for solo12's 18 velocities (the bound is loose for a shared machine)."""
+    model = model_of(name)
+    chart = charts.get("zyx", model)
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
+    start = time.perf_counter()
+    el.cached_code(model, chart)
+    assert time.perf_counter() - start < 20.0
+    checked = 0
+    for s in sampling.sample_states(model, 2 if name.startswith("solo") else 3, 43, name):
+        outcome = testing.assert_backends_agree(model, s, backends=["euler_lagrange", "pinocchio"], chart=chart)
+        keys = [k for k in outcome.checks if k.startswith("chart zyx: ")]
+        checked += bool(keys)
+        assert all("euler_lagrange@zyx" in outcome.checks[k].voters for k in keys)
+        assert not keys or "chart zyx: drift" in keys
+        if model.k and keys:
+            assert "chart zyx: lam" in keys
+    assert checked >= 1
+
+
+@settings(max_examples=6)
+@given(data=st.data())
+def test_random_group_trees_in_the_zyx_chart(data):
+    model = data.draw(testing.models(max_bodies=4, group=True, constraints=None), label="model")
+    assume(model.group_joints)
+    state = data.draw(testing.states(model), label="state")
+    q, qd, u = (np.array(x, dtype=float) for x in (state.q, state.qd, state.u))
+    assume(assert_chart_agrees_with_reference(model, q, qd, u) is not None)
+    testing.assert_backends_agree(model, state, backends=["euler_lagrange", "pinocchio"],
+                                  chart=charts.get("zyx", model), conservation=False)
+
+
+@settings(max_examples=5)
+@given(data=st.data())
+def test_random_constrained_group_trees_in_the_zyx_chart(data):
+    model = data.draw(testing.models(max_bodies=4, group=True, constraints=True), label="model")
+    assume(model.group_joints)
+    state = data.draw(testing.states(model), label="state")
+    q, qd, u = (np.array(x, dtype=float) for x in (state.q, state.qd, state.u))
+    assume(assert_chart_agrees_with_reference(model, q, qd, u) is not None)
+
+
+def _euler_rates(pitch, roll):
+    """Body angular velocity per (yaw, pitch, roll) rate of ``R = Rz(yaw) Ry(pitch) Rx(roll)``, written here: ``w =
+    Rx^T Ry^T e_z yawdot + Rx^T e_y pitchdot + e_x rolldot``."""
+    sp, cp, sr, cr = math.sin(pitch), math.cos(pitch), math.sin(roll), math.cos(roll)
+    return np.array([[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]])
+
+
+def _zyx_rotation(yaw, pitch, roll):
+    def about(axis, a):
+        c, s = math.cos(a), math.sin(a)
+        i, j = [(1, 2), (2, 0), (0, 1)][axis]
+        R = np.eye(3)
+        R[i, i] = R[j, j] = c
+        R[i, j], R[j, i] = -s, s
+        return R
+    return about(2, yaw) @ about(1, pitch) @ about(0, roll)
+
+
+@pytest.mark.parametrize("name", ["ball_pendulum", "free_body"])
+def test_zyx_mass_matrix_in_closed_form(name):
+    """The chart's own M_p (from its Lagrangian in Euler angles) in closed form: the ball pendulum's ``E^T I_o E``
+    (I_o the inertia about the joint, E the Euler-rate map written here); the free body's ``J^T M J`` with the
+    spatial inertia M and ``J = diag(R^T, E)`` (``v = R^T pdot``). Also its energy ``1/2 pd^T M_p pd`` is T."""
+    model = model_of(name)
+    chart = charts.get("zyx", model)
+    (b,) = model.bodies
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        p = rng.uniform(-1.2, 1.2, model.nv)
+        pd = rng.uniform(-2.0, 2.0, model.nv)
+        M_p, _, g_p, T = el.evaluate_terms(model, p, pd, chart)
+        E = _euler_rates(p[-2], p[-1])
+        if name == "ball_pendulum":
+            C = _hat(b.com)
+            expected = E.T @ (b.inertia - b.mass * C @ C) @ E
+        else:
+            J = np.zeros((6, 6))
+            J[:3, :3], J[3:, 3:] = _zyx_rotation(*p[3:]).T, E
+            expected = J.T @ spatial_inertia(b.mass, b.com, b.inertia) @ J
+        np.testing.assert_allclose(M_p, expected, rtol=0, atol=1e-13 * np.abs(expected).max())
+        assert abs(T - 0.5 * pd @ expected @ pd) <= 1e-13 * abs(T)
+
+
+def test_zyx_chart_cache_entry(tmp_path, monkeypatch):
+    """The zyx chart's derivation is its own disk-cache entry (keyed by the chart's key and the way group joints
+    enter it), in p with no local coordinates; a second read serves the same source; the joint chart's entry is
+    unchanged; another model's zyx chart (other joints, so another chart key) is another entry."""
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
+    model = model_of("ball_double_pendulum")
+    chart = charts.get("zyx", model)
+    joint_source = el.cached_source(model)
+    key = el.cache_key(model, chart)
+    assert key != el.cache_key(model) and key != el.cache_key(model_of("ball_pendulum"),
+                                                               charts.get("zyx", model_of("ball_pendulum")))
+    source = el.cached_source(model, chart)
+    header, body = source.split("\n", 1)
+    assert f"chart 'zyx' ({chart.key})" in header and el.GROUP_IN_CHART in header
+    assert "def evaluate(p, pd):" in body and "p0, p1, p2, p3, p4, p5, = p" in body and "xi" not in body
+    assert (tmp_path / "euler_lagrange" / f"{key}.py").read_text() == source
+    assert el.cached_source(model, chart) == source and el.cached_source(model) == joint_source
+    assert len(list(tmp_path.rglob("*.py"))) == 2
+
+
+def test_charts_other_than_a_chart_of_the_group_are_refused():
+    """A chart whose quaternions are not unit (R(quat) would not be a rotation) and the harness's group identity
+    (q itself, no psi on nv coordinates) are ModelNotSupported, each with its reason; at gimbal lock the zyx chart
+    itself has a singular M_p, a ValueError naming the chart."""
+    model = model_of("ball_pendulum")
+    chart = charts.get("zyx", model)
+    stretched = type("Stretched", (), {"name": "stretched", "key": "stretched-4",
+                                       "psi": staticmethod(lambda p, sin, cos: [1.5 * x for x in
+                                                                                chart.psi(p, sin, cos)])})()
+    with pytest.raises(ModelNotSupported, match="quaternion of norm"):
+        el.split_chart(model, stretched, np.zeros(3), np.zeros(3), np.zeros(3))
+    with pytest.raises(ModelNotSupported, match="does not evaluate on 3 coordinates"):
+        el.split_chart(model, charts.get("identity", model), np.zeros(3), np.zeros(3), np.zeros(3))
+    with pytest.raises(ModelNotSupported, match="split's"):
+        el.split_chart(model, None, np.zeros(3), np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError, match="chart 'zyx'.*singular wherever Dpsi is"):  # gimbal lock: M_p singular
+        el.split_chart(model, chart, np.array([0.3, np.pi / 2, -0.2]), np.ones(3), np.zeros(3))
+

@@ -17,12 +17,19 @@ polynomial of degree 2 (``formalisms.geometric.EXP_ORDER``), every derivative ta
   3 and 6 give the same numbers, degree 1 does not (the outputs are second derivatives at 0, no higher);
 * the public helpers (``metric``, ``metric_derivatives``, ``christoffel``, ``energy_rate``) on a group model: M and
   ``C qd`` against the reference, ``dM`` against finite differences of the reference's M along ``q (+) h e_k``, the
-  energy rate; no joint-coordinate charts (ModelNotSupported); a quaternion that is not unit is a StateError.
+  energy rate; no joint-coordinate charts (ModelNotSupported); a quaternion that is not unit is a StateError;
+* the ZYX Euler-angle chart (``crosscheck.charts.EulerZYX``, psi returns the whole q), evaluated natively by
+  ``split_chart`` and the helpers' ``chart=``: every field against the reference mapped into the chart (``pdd`` by
+  ``Dpsi^-1 (vdot - (d/dt Dpsi) pd)``, covectors by ``Dpsi^T``, ``dphi/dp = Jc Dpsi``, invariants equal), the gate's
+  chart check (cases, constrained variants, solo12_standing, random trees), ``M_p = Dpsi^T M Dpsi`` and the chart's
+  velocity products, Euler's equations in the chart (closed form), the refusal of other charts, and a chart whose
+  psi is not the one its Jacobian describes being caught.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
 import casadi as ca
 import numpy as np
@@ -34,7 +41,7 @@ from hypothesis import strategies as st
 import cases
 from cases import PointOnCircle, PointOnLine, PointsCoincide, build_model
 from cases.configuration import integrate
-from crosscheck import reference, sampling, testing
+from crosscheck import charts, reference, sampling, testing
 from formalisms import geometric
 from formalisms.interface import ModelNotSupported, StateError, Unsupported
 
@@ -372,3 +379,227 @@ def test_a_chart_truncated_too_early_is_caught(monkeypatch):
     q, qd, u = states_of("ball_double_pendulum", 2)[1]
     errors = field_errors(model_of("ball_double_pendulum"), q, qd, u)
     assert errors["drift"] > 1e-3 and errors["task_drift"] > 1e3 * RTOL
+
+
+# ---------------------------------------------------------------------------------- the Euler-angle chart (zyx)
+#
+# split_chart and the public helpers in ``crosscheck.charts.EulerZYX``: q = psi(p) (the whole q, quaternions from the
+# half angles) substituted into the backend's kinematics, everything derived in p by casadi. The references below
+# are the Pinocchio split in v-space mapped into the chart with the harness's Dpsi (test side only; the backend never
+# reads it): pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd), M_p = Dpsi^T M Dpsi, covectors by Dpsi^T.
+
+#: cond(Dpsi) of the states the chart comparisons use (away from gimbal lock, pitch = +-pi/2).
+GIMBAL_COND = 1e3
+
+
+def chart_states(name: str, count: int = STATES, seed: int = 17):
+    """``(q, qd, u, chart, p, pd, D)`` at the sampled states where the zyx chart is well conditioned."""
+    model = model_of(name)
+    chart = charts.get("zyx", model)
+    out = []
+    for q, qd, u in states_of(name, count, seed):
+        p = chart.p_of(q)
+        D = chart.jacobian(p)
+        if np.linalg.cond(D) < GIMBAL_COND:
+            out.append((q, qd, u, chart, p, np.linalg.solve(D, qd), D))
+    assert len(out) >= count // 2, f"{name}: too few states away from gimbal lock"
+    return out
+
+
+def chart_errors(model, q, qd, u, chart, p, pd, D) -> dict[str, float]:
+    """Every field of ``split_chart`` in the zyx chart against the reference mapped into the chart, as the largest
+    difference over the field's scale (floors as in :func:`field_errors`)."""
+    ref = reference.split(model, q, qd, u)
+    tau_p = D.T @ (model.input_map @ u)
+    ours = geometric.split_chart(model, chart, p, pd, tau_p)
+    assert ours.extras["chart"] == "zyx"
+    gain = np.abs(np.linalg.inv(D)).max() * model.nv          # what Dpsi^-1 may amplify the reference's rounding by
+    errors = {}
+
+    def rel(name, a, b, floor=0.0):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        assert a.shape == b.shape, f"{name}: shape {a.shape} against {b.shape}"
+        scale = max(float(np.abs(b).max(initial=0.0)), floor, np.finfo(float).tiny)
+        errors[name] = float(np.abs(a - b).max(initial=0.0)) / scale
+
+    rate = chart.jacobian_rate(p, pd)
+    for name in ("drift", "total"):
+        rel(name, ours.quantity(name), charts.acceleration_to_chart(chart, p, pd, getattr(ref, name)),
+            1e-6 * gain * ref.accel_scale)
+    rel("ctrl", ours.ctrl, charts.acceleration_to_chart(chart, p, pd, ref.ctrl, with_rate=False),
+        1e-6 * gain * ref.accel_scale)
+    M_p = D.T @ ref.extras["M"] @ D
+    rel("cond_M", ours.cond_M, np.linalg.cond(M_p))
+    rel("kinetic_energy", ours.kinetic_energy, ref.kinetic_energy)
+    rel("task_inertia", ours.task_inertia, ref.task_inertia)
+    rel("task_drift", ours.task_drift, ref.task_drift, model.length_scale * (ref.accel_scale + np.abs(qd).sum() ** 2))
+    rel("power_ctrl", ours.power_ctrl, ref.power_ctrl, float(np.abs(model.input_map @ u * qd).sum()))
+    rel("power_ctrl_per_coord", ours.power_ctrl_per_coord, tau_p * pd, float(np.abs(tau_p * pd).max()))
+    if not model.constraints:
+        assert ours.lam is None and ours.constraint_jacobian is None
+        return errors
+    Jc = np.asarray(ref.constraint_jacobian)
+    forces = 1e-6 * np.abs(Jc).max() * ref.lam_scale
+    for name in ("lam", "lam_drift"):
+        rel(name, getattr(ours, name), getattr(ref, name), 1e-6 * ref.lam_scale)
+    rel("constraint_value", ours.constraint_value, ref.constraint_value, model.length_scale ** 2)
+    rel("constraint_jacobian", ours.constraint_jacobian, Jc @ D)                      # dphi/dp = Jc_v Dpsi
+    # d^2 phi/dt^2 = Jc_v vdot + Jcdot_v v with vdot = Dpsi pdd + (d/dt Dpsi) pd: the chart's bias adds Jc_v of the rate
+    rel("constraint_bias", ours.constraint_bias, ref.constraint_bias + Jc @ rate,
+        1e-6 * np.abs(Jc).max() * ref.accel_scale)
+    rel("constraint_velocity", ours.constraint_velocity, ref.constraint_velocity,
+        float(np.abs(Jc).max() * np.abs(qd).sum()))
+    for name in ("constraint_force", "constraint_force_drift"):                     # covectors: Dpsi^T
+        rel(name, getattr(ours, name), D.T @ getattr(ref, name), gain * forces)
+    reaction = float((np.abs(Jc).T @ np.abs(ref.lam) + forces) @ np.abs(qd))
+    rel("power_constr", ours.power_constr, ref.power_constr, reaction)
+    assert ours.constraint_rank == ref.constraint_rank
+    return errors
+
+
+@pytest.mark.parametrize("name", CASES + CONSTRAINED)
+def test_split_chart_in_euler_angles_agrees_with_the_mapped_reference(name):
+    model = model_of(name)
+    for q, qd, u, chart, p, pd, D in chart_states(name):
+        errors = chart_errors(model, q, qd, u, chart, p, pd, D)
+        bad = {k: v for k, v in errors.items() if not v <= RTOL}
+        assert not bad, f"{name} at p = {p.tolist()}: relative errors above {RTOL:g}: {bad}"
+
+
+@pytest.mark.parametrize("name", CASES + CONSTRAINED + ("solo12_standing",))
+def test_the_gate_chart_check_in_euler_angles(name):
+    """The gate's chart check (``crosscheck.invariance.chart_checks`` through ``assert_backends_agree(chart=...)``):
+    this backend's split_chart against every joint-chart answer mapped into the chart, with the gate's tolerances."""
+    model = cases.load(name) if name == "solo12_standing" else model_of(name)
+    chart = charts.get("zyx", model)
+    checked = 0
+    for state in sampling.sample_states(model, 2 if name == "solo12_standing" else 3, 5, name):
+        outcome = testing.assert_backends_agree(model, state, backends=["geometric", "pinocchio"], chart=chart,
+                                                conservation=False)
+        keys = [key for key in outcome.checks if key.startswith("chart zyx:")]
+        checked += bool(keys)
+        assert all("geometric@zyx" in outcome.checks[key].voters for key in keys)
+    assert checked
+
+
+@settings(max_examples=10)
+@given(data=st.data())
+def test_random_group_trees_in_euler_angles(data):
+    model = data.draw(testing.models(max_bodies=3, group=True, constraints=None).filter(lambda m: m.group_joints))
+    testing.assert_backends_agree(model, data.draw(testing.states(model)), backends=["geometric", "pinocchio"],
+                                  chart=charts.get("zyx", model), conservation=False)
+
+
+@pytest.mark.parametrize("name", CASES + ("ball_loop",))
+def test_the_geometric_objects_in_euler_angles(name):
+    """The public helpers with ``chart=``: ``metric`` is ``Dpsi^T M Dpsi``; the first-kind contraction of
+    ``christoffel``/``metric_derivatives`` is the chart's velocity-product covector ``Dpsi^T (C v + M (d/dt Dpsi) pd)``
+    (eq. 7 pulled back: ``M vdot + C v`` with ``vdot = Dpsi pdd + (d/dt Dpsi) pd``); ``energy`` is the reference's
+    T; ``energy_rate`` vanishes along the drift; ``drift_field`` is ``(pd, drift)``."""
+    model = model_of(name)
+    for q, qd, u, chart, p, pd, D in chart_states(name, 4):
+        ref = reference.split(model, q, qd, u)
+        M = ref.extras["M"]
+        M_p = geometric.metric(model, p, chart=chart)
+        assert np.abs(M_p - D.T @ M @ D).max() <= 1e-12 * np.abs(M_p).max()
+        want = D.T @ (ref.extras["Cqd"] + M @ chart.jacobian_rate(p, pd))
+        size = np.abs(D).max() ** 2 * np.abs(M).max() * np.abs(pd).sum() ** 2
+        first = geometric.christoffel_first_kind(geometric.metric_derivatives(model, p, chart=chart))
+        assert np.abs((first @ pd) @ pd - want).max() <= 1e-12 * size
+        Gamma = geometric.christoffel(model, p, chart=chart)
+        assert np.abs(M_p @ ((Gamma @ pd) @ pd) - want).max() <= 1e-11 * size
+        T, V = geometric.energy(model, p, pd, chart=chart)
+        assert abs(T - ref.kinetic_energy) <= 1e-13 * T
+        assert abs(V - geometric.energy(model, q, qd)[1]) <= 1e-13 * (abs(V) + 1.0)
+        field = geometric.drift_field(model, p, pd, chart=chart)
+        at_drift = geometric.energy_rate(model, p, pd, field[model.nv:], chart=chart)
+        assert abs(at_drift.rate) <= 1e-12 * at_drift.magnitude
+        assert np.abs(at_drift.momentum - M_p @ pd).max() <= 1e-12 * np.abs(M_p).max() * np.abs(pd).max()
+
+
+def test_the_euler_chart_of_the_free_body_obeys_eulers_equations():
+    """Closed form in the chart: the free body's drift in (position, yaw, pitch, roll) mapped to the body twist
+    (``w = E adot``, ``v = R^T pdot``, E and R written here) satisfies Euler's equations about the COM."""
+    model = model_of("free_body")
+    body = model.bodies[0]
+    inertia, c = np.asarray(body.inertia), np.asarray(body.com)
+    for q, qd, u, chart, p, pd, D in chart_states("free_body"):
+        (sy, sp, sr), (cy, cp, cr) = np.sin(p[3:]), np.cos(p[3:])
+        E = np.array([[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]])
+        Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        R = Rz @ Ry @ Rx
+        drift = geometric.split_chart(model, chart, p, pd, np.zeros(6)).drift
+        w = E @ pd[3:]
+        dE = np.array([[-cp * pd[4], 0.0, 0.0], [-sp * sr * pd[4] + cp * cr * pd[5], -sr * pd[5], 0.0],
+                       [-sp * cr * pd[4] - cp * sr * pd[5], -cr * pd[5], 0.0]])
+        wd = E @ drift[3:] + dE @ pd[3:]
+        assert np.abs(inertia @ wd + np.cross(w, inertia @ w)).max() <= 1e-12 * np.abs(inertia).max() * (w @ w)
+        # the COM does not accelerate: c_world = x + R c, so its second derivative R (wd x c + w x (w x c)) + xdd = 0
+        com = drift[:3] + R @ (np.cross(wd, c) + np.cross(w, np.cross(w, c)))
+        assert np.abs(com).max() <= 1e-12 * (np.abs(drift).max() + (w @ w) * np.abs(c).max())
+
+
+class _NotUnit(charts.EulerZYX):
+    """psi with quaternions scaled by 1.01: not a map into the group."""
+
+    def psi(self, p, sin=math.sin, cos=math.cos):
+        q = super().psi(p, sin, cos)
+        for joint, _, j in self._blocks():
+            if joint in ("spherical", "free"):
+                a = j + (3 if joint == "free" else 0)
+                q[a:a + 4] = [1.01 * x for x in q[a:a + 4]]
+        return q
+
+
+class _XYZ(charts.EulerZYX):
+    """A chart that is not the one its Jacobian describes: psi in the order (roll, pitch, yaw), Dpsi still ZYX."""
+
+    def psi(self, p, sin=math.sin, cos=math.cos):
+        p = list(p)
+        for joint, k, _ in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                p[a], p[a + 2] = p[a + 2], p[a]
+        return super().psi(p, sin, cos)
+
+
+def test_charts_that_do_not_return_the_whole_q_are_refused():
+    model = model_of("satellite_arm")
+    q, qd, u = states_of("satellite_arm", 1)[0]
+    zyx = charts.get("zyx", model)
+    p = zyx.p_of(q)
+    for chart, reason in ((charts.get("identity", model), "no psi of the 9 velocity"),
+                          (charts.EulerZYX("short", zyx.joints[:-1]), "returns 9 entries"),
+                          (_NotUnit("scaled", zyx.joints), "not unit"),
+                          (object(), "not a chart")):
+        with pytest.raises(ModelNotSupported, match=reason):
+            geometric.split_chart(model, chart, p, qd, qd)
+        with pytest.raises(ModelNotSupported, match="Lie group"):
+            geometric.metric(model, p, chart=chart)
+    with pytest.raises(ModelNotSupported, match="use split"):
+        geometric.split_chart(model, None, q, qd, qd)
+    with pytest.raises(StateError, match="one per coordinate"):
+        geometric.split_chart(model, zyx, q, qd, qd)          # q has nq entries, the chart's p nv
+
+
+def test_the_chart_check_catches_a_chart_its_jacobian_does_not_describe():
+    """The comparison can fail: evaluated natively in a chart whose psi is not the one the harness maps with, the
+    accelerations disagree with the mapped reference far beyond the tolerance."""
+    name = "ball_double_pendulum"
+    model = model_of(name)
+    q, qd, u, zyx, p, pd, D = chart_states(name)[1]
+    errors = chart_errors(model, q, qd, u, _XYZ("zyx", zyx.joints), p, pd, D)
+    assert errors["drift"] > 1e-3 and errors["kinetic_energy"] > 1e-3
+
+
+def test_compiling_the_euler_chart_leaves_the_joint_chart_unchanged():
+    """The group chart's Functions and answers are bit-identical before and after the zyx chart is compiled."""
+    model = model_of("docked_satellite")
+    q, qd, u = states_of("docked_satellite", 2)[1]
+    before = geometric.split(model, q, qd, u)
+    geometric.split_chart(model, charts.get("zyx", model), charts.get("zyx", model).p_of(q), qd, qd)
+    after = geometric.split(model, q, qd, u)
+    for field in ("drift", "ctrl", "total", "lam", "constraint_jacobian"):
+        assert np.array_equal(getattr(before, field), getattr(after, field))
