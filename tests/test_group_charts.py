@@ -71,3 +71,19 @@ def test_which_charts_apply():
         charts.get("nonlinear", group)
     with pytest.raises(charts.ChartError, match="chart 'zyx' .* does not apply"):
         charts.get("zyx", scalar)
+
+
+def test_the_state_carried_into_the_chart_rounds_the_power():
+    """A fuzz finding (seed 1701): a ball joint turning about body x with the input about z does no work, so the
+    joint-chart power and every one of its terms is exactly 0, while the chart's pd = Dpsi^-1 v came out with 4.5e-16
+    in yaw and both chart evaluations reported a power of 7.6e-17 against a tolerance of 1.7e-30. The chart power's
+    tolerance now carries the rounding of the state's transfer into the chart (``invariance._transfer``)."""
+    import json
+    from pathlib import Path
+
+    from crosscheck import fuzz
+
+    finding = json.loads((Path(__file__).parent / "findings" / "charts" / "3a211f395087.json").read_text())
+    outcome = fuzz.replay(finding)
+    power = outcome.checks["chart zyx: power_ctrl"]
+    assert not outcome.failed and 0.0 < power.worst_ratio < 1e-2, power
