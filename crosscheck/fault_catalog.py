@@ -345,9 +345,18 @@ def _twist_rate_as_position_acceleration(group_motion):
     return faulty
 
 
-def _free_twist_order_swapped(unit_twists: dict) -> dict:
-    """The free joint's unit twists for a velocity block read as (angular, linear) instead of (linear, angular)."""
-    return {**unit_twists, "free": np.roll(unit_twists["free"], 3, axis=0)}
+def _free_twist_order_swapped(screws):
+    """The screw description with each free joint's unit twists for its velocity block read as (angular, linear)
+    instead of (linear, angular)."""
+    def faulty(model):
+        sc = screws(model)
+        twists = np.array(sc.unit_twists)
+        for i in model.group_joints:
+            if model.bodies[i].joint == "free":
+                block = slice(model.v_index[i], model.v_index[i] + 6)
+                twists[block] = np.roll(twists[block], 3, axis=0)
+        return dataclasses.replace(sc, unit_twists=twists)
+    return faulty
 
 
 GROUP = [
@@ -366,7 +375,7 @@ GROUP = [
     Fault("screw-free-twist-order-swapped", "screw",
           "A free joint's velocity block is taken as (angular, linear), the order of the (w, v) twists, instead of "
           "Pinocchio's (linear, angular).",
-          "formalisms.screw.kinematics:GROUP_UNIT_TWISTS", _free_twist_order_swapped),
+          "formalisms.screw.kinematics:screws", _free_twist_order_swapped),
     Fault("osc-quaternion-read-wxyz", OSC,
           "The quaternion of a spherical or free joint is read in the (w, x, y, z) order instead of (x, y, z, w).",
           "formalisms.operational_space:_quaternion_rotations", _quaternion_read_as_wxyz(-1)),

@@ -16,8 +16,10 @@ from crosscheck.gate import CaseSpec, Checks
 from crosscheck.sampling import sample_states
 
 #: The gate rounds (state i of every case) probed before any fault: every fault must be caught within them, so its
-#: catching state has a pristine output to compare with after the fault is removed.
-PROBE_ROUNDS = 1
+#: catching state has a pristine output to compare with after the fault is removed. Two: state 0 is the home
+#: configuration, where every orientation is the identity and a quaternion conjugated changes nothing
+#: (screw-quaternion-conjugated is caught at free_body #1).
+PROBE_ROUNDS = 2
 
 
 def _setup(case: str) -> faults._Case:

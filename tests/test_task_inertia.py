@@ -79,7 +79,7 @@ def test_the_suppliers_agree_on_every_built_in_case_and_in_every_chart_and_frame
         assert len(comparison.voters) >= 3 and set(comparison.voters) <= {*SUPPLIERS, "closed_form"}
         checks = {k: c for k, c in outcome.checks.items() if k.endswith(": task_inertia")}
         assert "frame: task_inertia" in checks
-        assert any(k.startswith("chart") for k in checks) == charts.applies(setup.model)   # none for group joints
+        assert any(k.startswith("chart") for k in checks)
         assert all(c.verdict == AGREE for c in checks.values()), {k: c.worst_ratio for k, c in checks.items()}
 
 
