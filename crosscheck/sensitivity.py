@@ -68,7 +68,8 @@ def _newton_euler(term: str, size: float):
             from formalisms import newton_euler
 
             kin, units, bias_motion, h, M = dynamics(model, q, qd)
-            g = newton_euler.inverse_dynamics(model, q, np.zeros_like(q), np.zeros_like(q))
+            rest = np.zeros((model.nv,) + np.shape(q)[1:])         # velocities: nv (q has nq with group joints)
+            g = newton_euler.inverse_dynamics(model, q, rest, rest)
             M, Cqd, g = _scaled(term, size, M, h - g, g)
             return kin, units, bias_motion, Cqd + g, M
         return faulty
