@@ -427,6 +427,11 @@ def _in_chart_domain(chart, p, pd) -> None:
     """The chart maps (p, pd) to a finite joint state below the state limit, or a UsageError says it does not."""
     with np.errstate(all="ignore"):
         q, qd = chart.q_of(p), chart.jacobian(p) @ pd
+        cond = float(np.linalg.cond(chart.jacobian(p))) if np.all(np.isfinite(p)) else 0.0
+    if cond > charts.GIMBAL_LIMIT:
+        raise UsageError(f"chart {chart.name} has lost a direction at this p (cond(Dpsi) = {cond:.3g}; for zyx: pitch "
+                         "at +-pi/2, gimbal lock), so no coordinates of it can express the motion; evaluate in the "
+                         "joint chart (leave out --chart) or at another p")
     try:
         preflight.check_vector("q (mapped to joint coordinates)", q)
         preflight.check_vector("qd (mapped to joint coordinates)", qd)

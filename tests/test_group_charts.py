@@ -87,3 +87,14 @@ def test_the_state_carried_into_the_chart_rounds_the_power():
     outcome = fuzz.replay(finding)
     power = outcome.checks["chart zyx: power_ctrl"]
     assert not outcome.failed and 0.0 < power.worst_ratio < 1e-2, power
+
+
+def test_eval_refuses_a_chart_point_in_gimbal_lock(capsys):
+    """At pitch pi/2 the zyx chart has no coordinates for the motion: eval says so in one line (exit 2) instead of
+    reporting the chart-native backends' singular M_p as their errors."""
+    from crosscheck import cli
+
+    code = cli.main(["eval", "--case", "free_body", "--chart", "zyx", f"--q=0.1,0.2,0.3,0.4,{np.pi / 2!r},0.6",
+                     "--qd=1,2,3,4,5,6"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1 and "gimbal lock" in err
