@@ -1044,7 +1044,8 @@ def render_report(out: Path, command: str = "") -> str:
         f"| seed | {ident.get('seed')} |",
         f"| backends | {', '.join(ident.get('backends', []))} |",
         f"| drawn | up to {ident.get('max_bodies')} bodies, up to {ident.get('max_states')} states per model, "
-        f"constraints {({True: 'always', False: 'never', None: 'sometimes'})[ident.get('constraints')]} |",
+        f"constraints {({True: 'always', False: 'never', None: 'sometimes'})[ident.get('constraints')]}, joints "
+        f"{'revolute, prismatic, spherical, free' if ident.get('group_joints', True) else 'revolute, prismatic'} |",
         "| checks | every quantity compared; "
         + ", ".join(name for name in ("charts", "frames", "conservation") if ident.get(name)) + " |",
         f"| chunks | {len(chunks)} of {ident.get('chunk_examples')} examples (shards run: {', '.join(shards)}"
