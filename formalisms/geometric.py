@@ -342,10 +342,14 @@ def _joint_coordinates(model: Model, chart, p: ca.SX) -> list:
     return [ca.SX(qi) for qi in q]
 
 
-def _frames(model: Model, q: list) -> tuple[list, list]:
-    """World rotations ``R_i`` and origins ``o_i`` of every body frame (SX), parents first."""
-    R: list = [None] * model.n
-    o: list = [None] * model.n
+def _walk(model: Model, motion) -> tuple[list, list, list]:
+    """``(R, o, values)``: the world rotations and origins of every body frame (SX, parents first) and the joints'
+    values, ``motion(i, Rj, oj) = (R_i, o_i, value_i)`` body ``i``'s from the world rotation ``Rj`` and origin ``oj`` of
+    its joint frame (``X_body = X_parent * (rotation, translation) * motion(q_i)``, ``cases.model``)."""
+    nb = len(model.bodies)
+    R: list = [None] * nb
+    o: list = [None] * nb
+    values: list = [None] * nb
     for i in model.topological_order:
         body, parent = model.bodies[i], model.parent_index[i]
         if parent < 0:
@@ -353,10 +357,21 @@ def _frames(model: Model, q: list) -> tuple[list, list]:
         else:
             Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
             oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
-        if body.joint == "revolute":
-            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(q[i]), ca.cos(q[i]))), oj
-        else:
-            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * q[i]
+        R[i], o[i], values[i] = motion(i, Rj, oj)
+    return R, o, values
+
+
+def _scalar_motion(body, x, Rj: ca.SX, oj: ca.SX) -> tuple:
+    """``(R, o, x)`` of a revolute (a turn by ``x`` about the axis) or prismatic joint (a slide by ``x``) whose joint
+    frame is at ``(Rj, oj)``."""
+    if body.joint == "revolute":
+        return ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(x), ca.cos(x))), oj, x
+    return Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * x, x
+
+
+def _frames(model: Model, q: list) -> tuple[list, list]:
+    """World rotations ``R_i`` and origins ``o_i`` of every body frame (SX), parents first."""
+    R, o, _ = _walk(model, lambda i, Rj, oj: _scalar_motion(model.bodies[i], q[i], Rj, oj))
     return R, o
 
 
@@ -398,34 +413,20 @@ def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int) -> tuple[lis
     (their joint values, ``values[i]``), a spherical joint at ``R0 exp([xi]x)`` and a free joint at ``X0 exp6(xi)``
     (``xi = p[v_index[i]:]``, twist order (linear, angular); ``R0 = R(quat)``, ``X0 = (R(quat), position)`` read
     from ``q``; ``values[i]`` None: a group has no joint value)."""
-    nb = len(model.bodies)
-    R: list = [None] * nb
-    o: list = [None] * nb
-    values: list = [None] * nb
-    for i in model.topological_order:
-        body, parent = model.bodies[i], model.parent_index[i]
-        if parent < 0:
-            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
-        else:
-            Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
-            oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
-        a, v = model.q_index[i], model.v_index[i]
-        if body.joint == "revolute":
-            values[i] = p[v]
-            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(p[v]), ca.cos(p[v]))), oj
-        elif body.joint == "prismatic":
-            values[i] = p[v]
-            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * p[v]
-        elif body.joint == "spherical":
+    def motion(i: int, Rj: ca.SX, oj: ca.SX) -> tuple:
+        body, a, v = model.bodies[i], model.q_index[i], model.v_index[i]
+        if body.joint in ("revolute", "prismatic"):
+            return _scalar_motion(body, p[v], Rj, oj)
+        if body.joint == "spherical":
             E = _exp_series(_hat(p[v:v + 3]), exp_order)
-            R[i], o[i] = ca.mtimes(ca.mtimes(Rj, _quaternion_rotation(q[a:a + 4])), E), oj
-        else:  # free: X0 exp6(xi), xi = (rho, w): the motion (R0 E_R, position + R0 E_p)
-            twist = ca.vertcat(ca.horzcat(_hat(p[v + 3:v + 6]), p[v:v + 3]), ca.SX.zeros(1, 4))
-            E = _exp_series(twist, exp_order)
-            R0 = _quaternion_rotation(q[a + 3:a + 7])
-            R[i] = ca.mtimes(ca.mtimes(Rj, R0), E[:3, :3])
-            o[i] = oj + ca.mtimes(Rj, q[a:a + 3] + ca.mtimes(R0, E[:3, 3]))
-    return R, o, values
+            return ca.mtimes(ca.mtimes(Rj, _quaternion_rotation(q[a:a + 4])), E), oj, None
+        # free: X0 exp6(xi), xi = (rho, w): the motion (R0 E_R, position + R0 E_p)
+        twist = ca.vertcat(ca.horzcat(_hat(p[v + 3:v + 6]), p[v:v + 3]), ca.SX.zeros(1, 4))
+        E = _exp_series(twist, exp_order)
+        R0 = _quaternion_rotation(q[a + 3:a + 7])
+        return (ca.mtimes(ca.mtimes(Rj, R0), E[:3, :3]), oj + ca.mtimes(Rj, q[a:a + 3] + ca.mtimes(R0, E[:3, 3])),
+                None)
+    return _walk(model, motion)
 
 
 def _chart_origin(model: Model, q: ca.SX) -> ca.SX:
@@ -493,30 +494,16 @@ def _chart_group_frames(model: Model, q: list) -> tuple[list, list, list]:
     polynomial of psi's quaternion (a rotation for every p), so the body rotations and origins are functions of p
     and every velocity and derivative is taken in p by automatic differentiation (``values[i]`` None for a group
     joint)."""
-    nb = len(model.bodies)
-    R: list = [None] * nb
-    o: list = [None] * nb
-    values: list = [None] * nb
-    for i in model.topological_order:
-        body, parent = model.bodies[i], model.parent_index[i]
-        if parent < 0:
-            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
-        else:
-            Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
-            oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
-        a = model.q_index[i]
-        if body.joint == "revolute":
-            values[i] = q[a]
-            R[i], o[i] = ca.mtimes(Rj, _rodrigues(body.axis, ca.sin(q[a]), ca.cos(q[a]))), oj
-        elif body.joint == "prismatic":
-            values[i] = q[a]
-            R[i], o[i] = Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * q[a]
-        elif body.joint == "spherical":
-            R[i], o[i] = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a:a + 4]))), oj
-        else:  # free: (R(quat), position), the position in the joint frame
-            R[i] = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a + 3:a + 7])))
-            o[i] = oj + ca.mtimes(Rj, ca.vertcat(*q[a:a + 3]))
-    return R, o, values
+    def motion(i: int, Rj: ca.SX, oj: ca.SX) -> tuple:
+        body, a = model.bodies[i], model.q_index[i]
+        if body.joint in ("revolute", "prismatic"):
+            return _scalar_motion(body, q[a], Rj, oj)
+        if body.joint == "spherical":
+            return ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a:a + 4]))), oj, None
+        # free: (R(quat), position), the position in the joint frame
+        R = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a + 3:a + 7])))
+        return R, oj + ca.mtimes(Rj, ca.vertcat(*q[a:a + 3])), None
+    return _walk(model, motion)
 
 
 def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
