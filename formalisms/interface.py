@@ -27,7 +27,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from cases.configuration import UNIT_TOL
+from cases.configuration import UNIT_TOL, quaternion_slices
 from cases.model import Model
 
 
@@ -320,9 +320,8 @@ class Formalism:
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:
     """A :class:`StateError` naming the first quaternion of ``q`` (a spherical or free joint's ``(x, y, z, w)``,
     ``cases.model``) whose norm is not 1 to ``UNIT_TOL``: a rotation is never built from a non-unit quaternion."""
-    for i in model.group_joints:
-        start = model.q_index[i] + (3 if model.bodies[i].joint == "free" else 0)
-        quat = q[..., start:start + 4]
+    for i, block in quaternion_slices(model):
+        start, quat = block.start, q[..., block]
         norm = np.sqrt(np.sum(quat * quat, axis=-1))
         bad = np.flatnonzero(~(np.abs(norm - 1.0) <= UNIT_TOL))
         if bad.size:
