@@ -260,13 +260,20 @@ class EulerZYX(Chart):
         return np.array(out)
 
     @staticmethod
-    def _rates(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """E (pd of (yaw, pitch, roll) -> body angular velocity) and its derivatives by pitch and by roll."""
-        sp, cp, sr, cr = math.sin(pitch), math.cos(pitch), math.sin(roll), math.cos(roll)
-        E = np.array([[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]])
-        dE_pitch = np.array([[-cp, 0.0, 0.0], [-sp * sr, 0.0, 0.0], [-sp * cr, 0.0, 0.0]])
-        dE_roll = np.array([[0.0, 0.0, 0.0], [cp * cr, -sr, 0.0], [-cp * sr, -cr, 0.0]])
+    def rate_rows(pitch, roll, sin: Callable = math.sin, cos: Callable = math.cos) -> tuple[list, list, list]:
+        """E (pd of (yaw, pitch, roll) -> body angular velocity) and its derivatives by pitch and by roll, as nested
+        lists in the number type of ``sin`` and ``cos`` (mpmath's for the exact reference, ``crosscheck.precise``)."""
+        sp, cp, sr, cr = sin(pitch), cos(pitch), sin(roll), cos(roll)
+        E = [[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]]
+        dE_pitch = [[-cp, 0.0, 0.0], [-sp * sr, 0.0, 0.0], [-sp * cr, 0.0, 0.0]]
+        dE_roll = [[0.0, 0.0, 0.0], [cp * cr, -sr, 0.0], [-cp * sr, -cr, 0.0]]
         return E, dE_pitch, dE_roll
+
+    @staticmethod
+    def _rates(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`rate_rows` in floating point, as arrays."""
+        E, dE_pitch, dE_roll = EulerZYX.rate_rows(pitch, roll)
+        return np.array(E, dtype=float), np.array(dE_pitch, dtype=float), np.array(dE_roll, dtype=float)
 
     def _rotation(self, angles) -> np.ndarray:
         quat = self._quaternion(*angles, math.sin, math.cos)

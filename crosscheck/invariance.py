@@ -104,16 +104,25 @@ def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence):
 
 def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping[str, Split],
                  backends: Sequence[Formalism], errors: dict[str, str],
-                 joint_scales: policy.Scales | None = None) -> dict[str, Comparison]:
+                 joint_scales: policy.Scales | None = None, record: dict | None = None,
+                 limit: float = charts.GIMBAL_LIMIT) -> dict[str, Comparison]:
     """Chart invariance at ``state``: the chart-capable ``backends`` evaluated in p against every trusted
     joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``. ``joint_scales``:
-    ``tolerance.scales`` of ``joint`` at the state when the caller has them (computed here otherwise)."""
+    ``tolerance.scales`` of ``joint`` at the state when the caller has them (computed here otherwise). ``record``,
+    when given, receives what the check used (``crosscheck.stability`` measures it): ``p``, ``cond`` (of Dpsi),
+    and where the chart is not left out ``pd``, ``tau_p``, ``native`` (label -> split) and ``tolerances``
+    (quantity -> the tolerance compared with, per coordinate or one number). ``limit``: the cond(Dpsi) above which
+    the chart is left out (the gate's :data:`~crosscheck.charts.GIMBAL_LIMIT`; the stability map asks what the check
+    would say beyond it)."""
+    record = {} if record is None else record
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     p = chart.p_of(q)
-    if np.linalg.cond(chart.jacobian(p)) > charts.GIMBAL_LIMIT:
+    record.update(p=p, cond=float(np.linalg.cond(chart.jacobian(p))))
+    if record["cond"] > limit:
         return {}                  # the chart has lost a direction here (gimbal lock): a BREAKDOWN of the map
     pd = charts.velocity_to_chart(chart, p, qd)
     tau_p = charts.force_to_chart(chart, p, model.input_map @ u)
+    record.update(pd=pd, tau_p=tau_p, native={}, tolerances={})
     native: dict[str, Split] = {}
     for backend in backends:
         if backend.split_chart is None:
@@ -123,6 +132,7 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
             native[label] = backend.split_chart(model, chart, p, pd, tau_p)
         except Exception as exc:  # a backend failing in a valid chart is a failure, reported, never a crash
             errors[label] = f"{type(exc).__name__}: {exc}"
+    record["native"] = native
     if not native or not joint:
         return {}
     inverse = np.linalg.inv(chart.jacobian(p))
@@ -144,6 +154,7 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
         tol = _tolerance(quantity, at, gains)
         if quantity == "power_ctrl":
             tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(chart, p, pd, tau_p))
+        record["tolerances"][quantity] = tol
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, tol)
     return out
 

@@ -556,19 +556,153 @@ def split(model: Model, q, qd, u, digits: int = DIGITS) -> PreciseSplit:
     digits = _check_digits(digits)
     with mpmath.workdps(digits):
         q, qd, u = _state(model, q, qd, u)
-        data, kin, M, h = _terms(model, q, qd)
-        L = _cholesky(model, M, q)
-        tau = _matvec_n(data.B, u)
-        force = [t - x for t, x in zip(tau, h)]
-        if not data.rows:
-            out = _cho_solve(L, [-x for x in h]), _cho_solve(L, tau), _cho_solve(L, force), None, None
-        else:
-            _, Jc, bias = _constraint_terms(data, kin, q)
-            rs = _RangeSpace(model, L, Jc, bias)
-            drift, lam_drift = rs.solve([-x for x in h])
-            total, lam = rs.solve(force)
-            out = drift, rs.input_map(tau), total, tuple(lam), tuple(lam_drift)
+        return _split(model, q, qd, _matvec_n(_prepare(model, mpmath.mp.prec).B, u), digits)
+
+
+def _split(model: Model, q, qd, tau, digits: int) -> PreciseSplit:
+    """:func:`split` at mpf ``q``, ``qd`` and the generalized input force ``tau = B u`` (inside ``workdps``)."""
+    data, kin, M, h = _terms(model, q, qd)
+    L = _cholesky(model, M, q)
+    force = [t - x for t, x in zip(tau, h)]
+    if not data.rows:
+        out = _cho_solve(L, [-x for x in h]), _cho_solve(L, tau), _cho_solve(L, force), None, None
+    else:
+        _, Jc, bias = _constraint_terms(data, kin, q)
+        rs = _RangeSpace(model, L, Jc, bias)
+        drift, lam_drift = rs.solve([-x for x in h])
+        total, lam = rs.solve(force)
+        out = drift, rs.input_map(tau), total, tuple(lam), tuple(lam_drift)
     return PreciseSplit(tuple(out[0]), tuple(out[1]), tuple(out[2]), out[3], out[4], digits)
+
+
+# ----------------------------------------------------------------------------------------------- charts
+
+
+@dataclass(frozen=True)
+class PreciseChartSplit:
+    """The exact split expressed in a chart of the orientation (``crosscheck.charts.EulerZYX``): the chart point
+    ``p``, its rates ``pd``, the chart's accelerations ``drift``, ``ctrl``, ``total`` (``pdd``, nv mpf each), the
+    chart's mass matrix ``M_p = Dpsi^T M Dpsi`` and its 2-norm condition number, and cond(Dpsi) (mpf)."""
+
+    p: tuple
+    pd: tuple
+    drift: tuple
+    ctrl: tuple
+    total: tuple
+    cond_D: mpf
+    cond_Mp: mpf
+    digits: int
+
+    def floats(self, name: str) -> np.ndarray:
+        return np.array([float(x) for x in getattr(self, name)])
+
+
+def _mp_trig():
+    return mpmath.sin, mpmath.cos
+
+
+def _zyx_angles(quat) -> list:
+    """(yaw, pitch, roll) of the normalized quaternion, ``R = Rz Ry Rx`` (``charts.EulerZYX.p_of`` exactly)."""
+    R = _quaternion_rotation(*quat)
+    return [mpmath.atan2(R[1][0], R[0][0]), mpmath.asin(-R[2][0]), mpmath.atan2(R[2][1], R[2][2])]
+
+
+def _zyx_terms(chart, p, pd) -> tuple[list, list]:
+    """``Dpsi(p)`` (nv x nv) and ``(d/dt Dpsi) pd`` (nv) of the zyx chart in mpmath (``charts.EulerZYX``: the same
+    E and its derivatives through :meth:`~crosscheck.charts.EulerZYX.rate_rows` with mpmath's sin and cos; a free
+    block's ``R^T`` from the exact rotation of the angles)."""
+    sin, cos = _mp_trig()
+    n = len(p)
+    D = [[mpf(1) if i == j else mpf(0) for j in range(n)] for i in range(n)]
+    rate = [mpf(0)] * n
+    for joint, k, _ in chart._blocks():
+        if joint not in ("spherical", "free"):
+            continue
+        a = k + (3 if joint == "free" else 0)
+        E, dEp, dEr = chart.rate_rows(p[a + 1], p[a + 2], sin, cos)
+        a_rates = pd[a:a + 3]
+        for r in range(3):
+            for c in range(3):
+                D[a + r][a + c] = mpf(E[r][c])
+            rate[a + r] = mpmath.fdot([pd[a + 1] * dEp[r][c] + pd[a + 2] * dEr[r][c] for c in range(3)], a_rates)
+        if joint == "free":
+            RT = _transpose(_quaternion_rotation(*chart._quaternion(p[a], p[a + 1], p[a + 2], sin, cos)))
+            for r in range(3):
+                for c in range(3):
+                    D[k + r][k + c] = RT[r][c]
+            w = _matvec(E, a_rates)
+            lin = _cross(w, _matvec(RT, pd[k:k + 3]))
+            for r in range(3):
+                rate[k + r] = -lin[r]
+    return D, rate
+
+
+def _check_chart(chart) -> None:
+    from crosscheck.charts import EulerZYX
+
+    if not isinstance(chart, EulerZYX):
+        raise ValueError(f"precise chart splits are written for the zyx chart (charts.EulerZYX), got {chart!r}")
+
+
+def _in_chart(model: Model, chart, p, pd, exact: PreciseSplit, digits: int) -> PreciseChartSplit:
+    """The joint-chart split ``exact`` at ``(psi(p), Dpsi pd)`` carried into the chart (inside ``workdps``):
+    ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)``, ctrl by ``Dpsi^-1`` alone."""
+    D, rate = _zyx_terms(chart, p, pd)
+    Dm = mpmath.matrix(D)
+
+    def solve(b):
+        return tuple(mpmath.lu_solve(Dm, mpmath.matrix(list(b))))
+
+    drift = solve([x - r for x, r in zip(exact.drift, rate)])
+    total = solve([x - r for x, r in zip(exact.total, rate)])
+    M = mpmath.matrix(_terms(model, list(chart.psi(list(p), *_mp_trig())), [mpf(0)] * len(p))[2])
+    Mp = Dm.T * M * Dm
+    return PreciseChartSplit(tuple(p), tuple(pd), drift, solve(exact.ctrl), total, _cond(Dm), _cond(Mp), digits)
+
+
+def _cond(A) -> mpf:
+    s = mpmath.svd_r(A, compute_uv=False)
+    values = [abs(s[i]) for i in range(len(s))]
+    return max(values) / min(values) if min(values) > 0 else mpmath.inf
+
+
+def chart_split(model: Model, chart, q, qd, u, digits: int = DIGITS) -> PreciseChartSplit:
+    """The exact split at the joint-chart state ``(q, qd, u)`` (floats taken exactly) expressed in the zyx chart:
+    ``p = psi^-1(q)`` of the normalized quaternions, ``pd = Dpsi^-1 qd``, and the accelerations mapped by
+    ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (ctrl by ``Dpsi^-1``), all in mpmath at ``digits``: the answer every
+    chart evaluation of this state should give, nothing rounded through floats."""
+    digits = _check_digits(digits)
+    _check_chart(chart)
+    with mpmath.workdps(digits):
+        q, qd, u = _state(model, q, qd, u)
+        p = []
+        for joint, _, j in chart._blocks():
+            if joint == "spherical":
+                p += _zyx_angles(q[j:j + 4])
+            elif joint == "free":
+                p += list(q[j:j + 3]) + _zyx_angles(q[j + 3:j + 7])
+            else:
+                p.append(q[j])
+        D, _ = _zyx_terms(chart, p, [mpf(0)] * len(p))
+        pd = list(mpmath.lu_solve(mpmath.matrix(D), mpmath.matrix(qd)))
+        exact = _split(model, q, qd, _matvec_n(_prepare(model, mpmath.mp.prec).B, u), digits)
+        return _in_chart(model, chart, p, pd, exact, digits)
+
+
+def chart_split_at(model: Model, chart, p, pd, tau_p, digits: int = DIGITS) -> PreciseChartSplit:
+    """The exact split at the chart point ``(p, pd)`` with the chart's generalized force ``tau_p`` (floats taken
+    exactly): what a chart-native evaluation (``Formalism.split_chart``) with these inputs should return.
+    ``q = psi(p)`` and ``v = Dpsi pd`` in mpmath (the quaternions unit to the working precision), ``B u = Dpsi^-T
+    tau_p``."""
+    digits = _check_digits(digits)
+    _check_chart(chart)
+    with mpmath.workdps(digits):
+        p, pd, tau_p = ([mpf(float(x)) for x in np.asarray(v, dtype=float)] for v in (p, pd, tau_p))
+        D, _ = _zyx_terms(chart, p, pd)
+        q = list(chart.psi(p, *_mp_trig()))
+        qd = _matvec_n(D, pd)
+        tau = list(mpmath.lu_solve(mpmath.matrix(D).T, mpmath.matrix(tau_p)))
+        return _in_chart(model, chart, p, pd, _split(model, q, qd, tau, digits), digits)
 
 
 def mass_matrix(model: Model, q, digits: int = DIGITS) -> mpmath.matrix:
@@ -605,4 +739,5 @@ def relative_error(value, exact) -> float:
         return float(err / size) if size else float(err)
 
 
-__all__ = ["DIGITS", "MIN_DIGITS", "PreciseSplit", "bias_forces", "mass_matrix", "relative_error", "split"]
+__all__ = ["DIGITS", "MIN_DIGITS", "PreciseChartSplit", "PreciseSplit", "bias_forces", "chart_split", "chart_split_at",
+           "mass_matrix", "relative_error", "split"]

@@ -61,6 +61,7 @@ class Point:
     state: State
     backends: tuple[str, ...]
     checks: gate.Checks = FULL_CHECKS
+    chart: str | None = None        # also measure the answers in this chart (:class:`ChartMeasurement`)
 
 
 @dataclass(frozen=True)
@@ -149,11 +150,41 @@ def velocity_path(count: int, names: Sequence[str]) -> Path:
                         lambda x: (DP_Q, tuple(x * v for v in DP_QD), DP_U), xs, names))
 
 
+#: The ball pendulum's chart state on the gimbal path (besides the pitch): yaw, roll, the chart rates pd and u.
+GIMBAL_YAW, GIMBAL_ROLL, GIMBAL_PD, GIMBAL_U = 0.4, -0.7, (0.9, -1.3, 0.6), (0.5, -0.8, 0.3)
+
+
+def gimbal_state(delta: float) -> tuple[tuple, tuple, tuple]:
+    """The ball pendulum at zyx angles (yaw, pi/2 - delta, roll) with chart rates pd: q = psi(p) and qd = Dpsi pd
+    rounded to floats (the joint-chart state the gate is given), u fixed."""
+    import cases
+    from crosscheck import charts
+
+    chart = charts.get("zyx", cases.load("ball_pendulum"))
+    p = np.array([GIMBAL_YAW, np.pi / 2 - delta, GIMBAL_ROLL])
+    return (tuple(chart.q_of(p).tolist()), tuple((chart.jacobian(p) @ np.array(GIMBAL_PD)).tolist()), GIMBAL_U)
+
+
+def gimbal_path(xs: Sequence[float], names: Sequence[str]) -> Path:
+    """The ball pendulum walking into gimbal lock of its zyx chart: pitch = pi/2 - delta (article 6.4, 9.1)."""
+    note = ("The joint chart (quaternion, body angular velocity) is benign all along; the trouble is the zyx chart. "
+            "The chart table below measures the chart's accelerations pdd: natively (Euler–Lagrange and geometric "
+            "`split_chart`, `@zyx`) and every joint-chart answer mapped as the gate maps it "
+            "(`invariance._mapped`), against the exact split carried into the chart in mpmath "
+            "(`precise.chart_split`).")
+    return Path("gimbal", "Gimbal lock: ball pendulum in zyx Euler angles, pitch -> pi/2",
+                "delta = pi/2 - pitch (rad)", (),
+                tuple(dataclasses.replace(p, chart="zyx") for p in _points(
+                    lambda x: gate.CaseSpec("ball_pendulum"), gimbal_state, xs, names)), note)
+
+
 def paths(quick: bool, names: Sequence[str]) -> list[Path]:
-    """The five paths: a handful of points each when ``quick`` (CI), else 16 to 30."""
+    """The six paths: a handful of points each when ``quick`` (CI), else 10 to 30."""
     ns = (2, 4, 8) if quick else (2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 60)
+    deltas = (1e-1, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10) if quick else np.logspace(-1, -10, 19)
     return [theta2_path(5 if quick else 25, names), four_bar_path(5 if quick else 21, names),
-            mass_ratio_path(5 if quick else 25, names), chain_path(ns, names), velocity_path(4 if quick else 16, names)]
+            mass_ratio_path(5 if quick else 25, names), chain_path(ns, names), velocity_path(4 if quick else 16, names),
+            gimbal_path(deltas, names)]
 
 
 @dataclass(frozen=True)
@@ -174,6 +205,7 @@ class Measurement:
     over: dict[str, tuple[tuple[str, str], ...]]
     alarms: tuple[str, ...]
     worst_ratio: float
+    chart: "ChartMeasurement | None" = None
 
     @property
     def false_alarm(self) -> bool:
@@ -255,7 +287,128 @@ def measure(point: Point, setup: gate.CaseSetup, formalisms: Sequence[Formalism]
                     if c.verdict == DISAGREE] + [f"{b} raised {m}" for b, m in outcome.errors.items()])
     m = Measurement(point, _conditions(outcome), {b: {q: rel for q, (rel, _) in qs.items()} for b, qs in true.items()},
                     ratios, tolerances, verdicts, dict(outcome.breakdowns), {}, alarms, outcome.worst_ratio)
-    return dataclasses.replace(m, over=_over(m, outcome))
+    chart = measure_chart(point, setup, formalisms, outcome) if point.chart else None
+    return dataclasses.replace(m, over=_over(m, outcome), chart=chart)
+
+
+#: The chart accelerations measured on a chart path.
+CHART_QUANTITIES = ("drift", "ctrl", "total")
+
+
+@dataclass(frozen=True)
+class ChartMeasurement:
+    """The answers in a chart at one point (the zyx chart of a model with ball joints: ``precise.chart_split``).
+
+    ``cond_D``: cond(Dpsi) at the chart point the gate computes (``p = psi^-1(q)`` in floats; inf where Dpsi came out
+    exactly singular), ``cond_D_exact`` at the exact one, ``cond_Mp`` the exact cond of the chart's mass matrix
+    ``Dpsi^T M Dpsi``; ``compared``: whether the gate's chart check ran (cond_D <= ``charts.GIMBAL_LIMIT``; else it
+    leaves the chart out, a BREAKDOWN of the chart). Per voter (``<backend>@<chart>``: evaluated natively,
+    ``split_chart``; ``<backend>``: its joint-chart answer mapped as the gate maps it) and quantity: ``errors`` the
+    relative error against the exact split at the state carried into the chart in mpmath; ``ratios`` the absolute
+    error over the chart comparison's tolerance (the gate's where it compared; past the limit the tolerance the check
+    would use with the limit lifted: ``would_be`` is then True). ``own``: per native voter, its relative error
+    against the exact answer for the float chart inputs it was given (its own error, without the harness's rounding
+    of the state into the chart); ``state_map``: the relative change of the exact total between those inputs and the
+    state (the rounding of ``p = psi^-1(q)``, ``pd = Dpsi^-1 qd``). ``raised``: voter -> error message. ``verdicts``:
+    per quantity the chart comparison's verdict (``left out`` past the limit); ``over`` the (voter, quantity) pairs
+    above tolerance by kind, as :attr:`Measurement.over` (past the limit every one is ``flagged``)."""
+
+    chart: str
+    cond_D: float
+    cond_D_exact: float
+    cond_Mp: float
+    compared: bool
+    would_be: bool
+    errors: dict[str, dict[str, float]]
+    ratios: dict[str, dict[str, float]]
+    own: dict[str, dict[str, float]]
+    state_map: float
+    raised: dict[str, str]
+    verdicts: dict[str, str]
+    over: dict[str, tuple[tuple[str, str], ...]]
+
+    @property
+    def voters(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys([*self.errors, *self.raised]))
+
+    def worst(self, voter: str) -> float:
+        """The voter's largest relative error over the chart quantities (inf when it raised, NaN when absent)."""
+        if voter in self.raised:
+            return float("inf")
+        return max(self.errors.get(voter, {}).values(), default=float("nan"))
+
+    def ratio(self, voter: str) -> float:
+        return max((r for r in self.ratios.get(voter, {}).values() if r == r), default=float("nan"))
+
+
+def _abs_ratio(value, exact: np.ndarray, tol) -> float:
+    value = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(value)):
+        return float("inf")
+    error = np.abs(value - exact)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.max(np.where(error == 0.0, 0.0, error / np.asarray(tol, dtype=float))))
+
+
+def measure_chart(point: Point, setup: gate.CaseSetup, formalisms: Sequence[Formalism],
+                  outcome: gate.StateOutcome) -> ChartMeasurement:
+    """The chart part of :func:`measure`: the gate's chart check at the state re-run with a record of what it used
+    (``invariance.chart_checks``, deterministic: the same comparisons as in ``outcome``), and past the limit the same
+    check with the limit lifted, for the tolerance and verdict it would have had."""
+    from crosscheck import charts, invariance
+    from crosscheck.invariance import _mapped
+
+    model, state = setup.model, point.state
+    chart = next((c for c in setup.charts if c.name == point.chart), None) or charts.get(point.chart, model)
+    supported = [b for b in formalisms if b.name in outcome.splits or b.name in outcome.errors]
+    record: dict = {}
+    comps = invariance.chart_checks(model, state, chart, outcome.trusted, supported, {}, outcome.scales, record)
+    compared = record["cond"] <= charts.GIMBAL_LIMIT
+    raised: dict[str, str] = {}
+    if not compared:
+        record = {}
+        with np.errstate(all="ignore"):
+            try:
+                comps = invariance.chart_checks(model, state, chart, outcome.trusted, supported, raised,
+                                                outcome.scales, record, limit=float("inf"))
+            except np.linalg.LinAlgError as exc:     # Dpsi exactly singular at the rounded chart point
+                raised["harness map"] = f"LinAlgError: {exc}"
+    exact = precise.chart_split(model, chart, state.q, state.qd, state.u)
+    errors: dict[str, dict[str, float]] = {}
+    ratios: dict[str, dict[str, float]] = {}
+    own: dict[str, dict[str, float]] = {}
+    state_map = float("nan")
+    tolerances = record.get("tolerances", {})
+    if "pd" in record:
+        p, pd = record["p"], record["pd"]
+        at = precise.chart_split_at(model, chart, p, pd, record["tau_p"])
+        state_map = precise.relative_error(at.floats("total"), exact.total)
+        values = {label: {q: split.quantity(q) for q in CHART_QUANTITIES} for label, split in record["native"].items()}
+        for label, split in record["native"].items():
+            own[label] = {q: precise.relative_error(split.quantity(q), getattr(at, q)) for q in CHART_QUANTITIES}
+        with np.errstate(all="ignore"):
+            for name, split in outcome.splits.items():
+                if name in point.backends:
+                    done: dict = {}
+                    values[name] = {q: _mapped(chart, p, pd, split, q, done) for q in CHART_QUANTITIES}
+        for label, qs in values.items():
+            errors[label] = {q: precise.relative_error(v, getattr(exact, q)) for q, v in qs.items()}
+            ratios[label] = {q: (_abs_ratio(v, exact.floats(q), tolerances[q]) if q in tolerances else float("nan"))
+                             for q, v in qs.items()}
+    verdicts = {q: (comps[key].verdict if (key := f"chart {chart.name}: {q}") in comps else "not compared")
+                if compared else "left out" for q in CHART_QUANTITIES}
+    kinds: dict[str, list[tuple[str, str]]] = {"flagged": [], "caught": [], "silent": []}
+    for label, rs in ratios.items():
+        for q, r in rs.items():
+            if not r > 1.0:
+                continue
+            key = f"chart {chart.name}: {q}"
+            caught = compared and key in comps and comps[key].verdict == DISAGREE and any(
+                label in (a, b) for a, b in comps[key].disagreeing_pairs)
+            kinds["flagged" if not compared else "caught" if caught else "silent"].append((label, q))
+    return ChartMeasurement(chart.name, record.get("cond", float("inf")), float(exact.cond_D), float(exact.cond_Mp),
+                            compared, not compared and bool(tolerances), errors, ratios, own, state_map, raised,
+                            verdicts, {k: tuple(v) for k, v in kinds.items()})
 
 
 def _over(m: Measurement, outcome: gate.StateOutcome) -> dict[str, tuple[tuple[str, str], ...]]:
