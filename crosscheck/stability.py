@@ -464,6 +464,8 @@ def write(results: Sequence[PathResult], out_dir, quick: bool, seconds: float) -
     out_dir.mkdir(parents=True, exist_ok=True)
     for result in results:
         stability_report.plot(result, out_dir / f"stability_{result.path.name}.png")
+        if stability_report.has_chart(result):
+            stability_report.plot_chart(result, out_dir / f"stability_{result.path.name}_chart.png")
     report = out_dir / "stability.md"
     report.write_text(stability_report.render(list(results), quick, seconds))
     return report

@@ -6,6 +6,7 @@ report byte for byte, apart from the total runtime on its last line.
 
 from __future__ import annotations
 
+from crosscheck.charts import GIMBAL_LIMIT as GIMBAL
 from crosscheck.compare import DISAGREE
 from crosscheck.stability import Measurement, PathResult
 
@@ -220,6 +221,8 @@ def render(results: list[PathResult], quick: bool, seconds: float) -> str:
         lines += [f"## {r.path.name}", "", f"**{r.path.title}.**" + (f" {r.path.note}" if r.path.note else ""), "",
                   f"![{r.path.name}](stability_{r.path.name}.png)", "", *conclusions(r), "", *backend_table(r), "",
                   *point_table(r), ""]
+        if has_chart(r):
+            lines += chart_section(r)
     lines.append(f"Total runtime: {seconds:.0f} s.")
     return "\n".join(lines) + "\n"
 
@@ -287,4 +290,185 @@ def _ratio(m: Measurement, backend: str) -> float:
     return max(ratios, default=float("nan"))
 
 
-__all__ = ["conclusions", "plot", "point_table", "render", "summary_table"]
+# ----------------------------------------------------------------------------------------------- chart paths
+
+EPS = 2.0**-52
+
+
+def has_chart(result: PathResult) -> bool:
+    return any(m.chart is not None for m in result.measurements)
+
+
+def _voter(label: str) -> str:
+    name, _, chart = label.partition("@")
+    return f"{_short(name)}@{chart}" if chart else f"{_short(name)} (mapped)"
+
+
+def chart_voters(result: PathResult) -> list[str]:
+    """The chart voters of the path, natives first."""
+    labels = dict.fromkeys(v for m in result.measurements if m.chart for v in m.chart.voters if v != "harness map")
+    return sorted(labels, key=lambda v: ("@" not in v, list(labels).index(v)))
+
+
+def _chart_gate(c) -> str:
+    if not c.compared:
+        return f"BREAKDOWN (cond Dpsi {_g(c.cond_D)} > {_g(GIMBAL)}): left out"
+    disagree = [q for q, v in c.verdicts.items() if v == DISAGREE]
+    return "**DISAGREE " + ", ".join(disagree) + "**" if disagree else "compared: agree"
+
+
+def chart_table(result: PathResult) -> list[str]:
+    voters = chart_voters(result)
+    head = ([result.path.parameter, "cond Dpsi", "cond Dpsi (exact)", "cond M_p", "state map"]
+            + [_voter(v) for v in voters] + ["true err / chart tol", "gate (chart)"])
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m in result.measurements:
+        c = m.chart
+        if c is None:
+            continue
+        cells = []
+        for v in voters:
+            if v in c.raised:
+                cells.append("raised")
+                continue
+            cell = _g(c.worst(v))
+            if v in c.own:
+                cell += f" (own {_g(max(c.own[v].values()))})"
+            if any(lbl == v for lbl, _ in c.over.get("silent", ())):
+                cell += " !"
+            cells.append(cell)
+        ratio = max((c.ratio(v) for v in c.voters if c.ratio(v) == c.ratio(v)), default=float("nan"))
+        row = ([f"{m.point.x:.3g}", _g(c.cond_D), _g(c.cond_D_exact), _g(c.cond_Mp), _g(c.state_map)] + cells
+               + [_g(ratio) + (" (would be)" if c.would_be else ""), _chart_gate(c)])
+        lines.append("| " + " | ".join(row) + " |")
+    return lines
+
+
+def _range(values) -> str:
+    values = [v for v in values if v == v and 0 < v < float("inf")]
+    return f"{_g(min(values))} to {_g(max(values))}" if values else "-"
+
+
+def chart_conclusions(result: PathResult) -> list[str]:
+    """What the chart measurements show, in words computed from the numbers."""
+    ms = [m for m in result.measurements if m.chart is not None]
+    voters = chart_voters(result)
+    natives = [v for v in voters if "@" in v]
+    mapped = [v for v in voters if "@" not in v]
+    compared = [m for m in ms if m.chart.compared]
+    out = []
+    last = compared[-1] if compared else None
+    beyond = next((m for m in ms if not m.chart.compared), None)
+    if last is not None and beyond is not None:
+        out.append(f"- The gate compares the chart while cond(Dpsi) <= {_g(GIMBAL)}: the last compared point is "
+                   f"{result.path.parameter} = {last.point.x:.3g} (cond Dpsi {_g(last.chart.cond_D)}), the first left "
+                   f"out {beyond.point.x:.3g} (cond Dpsi {_g(beyond.chart.cond_D)}); cond(Dpsi) is about "
+                   f"{_g(ms[0].chart.cond_D_exact * ms[0].point.x)} / delta, so the limit sits at delta ~ "
+                   f"{_g(ms[0].chart.cond_D_exact * ms[0].point.x / GIMBAL)}.")
+    finite = [m for m in ms if m.chart.cond_Mp < float("inf")]
+    for v in natives:
+        own = [(max(m.chart.own[v].values()) / (EPS * m.chart.cond_Mp), m.point.x) for m in finite
+               if v in m.chart.own and max(m.chart.own[v].values()) < 0.1]
+        raised = [m.point.x for m in ms if v in m.chart.raised]
+        text = (f"- {_voter(v)} (native): its own error (against the exact answer for the float chart inputs it was "
+                f"given) is eps cond(M_p) times {_range(r for r, _ in own)} wherever it is below 10 %: it grows like "
+                "eps cond(M_p), and cond(M_p) grows like cond(Dpsi)^2 (1 / delta^2).")
+        if raised:
+            text += f" It raised (Cholesky of the singular M_p) at {', '.join(f'{x:.3g}' for x in raised)}."
+        out.append(text)
+    if mapped:
+        rows = [(max(m.chart.worst(v) for v in mapped), m) for m in ms if all(v in m.chart.errors for v in mapped)]
+        rows = [(e, m) for e, m in rows if 0 < e < 0.1]
+        if rows:
+            ratios = _range(e / (EPS * m.chart.cond_D_exact ** 2) for e, m in rows)
+            out.append(f"- The joint-chart answers mapped into the chart ({', '.join(_voter(v) for v in mapped)}) all "
+                       f"carry the same error, the harness's own: the rounding of p = psi^-1(q) and pd = Dpsi^-1 qd "
+                       f"(`state map`); it is eps cond(Dpsi)^2 times {ratios} where below 10 %, i.e. the map loses "
+                       f"about 2 log10 cond(Dpsi) digits ("
+                       + ", ".join(f"{_log10(e / EPS):.0f} digits lost at {m.point.x:.3g}" for e, m in rows)
+                       + ").")
+    silent = [(m.point.x, v, q) for m in ms for v, q in m.chart.over.get("silent", ())]
+    out.append(f"- True error above the chart comparison's tolerance while the gate compared: "
+               f"{len(silent)} silent, {sum(len(m.chart.over.get('caught', ())) for m in ms)} caught.")
+    out += [f"  - **silent: {_voter(v)} {q} at {x:.3g}** (a real finding)" for x, v, q in silent]
+    if compared:
+        ratios = [(max(m.chart.ratio(v) for v in m.chart.voters if m.chart.ratio(v) == m.chart.ratio(v)), m)
+                  for m in compared]
+        rooms = [(max(m.chart.worst(v) for v in natives if v in m.chart.errors) / r, m) for r, m in ratios
+                 if r > 0 and natives]
+        out.append("- The chart comparison's tolerance, as a relative error it would accept (largest native error / "
+                   "its ratio): " + ", ".join(f"{_g(t)} at {m.point.x:.3g}" for t, m in rooms)
+                   + ": it is scaled by |Dpsi^-1| and the chart's rates, so it loosens faster than the errors grow; "
+                   "near the limit a wrong answer of that relative size would pass.")
+    would = [m for m in ms if m.chart.would_be]
+    if would:
+        worst = max(would, key=lambda m: max(m.chart.worst(v) for v in m.chart.errors))
+        top = max(worst.chart.worst(v) for v in worst.chart.errors)
+        wr = max(m.chart.ratio(v) for m in would for v in m.chart.voters if m.chart.ratio(v) == m.chart.ratio(v))
+        out.append(f"- Past the limit, with the limit lifted the check would have passed every point (largest true err "
+                   f"/ tol {_g(wr)}), even at {worst.point.x:.3g} where the mapped answers are off by {_g(top)} "
+                   "relative: the limit, not the tolerance, is what keeps such answers out of the vote.")
+    return out
+
+
+def _log10(x: float) -> float:
+    import math
+
+    return math.log10(x) if x > 0 else float("-inf")
+
+
+def chart_section(result: PathResult) -> list[str]:
+    name = result.path.name
+    return [f"### {name}: the answers in the chart", "",
+            "Relative error of the chart accelerations pdd (largest over drift, ctrl, total) against the exact split "
+            "at the state carried into the chart in mpmath (`precise.chart_split`). `@zyx`: evaluated natively "
+            "(`split_chart`) at the chart point the gate computes, with its own error in parentheses (against the "
+            "exact answer for those float inputs, `precise.chart_split_at`); `(mapped)`: the joint-chart answer "
+            "carried by `invariance._mapped`. `state map`: how far the harness's rounding of the state into the "
+            "chart moves the exact answer. `true err / chart tol`: against the gate's chart comparison tolerance "
+            "(`would be`: past the limit, the tolerance it would use with the limit lifted). `raised`: an exception "
+            "(the Cholesky of the singular M_p).", "",
+            f"![{name} chart](stability_{name}_chart.png)", "", *chart_conclusions(result), "",
+            *chart_table(result), ""]
+
+
+def plot_chart(result: PathResult, file) -> None:
+    """Three panels against delta: relative error per chart voter (natives solid, mapped dashed), true error over the
+    chart tolerance, cond(Dpsi) and cond(M_p) with the limit; the points the gate leaves out shaded."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ms = [m for m in result.measurements if m.chart is not None]
+    xs = [m.point.x for m in ms]
+    fig, (err, tol, cond) = plt.subplots(3, 1, figsize=(6.4, 7.6), sharex=True, constrained_layout=True)
+    for v in chart_voters(result):
+        native = "@" in v
+        points = [(m.point.x, max(m.chart.worst(v), FLOOR)) for m in ms if v in m.chart.voters]
+        _line(err, points, _voter(v), "o" if native else ".")
+        if not native:
+            err.lines[-1].set_linestyle("--")
+        _line(tol, [(m.point.x, max(m.chart.ratio(v), FLOOR)) for m in ms if m.chart.ratio(v) == m.chart.ratio(v)],
+              _voter(v), "o" if native else ".")
+    _line(cond, [(m.point.x, m.chart.cond_D) for m in ms], "cond Dpsi (gate)", "s")
+    _line(cond, [(m.point.x, m.chart.cond_D_exact) for m in ms], "cond Dpsi (exact)", "x")
+    _line(cond, [(m.point.x, m.chart.cond_Mp) for m in ms], "cond M_p", "s")
+    cond.axhline(GIMBAL, color="k", lw=0.8, ls=":", label="GIMBAL_LIMIT")
+    tol.axhline(1.0, color="k", lw=0.8, ls="--")
+    for ax in (err, tol, cond):
+        for i, (lo, hi) in enumerate(_spans(xs, [not m.chart.compared for m in ms])):
+            ax.axvspan(lo, hi, color="tab:red", alpha=0.12, lw=0,
+                       label="chart left out (BREAKDOWN)" if i == 0 and ax is err else None)
+        ax.grid(True, which="major", alpha=0.3)
+    err.invert_xaxis()
+    err.set(title=result.path.title + ": in the chart", ylabel="relative error of pdd")
+    tol.set(ylabel="true error / chart tolerance")
+    cond.set(ylabel="condition number", xlabel=result.path.parameter)
+    err.legend(fontsize=6, ncol=3)
+    cond.legend(fontsize=7)
+    fig.savefig(file, dpi=90)
+    plt.close(fig)
+
+
+__all__ = ["chart_conclusions", "chart_table", "conclusions", "plot", "plot_chart", "point_table", "render",
+           "summary_table"]

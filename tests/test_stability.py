@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from crosscheck import backends, gate, stability
+from crosscheck import backends, charts, gate, stability
 from crosscheck.cli import build_parser, cmd_stability
 
 
@@ -23,7 +23,7 @@ def _voting(m: stability.Measurement):
 
 
 def test_paths_cover_every_backend_with_finite_errors(results):
-    assert set(results) == {"theta2", "four_bar", "mass_ratio", "chain", "velocity"}
+    assert set(results) == {"theta2", "four_bar", "mass_ratio", "chain", "velocity", "gimbal"}
     for result in results.values():
         assert len(result.measurements) >= 3
         for m in result.measurements:
@@ -81,9 +81,66 @@ def test_report_and_charts_are_written(results, tmp_path):
     for name in results:
         assert f"## {name}" in text and f"(stability_{name}.png)" in text
         assert (tmp_path / f"stability_{name}.png").stat().st_size > 1000
+    assert "### gimbal: the answers in the chart" in text and (tmp_path / "stability_gimbal_chart.png").stat().st_size > 1000
     assert "silent" in text and "**silent:" not in text
 
 
 def test_cli_has_the_stability_command():
     args = build_parser().parse_args(["stability", "--quick", "--out", "somewhere"])
     assert args.run is cmd_stability and args.quick and args.out == "somewhere"
+
+
+def test_gimbal_path_measures_the_zyx_chart(results):
+    ms = results["gimbal"].measurements
+    assert len(ms) >= 4 and all(m.chart is not None for m in ms)
+    deltas = [m.point.x for m in ms]
+    assert deltas == sorted(deltas, reverse=True) and deltas[0] >= 1e-1 and deltas[-1] <= 1e-9
+    natives = {"euler_lagrange@zyx", "geometric@zyx"}
+    first = ms[0].chart
+    assert first.compared and natives <= set(first.errors)
+    # the exact reference is right: at a benign pitch every answer in the chart agrees with it to ~1e-12
+    assert all(e < 1e-11 for v in first.voters for e in first.errors[v].values()), first.errors
+    # the gate compares where cond(Dpsi) <= GIMBAL_LIMIT and leaves the chart out past it
+    for m in ms:
+        c = m.chart
+        assert c.compared == (c.cond_D <= charts.GIMBAL_LIMIT)
+        assert c.compared == all(v != "left out" for v in c.verdicts.values())
+        assert not c.compared or all(v == "agree" for v in c.verdicts.values())
+    assert not ms[-1].chart.compared and any(m.chart.compared for m in ms)
+    # errors grow towards the lock: the natives' own error like eps cond(M_p), the map's like eps cond(Dpsi)^2
+    for v in natives:
+        own = [max(m.chart.own[v].values()) for m in ms if v in m.chart.own]
+        assert own[0] < 1e-11 and max(own) > 1e-4
+        finite = [(max(m.chart.own[v].values()), m.chart.cond_Mp) for m in ms if v in m.chart.own]
+        assert all(e < 1e3 * 2.2e-16 * c for e, c in finite if e < 0.1)
+    mapped = [m.chart.worst("newton_euler") for m in ms]
+    assert mapped[0] < 1e-13 and max(mapped) > 1e-6
+    # near the lock the Cholesky of M_p fails: recorded as raised, not a crash
+    assert natives <= set(ms[-1].chart.raised)
+    # the joint chart itself is benign all along
+    assert all(e < 1e-14 for m in ms for es in m.errors.values() for e in es.values())
+
+
+def test_exact_chart_split_agrees_with_the_float_map_at_a_benign_pitch():
+    import cases
+    import numpy as np
+
+    from crosscheck import precise
+    from crosscheck.invariance import _mapped
+
+    model = cases.load("ball_pendulum")
+    chart = charts.get("zyx", model)
+    q, qd, u = stability.gimbal_state(0.8)
+    exact = precise.chart_split(model, chart, q, qd, u)
+    p = chart.p_of(np.array(q))
+    assert np.allclose(p, [stability.GIMBAL_YAW, np.pi / 2 - 0.8, stability.GIMBAL_ROLL], atol=1e-14)
+    assert np.allclose([float(x) for x in exact.pd], stability.GIMBAL_PD, atol=1e-14)
+    pd = charts.velocity_to_chart(chart, p, qd)
+    split = backends.get("newton_euler").split(model, q, qd, u)
+    for quantity in stability.CHART_QUANTITIES:
+        assert precise.relative_error(_mapped(chart, p, pd, split, quantity), getattr(exact, quantity)) < 1e-12
+    tau_p = charts.force_to_chart(chart, p, model.input_map @ np.array(u))
+    native = backends.get("geometric").split_chart(model, chart, p, pd, tau_p)
+    at = precise.chart_split_at(model, chart, p, pd, tau_p)
+    assert precise.relative_error(native.total, at.total) < 1e-12
+    assert precise.relative_error(at.floats("total"), exact.total) < 1e-14
