@@ -461,7 +461,7 @@ def plot_chart(result: PathResult, file) -> None:
                        label="chart left out (BREAKDOWN)" if i == 0 and ax is err else None)
         ax.grid(True, which="major", alpha=0.3)
     err.invert_xaxis()
-    err.set(title=result.path.title + ": in the chart", ylabel="relative error of pdd")
+    err.set(title="Ball pendulum in the zyx chart, pitch -> pi/2", ylabel="relative error of pdd")
     tol.set(ylabel="true error / chart tolerance")
     cond.set(ylabel="condition number", xlabel=result.path.parameter)
     err.legend(fontsize=6, ncol=3)
