@@ -112,7 +112,8 @@ def test_eval_refuses_a_chart_point_in_gimbal_lock(capsys):
 # ------------------------------------------------------------------------------ exponential coordinates (exp)
 
 def _exp_coefficients_exact(t: float) -> tuple[float, ...]:
-    """``(a, b, A, B)`` of ``charts._exp_coefficients`` from their closed forms in 120-digit arithmetic (no series; at t = 1e-12 the numerators cancel 50 digits)."""
+    """``(a, b, A, B)`` of ``charts._exp_coefficients`` from their closed forms in 120-digit arithmetic (no series; at
+    t = 1e-12 the numerators cancel 50 digits)."""
     import mpmath
 
     with mpmath.workdps(120):
@@ -157,8 +158,8 @@ def test_exp_series_branch_meets_the_closed_form():
 
 
 def test_exp_psi_at_zero_is_the_centre():
-    """With Python floats psi at ``p = 0`` exactly returns the limit, the centre (Euler–Lagrange's unit probe evaluates
-    there with math.sin); next to 0 psi is continuous, Dpsi is the identity and the rate vanishes."""
+    """With Python floats psi at ``p = 0`` exactly returns the limit, the centre (Euler–Lagrange's unit probe
+    evaluates there with math.sin); next to 0 psi is continuous, Dpsi is the identity and the rate vanishes."""
     model = cases.load("satellite_arm")
     chart = charts.get("exp", model)
     zero = [0.0] * model.nv
@@ -226,3 +227,25 @@ def test_exp_centre_is_seeded_per_case_and_keeps_sampled_states_off_its_origin()
     state = sampling.sample_states(model, 1, 0, "free_body")[0]
     np.testing.assert_array_equal(state.q[3:7], (0.0, 0.0, 0.0, 1.0))
     assert np.linalg.norm(chart.p_of(np.array(state.q))[3:6]) > 0.1
+
+
+def test_exp_at_its_centre_is_left_out_and_refused_by_eval(capsys):
+    """Within ``EXP_CENTRE_LIMIT`` of p = 0 the chart-native backends differentiate the 0/0 of sin(t/2)/t (their
+    answers are rounding there, a division by zero at 0 exactly): the chart check leaves such a state out, and eval
+    refuses it in one line."""
+    from crosscheck import cli
+
+    model = cases.load("ball_pendulum")
+    chart = charts.get("exp", model)
+    assert chart.at_centre([0.0, 0.0, 0.0]) and chart.at_centre([1e-6, 0.0, 0.0])
+    assert not chart.at_centre([1e-4, 0.0, 0.0])
+    from crosscheck import backends
+
+    native = [backends.get("euler_lagrange")]
+    for p, checked in (([1e-7, 0.0, 0.0], False), ([1e-4, 0.0, 0.0], True)):
+        state = sampling.State(0, tuple(chart.q_of(p)), (0.5, -0.2, 1.0), (0.0, 0.0, 0.0))
+        joint = {"pinocchio": reference.split(model, state.q, state.qd, state.u)}
+        assert bool(invariance.chart_checks(model, state, chart, joint, native, {})) == checked
+    code = cli.main(["eval", "--case", "free_body", "--chart", "exp", "--q=0.1,0.2,0.3,0,0,0", "--qd=1,2,3,4,5,6"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1 and "centre" in err
