@@ -670,8 +670,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--u", help="actuator inputs, one per column of B (default zeros)")
     ev.add_argument("--tau", help="instead of --u: the generalized force in the chart (a covector, n entries)")
     ev.add_argument("--chart", choices=charts.names(),
-                    help="evaluate in this chart q = psi(p) (default identity; zyx and exp: the charts of spherical and "
-                         "free joints, p with one entry per velocity)")
+                    help="evaluate in this chart q = psi(p) (default identity; zyx and exp: the charts of spherical "
+                         "and free joints, p with one entry per velocity)")
     ev.add_argument("--frame", help="move the scene by the gate's sampled frame g0, g1, ... (with --seed)")
     ev.add_argument("--seed", type=_seed, default=0,
                     help="seed of the gate run (the affine chart, the exp chart's centres, the frames)")
