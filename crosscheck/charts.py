@@ -14,7 +14,9 @@ the analytic Jacobians written here to map every joint-chart answer into p and c
 Built-in charts: ``identity``; ``absolute`` (planar serial chains: ``phi_i = theta_1 + ... + theta_i``, 6.4.6);
 ``affine`` (``q = A p + b``, a random well-conditioned A, seeded per case); ``nonlinear``
 (``q_i = p_i + a sin(p_{i+1})``, last coordinate unchanged: ``Dpsi`` is unit upper triangular, so the chart is
-a global diffeomorphism for every a, inverted by back substitution).
+a global diffeomorphism for every a, inverted by back substitution). For models with spherical or free joints:
+``zyx`` (ZYX Euler angles of every orientation, :class:`EulerZYX`) and ``exp`` (exponential coordinates about a
+seeded centre orientation, :class:`ExponentialCoordinates`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from cases import configuration
 from cases.model import Model
 from crosscheck.sampling import case_rng
 
@@ -308,6 +311,229 @@ def _skew(v) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+#: Below this rotation angle |p| the float methods of :class:`ExponentialCoordinates` use the Taylor series of the
+#: coefficients of ``J_r`` and of its rate: their closed forms lose digits to cancellation as |p| -> 0 (``B`` of
+#: :func:`_exp_coefficients` relatively eps / |p|^4: 1.4e-12 at |p| = 0.25, 2e-16 at 1). The series kept (through
+#: |p|^20, :data:`_EXP_SERIES_TERMS`) are exact to rounding below it (the first term left out is below 1e-18).
+EXP_SERIES_BELOW = 1.0
+_EXP_SERIES_TERMS = 11
+
+
+#: |p| of an orientation block below which :meth:`ExponentialCoordinates.at_centre` holds (the chart-native
+#: backends' derivatives of psi lose about eps / |p| there).
+EXP_CENTRE_LIMIT = 1e-5
+
+
+def _series(coefficient: Callable[[int], float]) -> tuple[float, ...]:
+    return tuple(coefficient(k) for k in range(_EXP_SERIES_TERMS))
+
+
+#: Taylor coefficients in s = t^2 (class docstring of :class:`ExponentialCoordinates`): ``a = sum (-s)^k/(2k+2)!``,
+#: ``b = sum (-s)^k/(2k+3)!``, and ``A = a'/t``, ``B = b'/t`` term by term (``d/dt t^2k = 2k t^(2k-1)``).
+_EXP_SERIES = (_series(lambda k: (-1) ** k / math.factorial(2 * k + 2)),
+               _series(lambda k: (-1) ** k / math.factorial(2 * k + 3)),
+               _series(lambda k: (-1) ** (k + 1) * (2 * k + 2) / math.factorial(2 * k + 4)),
+               _series(lambda k: (-1) ** (k + 1) * (2 * k + 2) / math.factorial(2 * k + 5)))
+
+
+def _horner(coefficients: Sequence[float], s: float) -> float:
+    out = 0.0
+    for c in reversed(coefficients):
+        out = out * s + c
+    return out
+
+
+def _exp_coefficients(t: float) -> tuple[float, float, float, float]:
+    """``(a, b, A, B)`` at the angle t: ``J_r = I - a [p]x + b [p]x^2`` with ``a = (1 - cos t)/t^2``,
+    ``b = (t - sin t)/t^3``, and their derivatives divided by t, ``A = a'(t)/t``, ``B = b'(t)/t`` (so that
+    ``d/dt a = A (p . pd)``), each from its Taylor series below :data:`EXP_SERIES_BELOW`."""
+    if t < EXP_SERIES_BELOW:
+        s = t * t
+        a, b, A, B = (_horner(c, s) for c in _EXP_SERIES)
+        return a, b, A, B
+    half = math.sin(t / 2)
+    one_minus_cos, sin = 2.0 * half * half, math.sin(t)
+    a, b = one_minus_cos / t**2, (t - sin) / t**3
+    return a, b, (t * sin - 2.0 * one_minus_cos) / t**4, (t * one_minus_cos - 3.0 * (t - sin)) / t**5
+
+
+def _quaternion_product(a: Sequence, b: Sequence) -> list:
+    """Hamilton product of quaternions ``(x, y, z, w)`` (the rotation ``R(a) R(b)``), in generic scalar operations."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return [aw * bx + bw * ax + ay * bz - az * by, aw * by + bw * ay + az * bx - ax * bz,
+            aw * bz + bw * az + ax * by - ay * bx, aw * bw - ax * bx - ay * by - az * bz]
+
+
+@dataclass(frozen=True)
+class ExponentialCoordinates(Chart):
+    """Exponential coordinates of the first kind for every spherical and free joint's orientation, about a centre
+    (article 6.2 the exponential map, 6.4 a map of the globe, 9.1).
+
+    ``p`` has one entry per velocity coordinate (``nv``): a revolute or prismatic joint keeps its coordinate; a
+    spherical joint's block is ``p`` in ``R = R_c exp([p]x)``, with ``R_c`` the joint's CENTRE orientation (a unit
+    quaternion ``(x, y, z, w)`` in :attr:`centers`, one per group joint in body order, part of the chart's
+    parameters and of its key); a free joint's block is its position (as in q) then the same for its orientation.
+    ``psi(p)`` is the whole q (``nq`` entries): per group joint the quaternion ``q_c (x) (sin(t/2) p/t, cos(t/2))``,
+    ``t = (p . p) ** 0.5``, written with generic operations (``** 0.5``, ``sin``, ``cos``, ``/``) so that a formalism
+    can derive in p (``split_chart``); with Python floats at ``t = 0`` exactly it returns the limit ``q_c``.
+
+    ``Dpsi`` maps ``pd`` to the velocity v: per rotation block SO(3)'s right Jacobian, ``w_body = J_r(p) pd`` with
+    ``J_r = I - (1 - cos t)/t^2 [p]x + (t - sin t)/t^3 [p]x^2``; per free block also ``v_lin = R^T pdot`` (as in
+    :class:`EulerZYX`). The rate ``(d/dt J_r) pd`` at ``pdd = 0`` is, with ``[pd]x pd = 0``,
+    ``-A (p . pd) (p x pd) + B (p . pd) p x (p x pd) + b pd x (p x pd)`` (``a``, ``b``, ``A = a'/t``, ``B = b'/t`` of
+    :func:`_exp_coefficients`); a free block's position rate is ``-w x (R^T pdot)``. The float methods use Taylor
+    series below ``t =`` :data:`EXP_SERIES_BELOW`, so they are accurate as ``p -> 0``.
+
+    Domain. :meth:`p_of` takes the shortest rotation, ``|p| <= pi``. There ``J_r`` has the singular value 1 along p
+    and ``2 sin(t/2) / t >= 2/pi`` across it (twice, one per direction), so ``cond(J_r) <= pi/2``: the chart has no
+    singularity on its domain (``exp`` is singular first at ``t = 2 pi``), and the gimbal-lock limit of the chart
+    check (:data:`GIMBAL_LIMIT`) is never reached.
+
+    Why a centre. About the identity (``R_c = I``) a state at the identity orientation (the gate's state 0, and any
+    model's neutral configuration) would sit at ``p = 0``, where every formula above is the removable 0/0 of
+    ``sin(t/2)/t``: the symbolic and automatic derivatives the chart-native backends take of psi are NaN there, and the
+    closed forms lose digits nearby. :func:`get` draws the centres per case, Haar-uniformly on SO(3) from
+    ``case_rng(seed, case + "/exp")`` (as :func:`random_affine` draws A and b), so a sampled state is at ``p = 0``
+    with probability 0 (and within angle t of it with probability of order ``t^3``), and the same seed and case
+    always give the same chart."""
+
+    joints: tuple = ()
+    centers: tuple = ()
+
+    def _params(self) -> tuple:
+        return (self.joints, self.centers)
+
+    def at_centre(self, p) -> bool:
+        """Whether some orientation block of p is within :data:`EXP_CENTRE_LIMIT` of the centre (``p = 0``), where
+        psi's symbolic and automatic derivatives in the chart-native backends are the removable 0/0 of
+        ``sin(t/2)/t``: their second derivatives cancel as eps / t, so the backends' answers there are rounding (the
+        ratio to the gate's tolerance was 8e-3 at t = 1e-4 and 0.8 at t = 1e-6 on the ball pendulum), and at
+        ``p = 0`` exactly they divide by zero. The gate's states are there with probability ~ (t / pi)^3 / 2 per joint
+        (the centre is drawn, class docstring); the chart check and ``eval`` leave such a p out."""
+        p = np.asarray(p, dtype=float)
+        for joint, k, _, _ in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                if float(np.linalg.norm(p[a:a + 3])) < EXP_CENTRE_LIMIT:
+                    return True
+        return False
+
+    def _blocks(self):
+        """(joint type, start in p, start in q, centre or None) per body."""
+        k = j = g = 0
+        for joint in self.joints:
+            center = None
+            if joint in ("spherical", "free"):
+                center, g = self.centers[g], g + 1
+            yield joint, k, j, center
+            k += {"spherical": 3, "free": 6}.get(joint, 1)
+            j += {"spherical": 4, "free": 7}.get(joint, 1)
+
+    @staticmethod
+    def _quaternion(w: Sequence, center: Sequence, sin: Callable, cos: Callable) -> list:
+        """``q_c (x) exp(w)``: the quaternion of ``R_c exp([w]x)``, generic in the scalars of w."""
+        x, y, z = w
+        t = (x * x + y * y + z * z) ** 0.5
+        if isinstance(t, float) and t == 0.0:  # floats at p = 0 exactly: the limit (symbolic inputs never get here)
+            return [float(c) for c in center]
+        s = sin(t / 2) / t
+        return _quaternion_product(center, [s * x, s * y, s * z, cos(t / 2)])
+
+    def psi(self, p, sin=math.sin, cos=math.cos) -> list:
+        out = []
+        for joint, k, _, center in self._blocks():
+            if joint == "spherical":
+                out += self._quaternion(p[k:k + 3], center, sin, cos)
+            elif joint == "free":
+                out += [p[k], p[k + 1], p[k + 2]] + self._quaternion(p[k + 3:k + 6], center, sin, cos)
+            else:
+                out.append(p[k])
+        return out
+
+    @staticmethod
+    def _log(quat, center) -> list[float]:
+        """The shortest ``p`` (``|p| <= pi``) with ``exp([p]x) = R_c^T R(quat)``."""
+        c = np.asarray(center, dtype=float)
+        r = np.array(_quaternion_product([-c[0], -c[1], -c[2], c[3]], [float(v) for v in quat]))
+        r = r / np.linalg.norm(r)
+        if r[3] < 0.0:
+            r = -r
+        n = float(np.linalg.norm(r[:3]))
+        if n < 1e-8:       # 2 atan(n / w) / n to rounding: 2 / w (1 - (n / w)^2 / 3)
+            scale = 2.0 / r[3] * (1.0 - (n / r[3]) ** 2 / 3.0)
+        else:
+            scale = 2.0 * math.atan2(n, r[3]) / n
+        return list(scale * r[:3])
+
+    def p_of(self, q) -> np.ndarray:
+        q, out = np.asarray(q, dtype=float), []
+        for joint, _, j, center in self._blocks():
+            if joint == "spherical":
+                out += self._log(q[j:j + 4], center)
+            elif joint == "free":
+                out += list(q[j:j + 3]) + self._log(q[j + 3:j + 7], center)
+            else:
+                out.append(q[j])
+        return np.array(out)
+
+    @staticmethod
+    def right_jacobian(w) -> np.ndarray:
+        """``J_r(w) = I - a [w]x + b [w]x^2`` (series near 0)."""
+        w = np.asarray(w, dtype=float)
+        a, b, _, _ = _exp_coefficients(float(np.linalg.norm(w)))
+        K = _skew(w)
+        return np.eye(3) - a * K + b * K @ K
+
+    @staticmethod
+    def right_jacobian_rate(w, wd) -> np.ndarray:
+        """``(d/dt J_r(w)) wd`` at ``wdd = 0`` (class docstring; series near 0)."""
+        w, wd = np.asarray(w, dtype=float), np.asarray(wd, dtype=float)
+        _, b, A, B = _exp_coefficients(float(np.linalg.norm(w)))
+        along, across = float(w @ wd), np.cross(w, wd)
+        return -A * along * across + B * along * np.cross(w, across) + b * np.cross(wd, across)
+
+    def _rotation(self, w, center) -> np.ndarray:
+        return _quaternion_rotation(self._quaternion(list(np.asarray(w, dtype=float)), center, math.sin, math.cos))
+
+    def jacobian(self, p) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        D = np.eye(len(p))
+        for joint, k, _, center in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                D[a:a + 3, a:a + 3] = self.right_jacobian(p[a:a + 3])
+                if joint == "free":
+                    D[k:k + 3, k:k + 3] = self._rotation(p[a:a + 3], center).T
+        return D
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        p, pd = np.asarray(p, dtype=float), np.asarray(pd, dtype=float)
+        out = np.zeros(len(p))
+        for joint, k, _, center in self._blocks():
+            if joint in ("spherical", "free"):
+                a = k + (3 if joint == "free" else 0)
+                out[a:a + 3] = self.right_jacobian_rate(p[a:a + 3], pd[a:a + 3])
+                if joint == "free":       # d/dt (R^T pdot) at pdd = 0: -w x (R^T pdot), w = J_r pd (body frame)
+                    w = self.right_jacobian(p[a:a + 3]) @ pd[a:a + 3]
+                    out[k:k + 3] = -np.cross(w, self._rotation(p[a:a + 3], center).T @ pd[k:k + 3])
+        return out
+
+
+def _quaternion_rotation(quat) -> np.ndarray:
+    """``R(quat) = I + 2 w [u]x + 2 [u]x^2`` of a unit quaternion ``(u, w)``."""
+    K = _skew(quat[:3])
+    return np.eye(3) + 2.0 * quat[3] * K + 2.0 * K @ K
+
+
+def exponential(model: Model, seed: int, case: str) -> ExponentialCoordinates:
+    """The exp chart of ``model``: one centre per spherical or free joint, in body order, uniform on SO(3) (Haar) from
+    ``case_rng(seed, case + "/exp")`` (:class:`ExponentialCoordinates`, "Why a centre")."""
+    rng = case_rng(seed, case + "/exp")
+    centers = tuple(tuple(float(c) for c in configuration.random_quaternion(rng)) for _ in model.group_joints)
+    return ExponentialCoordinates("exp", tuple(b.joint for b in model.bodies), centers)
+
+
 #: cond(Dpsi) above which a chart of the orientation has lost a direction (gimbal lock, :class:`EulerZYX`): its
 #: coordinates cannot express the motion, so the chart check is left out at that state (a BREAKDOWN of the chart).
 GIMBAL_LIMIT = 1e4
@@ -318,21 +544,31 @@ def nonlinear(model: Model, a: float = 0.5) -> NonlinearChart:
 
 
 def names() -> list[str]:
-    return ["identity", "absolute", "affine", "nonlinear", "zyx"]
+    return ["identity", "absolute", "affine", "nonlinear", "zyx", "exp"]
+
+
+#: The charts of the orientations of spherical and free joints (models with group joints have only these and identity).
+GROUP_CHARTS = ("zyx", "exp")
 
 
 def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Chart:
-    """The built-in chart ``name`` for ``model`` (``affine`` is drawn from ``seed`` and the case name)."""
+    """The built-in chart ``name`` for ``model`` (``affine`` and the centres of ``exp`` are drawn from ``seed`` and the
+    case name, ``model.name`` when not given)."""
     case = model.name if case is None else case
     if not applies(model):
         if name == "identity":
             return GroupIdentity("identity", model.nv)
         if name == "zyx":
             return EulerZYX("zyx", tuple(b.joint for b in model.bodies))
+        if name == "exp":
+            return exponential(model, seed, case)
         raise ChartError(f"chart '{name}' does not apply to model '{model.name}': its spherical or free joints have "
-                         "quaternion coordinates, which a joint-coordinate chart cannot map (its chart: zyx)")
+                         "quaternion coordinates, which a joint-coordinate chart cannot map (its charts: zyx, exp)")
     if name == "zyx":
         raise ChartError(f"chart 'zyx' (Euler angles of spherical and free joints) does not apply to model "
+                         f"'{model.name}', which has none")
+    if name == "exp":
+        raise ChartError(f"chart 'exp' (exponential coordinates of spherical and free joints) does not apply to model "
                          f"'{model.name}', which has none")
     makers = {"identity": lambda: identity(model.n), "absolute": lambda: absolute(model),
               "affine": lambda: random_affine(model, seed, case), "nonlinear": lambda: nonlinear(model)}
@@ -350,10 +586,11 @@ def applies(model: Model) -> bool:
 
 def sampled(model: Model, seed: int, case: str) -> list[Chart]:
     """The charts the gate checks for a model: every built-in one but identity (the joint chart itself), with
-    ``absolute`` only for a planar serial chain; none for a model with spherical or free joints (:func:`applies`)."""
+    ``absolute`` only for a planar serial chain; for a model with spherical or free joints (:func:`applies`) the charts
+    of their orientations, :data:`GROUP_CHARTS` (Euler angles and exponential coordinates)."""
     if not applies(model):
-        return [get("zyx", model, seed, case)]
-    return [get(name, model, seed, case) for name in names() if name != "zyx"
+        return [get(name, model, seed, case) for name in GROUP_CHARTS]
+    return [get(name, model, seed, case) for name in names() if name not in GROUP_CHARTS
             if name != "identity" and (name != "absolute" or is_planar_serial(model))]
 
 

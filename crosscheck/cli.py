@@ -432,6 +432,10 @@ def _in_chart_domain(chart, p, pd) -> None:
         raise UsageError(f"chart {chart.name} has lost a direction at this p (cond(Dpsi) = {cond:.3g}; for zyx: pitch "
                          "at +-pi/2, gimbal lock), so no coordinates of it can express the motion; evaluate in the "
                          "joint chart (leave out --chart) or at another p")
+    if getattr(chart, "at_centre", None) is not None and np.all(np.isfinite(p)) and chart.at_centre(p):
+        raise UsageError(f"chart {chart.name}: an orientation block of p is within {charts.EXP_CENTRE_LIMIT:g} of the "
+                         "chart's centre (p = 0), where the chart-native backends' derivatives of psi are 0/0 "
+                         "(sin(t/2)/t); evaluate at another p or in the joint chart (leave out --chart)")
     try:
         preflight.check_vector("q (mapped to joint coordinates)", q)
         preflight.check_vector("qd (mapped to joint coordinates)", qd)
@@ -665,9 +669,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--qd", help="velocities in the chart (default zeros)")
     ev.add_argument("--u", help="actuator inputs, one per column of B (default zeros)")
     ev.add_argument("--tau", help="instead of --u: the generalized force in the chart (a covector, n entries)")
-    ev.add_argument("--chart", choices=charts.names(), help="evaluate in this chart q = psi(p) (default identity)")
+    ev.add_argument("--chart", choices=charts.names(),
+                    help="evaluate in this chart q = psi(p) (default identity; zyx and exp: the charts of spherical "
+                         "and free joints, p with one entry per velocity)")
     ev.add_argument("--frame", help="move the scene by the gate's sampled frame g0, g1, ... (with --seed)")
-    ev.add_argument("--seed", type=_seed, default=0, help="seed of the gate run (the affine chart, the frames)")
+    ev.add_argument("--seed", type=_seed, default=0,
+                    help="seed of the gate run (the affine chart, the exp chart's centres, the frames)")
     ev.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     ev.add_argument("--project", action="store_true",
                     help="constrained case: move the state onto the constraint manifold first (else it is refused)")

@@ -4,8 +4,9 @@ Each check is a :class:`~crosscheck.compare.Comparison` keyed ``"<family> <name>
 the outlier vote and the report treat it like any cross-backend comparison.
 
 Chart invariance. The state ``(q, qd, u)`` is expressed in the chart: ``p = psi^-1(q)``, ``pd = Dpsi^-1 qd``
-(for a model with spherical or free joints, ``Dpsi`` maps pd to the velocity v, ``crosscheck.charts.EulerZYX``; a
-state where ``cond(Dpsi)`` exceeds ``charts.GIMBAL_LIMIT``, gimbal lock, has no chart check)
+(for a model with spherical or free joints, ``Dpsi`` maps pd to the velocity v, ``crosscheck.charts.EulerZYX`` and
+``crosscheck.charts.ExponentialCoordinates``; a state where ``cond(Dpsi)`` exceeds ``charts.GIMBAL_LIMIT``, zyx's
+gimbal lock, has no chart check; exp's ``cond(Dpsi)`` is at most pi/2 on its domain)
 and the generalized force ``tau_p = Dpsi^T B u`` (a covector). Every backend with ``split_chart`` evaluates in p
 directly; every joint-chart answer is mapped by ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)`` (the control part,
 linear in u, by ``Dpsi^-1`` alone). All must agree; power, kinetic energy and the task-space inertia must equal
@@ -120,6 +121,8 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     record.update(p=p, cond=float(np.linalg.cond(chart.jacobian(p))))
     if record["cond"] > limit:
         return {}                  # the chart has lost a direction here (gimbal lock): a BREAKDOWN of the map
+    if getattr(chart, "at_centre", None) is not None and chart.at_centre(p):
+        return {}                  # exp at its centre: psi's derivatives are 0/0 there (charts.ExponentialCoordinates)
     pd = charts.velocity_to_chart(chart, p, qd)
     tau_p = charts.force_to_chart(chart, p, model.input_map @ u)
     record.update(pd=pd, tau_p=tau_p, native={}, tolerances={})

@@ -433,14 +433,14 @@ def chart_arguments(model, chart, q, qd, u):
     return p, charts.velocity_to_chart(chart, p, qd), charts.force_to_chart(chart, p, model.input_map @ u)
 
 
-def assert_chart_agrees_with_reference(model, q, qd, u) -> dict[str, float] | None:
+def assert_chart_agrees_with_reference(model, q, qd, u, chart_name="zyx") -> dict[str, float] | None:
     """``el.split_chart`` in the zyx chart against ``crosscheck.reference.split`` mapped into the chart with the
     harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the ctrl without
     the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
     conditions), covariant ones mapped (``Jc_p = Jc Dpsi``, ``Jcdot_p pd = Jcdot v + Jc (d/dt Dpsi) pd``,
     ``Jc_p^T lam = Dpsi^T Jc^T lam``) and ``cond_M`` that of ``M_p = Dpsi^T M Dpsi``; each within ``RTOL`` of its
     scale. None (nothing compared) near gimbal lock. Returns each field's error over its scale."""
-    chart = charts.get("zyx", model)
+    chart = charts.get(chart_name, model)
     p, pd, tau_p = chart_arguments(model, chart, q, qd, u)
     D = chart.jacobian(p)
     if np.linalg.cond(D) >= CHART_COND:
@@ -455,7 +455,7 @@ def assert_chart_agrees_with_reference(model, q, qd, u) -> dict[str, float] | No
         err = float(np.max(np.abs(a - b), initial=0.0))
         errors[name] = err / (scale + 1e-300)
         assert err <= RTOL * scale + 1e-300, (
-            f"{model.name} zyx {name}: differs by {err:.3e} (tolerance {RTOL * scale:.3e})\n  q = {q.tolist()}\n"
+            f"{model.name} {chart_name} {name}: differs by {err:.3e} (tolerance {RTOL * scale:.3e})\n  q = {q.tolist()}\n"
             f"  qd = {qd.tolist()}\n  u = {u.tolist()}\n  euler_lagrange: {a.tolist()}\n  mapped reference: "
             f"{b.tolist()}")
 
@@ -500,23 +500,26 @@ def assert_chart_agrees_with_reference(model, q, qd, u) -> dict[str, float] | No
     return errors
 
 
+@pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12_standing",))
-def test_zyx_chart_agrees_with_the_reference_mapped_into_the_chart(name):
+def test_zyx_chart_agrees_with_the_reference_mapped_into_the_chart(name, chart_name):
     model = model_of(name)
-    compared = [assert_chart_agrees_with_reference(model, *state)
+    compared = [assert_chart_agrees_with_reference(model, *state, chart_name=chart_name)
                 for state in states_of(model, count=2 if name.startswith("solo") else 5, seed=41)]
     assert sum(e is not None for e in compared) >= 2, "every sampled state near gimbal lock: nothing compared"
 
 
+@pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12",))
-def test_zyx_chart_check_of_the_gate(name, tmp_path, monkeypatch):
+def test_zyx_chart_check_of_the_gate(name, chart_name, tmp_path, monkeypatch):
     """The gate's own chart check (``crosscheck.invariance.chart_checks`` through ``testing.assert_backends_agree``):
-    the backend's native answers in the zyx chart against Pinocchio's joint-chart split mapped into it, on every
-    quantity the gate compares there (the checks exist: the backend is not left out of the chart). First the cold
-    derivation and compilation in the chart (an empty cache), in seconds: measured 0.03-0.3 s for the cases, 1.1 s +
-    0.3 s compile for solo12's 18 velocities (the bound is loose for a shared machine)."""
+    the backend's native answers in the zyx chart, and in the exp chart (exponential coordinates about the centre
+    drawn for the case), against Pinocchio's joint-chart split mapped into it, on every quantity the gate compares
+    there (the checks exist: the backend is not left out of the chart). First the cold derivation and compilation in
+    the chart (an empty cache), in seconds: measured 0.03-0.3 s for the cases, 1.1 s + 0.3 s compile for solo12's 18
+    velocities in zyx (the bound is loose for a shared machine)."""
     model = model_of(name)
-    chart = charts.get("zyx", model)
+    chart = charts.get(chart_name, model, 0, name)
     monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
     start = time.perf_counter()
     el.cached_code(model, chart)
@@ -524,12 +527,12 @@ def test_zyx_chart_check_of_the_gate(name, tmp_path, monkeypatch):
     checked = 0
     for s in sampling.sample_states(model, 2 if name.startswith("solo") else 3, 43, name):
         outcome = testing.assert_backends_agree(model, s, backends=["euler_lagrange", "pinocchio"], chart=chart)
-        keys = [k for k in outcome.checks if k.startswith("chart zyx: ")]
+        keys = [k for k in outcome.checks if k.startswith(f"chart {chart_name}: ")]
         checked += bool(keys)
-        assert all("euler_lagrange@zyx" in outcome.checks[k].voters for k in keys)
-        assert not keys or "chart zyx: drift" in keys
+        assert all(f"euler_lagrange@{chart_name}" in outcome.checks[k].voters for k in keys)
+        assert not keys or f"chart {chart_name}: drift" in keys
         if model.k and keys:
-            assert "chart zyx: lam" in keys
+            assert f"chart {chart_name}: lam" in keys
     assert checked >= 1
 
 

@@ -392,10 +392,10 @@ def test_a_chart_truncated_too_early_is_caught(monkeypatch):
 GIMBAL_COND = 1e3
 
 
-def chart_states(name: str, count: int = STATES, seed: int = 17):
-    """``(q, qd, u, chart, p, pd, D)`` at the sampled states where the zyx chart is well conditioned."""
+def chart_states(name: str, count: int = STATES, seed: int = 17, chart_name: str = "zyx"):
+    """``(q, qd, u, chart, p, pd, D)`` at the sampled states where the chart (zyx by default) is well conditioned."""
     model = model_of(name)
-    chart = charts.get("zyx", model)
+    chart = charts.get(chart_name, model)
     out = []
     for q, qd, u in states_of(name, count, seed):
         p = chart.p_of(q)
@@ -412,7 +412,7 @@ def chart_errors(model, q, qd, u, chart, p, pd, D) -> dict[str, float]:
     ref = reference.split(model, q, qd, u)
     tau_p = D.T @ (model.input_map @ u)
     ours = geometric.split_chart(model, chart, p, pd, tau_p)
-    assert ours.extras["chart"] == "zyx"
+    assert ours.extras["chart"] == chart.name
     gain = np.abs(np.linalg.inv(D)).max() * model.nv          # what Dpsi^-1 may amplify the reference's rounding by
     errors = {}
 
@@ -457,28 +457,31 @@ def chart_errors(model, q, qd, u, chart, p, pd, D) -> dict[str, float]:
     return errors
 
 
+@pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", CASES + CONSTRAINED)
-def test_split_chart_in_euler_angles_agrees_with_the_mapped_reference(name):
+def test_split_chart_in_euler_angles_agrees_with_the_mapped_reference(name, chart_name):
     model = model_of(name)
-    for q, qd, u, chart, p, pd, D in chart_states(name):
+    for q, qd, u, chart, p, pd, D in chart_states(name, chart_name=chart_name):
         errors = chart_errors(model, q, qd, u, chart, p, pd, D)
         bad = {k: v for k, v in errors.items() if not v <= RTOL}
         assert not bad, f"{name} at p = {p.tolist()}: relative errors above {RTOL:g}: {bad}"
 
 
+@pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", CASES + CONSTRAINED + ("solo12_standing",))
-def test_the_gate_chart_check_in_euler_angles(name):
+def test_the_gate_chart_check_in_euler_angles(name, chart_name):
     """The gate's chart check (``crosscheck.invariance.chart_checks`` through ``assert_backends_agree(chart=...)``):
-    this backend's split_chart against every joint-chart answer mapped into the chart, with the gate's tolerances."""
+    this backend's split_chart against every joint-chart answer mapped into the chart, with the gate's tolerances; in
+    Euler angles (zyx) and in exponential coordinates about the centre drawn for the case (exp)."""
     model = cases.load(name) if name == "solo12_standing" else model_of(name)
-    chart = charts.get("zyx", model)
+    chart = charts.get(chart_name, model, 0, name)
     checked = 0
     for state in sampling.sample_states(model, 2 if name == "solo12_standing" else 3, 5, name):
         outcome = testing.assert_backends_agree(model, state, backends=["geometric", "pinocchio"], chart=chart,
                                                 conservation=False)
-        keys = [key for key in outcome.checks if key.startswith("chart zyx:")]
+        keys = [key for key in outcome.checks if key.startswith(f"chart {chart_name}:")]
         checked += bool(keys)
-        assert all("geometric@zyx" in outcome.checks[key].voters for key in keys)
+        assert all(f"geometric@{chart_name}" in outcome.checks[key].voters for key in keys)
     assert checked
 
 
