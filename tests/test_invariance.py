@@ -22,7 +22,8 @@ vectors = st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6).map(np.array)
 
 def _all_charts(model):
     return [charts.get(name, model, 0, model.name) for name in charts.names()
-            if (name != "absolute" or charts.is_planar_serial(model)) and name != "zyx"]   # zyx: group joints only
+            if (name != "absolute" or charts.is_planar_serial(model)) and name != "zyx"   # zyx: group joints only
+            and name not in charts.REPRESENTATIONS]                                       # so are world, mixed
 
 
 def _central(f, x, h=1e-6):
