@@ -452,7 +452,7 @@ def sampled(model: Model, seed: int, case: str) -> list[Chart]:
     the velocity representations (:func:`representations_sampled`)."""
     if not applies(model):
         return [get("zyx", model, seed, case)] + representations_sampled(model)
-    return [get(name, model, seed, case) for name in names() if name != "zyx"
+    return [get(name, model, seed, case) for name in names() if name != "zyx" and name not in REPRESENTATIONS
             if name != "identity" and (name != "absolute" or is_planar_serial(model))]
 
 
