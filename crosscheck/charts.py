@@ -15,8 +15,9 @@ Built-in charts: ``identity``; ``absolute`` (planar serial chains: ``phi_i = the
 ``affine`` (``q = A p + b``, a random well-conditioned A, seeded per case); ``nonlinear``
 (``q_i = p_i + a sin(p_{i+1})``, last coordinate unchanged: ``Dpsi`` is unit upper triangular, so the chart is
 a global diffeomorphism for every a, inverted by back substitution). For models with spherical or free joints:
-``zyx`` (ZYX Euler angles of every orientation, :class:`EulerZYX`) and ``exp`` (exponential coordinates about a
-seeded centre orientation, :class:`ExponentialCoordinates`).
+``zyx`` (ZYX Euler angles of every orientation, :class:`EulerZYX`), ``exp`` (exponential coordinates about a
+seeded centre orientation, :class:`ExponentialCoordinates`) and the base-velocity representations ``world`` and
+``mixed`` (:class:`VelocityRepresentation`: ``p = q``, ``v = T(q) w``, ``Dpsi := T``).
 """
 
 from __future__ import annotations
@@ -534,6 +535,107 @@ def exponential(model: Model, seed: int, case: str) -> ExponentialCoordinates:
     return ExponentialCoordinates("exp", tuple(b.joint for b in model.bodies), centers)
 
 
+# ---------------------------------------------------------------------------------------- velocity representations
+
+#: The base-velocity representations other than Pinocchio's body-frame one (:class:`VelocityRepresentation`).
+REPRESENTATIONS = ("world", "mixed")
+
+
+@dataclass(frozen=True)
+class VelocityRepresentation(Chart):
+    """A chart of the velocities only (DESIGN.md, "Configuration on Lie groups": world and mixed base velocity). The
+    configuration stays q (``p = q``, nq entries, quaternions included: :meth:`p_of` and :meth:`q_of` are the
+    identity) and the velocity is w with ``v = T(q) w``; the chart maps of this module hold with ``Dpsi := T``:
+    ``vdot = T wdot + Tdot w`` (:meth:`jacobian_rate` is ``Tdot w``) and ``tau_w = T^T tau_v``.
+
+    Everything is in the joint's REFERENCE frame: the frame its q is measured in, the parent body's frame moved by
+    the body's fixed placement (for a floating base at the identity placement, the world). With ``R``, ``p`` the
+    joint's rotation and position from q and ``w_b``, ``v_b`` its body angular and linear velocity (v's blocks):
+
+    * ``world`` (the spatial twist, Featherstone's and Murray's space frame): a free joint's block is
+      ``V_s = (v_s, omega_s)``, ``omega_s = R w_b``, ``v_s = pdot - omega_s x p`` (the velocity of the body-fixed
+      point at the reference origin), and ``v = Ad_{X^-1} V_s``: ``T = [[R^T, -R^T [p]x], [0, R^T]]`` in
+      (linear, angular) order; ``Tdot w = 0`` (``d/dt Ad_{X^-1} = -ad_{V_b} Ad_{X^-1}`` and ``ad_V V = 0``).
+    * ``mixed`` (Pinocchio's LOCAL_WORLD_ALIGNED: the body origin's velocity in the reference axes): a free joint's
+      block is ``(pdot, omega_s)``, ``T = blockdiag(R^T, R^T)``, ``Tdot w = (-w_b x v_b, 0)``.
+    * A spherical joint in both: ``omega_s = R w_b``, ``T = R^T``, ``Tdot w = 0``. Revolute and prismatic: identity.
+
+    There is no ``psi``: a backend reads :attr:`representation` (duck-typed) and derives the dynamics in the
+    matching LEFT exponential chart at the state itself (``formalisms.euler_lagrange``, ``formalisms.geometric``).
+    ``mixed`` equals ``world`` on a model without a free joint, so the gate samples it only with one (:func:`sampled`).
+    """
+
+    representation: str = "world"
+    joints: tuple = ()
+
+    def _params(self) -> tuple:
+        return (self.representation, self.joints)
+
+    def _blocks(self):
+        """(joint type, start in q, start in v) per body."""
+        j = k = 0
+        for joint in self.joints:
+            yield joint, j, k
+            j += {"spherical": 4, "free": 7}.get(joint, 1)
+            k += {"spherical": 3, "free": 6}.get(joint, 1)
+
+    @property
+    def nv(self) -> int:
+        return sum({"spherical": 3, "free": 6}.get(joint, 1) for joint in self.joints)
+
+    def q_of(self, p) -> np.ndarray:
+        return np.array(p, dtype=float)
+
+    def p_of(self, q) -> np.ndarray:
+        return np.array(q, dtype=float)
+
+    @staticmethod
+    def _rotation(quat) -> np.ndarray:
+        x, y, z, w = quat
+        K = _skew((x, y, z))
+        return np.eye(3) + 2.0 * w * K + 2.0 * K @ K
+
+    def jacobian(self, p) -> np.ndarray:
+        """``T(q)`` (nv x nv): ``v = T w``."""
+        q = np.asarray(p, dtype=float)
+        D = np.eye(self.nv)
+        for joint, j, k in self._blocks():
+            if joint == "spherical":
+                D[k:k + 3, k:k + 3] = self._rotation(q[j:j + 4]).T
+            elif joint == "free":
+                Rt = self._rotation(q[j + 3:j + 7]).T
+                D[k:k + 3, k:k + 3] = D[k + 3:k + 6, k + 3:k + 6] = Rt
+                if self.representation == "world":
+                    D[k:k + 3, k + 3:k + 6] = -Rt @ _skew(q[j:j + 3])
+        return D
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        """``Tdot w``: 0 but for a free joint in ``mixed``, ``(-w_b x v_b, 0)`` with ``v = T w``."""
+        out = np.zeros(self.nv)
+        if self.representation != "mixed":
+            return out
+        v = self.jacobian(p) @ np.asarray(pd, dtype=float)
+        for joint, _, k in self._blocks():
+            if joint == "free":
+                out[k:k + 3] = -np.cross(v[k + 3:k + 6], v[k:k + 3])
+        return out
+
+
+def velocity_representation(model: Model, name: str) -> VelocityRepresentation:
+    """The representation ``name`` (``world`` or ``mixed``) of a model with spherical or free joints."""
+    if not model.group_joints:
+        raise ChartError(f"chart '{name}' (a base-velocity representation) does not apply to model '{model.name}', "
+                         "which has no spherical or free joint")
+    return VelocityRepresentation(name, name, tuple(b.joint for b in model.bodies))
+
+
+def representations_sampled(model: Model) -> list[VelocityRepresentation]:
+    """The representations the gate checks for a model with group joints: ``world``, and ``mixed`` when it has a
+    free joint (with spherical joints only, mixed is world)."""
+    free = any(model.bodies[i].joint == "free" for i in model.group_joints)
+    return [velocity_representation(model, name) for name in REPRESENTATIONS if name == "world" or free]
+
+
 #: cond(Dpsi) above which a chart of the orientation has lost a direction (gimbal lock, :class:`EulerZYX`): its
 #: coordinates cannot express the motion, so the chart check is left out at that state (a BREAKDOWN of the chart).
 GIMBAL_LIMIT = 1e4
@@ -544,10 +646,11 @@ def nonlinear(model: Model, a: float = 0.5) -> NonlinearChart:
 
 
 def names() -> list[str]:
-    return ["identity", "absolute", "affine", "nonlinear", "zyx", "exp"]
+    return ["identity", "absolute", "affine", "nonlinear", "zyx", "exp"] + list(REPRESENTATIONS)
 
 
-#: The charts of the orientations of spherical and free joints (models with group joints have only these and identity).
+#: The charts of the orientations of spherical and free joints (models with group joints have only these, the
+#: velocity representations and identity).
 GROUP_CHARTS = ("zyx", "exp")
 
 
@@ -555,6 +658,8 @@ def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Char
     """The built-in chart ``name`` for ``model`` (``affine`` and the centres of ``exp`` are drawn from ``seed`` and the
     case name, ``model.name`` when not given)."""
     case = model.name if case is None else case
+    if name in REPRESENTATIONS:
+        return velocity_representation(model, name)
     if not applies(model):
         if name == "identity":
             return GroupIdentity("identity", model.nv)
@@ -563,7 +668,8 @@ def get(name: str, model: Model, seed: int = 0, case: str | None = None) -> Char
         if name == "exp":
             return exponential(model, seed, case)
         raise ChartError(f"chart '{name}' does not apply to model '{model.name}': its spherical or free joints have "
-                         "quaternion coordinates, which a joint-coordinate chart cannot map (its charts: zyx, exp)")
+                         "quaternion coordinates, which a joint-coordinate chart cannot map (its charts: zyx, exp, "
+                         "and the velocity representations world, mixed)")
     if name == "zyx":
         raise ChartError(f"chart 'zyx' (Euler angles of spherical and free joints) does not apply to model "
                          f"'{model.name}', which has none")
@@ -587,10 +693,11 @@ def applies(model: Model) -> bool:
 def sampled(model: Model, seed: int, case: str) -> list[Chart]:
     """The charts the gate checks for a model: every built-in one but identity (the joint chart itself), with
     ``absolute`` only for a planar serial chain; for a model with spherical or free joints (:func:`applies`) the charts
-    of their orientations, :data:`GROUP_CHARTS` (Euler angles and exponential coordinates)."""
+    of their orientations, :data:`GROUP_CHARTS` (Euler angles and exponential coordinates), and the velocity
+    representations (:func:`representations_sampled`)."""
     if not applies(model):
-        return [get(name, model, seed, case) for name in GROUP_CHARTS]
-    return [get(name, model, seed, case) for name in names() if name not in GROUP_CHARTS
+        return [get(name, model, seed, case) for name in GROUP_CHARTS] + representations_sampled(model)
+    return [get(name, model, seed, case) for name in names() if name not in GROUP_CHARTS + REPRESENTATIONS
             if name != "identity" and (name != "absolute" or is_planar_serial(model))]
 
 

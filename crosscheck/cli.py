@@ -367,9 +367,10 @@ def cmd_eval(args) -> int:
     if args.frame is not None:
         model = frames.move_scene(model, _frame(args.frame, args.seed, spec.name))
     chart = charts.get(args.chart or "identity", model, args.seed, spec.name)
-    p = _length(_vector(args.q, "q"), model.nq if chart.name == "identity" else model.n, "q")
+    on_q = chart.name == "identity" or isinstance(chart, charts.VelocityRepresentation)   # p is q itself (nq)
+    p = _length(_vector(args.q, "q"), model.nq if on_q else model.n, "q")
     pd = _length(_vector(args.qd, "qd"), model.nv, "qd") if args.qd is not None else np.zeros(model.nv)
-    if chart.name == "identity":
+    if on_q:
         p = _unit_quaternions(model, p, args.normalize)
     _in_chart_domain(chart, p, pd)
     if model.constraints:
@@ -387,6 +388,8 @@ def cmd_eval(args) -> int:
                           "errors": errors}, indent=1))
         return 1 if errors else 0
     where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
+    if isinstance(chart, charts.VelocityRepresentation):
+        where = f" in velocity representation {chart.name} (q as given, qd = w with v = T(q) w)"
     print(f"case {model.name}{where}: q = {p.tolist()}, qd = {pd.tolist()}, u = {u.tolist()}, "
           f"generalized force = {tau_p.tolist()}")
     for name, values in out.items():
@@ -665,8 +668,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--model", metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file instead of --case")
     ev.add_argument("--base", choices=("fixed", "free"),
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
-    ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default), comma-separated")
-    ev.add_argument("--qd", help="velocities in the chart (default zeros)")
+    ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
+                    "--chart world or mixed), comma-separated")
+    ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "
+                    "velocity w in that representation, v = T(q) w)")
     ev.add_argument("--u", help="actuator inputs, one per column of B (default zeros)")
     ev.add_argument("--tau", help="instead of --u: the generalized force in the chart (a covector, n entries)")
     ev.add_argument("--chart", choices=charts.names(),

@@ -255,6 +255,12 @@ CATALOG: list[SharedFault] = [
                 ("crosscheck.charts:acceleration_to_chart",),
                 lambda f: lambda chart, p, pd, qdd, with_rate=True: f(chart, p, pd, qdd, with_rate=False),
                 "the chart checks"),
+    SharedFault("charts-mixed-rate-term-dropped", "charts",
+                "The mixed base-velocity representation loses its rate term: Tdot w = (-w_b x v_b, 0) is taken as 0, "
+                "so joint accelerations are mapped into mixed by T^-1 vdot alone.",
+                ("crosscheck.charts:VelocityRepresentation.jacobian_rate",),
+                lambda f: lambda self, p, pd: np.zeros(len(pd)) if self.representation == "mixed" else f(self, p, pd),
+                "the chart checks (Euler-Lagrange and geometric evaluate mixed natively)"),
     SharedFault("frames-gravity-not-rotated", "frames",
                 "A moved scene keeps gravity as it was instead of rotating it with the scene.",
                 ("crosscheck.frames:rotate_gravity",), lambda f: lambda frame, gravity: np.asarray(gravity),

@@ -6,7 +6,8 @@ the outlier vote and the report treat it like any cross-backend comparison.
 Chart invariance. The state ``(q, qd, u)`` is expressed in the chart: ``p = psi^-1(q)``, ``pd = Dpsi^-1 qd``
 (for a model with spherical or free joints, ``Dpsi`` maps pd to the velocity v, ``crosscheck.charts.EulerZYX`` and
 ``crosscheck.charts.ExponentialCoordinates``; a state where ``cond(Dpsi)`` exceeds ``charts.GIMBAL_LIMIT``, zyx's
-gimbal lock, has no chart check; exp's ``cond(Dpsi)`` is at most pi/2 on its domain)
+gimbal lock, has no chart check; exp's ``cond(Dpsi)`` is at most pi/2 on its domain; a base-velocity
+representation, ``charts.VelocityRepresentation``, has ``p = q`` and ``Dpsi = T(q)``, ``v = T w``)
 and the generalized force ``tau_p = Dpsi^T B u`` (a covector). Every backend with ``split_chart`` evaluates in p
 directly; every joint-chart answer is mapped by ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)`` (the control part,
 linear in u, by ``Dpsi^-1`` alone). All must agree; power, kinetic energy and the task-space inertia must equal

@@ -360,10 +360,11 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
 
 def chart_names(model: Model) -> list[str]:
     """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain; for a
-    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.charts.EulerZYX``) and exp
-    (exponential coordinates about a centre drawn from the seed: ``crosscheck.charts.ExponentialCoordinates``)."""
+    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.charts.EulerZYX``), exp
+    (exponential coordinates about a centre drawn from the seed: ``crosscheck.charts.ExponentialCoordinates``) and the
+    velocity representations world and mixed (mixed only with a free joint: ``charts.representations_sampled``)."""
     if not chart_catalog.applies(model):
-        return ["identity", *chart_catalog.GROUP_CHARTS]
+        return ["identity", *chart_catalog.GROUP_CHARTS] + [c.name for c in chart_catalog.representations_sampled(model)]
     return [name for name in ("identity", "nonlinear", "affine", "absolute")
             if name != "absolute" or chart_catalog.is_planar_serial(model)]
 

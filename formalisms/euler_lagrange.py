@@ -61,6 +61,26 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     (Rodrigues, ``V(phi)``) would bring ``sin|xi| / |xi|`` and its removable 0/0 into symbolic differentiation.
     ``tests/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
   * Caches. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`).
+Velocity representations (:func:`split_chart` with a chart whose ``representation`` is ``"world"`` or ``"mixed"``;
+DESIGN.md "Configuration on Lie groups", article 6.2, 6.4). The configuration stays q and the velocity is w with
+``v = T(q) w``; everything is in each joint's REFERENCE frame (the frame its q is measured in: the parent's frame moved
+by the body's fixed placement; the world for a floating base at the identity placement). World: a free joint's w is
+its spatial twist ``V_s = (pdot - omega_s x p, omega_s)``, a spherical joint's ``omega_s = R w_b``; mixed: a free
+joint's w is ``(pdot, omega_s)``, a spherical joint's ``omega_s``. The derivation is the "Group joints" one in the
+local exponential chart with the exponential on the LEFT (:func:`_local_motions` with ``side``): spherical
+``R(xi) = exp([xi]x) R0``; free world ``(R, p)(xi) = exp6(xi) (R0, p0)`` on SE(3); free mixed ``p = p0 + xi_lin``,
+``R = exp([xi_ang]x) R0``. At ``xi = 0``:
+  * Velocity. ``Xdot X^-1 = X(xid)`` (the right-trivialized velocity): the spatial twist (world), ``omega_s`` (ball
+    joints), and for mixed ``pdot = xid_lin``, ``omega_s = xid_ang``. So ``xid = w``.
+  * Acceleration. ``d/dt (Xdot X^-1) = Eddot - X(xid)^2`` at 0, and ``Eddot = X(xidd) + X(xid)^2`` by the same
+    symmetric order-2 term as on the right (``ad_a a = 0``): ``xidd = wdot`` exactly (mixed: ``p`` is affine in xi and
+    the rotation is SO(3)'s left chart). No rate term is added here; the harness's ``Tdot w`` is its own.
+  * Forces. The power of a v-force f is ``f . T(q(xi)) A(xi) xid`` with ``A(0) = I``, so the chart's covector at 0 is
+    ``T^T f`` (what the harness passes as ``tau_p``), and ``M_xi(0) = T^T M T`` comes out of ``T = 1/2 v^T M v``
+    itself; the Christoffel symbols, g and the constraint terms are the chart's own, as for the right chart.
+  * Truncation and caches: as for the right chart (:data:`EXP_ORDER`); the cache key holds the chart's key and the
+    local chart's description (:data:`GROUP_CHART_LEFT`). A representation chart of a model without group joints is
+    ModelNotSupported (:func:`_representation`).
 Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g. ``crosscheck.charts.EulerZYX``,
 ZYX Euler angles per spherical or free joint). Such a chart has nv coordinates p and its ``psi`` returns the WHOLE q
 (nq entries), each quaternion a function of p that is unit for every p; the derivation is then the scalar charts'
@@ -323,6 +343,11 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
 EXP_ORDER = 2
 #: The cache key of the chart of the group joints (part of what is derived, so part of :func:`cache_key`).
 GROUP_CHART = "local-exponential:q(+)xi=q*exp(xi) on the right:twist(linear,angular):order{order}"
+#: The local charts of a base-velocity representation (module docstring, "Velocity representations"): the exponential
+#: on the LEFT, ``X = exp(xi) X0`` (world: on SE(3); mixed: position plus xi, rotation by SO(3)'s exp on the left).
+GROUP_CHART_LEFT = {
+    "world": "local-exponential:q(+)xi=exp(xi)*q on the left:spatial twist(linear,angular):order{order}",
+    "mixed": "local-exponential:p=p0+xi_lin,R=exp(xi_ang)*R0 on the left:(pdot,omega_s):order{order}"}
 #: The same for a chart ``q = psi(p)`` of a model with group joints (with the chart's own key).
 GROUP_IN_CHART = "group joints through q=psi(p):R(quat)=I+2w[u]x+2[u]x^2,free position from q"
 
@@ -363,27 +388,37 @@ def _local_coordinates(model: Model) -> tuple[list, list, list]:
     return coordinates, configuration, local
 
 
-def _local_motions(model: Model, st: _Staged, configuration: list, order: int) -> dict:
+def _local_motions(model: Model, st: _Staged, configuration: list, order: int, side: str | None = None) -> dict:
     """``i -> (R_m, p_m)``, the motion of each group joint as a function of its local coordinates xi, with the
-    state's orientation (and position) as parameters: spherical ``R_m = R0 exp([xi]x)``, ``p_m = 0``; free
-    ``(R_m, p_m) = (R0, p0) exp6(xi)`` on SE(3) with ``xi = (rho, phi)`` (linear, angular), the 4x4 series of
-    ``Xi = [[phi]x, rho; 0, 0]``: rotation ``sum [phi]x^k / k!``, translation ``sum [phi]x^(k-1) rho / k!``; both
-    series truncated at ``order`` (:data:`EXP_ORDER`)."""
+    state's orientation (and position) as parameters. ``side`` None (the joint chart, exponential on the right):
+    spherical ``R_m = R0 exp([xi]x)``, ``p_m = 0``; free ``(R_m, p_m) = (R0, p0) exp6(xi)`` on SE(3) with
+    ``xi = (rho, phi)`` (linear, angular), the 4x4 series of ``Xi = [[phi]x, rho; 0, 0]``: rotation
+    ``sum [phi]x^k / k!``, translation ``sum [phi]x^(k-1) rho / k!``. ``side`` ``"world"`` or ``"mixed"`` (a velocity
+    representation, exponential on the LEFT; module docstring, "Velocity representations"): spherical
+    ``R_m = exp([xi]x) R0`` in both; free world ``(R_m, p_m) = exp6(xi) (R0, p0) = (E_R R0, E_R p0 + E_p)``, free
+    mixed ``R_m = exp([phi]x) R0``, ``p_m = p0 + rho``. Every series truncated at ``order`` (:data:`EXP_ORDER`)."""
     out = {}
     for i in model.group_joints:
         iq, iv = model.q_index[i], model.v_index[i]
         if model.bodies[i].joint == "spherical":
             R0 = _quaternion_rotation(st, configuration[iq:iq + 4])
             E = _exp_series(_skew(sp.DenseMatrix(st.coordinates[iv:iv + 3])), order).applyfunc(st.name)
-            out[i] = (R0 * E, sp.zeros(3, 1))
-        else:
-            p0, R0 = sp.DenseMatrix(configuration[iq:iq + 3]), _quaternion_rotation(st, configuration[iq + 3:iq + 7])
-            rho, phi = st.coordinates[iv:iv + 3], st.coordinates[iv + 3:iv + 6]
-            Xi = sp.zeros(4, 4)
-            Xi[:3, :3] = _skew(sp.DenseMatrix(phi))
-            Xi[:3, 3] = sp.DenseMatrix(rho)
-            E = _exp_series(Xi, order).applyfunc(st.name)
+            out[i] = (R0 * E if side is None else E * R0, sp.zeros(3, 1))
+            continue
+        p0, R0 = sp.DenseMatrix(configuration[iq:iq + 3]), _quaternion_rotation(st, configuration[iq + 3:iq + 7])
+        rho, phi = st.coordinates[iv:iv + 3], st.coordinates[iv + 3:iv + 6]
+        if side == "mixed":
+            E = _exp_series(_skew(sp.DenseMatrix(phi)), order).applyfunc(st.name)
+            out[i] = (E * R0, p0 + sp.DenseMatrix(rho))
+            continue
+        Xi = sp.zeros(4, 4)
+        Xi[:3, :3] = _skew(sp.DenseMatrix(phi))
+        Xi[:3, 3] = sp.DenseMatrix(rho)
+        E = _exp_series(Xi, order).applyfunc(st.name)
+        if side is None:
             out[i] = (R0 * E[:3, :3], p0 + R0 * E[:3, 3])
+        else:
+            out[i] = (E[:3, :3] * R0, E[:3, :3] * p0 + E[:3, 3])
     return out
 
 
@@ -519,6 +554,29 @@ def _group_chart_refusal(model: Model, chart: Chart) -> str | None:
     return None
 
 
+def _representation(model: Model, chart) -> str | None:
+    """The base-velocity representation a chart asks for (its ``representation``, read duck-typed: ``"world"`` or
+    ``"mixed"``; module docstring, "Velocity representations"), or None for any other chart. Such a chart applies
+    only to a model with spherical or free joints (ModelNotSupported otherwise)."""
+    side = getattr(chart, "representation", None)
+    if side is None:
+        return None
+    if side not in GROUP_CHART_LEFT:
+        raise ModelNotSupported(f"Euler–Lagrange: chart '{getattr(chart, 'name', '?')}' asks for the velocity "
+                                f"representation {side!r}; known: {', '.join(GROUP_CHART_LEFT)}")
+    if not model.group_joints:
+        raise ModelNotSupported(f"Euler–Lagrange: chart '{getattr(chart, 'name', '?')}' is a velocity representation "
+                                f"({side}), and model '{model.name}' has no spherical or free joint to represent")
+    return side
+
+
+def _group_chart_text(model: Model, chart, order: int) -> str:
+    """The local chart's description (part of the cache key and the source's header): :data:`GROUP_CHART` (right) or,
+    for a velocity representation, :data:`GROUP_CHART_LEFT`."""
+    side = None if chart is None else _representation(model, chart)
+    return (GROUP_CHART if side is None else GROUP_CHART_LEFT[side]).format(order=order)
+
+
 def chart_key(model: Model, chart: Chart | None) -> str:
     """The cache key of a chart: ``"identity"`` for ``None`` and for a chart whose ``psi`` returns its
     coordinates unchanged (the joint chart, whatever it is called), else ``chart.key``. For a model with spherical
@@ -526,6 +584,11 @@ def chart_key(model: Model, chart: Chart | None) -> str:
     quaternions), and one that is not such a chart is :class:`ModelNotSupported`."""
     if chart is None:
         return JOINT_CHART
+    if _representation(model, chart) is not None:
+        key = getattr(chart, "key", None)
+        if not isinstance(key, str) or not key:
+            raise TypeError(f"Euler–Lagrange: chart {chart!r} has no key (a stable digest of its definition)")
+        return key
     if not callable(getattr(chart, "psi", None)):
         raise TypeError(f"Euler–Lagrange: {chart!r} is not a chart (no psi(p, sin, cos))")
     key = getattr(chart, "key", None)
@@ -592,16 +655,19 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
     n = model.n
     order = EXP_ORDER if order is None else order
     joint_chart = chart_key(model, chart) == JOINT_CHART
-    letter = "q" if joint_chart else "p"
+    side = _representation(model, chart)
+    letter = "q" if joint_chart or side else "p"
     configuration, local = [], []
-    if model.group_joints and joint_chart:
+    if model.group_joints and (joint_chart or side):
         x, configuration, local = _local_coordinates(model)
     else:
         x = list(sp.symbols(f"{letter}0:{n}"))
     xd = list(sp.symbols(f"{letter}d0:{n}"))
     st = _Staged(x)
     motions = None
-    if model.group_joints and not joint_chart:  # psi(p) is the whole q, its sin and cos staged (seeded)
+    if side:  # a velocity representation: the local chart with the exponential on the left
+        motions = _local_motions(model, st, configuration, order, side)
+    elif model.group_joints and not joint_chart:  # psi(p) is the whole q, its sin and cos staged (seeded)
         st.set_joint(_psi(model, chart, x, st))
         st.joint_index = model.q_index
         motions = _chart_motions(model, st)
@@ -758,10 +824,11 @@ def generate_source(model: Model, chart: Chart | None = None, order: int | None 
     key = chart_key(model, chart)
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
     if d.local:
-        where = f"local exponential coordinates at xi = 0 ({GROUP_CHART.format(order=order)})"
+        chart_text = _group_chart_text(model, chart, order)
+        where = f"local exponential coordinates at xi = 0 ({chart_text})"
     elif model.group_joints:
         where += f" ({GROUP_IN_CHART})"
-    x, xd = ("q", "qd") if key == JOINT_CHART else ("p", "pd")
+    x, xd = ("q", "qd") if key == JOINT_CHART or d.local else ("p", "pd")
     for s, e in definitions:
         code.assign(s, e)
     for label, exprs in outputs.items():
@@ -793,7 +860,8 @@ def cache_key(model: Model, chart: Chart | None = None) -> str:
     """The disk-cache key: a digest of (model digest, chart key or ``"identity"``, hash of this module)."""
     parts = (model.digest(), chart_key(model, chart))
     if model.group_joints:  # how the group joints are derived is part of the key: the local chart, or psi's q
-        parts += (GROUP_CHART.format(order=EXP_ORDER) if parts[1] == JOINT_CHART else GROUP_IN_CHART,)
+        parts += (GROUP_IN_CHART if parts[1] != JOINT_CHART and _representation(model, chart) is None
+                  else _group_chart_text(model, chart, EXP_ORDER),)
     return hashlib.sha256("\0".join(parts).encode() + b"\0" + _DERIVATION_HASH).hexdigest()[:32]
 
 
@@ -1247,10 +1315,21 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
     power is ``tau_p . pd`` (= ``u . B^T qd``, chart-invariant) and the kinetic energy T is the chart's own
     (chart-invariant, 9.1). The task acceleration is not computed here (UNSUPPORTED).
     A model with spherical or free joints is evaluated in a chart whose ``psi`` returns its whole q (the zyx chart:
-    ``p``, ``pd``, ``tau_p`` have nv entries; module docstring, "Group joints in a chart"); any other chart is
-    :class:`ModelNotSupported` (:func:`chart_key`).
+    ``p``, ``pd``, ``tau_p`` have nv entries; module docstring, "Group joints in a chart"), or in a base-velocity
+    representation (a chart with ``representation`` ``"world"`` or ``"mixed"``: ``p`` is q itself, nq entries,
+    ``pd`` the representation's w and ``tau_p`` its covector ``T^T f``, nv each; the accelerations returned are
+    ``wdot``; module docstring, "Velocity representations"); any other chart is :class:`ModelNotSupported`
+    (:func:`chart_key`).
     """
     # validates the chart first: a wrong object is a TypeError, not a StateError
+    if _representation(model, chart) is not None:      # p is q itself (nq), pd the representation's w (nv)
+        chart_key(model, chart)
+        q, w, _ = check_state(model, p, pd, np.zeros(model.m))
+        (tau_p,) = chart_vectors(model, tau_p=tau_p)
+        if model.constraints:
+            return _solve_constrained(model, *evaluate(model, q, w, chart), tau_p, q, w, chart=chart.name)
+        M, Cqd, g, T = evaluate_terms(model, q, w, chart)
+        return _solve(model, M, Cqd, g, tau_p, q, w, T, chart=chart.name)
     if chart_key(model, chart) == JOINT_CHART and model.group_joints:
         raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
                                                   "entries, v of nv) is split's"))

@@ -152,6 +152,23 @@ chart (one whose psi fails on nv coordinates, such as the group's identity chart
 of entries, or quaternions that are not unit at seeded test points), and ``chart=None`` in :func:`split_chart` (the
 group chart itself: :func:`split`), raise ModelNotSupported with the reason.
 
+Velocity representations (DESIGN.md "Configuration on Lie groups"; a chart whose ``representation`` is ``"world"``
+or ``"mixed"``, read duck-typed). The configuration stays q and the velocity is w with ``v = T(q) w``, in each joint's
+REFERENCE frame (the frame its q is measured in: the parent's frame moved by the body's fixed placement; the world for
+a floating base at the identity placement): world, a free joint's spatial twist ``(pdot - omega_s x p, omega_s)`` and
+a ball joint's ``omega_s = R w_b``; mixed, a free joint's ``(pdot, omega_s)``. This backend does not map anything: it
+builds the group chart with the exponential on the LEFT (:func:`_group_frames` with ``side``),
+
+    spherical   R(xi) = exp([xi]x) R0
+    free world  X(xi) = exp6(xi) X0                free mixed   R(xi) = exp([xi_ang]x) R0,  position(xi) = p0 + xi_lin
+
+where the right-trivialized velocity ``Xdot X^-1 = dexp_xi(xid) = xid + 1/2 ad_xi xid + O(|xi|^2 |xid|)`` gives at
+``xi = 0`` ``xid = w`` (the spatial twist, ``omega_s``; mixed: ``pdot``, ``omega_s``) and
+``d/dt w = xidd + 1/2 ad_xid xid = xidd`` (``ad_x x = 0``; mixed: the position is affine in xi). The same Functions
+as for the right chart (the metric ``M_xi`` at 0 is ``T^T M T``, its derivatives carry the left structure, the
+control covector is ``T^T B u``, passed in as ``tau_p``) then give ``wdot`` from eqs. (24)-(25) directly. A
+representation chart of a model without group joints is ModelNotSupported.
+
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
 digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one
@@ -407,26 +424,54 @@ def _exp_series(X: ca.SX, order: int) -> ca.SX:
     return E
 
 
-def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int) -> tuple[list, list, list]:
+def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int, side: str | None = None) -> tuple[list, list, list]:
     """``(R, o, values)``: the world rotations and origins of every body frame (SX, parents first) in the group chart
     of the configuration ``q`` (SX, nq): revolute and prismatic joints in their own coordinate ``p[v_index[i]]``
     (their joint values, ``values[i]``), a spherical joint at ``R0 exp([xi]x)`` and a free joint at ``X0 exp6(xi)``
     (``xi = p[v_index[i]:]``, twist order (linear, angular); ``R0 = R(quat)``, ``X0 = (R(quat), position)`` read
-    from ``q``; ``values[i]`` None: a group has no joint value)."""
+    from ``q``; ``values[i]`` None: a group has no joint value). With ``side`` a velocity representation (module
+    docstring, "Velocity representations") the exponential is on the LEFT, in the joint's reference frame: a spherical
+    joint at ``exp([xi]x) R0``, a free joint at ``exp6(xi) X0`` (``world``) or at ``(exp([xi_ang]x) R0,
+    position + xi_lin)`` (``mixed``)."""
     def motion(i: int, Rj: ca.SX, oj: ca.SX) -> tuple:
         body, a, v = model.bodies[i], model.q_index[i], model.v_index[i]
         if body.joint in ("revolute", "prismatic"):
             return _scalar_motion(body, p[v], Rj, oj)
         if body.joint == "spherical":
-            E = _exp_series(_hat(p[v:v + 3]), exp_order)
-            return ca.mtimes(ca.mtimes(Rj, _quaternion_rotation(q[a:a + 4])), E), oj, None
-        # free: X0 exp6(xi), xi = (rho, w): the motion (R0 E_R, position + R0 E_p)
+            E, R0 = _exp_series(_hat(p[v:v + 3]), exp_order), _quaternion_rotation(q[a:a + 4])
+            return ca.mtimes(Rj, ca.mtimes(R0, E) if side is None else ca.mtimes(E, R0)), oj, None
+        R0, position = _quaternion_rotation(q[a + 3:a + 7]), q[a:a + 3]
+        if side == "mixed":        # (exp([xi_ang]x) R0, position + xi_lin)
+            E = _exp_series(_hat(p[v + 3:v + 6]), exp_order)
+            return ca.mtimes(Rj, ca.mtimes(E, R0)), oj + ca.mtimes(Rj, position + p[v:v + 3]), None
         twist = ca.vertcat(ca.horzcat(_hat(p[v + 3:v + 6]), p[v:v + 3]), ca.SX.zeros(1, 4))
         E = _exp_series(twist, exp_order)
-        R0 = _quaternion_rotation(q[a + 3:a + 7])
-        return (ca.mtimes(ca.mtimes(Rj, R0), E[:3, :3]), oj + ca.mtimes(Rj, q[a:a + 3] + ca.mtimes(R0, E[:3, 3])),
-                None)
+        if side is None:           # X0 exp6(xi), xi = (rho, w): the motion (R0 E_R, position + R0 E_p)
+            return (ca.mtimes(ca.mtimes(Rj, R0), E[:3, :3]),
+                    oj + ca.mtimes(Rj, position + ca.mtimes(R0, E[:3, 3])), None)
+        # world: exp6(xi) X0 = (E_R R0, E_R position + E_p)
+        return (ca.mtimes(Rj, ca.mtimes(E[:3, :3], R0)),
+                oj + ca.mtimes(Rj, ca.mtimes(E[:3, :3], position) + E[:3, 3]), None)
     return _walk(model, motion)
+
+
+#: The base-velocity representations this backend evaluates natively (module docstring, "Velocity representations").
+REPRESENTATIONS = ("world", "mixed")
+
+
+def _representation(model: Model, chart) -> str | None:
+    """The velocity representation ``chart`` asks for (its ``representation``, read duck-typed), or None for any other
+    chart; ModelNotSupported for an unknown one or a model without spherical or free joints."""
+    side = None if chart is None else getattr(chart, "representation", None)
+    if side is None:
+        return None
+    if side not in REPRESENTATIONS:
+        raise _refuse_chart(model, chart, f"asks for the velocity representation {side!r} (known: "
+                                          f"{', '.join(REPRESENTATIONS)})")
+    if not model.group_joints:
+        raise ModelNotSupported(f"geometric: chart '{_chart_name(chart)}' is a velocity representation ({side}); "
+                                f"model '{model.name}' has no spherical or free joint to represent")
+    return side
 
 
 def _chart_origin(model: Model, q: ca.SX) -> ca.SX:
@@ -455,6 +500,8 @@ def _refuse_chart(model: Model, chart, reason: str) -> ModelNotSupported:
 def _check_group_chart(model: Model, chart) -> None:
     """A chart given for a model with spherical or free joints must at least be a chart object (``psi`` and ``key``);
     whether its psi returns the whole q is decided when it is compiled (:func:`_group_chart_coordinates`)."""
+    if _representation(model, chart) is not None:
+        return
     if chart is not None and model.group_joints and not (callable(getattr(chart, "psi", None))
                                                          and hasattr(chart, "key")):
         raise _refuse_chart(model, chart, "is not a chart q = psi(p) (no psi or no key)")
@@ -643,9 +690,10 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     n = model.n
     p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
     point = None
-    if model.group_joints and chart is None:
+    side = _representation(model, chart)
+    if model.group_joints and (chart is None or side):
         point = ca.SX.sym("q", model.nq)
-        R, o, q = _group_frames(model, point, p, exp_order)
+        R, o, q = _group_frames(model, point, p, exp_order, side)
     elif model.group_joints:        # a chart whose psi returns the whole q (module docstring, "Charts of the group")
         R, o, q = _chart_group_frames(model, _group_chart_coordinates(model, chart, p))
     else:
@@ -1031,11 +1079,17 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
     With constraints, ``phi(psi(p))`` is differentiated in p, so ``Jc`` is the chart's ``Jc_q Dpsi`` and ``lam`` is
     the joint chart's. A model with spherical or free joints is evaluated in a chart whose psi returns the whole q
     from nv coordinates (the ZYX Euler-angle chart; module docstring, "Charts of the group"): p, pd, tau_p have nv
-    entries and the accelerations are ``pdd``, not ``vdot``. Any other chart, and ``chart=None`` (use :func:`split`
-    for the group chart), is ModelNotSupported.
+    entries and the accelerations are ``pdd``, not ``vdot``. In a base-velocity representation (a chart with
+    ``representation`` ``"world"`` or ``"mixed"``; module docstring, "Velocity representations") p is q itself (nq),
+    pd the representation's w, tau_p its covector ``T^T f`` and the accelerations ``wdot``. Any other chart, and
+    ``chart=None`` (use :func:`split` for the group chart), is ModelNotSupported.
     """
     if model.group_joints and chart is None:
         raise _refuse_chart(model, chart, "is the group chart itself: use split (q of nq entries, v)")
+    if _representation(model, chart) is not None:       # p is q itself (nq), pd the representation's w (nv)
+        q, w, _ = check_state(model, p, pd, np.zeros(model.m))
+        (tau_p,) = chart_vectors(model, tau_p=tau_p)
+        return _split(model, chart, q, w, tau_p)
     _check_group_chart(model, chart)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     return _split(model, chart, p, pd, tau_p)
@@ -1047,7 +1101,7 @@ def _vectors(model: Model, chart, p, **rates) -> list[np.ndarray]:
     free joints, the configuration q (nq, unit quaternions) and rates of nv (StateError otherwise) in the group chart
     when ``chart`` is None, else the chart's p and rates (nv each; ModelNotSupported for a chart whose psi does not
     return the whole q, :func:`_check_group_chart` here and :func:`_group_chart_coordinates` when compiled)."""
-    if not model.group_joints or chart is not None:
+    if not model.group_joints or (chart is not None and _representation(model, chart) is None):
         _check_group_chart(model, chart)
         return chart_vectors(model, p=p, **rates)
     out = joint_vectors(model, p, *rates.values())

@@ -72,9 +72,9 @@ def test_gimbal_lock_leaves_the_chart_check_out():
 
 def test_which_charts_apply():
     group, scalar = cases.load("satellite_arm"), cases.load("double_pendulum")
-    assert [c.name for c in charts.sampled(group, 0, "satellite_arm")] == ["zyx", "exp"]
-    assert not {"zyx", "exp"} & {c.name for c in charts.sampled(scalar, 0, "double_pendulum")}
-    with pytest.raises(charts.ChartError, match=r"does not apply .* \(its charts: zyx, exp\)"):
+    assert [c.name for c in charts.sampled(group, 0, "satellite_arm")] == ["zyx", "exp", "world", "mixed"]
+    assert not {"zyx", "exp", "world", "mixed"} & {c.name for c in charts.sampled(scalar, 0, "double_pendulum")}
+    with pytest.raises(charts.ChartError, match=r"does not apply .* \(its charts: zyx, exp, and the velocity"):
         charts.get("nonlinear", group)
     with pytest.raises(charts.ChartError, match="chart 'zyx' .* does not apply"):
         charts.get("zyx", scalar)

@@ -23,7 +23,7 @@ vectors = st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6).map(np.array)
 def _all_charts(model):
     return [charts.get(name, model, 0, model.name) for name in charts.names()
             if (name != "absolute" or charts.is_planar_serial(model))
-            and name not in charts.GROUP_CHARTS]          # zyx, exp: group joints only (tests/test_group_charts.py)
+            and name not in charts.GROUP_CHARTS + charts.REPRESENTATIONS]   # group joints only (test_group_charts.py)
 
 
 def _central(f, x, h=1e-6):
