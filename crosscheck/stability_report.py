@@ -396,18 +396,28 @@ def chart_conclusions(result: PathResult) -> list[str]:
                   for m in compared]
         rooms = [(max(m.chart.worst(v) for v in natives if v in m.chart.errors) / r, m) for r, m in ratios
                  if r > 0 and natives]
-        out.append("- The chart comparison's tolerance, as a relative error it would accept (largest native error / "
-                   "its ratio): " + ", ".join(f"{_g(t)} at {m.point.x:.3g}" for t, m in rooms)
-                   + ": it is scaled by |Dpsi^-1| and the chart's rates, so it loosens faster than the errors grow; "
-                   "near the limit a wrong answer of that relative size would pass.")
+        if rooms:
+            room = [r for r, _ in ratios if r > 0]
+            pace = ("it loosens faster than the errors grow" if max(room) / min(room) > 100.0 else
+                    "it keeps pace with the native errors (their ratio to it stays within a factor 100)")
+            out.append("- The chart comparison's tolerance, as a relative error it would accept (largest native error "
+                       "/ its ratio): " + ", ".join(f"{_g(t)} at {m.point.x:.3g}" for t, m in rooms)
+                       + f": {pace}; a wrong answer of that relative size would pass there.")
     would = [m for m in ms if m.chart.would_be]
     if would:
         worst = max(would, key=lambda m: max(m.chart.worst(v) for v in m.chart.errors))
         top = max(worst.chart.worst(v) for v in worst.chart.errors)
         wr = max(m.chart.ratio(v) for m in would for v in m.chart.voters if m.chart.ratio(v) == m.chart.ratio(v))
-        out.append(f"- Past the limit, with the limit lifted the check would have passed every point (largest true err "
-                   f"/ tol {_g(wr)}), even at {worst.point.x:.3g} where the mapped answers are off by {_g(top)} "
-                   "relative: the limit, not the tolerance, is what keeps such answers out of the vote.")
+        failing = [m for m in would if any(m.chart.ratio(v) > 1.0 for v in m.chart.voters)]
+        if not failing:
+            out.append(f"- Past the limit, with the limit lifted the check would have passed every point (largest true "
+                       f"err / tol {_g(wr)}), even at {worst.point.x:.3g} where the mapped answers are off by {_g(top)} "
+                       "relative: the limit, not the tolerance, is what keeps such answers out of the vote.")
+        else:
+            out.append(f"- Past the limit, with the limit lifted the tolerance would have rejected "
+                       f"{len(failing)} of {len(would)} points (largest true err / tol {_g(wr)}, from "
+                       f"{min(m.point.x for m in failing):.3g}); where it would have passed, the answers are off by "
+                       "no more than the rounding the tolerance allows for there.")
     return out
 
 

@@ -498,6 +498,8 @@ def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True, u=None
         task.update(_constraint_scales(model, constrained, q, qd, rounding))
     if model is not None and joint_chart and splits:
         task.update(_componentwise(model, splits, constrained, q, qd, task))
+    elif model is not None and splits and not constrained:
+        task["accel"] = _chart_bound(model, splits)
     power = _median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits])
     if model is not None and u is not None:
         power = max(power, power_scale(model, qd, u))
@@ -511,6 +513,23 @@ def power_scale(model, qd, u) -> float:
     (1.17, -1.1) at u = (-9.4, -10) gives (B u)_i = 0.037 from terms of 11, and the powers differed by 1.2 times a
     tolerance built from ``|(B u)_i qd_i|``)."""
     return float(np.abs(np.asarray(qd, dtype=float)) @ (np.abs(model.input_map) @ np.abs(np.asarray(u, dtype=float))))
+
+
+def _chart_bound(model, splits) -> np.ndarray:
+    """The accelerations' rounding in a chart's own coordinates p (``split_chart``), where the joint geometry of
+    :func:`acceleration_bound` does not apply: the normwise first-order bound of a backward-stable solve of
+    ``M_p pdd = f`` whose M_p and f are computed to eps relative to their terms, ``eps (||M_p^-1|| H + cond(M_p)
+    ||pdd||)`` (``accel_scale = ||M_p^-1|| H``, H the size of the terms summed in f), with ``||pdd||`` the median
+    1-norm of the voters' drift, ctrl and total (a 1-norm bounds every entry of the 2-norm bound), in every coordinate.
+    The bound ``cond(M_p) accel_scale`` used before multiplies the two terms: at the zyx chart's gimbal lock both grow
+    like 1 / delta^2 (delta = pi/2 - pitch), so the check accepted 1e-7 relative errors at delta = 0.1 and 0.1 at
+    delta = 1e-3, where the native answers were right to 8e-13 and 2e-9 (``crosscheck stability``, path gimbal).
+    Unconstrained models only: a constrained solve in p adds the multipliers' error through ``M_p^-1 Jc_p^T``, whose
+    ``||M_p^-1||`` no split reports, so those keep the normwise ``cond(M_p) accel_scale``."""
+    size = _median([max(float(np.abs(s.drift).sum()), float(np.abs(s.ctrl).sum()), float(np.abs(s.total).sum()))
+                    for s in splits])
+    bound = _median([s.accel_scale for s in splits]) + _median([s.cond_M for s in splits]) * size
+    return np.full(model.nv, bound)
 
 
 def _componentwise(model, splits, constrained, q, qd, scales: dict) -> dict:
