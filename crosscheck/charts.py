@@ -202,6 +202,15 @@ def random_affine(model: Model, seed: int, case: str, max_cond: float = 10.0) ->
             return AffineChart("affine", A, rng.uniform(-1.0, 1.0, n))
 
 
+def _joint_blocks(joints: Sequence[str]):
+    """(joint type, start in v (and in a chart's p), start in q) per body, in body order."""
+    k = j = 0
+    for joint in joints:
+        yield joint, k, j
+        k += {"spherical": 3, "free": 6}.get(joint, 1)
+        j += {"spherical": 4, "free": 7}.get(joint, 1)
+
+
 @dataclass(frozen=True)
 class EulerZYX(Chart):
     """ZYX Euler angles for every spherical and free joint's orientation (article 6.4, 9.1: a map of the globe).
@@ -222,11 +231,7 @@ class EulerZYX(Chart):
 
     def _blocks(self):
         """(joint type, start in p, start in q) per body."""
-        k = j = 0
-        for joint in self.joints:
-            yield joint, k, j
-            k += {"spherical": 3, "free": 6}.get(joint, 1)
-            j += {"spherical": 4, "free": 7}.get(joint, 1)
+        return _joint_blocks(self.joints)
 
     @staticmethod
     def _quaternion(yaw, pitch, roll, sin, cos) -> list:
@@ -422,14 +427,12 @@ class ExponentialCoordinates(Chart):
 
     def _blocks(self):
         """(joint type, start in p, start in q, centre or None) per body."""
-        k = j = g = 0
-        for joint in self.joints:
+        g = 0
+        for joint, k, j in _joint_blocks(self.joints):
             center = None
             if joint in ("spherical", "free"):
                 center, g = self.centers[g], g + 1
             yield joint, k, j, center
-            k += {"spherical": 3, "free": 6}.get(joint, 1)
-            j += {"spherical": 4, "free": 7}.get(joint, 1)
 
     @staticmethod
     def _quaternion(w: Sequence, center: Sequence, sin: Callable, cos: Callable) -> list:
@@ -572,12 +575,8 @@ class VelocityRepresentation(Chart):
         return (self.representation, self.joints)
 
     def _blocks(self):
-        """(joint type, start in q, start in v) per body."""
-        j = k = 0
-        for joint in self.joints:
-            yield joint, j, k
-            j += {"spherical": 4, "free": 7}.get(joint, 1)
-            k += {"spherical": 3, "free": 6}.get(joint, 1)
+        """(joint type, start in v, start in q) per body."""
+        return _joint_blocks(self.joints)
 
     @property
     def nv(self) -> int:
@@ -599,7 +598,7 @@ class VelocityRepresentation(Chart):
         """``T(q)`` (nv x nv): ``v = T w``."""
         q = np.asarray(p, dtype=float)
         D = np.eye(self.nv)
-        for joint, j, k in self._blocks():
+        for joint, k, j in self._blocks():
             if joint == "spherical":
                 D[k:k + 3, k:k + 3] = self._rotation(q[j:j + 4]).T
             elif joint == "free":
@@ -615,7 +614,7 @@ class VelocityRepresentation(Chart):
         if self.representation != "mixed":
             return out
         v = self.jacobian(p) @ np.asarray(pd, dtype=float)
-        for joint, _, k in self._blocks():
+        for joint, k, _ in self._blocks():
             if joint == "free":
                 out[k:k + 3] = -np.cross(v[k + 3:k + 6], v[k:k + 3])
         return out

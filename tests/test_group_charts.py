@@ -47,15 +47,20 @@ def test_dpsi_and_its_rate_are_the_velocity_and_acceleration_maps(case, name):
     chart = charts.get(name, model)
     rng = np.random.default_rng(7)
     for s in sampling.sample_states(model, 4, 2, case)[1:]:
-        p = chart.p_of(np.array(s.q))
-        pd, pdd = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
-        h = 1e-6
-        moved = configuration.integrate(model, chart.q_of(p), h * chart.jacobian(p) @ pd)
-        assert np.abs(moved - chart.q_of(p + h * pd)).max() < 1e-10
-        ahead = chart.jacobian(p + h * pd + h * h / 2 * pdd) @ (pd + h * pdd)
-        behind = chart.jacobian(p - h * pd + h * h / 2 * pdd) @ (pd - h * pdd)
-        np.testing.assert_allclose((ahead - behind) / (2 * h), chart.jacobian(p) @ pdd + chart.jacobian_rate(p, pd),
-                                   atol=1e-7)
+        _check_maps(model, chart, chart.p_of(np.array(s.q)), rng)
+
+
+def _check_maps(model, chart, p, rng):
+    """At p, along random pd and pdd: ``v = Dpsi pd`` (moving p by ``h pd`` is integrating ``h v`` on the group) and
+    ``vdot = Dpsi pdd + rate`` (the central difference of ``Dpsi(p(t)) pd(t)``)."""
+    pd, pdd = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
+    h = 1e-6
+    moved = configuration.integrate(model, chart.q_of(p), h * chart.jacobian(p) @ pd)
+    assert np.abs(moved - chart.q_of(p + h * pd)).max() < 1e-10
+    ahead = chart.jacobian(p + h * pd + h * h / 2 * pdd) @ (pd + h * pdd)
+    behind = chart.jacobian(p - h * pd + h * h / 2 * pdd) @ (pd - h * pdd)
+    np.testing.assert_allclose((ahead - behind) / (2 * h), chart.jacobian(p) @ pdd + chart.jacobian_rate(p, pd),
+                               atol=1e-7)
 
 
 def test_gimbal_lock_leaves_the_chart_check_out():
@@ -181,15 +186,7 @@ def test_exp_near_its_centre_by_finite_differences():
     rng = np.random.default_rng(11)
     for size in (1e-5, 1e-2, 0.5):
         p = rng.standard_normal(model.nv)
-        p *= size / np.linalg.norm(p)
-        pd, pdd = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
-        h = 1e-6
-        moved = configuration.integrate(model, chart.q_of(p), h * chart.jacobian(p) @ pd)
-        assert np.abs(moved - chart.q_of(p + h * pd)).max() < 1e-10
-        ahead = chart.jacobian(p + h * pd + h * h / 2 * pdd) @ (pd + h * pdd)
-        behind = chart.jacobian(p - h * pd + h * h / 2 * pdd) @ (pd - h * pdd)
-        np.testing.assert_allclose((ahead - behind) / (2 * h), chart.jacobian(p) @ pdd + chart.jacobian_rate(p, pd),
-                                   atol=1e-7)
+        _check_maps(model, chart, p * size / np.linalg.norm(p), rng)
 
 
 def test_exp_domain_has_no_singularity():
