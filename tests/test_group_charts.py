@@ -251,3 +251,22 @@ def test_exp_at_its_centre_is_left_out_and_refused_by_eval(capsys):
     code = cli.main(["eval", "--case", "free_body", "--chart", "exp", "--q=0.1,0.2,0.3,0,0,0", "--qd=1,2,3,4,5,6"])
     err = capsys.readouterr().err
     assert code == 2 and len(err.splitlines()) == 1 and "centre" in err
+
+
+def test_a_wrong_exp_jacobian_in_the_harness_is_caught_by_the_native_evaluations(monkeypatch):
+    """The chart check of exp can fail: with the harness's Dpsi taken as the LEFT Jacobian ``J_l = J_r^T`` (the
+    exponential's other trivialization), every joint-chart answer is mapped wrongly, and the chart-native Euler–Lagrange
+    and geometric answers, derived through psi alone, disagree with it."""
+    from crosscheck import backends
+
+    model = cases.load("ball_pendulum")
+    chart = charts.get("exp", model, 0, "ball_pendulum")
+    state = sampling.sample_states(model, 3, 0, "ball_pendulum")[2]
+    joint = {"pinocchio": reference.split(model, state.q, state.qd, state.u)}
+    native = [backends.get(name) for name in ("euler_lagrange", "geometric")]
+    right = invariance.chart_checks(model, state, chart, joint, native, {})
+    assert right and max(c.worst_ratio for c in right.values()) < 0.1
+    monkeypatch.setattr(charts.ExponentialCoordinates, "right_jacobian",
+                        staticmethod(lambda w, J=charts.ExponentialCoordinates.right_jacobian: J(w).T))
+    left = invariance.chart_checks(model, state, chart, joint, native, {})
+    assert left["chart exp: drift"].worst_ratio > 1e6 and left["chart exp: total"].worst_ratio > 1e6
