@@ -286,7 +286,7 @@ class EulerZYX(Chart):
 
     def _rotation(self, angles) -> np.ndarray:
         quat = self._quaternion(*angles, math.sin, math.cos)
-        return np.eye(3) + 2.0 * quat[3] * _skew(quat[:3]) + 2.0 * _skew(quat[:3]) @ _skew(quat[:3])
+        return configuration.rotation(np.asarray(quat, dtype=float))
 
     def jacobian(self, p) -> np.ndarray:
         p = np.asarray(p, dtype=float)
@@ -500,7 +500,8 @@ class ExponentialCoordinates(Chart):
         return -A * along * across + B * along * np.cross(w, across) + b * np.cross(wd, across)
 
     def _rotation(self, w, center) -> np.ndarray:
-        return _quaternion_rotation(self._quaternion(list(np.asarray(w, dtype=float)), center, math.sin, math.cos))
+        return configuration.rotation(np.asarray(self._quaternion(list(np.asarray(w, dtype=float)), center, math.sin,
+                                                                   math.cos), dtype=float))
 
     def jacobian(self, p) -> np.ndarray:
         p = np.asarray(p, dtype=float)
@@ -524,12 +525,6 @@ class ExponentialCoordinates(Chart):
                     w = self.right_jacobian(p[a:a + 3]) @ pd[a:a + 3]
                     out[k:k + 3] = -np.cross(w, self._rotation(p[a:a + 3], center).T @ pd[k:k + 3])
         return out
-
-
-def _quaternion_rotation(quat) -> np.ndarray:
-    """``R(quat) = I + 2 w [u]x + 2 [u]x^2`` of a unit quaternion ``(u, w)``."""
-    K = _skew(quat[:3])
-    return np.eye(3) + 2.0 * quat[3] * K + 2.0 * K @ K
 
 
 def exponential(model: Model, seed: int, case: str) -> ExponentialCoordinates:
@@ -590,21 +585,15 @@ class VelocityRepresentation(Chart):
     def p_of(self, q) -> np.ndarray:
         return np.array(q, dtype=float)
 
-    @staticmethod
-    def _rotation(quat) -> np.ndarray:
-        x, y, z, w = quat
-        K = _skew((x, y, z))
-        return np.eye(3) + 2.0 * w * K + 2.0 * K @ K
-
     def jacobian(self, p) -> np.ndarray:
         """``T(q)`` (nv x nv): ``v = T w``."""
         q = np.asarray(p, dtype=float)
         D = np.eye(self.nv)
         for joint, k, j in self._blocks():
             if joint == "spherical":
-                D[k:k + 3, k:k + 3] = self._rotation(q[j:j + 4]).T
+                D[k:k + 3, k:k + 3] = configuration.rotation(q[j:j + 4]).T
             elif joint == "free":
-                Rt = self._rotation(q[j + 3:j + 7]).T
+                Rt = configuration.rotation(q[j + 3:j + 7]).T
                 D[k:k + 3, k:k + 3] = D[k + 3:k + 6, k + 3:k + 6] = Rt
                 if self.representation == "world":
                     D[k:k + 3, k + 3:k + 6] = -Rt @ _skew(q[j:j + 3])
