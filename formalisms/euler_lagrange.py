@@ -113,15 +113,35 @@ The derivation is staged: every pose entry and every derivative of one is a name
 derivatives go through a memoized chain rule (forward-mode differentiation done symbolically), so the
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
 project with sympy's API, because pure-Python sympy takes minutes on a 9-joint arm.
-Compilation: plain Python source evaluated with ``math``, the staged definitions in order with repeated
-subexpressions computed once (tree-matching CSE, linear time: :class:`_Source`); one call returns M, C pd, g, the
-kinetic energy T and the constraint terms phi, Jc, Jcdot pd at the state. The source is cached on disk keyed by
+Compilation: the staged definitions in order, with repeated subexpressions computed once (tree-matching CSE, linear
+time: :class:`_Source`), written by one emitter as C and as Python (:func:`generate_sources`; the same operations in
+the same order, so both round alike); one call returns M, C pd, g, the kinetic energy T and the constraint terms phi,
+Jc, Jcdot pd at the state.
+  * Compiled (:func:`_native`). The C is compiled by the system compiler (``cc``, else ``gcc``; :data:`C_FLAGS`:
+    -O1, IEEE arithmetic as written, no fused multiply-add) into a shared library called through ctypes, with a
+    batched entry that runs a block of states in one call. It runs two states at once, one per lane of a vector of
+    two doubles (:func:`_c`), and is cut into functions of about :data:`C_PART` characters and its sums into partial
+    sums (:data:`C_LONGEST`), because gcc's time on a function grows faster than the function: in one function the
+    Panda's code took 63 s at -O1, and 166 s for tiago's cut only by statements. Measured cold on a loaded 2-core
+    machine (CPU seconds of the compiler; the derivation apart): the Panda 3.3 s at -O1 (1.5 s at -O0, 4.3 s at -O2
+    for code no faster), a 24-link chain 7 s (4 s at -O0, 13.5 s at -O2), tiago (48 joints, 24,600 statements) 24 s
+    (16.5 s at -O0); -O1 code evaluates 2-3x as fast as -O0 code, so -O1 at every size. symengine's LLVM
+    ``Lambdify`` is not used: it compiles expressions of its input symbols, so the staged intermediates would have to
+    be substituted into them, expanding the kinematic chain the staging keeps apart.
+  * Interpreted (:func:`_interpreted`), without a compiler, with ``CROSSCHECK_COMPILE=0``, or when the C does not
+    compile (a RuntimeWarning): the Python source run with ``math`` for one state, and with numpy's ``sin`` and
+    ``cos`` on columns of states for a batch (each coordinate an array with one entry per state).
+  :func:`evaluation` says which is in use (``crosscheck formalisms``); ``split``, ``split_chart`` and ``split_batch``
+  all run the same one.
+Caches: the sources (Python and C), the Python code object (``marshal``) and the library are cached on disk keyed by
 the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
 with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
-process loads it instead of re-deriving; its compiled code object is cached beside it (compiling a 9-joint arm's
-source takes most of a second, loading the code milliseconds).
-Batches (:func:`split_batch`): the same code run with numpy's ``sin`` and ``cos`` on columns of states (each
-coordinate an array with one entry per state) gives every state's M, C qd, g and constraint terms in one call;
+process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
+Every file is written atomically (a temporary file renamed into place: :func:`_write`), and a library is compiled in
+a private directory, so processes filling the same entry at once do not disturb each other; a library is sealed with
+its SHA-256 and one that does not match (damaged, truncated) is compiled again, never loaded; a cache that cannot be
+written only costs the work next time.
+Batches (:func:`split_batch`): the generated code gives every state's M, C qd, g and constraint terms in one call;
 the solves below are written for one state or a stack alike (batched Cholesky, substitution over the stack), with
 constrained states grouped by the rank of S.
 Solving: Cholesky factorization of M, never an explicit inverse. With constraints, the KKT system of article 5.6
@@ -137,16 +157,22 @@ correctly rounded sum (:func:`_power`).
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
 import hashlib
 import importlib.util
 import marshal
 import math
 import os
+import re
+import shutil
+import subprocess
 import tempfile
 import types
+import warnings
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -763,26 +789,70 @@ def _is_atom(e) -> bool:
     return e.is_Symbol or e.is_Number
 
 
-def _py_atom(e) -> str:
-    """Python source for a symbol or number; floats print with ``repr`` so they round-trip exactly."""
-    if e.is_Symbol:
-        return str(e)
-    if e.is_Integer:
-        return str(int(e))
-    return repr(float(e))
+class _Python:
+    """Python syntax for :class:`_Source`: floats print with ``repr`` so they round-trip exactly, integers as
+    integers (Python's ``int * float`` is the float product, ``x**k`` C's ``pow``)."""
+
+    longest = None  # a statement's length is not bounded
+    prefix = ""     # of the names of sin and cos
+
+    @staticmethod
+    def number(e) -> str:
+        return str(int(e)) if e.is_Integer else repr(float(e))
+
+    @staticmethod
+    def power(source: _Source, base, exponent) -> str:
+        return f"({source.ref(base)}**{source.ref(exponent)})"
+
+
+#: The longest statement of the generated C, in characters (about an operation per 10): gcc's time on one expression
+#: grows faster than its size (tiago's sums of some 3,000 terms: 20 s each at -O1), so :class:`_Source` cuts a longer
+#: sum or product into partial ones, computed in the same order.
+C_LONGEST = 1000
+
+
+class _C:
+    """C syntax for :class:`_Source`, on pairs of states (:func:`_c`: a value is a ``vec`` of two doubles, one state
+    per lane, and a number stands for itself in both): every number a double literal (``2.0``, ``1e-05``: ``repr`` of
+    the float, which round-trips and always has a ``.`` or an exponent), so no integer arithmetic (division) happens
+    anywhere; powers ``b*b`` for 2, ``1.0/b`` for -1, ``vsqrt(b)`` for 1/2 and ``vpow`` otherwise, the base named
+    first; ``vsin``, ``vcos``: the C library's functions lane by lane."""
+
+    longest = C_LONGEST
+    prefix = "v"
+
+    @staticmethod
+    def number(e) -> str:
+        value = float(e)
+        if not math.isfinite(value):
+            raise ValueError(f"Euler–Lagrange codegen: the number {e!r} has no C literal")
+        return repr(value)
+
+    @staticmethod
+    def power(source: _Source, base, exponent) -> str:
+        b = source.name(base)
+        if exponent == 2:
+            return f"({b}*{b})"
+        if exponent == -1:
+            return f"(1.0/{b})"
+        if exponent == HALF:
+            return f"vsqrt({b})"
+        return f"vpow({b}, {_C.number(exponent)})"
 
 
 class _Source:
-    """Python assignment lines for staged definitions, with common subexpression elimination by tree matching.
+    """Assignments ``(name, expression text)`` for staged definitions in Python or C (``syntax``: :class:`_Python`,
+    :class:`_C`), with common subexpression elimination by tree matching.
 
     A non-atomic subexpression that occurs more than once anywhere in the expressions (the same node, found by
     hash) is computed once into a temporary ``x<k>``, emitted just before its first use. This is linear in the
     size of the expressions; the staging has already named the chain's structure, so matching subsets of sums
     and products as well (SymEngine's ``cse``) shortens the code little, and is quadratic: 7 s of the 9 s of
-    a cold 9-joint arm, and beyond 15 minutes for that arm in a chart that couples all coordinates.
+    a cold 9-joint arm, and beyond 15 minutes for that arm in a chart that couples all coordinates. Both targets
+    write the same operations in the same order (sums and products left to right), so they round alike.
     """
 
-    def __init__(self, exprs):
+    def __init__(self, exprs, syntax):
         counts: dict = {}
         for e in exprs:
             stack = [e]
@@ -794,44 +864,67 @@ class _Source:
                 counts[x] = counts.get(x, 0) + 1
                 if not seen:
                     stack.extend(x.args)
+        self.syntax = syntax
         self._shared = {x for x, c in counts.items() if c > 1}
         self._names: dict = {}
-        self.lines: list[str] = []
+        self._count = 0
+        self.statements: list[tuple[str, str]] = []
 
     def ref(self, e) -> str:
         """Source for ``e`` as an operand: a temporary when it is shared (emitted on first use), else inline."""
         if _is_atom(e):
-            return _py_atom(e)
+            return str(e) if e.is_Symbol else self.syntax.number(e)
         if e in self._names:
             return self._names[e]
         text = self._inline(e)
-        if e in self._shared:
-            name = f"x{len(self._names)}"
-            self.lines.append(f"    {name} = {text}")
-            self._names[e] = name
-            return name
-        return text
+        return self._temporary(e, text) if e in self._shared else text
+
+    def name(self, e) -> str:
+        """Source for ``e`` as a name (a symbol, number or temporary), never an inline expression."""
+        text = self.ref(e)
+        return text if _is_atom(e) or e in self._names else self._temporary(e, text)
+
+    def _temporary(self, e, text: str) -> str:
+        self._names[e] = name = self._fresh(text)
+        return name
+
+    def _fresh(self, text: str) -> str:
+        name = f"x{self._count}"
+        self._count += 1
+        self.statements.append((name, text))
+        return name
 
     def assign(self, symbol, e) -> None:
         """``symbol = e``; a shared ``e`` is thereafter read from ``symbol``."""
         text = self.ref(e) if _is_atom(e) or e in self._names else self._inline(e)
-        self.lines.append(f"    {symbol} = {text}")
+        self.statements.append((str(symbol), text))
         if not _is_atom(e) and e in self._shared:
             self._names.setdefault(e, str(symbol))
 
     def _inline(self, e) -> str:
-        if e.is_Add:
-            return "(" + " + ".join(self.ref(a) for a in e.args) + ")"
-        if e.is_Mul:
-            return "(" + "*".join(self.ref(a) for a in e.args) + ")"
-        if e.is_Pow:
-            return f"({self.ref(e.args[0])}**{self.ref(e.args[1])})"
+        if e.is_Add or e.is_Mul:
+            return self._joined(e.args, " + " if e.is_Add else "*")
+        if e.is_Pow and e.args[1].is_Number:
+            return self.syntax.power(self, e.args[0], e.args[1])
         if isinstance(e, (sp.sin, sp.cos)):
-            return f"{type(e).__name__}({self.ref(e.args[0])})"
+            return f"{self.syntax.prefix}{type(e).__name__}({self.ref(e.args[0])})"
         raise TypeError(f"Euler–Lagrange codegen: unexpected expression {e!r}")
 
+    def _joined(self, args, separator: str) -> str:
+        """``(a0 <separator> a1 <separator> ...)``, evaluated left to right. Where the syntax bounds a statement's
+        length (``longest``), the operands so far are computed into a temporary whenever the text would grow past it:
+        ``x = (a0 + a1)``, then ``(x + a2 + ...)``, the same operations in the same order."""
+        text = ""
+        for a in args:
+            operand = self.ref(a)
+            if text and self.syntax.longest and len(text) + len(operand) > self.syntax.longest:
+                text = self._fresh(f"({text})")
+            text = f"{text}{separator}{operand}" if text else operand
+        return f"({text})"
 
-def _at_origin(definitions: list, outputs: dict, T: sp.Expr, local: Sequence) -> tuple[list, dict, sp.Expr]:
+
+
+def _at_origin(definitions: list, outputs: dict, local: Sequence) -> tuple[list, dict]:
     """The definitions and outputs evaluated at ``xi = 0`` (module docstring, "Group joints"), symbolically: each
     definition in order with the local coordinates set to 0 and every earlier definition that became a number or a
     symbol substituted (constant propagation), then only the definitions the outputs still use. Exact: every
@@ -850,55 +943,196 @@ def _at_origin(definitions: list, outputs: dict, T: sp.Expr, local: Sequence) ->
         else:
             kept[s] = e
     outputs = {label: [at(e) for e in exprs] for label, exprs in outputs.items()}
-    T = at(T)
     used: set = set()
-    stack = [f for e in [e for v in outputs.values() for e in v] + [T] for f in e.free_symbols if f in kept]
+    stack = [f for e in [e for v in outputs.values() for e in v] for f in e.free_symbols if f in kept]
     while stack:
         s = stack.pop()
         if s not in used:
             used.add(s)
             stack.extend(f for f in kept[s].free_symbols if f in kept)
-    return [(s, e) for s, e in kept.items() if s in used], outputs, T
+    return [(s, e) for s, e in kept.items() if s in used], outputs
 
 
-def generate_source(model: Model, chart: Chart | None = None, order: int | None = None) -> str:
-    """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T, phi, Jc, bias)`` in the chart (``Jc`` row by row,
-    the constraint tuples empty without constraints): the staged definitions in creation order (each reads only
-    earlier ones), shared subexpressions as temporaries, then the outputs (the arguments are named ``q, qd`` in the
-    joint chart and ``p, pd`` in any other). With spherical or free joints ``x`` is the state's q (nq entries) and
-    the code is the local chart's derivation at ``xi = 0`` (:func:`_at_origin`; ``order`` of the exponential
-    series, module docstring "Group joints")."""
-    order = EXP_ORDER if order is None else order
+class _Program(NamedTuple):
+    """The straight-line program of one derivation, for either target (:func:`_program`): the staged definitions in
+    creation order (each reads only earlier ones) and the outputs in the order of :data:`OUTPUTS`."""
+
+    header: str                 # what was derived: model, digest, chart
+    arguments: tuple[str, str]  # the argument names: q, qd in the joint chart (and the local one), p, pd in a chart
+    inputs: list                # the symbols read from the first argument, in order (nq of them with group joints)
+    rates: list                 # the symbols read from the second argument
+    definitions: list           # (symbol, expression)
+    outputs: dict               # label -> expressions (T: one)
+
+
+#: The outputs of the generated code, in order: M's upper triangle row by row, C pd, g, the kinetic energy T, then
+#: the constraint terms phi, Jc (row by row) and Jcdot pd (empty without constraints).
+OUTPUTS = ("M_upper", "Cqd", "g", "T", "phi", "Jc", "bias")
+
+
+def _program(model: Model, chart: Chart | None, order: int) -> _Program:
+    """:func:`derivation`'s outputs and the definitions they use; with spherical or free joints at ``xi = 0``
+    (:func:`_at_origin`; ``order`` of the exponential series, module docstring "Group joints")."""
     d = derivation(model, chart, order)
     n = model.n
-    upper = [d.M[i, j] for i in range(n) for j in range(i, n)]
-    outputs = {"M_upper": upper, "Cqd": list(d.Cqd), "g": list(d.g), "phi": d.phi,
-               "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
-    definitions = d.staged.needed([e for v in outputs.values() for e in v] + [d.T])
-    T = d.T
+    outputs = {"M_upper": [d.M[i, j] for i in range(n) for j in range(i, n)], "Cqd": list(d.Cqd), "g": list(d.g),
+               "T": [d.T], "phi": d.phi, "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
+    definitions = d.staged.needed([e for v in outputs.values() for e in v])
     if d.local:
-        definitions, outputs, T = _at_origin(definitions, outputs, T, d.local)
-    code = _Source([e for _, e in definitions] + [e for v in outputs.values() for e in v] + [T])
+        definitions, outputs = _at_origin(definitions, outputs, d.local)
     key = chart_key(model, chart)
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
     if d.local:
-        chart_text = _group_chart_text(model, chart, order)
-        where = f"local exponential coordinates at xi = 0 ({chart_text})"
+        where = f"local exponential coordinates at xi = 0 ({_group_chart_text(model, chart, order)})"
     elif model.group_joints:
         where += f" ({GROUP_IN_CHART})"
-    x, xd = ("q", "qd") if key == JOINT_CHART or d.local else ("p", "pd")
-    for s, e in definitions:
+    return _Program(f"Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by "
+                    "crosscheck", ("q", "qd") if key == JOINT_CHART or d.local else ("p", "pd"),
+                    list(d.configuration or d.coordinates), list(d.rates), definitions, outputs)
+
+
+def _source(program: _Program, syntax) -> _Source:
+    code = _Source([e for _, e in program.definitions] + [e for v in program.outputs.values() for e in v], syntax)
+    for s, e in program.definitions:
         code.assign(s, e)
-    for label, exprs in outputs.items():
-        code.lines.append(f"    {label} = ({''.join(code.ref(e) + ', ' for e in exprs)})")
-    code.lines.append(f"    T = {code.ref(T)}")
+    return code
+
+
+def _python(program: _Program) -> str:
+    """Python source of ``evaluate(x, xd) -> (M_upper, Cqd, g, T, phi, Jc, bias)``, tuples but for the number T."""
+    code = _source(program, _Python)
+    for label, exprs in program.outputs.items():
+        refs = [code.ref(e) for e in exprs]
+        code.statements.append((label, refs[0] if label == "T" else f"({''.join(r + ', ' for r in refs)})"))
+    x, xd = program.arguments
     return "\n".join([
-        f"# Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by crosscheck",
+        f"# {program.header}",
         f"def evaluate({x}, {xd}):",
-        f"    {', '.join(map(str, d.configuration or d.coordinates))}, = {x}",
-        f"    {', '.join(map(str, d.rates))}, = {xd}",
-        *code.lines,
-        "    return M_upper, Cqd, g, T, phi, Jc, bias"]) + "\n"
+        f"    {', '.join(map(str, program.inputs))}, = {x}",
+        f"    {', '.join(map(str, program.rates))}, = {xd}",
+        *(f"    {name} = {text}" for name, text in code.statements),
+        f"    return {', '.join(OUTPUTS)}"]) + "\n"
+
+
+#: The size of a function of the generated C, in characters of its statements (about an operation per 10). gcc's
+#: optimizer takes time superlinear in the size of a function (the panda's 2,900 statements in one function: 63 s at
+#: -O1), so the body is cut into functions of about this size, never inlined, which pass the values they share
+#: through one array.
+C_PART = 4000
+_IDENTIFIER = re.compile(r"\b[A-Za-z_]\w*")
+
+
+def _c_parts(program: _Program, statements: list[tuple[str, str]]) -> tuple[list[str], int]:
+    """The C functions ``part<k>(x_, xd_, v_, out_)`` running ``statements`` (:data:`C_PART` long) and the length of
+    the array ``v_`` they share (a slot per value that a later part reads, in order of definition). A part stores
+    such values into ``v_`` as it defines them and reads the inputs and earlier parts' values where it uses them
+    (``x_[i]``, ``xd_[i]``, ``v_[k]`` in place of the name): loaded at the top instead, the last parts' thousands of
+    values would all be live at once, and gcc's register allocation takes seconds on each such part."""
+    parts: list[list] = [[]]
+    size = 0
+    for statement in statements:
+        if parts[-1] and size + len(statement[1]) > C_PART:
+            parts.append([])
+            size = 0
+        parts[-1].append(statement)
+        size += len(statement[1])
+    home = {name: p for p, part in enumerate(parts) for name, _ in part}
+    uses = [set(_IDENTIFIER.findall(" ".join(text for _, text in part))) for part in parts]
+    later = {n for p, used in enumerate(uses) for n in used if home.get(n, p) < p}
+    slot = {name: k for k, name in enumerate(name for name, _ in statements if name in later)}
+    remote = {name: f"v_[{k}]" for name, k in slot.items()}
+    remote.update({str(s): f"x_[{i}]" for i, s in enumerate(program.inputs)})
+    remote.update({str(s): f"xd_[{i}]" for i, s in enumerate(program.rates)})
+    functions = []
+    for p, part in enumerate(parts):
+        body = []
+        for name, text in part:
+            text = _IDENTIFIER.sub(lambda m: m[0] if home.get(m[0], -1) == p else remote.get(m[0], m[0]), text)
+            if not _IDENTIFIER.search(text):  # a number: the same in both lanes
+                text = f"(vec){{{text}, {text}}}"
+            body.append(f"    {name} = {text};" if name.startswith("out_[") else f"    const vec {name} = {text};")
+            if name in slot:
+                body.append(f"    v_[{slot[name]}] = {name};")
+        functions += [f"__attribute__((noinline)) static void part{p}(const vec *restrict x_, const vec *restrict xd_, "
+                      "vec *restrict v_, vec *restrict out_) {", *body, "}"]
+    return functions, len(slot)
+
+
+#: The C library's functions lane by lane on a pair of states (:class:`_C`).
+_C_HELPERS = (
+    "typedef double vec __attribute__((vector_size(16)));  /* two states, one per lane */",
+    "double sin(double); double cos(double); double sqrt(double); double pow(double, double);",
+    "static vec vsin(vec a) { return (vec){sin(a[0]), sin(a[1])}; }",
+    "static vec vcos(vec a) { return (vec){cos(a[0]), cos(a[1])}; }",
+    "static vec vsqrt(vec a) { return (vec){sqrt(a[0]), sqrt(a[1])}; }",
+    "static vec vpow(vec a, double e) { return (vec){pow(a[0], e), pow(a[1], e)}; }")
+
+
+def _c(program: _Program) -> str:
+    """C source of ``void evaluate(const double *x, const double *xd, double *out)`` writing the outputs of
+    :data:`OUTPUTS` one after the other into ``out``, and of ``evaluate_batch(n_states, X, XD, OUT)``, which runs it on
+    the rows of row-major arrays; ``crosscheck_layout`` holds the lengths of x, xd and out.
+
+    The code runs on two states at once (``evaluate_pair``), one per lane of a ``vec`` (gcc's and clang's vector
+    extension: two doubles, whatever the machine's vector instructions are; each lane's arithmetic is the scalar
+    IEEE one): a batch is run in pairs, a single state in both lanes. The body is cut into functions
+    (:func:`_c_parts`) called in order, which share values through ``v_`` (on the stack, 16 bytes a value: 300 KB
+    for tiago's 48 joints). The library functions are declared, not included (``math.h`` declares names such as
+    ``y0`` and ``j1``)."""
+    code = _source(program, _C)
+    outputs = [e for exprs in program.outputs.values() for e in exprs]
+    for k, e in enumerate(outputs):
+        code.statements.append((f"out_[{k}]", code.ref(e)))
+    functions, shared = _c_parts(program, code.statements)
+    nx, nv, size = len(program.inputs), len(program.rates), len(outputs)
+    return "\n".join([
+        f"/* {program.header.replace('*/', '* /')} */",
+        *_C_HELPERS,
+        f"const long crosscheck_layout[3] = {{{nx}, {nv}, {size}}};",
+        *functions,
+        "static void evaluate_pair(const double *xa, const double *xda, const double *xb, const double *xdb, "
+        "double *outa, double *outb) {",
+        f"    vec x_[{max(nx, 1)}], xd_[{max(nv, 1)}], v_[{max(shared, 1)}], out_[{size}];",
+        f"    for (int i = 0; i < {nx}; ++i) x_[i] = (vec){{xa[i], xb[i]}};",
+        f"    for (int i = 0; i < {nv}; ++i) xd_[i] = (vec){{xda[i], xdb[i]}};",
+        *(f"    part{p}(x_, xd_, v_, out_);" for p in range(functions.count("}"))),
+        f"    for (int i = 0; i < {size}; ++i) {{ outa[i] = out_[i][0]; outb[i] = out_[i][1]; }}",
+        "}",
+        "void evaluate(const double *x, const double *xd, double *out) {",
+        f"    double copy[{size}];",
+        "    evaluate_pair(x, xd, x, xd, out, copy);",
+        "}",
+        "void evaluate_batch(long n_states, const double *X, const double *XD, double *OUT) {",
+        "    long i = 0;",
+        f"    for (; i + 1 < n_states; i += 2) evaluate_pair(X + {nx} * i, XD + {nv} * i, X + {nx} * (i + 1), "
+        f"XD + {nv} * (i + 1), OUT + {size} * i, OUT + {size} * (i + 1));",
+        f"    if (i < n_states) evaluate(X + {nx} * i, XD + {nv} * i, OUT + {size} * i);",
+        "}"]) + "\n"
+
+
+#: The targets of :func:`generate_source`.
+LANGUAGES = {"python": _python, "c": _c}
+
+
+def generate_sources(model: Model, chart: Chart | None = None, order: int | None = None) -> dict[str, str]:
+    """:func:`generate_source` in every language of :data:`LANGUAGES`, from one derivation."""
+    program = _program(model, chart, EXP_ORDER if order is None else order)
+    return {language: render(program) for language, render in LANGUAGES.items()}
+
+
+def generate_source(model: Model, chart: Chart | None = None, order: int | None = None,
+                    language: str = "python") -> str:
+    """Source of the dynamics at a state in the chart, in Python or C (``language``, :data:`LANGUAGES`): Python's
+    ``evaluate(x, xd) -> (M_upper, Cqd, g, T, phi, Jc, bias)`` (:func:`_python`), C's ``evaluate`` writing the same
+    numbers into one array (:func:`_c`); ``Jc`` row by row, the constraint terms empty without constraints. The
+    staged definitions in creation order (each reads only earlier ones), shared subexpressions as temporaries, then
+    the outputs (the arguments are named ``q, qd`` in the joint chart and ``p, pd`` in any other). With spherical or
+    free joints ``x`` is the state's q (nq entries) and the code is the local chart's derivation at ``xi = 0``
+    (:func:`_at_origin`; ``order`` of the exponential series, module docstring "Group joints")."""
+    if language not in LANGUAGES:
+        raise ValueError(f"Euler–Lagrange: no code generator for {language!r}; known: {', '.join(LANGUAGES)}")
+    return LANGUAGES[language](_program(model, chart, EXP_ORDER if order is None else order))
+
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -923,30 +1157,43 @@ def cache_key(model: Model, chart: Chart | None = None) -> str:
     return hashlib.sha256("\0".join(parts).encode() + b"\0" + _DERIVATION_HASH).hexdigest()[:32]
 
 
-def cached_source(model: Model, chart: Chart | None = None) -> str:
-    """The generated source, from the disk cache when present.
+#: The file suffix of each language's cached source.
+_SUFFIX = {"python": ".py", "c": ".c"}
+
+
+def cached_source(model: Model, chart: Chart | None = None, language: str = "python") -> str:
+    """The generated source in ``language`` (:data:`LANGUAGES`), from the disk cache when present; a derivation writes
+    every language's source (:func:`generate_sources`), so the other one is at hand without deriving again.
 
     Keyed by the model digest, the chart's key and a hash of this module's own source, so a change to the
     derivation can never be hidden by code generated before it, and one chart's code is never served for another.
     """
-    path = _cache_dir() / f"{cache_key(model, chart)}.py"
-    if path.exists():
-        return path.read_text()
-    source = generate_source(model, chart)
-    _write(path, source.encode())
-    return source
+    path = _cache_dir() / cache_key(model, chart)
+    if path.with_suffix(_SUFFIX[language]).exists():
+        return path.with_suffix(_SUFFIX[language]).read_text()
+    sources = generate_sources(model, chart)
+    for name, text in sources.items():
+        _write(path.with_suffix(_SUFFIX[name]), text.encode())
+    return sources[language]
 
 
 def _write(path: Path, data: bytes) -> None:
-    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it. A cache
-    that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home) only costs the derivation next time."""
+    """Write a cache file atomically (a temporary file in the same directory renamed into place), so a reader never
+    sees half of it and writers of the same entry do not disturb each other (the last one's file stays, and any is
+    whole). A cache that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home, a full disk) only costs
+    the work next time; the temporary file is removed."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
-            fh.write(data)
-        os.replace(fh.name, path)
+        fd, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
     except OSError:
         return
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(temporary, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
@@ -965,6 +1212,113 @@ def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
     code = compile(cached_source(model, chart), str(path), "exec")
     _write(code_path, marshal.dumps(code))
     return code
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Compiled C (module docstring, "Compilation"): a shared library per (model, chart), cached beside the source
+# ----------------------------------------------------------------------------------------------------------
+
+#: The compiler's options: IEEE arithmetic as written (no reassociation, no contraction of ``a*b + c`` into a fused
+#: multiply-add, which aarch64 would do by default), so the compiled code rounds as the interpreted one does.
+#: -O1 (measured; module docstring, "Compilation").
+C_FLAGS = ("-O1", "-fno-fast-math", "-ffp-contract=off", "-fPIC", "-shared")
+#: The environment variable that turns compilation off (``0``): the interpreted code is used.
+COMPILE_VARIABLE = "CROSSCHECK_COMPILE"
+
+
+class CompileError(RuntimeError):
+    """The generated C did not compile, or its library does not load (the interpreted code is used instead)."""
+
+
+def _compiler() -> str | None:
+    """The system C compiler: ``cc``, else ``gcc``, from PATH (None when there is neither)."""
+    return shutil.which("cc") or shutil.which("gcc")
+
+
+def _no_compilation() -> str | None:
+    """Why the generated code is not compiled in this process (:data:`COMPILE_VARIABLE` is 0, no compiler), or None."""
+    if os.environ.get(COMPILE_VARIABLE, "").strip() == "0":
+        return f"{COMPILE_VARIABLE}=0"
+    if _compiler() is None:
+        return "no C compiler found: neither cc nor gcc is on PATH"
+    return None
+
+
+def _compiler_text() -> str:
+    """The compiler's name and the options that decide the arithmetic, e.g. ``cc -O1 -fno-fast-math ...``."""
+    return f"{os.path.basename(_compiler())} {' '.join(C_FLAGS[:3])}"
+
+
+def evaluation() -> str:
+    """Which evaluation this backend uses in this process (``crosscheck formalisms``): compiled C with the compiler
+    and its options, or interpreted Python and why. A model whose C fails to compile is evaluated interpreted, with
+    a warning (:func:`_compiled`)."""
+    reason = _no_compilation()
+    return f"compiled C ({_compiler_text()})" if reason is None else f"interpreted Python ({reason})"
+
+
+_DIGEST = hashlib.sha256().digest_size
+
+
+def _seal(library: bytes) -> bytes:
+    """A cache entry: the library's bytes followed by their SHA-256 (the loader ignores bytes past the library)."""
+    return library + hashlib.sha256(library).digest()
+
+
+def _intact(path: Path) -> bool:
+    """Whether the cache entry at ``path`` is whole (its digest matches): a damaged or truncated library is never
+    loaded, since loading one can crash the process (its pages past the end of the file fault)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return False
+    return len(data) > _DIGEST and hashlib.sha256(data[:-_DIGEST]).digest() == data[-_DIGEST:]
+
+
+def _build(source: str) -> tuple[bytes, ctypes.CDLL]:
+    """Compile C source into a shared library in a private temporary directory (so processes compiling the same
+    entry at once never share a file): its bytes, and the library loaded from there."""
+    compiler = _compiler()
+    with tempfile.TemporaryDirectory(prefix="crosscheck-el-") as tmp:
+        target = os.path.join(tmp, "evaluate.so")
+        try:
+            done = subprocess.run([compiler, *C_FLAGS, "-o", target, "-x", "c", "-", "-lm"], input=source.encode(),
+                                  capture_output=True, check=False)
+        except OSError as exc:
+            raise CompileError(f"{compiler} did not run: {exc}") from None
+        if done.returncode != 0:
+            tail = done.stderr.decode(errors="replace").strip().splitlines()[-5:]
+            raise CompileError(f"{compiler} exited with status {done.returncode}"
+                               + "".join(f"; {line}" for line in tail))
+        try:
+            return Path(target).read_bytes(), ctypes.CDLL(target)
+        except OSError as exc:
+            raise CompileError(f"the library {compiler} built does not load: {exc}") from None
+
+
+def _layout(library: ctypes.CDLL, model: Model) -> tuple[int, int, int]:
+    """The lengths of x, xd and the outputs the library was generated for (``crosscheck_layout``), checked against
+    the model's (n rates, :func:`_output_size` outputs); a ValueError names a mismatch."""
+    layout = tuple((ctypes.c_long * 3).in_dll(library, "crosscheck_layout"))
+    if layout[1:] != (model.n, _output_size(model)):
+        raise ValueError(f"Euler–Lagrange: a library for {layout[1]} rates and {layout[2]} outputs, not the "
+                         f"{model.n} and {_output_size(model)} of model '{model.name}'")
+    return layout
+
+
+def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int, int, int]]:
+    """The compiled library of the model in the chart and its layout: the cached one (``<key>.so``) when it is
+    intact and loads, else compiled from :func:`cached_source`'s C and written to the cache (:func:`_write`)."""
+    path = _cache_dir() / f"{cache_key(model, chart)}.so"
+    if _intact(path):
+        try:
+            library = ctypes.CDLL(str(path))
+            return library, _layout(library, model)
+        except (OSError, ValueError):  # whole, but not loadable here (another machine's) or not this model's
+            pass
+    data, library = _build(cached_source(model, chart, "c"))
+    _write(path, _seal(data))
+    return library, _layout(library, model)
 
 
 class _ChartRef:
@@ -988,16 +1342,105 @@ def _ref(model: Model, chart: Chart | None) -> _ChartRef | None:
     return None if key == JOINT_CHART else _ChartRef(chart, key)
 
 
+def _output_size(model: Model) -> int:
+    """The number of outputs of the generated code (:data:`OUTPUTS`): M's upper triangle, C pd, g, T, phi, Jc, bias."""
+    n, k = model.n, model.k
+    return n * (n + 1) // 2 + 2 * n + 1 + k * (n + 2)
+
+
+class _Evaluator(NamedTuple):
+    """How the generated code of one model in one chart runs: ``single(x, xd)`` gives the outputs of :data:`OUTPUTS`
+    at one state as one array, ``batch(X, XD)`` those of the rows of X, XD as rows; ``entries`` is the numbers the
+    batched call holds per state (what bounds a block of :func:`split_batch`), ``description`` which evaluation this
+    is (for the interpreted one, why)."""
+
+    single: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    batch: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    entries: int
+    description: str
+
+
+def _native(model: Model, chart: Chart | None) -> _Evaluator:
+    """The compiled library (:func:`_library`) called through ctypes: one call per state, one per block of states
+    (``evaluate_batch``, row-major arrays). A ValueError names arguments of the wrong shape (the library reads
+    exactly its layout's lengths)."""
+    library, (nx, nv, size) = _library(model, chart)
+    one, many = library.evaluate, library.evaluate_batch
+    one.argtypes, one.restype = [ctypes.c_void_p] * 3, None
+    many.argtypes, many.restype = [ctypes.c_long] + [ctypes.c_void_p] * 3, None
+
+    def arguments(x, xd, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+        x, xd = np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(xd, dtype=float)
+        if x.shape != shape + (nx,) or xd.shape != shape + (nv,):
+            raise ValueError(f"Euler–Lagrange: the compiled code of model '{model.name}' takes x of shape "
+                             f"{shape + (nx,)} and xd of {shape + (nv,)}, not {x.shape} and {xd.shape}")
+        return x, xd
+
+    def single(x, xd) -> np.ndarray:
+        x, xd = arguments(x, xd, ())
+        out = np.empty(size)
+        one(x.ctypes.data, xd.ctypes.data, out.ctypes.data)
+        return out
+
+    def batch(X, XD) -> np.ndarray:
+        X, XD = arguments(X, XD, (len(X),))
+        out = np.empty((len(X), size))
+        many(len(X), X.ctypes.data, XD.ctypes.data, out.ctypes.data)
+        return out
+
+    return _Evaluator(single, batch, size, f"compiled C ({_compiler_text()})")
+
+
+def _flat(outputs) -> list:
+    """The generated Python's ``(M_upper, Cqd, g, T, phi, Jc, bias)`` as one list in that order."""
+    M_upper, Cqd, g, T, phi, Jc, bias = outputs
+    return [*M_upper, *Cqd, *g, T, *phi, *Jc, *bias]
+
+
+def _rows(values, size: int) -> np.ndarray:
+    """The outputs of the batched source (arrays with one entry per state, or numbers where an entry does not
+    depend on the state) as one (len(values), size) array."""
+    out = np.empty((len(values), size))
+    for i, v in enumerate(values):
+        out[i] = v
+    return out
+
+
+def _interpreted(model: Model, chart: Chart | None, reason: str) -> _Evaluator:
+    """The cached Python code (:func:`cached_code`) run with ``math``'s ``sin`` and ``cos`` for one state, and with
+    numpy's on columns of states (each coordinate an array with one entry per state) for a batch; the batched call
+    holds one array per local of the code."""
+    code = cached_code(model, chart)
+    scalar, columns = {"sin": math.sin, "cos": math.cos}, {"sin": np.sin, "cos": np.cos}
+    exec(code, scalar)
+    exec(code, columns)
+    one, many = scalar["evaluate"], columns["evaluate"]
+
+    def single(x, xd) -> np.ndarray:
+        return np.array(_flat(one(np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())))
+
+    def batch(X, XD) -> np.ndarray:
+        outputs = many(np.ascontiguousarray(X.T, dtype=float), np.ascontiguousarray(XD.T, dtype=float))
+        return _rows(_flat(outputs), len(X)).T
+
+    return _Evaluator(single, batch, len(many.__code__.co_varnames), f"interpreted Python ({reason})")
+
+
 @functools.lru_cache(maxsize=64)
-def _compiled(model: Model, ref: _ChartRef | None = None, batched: bool = False):
-    """``evaluate`` from the cached code (:func:`cached_code`); keyed by (model, chart key) (None: the joint chart)
-    and ``batched``: the same code run with numpy's ``sin`` and ``cos``, so that coordinates given as arrays with one
-    entry per state evaluate every state at once (an output that does not depend on the state stays a number)."""
-    namespace = {"sin": np.sin, "cos": np.cos} if batched else {"sin": math.sin, "cos": math.cos}
-    exec(cached_code(model, None if ref is None else ref.chart), namespace)
-    evaluate = namespace["evaluate"]
-    evaluate.locals = len(evaluate.__code__.co_varnames)  # the batched call holds one array per local
-    return evaluate
+def _compiled(model: Model, ref: _ChartRef | None) -> _Evaluator:
+    """The evaluation of the model's derivation in the chart (None: the joint chart), keyed by (model, chart key):
+    the compiled C (:func:`_native`) unless :func:`_no_compilation` says why not, or the C fails to compile (a
+    RuntimeWarning with the compiler's message), else the interpreted Python (:func:`_interpreted`)."""
+    chart = None if ref is None else ref.chart
+    reason = _no_compilation()
+    if reason is None:
+        try:
+            return _native(model, chart)
+        except CompileError as exc:
+            reason = f"the C did not compile: {exc}"
+            warnings.warn(f"Euler–Lagrange: model '{model.name}': {reason}; evaluating it interpreted",
+                          RuntimeWarning, stacklevel=2)
+    return _interpreted(model, chart, reason)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1021,43 +1464,37 @@ class ConstraintTerms(NamedTuple):
     bias: np.ndarray   # Jcdot pd (k), so that Jc pdd + bias = 0 (eq. 13)
 
 
+@functools.lru_cache(maxsize=None)
+def _symmetric(n: int) -> np.ndarray:
+    """For each entry ``(i, j)`` of an n x n matrix, row by row, the index of ``(min, max)`` in its upper triangle
+    listed row by row (the generated code's ``M_upper``)."""
+    upper = np.zeros((n, n), dtype=int)
+    upper[np.triu_indices(n)] = np.arange(n * (n + 1) // 2)
+    return np.triu(upper).ravel() + np.triu(upper, 1).T.ravel()
+
+
+def _unpack(model: Model, out: np.ndarray) -> tuple[Terms, ConstraintTerms]:
+    """The outputs of :data:`OUTPUTS` of one state (``out`` of one dimension) or of a stack of states (rows) as
+    :class:`Terms` and :class:`ConstraintTerms` (with a leading axis for a stack)."""
+    n, k, lead = model.n, model.k, out.shape[:-1]
+    upper, Cqd, g, T, phi, Jc, bias = np.split(out, np.cumsum([n * (n + 1) // 2, n, n, 1, k, k * n]), axis=-1)
+    return (Terms(upper[..., _symmetric(n)].reshape(lead + (n, n)), Cqd, g, T[..., 0] if lead else float(T[0])),
+            ConstraintTerms(phi, Jc.reshape(lead + (k, n)), bias))
+
+
 def evaluate(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> tuple[Terms, ConstraintTerms]:
     """The dynamics and the constraint terms at coordinates ``x`` with rates ``xd`` in ``chart`` (None: joint
-    chart), from one call of the compiled derivation. With spherical or free joints ``x`` is the state's q (nq
-    entries) and ``xd`` its v: the local chart at ``xi = 0`` (module docstring, "Group joints")."""
-    n = model.n
-    M_upper, Cqd, g, T, phi, Jc, bias = _compiled(model, _ref(model, chart))(
-        np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())
-    M = np.zeros((n, n))
-    M[np.triu_indices(n)] = M_upper
-    M = M + np.triu(M, 1).T
-    return (Terms(M, np.array(Cqd, dtype=float), np.array(g, dtype=float), float(T)),
-            ConstraintTerms(np.array(phi, dtype=float), np.array(Jc, dtype=float).reshape(len(phi), n),
-                            np.array(bias, dtype=float)))
-
-
-def _rows(values, size: int) -> np.ndarray:
-    """The outputs of the batched source (arrays with one entry per state, or numbers where an entry does not
-    depend on the state) as one (len(values), size) array."""
-    out = np.empty((len(values), size))
-    for i, v in enumerate(values):
-        out[i] = v
-    return out
+    chart), from one call of the generated code (compiled or interpreted: :func:`_compiled`). With spherical or free
+    joints ``x`` is the state's q (nq entries) and ``xd`` its v: the local chart at ``xi = 0`` (module docstring,
+    "Group joints")."""
+    return _unpack(model, _compiled(model, _ref(model, chart)).single(x, xd))
 
 
 def evaluate_batch(model: Model, X: np.ndarray, XD: np.ndarray) -> tuple[Terms, ConstraintTerms]:
     """The dynamics and the constraint terms of N joint-chart states at once (rows of ``X``, ``XD``), from one call
-    of the batched compiled derivation: ``M`` (N, n, n), ``Cqd``, ``g`` (N, n), ``T`` (N,), ``phi``, ``bias`` (N, k),
-    ``Jc`` (N, k, n)."""
-    n, N = model.n, len(X)
-    M_upper, Cqd, g, T, phi, Jc, bias = _compiled(model, None, True)(
-        np.ascontiguousarray(X.T, dtype=float), np.ascontiguousarray(XD.T, dtype=float))
-    M = np.zeros((N, n, n))
-    rows, cols = np.triu_indices(n)
-    M[:, rows, cols] = M[:, cols, rows] = _rows(M_upper, N).T
-    k = len(phi)
-    return (Terms(M, _rows(Cqd, N).T, _rows(g, N).T, _rows([T], N)[0]),
-            ConstraintTerms(_rows(phi, N).T, _rows(Jc, N).T.reshape(N, k, n), _rows(bias, N).T))
+    of the generated code (:func:`_compiled`): ``M`` (N, n, n), ``Cqd``, ``g`` (N, n), ``T`` (N,), ``phi``, ``bias``
+    (N, k), ``Jc`` (N, k, n)."""
+    return _unpack(model, _compiled(model, None).batch(X, XD))
 
 
 def evaluate_terms(model: Model, x: np.ndarray, xd: np.ndarray, chart: Chart | None = None) -> Terms:
@@ -1428,7 +1865,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     at most :data:`BATCH_BLOCK` states (fewer for a long source: :data:`BATCH_ENTRIES`)."""
     Q, QD, U = check_batch(model, Q, QD, U)
     tau = U @ model.input_map.T
-    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // _compiled(model, None, True).locals))
+    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // _compiled(model, None).entries))
     blocks = [slice(i, i + size) for i in range(0, max(len(Q), 1), size)]
     parts = [_split_block(model, Q[b], QD[b], tau[b]) for b in blocks]
     drift, ctrl, total, lam, lam_drift = (None if p[0] is None else np.concatenate(p) for p in zip(*parts))
@@ -1444,4 +1881,5 @@ FORMALISM = Formalism(
     split=split,
     split_chart=split_chart,
     split_batch=split_batch,
+    evaluation=evaluation,
 )

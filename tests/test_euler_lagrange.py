@@ -9,7 +9,8 @@
   file's own forward kinematics (scipy rotation vectors, not the backend's Rodrigues / symbolic chain rule):
   ``M = sum m Jv^T Jv + Jw^T (R I R^T) Jw`` and ``g = -sum m Jv^T gravity``; the Jacobians and the potential
   are cross-checked against each other by finite differences, so the reference is checked too.
-* The disk cache of the generated source: one file per model digest, reused without re-deriving.
+* The disk cache of the generated source: one file per model digest, reused without re-deriving (the compiled C:
+  ``test_euler_lagrange_compiled.py``).
 
 All tests here derive into a scratch cache (fixture ``fresh_derivation_cache``), so they test the current code.
 """
@@ -425,11 +426,11 @@ def test_disk_cache_writes_once_and_reloads_without_deriving(isolated_cache, mon
     # a fresh "process": the in-memory cache is gone, deriving is forbidden, the file must be read
     el._compiled.cache_clear()
 
-    def no_derivation(m):
-        raise AssertionError(f"generate_source called for '{m.name}' although its source is cached on disk")
+    def no_derivation(m, *args):
+        raise AssertionError(f"'{m.name}' derived although its code is cached on disk")
 
     with monkeypatch.context() as mp:
-        mp.setattr(el, "generate_source", no_derivation)
+        mp.setattr(el, "derivation", no_derivation)
         second = el.terms(model, q, qd)
         # a renamed copy of the same physics shares the entry (the digest ignores the name)
         renamed = cases.build_model("renamed", model.bodies, gravity=model.gravity,
@@ -456,8 +457,9 @@ def test_disk_cache_entry_is_what_the_generator_produces(isolated_cache):
 
 
 def test_compiled_code_is_cached_beside_the_source(isolated_cache, monkeypatch):
-    """A fresh process loads the compiled code object (marshal) instead of compiling the source again (most of a
-    second for a 9-joint arm); a damaged entry is compiled again and rewritten."""
+    """The interpreted evaluation: a fresh process loads the compiled code object (marshal) instead of compiling the
+    source again (most of a second for a 9-joint arm); a damaged entry is compiled again and rewritten."""
+    monkeypatch.setenv(el.COMPILE_VARIABLE, "0")
     model = cases.load("double_pendulum", m1=1.5)
     q, qd = np.array([0.3, -1.1]), np.array([0.7, 2.0])
     first = el.terms(model, q, qd)

@@ -283,9 +283,9 @@ def test_each_chart_has_its_own_cache_entry_and_is_never_served_for_another(isol
     el._compiled.cache_clear()
 
     def no_derivation(*args):
-        raise AssertionError("generate_source called although the source is cached on disk")
+        raise AssertionError("derived although the code is cached on disk")
 
-    monkeypatch.setattr(el, "generate_source", no_derivation)
+    monkeypatch.setattr(el, "derivation", no_derivation)
     for c, (p, pd), before in zip(chart_list, points, first):
         after = el.evaluate_terms(model, p, pd, c)
         for a, b in zip(before, after):

@@ -18,6 +18,7 @@ from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.report import render
 from crosscheck.sampling import sample_states
 from crosscheck.tolerance import BREAKDOWN_LIMITS
+from formalisms import euler_lagrange
 from formalisms.interface import Formalism
 
 DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"]
@@ -161,6 +162,7 @@ def test_listing_commands(capsys):
     listing = capsys.readouterr().out
     assert all(name in listing for name in
                ("euler_lagrange", "newton_euler", "screw", "operational_space", "pinocchio"))
+    assert f"evaluation: {euler_lagrange.evaluation()}\n" in listing  # compiled C, or interpreted Python and why
 
 
 def test_eval_marks_a_backend_in_breakdown(capsys):
