@@ -142,7 +142,11 @@ def cmd_formalisms(args) -> int:
     for name in backends.names():
         tag = " (external reference)" if name == backends.REFERENCE_NAME else ""
         tag = f" ({plugins[name]})" if name in plugins else tag
-        print(f"{name:{width}s}  {backends.get(name).summary}{tag}")
+        formalism = backends.get(name)
+        print(f"{name:{width}s}  {formalism.summary}{tag}")
+        evaluation = getattr(formalism, "evaluation", None)  # a plugin need not have the field
+        if evaluation is not None:
+            print(f"{'':{width}s}  evaluation: {evaluation()}")
     return 0
 
 

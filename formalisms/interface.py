@@ -308,6 +308,9 @@ class Formalism:
     returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
     ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s);
     None for a backend without one (the harness then loops over ``split``: :func:`split_batch_by_loop`).
+    ``evaluation()``, when present, says in a few words how the backend evaluates its expressions in this process,
+    and why (``"compiled C (cc -O1)"``, ``"interpreted casadi SX (no C compiler found)"``); ``crosscheck formalisms``
+    prints it. None for a backend with nothing to choose.
     """
 
     name: str
@@ -315,6 +318,7 @@ class Formalism:
     split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]
     split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
+    evaluation: Callable[[], str] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:

@@ -7,6 +7,8 @@
 
       HYPOTHESIS_PROFILE=fuzz .venv/bin/pytest tests
 
+Compilation to C is off (``CROSSCHECK_COMPILE=0``) unless the environment says otherwise.
+
 Tests that pin their own ``@settings(max_examples=...)`` keep that count under either profile.
 The shared Euler–Lagrange disk cache is keyed by the model digest, the chart and a hash of the derivation's
 source, so sharing it between runs cannot change an answer; the Euler–Lagrange test modules still derive afresh
@@ -37,6 +39,11 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+# The suite evaluates the backends' casadi Functions interpreted: compiling them to C (formalisms/geometric.py,
+# "Compiled evaluation") costs seconds per model, and the tests that check the compiled code against the interpreter
+# turn it on themselves. ``CROSSCHECK_COMPILE=1 pytest`` runs the whole suite compiled.
+os.environ.setdefault("CROSSCHECK_COMPILE", "0")
 
 
 @pytest.fixture(scope="session", autouse=True)
