@@ -213,6 +213,7 @@ def measure_scene(plan: Plan, scene: Scene, names: Sequence[str], log: Callable[
         formalism = backends.get(name)
         formalism.split(model, Qt[0], QDt[0], Ut[0])  # preparation is measured apart
         batch = batch_function(formalism)
+        batch(model, Qb, QDb, Ub)  # so is a compilation a batch of N states sets off (formalisms/geometric.py)
         single = per_call(lambda q, qd, u: formalism.split(model, q, qd, u), list(zip(Qt, QDt, Ut)), plan.min_time)
         batched = per_call(lambda: batch(model, Qb, QDb, Ub), [()], plan.min_time) / N
         aba = aba_per_call(model, Qt, QDt, plan.min_time)
