@@ -891,6 +891,8 @@ class _Compiled:
         upper[rows, cols] = upper[cols, rows] = np.arange(nu)
         self.M_index = upper                                                  # flat[M_index] = M
         self.dM_index = nu + nu * np.arange(n)[:, None, None] + upper[None]   # flat[dM_index] = dM, [k, i, j]
+        self.dM_upper_slice = slice(nu, nu + n * nu)                          # reshaped (n, nu): d_k M_upper
+        self.upper_pairs = rows, cols                                         # M_upper[u] = M[rows[u], cols[u]]
         at = nu + n * nu
         self.dV_slice, self.T_index = slice(at, at + n), at + n
         self.J_index = at + n + 1 + np.arange(k * n).reshape(n, k).T          # vec(J) is column-major
@@ -1494,16 +1496,28 @@ def _constrained_block(model: Model, Jc: np.ndarray, bias: np.ndarray, M: np.nda
     return tuple(out)
 
 
+def _first_kind_contracted(c: _Compiled, flat: np.ndarray, PD: np.ndarray) -> np.ndarray:
+    """``Gamma_{l,jk} pd^j pd^k`` (= ``M Gamma(pd, pd)``, the chart's ``C qd`` of eq. 7) of a stack of states, from the
+    upper triangles of the metric derivatives in the Function's output ``flat``, without forming the (n, n, n) symbols:
+    the first-kind formula of :func:`christoffel_first_kind` contracted with the rates, whose two first terms are equal
+    once contracted, ``(Mdot pd)_l - 1/2 pd^T (d_l M) pd`` with ``Mdot = d_k M pd^k``."""
+    rows, cols = c.upper_pairs
+    dM_upper = flat[:, c.dM_upper_slice].reshape(len(flat), PD.shape[1], rows.size)   # [state, k, upper entry]
+    Mdot = (PD[:, None, :] @ dM_upper)[:, 0, c.M_index]                     # d_k M pd^k, (N, n, n)
+    pairs = PD[:, rows] * PD[:, cols] * np.where(rows == cols, 1.0, 2.0)    # pd^i pd^j over the triangle
+    return _mv(Mdot, PD) - 0.5 * _mv(dM_upper, pairs)
+
+
 def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -> tuple:
     """``(drift, ctrl, total, lam, lam_drift)`` of a block of joint-chart states: the compiled Function mapped over the
     block, then eqs. (24)-(25) for the whole stack. ``Gamma(pd, pd) = M^-1 (Gamma_{.,jk} pd^j pd^k)``: the first-kind
-    symbols contracted with the rates, then raised by the metric (the same connection as :func:`_split`, which raises
-    every symbol first); with constraints :func:`_constrained_block`."""
+    symbols contracted with the rates (:func:`_first_kind_contracted`), then raised by the metric (the same connection
+    as :func:`_split`, which raises every symbol first); with constraints :func:`_constrained_block`."""
     c = _compiled(model, None)
     flat = c.evaluate.batch(P, PD)
-    M, dM, dV = flat[:, c.M_index], flat[:, c.dM_index], flat[:, c.dV_slice]
+    M, dV = flat[:, c.M_index], flat[:, c.dV_slice]
     L = _stack_cholesky(M, lambda j: _metric_factor(model, None, M[j], P[j]))
-    Cqd = _mv((christoffel_first_kind(dM) @ PD[:, None, :, None])[..., 0], PD)   # M Gamma(pd, pd) (eq. 7)
+    Cqd = _first_kind_contracted(c, flat, PD)                                # M Gamma(pd, pd) (eq. 7)
     if model.constraints:
         return _constrained_block(model, flat[:, c.Jc_index], flat[:, c.Jc_bias_slice], M, L, Cqd, dV, P, tau)
     gamma_pdpd, grad_V, ctrl, forced = np.moveaxis(_stack_cho_solve(L, np.stack([Cqd, dV, tau, tau - dV], -1)), -1, 0)
