@@ -1423,8 +1423,9 @@ def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
 
 # ------------------------------------------------------------------------------------------------------- batches
 
-#: States per block of :func:`split_batch`, at most; a block's (block, n, n, n) metric derivatives and the Function's
-#: output have at most ``BATCH_ENTRIES`` numbers each (16 MB), so the memory stays bounded for long chains too.
+#: States per block of :func:`split_batch`, at most; a block's Function output (its largest array: the metric
+#: derivatives' upper triangles, ``n^2 (n + 1) / 2`` numbers a state) has at most ``BATCH_ENTRIES`` numbers (16 MB), so
+#: the memory stays bounded for long chains too.
 BATCH_BLOCK = 2048
 BATCH_ENTRIES = 2 ** 21
 
@@ -1529,7 +1530,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     (fewer for a long chain: :data:`BATCH_ENTRIES`), each by :func:`_split_block`."""
     Q, QD, U = check_batch(model, Q, QD, U)
     tau = U @ model.input_map.T
-    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // max(model.n ** 3, _compiled(model, None).evaluate.size)))
+    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // _compiled(model, None).evaluate.size))
     blocks = [slice(i, i + size) for i in range(0, max(len(Q), 1), size)]
     parts = [_split_block(model, Q[b], QD[b], tau[b]) for b in blocks]
     drift, ctrl, total, lam, lam_drift = (None if p[0] is None else np.concatenate(p) for p in zip(*parts))
