@@ -188,9 +188,9 @@ then on, one C call per state or per block of states. The C is written here from
 (:func:`_c_source`): one statement per SX instruction on casadi's work vector, in casadi's order, with the products
 and sums never fused (``-ffp-contract=off``), so the compiled code does the interpreter's arithmetic operation for
 operation; it is cut into functions of :data:`C_PART` statements, because the compiler's time grows faster than the
-size of one function (casadi's own ``Function.generate`` writes a single one, which took 16 s of CPU at -O1 for the
-panda's 40k instructions on the development machine, against 8-10 s in parts, where the time stays proportional to
-the instructions). The shared library is cached
+size of one function (measured at -O1 on the panda's 40k instructions: 43 s of CPU as one function, 14 s in parts of
+1000, 8 s in parts of 100 to 250; casadi's own ``Function.generate``, one function, 16 s), while the code runs as
+fast. The shared library is cached
 on disk (``$CROSSCHECK_CACHE/geometric``, else ``~/.cache/crosscheck/geometric``) under a digest of the C and the
 compiler command, so code derived differently (a fault injected, another chart) is never served for it, and with a
 digest of its bytes beside it: a file that does not match, or does not load, is compiled again; a cache that cannot
@@ -616,13 +616,13 @@ COMPILE_AFTER = 1000
 COMPILE_ENV = "CROSSCHECK_COMPILE"
 #: The compilers looked for on the PATH, in order.
 COMPILERS = ("cc", "gcc")
-#: Compiler flags. -O1: the generated code runs 5-20 times faster than the interpreter; -O2 takes half as long again
-#: to compile for no steady gain on this code. No fused multiply-adds (``-ffp-contract=off``): the compiled code
-#: rounds exactly as the interpreter does.
+#: Compiler flags. -O1: the panda's Function runs 20 times faster than in the interpreter; -O2 takes half as long
+#: again to compile and runs no faster, -O0 runs no faster than the interpreter. No fused multiply-adds
+#: (``-ffp-contract=off``): the compiled code rounds exactly as the interpreter does.
 C_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")
 #: SX instructions per C function of the generated code (module docstring: the compiler's time grows faster than a
 #: function's size, so the code is cut into parts).
-C_PART = 1000
+C_PART = 200
 
 #: C of each casadi operation the Functions are made of (``{0}``, ``{1}`` the operands); any other operation leaves the
 #: Function interpreted. ``2.*x`` and ``x*x`` are what casadi's virtual machine computes for ``OP_TWICE`` and ``OP_SQ``.
