@@ -725,11 +725,12 @@ def evaluation() -> str:
     reason = _interpreted_reason()
     if reason is not None:
         return f"interpreted casadi SX ({reason})"
-    return (f"compiled C ({Path(_compiler()).name} {C_FLAGS[0]}) from a model's {COMPILE_AFTER}th state on, "
+    return (f"compiled C ({Path(_compiler()).name} {C_FLAGS[0]}) once a model has had {COMPILE_AFTER} states, "
             "interpreted casadi SX before")
 
 
 def _cache_dir() -> Path:
+    """Where the compiled libraries are kept: ``$CROSSCHECK_CACHE/geometric``, else under the user's cache."""
     root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
     return Path(root) / "geometric"
@@ -763,7 +764,8 @@ def _cached(path: Path, outputs: int) -> _Library | None:
 
 def _build(source: str, command: list[str], path: Path, outputs: int) -> _Library:
     """Compile ``source`` with ``command`` in a scratch directory, load it, and cache it at ``path`` with the digest of
-    its bytes (the loaded library outlives the scratch file). CalledProcessError or OSError when it fails."""
+    its bytes (the loaded library outlives the scratch file). CalledProcessError, OSError or AttributeError (no entry
+    point) when it fails."""
     with tempfile.TemporaryDirectory(prefix="crosscheck-geometric-") as scratch:
         c_file, library_file = Path(scratch) / "geometric.c", Path(scratch) / "geometric.so"
         c_file.write_text(source)
