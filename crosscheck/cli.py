@@ -23,14 +23,17 @@ from cases import configuration
 from cases.model import ModelError
 from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
-from crosscheck import diagnosis, junit, preflight, registry
+from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import KNOWN, worst_of
+from crosscheck.progress import Display
 from crosscheck.report import render
 from formalisms import UnknownFormalism
 from formalisms.interface import ModelNotSupported, StateError
 
 DEFAULT_REPORT = "reports/gate.md"
+#: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED = 130
 
 
 class UsageError(Exception):
@@ -129,6 +132,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
 
 
+def add_quiet_option(parser: argparse.ArgumentParser) -> None:
+    """``--quiet`` on a long-running subcommand: no progress display and no progress lines on stderr (CI logs)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress on stderr (the bar on a terminal, the per-step lines elsewhere)")
+
+
 def cmd_cases(args) -> int:
     for info in cases.catalog():
         params = ", ".join(f"{k}={v}" for k, v in info.parameters.items()) or "no parameters"
@@ -185,18 +194,20 @@ def cmd_gate(args) -> int:
     report = preflight.claim_output(args.report, "report", placeholder)
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
-
-    def progress(case, done):
-        if done == args.samples:
-            print(f"  {case}: {done} states evaluated", file=sys.stderr)
-
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test)
-    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers,
-                      required=_required(args))
+    with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
+        try:
+            result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
+                              workers=args.workers, required=_required(args))
+        except gate.Interrupted as stop:
+            result = stop.result
     applied = registry.apply(known, result) if known else None
-    diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
+    if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
+        report.write_text(render(result, command, applied))
+        return _interrupted(f"{result.interrupted}; partial report written to {report}")
+    diagnosis.annotate(result, chosen)
     report.write_text(render(result, command, applied))
     if args.junit:
         junit.write(result, args.junit)
@@ -232,6 +243,28 @@ def cmd_gate(args) -> int:
               "canaries caught and named", file=sys.stderr)
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
+
+
+def _gate_progress(display: Display):
+    """The gate's progress callback (``crosscheck.gate.Step``) on ``display``: the states evaluated over every case,
+    what runs now, and a line per case evaluated."""
+    finished = 0
+
+    def progress(step: gate.Step) -> None:
+        nonlocal finished
+        if step.phase == gate.DONE:
+            finished += step.done
+            display.note(f"  {step.text}")
+        display.update(completed=finished + (0 if step.phase == gate.DONE else step.done))
+        display.doing(step.text)
+
+    return progress
+
+
+def _interrupted(detail: str = "") -> int:
+    """Ctrl-C: one line on stderr (``detail``: where the run stopped, what it left behind); exit code 130."""
+    print("crosscheck: interrupted" + (f" {detail}" if detail else ""), file=sys.stderr)
+    return INTERRUPTED
 
 
 def _jsonable(value):
@@ -660,6 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                       help="cases run in this many processes (default: the number of CPUs; 1: in this process)")
     add_plugin_option(gate)
+    add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
 
     ev = sub.add_parser("eval", help="evaluate the backends at one state")
@@ -795,6 +829,8 @@ def _main(argv: list[str] | None) -> int:
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:   # a command without a partial report of its own, or a second Ctrl-C
+        return _interrupted()
 
 
 if __name__ == "__main__":
