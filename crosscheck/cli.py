@@ -533,21 +533,22 @@ def cmd_faults(args) -> int:
     known = _registry(args)
     report = preflight.claim_output(args.report, "report", "# crosscheck faults\n\nThe run writing this report "
                                     "has not finished (interrupted or failed).\n")
+    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     start = time.perf_counter()
     hunts, shared_hunts = [], []
-    for fault in chosen:
-        hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known))
-        print(faults.line(hunts[-1]), flush=True)
-    for fault in shared:
-        shared_hunts.append(common_mode.hunt(fault, samples=args.samples, seed=args.seed, known=known))
-        print(common_mode.line(shared_hunts[-1]), flush=True)
-    table = None
-    if args.sensitivity_states and not args.fault:
-        table = sensitivity.run(faults.default_backends(), args.sensitivity_states, args.seed,
-                                lambda line: print(line, file=sys.stderr, flush=True))
+    with Display("faults", "faults", len(chosen) + len(shared), quiet=args.quiet) as display:
+        try:
+            _hunt_faults(args, chosen, shared, known, display, hunts, shared_hunts)
+            table = _sensitivity(args, display)
+        except KeyboardInterrupt:
+            done = len(hunts) + len(shared_hunts)
+            where = ("during the sensitivity table (every fault hunted)" if done == len(chosen) + len(shared)
+                     else f"after {done}/{len(chosen) + len(shared)} faults")
+            report.write_text(faults.render(hunts, command, time.perf_counter() - start, args.samples, args.seed,
+                                            where) + common_mode.render(shared_hunts))
+            return _interrupted(f"{where}; partial report written to {report}")
     seconds = time.perf_counter() - start
     summary = faults.summarize(hunts)
-    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed)
                       + common_mode.render(shared_hunts) + ("\n".join(sensitivity.render(table)) if table else ""))
     missed = sum(not h.caught for h in shared_hunts)
@@ -558,6 +559,48 @@ def cmd_faults(args) -> int:
           f"{len(shared_hunts)}" + ("" if table is None else f"; 3-D sensitivity claim {'met' if claim else 'NOT met'}")
           + f"; {seconds:.1f} s; report written to {report}")
     return 0 if summary.caught == summary.faults and not missed and claim else 1
+
+
+def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list) -> None:
+    """Hunt each backend fault, then each common-mode fault, with the default gate (``crosscheck.faults``,
+    ``crosscheck.common_mode``), appending to ``hunts`` and ``shared_hunts`` as each ends (so that an interrupted run
+    keeps them); a line per fault on stdout."""
+    from crosscheck import common_mode, faults
+
+    for fault in chosen:
+        hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known,
+                                 progress=_hunting(display, fault.name)))
+        print(faults.line(hunts[-1]), flush=True)
+        display.advance()
+    for fault in shared:
+        shared_hunts.append(common_mode.hunt(fault, samples=args.samples, seed=args.seed, known=known,
+                                             progress=_hunting(display, fault.name)))
+        print(common_mode.line(shared_hunts[-1]), flush=True)
+        display.advance()
+
+
+def _hunting(display: Display, fault: str):
+    """A hunt's progress callback: the fault and the state under evaluation, on ``display``."""
+    return lambda case, index: display.doing(f"{fault}: {case} state #{index}")
+
+
+def _sensitivity(args, display: Display):
+    """The sensitivity table (``crosscheck.sensitivity``), None when skipped (``--sensitivity-states 0`` or
+    ``--fault``); a line per backend and term measured."""
+    from crosscheck import faults, sensitivity
+
+    if not args.sensitivity_states or args.fault:
+        return None
+    chosen = faults.default_backends()
+    display.stage("sensitivity terms", len([b for b in chosen if b.name in sensitivity.TERM_HOOKS])
+                  * len(sensitivity.TERMS))
+    display.doing("sensitivity: the smallest error each check catches")
+
+    def measured(line: str) -> None:
+        display.note(line)
+        display.advance()
+
+    return sensitivity.run(chosen, args.sensitivity_states, args.seed, measured)
 
 
 def _shard(text: str) -> tuple[int, int]:
@@ -738,6 +781,7 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    add_quiet_option(hunt)
     hunt.set_defaults(run=cmd_faults)
 
     fz = sub.add_parser("fuzz", help="fuzzing campaign: random models and states, failures shrunk and saved")
