@@ -629,11 +629,14 @@ def cmd_fuzz(args) -> int:
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation, **bound)
-        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
+        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
     print(fuzz.summary(result))
-    return 130 if result.interrupted else (1 if result.findings else 0)
+    if result.interrupted:
+        return _interrupted("(the chunks in flight saved what they held); report written to "
+                            f"{result.out / 'report.md'}; the same command again resumes the campaign")
+    return 1 if result.findings else 0
 
 
 def cmd_replay(args) -> int:
@@ -807,6 +810,7 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--no-frames", action="store_true", help="skip the frame invariance checks")
     fz.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
     add_plugin_option(fz)
+    add_quiet_option(fz)
     fz.set_defaults(run=cmd_fuzz)
 
     rp = sub.add_parser("replay", help="evaluate a saved fuzzing finding again")
