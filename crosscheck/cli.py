@@ -694,13 +694,33 @@ def cmd_bench(args) -> int:
     names = args.formalism or None
     for name in names or []:
         backends.get(name)
-    results = bench.run(plan, names, getattr(args, "plugin", []),
-                        log=lambda line: print(line, file=sys.stderr, flush=True))
-    print(f"speed and accuracy: {bench_report.write(results, Path(args.out))}")
-    if not args.no_stability:
-        from crosscheck import stability
-        print(f"stability: {stability.write_report(Path(args.out), quick=args.quick)}")
+    with Display("bench", "steps", bench.steps(plan, names or backends.names()), quiet=args.quiet) as display:
+        try:
+            results = bench.run(plan, names, getattr(args, "plugin", []), display)
+        except bench.Interrupted as stop:
+            path = bench_report.write(stop.results, Path(args.out), stop.where)
+            return _interrupted(f"while {stop.where}; partial report written to {path}")
+        speed = bench_report.write(results, Path(args.out))
+        print(f"speed and accuracy: {speed}")
+        if not args.no_stability:
+            try:
+                print(f"stability: {_stability_maps(args.out, args.quick, display)}")
+            except KeyboardInterrupt:
+                return _interrupted(f"during the stability maps; {speed} is complete, stability.md not updated")
     return 0
+
+
+def _stability_maps(out: str, quick: bool, display: Display) -> Path:
+    """The stability maps (``crosscheck.stability``), a step on ``display`` per point; the report's path."""
+    from crosscheck import stability
+
+    display.stage("stability points", sum(len(p.points) for p in stability.paths(quick, backends.names())))
+
+    def measured(path: str, done: int, count: int) -> None:
+        display.advance()
+        display.doing(f"stability: {path} {done}/{count}")
+
+    return stability.write_report(Path(out), quick=quick, progress=measured)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -831,6 +851,7 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
     add_plugin_option(bn)
+    add_quiet_option(bn)
     bn.set_defaults(run=cmd_bench)
 
     st = sub.add_parser("stability", help="true errors and condition numbers along paths into trouble "
