@@ -1,6 +1,7 @@
 """The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench.
 
-Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage.
+Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
+one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report).
 """
 
 from __future__ import annotations
