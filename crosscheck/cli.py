@@ -870,8 +870,11 @@ BLAS_THREADS = 1
 
 
 def _notice(message, category, filename, lineno, file=None, line=None) -> None:
-    """A loader's notice (``cases.urdf.BaseNotice``) as one line; other warnings as Python prints them."""
-    if issubclass(category, cases.urdf.BaseNotice):
+    """A loader's notice (``cases.urdf.BaseNotice``) or the gate's (``gate.PreparationNotice``) as one line; other
+    warnings as Python prints them."""
+    from crosscheck.gate import PreparationNotice
+
+    if issubclass(category, (cases.urdf.BaseNotice, PreparationNotice)):
         print(f"crosscheck: notice: {message}", file=sys.stderr if file is None else file)
     else:
         _show_warning(message, category, filename, lineno, file, line)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import pickle
 import signal
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -373,6 +374,7 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     tell = progress or _ignore
     tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
+    announce_preparation(setup, backends)
     states = sample_states(setup.model, samples, seed, spec.name)
     outcomes: list[StateOutcome] = []
 
@@ -388,6 +390,41 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
         raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
     at(DONE)
     return _case_outcome(setup, outcomes, clock, coverage_of.measure(setup.model, states), checks)
+
+
+#: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
+PREPARATION_NOTICE_S = 20.0
+
+
+class PreparationNotice(UserWarning):
+    """A backend's one-off preparation of a case (a symbolic derivation, a compilation) will take long: shown before it
+    starts, with the estimate and the ways around it."""
+
+
+def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
+    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart, each sampled chart
+    and each moved scene (a moved model is another model to prepare); 0 for a backend without an estimate."""
+    if backend.preparation is None:
+        return 0.0
+    model = setup.model
+    try:
+        return (backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
+                + sum(backend.preparation(moved, None) for _, moved in setup.scenes))
+    except ModelNotSupported:
+        return 0.0
+
+
+def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> None:
+    """Warn (:class:`PreparationNotice`) before a case whose preparation by some backend is estimated above
+    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it."""
+    for backend in backends:
+        seconds = preparation_seconds(setup, backend)
+        if seconds > PREPARATION_NOTICE_S:
+            warnings.warn(PreparationNotice(
+                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart, "
+                f"{len(setup.charts)} chart(s) and {len(setup.scenes)} moved scene(s) takes about {seconds:.0f} s of "
+                "CPU before its first answers (once: then cached on disk); --no-charts and --frames 0 leave out "
+                "the charts and the moved scenes, --formalism (naming the others) leaves it out"), stacklevel=2)
 
 
 def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,

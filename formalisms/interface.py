@@ -308,6 +308,8 @@ class Formalism:
     returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
     ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s);
     None for a backend without one (the harness then loops over ``split``: :func:`split_batch_by_loop`).
+    ``preparation(model, chart)``, when present, estimates the CPU seconds of the one-off work before the first answer
+    on ``model`` in ``chart`` (None: the joint chart), 0 when it is cached: a symbolic derivation, a compilation.
     """
 
     name: str
@@ -315,6 +317,7 @@ class Formalism:
     split: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Split]
     split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
+    preparation: Callable[[Model, "Chart | None"], float] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:
