@@ -30,9 +30,9 @@ def _kinetic_energy_doubled(energies):
     return faulty
 
 
-def _christoffel_sign_on_wrong_term(first):
-    # first(dm, i, j, k) = 1/2 (A + B - C) with A = dM_ij/dp_k, B = dM_ik/dp_j, C = dM_jk/dp_i; faulty: 1/2 (B + C - A)
-    return lambda dm, i, j, k: first(dm, i, j, k) + dm(j, k, i) - dm(i, j, k)
+def _lagrange_dT_dq_sign(velocity_product):
+    """Lagrange's equation with the sign of ``dT/dq`` flipped: ``C qd = d/dt (dT/dqd) + dT/dq``."""
+    return lambda st, T, momentum, i: st.dt(momentum) + st.diff(T, i)
 
 
 def _com_unrotated(com):
@@ -41,19 +41,19 @@ def _com_unrotated(com):
     return lambda R, p, offset: com(symengine.eye(3), p, offset)
 
 
-def _chart_jacobian_constant(derivative_of):
-    """``_Staged._derivative_of`` returning 0 for the derivatives of the chart Jacobian's entries
-    ``Dpsi_kj = dq_k/dp_j`` (the named derivatives of the named ``q_k = psi_k(p)``)."""
+def _chart_jacobian_constant(rate_of):
+    """``_Staged._rate_of`` returning 0 for the time derivative of the joint rates ``qd_k = Dpsi_k pd`` (the named
+    rates of the named ``q_k = psi_k(p)``), as if Dpsi were constant along the motion."""
     import symengine
 
-    def faulty(self, s, k):
-        jacobian = self.__dict__.setdefault("fault_dpsi", set())     # this derivation's Dpsi_kj, as they appear
-        if s in jacobian:
+    def faulty(self, s):
+        rates = self.__dict__.setdefault("fault_joint_rates", set())  # this derivation's qd_k, as they appear
+        if s in rates:
             return symengine.Integer(0)
-        derivative = derivative_of(self, s, k)
-        if s in self.joint:
-            jacobian.add(derivative)
-        return derivative
+        rate = rate_of(self, s)
+        if s in self.joint and not rate.is_Number:
+            rates.add(rate)
+        return rate
     return faulty
 
 
@@ -67,18 +67,18 @@ EULER_LAGRANGE = [
           "J = 1/2 tr(I) 1 - I.",
           "formalisms.euler_lagrange:_pseudo_inertia", lambda f: lambda inertia: np.array(inertia, dtype=float),
           derived=True),
-    Fault("el-christoffel-index-order", EL,
-          "The Christoffel symbols of the first kind have the minus sign on the wrong term: "
-          "Gamma_i,jk = 1/2 (d_j M_ik + d_i M_jk - d_k M_ij) instead of 1/2 (d_k M_ij + d_j M_ik - d_i M_jk).",
-          "formalisms.euler_lagrange:_christoffel_first", _christoffel_sign_on_wrong_term, derived=True),
+    Fault("el-lagrange-dtdq-sign", EL,
+          "Lagrange's equation with the sign of dT/dq flipped: C qd = d/dt (dT/dqd) + dT/dq instead of "
+          "d/dt (dT/dqd) - dT/dq.",
+          "formalisms.euler_lagrange:_velocity_product", _lagrange_dT_dq_sign, derived=True),
     Fault("el-com-offset-unrotated", EL,
           "The COM offset is added in the world frame (c = p + com) instead of being rotated with the body "
           "(c = p + R com).",
           "formalisms.euler_lagrange:_com", _com_unrotated, derived=True),
     Fault("el-chart-jacobian-constant", EL,
-          "In a chart q = psi(p) the chain rule treats Dpsi as constant, so the (d/dt Dpsi) pd terms drop out of "
-          "the chart's C_p pd (and of Jcdot pd).",
-          "formalisms.euler_lagrange:_Staged._derivative_of", _chart_jacobian_constant, derived=True),
+          "In a chart q = psi(p) the time derivative of the joint rates qd = Dpsi pd treats Dpsi as constant, so the "
+          "(d/dt Dpsi) pd terms drop out of the chart's C_p pd (and of Jcdot pd).",
+          "formalisms.euler_lagrange:_Staged._rate_of", _chart_jacobian_constant, derived=True),
     Fault("el-constrained-drift-with-input", EL,
           "The constrained drift (ZTCF) and lam_drift are solved with the input applied: the u = 0 right-hand "
           "side of the KKT system is B u - h.",

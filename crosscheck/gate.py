@@ -7,12 +7,18 @@ frame (state ``i`` in sampled frame ``i mod frames``) or break conservation (``c
 Each backend runs once per state and scene (joint chart, each chart, the moved scene); the tolerance scales of the
 trusted joint-chart splits are computed once per state and shared by every check. ``run_gate(..., workers=W)``
 runs the cases in W spawned processes with the same outcomes, in case order.
+
+``run_gate(..., progress=...)`` tells a progress display where the run is (:class:`Step`: the case, the states
+evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends the run with :class:`Interrupted`, which carries the
+partial result: every state evaluated until then, marked as interrupted, never passing.
 """
 
 from __future__ import annotations
 
 import pickle
+import signal
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -22,6 +28,7 @@ from crosscheck import charts as chart_catalog
 from crosscheck import conditioning, conservation, frames, invariance
 from crosscheck import coverage as coverage_of
 from crosscheck import tolerance as tolerance_policy
+from crosscheck import workers as worker_processes
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.compare import DISAGREE, Comparison, backend_of, compare, worst_of
 from crosscheck.sampling import State, sample_states
@@ -138,7 +145,8 @@ class CaseOutcome:
 class GateResult:
     """A gate run. ``required`` are the backends named on the command line without ``--optional``: each must take
     part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
-    ``self_test`` the canaries' outcome (``crosscheck.selftest``), None when skipped."""
+    ``self_test`` the canaries' outcome (``crosscheck.selftest``), None when skipped; ``interrupted``, for a run
+    ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise."""
 
     seed: int
     samples: int
@@ -147,6 +155,7 @@ class GateResult:
     checks: Checks = Checks()
     required: tuple[str, ...] = ()
     self_test: object = None
+    interrupted: str = ""
 
     @property
     def absent(self) -> tuple[str, ...]:
@@ -156,33 +165,116 @@ class GateResult:
 
     @property
     def passed(self) -> bool:
-        return (not any(c.failed for c in self.cases) and not self.absent
+        """Whether the run finished and nothing failed (an interrupted run never passes)."""
+        return (not self.interrupted and not any(c.failed for c in self.cases) and not self.absent
                 and (self.self_test is None or self.self_test.passed))
 
 
-def run_backends(model: Model, state: State, backends: Sequence[Formalism],
-                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_gate`: ``result`` is the partial run, every state evaluated until then, with
+    ``result.interrupted`` saying where it stopped."""
+
+    def __init__(self, result: GateResult):
+        super().__init__(f"gate interrupted {result.interrupted}")
+        self.result = result
+
+
+class _CaseInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_case`: ``case`` holds the states evaluated until then."""
+
+    def __init__(self, case: CaseOutcome):
+        super().__init__(f"case {case.spec.name} interrupted")
+        self.case = case
+
+
+#: :attr:`Step.phase` besides ``"preparing <backend>"``.
+SETTING_UP = "setting up (model, charts, frames, states)"
+EVALUATING = "evaluating"
+IN_WORKER = "running in a worker process"
+DONE = "done"
+SELF_TEST = "self-test canaries"
+
+
+@dataclass(frozen=True)
+class Step:
+    """Where a gate run is, for a progress display: ``done`` of the ``states`` states of case ``case`` evaluated, and
+    what runs now (``phase``): :data:`SETTING_UP`; :data:`EVALUATING` state ``done + 1``; ``"preparing <backend>"``
+    (that state includes the backend's first call on the case, with its one-off preparation: symbolic derivation,
+    compilation); :data:`IN_WORKER` (a worker process reports only the case's end); :data:`DONE`; after the cases
+    :data:`SELF_TEST` (``case`` empty)."""
+
+    case: str
+    done: int
+    states: int
+    phase: str
+
+    @property
+    def text(self) -> str:
+        """The step in words: "panda: evaluating state 38/100", "panda: preparing euler_lagrange"."""
+        if not self.case:
+            return self.phase
+        if self.phase == DONE:
+            return f"{self.case}: {self.done} states evaluated"
+        if self.phase == EVALUATING:
+            return f"{self.case}: evaluating state {self.done + 1}/{self.states}"
+        return f"{self.case}: {self.phase}"
+
+
+def _ignore(step: Step) -> None:
+    """No progress display."""
+
+
+@dataclass
+class Clock:
+    """Seconds of each backend's calls on one case, in call order (the first includes one-off preparation: symbolic
+    derivation, compilation). ``preparing``, when set, is called with a backend's name before its first call and
+    with None once that call is over."""
+
+    calls: dict[str, list[float]] = field(default_factory=dict)
+    preparing: Callable[[str | None], None] | None = None
+
+    def timed(self, name: str, call: Callable[[], Split]) -> Split:
+        """``call()``, timed as backend ``name``'s."""
+        first = name not in self.calls and self.preparing is not None
+        if first:
+            self.preparing(name)
+        start = time.perf_counter()
+        try:
+            return call()
+        finally:
+            self.calls.setdefault(name, []).append(time.perf_counter() - start)
+            if first:
+                self.preparing(None)
+
+    def first(self) -> dict[str, float]:
+        return {name: times[0] for name, times in self.calls.items()}
+
+    def per_state(self) -> dict[str, float]:
+        """Mean seconds of the calls after the first (the first when there is no other)."""
+        return {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0])
+                for name, times in self.calls.items()}
+
+
+def run_backends(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None
+                 ) -> StateOutcome:
     """Every backend's split at ``state``, the errors they raised and the backends in BREAKDOWN, without the
     comparisons (what a moved scene needs: :func:`add_checks`). A backend raising ``ModelNotSupported`` is in
     neither ``splits`` nor ``errors``."""
     splits: dict[str, Split] = {}
     errors: dict[str, str] = {}
+    clock = clock or Clock()
     for backend in backends:
-        start = time.perf_counter()
         try:
-            splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
+            splits[backend.name] = clock.timed(backend.name, lambda: backend.split(model, state.q, state.qd, state.u))
         except ModelNotSupported:
             pass
         except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
             errors[backend.name] = f"{type(exc).__name__}: {exc}"
-        if clock is not None:
-            clock.setdefault(backend.name, []).append(time.perf_counter() - start)
     breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
     return StateOutcome(state, splits, errors, {}, breakdowns)
 
 
-def evaluate(model: Model, state: State, backends: Sequence[Formalism],
-             clock: dict[str, list[float]] | None = None) -> StateOutcome:
+def evaluate(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
     """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table.
 
     A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
@@ -266,8 +358,7 @@ class CaseSetup:
         """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
         return self.scenes[state.index % len(self.scenes)] if self.scenes else None
 
-    def evaluate(self, state: State, backends: Sequence[Formalism],
-                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+    def evaluate(self, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
         """Everything the gate does at one state: the comparisons (:func:`evaluate`) among ``backends`` and the case's
         own voters (its closed form), and the checks (:func:`add_checks`)."""
         backends = [*backends, *self.voters]
@@ -277,20 +368,71 @@ class CaseSetup:
 
 
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+    """The case's ``samples`` seeded states, each evaluated (:meth:`CaseSetup.evaluate`); ``progress`` is told
+    every :class:`Step`. Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
+    tell = progress or _ignore
+    tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
-    clock: dict[str, list[float]] = {}
-    outcomes = []
+    announce_preparation(setup, backends)
     states = sample_states(setup.model, samples, seed, spec.name)
-    for state in states:
-        outcomes.append(setup.evaluate(state, backends, clock))
-        if progress:
-            progress(spec.name, state.index + 1)
-    first = {name: times[0] for name, times in clock.items()}
-    rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
-    return CaseOutcome(spec, setup.model, outcomes, first, rest, tuple(c.name for c in setup.charts),
-                       tuple(frame for frame, _ in setup.scenes), coverage_of.measure(setup.model, states),
-                       _closed_form_coverage(spec, checks))
+    outcomes: list[StateOutcome] = []
+
+    def at(phase: str) -> None:
+        tell(Step(spec.name, len(outcomes), len(states), phase))
+
+    clock = Clock(preparing=lambda name: at(EVALUATING if name is None else f"preparing {name}"))
+    try:
+        for state in states:
+            at(EVALUATING)
+            outcomes.append(setup.evaluate(state, backends, clock))
+    except KeyboardInterrupt:
+        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
+    at(DONE)
+    return _case_outcome(setup, outcomes, clock, coverage_of.measure(setup.model, states), checks)
+
+
+#: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
+PREPARATION_NOTICE_S = 20.0
+
+
+class PreparationNotice(UserWarning):
+    """A backend's one-off preparation of a case (a symbolic derivation, a compilation) will take long: shown before it
+    starts, with the estimate and the ways around it."""
+
+
+def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
+    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart, each sampled chart
+    and each moved scene (a moved model is another model to prepare); 0 for a backend without an estimate."""
+    if backend.preparation is None:
+        return 0.0
+    model = setup.model
+    try:
+        return (backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
+                + sum(backend.preparation(moved, None) for _, moved in setup.scenes))
+    except ModelNotSupported:
+        return 0.0
+
+
+def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> None:
+    """Warn (:class:`PreparationNotice`) before a case whose preparation by some backend is estimated above
+    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it."""
+    for backend in backends:
+        seconds = preparation_seconds(setup, backend)
+        if seconds > PREPARATION_NOTICE_S:
+            warnings.warn(PreparationNotice(
+                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart, "
+                f"{len(setup.charts)} chart(s) and {len(setup.scenes)} moved scene(s) takes about {seconds:.0f} s of "
+                "CPU before its first answers (once: then cached on disk); --no-charts and --frames 0 leave out "
+                "the charts and the moved scenes, --formalism (naming the others) leaves it out"), stacklevel=2)
+
+
+def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
+                  coverage: coverage_of.Coverage | None, checks: Checks) -> CaseOutcome:
+    """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case)."""
+    return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
+                       tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
+                       _closed_form_coverage(setup.spec, checks))
 
 
 def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
@@ -305,7 +447,7 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks(),
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
              workers: int = 0, required: Sequence[str] = ()) -> GateResult:
     """Run the gate over the cases; the result passes when no state shows a disagreement or an error, no case's
     sample is degenerate (``crosscheck.coverage``), every ``required`` backend took part in some comparison and the
@@ -314,18 +456,42 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
     outcomes are the same as in this process and come back in case order, so the report is too (its timings
     apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
-    run in this process. ``progress`` is then called once per case, when its outcome is in."""
+    run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
+    of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
+    tell = progress or _ignore
     count = min(workers, len(specs))
-    if count > 1 and _picklable(backends):
-        outcomes = _in_pool(specs, backends, samples, seed, progress, checks, count)
-    else:
-        outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
-    self_test = None
-    if checks.self_test:
-        from crosscheck import selftest
+    pooled = count > 1 and _picklable(backends)
+    outcomes: list[CaseOutcome] = []
+    result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
+    try:
+        if pooled:
+            _in_pool(specs, backends, samples, seed, tell, checks, count, outcomes)
+        else:
+            for spec in specs:
+                outcomes.append(run_case(spec, backends, samples, seed, tell, checks))
+        if checks.self_test:
+            from crosscheck import selftest
 
-        self_test = selftest.run()
-    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required), self_test)
+            tell(Step("", 0, 0, SELF_TEST))
+            result.self_test = selftest.run()
+    except KeyboardInterrupt as exc:
+        result.interrupted = _where(exc, specs, samples, outcomes, pooled)
+        raise Interrupted(result) from None
+    return result
+
+
+def _where(exc: KeyboardInterrupt, specs: Sequence[CaseSpec], samples: int, outcomes: list[CaseOutcome],
+           pooled: bool) -> str:
+    """Where a run stopped, in words; a case interrupted part way joins ``outcomes`` with the states it evaluated."""
+    if isinstance(exc, _CaseInterrupted):
+        outcomes.append(exc.case)
+        return f"after {len(exc.case.states)}/{samples} states of case '{exc.case.spec.name}'"
+    if len(outcomes) == len(specs):
+        return "during the self-test (every case evaluated)"
+    if pooled:
+        return (f"after {len(outcomes)}/{len(specs)} cases (run in worker processes: the cases in flight are not "
+                "in the report)")
+    return f"after 0/{samples} states of case '{specs[len(outcomes)].name}' (setting it up)"
 
 
 def _picklable(backends: Sequence[Formalism]) -> bool:
@@ -341,10 +507,12 @@ _LIMITS = None
 
 
 def _init_worker(chosen: list[Formalism], plugins: Sequence[str]) -> None:
-    """A worker process: one BLAS thread, the parent's plugins, the backends of the run."""
+    """A worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread, the parent's plugins, the
+    backends of the run."""
     global _LIMITS
     from threadpoolctl import threadpool_limits
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _LIMITS = threadpool_limits(limits=1, user_api="blas")
     load_plugins(plugins)
     _BACKENDS[:] = chosen
@@ -355,19 +523,23 @@ def _worker_case(spec: CaseSpec, samples: int, seed: int, checks: Checks) -> Cas
 
 
 def _in_pool(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None, checks: Checks, workers: int) -> list[CaseOutcome]:
+             tell: Callable[[Step], None], checks: Checks, workers: int, outcomes: list[CaseOutcome]) -> None:
     """The cases in ``workers`` spawned processes, the largest models (most coordinates) first so that no worker
-    is left with a large case at the end; outcomes in case order."""
+    is left with a large case at the end; their outcomes added to ``outcomes`` in case order. On Ctrl-C the
+    outcomes already in, in case order, are kept there, and the workers are stopped."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")
     order = sorted(range(len(specs)), key=lambda k: -specs[k].build().n)
-    with ctx.Pool(workers, initializer=_init_worker,
-                  initargs=(list(backends), plugin_specs())) as pool:
+    with worker_processes.spawning(), ctx.Pool(workers, initializer=_init_worker,
+                                               initargs=(list(backends), plugin_specs())) as pool:
         pending = {k: pool.apply_async(_worker_case, (specs[k], samples, seed, checks)) for k in order}
-        outcomes = []
-        for k, spec in enumerate(specs):
-            outcomes.append(pending[k].get())
-            if progress:
-                progress(spec.name, samples)
-    return outcomes
+        try:
+            for k, spec in enumerate(specs):
+                tell(Step(spec.name, 0, samples, IN_WORKER))
+                outcomes.append(pending[k].get())
+                tell(Step(spec.name, samples, samples, DONE))
+        except KeyboardInterrupt:
+            outcomes[:] = [pending[k].get() for k in range(len(specs))
+                           if pending[k].ready() and pending[k].successful()]
+            raise

@@ -311,6 +311,8 @@ class Formalism:
     ``evaluation()``, when present, says in a few words how the backend evaluates its expressions in this process,
     and why (``"compiled C (cc -O1)"``, ``"interpreted casadi SX (no C compiler found)"``); ``crosscheck formalisms``
     prints it. None for a backend with nothing to choose.
+    ``preparation(model, chart)``, when present, estimates the CPU seconds of the one-off work before the first answer
+    on ``model`` in ``chart`` (None: the joint chart), 0 when it is cached: a symbolic derivation, a compilation.
     """
 
     name: str
@@ -319,6 +321,7 @@ class Formalism:
     split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
     evaluation: Callable[[], str] | None = None
+    preparation: Callable[[Model, "Chart | None"], float] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:

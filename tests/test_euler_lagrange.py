@@ -381,9 +381,9 @@ def test_derived_cqd_is_quadratic_in_qd(derived):
     _, Cqd, _, q, qd, staged = derived
     s = symengine.Symbol("s")
     for i, e in enumerate(Cqd):
-        # every velocity symbol appears only in C qd (the staged intermediates depend on q alone)
-        for _, d in staged.needed([e]):
-            assert not (d.free_symbols & set(qd)), "a staged intermediate depends on qd"
+        for name, d in reversed(staged.needed([e])):  # the staged intermediates (velocities among them) expanded
+            e = e.subs({name: d})
+        assert e.free_symbols <= set(q) | set(qd), f"C qd[{i}] has symbols other than q, qd: {e.free_symbols}"
         scaled = e.subs({v: s * v for v in qd})
         assert symengine.expand(scaled - s**2 * e) == 0, f"C qd[{i}] is not homogeneous of degree 2 in qd"
         assert symengine.expand(e.subs({v: 0 for v in qd})) == 0, f"C qd[{i}] is not zero at qd = 0"
