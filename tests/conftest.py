@@ -55,9 +55,8 @@ def single_threaded_blas():
         yield
 
 
-@pytest.fixture
-def dropped_coriolis(monkeypatch):
-    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
+def _drop_coriolis(patch: pytest.MonkeyPatch) -> None:
+    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would (undone with ``patch``)."""
     import formalisms.euler_lagrange as el
     correct = el.evaluate
 
@@ -65,7 +64,20 @@ def dropped_coriolis(monkeypatch):
         terms, constraint_terms = correct(model, x, xd, chart)
         return terms._replace(Cqd=terms.Cqd * 0.0), constraint_terms
 
-    monkeypatch.setattr(el, "evaluate", broken)
+    patch.setattr(el, "evaluate", broken)
+
+
+@pytest.fixture
+def dropped_coriolis(monkeypatch):
+    """Euler–Lagrange with its velocity-product term silently dropped, for the test."""
+    _drop_coriolis(monkeypatch)
+
+
+@pytest.fixture(scope="session")
+def drop_coriolis():
+    """The same fault for a module-scoped fixture that computes something under it once: called with the fixture's
+    own ``pytest.MonkeyPatch.context()``, which undoes it."""
+    return _drop_coriolis
 
 
 @pytest.fixture(scope="module")
