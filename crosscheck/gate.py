@@ -139,8 +139,9 @@ class CaseOutcome:
 
     def voted(self) -> set[str]:
         """The backends that took part in at least one comparison or check of this case."""
-        return {backend_of(v) for s in self.states for c in [*s.comparisons.values(), *s.checks.values()]
-                for v in c.voters}
+        voters = {name for s in self.states for c in (*s.comparisons.values(), *s.checks.values()) for pair in c.pairs
+                  for name in pair}
+        return {backend_of(v) for v in voters}
 
 
 @dataclass
@@ -160,6 +161,8 @@ class GateResult:
     @property
     def absent(self) -> tuple[str, ...]:
         """The required backends that took part in no comparison of any case."""
+        if not self.required:
+            return ()
         voted = set().union(*(case.voted() for case in self.cases)) if self.cases else set()
         return tuple(name for name in self.required if name not in voted)
 
