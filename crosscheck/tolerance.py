@@ -324,6 +324,13 @@ def _median(values) -> float:
     return float(statistics.median(values)) if values else 0.0
 
 
+def _nanmedian(arrays) -> np.ndarray:
+    """``np.nanmedian(arrays, axis=0)`` (the voters' values entry by entry, NaN left out): by ``np.median``, the same
+    numbers a tenth of the time on a few small arrays, when there is no NaN."""
+    stacked = np.asarray(arrays, dtype=float)
+    return np.nanmedian(stacked, axis=0) if np.isnan(stacked).any() else np.median(stacked, axis=0)
+
+
 def _load_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, float]:
     """The sums of magnitudes in the joint loads at the total and at the drift (module doc), without cond(M), over
     the splits that supply the loads (none: no load scale, as in a chart, where no backend reports them);
@@ -550,11 +557,11 @@ def _componentwise(model, splits, constrained, q, qd, scales: dict) -> dict:
     """``accel`` (:func:`acceleration_bound` at the median sizes of the voters' drift + ctrl, with the median
     constraint forces ``|Jc|^T (|lam| + |lam_drift|)``; with constraints :func:`_constrained_bound`) and
     ``energy_terms`` (:func:`kinetic_energy_bound`)."""
-    sizes = np.nan_to_num(np.nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits], axis=0))
+    sizes = np.nan_to_num(_nanmedian([np.abs(s.drift) + np.abs(s.ctrl) for s in splits]))
     forces = None
     if constrained:
-        forces = np.nanmedian([np.abs(s.constraint_jacobian).T @ (np.abs(s.lam) + np.abs(s.lam_drift))
-                               for s in constrained], axis=0)
+        forces = _nanmedian([np.abs(s.constraint_jacobian).T @ (np.abs(s.lam) + np.abs(s.lam_drift))
+                             for s in constrained])
     accel = acceleration_bound(model, q, qd, sizes, forces)
     if constrained:
         accel = _constrained_bound(model, constrained, q, qd, sizes, accel, _median([s.cond_M for s in splits]),
@@ -589,8 +596,8 @@ def _constrained_bound(model, constrained, q, qd, sizes: np.ndarray, accel: np.n
     the normwise bound stands alone."""
     mass = _mass(model, q)
     lam_error, lam_rounding = scales.get("lam_scale", 0.0), scales.get("lam_rounding", 0.0)
-    Jc = np.nanmedian([s.constraint_jacobian for s in constrained], axis=0)
-    lam = np.nanmedian([np.abs(s.lam) + np.abs(s.lam_drift) for s in constrained], axis=0)
+    Jc = _nanmedian([s.constraint_jacobian for s in constrained])
+    lam = _nanmedian([np.abs(s.lam) + np.abs(s.lam_drift) for s in constrained])
     norm2 = _median([float(np.linalg.norm(s.constraint_jacobian, 2)) for s in constrained])
     normwise = accel + mass.inverse_norm * (norm2 * cond_M * lam_error
                                             + float(np.abs(Jc).sum(axis=0).max()) * lam_rounding)
