@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 import cases
 import formalisms.newton_euler as ne
 import formalisms.operational_space as ops
-from crosscheck import backends, gate, testing
+from crosscheck import backends, charts, frames, fuzz, gate, testing
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.report import render
 from crosscheck.sampling import sample_states
@@ -143,3 +143,22 @@ def test_a_block_form_is_used_and_states_complete_in_order(monkeypatch):
     assert done == [("acrobot", k) for k in range(1, 10)]
     assert sorted(calls) == sorted([("acrobot", 4), ("acrobot", 4), ("acrobot@g0", 2), ("acrobot@g1", 2),
                                     ("acrobot@g0", 2), ("acrobot@g1", 2)])
+
+
+def _seen(outcome) -> tuple:
+    """Everything a state's outcome says: its comparisons and checks (every ratio, as repr), errors and breakdowns."""
+    return repr(outcome.comparisons), repr(outcome.checks), outcome.errors, outcome.breakdowns
+
+
+def test_the_fuzzers_block_gives_the_outcomes_of_one_state_at_a_time():
+    """A fuzzing example's states as one block (joint chart and moved scene) against one state at a time, with a
+    backend that raises at some of them."""
+    model = cases.load("four_bar")
+    states = sample_states(model, 5, 4, "four_bar")
+    chart, frame = charts.get("affine", model, 4), frames.sampled(4, "four_bar", 1)[0]
+    chosen = [backends.get("euler_lagrange"), backends.get("pinocchio"), RAISING, PLUGIN]
+    every = {"charts": True, "frames": True, "conservation": True}
+    block = list(fuzz.evaluate_block(model, states, chart, frame, chosen, every))
+    alone = [fuzz.evaluate(model, state, chart, frame, chosen, every) for state in states]
+    assert [_seen(o) for o in block] == [_seen(o) for o in alone]
+    assert any("operational_space" in o.errors for o in block)
