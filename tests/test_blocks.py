@@ -48,7 +48,7 @@ def _rows(model, states):
             for name, width in (("q", model.nq), ("qd", model.nv), ("u", model.m))]
 
 
-BLOCKWISE = ["operational_space"]
+BLOCKWISE = ["operational_space", "screw"]
 
 
 @pytest.mark.parametrize("name", BLOCKWISE)
