@@ -274,15 +274,15 @@ def _joint_rates(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
 
 
 def _over_bodies(kin: Kinematics, x: np.ndarray, mix: np.ndarray) -> np.ndarray:
-    """``out_i = sum_j mix[i, j] x_j`` over the axis -2 of ``x`` (..., nv, c), the components kept stored part by part
-    (:func:`lie.components`), every state's sums those of the state alone in a stack of any length: rows with the
-    kinematics' leading axes alone (one per state) are one (c, nv) matrix product per state, as one state's; rows
-    with further leading axes (a stack of rates) go through one product whose rows are those axes, which numpy's own
-    loop sums entry by entry in order (its rows are not contiguous), whatever the layout."""
-    if x.shape[:-2] == kin.q.shape[:-1]:
-        return np.swapaxes(np.swapaxes(x, -1, -2) @ mix.T, -1, -2)
-    d = x.ndim
-    return (x.transpose((d - 1,) + tuple(range(d - 1))) @ mix.T).transpose(tuple(range(1, d)) + (0,))
+    """``out_i = sum_j mix[i, j] x_j`` over the axis -2 of ``x`` (..., nv, c): one matrix product, the components
+    kept stored part by part (:func:`lie.components`). The kinematics' leading axes (one per state) go outermost and
+    each state keeps a single state's order (components, any stack of rates before the states, columns), so that a
+    state's sums are those of the state alone in a stack of any length (with the states among the rows of the
+    product, the last state of a stack rounded differently)."""
+    d, lead = x.ndim, kin.q.ndim - 1
+    stack = d - 2 - lead
+    order = tuple(range(stack, stack + lead)) + (d - 1,) + tuple(range(stack)) + (d - 2,)
+    return (x.transpose(order) @ mix.T).transpose(tuple(np.argsort(order)))
 
 
 def _accumulate(kin: Kinematics, per_joint: np.ndarray) -> np.ndarray:
