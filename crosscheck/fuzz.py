@@ -366,23 +366,42 @@ def evaluate(model: Model, state: State, chart: charts.Chart, frame: frames.Fram
              ) -> StateOutcome:
     """One state as the gate checks it: every backend compared, then (as ``checks`` says) the chart check in
     ``chart``, the frame check on the scene moved by ``frame`` and the conservation checks."""
-    outcome = gate.evaluate(model, state, chosen)
+    (outcome,) = evaluate_block(model, [state], chart, frame, chosen, checks)
+    return outcome
+
+
+def evaluate_block(model: Model, states: Sequence[State], chart: charts.Chart, frame: frames.Frame, chosen,
+                   checks: dict) -> Iterator[StateOutcome]:
+    """:func:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in the
+    joint chart and on the moved scene (``gate.run_block``, which gives every state the splits and errors it gets
+    alone), then state by state come the comparisons and checks. Should running the backends over the block fail in
+    the harness itself, the states go one by one, so that the failure is met at the state that causes it."""
     scene = (frame, frames.move_scene(model, frame)) if checks["frames"] else None
     # the identity of a model with group joints is q itself, which no backend evaluates "in a chart"
     in_chart = [chart] if checks["charts"] and (charts.applies(model) or chart.name != "identity") else []
-    gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"])
-    return outcome
+    try:
+        joint = gate.run_block(model, states, chosen)
+        moved = gate.run_block(scene[1], states, chosen) if scene else [None] * len(states)
+    except Exception:  # the harness, not a backend (whose errors run_block records): one state at a time
+        joint = moved = None
+    for k, state in enumerate(states):
+        outcome = gate.run_backends(model, state, chosen) if joint is None else joint[k]
+        gate.judge(model, outcome, chosen)
+        gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"],
+                        None if moved is None else moved[k])
+        yield outcome
 
 
 def _evaluate(model: Model, states: Sequence[State], chart_spec: tuple[str, int], frame: frames.Frame,
               chosen, checks: dict, rec: _Recorder) -> tuple[float, dict | None]:
-    """Every state (:func:`evaluate`); (worst ratio, finding of the first failing state or None). An exception
+    """Every state (:func:`evaluate_block`); (worst ratio, finding of the first failing state or None). An exception
     of the harness itself is a finding too."""
     worst, names = 0.0, [b.name for b in chosen]
     chart = charts.get(chart_spec[0], model, chart_spec[1])
+    outcomes = evaluate_block(model, states, chart, frame, chosen, checks)
     for state in states:
         try:
-            outcome = evaluate(model, state, chart, frame, chosen, checks)
+            outcome = next(outcomes)
         except Exception as exc:  # the harness failing on a valid model and state is a finding, not a crash
             where = "".join(traceback.format_exception(exc, limit=-3)).strip()
             return math.inf, make_finding(model, state, chart_spec, frame, checks, names, None, where)

@@ -5,8 +5,12 @@ answers do not depend on the chart (every built-in chart that applies; ``crossch
 frame (state ``i`` in sampled frame ``i mod frames``) or break conservation (``crosscheck.conservation``).
 
 Each backend runs once per state and scene (joint chart, each chart, the moved scene); the tolerance scales of the
-trusted joint-chart splits are computed once per state and shared by every check. ``run_gate(..., workers=W)``
-runs the cases in W spawned processes with the same outcomes, in case order.
+trusted joint-chart splits are computed once per state and shared by every check. A case's states are evaluated in
+blocks (:meth:`CaseSetup.evaluate_block`): a backend with a block form (``formalisms.interface.with_block_form``)
+splits a block's states in one call in the joint chart and in each moved scene, with the very numbers of its
+state-by-state ``split``, so the outcomes are those of one state at a time. ``run_gate(..., workers=W)`` runs the
+cases in W spawned processes with the same outcomes, in case order.
+
 
 ``run_gate(..., progress=...)`` tells a progress display where the run is (:class:`Step`: the case, the states
 evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends the run with :class:`Interrupted`, which carries the
@@ -20,7 +24,9 @@ import signal
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
 
 import cases
 from cases.model import Model
@@ -32,7 +38,11 @@ from crosscheck import workers as worker_processes
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.compare import DISAGREE, Comparison, backend_of, compare, worst_of
 from crosscheck.sampling import State, sample_states
-from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split
+from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split, block_form
+
+#: States a case evaluates as one block after its first state (:func:`run_case`): enough that a backend's block form
+#: spreads numpy's per-call cost over many states, few enough that the splits of a block take little memory.
+BLOCK = 50
 
 
 @dataclass(frozen=True)
@@ -137,8 +147,9 @@ class CaseOutcome:
 
     def voted(self) -> set[str]:
         """The backends that took part in at least one comparison or check of this case."""
-        return {backend_of(v) for s in self.states for c in [*s.comparisons.values(), *s.checks.values()]
-                for v in c.voters}
+        voters = {name for s in self.states for c in (*s.comparisons.values(), *s.checks.values()) for pair in c.pairs
+                  for name in pair}
+        return {backend_of(v) for v in voters}
 
 
 @dataclass
@@ -160,6 +171,8 @@ class GateResult:
     @property
     def absent(self) -> tuple[str, ...]:
         """The required backends that took part in no comparison of any case."""
+        if not self.required:
+            return ()
         voted = set().union(*(case.voted() for case in self.cases)) if self.cases else set()
         return tuple(name for name in self.required if name not in voted)
 
@@ -233,8 +246,8 @@ class Clock:
     calls: dict[str, list[float]] = field(default_factory=dict)
     preparing: Callable[[str | None], None] | None = None
 
-    def timed(self, name: str, call: Callable[[], Split]) -> Split:
-        """``call()``, timed as backend ``name``'s."""
+    def timed(self, name: str, call: Callable[[], object], states: int = 1) -> object:
+        """``call()``, timed as backend ``name``'s on ``states`` states (each state gets an equal share)."""
         first = name not in self.calls and self.preparing is not None
         if first:
             self.preparing(name)
@@ -242,7 +255,7 @@ class Clock:
         try:
             return call()
         finally:
-            self.calls.setdefault(name, []).append(time.perf_counter() - start)
+            self.calls.setdefault(name, []).extend([(time.perf_counter() - start) / states] * states)
             if first:
                 self.preparing(None)
 
@@ -260,16 +273,54 @@ def run_backends(model: Model, state: State, backends: Sequence[Formalism], cloc
     """Every backend's split at ``state``, the errors they raised and the backends in BREAKDOWN, without the
     comparisons (what a moved scene needs: :func:`add_checks`). A backend raising ``ModelNotSupported`` is in
     neither ``splits`` nor ``errors``."""
-    splits: dict[str, Split] = {}
-    errors: dict[str, str] = {}
+    return run_block(model, [state], backends, clock)[0]
+
+
+def run_block(model: Model, states: Sequence[State], backends: Sequence[Formalism], clock: Clock | None = None
+              ) -> list[StateOutcome]:
+    """:func:`run_backends` at each of ``states``, every backend over the block at once (:func:`_split_states`);
+    ``clock`` receives each state's share of a backend's time on the block."""
     clock = clock or Clock()
-    for backend in backends:
+    found = {backend.name: clock.timed(backend.name, lambda: _split_states(backend, model, states), len(states))
+             for backend in backends}
+    return [_outcome(state, {name: splits[k] for name, splits in found.items()}) for k, state in enumerate(states)]
+
+
+def _split_states(backend: Formalism, model: Model, states: Sequence[State]) -> list[tuple[Split | None, str | None]]:
+    """:func:`_split_one` at each of ``states``: in one call of the backend's block form when it has one (its elements
+    are ``split``'s, bit for bit) and there are several states; else state by state, and so when the block raises:
+    each state then gives the split or the error it gives alone."""
+    many = block_form(backend)
+    if many is not None and len(states) > 1:
         try:
-            splits[backend.name] = clock.timed(backend.name, lambda: backend.split(model, state.q, state.qd, state.u))
-        except ModelNotSupported:
+            return [(split, None) for split in many(model, *_rows(model, states))]
+        except Exception:  # some state of the block fails: each state on its own says which, and how
             pass
-        except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
-            errors[backend.name] = f"{type(exc).__name__}: {exc}"
+    return [_split_one(backend, model, state) for state in states]
+
+
+def _rows(model: Model, states: Sequence[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Q, QD, U)``: the states' ``q``, ``qd`` and ``u`` as the rows of three arrays."""
+    return tuple(np.array([getattr(s, name) for s in states], dtype=float).reshape(len(states), width)
+                 for name, width in (("q", model.nq), ("qd", model.nv), ("u", model.m)))
+
+
+def _split_one(backend: Formalism, model: Model, state: State) -> tuple[Split | None, str | None]:
+    """``backend``'s split at ``state`` or the error it raised (as reported); neither when it declines the model
+    (``ModelNotSupported``)."""
+    try:
+        return backend.split(model, state.q, state.qd, state.u), None
+    except ModelNotSupported:
+        return None, None
+    except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def _outcome(state: State, found: dict[str, tuple[Split | None, str | None]]) -> StateOutcome:
+    """The outcome at ``state`` of the backends' splits and errors (:func:`_split_one`, by backend), without the
+    comparisons; the backends in BREAKDOWN found from their splits."""
+    splits = {name: split for name, (split, _) in found.items() if split is not None}
+    errors = {name: error for name, (_, error) in found.items() if error is not None}
     breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
     return StateOutcome(state, splits, errors, {}, breakdowns)
 
@@ -287,10 +338,16 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism], clock: C
     (:func:`add_checks`).
     """
     outcome = run_backends(model, state, backends, clock)
-    outcome.checks.update(conditioning.audit(model, state, outcome.splits, outcome.breakdowns))
+    judge(model, outcome, backends)
+    return outcome
+
+
+def judge(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+    """What :func:`evaluate` does once the ``backends`` have run at ``outcome``'s state: the conditioning audit and
+    the comparisons, the backends that declined the model joining them as UNSUPPORTED."""
+    outcome.checks.update(conditioning.audit(model, outcome.state, outcome.splits, outcome.breakdowns))
     compare_all(model, outcome, [b.name for b in backends if b.name not in outcome.splits
                                  and b.name not in outcome.errors])
-    return outcome
 
 
 def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] = ()) -> None:
@@ -312,10 +369,11 @@ def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
                case_charts: Sequence[chart_catalog.Chart], scene: tuple[frames.Frame, Model] | None,
-               do_conservation: bool) -> None:
+               do_conservation: bool, there: StateOutcome | None = None) -> None:
     """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
     checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there. The
-    trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check."""
+    trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check. ``there``:
+    the backends' outcome in the moved scene when the caller has run them (:func:`run_block`), else they run here."""
     state, trusted = outcome.state, outcome.trusted
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
     if trusted and outcome.scales is None:
@@ -325,7 +383,7 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
                                                       outcome.scales))
     if scene is not None:
         frame, moved = scene
-        there = run_backends(moved, state, backends)
+        there = run_backends(moved, state, backends) if there is None else there
         outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
         outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales,
                                                       moved))
@@ -361,10 +419,31 @@ class CaseSetup:
     def evaluate(self, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
         """Everything the gate does at one state: the comparisons (:func:`evaluate`) among ``backends`` and the case's
         own voters (its closed form), and the checks (:func:`add_checks`)."""
-        backends = [*backends, *self.voters]
-        outcome = evaluate(self.model, state, backends, clock)
-        add_checks(self.model, outcome, backends, self.charts, self.scene(state), self.conservation)
+        (outcome,) = self.evaluate_block([state], backends, clock)
         return outcome
+
+    def evaluate_block(self, states: Sequence[State], backends: Sequence[Formalism],
+                       clock: Clock | None = None) -> Iterator[StateOutcome]:
+        """:meth:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in
+        the joint chart and in each moved scene (the states checked there, :func:`run_block`), then state by state
+        come the comparisons and the checks."""
+        backends = [*backends, *self.voters]
+        outcomes = run_block(self.model, states, backends, clock)
+        moved = self._moved(states, backends)
+        for outcome, there in zip(outcomes, moved):
+            judge(self.model, outcome, backends)
+            add_checks(self.model, outcome, backends, self.charts, self.scene(outcome.state), self.conservation, there)
+            yield outcome
+
+    def _moved(self, states: Sequence[State], backends: Sequence[Formalism]) -> list[StateOutcome | None]:
+        """The backends' outcome at each of ``states`` in the moved scene it is checked in (:meth:`scene`), each
+        scene's states as one block; None for every state when the case has no moved scenes."""
+        out: list[StateOutcome | None] = [None] * len(states)
+        for k, (_, moved) in enumerate(self.scenes):
+            at = [j for j, state in enumerate(states) if state.index % len(self.scenes) == k]
+            for j, there in zip(at, run_block(moved, [states[j] for j in at], backends)):
+                out[j] = there
+        return out
 
 
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
@@ -383,9 +462,10 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
 
     clock = Clock(preparing=lambda name: at(EVALUATING if name is None else f"preparing {name}"))
     try:
-        for state in states:
+        for block in _blocks(states):
             at(EVALUATING)
-            outcomes.append(setup.evaluate(state, backends, clock))
+            for outcome in setup.evaluate_block(block, backends, clock):
+                outcomes.append(outcome)
     except KeyboardInterrupt:
         raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
     at(DONE)
@@ -433,6 +513,15 @@ def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
     return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
                        tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
                        _closed_form_coverage(setup.spec, checks))
+
+
+def _blocks(states: Sequence[State]) -> Iterator[Sequence[State]]:
+    """The first state alone (the report's first call, which includes the backends' one-off preparation), then blocks
+    of :data:`BLOCK` states."""
+    if states:
+        yield states[:1]
+    for start in range(1, len(states), BLOCK):
+        yield states[start:start + BLOCK]
 
 
 def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:

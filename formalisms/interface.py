@@ -299,6 +299,23 @@ def split_batch_by_loop(split: Callable[[Model, np.ndarray, np.ndarray, np.ndarr
     return split_batch
 
 
+def with_block_form(split_many: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Sequence[Split]]):
+    """Declare ``split_many(model, Q, QD, U)`` the block form of the decorated ``split``: the :class:`Split` of each of
+    N states (rows of Q, QD, U) computed for the block at once, element ``i`` equal to ``split(model, Q[i], QD[i],
+    U[i])`` bit for bit, every field and extra. The harness evaluates blocks of a model's states through it
+    (:func:`block_form`). It is kept on the ``split`` function itself, so whatever wraps or replaces a backend's
+    ``split`` (a plugin's check, a test's altered backend) has no block form and is evaluated state by state."""
+    def declare(split):
+        split.split_many = split_many
+        return split
+    return declare
+
+
+def block_form(formalism: "Formalism") -> Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Sequence[Split]] | None:
+    """The block form of ``formalism.split`` (:func:`with_block_form`), None when it has none."""
+    return getattr(formalism.split, "split_many", None)
+
+
 @dataclass(frozen=True)
 class Formalism:
     """A named formulation of rigid-body dynamics behind the shared ``split`` contract.
@@ -306,8 +323,9 @@ class Formalism:
     ``split_chart(model, chart, p, pd, tau_p)``, when present, evaluates the same split directly in the chart
     ``q = psi(p)``: state ``(p, pd)``, the generalized force ``tau_p`` a covector in that chart, and the
     returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
-    ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s);
-    None for a backend without one (the harness then loops over ``split``: :func:`split_batch_by_loop`).
+    ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s
+    accelerations and multipliers); None for a backend without one (the harness then loops over ``split``:
+    :func:`split_batch_by_loop`). ``split`` may carry a block form that returns whole splits (:func:`with_block_form`).
     ``evaluation()``, when present, says in a few words how the backend evaluates its expressions in this process,
     and why (``"compiled C (cc -O1)"``, ``"interpreted casadi SX (no C compiler found)"``); ``crosscheck formalisms``
     prints it. None for a backend with nothing to choose.
@@ -381,5 +399,5 @@ def joint_vectors(model: Model, q, *rates) -> list[np.ndarray]:
 
 
 __all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "ModelNotSupported", "Split",
-           "SplitBatch", "StateError", "Unsupported", "chart_vectors", "check_batch", "check_state", "joint_vectors",
-           "split_batch_by_loop"]
+           "SplitBatch", "StateError", "Unsupported", "block_form", "chart_vectors", "check_batch", "check_state",
+           "joint_vectors", "split_batch_by_loop", "with_block_form"]
