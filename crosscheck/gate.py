@@ -255,7 +255,7 @@ class Clock:
         try:
             return call()
         finally:
-            self.calls.setdefault(name, []).extend([(time.perf_counter() - start) / states] * states)
+            self.calls.setdefault(name, []).extend([(time.perf_counter() - start) / max(states, 1)] * states)
             if first:
                 self.preparing(None)
 
@@ -462,10 +462,12 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
 
     clock = Clock(preparing=lambda name: at(EVALUATING if name is None else f"preparing {name}"))
     try:
+        at(EVALUATING)
         for block in _blocks(states):
-            at(EVALUATING)
             for outcome in setup.evaluate_block(block, backends, clock):
                 outcomes.append(outcome)
+                if len(outcomes) < len(states):
+                    at(EVALUATING)
     except KeyboardInterrupt:
         raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
     at(DONE)
