@@ -142,11 +142,9 @@ import hashlib
 import importlib.util
 import marshal
 import math
-import os
-import tempfile
 import types
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -155,7 +153,7 @@ import symengine as sp
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, ModelNotSupported, Split,
-                                  SplitBatch, chart_vectors, check_batch, check_state)
+                                  SplitBatch, cache_dir, chart_vectors, check_batch, check_state, write_cache_file)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -264,10 +262,16 @@ class _Staged:
         return self.trig(e)[1]
 
     def diff(self, expr: sp.Expr, k: int) -> sp.Expr:
-        """Total derivative ``d expr / d p_k`` (``d expr / d pd_(k-n)`` for ``k >= n``): sum and product rules in one
-        pass, chain rule at symbols."""
-        memo: dict = {}
+        """Total derivative ``d expr / d p_k`` (``d expr / d pd_(k-n)`` for ``k >= n``), chain rule at symbols."""
         pk = self.variables[k]
+        return self._forward(expr, lambda e: ONE if e == pk else (
+            self._derivative_of(e, k) if k in self._depends.get(e, ()) else ZERO), f"by {pk}")
+
+    def _forward(self, expr, of_symbol: Callable, what: str) -> sp.Expr:
+        """Forward-mode differentiation of ``expr`` in one memoized pass: sum and product rules, the chain rule through
+        ``sin`` and ``cos`` (only in a chart's psi: those of a joint coordinate are seeded symbols), numeric powers,
+        and ``of_symbol(s)`` the derivative of a symbol (:meth:`diff`, :meth:`dt`)."""
+        memo: dict = {}
 
         def d(e):
             if e in memo:
@@ -275,8 +279,7 @@ class _Staged:
             if e.is_Number:
                 r = ZERO
             elif e.is_Symbol:
-                r = ONE if e == pk else (
-                    self._derivative_of(e, k) if k in self._depends.get(e, ()) else ZERO)
+                r = of_symbol(e)
             elif e.is_Add:
                 r = sp.Add(*[d(a) for a in e.args])
             elif e.is_Mul:
@@ -284,12 +287,12 @@ class _Staged:
                 r = sp.Add(*[sp.Mul(*a[:i], da, *a[i + 1:]) for i in range(len(a)) if (da := d(a[i])) != 0])
             elif e.is_Pow and e.exp.is_Number:
                 r = e.exp * e.base ** (e.exp - 1) * d(e.base)
-            elif isinstance(e, sp.sin):  # only in a chart's psi: sin/cos of a joint coordinate are seeded symbols
+            elif isinstance(e, sp.sin):
                 r = sp.cos(e.args[0]) * d(e.args[0])
             elif isinstance(e, sp.cos):
                 r = -sp.sin(e.args[0]) * d(e.args[0])
             else:
-                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} (a chart's psi may use +, -, *, /, "
+                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} {what} (a chart's psi may use +, -, *, /, "
                                 "integer powers, sin and cos)")
             memo[e] = r
             return r
@@ -306,32 +309,7 @@ class _Staged:
         rules through the intermediates (:meth:`_rate_of`), so it costs the size of the definitions, not n
         derivatives of each. A rate has time derivative 0 (``pdd = 0``), a parameter (a symbol that is neither a
         coordinate nor an intermediate depending on one) too."""
-        memo: dict = {}
-
-        def d(e):
-            if e in memo:
-                return memo[e]
-            if e.is_Number:
-                r = ZERO
-            elif e.is_Symbol:
-                r = self._rate_of(e)
-            elif e.is_Add:
-                r = sp.Add(*[d(a) for a in e.args])
-            elif e.is_Mul:
-                a = e.args
-                r = sp.Add(*[sp.Mul(*a[:i], da, *a[i + 1:]) for i in range(len(a)) if (da := d(a[i])) != 0])
-            elif e.is_Pow and e.exp.is_Number:
-                r = e.exp * e.base ** (e.exp - 1) * d(e.base)
-            elif isinstance(e, sp.sin):
-                r = sp.cos(e.args[0]) * d(e.args[0])
-            elif isinstance(e, sp.cos):
-                r = -sp.sin(e.args[0]) * d(e.args[0])
-            else:
-                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} in time")
-            memo[e] = r
-            return r
-
-        return d(sp.sympify(expr))
+        return self._forward(expr, self._rate_of, "in time")
 
     def _rate_of(self, s: sp.Symbol) -> sp.Expr:
         """``d s / dt`` at ``pdd = 0`` of one symbol, named: ``pd_k`` for the coordinate ``p_k``; for ``sin`` and
@@ -909,9 +887,7 @@ _DERIVATION_HASH = hashlib.sha256(Path(__file__).read_bytes()).digest()
 
 
 def _cache_dir() -> Path:
-    root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
-    return Path(root) / "euler_lagrange"
+    return cache_dir("euler_lagrange")
 
 
 def cache_key(model: Model, chart: Chart | None = None) -> str:
@@ -933,20 +909,8 @@ def cached_source(model: Model, chart: Chart | None = None) -> str:
     if path.exists():
         return path.read_text()
     source = generate_source(model, chart)
-    _write(path, source.encode())
+    write_cache_file(path, source.encode())
     return source
-
-
-def _write(path: Path, data: bytes) -> None:
-    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it. A cache
-    that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home) only costs the derivation next time."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
-            fh.write(data)
-        os.replace(fh.name, path)
-    except OSError:
-        return
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
@@ -963,7 +927,7 @@ def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
         if isinstance(code, types.CodeType):
             return code
     code = compile(cached_source(model, chart), str(path), "exec")
-    _write(code_path, marshal.dumps(code))
+    write_cache_file(code_path, marshal.dumps(code))
     return code
 
 

@@ -229,7 +229,8 @@ import scipy.linalg
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, ModelNotSupported, Split, SplitBatch,
-                                  StateError, check_batch, chart_vectors, check_state, joint_vectors)
+                                  StateError, cache_dir, check_batch, chart_vectors, check_state, joint_vectors,
+                                  write_cache_file)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -730,22 +731,7 @@ def evaluation() -> str:
 
 
 def _cache_dir() -> Path:
-    """Where the compiled libraries are kept: ``$CROSSCHECK_CACHE/geometric``, else under the user's cache."""
-    root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
-    return Path(root) / "geometric"
-
-
-def _write(path: Path, data: bytes) -> None:
-    """Write a cache file atomically (a temporary file renamed into place), so a reader never sees half of it; a cache
-    that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home) only costs the compilation next time."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
-            fh.write(data)
-        os.replace(fh.name, path)
-    except OSError:
-        return
+    return cache_dir("geometric")
 
 
 def _cached(path: Path, outputs: int) -> _Library | None:
@@ -772,8 +758,8 @@ def _build(source: str, command: list[str], path: Path, outputs: int) -> _Librar
         subprocess.run([*command, str(c_file), "-o", str(library_file), "-lm"], check=True, capture_output=True,
                        text=True)
         library, data = _Library(library_file, outputs), library_file.read_bytes()
-    _write(path, data)
-    _write(path.with_suffix(".sha256"), hashlib.sha256(data).hexdigest().encode())
+    write_cache_file(path, data)
+    write_cache_file(path.with_suffix(".sha256"), hashlib.sha256(data).hexdigest().encode())
     return library
 
 

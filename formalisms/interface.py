@@ -22,7 +22,10 @@ The definitions those numbers follow are written out in :class:`Split`'s fields 
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
@@ -401,3 +404,24 @@ def joint_vectors(model: Model, q, *rates) -> list[np.ndarray]:
 __all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "ModelNotSupported", "Split",
            "SplitBatch", "StateError", "Unsupported", "block_form", "chart_vectors", "check_batch", "check_state",
            "joint_vectors", "split_batch_by_loop", "with_block_form"]
+
+
+def cache_dir(backend: str) -> Path:
+    """Where a backend keeps what it derives or compiles: ``$CROSSCHECK_CACHE/<backend>``, else
+    ``$XDG_CACHE_HOME/crosscheck/<backend>`` (``~/.cache`` without it)."""
+    root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
+    return Path(root) / backend
+
+
+def write_cache_file(path: Path, data: bytes) -> None:
+    """Write a cache file atomically (a temporary file in the same directory renamed into place), so a reader never
+    sees half of it; a cache that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home) only costs the
+    work next time."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
+            fh.write(data)
+        os.replace(fh.name, path)
+    except OSError:
+        return
