@@ -36,7 +36,8 @@ PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
 # what a formalism may take from formalisms.interface: types, constants, validators and exceptions, nothing numeric
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
-             "joint_vectors", "with_block_form"}
+             "joint_vectors", "with_block_form",
+             "cache_dir", "write_cache_file"}  # disk-cache plumbing: where a backend keeps its derivations, no numerics
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",
              "pin": "the external reference (Pinocchio) is kept apart from the five formalisms",
