@@ -4,3 +4,14 @@ Sampling (``sampling``), the tolerance policy (``tolerance``), comparison and ve
 the equivalence gate (``gate``), markdown reports (``report``) and the command line (``cli``).
 The Pinocchio reference lives in ``reference``, apart from the formalisms it checks.
 """
+
+import os
+import signal
+
+#: The environment variable that marks a pool's worker process: it holds the pid of the process that started the
+#: pool (``crosscheck.workers``). A direct child of that process ignores SIGINT from here on, before the imports
+#: that follow (seconds on a busy machine) could be broken into by a Ctrl-C meant for its parent.
+WORKER = "CROSSCHECK_WORKER"
+
+if os.environ.get(WORKER) == str(os.getppid()):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

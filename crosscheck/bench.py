@@ -27,7 +27,7 @@ import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -35,7 +35,7 @@ import pinocchio as pin
 import cases
 from cases.model import Model
 from cases.representation import general_3d
-from crosscheck import backends, precise, reference, sampling
+from crosscheck import backends, precise, progress, reference, sampling
 from crosscheck import tolerance as policy
 from formalisms.interface import split_batch_by_loop
 
@@ -139,6 +139,14 @@ class Results:
         return json.dumps(asdict(self), indent=1, sort_keys=True)
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run`: ``results`` holds what was measured until then, ``where`` what was running."""
+
+    def __init__(self, results: Results, where: str):
+        super().__init__(f"bench interrupted while {where}")
+        self.results, self.where = results, where
+
+
 def per_call(fn: Callable, calls: Sequence[tuple], min_time: float, repeats: int = REPEATS) -> float:
     """Seconds per call of ``fn(*args)`` over ``calls``, cycled for at least ``min_time``; the minimum over
     ``repeats`` such loops (one loop when a single pass already takes ten times ``min_time``: a large batch)."""
@@ -200,28 +208,31 @@ def errors(formalism, model: Model, Q, QD, U, exact: Sequence[precise.PreciseSpl
     return ({k: stat(np.median, v) for k, v in found.items()}, {k: stat(np.max, v) for k, v in found.items()}, flagged)
 
 
-def measure_scene(plan: Plan, scene: Scene, names: Sequence[str], log: Callable[[str], None]) -> list[Measurement]:
-    """Every backend on one scene (module doc)."""
+def measure_scene(plan: Plan, scene: Scene, names: Sequence[str], display: progress.Display
+                  ) -> Iterator[Measurement]:
+    """Every backend on one scene (module doc), one after another, each a step on ``display``."""
     model = scene.model()
+    display.doing(f"computing the 50-digit reference on {scene.label}")
     Qe, QDe, Ue = states(model, plan.error_states, scene.case)
     exact = [precise.split(model, q, qd, u) for q, qd, u in zip(Qe, QDe, Ue)]
     Qt, QDt, Ut = states(model, plan.timing_states, scene.case)
     N = plan.target_batch if scene.label == plan.target else plan.batch
     Qb, QDb, Ub = states(model, N, scene.case)
-    out = []
     for name in names:
+        display.doing(f"measuring {name} on {scene.label}")
         formalism = backends.get(name)
         formalism.split(model, Qt[0], QDt[0], Ut[0])  # preparation is measured apart
         batch = batch_function(formalism)
+        batch(model, Qb, QDb, Ub)  # so is a compilation a batch of N states sets off (formalisms/geometric.py)
         single = per_call(lambda q, qd, u: formalism.split(model, q, qd, u), list(zip(Qt, QDt, Ut)), plan.min_time)
         batched = per_call(lambda: batch(model, Qb, QDb, Ub), [()], plan.min_time) / N
         aba = aba_per_call(model, Qt, QDt, plan.min_time)
         median, worst, flagged = errors(formalism, model, Qe, QDe, Ue, exact)
-        out.append(Measurement(name, scene.label, model.n, scene.links, single, batched, N,
-                               formalism.split_batch is not None, aba, median, worst, flagged, len(Qe)))
-        log(f"{scene.label:24s} {name:18s} single {single * 1e6:9.1f} us  batch {batched * 1e6:8.2f} us/state  "
-            f"aba {aba * 1e6:6.2f} us  total error {worst['total']:.1e}")
-    return out
+        display.note(f"{scene.label:24s} {name:18s} single {single * 1e6:9.1f} us  batch {batched * 1e6:8.2f} "
+                     f"us/state  aba {aba * 1e6:6.2f} us  total error {worst['total']:.1e}")
+        display.advance()
+        yield Measurement(name, scene.label, model.n, scene.links, single, batched, N,
+                          formalism.split_batch is not None, aba, median, worst, flagged, len(Qe))
 
 
 def first_calls(backend: str, case: str, params: dict, plugins: Sequence[str] = ()) -> dict:
@@ -268,23 +279,24 @@ def _difference(a, b) -> float:
     return float(np.max(np.abs(np.where(both, 0.0, b.total - a.total)))) / a.accel_scale
 
 
-def representation(plan: Plan, scene: Scene, names: Sequence[str]) -> list[Representation]:
+def representation(plan: Plan, scene: Scene, names: Sequence[str], display: progress.Display
+                   ) -> Iterator[Representation]:
     """Each backend on the scene as modelled and written with general 3-D body frames: time per call and the
-    largest difference of the answers."""
+    largest difference of the answers; one after another, each a step on ``display``."""
     minimal = scene.model()
     general = general_3d(minimal, seed=SEED)
     Q, QD, U = states(minimal, plan.timing_states, scene.case)
     calls = list(zip(Q, QD, U))
-    out = []
     for name in names:
+        display.doing(f"timing {name} on {scene.label} as modelled and in general 3-D frames")
         formalism = backends.get(name)
         times, answers = [], []
         for model in (minimal, general):
             answers.append([formalism.split(model, *c) for c in calls])
             times.append(per_call(lambda q, qd, u: formalism.split(model, q, qd, u), calls, plan.min_time))
         difference = max(_difference(a, b) for a, b in zip(*answers))
-        out.append(Representation(name, scene.label, times[0], times[1], difference))
-    return out
+        display.advance()
+        yield Representation(name, scene.label, times[0], times[1], difference)
 
 
 def time_gate() -> float:
@@ -307,20 +319,47 @@ def machine() -> dict:
             "sympy": sympy.__version__, "machine": platform.machine()}
 
 
+def steps(plan: Plan, names: Sequence[str]) -> int:
+    """The steps :func:`run` counts on its display: a backend on a scene, in fresh processes (preparation) and on a
+    rewritten scene (representation), and the default gate's timing."""
+    return len(names) * (len(plan.scenes) + len(plan.prep) + len(plan.representation)) + int(plan.gate)
+
+
 def run(plan: Plan, names: Sequence[str] | None = None, plugins: Sequence[str] = (),
-        log: Callable[[str], None] = lambda line: None) -> Results:
-    """The whole bench (module doc)."""
+        display: progress.Display | None = None) -> Results:
+    """The whole bench (module doc), its progress on ``display`` (a line per measurement). Ctrl-C raises
+    :class:`Interrupted` with what was measured until then."""
+    display = display or progress.silent()
     start = time.perf_counter()
     names = list(names or backends.names())
-    measurements = [m for scene in plan.scenes for m in measure_scene(plan, scene, names, log)]
+    results = Results("quick" if plan is QUICK else "full", machine(), [], [], [], None, 0.0)
+    try:
+        _measure(plan, names, plugins, display, results)
+    except KeyboardInterrupt:
+        results.seconds = time.perf_counter() - start
+        raise Interrupted(results, display.current or "starting") from None
+    results.seconds = time.perf_counter() - start
+    return results
+
+
+def _measure(plan: Plan, names: list[str], plugins: Sequence[str], display: progress.Display, results: Results
+             ) -> None:
+    """Fill ``results`` (module doc) measurement by measurement, so that an interrupted run keeps what it measured."""
+    for scene in plan.scenes:
+        for measurement in measure_scene(plan, scene, names, display):
+            results.measurements.append(measurement)
     by_label = {s.label: s for s in plan.scenes}
-    preps = []
     for label in plan.prep:
         for name in names:
-            preps.append(preparation(name, by_label[label], plugins))
-            p = preps[-1]
-            log(f"preparation {label:18s} {name:18s} cold {p.cold_s:7.2f} s  cached {p.cached_s:6.3f} s")
-    reps = [r for scene in plan.representation for r in representation(plan, scene, names)]
-    gate_s = time_gate() if plan.gate else None
-    return Results("quick" if plan is QUICK else "full", machine(), measurements, preps, reps, gate_s,
-                   time.perf_counter() - start)
+            display.doing(f"preparing {name} on {label} in fresh processes")
+            p = preparation(name, by_label[label], plugins)
+            results.preparations.append(p)
+            display.note(f"preparation {label:18s} {name:18s} cold {p.cold_s:7.2f} s  cached {p.cached_s:6.3f} s")
+            display.advance()
+    for scene in plan.representation:
+        for rep in representation(plan, scene, names, display):
+            results.representations.append(rep)
+    if plan.gate:
+        display.doing("timing the default gate in a fresh process")
+        results.gate_s = time_gate()
+        display.advance()

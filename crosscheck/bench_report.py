@@ -136,7 +136,7 @@ def chart_scaling(res: Results, path: Path) -> None:
         colour = plt.cm.tab10(i % 10)
         ax.plot(x, [m.single_s * 1e6 for m in rows], "-o", color=colour, ms=3, label=f"{name} single")
         ax.plot(x, [m.batch_s * 1e6 for m in rows], "--", color=colour, label=f"{name} batch")
-    aba = sorted({(m.links, m.aba_s) for m in chain if m.backend == names[0]})
+    aba = sorted({(m.links, m.aba_s) for m in chain if m.backend == names[0]}) if names else []
     ax.plot([a for a, _ in aba], [t * 1e6 for _, t in aba], ":k", lw=2, label="pinocchio aba (anchor)")
     ax.set(yscale="log", xscale="log", xlabel="links n", ylabel="time per state (us)",
            title="planar n-link chain")
@@ -150,11 +150,16 @@ def chart_scaling(res: Results, path: Path) -> None:
     plt.close(fig)
 
 
-def render(res: Results, target: str = "panda") -> str:
+def render(res: Results, target: str = "panda", interrupted: str = "") -> str:
+    """The markdown report; ``interrupted``, for a run ended by Ctrl-C, says what was running (the report then
+    holds what was measured until then)."""
     m = res.machine
+    partial = [f"**PARTIAL**: the run was interrupted while {interrupted}; only what was measured until then is "
+               "below.", ""] if interrupted else []
     lines = [
         "# Speed against accuracy",
         "",
+        *partial,
         f"Written by `crosscheck bench{' --quick' if res.plan == 'quick' else ''}` ({res.plan} plan, "
         f"{res.seconds:.0f} s). Machine: {m['cpus']} CPUs, {m['machine']}, Python {m['python']}, numpy {m['numpy']}, "
         f"Pinocchio {m['pinocchio']}, casadi {m['casadi']}, sympy {m['sympy']}. One BLAS thread.",
@@ -206,13 +211,14 @@ def render(res: Results, target: str = "panda") -> str:
     return "\n".join(lines)
 
 
-def write(res: Results, out_dir: Path) -> Path:
-    """``speed_accuracy.md``, its two charts and the raw numbers (``speed_accuracy.json``) in ``out_dir``."""
+def write(res: Results, out_dir: Path, interrupted: str = "") -> Path:
+    """``speed_accuracy.md``, its two charts and the raw numbers (``speed_accuracy.json``) in ``out_dir``;
+    ``interrupted``: :func:`render`."""
     out_dir.mkdir(parents=True, exist_ok=True)
     chart_speed_accuracy(res, out_dir / "speed_accuracy.png")
     chart_scaling(res, out_dir / "speed_scaling.png")
     (out_dir / "speed_accuracy.json").write_text(res.to_json() + "\n")
     path = out_dir / "speed_accuracy.md"
-    path.write_text(render(res))
+    path.write_text(render(res, interrupted=interrupted))
     return path
 

@@ -190,14 +190,29 @@ def absolute(model: Model) -> AffineChart:
     return AffineChart("absolute", np.eye(n) - np.eye(n, k=-1), np.zeros(n))
 
 
+#: The largest model whose affine chart is dense; beyond it each joint coordinate mixes the chart coordinates within
+#: :data:`AFFINE_BAND` of it (:func:`random_affine`).
+AFFINE_DENSE_LIMIT = 12
+AFFINE_BAND = 2
+
+
 def random_affine(model: Model, seed: int, case: str, max_cond: float = 10.0) -> AffineChart:
-    """``q = A p + b`` with ``A = I + G / sqrt(n)`` (G standard normal: dense, every joint coordinate mixes all the
-    chart coordinates) redrawn until cond(A) <= max_cond, and b uniform in +-1; seeded by (seed, case), so a gate
-    run always uses the same chart."""
+    """``q = A p + b`` with ``A = I + G / sqrt(k)`` (G standard normal on k entries per row) redrawn until
+    cond(A) <= max_cond, and b uniform in +-1; seeded by (seed, case), so a gate run always uses the same chart.
+
+    Up to :data:`AFFINE_DENSE_LIMIT` coordinates G is dense (every joint coordinate mixes all the chart coordinates,
+    k = n); beyond, G is banded, ``|i - j| <= AFFINE_BAND``: a dense chart makes every body's pose a function of all
+    n chart coordinates, so a derivation in it (Euler–Lagrange's) has O(n^3) terms in M alone (2 million operations
+    per state for a 48-joint robot, against 2 thousand in its joint chart), while a band keeps the pose of a body at
+    depth d a function of d + 2 AFFINE_BAND coordinates and still mixes neighbouring joints (across branches of a
+    tree, whose coordinates follow one another in v's order) with an unsymmetric A."""
     rng = case_rng(seed, case + "/affine")
     n = model.n
+    dense = n <= AFFINE_DENSE_LIMIT
+    mask = np.ones((n, n)) if dense else (np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= AFFINE_BAND)
+    per_row = n if dense else 2 * AFFINE_BAND + 1
     while True:
-        A = np.eye(n) + rng.standard_normal((n, n)) / np.sqrt(n)
+        A = np.eye(n) + rng.standard_normal((n, n)) * mask / np.sqrt(per_row)
         if np.linalg.cond(A) <= max_cond:
             return AffineChart("affine", A, rng.uniform(-1.0, 1.0, n))
 

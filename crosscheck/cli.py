@@ -1,6 +1,7 @@
 """The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench.
 
-Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage.
+Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
+one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report).
 """
 
 from __future__ import annotations
@@ -23,14 +24,17 @@ from cases import configuration
 from cases.model import ModelError
 from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
-from crosscheck import diagnosis, junit, preflight, registry
+from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import KNOWN, worst_of
+from crosscheck.progress import Display
 from crosscheck.report import render
 from formalisms import UnknownFormalism
 from formalisms.interface import ModelNotSupported, StateError
 
 DEFAULT_REPORT = "reports/gate.md"
+#: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED = 130
 
 
 class UsageError(Exception):
@@ -129,6 +133,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
 
 
+def add_quiet_option(parser: argparse.ArgumentParser) -> None:
+    """``--quiet`` on a long-running subcommand: no progress display and no progress lines on stderr (CI logs)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress on stderr (the bar on a terminal, the per-step lines elsewhere)")
+
+
 def cmd_cases(args) -> int:
     for info in cases.catalog():
         params = ", ".join(f"{k}={v}" for k, v in info.parameters.items()) or "no parameters"
@@ -144,8 +154,9 @@ def cmd_formalisms(args) -> int:
         tag = f" ({plugins[name]})" if name in plugins else tag
         formalism = backends.get(name)
         print(f"{name:{width}s}  {formalism.summary}{tag}")
-        if formalism.evaluation is not None:
-            print(f"{'':{width}s}  evaluation: {formalism.evaluation()}")
+        evaluation = getattr(formalism, "evaluation", None)  # a plugin need not have the field
+        if evaluation is not None:
+            print(f"{'':{width}s}  evaluation: {evaluation()}")
     return 0
 
 
@@ -188,18 +199,20 @@ def cmd_gate(args) -> int:
     report = preflight.claim_output(args.report, "report", placeholder)
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
-
-    def progress(case, done):
-        if done == args.samples:
-            print(f"  {case}: {done} states evaluated", file=sys.stderr)
-
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test)
-    result = run_gate(specs, chosen, args.samples, args.seed, progress, checks, workers=args.workers,
-                      required=_required(args))
+    with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
+        try:
+            result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
+                              workers=args.workers, required=_required(args))
+        except gate.Interrupted as stop:
+            result = stop.result
     applied = registry.apply(known, result) if known else None
-    diagnosis.annotate(result, chosen)
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
+    if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
+        report.write_text(render(result, command, applied))
+        return _interrupted(f"{result.interrupted}; partial report written to {report}")
+    diagnosis.annotate(result, chosen)
     report.write_text(render(result, command, applied))
     if args.junit:
         junit.write(result, args.junit)
@@ -235,6 +248,28 @@ def cmd_gate(args) -> int:
               "canaries caught and named", file=sys.stderr)
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
     return 0 if result.passed else 1
+
+
+def _gate_progress(display: Display):
+    """The gate's progress callback (``crosscheck.gate.Step``) on ``display``: the states evaluated over every case,
+    what runs now, and a line per case evaluated."""
+    finished = 0
+
+    def progress(step: gate.Step) -> None:
+        nonlocal finished
+        if step.phase == gate.DONE:
+            finished += step.done
+            display.note(f"  {step.text}")
+        display.update(completed=finished + (0 if step.phase == gate.DONE else step.done))
+        display.doing(step.text)
+
+    return progress
+
+
+def _interrupted(detail: str = "") -> int:
+    """Ctrl-C: one line on stderr (``detail``: where the run stopped, what it left behind); exit code 130."""
+    print("crosscheck: interrupted" + (f" {detail}" if detail else ""), file=sys.stderr)
+    return INTERRUPTED
 
 
 def _jsonable(value):
@@ -503,21 +538,22 @@ def cmd_faults(args) -> int:
     known = _registry(args)
     report = preflight.claim_output(args.report, "report", "# crosscheck faults\n\nThe run writing this report "
                                     "has not finished (interrupted or failed).\n")
+    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     start = time.perf_counter()
     hunts, shared_hunts = [], []
-    for fault in chosen:
-        hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known))
-        print(faults.line(hunts[-1]), flush=True)
-    for fault in shared:
-        shared_hunts.append(common_mode.hunt(fault, samples=args.samples, seed=args.seed, known=known))
-        print(common_mode.line(shared_hunts[-1]), flush=True)
-    table = None
-    if args.sensitivity_states and not args.fault:
-        table = sensitivity.run(faults.default_backends(), args.sensitivity_states, args.seed,
-                                lambda line: print(line, file=sys.stderr, flush=True))
+    with Display("faults", "faults", len(chosen) + len(shared), quiet=args.quiet) as display:
+        try:
+            _hunt_faults(args, chosen, shared, known, display, hunts, shared_hunts)
+            table = _sensitivity(args, display)
+        except KeyboardInterrupt:
+            done = len(hunts) + len(shared_hunts)
+            where = ("during the sensitivity table (every fault hunted)" if done == len(chosen) + len(shared)
+                     else f"after {done}/{len(chosen) + len(shared)} faults")
+            report.write_text(faults.render(hunts, command, time.perf_counter() - start, args.samples, args.seed,
+                                            where) + common_mode.render(shared_hunts))
+            return _interrupted(f"{where}; partial report written to {report}")
     seconds = time.perf_counter() - start
     summary = faults.summarize(hunts)
-    command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     report.write_text(faults.render(hunts, command, seconds, args.samples, args.seed)
                       + common_mode.render(shared_hunts) + ("\n".join(sensitivity.render(table)) if table else ""))
     missed = sum(not h.caught for h in shared_hunts)
@@ -528,6 +564,48 @@ def cmd_faults(args) -> int:
           f"{len(shared_hunts)}" + ("" if table is None else f"; 3-D sensitivity claim {'met' if claim else 'NOT met'}")
           + f"; {seconds:.1f} s; report written to {report}")
     return 0 if summary.caught == summary.faults and not missed and claim else 1
+
+
+def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list) -> None:
+    """Hunt each backend fault, then each common-mode fault, with the default gate (``crosscheck.faults``,
+    ``crosscheck.common_mode``), appending to ``hunts`` and ``shared_hunts`` as each ends (so that an interrupted run
+    keeps them); a line per fault on stdout."""
+    from crosscheck import common_mode, faults
+
+    for fault in chosen:
+        hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known,
+                                 progress=_hunting(display, fault.name)))
+        print(faults.line(hunts[-1]), flush=True)
+        display.advance()
+    for fault in shared:
+        shared_hunts.append(common_mode.hunt(fault, samples=args.samples, seed=args.seed, known=known,
+                                             progress=_hunting(display, fault.name)))
+        print(common_mode.line(shared_hunts[-1]), flush=True)
+        display.advance()
+
+
+def _hunting(display: Display, fault: str):
+    """A hunt's progress callback: the fault and the state under evaluation, on ``display``."""
+    return lambda case, index: display.doing(f"{fault}: {case} state #{index}")
+
+
+def _sensitivity(args, display: Display):
+    """The sensitivity table (``crosscheck.sensitivity``), None when skipped (``--sensitivity-states 0`` or
+    ``--fault``); a line per backend and term measured."""
+    from crosscheck import faults, sensitivity
+
+    if not args.sensitivity_states or args.fault:
+        return None
+    chosen = faults.default_backends()
+    display.stage("sensitivity terms", len([b for b in chosen if b.name in sensitivity.TERM_HOOKS])
+                  * len(sensitivity.TERMS))
+    display.doing("sensitivity: the smallest error each check catches")
+
+    def measured(line: str) -> None:
+        display.note(line)
+        display.advance()
+
+    return sensitivity.run(chosen, args.sensitivity_states, args.seed, measured)
 
 
 def _shard(text: str) -> tuple[int, int]:
@@ -556,11 +634,14 @@ def cmd_fuzz(args) -> int:
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation, **bound)
-        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
+        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
     print(fuzz.summary(result))
-    return 130 if result.interrupted else (1 if result.findings else 0)
+    if result.interrupted:
+        return _interrupted("(the chunks in flight saved what they held); report written to "
+                            f"{result.out / 'report.md'}; the same command again resumes the campaign")
+    return 1 if result.findings else 0
 
 
 def cmd_replay(args) -> int:
@@ -618,13 +699,33 @@ def cmd_bench(args) -> int:
     names = args.formalism or None
     for name in names or []:
         backends.get(name)
-    results = bench.run(plan, names, getattr(args, "plugin", []),
-                        log=lambda line: print(line, file=sys.stderr, flush=True))
-    print(f"speed and accuracy: {bench_report.write(results, Path(args.out))}")
-    if not args.no_stability:
-        from crosscheck import stability
-        print(f"stability: {stability.write_report(Path(args.out), quick=args.quick)}")
+    with Display("bench", "steps", bench.steps(plan, names or backends.names()), quiet=args.quiet) as display:
+        try:
+            results = bench.run(plan, names, getattr(args, "plugin", []), display)
+        except bench.Interrupted as stop:
+            path = bench_report.write(stop.results, Path(args.out), stop.where)
+            return _interrupted(f"while {stop.where}; partial report written to {path}")
+        speed = bench_report.write(results, Path(args.out))
+        print(f"speed and accuracy: {speed}")
+        if not args.no_stability:
+            try:
+                print(f"stability: {_stability_maps(args.out, args.quick, display)}")
+            except KeyboardInterrupt:
+                return _interrupted(f"during the stability maps; {speed} is complete, stability.md not updated")
     return 0
+
+
+def _stability_maps(out: str, quick: bool, display: Display) -> Path:
+    """The stability maps (``crosscheck.stability``), a step on ``display`` per point; the report's path."""
+    from crosscheck import stability
+
+    display.stage("stability points", sum(len(p.points) for p in stability.paths(quick, backends.names())))
+
+    def measured(path: str, done: int, count: int) -> None:
+        display.advance()
+        display.doing(f"stability: {path} {done}/{count}")
+
+    return stability.write_report(Path(out), quick=quick, progress=measured)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -663,6 +764,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                       help="cases run in this many processes (default: the number of CPUs; 1: in this process)")
     add_plugin_option(gate)
+    add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
 
     ev = sub.add_parser("eval", help="evaluate the backends at one state")
@@ -707,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    add_quiet_option(hunt)
     hunt.set_defaults(run=cmd_faults)
 
     fz = sub.add_parser("fuzz", help="fuzzing campaign: random models and states, failures shrunk and saved")
@@ -732,6 +835,7 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--no-frames", action="store_true", help="skip the frame invariance checks")
     fz.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
     add_plugin_option(fz)
+    add_quiet_option(fz)
     fz.set_defaults(run=cmd_fuzz)
 
     rp = sub.add_parser("replay", help="evaluate a saved fuzzing finding again")
@@ -752,6 +856,7 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
     add_plugin_option(bn)
+    add_quiet_option(bn)
     bn.set_defaults(run=cmd_bench)
 
     st = sub.add_parser("stability", help="true errors and condition numbers along paths into trouble "
@@ -769,8 +874,11 @@ BLAS_THREADS = 1
 
 
 def _notice(message, category, filename, lineno, file=None, line=None) -> None:
-    """A loader's notice (``cases.urdf.BaseNotice``) as one line; other warnings as Python prints them."""
-    if issubclass(category, cases.urdf.BaseNotice):
+    """A loader's notice (``cases.urdf.BaseNotice``) or the gate's (``gate.PreparationNotice``) as one line; other
+    warnings as Python prints them."""
+    from crosscheck.gate import PreparationNotice
+
+    if issubclass(category, (cases.urdf.BaseNotice, PreparationNotice)):
         print(f"crosscheck: notice: {message}", file=sys.stderr if file is None else file)
     else:
         _show_warning(message, category, filename, lineno, file, line)
@@ -798,6 +906,8 @@ def _main(argv: list[str] | None) -> int:
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:   # a command without a partial report of its own, or a second Ctrl-C
+        return _interrupted()
 
 
 if __name__ == "__main__":

@@ -85,8 +85,10 @@ def _first_failure(outcome) -> str:
 
 
 def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=None, samples: int = 100,
-         seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None) -> SharedHunt:
-    """Everything the default gate does, under ``fault``, until something fails (module doc)."""
+         seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
+         progress: Callable[[str, int], None] | None = None) -> SharedHunt:
+    """Everything the default gate does, under ``fault``, until something fails (module doc); ``progress(case,
+    index)`` is called before each state is evaluated."""
     specs = faults.default_specs() if specs is None else list(specs)
     backends = faults.default_backends() if backends is None else list(backends)
     start, count = time.perf_counter(), 0
@@ -107,6 +109,8 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
             if problems:
                 return done(f"coverage {case.setup.spec.name}", problems[0])
         for case, state in faults._round_robin(setups, samples):
+            if progress:
+                progress(case.setup.spec.name, state.index)
             outcome = case.setup.evaluate(state, backends)
             if known is not None:
                 registry.apply_to_state(known, (case.setup.spec.name, case.setup.model.name), outcome)

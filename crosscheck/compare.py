@@ -91,17 +91,24 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
-    nan = np.isnan(ratios)
-    per_pair = np.where(nan.any(axis=1), np.nan, np.where(nan, -np.inf, ratios).max(axis=1))
+    per_pair = ratios.max(axis=1)                                      # NaN where a pair has one
+    worst_pair, entry = _worst(ratios, per_pair)
     pairs = dict(zip(combinations(present, 2), per_pair.tolist()))
-    worst_pair = int(np.argmax(np.where(np.isnan(per_pair), np.inf, per_pair)))    # NaN is the worst
     worst = float(per_pair[worst_pair])
-    entry = int(np.argmax(np.where(nan[worst_pair], np.inf, ratios[worst_pair]))) if tols.size > 1 else 0
-    at = float(tols[entry])
+    at = float(tols[entry if tols.size > 1 else 0])
     if not worst <= 1.0:
         return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
                           severity(worst))
     return Comparison(quantity, AGREE, at, worst, pairs, None, skipped)
+
+
+def _worst(ratios: np.ndarray, per_pair: np.ndarray) -> tuple[int, int]:
+    """The worst pair (row of ``ratios``, the first of the largest ``per_pair``, NaN the worst) and its worst entry."""
+    if not np.isnan(per_pair).any():
+        worst_pair = int(per_pair.argmax())
+        return worst_pair, int(ratios[worst_pair].argmax())
+    worst_pair = int(np.argmax(np.where(np.isnan(per_pair), np.inf, per_pair)))
+    return worst_pair, int(np.argmax(np.where(np.isnan(ratios[worst_pair]), np.inf, ratios[worst_pair])))
 
 
 def _ratios(differences: np.ndarray, tol: np.ndarray) -> np.ndarray:

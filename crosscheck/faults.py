@@ -403,10 +403,12 @@ def default_backends() -> list[Formalism]:
 
 
 def hunt(fault: Fault, specs: Sequence[CaseSpec] | None = None, backends: Sequence[Formalism] | None = None,
-         samples: int = 100, seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None) -> Hunt:
+         samples: int = 100, seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
+         progress: Callable[[str, int], None] | None = None) -> Hunt:
     """Run the gate's states round robin under ``fault`` (module docstring) until one fails, at most ``samples``
     per case; ``specs`` and ``backends`` default to the default gate's. With ``known`` (a divergence registry, as
-    ``crosscheck gate`` applies it) a disagreement it explains does not count as a catch."""
+    ``crosscheck gate`` applies it) a disagreement it explains does not count as a catch. ``progress(case, index)``
+    is called before each state is evaluated."""
     specs = default_specs() if specs is None else list(specs)
     backends = default_backends() if backends is None else list(backends)
     if fault.backend not in [b.name for b in backends]:
@@ -419,6 +421,8 @@ def hunt(fault: Fault, specs: Sequence[CaseSpec] | None = None, backends: Sequen
     start, count = time.perf_counter(), 0
     with injected(fault):
         for case, state in _round_robin(setups, samples):
+            if progress:
+                progress(case.setup.spec.name, state.index)
             outcome = case.setup.evaluate(state, backends)
             if known is not None:
                 registry.apply_to_state(known, (case.setup.spec.name, case.setup.model.name), outcome)
@@ -479,11 +483,14 @@ def summarize(hunts: Sequence[Hunt]) -> Summary:
                                                            for h in caught))
 
 
-def render(hunts: Sequence[Hunt], command: str, seconds: float, samples: int, seed: int) -> str:
-    """The markdown report: the summary, one row per fault, then each fault's description and injection point."""
+def render(hunts: Sequence[Hunt], command: str, seconds: float, samples: int, seed: int, interrupted: str = "") -> str:
+    """The markdown report: the summary, one row per fault, then each fault's description and injection point;
+    ``interrupted``, for a run ended by Ctrl-C, says where (the report then holds the faults hunted until then)."""
     s = summarize(hunts)
+    partial = [f"**PARTIAL**: the run was interrupted {interrupted}; only the faults hunted until then are below.",
+               ""] if interrupted else []
     lines = [
-        "# Fault catalog against the default gate", "",
+        "# Fault catalog against the default gate", "", *partial,
         f"Command: `{command}` (seed {seed}, at most {samples} states per case, round robin over the cases; "
         f"{seconds:.1f} s in all).", "",
         "| catch rate | states needed (median / max) | outlier named = faulty backend | named another | none named |",

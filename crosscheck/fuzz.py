@@ -70,7 +70,8 @@ from hypothesis import strategies as st
 
 from cases.model import Model
 from cases.serialize import model_from_dict, model_to_dict
-from crosscheck import backends, charts, frames, gate, testing
+from crosscheck import backends, charts, frames, gate, progress, testing
+from crosscheck import workers as worker_processes
 from crosscheck.gate import StateOutcome
 from crosscheck.sampling import State
 
@@ -365,23 +366,42 @@ def evaluate(model: Model, state: State, chart: charts.Chart, frame: frames.Fram
              ) -> StateOutcome:
     """One state as the gate checks it: every backend compared, then (as ``checks`` says) the chart check in
     ``chart``, the frame check on the scene moved by ``frame`` and the conservation checks."""
-    outcome = gate.evaluate(model, state, chosen)
+    (outcome,) = evaluate_block(model, [state], chart, frame, chosen, checks)
+    return outcome
+
+
+def evaluate_block(model: Model, states: Sequence[State], chart: charts.Chart, frame: frames.Frame, chosen,
+                   checks: dict) -> Iterator[StateOutcome]:
+    """:func:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in the
+    joint chart and on the moved scene (``gate.run_block``, which gives every state the splits and errors it gets
+    alone), then state by state come the comparisons and checks. Should running the backends over the block fail in
+    the harness itself, the states go one by one, so that the failure is met at the state that causes it."""
     scene = (frame, frames.move_scene(model, frame)) if checks["frames"] else None
     # the identity of a model with group joints is q itself, which no backend evaluates "in a chart"
     in_chart = [chart] if checks["charts"] and (charts.applies(model) or chart.name != "identity") else []
-    gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"])
-    return outcome
+    try:
+        joint = gate.run_block(model, states, chosen)
+        moved = gate.run_block(scene[1], states, chosen) if scene else [None] * len(states)
+    except Exception:  # the harness, not a backend (whose errors run_block records): one state at a time
+        joint = moved = None
+    for k, state in enumerate(states):
+        outcome = gate.run_backends(model, state, chosen) if joint is None else joint[k]
+        gate.judge(model, outcome, chosen)
+        gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"],
+                        None if moved is None else moved[k])
+        yield outcome
 
 
 def _evaluate(model: Model, states: Sequence[State], chart_spec: tuple[str, int], frame: frames.Frame,
               chosen, checks: dict, rec: _Recorder) -> tuple[float, dict | None]:
-    """Every state (:func:`evaluate`); (worst ratio, finding of the first failing state or None). An exception
+    """Every state (:func:`evaluate_block`); (worst ratio, finding of the first failing state or None). An exception
     of the harness itself is a finding too."""
     worst, names = 0.0, [b.name for b in chosen]
     chart = charts.get(chart_spec[0], model, chart_spec[1])
+    outcomes = evaluate_block(model, states, chart, frame, chosen, checks)
     for state in states:
         try:
-            outcome = evaluate(model, state, chart, frame, chosen, checks)
+            outcome = next(outcomes)
         except Exception as exc:  # the harness failing on a valid model and state is a finding, not a crash
             where = "".join(traceback.format_exception(exc, limit=-3)).strip()
             return math.inf, make_finding(model, state, chart_spec, frame, checks, names, None, where)
@@ -676,38 +696,33 @@ def _record_run(cfg: FuzzConfig, campaign: dict, wall: float, interrupted: bool)
 # ------------------------------------------------------------------------------------------------ a campaign
 
 
-class _Display:
-    """The progress bar (rich, on stderr, only on a terminal): examples, examples/s, worst ratio, findings."""
+class _Tally:
+    """The campaign's counts on its progress display (``crosscheck.progress``): examples (of the planned total),
+    examples/s, the worst ratio, the findings, and whether examples are being generated or a failure shrunk."""
 
-    def __init__(self, total: int | None, console=None):
-        from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.console = console or Console(stderr=True)
+    def __init__(self, display: progress.Display):
+        self.display = display
         self.start = time.perf_counter()
         self.examples, self.worst, self.findings = 0, 0.0, 0
-        self.progress = Progress(TextColumn("fuzz"), BarColumn(), TextColumn("{task.completed} examples"),
-                                 TextColumn("{task.fields[rate]:.2f}/s"), TextColumn("worst {task.fields[worst]:.3g}"),
-                                 TextColumn("{task.fields[findings]} findings"), TimeElapsedColumn(),
-                                 console=self.console, disable=not self.console.is_terminal)
-        self.task = self.progress.add_task("fuzz", total=total, rate=0.0, worst=0.0, findings=0)
-
-    def __enter__(self):
-        self.progress.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        return self.progress.__exit__(*exc)
 
     def example(self, examples: int, states: int, ratio: float) -> None:
+        """A property call: a generated example (``examples`` 1) or a shrinking call (0)."""
         self.examples += examples
         self.worst = max(self.worst, ratio)
         rate = self.examples / max(time.perf_counter() - self.start, 1e-9)
-        self.progress.update(self.task, advance=examples, rate=rate, worst=self.worst)
+        self.display.advance(examples, rate=rate, worst=self.worst)
+        self.display.doing("generating examples" if examples else "shrinking a failure")
 
     def chunk(self, record: dict) -> None:
         self.findings += len(record["findings"])
-        self.progress.update(self.task, findings=self.findings)
+        self.display.update(findings=self.findings)
+
+
+def _display(total: int | None, quiet: bool) -> progress.Display:
+    """The campaign's progress display: examples of ``total``, examples/s, worst ratio, findings."""
+    return progress.Display("fuzz", "examples", total, quiet=quiet,
+                            extra=("{task.fields[rate]:.2f}/s", "worst {task.fields[worst]:.3g}",
+                                   "{task.fields[findings]} findings"), rate=0.0, worst=0.0, findings=0)
 
 
 def _until(deadline: float | None, ks: Iterable[int]) -> Iterator[int]:
@@ -717,7 +732,7 @@ def _until(deadline: float | None, ks: Iterable[int]) -> Iterator[int]:
         yield k
 
 
-def _in_process(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
+def _in_process(cfg: FuzzConfig, plan: Iterator[int], cache: str, tally: _Tally) -> Iterator[dict]:
     """Chunks one after another in this process (the derivation cache pointed at ``cache`` meanwhile), until one is
     interrupted or an interrupt is requested."""
     before = os.environ.get("CROSSCHECK_CACHE")
@@ -726,7 +741,7 @@ def _in_process(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Disp
         for k in plan:
             if _INTERRUPTS.requested:
                 return
-            record = run_chunk(cfg, k, display.example)
+            record = run_chunk(cfg, k, tally.example)
             yield record
             if record["interrupted"]:
                 return
@@ -767,10 +782,10 @@ def _worker_chunk(cfg: FuzzConfig, k: int) -> dict:
 
 class _Flight:
     """The chunks in flight in a worker pool: their pending results, the process running each (from the workers'
-    ``start`` messages), their progress shown on ``display``."""
+    ``start`` messages), their progress counted by ``tally``."""
 
-    def __init__(self, cfg: FuzzConfig, pool, queue, display: _Display):
-        self.cfg, self.pool, self.queue, self.display = cfg, pool, queue, display
+    def __init__(self, cfg: FuzzConfig, pool, queue, tally: _Tally):
+        self.cfg, self.pool, self.queue, self.tally = cfg, pool, queue, tally
         self.pending: dict = {}
         self.pids: dict[int, int] = {}
 
@@ -787,7 +802,7 @@ class _Flight:
             if kind == "start":
                 self.pids[message[0]] = message[1]
             else:
-                self.display.example(*message)
+                self.tally.example(*message)
 
     def ended(self) -> list[dict]:
         """The records of the chunks that ended since the last call."""
@@ -826,34 +841,35 @@ class _Flight:
             time.sleep(POLL / 2)
 
 
-def _in_pool(cfg: FuzzConfig, plan: Iterator[int], cache: str, display: _Display) -> Iterator[dict]:
+def _in_pool(cfg: FuzzConfig, plan: Iterator[int], cache: str, tally: _Tally) -> Iterator[dict]:
     """Chunks in ``cfg.workers`` spawned processes, at most one in flight per worker, records in completion order.
     On an interrupt (of this process, or a chunk reporting one) or a lost worker, no chunk starts any more and the
     stop flag interrupts the chunks in flight, which get ``INTERRUPT_GRACE`` seconds to save what they hold and
     report; a lost worker then raises :class:`FuzzError`."""
     ctx = multiprocessing.get_context("spawn")
     queue, stop = ctx.Queue(), ctx.RawValue("b", 0)
-    pool = ctx.Pool(cfg.workers, initializer=_init_worker, initargs=(cfg.plugins, cache, queue, stop, os.getpid()),
-                    maxtasksperchild=CHUNKS_PER_PROCESS)
-    flight = _Flight(cfg, pool, queue, display)
-    try:
-        flight.start(itertools.islice(plan, cfg.workers))
-        while flight.pending:
-            done, lost = flight.wait()
-            yield from done
-            if lost or _INTERRUPTS.requested or any(record["interrupted"] for record in done):
-                stop.value = 1
-                yield from flight.grace()
-                if lost:
-                    raise FuzzError(f"the worker process running chunk {lost[0]} (pid {lost[1]}) died; the chunks in "
-                                    "flight were stopped and the report written: run the same command again to resume "
-                                    f"(chunk {lost[0]} runs again)")
-                return
-            flight.start(itertools.islice(plan, len(done)))
-    finally:
-        stop.value = 1   # first: a worker takes the pool's SIGTERM after it as the end (_Interrupts.on_signal)
-        pool.terminate()
-        pool.join()
+    with worker_processes.spawning():   # its workers ignore Ctrl-C until their initializer handles it
+        pool = ctx.Pool(cfg.workers, initializer=_init_worker,
+                        initargs=(cfg.plugins, cache, queue, stop, os.getpid()), maxtasksperchild=CHUNKS_PER_PROCESS)
+        flight = _Flight(cfg, pool, queue, tally)
+        try:
+            flight.start(itertools.islice(plan, cfg.workers))
+            while flight.pending:
+                done, lost = flight.wait()
+                yield from done
+                if lost or _INTERRUPTS.requested or any(record["interrupted"] for record in done):
+                    stop.value = 1
+                    yield from flight.grace()
+                    if lost:
+                        raise FuzzError(f"the worker process running chunk {lost[0]} (pid {lost[1]}) died; the "
+                                        "chunks in flight were stopped and the report written: run the same command "
+                                        f"again to resume (chunk {lost[0]} runs again)")
+                    return
+                flight.start(itertools.islice(plan, len(done)))
+        finally:
+            stop.value = 1   # first: a worker takes the pool's SIGTERM after it as the end (_Interrupts.on_signal)
+            pool.terminate()
+            pool.join()
 
 
 @dataclass
@@ -864,10 +880,11 @@ class CampaignResult:
     interrupted: bool
 
 
-def run_campaign(cfg: FuzzConfig, command: str = "", console=None) -> CampaignResult:
+def run_campaign(cfg: FuzzConfig, command: str = "", quiet: bool = False) -> CampaignResult:
     """Run the campaign ``cfg`` (from :func:`config`) in its directory, locked for the run: chunks logged as they
     end, findings saved as they are found, the report written at the end, also after an interruption (SIGINT or
-    SIGTERM: ``interrupted`` is then set) or an error (re-raised after). Module doc: what survives what."""
+    SIGTERM: ``interrupted`` is then set) or an error (re-raised after). Module doc: what survives what. The
+    progress display shows on a terminal's stderr, unless ``quiet``."""
     out = Path(cfg.out)
     with _locked(out), _signals_handled():
         campaign = _prepare(cfg)
@@ -881,11 +898,13 @@ def run_campaign(cfg: FuzzConfig, command: str = "", console=None) -> CampaignRe
         start, interrupted, ended = time.perf_counter(), False, False
         runner = _in_process if cfg.workers == 0 else _in_pool
         try:
-            with _Display(total, console) as display, contextlib.closing(runner(cfg, plan, cache, display)) as records:
-                for record in records:
-                    _append_chunk(out, record)
-                    display.chunk(record)
-                    interrupted |= record["interrupted"]
+            with _display(total, quiet) as display:
+                tally = _Tally(display)
+                with contextlib.closing(runner(cfg, plan, cache, tally)) as records:
+                    for record in records:
+                        _append_chunk(out, record)
+                        tally.chunk(record)
+                        interrupted |= record["interrupted"]
             ended = True
         except KeyboardInterrupt:
             pass

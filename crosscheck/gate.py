@@ -5,16 +5,28 @@ answers do not depend on the chart (every built-in chart that applies; ``crossch
 frame (state ``i`` in sampled frame ``i mod frames``) or break conservation (``crosscheck.conservation``).
 
 Each backend runs once per state and scene (joint chart, each chart, the moved scene); the tolerance scales of the
-trusted joint-chart splits are computed once per state and shared by every check. ``run_gate(..., workers=W)``
-runs the cases in W spawned processes with the same outcomes, in case order.
+trusted joint-chart splits are computed once per state and shared by every check. A case's states are evaluated in
+blocks (:meth:`CaseSetup.evaluate_block`): a backend with a block form (``formalisms.interface.with_block_form``)
+splits a block's states in one call in the joint chart and in each moved scene, with the very numbers of its
+state-by-state ``split``, so the outcomes are those of one state at a time. ``run_gate(..., workers=W)`` runs the
+cases in W spawned processes with the same outcomes, in case order.
+
+
+``run_gate(..., progress=...)`` tells a progress display where the run is (:class:`Step`: the case, the states
+evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends the run with :class:`Interrupted`, which carries the
+partial result: every state evaluated until then, marked as interrupted, never passing.
 """
 
 from __future__ import annotations
 
 import pickle
+import signal
 import time
+import warnings
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
 
 import cases
 from cases.model import Model
@@ -22,10 +34,15 @@ from crosscheck import charts as chart_catalog
 from crosscheck import conditioning, conservation, frames, invariance
 from crosscheck import coverage as coverage_of
 from crosscheck import tolerance as tolerance_policy
+from crosscheck import workers as worker_processes
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.compare import DISAGREE, Comparison, backend_of, compare, worst_of
 from crosscheck.sampling import State, sample_states
-from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split
+from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split, block_form
+
+#: States a case evaluates as one block after its first state (:func:`run_case`): enough that a backend's block form
+#: spreads numpy's per-call cost over many states, few enough that the splits of a block take little memory.
+BLOCK = 50
 
 
 @dataclass(frozen=True)
@@ -130,15 +147,17 @@ class CaseOutcome:
 
     def voted(self) -> set[str]:
         """The backends that took part in at least one comparison or check of this case."""
-        return {backend_of(v) for s in self.states for c in [*s.comparisons.values(), *s.checks.values()]
-                for v in c.voters}
+        voters = {name for s in self.states for c in (*s.comparisons.values(), *s.checks.values()) for pair in c.pairs
+                  for name in pair}
+        return {backend_of(v) for v in voters}
 
 
 @dataclass
 class GateResult:
     """A gate run. ``required`` are the backends named on the command line without ``--optional``: each must take
     part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
-    ``self_test`` the canaries' outcome (``crosscheck.selftest``), None when skipped."""
+    ``self_test`` the canaries' outcome (``crosscheck.selftest``), None when skipped; ``interrupted``, for a run
+    ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise."""
 
     seed: int
     samples: int
@@ -147,42 +166,166 @@ class GateResult:
     checks: Checks = Checks()
     required: tuple[str, ...] = ()
     self_test: object = None
+    interrupted: str = ""
 
     @property
     def absent(self) -> tuple[str, ...]:
         """The required backends that took part in no comparison of any case."""
+        if not self.required:
+            return ()
         voted = set().union(*(case.voted() for case in self.cases)) if self.cases else set()
         return tuple(name for name in self.required if name not in voted)
 
     @property
     def passed(self) -> bool:
-        return (not any(c.failed for c in self.cases) and not self.absent
+        """Whether the run finished and nothing failed (an interrupted run never passes)."""
+        return (not self.interrupted and not any(c.failed for c in self.cases) and not self.absent
                 and (self.self_test is None or self.self_test.passed))
 
 
-def run_backends(model: Model, state: State, backends: Sequence[Formalism],
-                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_gate`: ``result`` is the partial run, every state evaluated until then, with
+    ``result.interrupted`` saying where it stopped."""
+
+    def __init__(self, result: GateResult):
+        super().__init__(f"gate interrupted {result.interrupted}")
+        self.result = result
+
+
+class _CaseInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_case`: ``case`` holds the states evaluated until then."""
+
+    def __init__(self, case: CaseOutcome):
+        super().__init__(f"case {case.spec.name} interrupted")
+        self.case = case
+
+
+#: :attr:`Step.phase` besides ``"preparing <backend>"``.
+SETTING_UP = "setting up (model, charts, frames, states)"
+EVALUATING = "evaluating"
+IN_WORKER = "running in a worker process"
+DONE = "done"
+SELF_TEST = "self-test canaries"
+
+
+@dataclass(frozen=True)
+class Step:
+    """Where a gate run is, for a progress display: ``done`` of the ``states`` states of case ``case`` evaluated, and
+    what runs now (``phase``): :data:`SETTING_UP`; :data:`EVALUATING` state ``done + 1``; ``"preparing <backend>"``
+    (that state includes the backend's first call on the case, with its one-off preparation: symbolic derivation,
+    compilation); :data:`IN_WORKER` (a worker process reports only the case's end); :data:`DONE`; after the cases
+    :data:`SELF_TEST` (``case`` empty)."""
+
+    case: str
+    done: int
+    states: int
+    phase: str
+
+    @property
+    def text(self) -> str:
+        """The step in words: "panda: evaluating state 38/100", "panda: preparing euler_lagrange"."""
+        if not self.case:
+            return self.phase
+        if self.phase == DONE:
+            return f"{self.case}: {self.done} states evaluated"
+        if self.phase == EVALUATING:
+            return f"{self.case}: evaluating state {self.done + 1}/{self.states}"
+        return f"{self.case}: {self.phase}"
+
+
+def _ignore(step: Step) -> None:
+    """No progress display."""
+
+
+@dataclass
+class Clock:
+    """Seconds of each backend's calls on one case, in call order (the first includes one-off preparation: symbolic
+    derivation, compilation). ``preparing``, when set, is called with a backend's name before its first call and
+    with None once that call is over."""
+
+    calls: dict[str, list[float]] = field(default_factory=dict)
+    preparing: Callable[[str | None], None] | None = None
+
+    def timed(self, name: str, call: Callable[[], object], states: int = 1) -> object:
+        """``call()``, timed as backend ``name``'s on ``states`` states (each state gets an equal share)."""
+        first = name not in self.calls and self.preparing is not None
+        if first:
+            self.preparing(name)
+        start = time.perf_counter()
+        try:
+            return call()
+        finally:
+            self.calls.setdefault(name, []).extend([(time.perf_counter() - start) / max(states, 1)] * states)
+            if first:
+                self.preparing(None)
+
+    def first(self) -> dict[str, float]:
+        return {name: times[0] for name, times in self.calls.items()}
+
+    def per_state(self) -> dict[str, float]:
+        """Mean seconds of the calls after the first (the first when there is no other)."""
+        return {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0])
+                for name, times in self.calls.items()}
+
+
+def run_backends(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None
+                 ) -> StateOutcome:
     """Every backend's split at ``state``, the errors they raised and the backends in BREAKDOWN, without the
     comparisons (what a moved scene needs: :func:`add_checks`). A backend raising ``ModelNotSupported`` is in
     neither ``splits`` nor ``errors``."""
-    splits: dict[str, Split] = {}
-    errors: dict[str, str] = {}
-    for backend in backends:
-        start = time.perf_counter()
+    return run_block(model, [state], backends, clock)[0]
+
+
+def run_block(model: Model, states: Sequence[State], backends: Sequence[Formalism], clock: Clock | None = None
+              ) -> list[StateOutcome]:
+    """:func:`run_backends` at each of ``states``, every backend over the block at once (:func:`_split_states`);
+    ``clock`` receives each state's share of a backend's time on the block."""
+    clock = clock or Clock()
+    found = {backend.name: clock.timed(backend.name, lambda: _split_states(backend, model, states), len(states))
+             for backend in backends}
+    return [_outcome(state, {name: splits[k] for name, splits in found.items()}) for k, state in enumerate(states)]
+
+
+def _split_states(backend: Formalism, model: Model, states: Sequence[State]) -> list[tuple[Split | None, str | None]]:
+    """:func:`_split_one` at each of ``states``: in one call of the backend's block form when it has one (its elements
+    are ``split``'s, bit for bit) and there are several states; else state by state, and so when the block raises:
+    each state then gives the split or the error it gives alone."""
+    many = block_form(backend)
+    if many is not None and len(states) > 1:
         try:
-            splits[backend.name] = backend.split(model, state.q, state.qd, state.u)
-        except ModelNotSupported:
+            return [(split, None) for split in many(model, *_rows(model, states))]
+        except Exception:  # some state of the block fails: each state on its own says which, and how
             pass
-        except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
-            errors[backend.name] = f"{type(exc).__name__}: {exc}"
-        if clock is not None:
-            clock.setdefault(backend.name, []).append(time.perf_counter() - start)
+    return [_split_one(backend, model, state) for state in states]
+
+
+def _rows(model: Model, states: Sequence[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Q, QD, U)``: the states' ``q``, ``qd`` and ``u`` as the rows of three arrays."""
+    return tuple(np.array([getattr(s, name) for s in states], dtype=float).reshape(len(states), width)
+                 for name, width in (("q", model.nq), ("qd", model.nv), ("u", model.m)))
+
+
+def _split_one(backend: Formalism, model: Model, state: State) -> tuple[Split | None, str | None]:
+    """``backend``'s split at ``state`` or the error it raised (as reported); neither when it declines the model
+    (``ModelNotSupported``)."""
+    try:
+        return backend.split(model, state.q, state.qd, state.u), None
+    except ModelNotSupported:
+        return None, None
+    except Exception as exc:  # a backend that raises on a valid state has failed; report, don't crash
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def _outcome(state: State, found: dict[str, tuple[Split | None, str | None]]) -> StateOutcome:
+    """The outcome at ``state`` of the backends' splits and errors (:func:`_split_one`, by backend), without the
+    comparisons; the backends in BREAKDOWN found from their splits."""
+    splits = {name: split for name, (split, _) in found.items() if split is not None}
+    errors = {name: error for name, (_, error) in found.items() if error is not None}
     breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
     return StateOutcome(state, splits, errors, {}, breakdowns)
 
 
-def evaluate(model: Model, state: State, backends: Sequence[Formalism],
-             clock: dict[str, list[float]] | None = None) -> StateOutcome:
+def evaluate(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
     """Every backend's split at ``state`` and the comparison of each quantity in the tolerance table.
 
     A backend whose method is ill-conditioned here (``tolerance.breakdown``) is reported as BREAKDOWN and left
@@ -195,10 +338,16 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism],
     (:func:`add_checks`).
     """
     outcome = run_backends(model, state, backends, clock)
-    outcome.checks.update(conditioning.audit(model, state, outcome.splits, outcome.breakdowns))
+    judge(model, outcome, backends)
+    return outcome
+
+
+def judge(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+    """What :func:`evaluate` does once the ``backends`` have run at ``outcome``'s state: the conditioning audit and
+    the comparisons, the backends that declined the model joining them as UNSUPPORTED."""
+    outcome.checks.update(conditioning.audit(model, outcome.state, outcome.splits, outcome.breakdowns))
     compare_all(model, outcome, [b.name for b in backends if b.name not in outcome.splits
                                  and b.name not in outcome.errors])
-    return outcome
 
 
 def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] = ()) -> None:
@@ -220,10 +369,11 @@ def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
                case_charts: Sequence[chart_catalog.Chart], scene: tuple[frames.Frame, Model] | None,
-               do_conservation: bool) -> None:
+               do_conservation: bool, there: StateOutcome | None = None) -> None:
     """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
     checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there. The
-    trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check."""
+    trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check. ``there``:
+    the backends' outcome in the moved scene when the caller has run them (:func:`run_block`), else they run here."""
     state, trusted = outcome.state, outcome.trusted
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
     if trusted and outcome.scales is None:
@@ -233,7 +383,7 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
                                                       outcome.scales))
     if scene is not None:
         frame, moved = scene
-        there = run_backends(moved, state, backends)
+        there = run_backends(moved, state, backends) if there is None else there
         outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
         outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales,
                                                       moved))
@@ -266,31 +416,114 @@ class CaseSetup:
         """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
         return self.scenes[state.index % len(self.scenes)] if self.scenes else None
 
-    def evaluate(self, state: State, backends: Sequence[Formalism],
-                 clock: dict[str, list[float]] | None = None) -> StateOutcome:
+    def evaluate(self, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
         """Everything the gate does at one state: the comparisons (:func:`evaluate`) among ``backends`` and the case's
         own voters (its closed form), and the checks (:func:`add_checks`)."""
-        backends = [*backends, *self.voters]
-        outcome = evaluate(self.model, state, backends, clock)
-        add_checks(self.model, outcome, backends, self.charts, self.scene(state), self.conservation)
+        (outcome,) = self.evaluate_block([state], backends, clock)
         return outcome
+
+    def evaluate_block(self, states: Sequence[State], backends: Sequence[Formalism],
+                       clock: Clock | None = None) -> Iterator[StateOutcome]:
+        """:meth:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in
+        the joint chart and in each moved scene (the states checked there, :func:`run_block`), then state by state
+        come the comparisons and the checks."""
+        backends = [*backends, *self.voters]
+        outcomes = run_block(self.model, states, backends, clock)
+        moved = self._moved(states, backends)
+        for outcome, there in zip(outcomes, moved):
+            judge(self.model, outcome, backends)
+            add_checks(self.model, outcome, backends, self.charts, self.scene(outcome.state), self.conservation, there)
+            yield outcome
+
+    def _moved(self, states: Sequence[State], backends: Sequence[Formalism]) -> list[StateOutcome | None]:
+        """The backends' outcome at each of ``states`` in the moved scene it is checked in (:meth:`scene`), each
+        scene's states as one block; None for every state when the case has no moved scenes."""
+        out: list[StateOutcome | None] = [None] * len(states)
+        for k, (_, moved) in enumerate(self.scenes):
+            at = [j for j, state in enumerate(states) if state.index % len(self.scenes) == k]
+            for j, there in zip(at, run_block(moved, [states[j] for j in at], backends)):
+                out[j] = there
+        return out
 
 
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+    """The case's ``samples`` seeded states, each evaluated (:meth:`CaseSetup.evaluate`); ``progress`` is told
+    every :class:`Step`. Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
+    tell = progress or _ignore
+    tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
-    clock: dict[str, list[float]] = {}
-    outcomes = []
+    announce_preparation(setup, backends)
     states = sample_states(setup.model, samples, seed, spec.name)
-    for state in states:
-        outcomes.append(setup.evaluate(state, backends, clock))
-        if progress:
-            progress(spec.name, state.index + 1)
-    first = {name: times[0] for name, times in clock.items()}
-    rest = {name: (sum(times[1:]) / (len(times) - 1) if len(times) > 1 else times[0]) for name, times in clock.items()}
-    return CaseOutcome(spec, setup.model, outcomes, first, rest, tuple(c.name for c in setup.charts),
-                       tuple(frame for frame, _ in setup.scenes), coverage_of.measure(setup.model, states),
-                       _closed_form_coverage(spec, checks))
+    outcomes: list[StateOutcome] = []
+
+    def at(phase: str) -> None:
+        tell(Step(spec.name, len(outcomes), len(states), phase))
+
+    clock = Clock(preparing=lambda name: at(EVALUATING if name is None else f"preparing {name}"))
+    try:
+        at(EVALUATING)
+        for block in _blocks(states):
+            for outcome in setup.evaluate_block(block, backends, clock):
+                outcomes.append(outcome)
+                if len(outcomes) < len(states):
+                    at(EVALUATING)
+    except KeyboardInterrupt:
+        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
+    at(DONE)
+    return _case_outcome(setup, outcomes, clock, coverage_of.measure(setup.model, states), checks)
+
+
+#: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
+PREPARATION_NOTICE_S = 20.0
+
+
+class PreparationNotice(UserWarning):
+    """A backend's one-off preparation of a case (a symbolic derivation, a compilation) will take long: shown before it
+    starts, with the estimate and the ways around it."""
+
+
+def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
+    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart, each sampled chart
+    and each moved scene (a moved model is another model to prepare); 0 for a backend without an estimate."""
+    if backend.preparation is None:
+        return 0.0
+    model = setup.model
+    try:
+        return (backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
+                + sum(backend.preparation(moved, None) for _, moved in setup.scenes))
+    except ModelNotSupported:
+        return 0.0
+
+
+def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> None:
+    """Warn (:class:`PreparationNotice`) before a case whose preparation by some backend is estimated above
+    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it."""
+    for backend in backends:
+        seconds = preparation_seconds(setup, backend)
+        if seconds > PREPARATION_NOTICE_S:
+            warnings.warn(PreparationNotice(
+                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart, "
+                f"{len(setup.charts)} chart(s) and {len(setup.scenes)} moved scene(s) takes about {seconds:.0f} s of "
+                "CPU before its first answers (once: then cached on disk); --no-charts and --frames 0 leave out "
+                "the charts and the moved scenes, --formalism (naming the others) leaves it out"), stacklevel=2)
+
+
+def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
+                  coverage: coverage_of.Coverage | None, checks: Checks) -> CaseOutcome:
+    """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case)."""
+    return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
+                       tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
+                       _closed_form_coverage(setup.spec, checks))
+
+
+def _blocks(states: Sequence[State]) -> Iterator[Sequence[State]]:
+    """The first state alone (the report's first call, which includes the backends' one-off preparation), then blocks
+    of :data:`BLOCK` states."""
+    if states:
+        yield states[:1]
+    for start in range(1, len(states), BLOCK):
+        yield states[start:start + BLOCK]
 
 
 def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
@@ -305,7 +538,7 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None = None, checks: Checks = Checks(),
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
              workers: int = 0, required: Sequence[str] = ()) -> GateResult:
     """Run the gate over the cases; the result passes when no state shows a disagreement or an error, no case's
     sample is degenerate (``crosscheck.coverage``), every ``required`` backend took part in some comparison and the
@@ -314,18 +547,42 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
     outcomes are the same as in this process and come back in case order, so the report is too (its timings
     apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
-    run in this process. ``progress`` is then called once per case, when its outcome is in."""
+    run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
+    of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
+    tell = progress or _ignore
     count = min(workers, len(specs))
-    if count > 1 and _picklable(backends):
-        outcomes = _in_pool(specs, backends, samples, seed, progress, checks, count)
-    else:
-        outcomes = [run_case(spec, backends, samples, seed, progress, checks) for spec in specs]
-    self_test = None
-    if checks.self_test:
-        from crosscheck import selftest
+    pooled = count > 1 and _picklable(backends)
+    outcomes: list[CaseOutcome] = []
+    result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
+    try:
+        if pooled:
+            _in_pool(specs, backends, samples, seed, tell, checks, count, outcomes)
+        else:
+            for spec in specs:
+                outcomes.append(run_case(spec, backends, samples, seed, tell, checks))
+        if checks.self_test:
+            from crosscheck import selftest
 
-        self_test = selftest.run()
-    return GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required), self_test)
+            tell(Step("", 0, 0, SELF_TEST))
+            result.self_test = selftest.run()
+    except KeyboardInterrupt as exc:
+        result.interrupted = _where(exc, specs, samples, outcomes, pooled)
+        raise Interrupted(result) from None
+    return result
+
+
+def _where(exc: KeyboardInterrupt, specs: Sequence[CaseSpec], samples: int, outcomes: list[CaseOutcome],
+           pooled: bool) -> str:
+    """Where a run stopped, in words; a case interrupted part way joins ``outcomes`` with the states it evaluated."""
+    if isinstance(exc, _CaseInterrupted):
+        outcomes.append(exc.case)
+        return f"after {len(exc.case.states)}/{samples} states of case '{exc.case.spec.name}'"
+    if len(outcomes) == len(specs):
+        return "during the self-test (every case evaluated)"
+    if pooled:
+        return (f"after {len(outcomes)}/{len(specs)} cases (run in worker processes: the cases in flight are not "
+                "in the report)")
+    return f"after 0/{samples} states of case '{specs[len(outcomes)].name}' (setting it up)"
 
 
 def _picklable(backends: Sequence[Formalism]) -> bool:
@@ -341,10 +598,12 @@ _LIMITS = None
 
 
 def _init_worker(chosen: list[Formalism], plugins: Sequence[str]) -> None:
-    """A worker process: one BLAS thread, the parent's plugins, the backends of the run."""
+    """A worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread, the parent's plugins, the
+    backends of the run."""
     global _LIMITS
     from threadpoolctl import threadpool_limits
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _LIMITS = threadpool_limits(limits=1, user_api="blas")
     load_plugins(plugins)
     _BACKENDS[:] = chosen
@@ -355,19 +614,23 @@ def _worker_case(spec: CaseSpec, samples: int, seed: int, checks: Checks) -> Cas
 
 
 def _in_pool(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[str, int], None] | None, checks: Checks, workers: int) -> list[CaseOutcome]:
+             tell: Callable[[Step], None], checks: Checks, workers: int, outcomes: list[CaseOutcome]) -> None:
     """The cases in ``workers`` spawned processes, the largest models (most coordinates) first so that no worker
-    is left with a large case at the end; outcomes in case order."""
+    is left with a large case at the end; their outcomes added to ``outcomes`` in case order. On Ctrl-C the
+    outcomes already in, in case order, are kept there, and the workers are stopped."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")
     order = sorted(range(len(specs)), key=lambda k: -specs[k].build().n)
-    with ctx.Pool(workers, initializer=_init_worker,
-                  initargs=(list(backends), plugin_specs())) as pool:
+    with worker_processes.spawning(), ctx.Pool(workers, initializer=_init_worker,
+                                               initargs=(list(backends), plugin_specs())) as pool:
         pending = {k: pool.apply_async(_worker_case, (specs[k], samples, seed, checks)) for k in order}
-        outcomes = []
-        for k, spec in enumerate(specs):
-            outcomes.append(pending[k].get())
-            if progress:
-                progress(spec.name, samples)
-    return outcomes
+        try:
+            for k, spec in enumerate(specs):
+                tell(Step(spec.name, 0, samples, IN_WORKER))
+                outcomes.append(pending[k].get())
+                tell(Step(spec.name, samples, samples, DONE))
+        except KeyboardInterrupt:
+            outcomes[:] = [pending[k].get() for k in range(len(specs))
+                           if pending[k].ready() and pending[k].successful()]
+            raise

@@ -95,6 +95,32 @@ def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict 
     return value
 
 
+class _AtPoint:
+    """``chart`` for the maps of one chart check (``crosscheck.charts``, in its place): ``Dpsi`` at ``p`` and ``(d/dt
+    Dpsi) pd`` evaluated once, on first use, for the point and the rates of the check (the same objects), however many
+    answers are mapped (the maps only read them); anything else is the chart's own."""
+
+    def __init__(self, chart: charts.Chart, p: np.ndarray):
+        self._chart, self._p, self._jacobian, self._rate = chart, p, None, None
+
+    def jacobian(self, p) -> np.ndarray:
+        if p is not self._p:
+            return self._chart.jacobian(p)
+        if self._jacobian is None:
+            self._jacobian = self._chart.jacobian(p)
+        return self._jacobian
+
+    def jacobian_rate(self, p, pd) -> np.ndarray:
+        if p is not self._p:
+            return self._chart.jacobian_rate(p, pd)
+        if self._rate is None or self._rate[0] is not pd:
+            self._rate = (pd, self._chart.jacobian_rate(p, pd))
+        return self._rate[1]
+
+    def __getattr__(self, name: str):
+        return getattr(self._chart, name)
+
+
 def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence):
     """The largest of the tolerances the contributing scales give (entry by entry where they are per coordinate),
     each carried by its gain: a number, or a matrix (``|Dpsi^-1|``, the map that carried joint-chart accelerations
@@ -119,13 +145,14 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     record = {} if record is None else record
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     p = chart.p_of(q)
-    record.update(p=p, cond=float(np.linalg.cond(chart.jacobian(p))))
+    at_p = _AtPoint(chart, p)
+    record.update(p=p, cond=float(np.linalg.cond(at_p.jacobian(p))))
     if record["cond"] > limit:
         return {}                  # the chart has lost a direction here (gimbal lock): a BREAKDOWN of the map
     if getattr(chart, "at_centre", None) is not None and chart.at_centre(p):
         return {}                  # exp at its centre: psi's derivatives are 0/0 there (charts.ExponentialCoordinates)
-    pd = charts.velocity_to_chart(chart, p, qd)
-    tau_p = charts.force_to_chart(chart, p, model.input_map @ u)
+    pd = charts.velocity_to_chart(at_p, p, qd)
+    tau_p = charts.force_to_chart(at_p, p, model.input_map @ u)
     record.update(pd=pd, tau_p=tau_p, native={}, tolerances={})
     native: dict[str, Split] = {}
     for backend in backends:
@@ -139,7 +166,7 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     record["native"] = native
     if not native or not joint:
         return {}
-    inverse = np.linalg.inv(chart.jacobian(p))
+    inverse = np.linalg.inv(at_p.jacobian(p))
     gain = np.abs(inverse) if joint_scales is None or joint_scales.accel is not None else np.linalg.norm(inverse, 2)
     if joint_scales is None:
         joint_scales = policy.scales(joint.values(), model, q, qd, u=u)
@@ -150,14 +177,14 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     for quantity in _invariant(model):
         if all(isinstance(split.quantity(quantity), Unsupported) for split in native.values()):
             continue                        # no answer from the chart itself: nothing the joint chart has not
-        values = {name: _mapped(chart, p, pd, split, quantity, done[name]) for name, split in joint.items()
+        values = {name: _mapped(at_p, p, pd, split, quantity, done[name]) for name, split in joint.items()
                   if quantity not in left_out[name]}
         values.update({name: split.quantity(quantity) for name, split in native.items()
                        if quantity not in left_out[name]})
         gains = (1.0, gain) if quantity in ("drift", "ctrl", "total", "additivity") else (1.0, 1.0)
         tol = _tolerance(quantity, at, gains)
         if quantity == "power_ctrl":
-            tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(chart, p, pd, tau_p))
+            tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, tau_p))
         record["tolerances"][quantity] = tol
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, tol)
     return out

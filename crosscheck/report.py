@@ -476,23 +476,31 @@ def _registry_line(applied: Applied | None) -> str:
             f"{applied.known} comparison(s) KNOWN, {_count(len(applied.stale), 'stale entry', 'stale entries')}")
 
 
+def _self_test_line(result: GateResult) -> str:
+    test = result.self_test
+    if test is None:
+        return "- self-test: " + ("not run (interrupted)" if result.interrupted and result.checks.self_test
+                                  else "skipped")
+    return f"- self-test: {sum(r.passed for r in test.results)} of {len(test.results)} canaries caught and named"
+
+
 def render(result: GateResult, command: str, applied: Applied | None = None) -> str:
     """The whole report as markdown; ``command`` is the gate command that produced it, ``applied`` the divergence
     registry as applied to ``result`` (``crosscheck.registry.apply``), if any."""
-    verdict = "PASS" if result.passed else "FAIL"
+    verdict = "PARTIAL" if result.interrupted else "PASS" if result.passed else "FAIL"
     n_states = sum(len(c.states) for c in result.cases)
-    test = result.self_test
     failed = [(c, s) for c in result.cases for s in c.states if s.failed]
     broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
     known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in _all(s))
-    lines = ["# crosscheck gate report", "",
+    partial = [f"**PARTIAL REPORT: the run was interrupted {result.interrupted}.** It holds only the states "
+               "evaluated until then and gives no verdict (a disagreement below is still one).", ""]
+    lines = ["# crosscheck gate report", "", *(partial if result.interrupted else []),
              f"**{verdict}**: {len(failed)} of {n_states} states disagree or fail "
              f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
              f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
              f"{broken} state(s) with a backend in BREAKDOWN.", "",
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
-             "- self-test: " + ("skipped" if test is None else f"{sum(r.passed for r in test.results)} of "
-                                f"{len(test.results)} canaries caught and named"),
+             _self_test_line(result),
              _registry_line(applied),
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
                                                      for q, (k, f) in TOLERANCES.items()),

@@ -92,9 +92,11 @@ def project_configuration(model: Model, q) -> np.ndarray:
     for _ in range(NEWTON_STEPS):
         step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
         while t > 1e-6:
-            phi_new, Jc_new, _ = constraint_kinematics(model, configuration.integrate(model, q, t * step), zero)
-            if np.abs(phi_new).max() < np.abs(phi).max():
-                break
+            trial = configuration.integrate(model, q, t * step)
+            if trial.tobytes() != q.tobytes():   # a step lost to rounding leaves q, and so phi, as they are
+                phi_new, Jc_new, _ = constraint_kinematics(model, trial, zero)
+                if np.abs(phi_new).max() < np.abs(phi).max():
+                    break
             t *= 0.5
         else:               # no step reduces |phi| any more: converged to rounding, or stuck
             break

@@ -129,15 +129,17 @@ Jc, Jcdot pd at the state.
     ``Lambdify`` is not used: it compiles expressions of its input symbols, so the staged intermediates would have to
     be substituted into them, expanding the kinematic chain the staging keeps apart.
   * Interpreted (:func:`_interpreted`), without a compiler, with ``CROSSCHECK_COMPILE=0``, or when the C does not
-    compile (a RuntimeWarning): the Python source run with ``math`` for one state, and with numpy's ``sin`` and
-    ``cos`` on columns of states for a batch (each coordinate an array with one entry per state).
-  :func:`evaluation` says which is in use (``crosscheck formalisms``); ``split``, ``split_chart`` and ``split_batch``
-  all run the same one.
+    compile (a RuntimeWarning): the Python source run with ``math`` for one state, and with numpy's ``sin``, ``cos``
+    and ``sqrt`` on columns of states for a batch (each coordinate an array with one entry per state).
+  Compiling costs about three derivations, so a model in a chart is compiled only once it has evaluated
+  :data:`COMPILE_AFTER` states in the process (a campaign, a batch; the few states of a gate stay interpreted), or at
+  once when its library is in the cache (:class:`_Deferred`). :func:`evaluation` says which is in use
+  (``crosscheck formalisms``); ``split``, ``split_chart`` and ``split_batch`` all run the same one.
 Caches: the sources (Python and C), the Python code object (``marshal``) and the library are cached on disk keyed by
 the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
 with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
 process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
-Every file is written atomically (a temporary file renamed into place: :func:`_write`), and a library is compiled in
+Every file is written atomically (a temporary file renamed into place: :func:`~formalisms.interface.write_cache_file`), and a library is compiled in
 a private directory, so processes filling the same entry at once do not disturb each other; a library is sealed with
 its SHA-256 and one that does not match (damaged, truncated) is compiled again, never loaded; a cache that cannot be
 written only costs the work next time.
@@ -157,7 +159,6 @@ correctly rounded sum (:func:`_power`).
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import functools
 import hashlib
@@ -179,9 +180,9 @@ import scipy.linalg
 import symengine as sp
 
 from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
-from cases.model import Model
+from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, ModelNotSupported, Split,
-                                  SplitBatch, chart_vectors, check_batch, check_state)
+                                  SplitBatch, cache_dir, chart_vectors, check_batch, check_state, write_cache_file)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -290,10 +291,16 @@ class _Staged:
         return self.trig(e)[1]
 
     def diff(self, expr: sp.Expr, k: int) -> sp.Expr:
-        """Total derivative ``d expr / d p_k`` (``d expr / d pd_(k-n)`` for ``k >= n``): sum and product rules in one
-        pass, chain rule at symbols."""
-        memo: dict = {}
+        """Total derivative ``d expr / d p_k`` (``d expr / d pd_(k-n)`` for ``k >= n``), chain rule at symbols."""
         pk = self.variables[k]
+        return self._forward(expr, lambda e: ONE if e == pk else (
+            self._derivative_of(e, k) if k in self._depends.get(e, ()) else ZERO), f"by {pk}")
+
+    def _forward(self, expr, of_symbol: Callable, what: str) -> sp.Expr:
+        """Forward-mode differentiation of ``expr`` in one memoized pass: sum and product rules, the chain rule through
+        ``sin`` and ``cos`` (only in a chart's psi: those of a joint coordinate are seeded symbols), numeric powers,
+        and ``of_symbol(s)`` the derivative of a symbol (:meth:`diff`, :meth:`dt`)."""
+        memo: dict = {}
 
         def d(e):
             if e in memo:
@@ -301,8 +308,7 @@ class _Staged:
             if e.is_Number:
                 r = ZERO
             elif e.is_Symbol:
-                r = ONE if e == pk else (
-                    self._derivative_of(e, k) if k in self._depends.get(e, ()) else ZERO)
+                r = of_symbol(e)
             elif e.is_Add:
                 r = sp.Add(*[d(a) for a in e.args])
             elif e.is_Mul:
@@ -310,12 +316,12 @@ class _Staged:
                 r = sp.Add(*[sp.Mul(*a[:i], da, *a[i + 1:]) for i in range(len(a)) if (da := d(a[i])) != 0])
             elif e.is_Pow and e.exp.is_Number:
                 r = e.exp * e.base ** (e.exp - 1) * d(e.base)
-            elif isinstance(e, sp.sin):  # only in a chart's psi: sin/cos of a joint coordinate are seeded symbols
+            elif isinstance(e, sp.sin):
                 r = sp.cos(e.args[0]) * d(e.args[0])
             elif isinstance(e, sp.cos):
                 r = -sp.sin(e.args[0]) * d(e.args[0])
             else:
-                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} (a chart's psi may use +, -, *, /, "
+                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} {what} (a chart's psi may use +, -, *, /, "
                                 "integer powers, sin and cos)")
             memo[e] = r
             return r
@@ -332,32 +338,7 @@ class _Staged:
         rules through the intermediates (:meth:`_rate_of`), so it costs the size of the definitions, not n
         derivatives of each. A rate has time derivative 0 (``pdd = 0``), a parameter (a symbol that is neither a
         coordinate nor an intermediate depending on one) too."""
-        memo: dict = {}
-
-        def d(e):
-            if e in memo:
-                return memo[e]
-            if e.is_Number:
-                r = ZERO
-            elif e.is_Symbol:
-                r = self._rate_of(e)
-            elif e.is_Add:
-                r = sp.Add(*[d(a) for a in e.args])
-            elif e.is_Mul:
-                a = e.args
-                r = sp.Add(*[sp.Mul(*a[:i], da, *a[i + 1:]) for i in range(len(a)) if (da := d(a[i])) != 0])
-            elif e.is_Pow and e.exp.is_Number:
-                r = e.exp * e.base ** (e.exp - 1) * d(e.base)
-            elif isinstance(e, sp.sin):
-                r = sp.cos(e.args[0]) * d(e.args[0])
-            elif isinstance(e, sp.cos):
-                r = -sp.sin(e.args[0]) * d(e.args[0])
-            else:
-                raise TypeError(f"Euler–Lagrange: cannot differentiate {e!r} in time")
-            memo[e] = r
-            return r
-
-        return d(sp.sympify(expr))
+        return self._forward(expr, self._rate_of, "in time")
 
     def _rate_of(self, s: sp.Symbol) -> sp.Expr:
         """``d s / dt`` at ``pdd = 0`` of one symbol, named: ``pd_k`` for the coordinate ``p_k``; for ``sin`` and
@@ -794,15 +775,15 @@ class _Python:
     integers (Python's ``int * float`` is the float product, ``x**k`` C's ``pow``)."""
 
     longest = None  # a statement's length is not bounded
-    prefix = ""     # of the names of sin and cos
+    prefix = ""     # of the names of sin, cos and sqrt
 
     @staticmethod
     def number(e) -> str:
         return str(int(e)) if e.is_Integer else repr(float(e))
 
     @staticmethod
-    def power(source: _Source, base, exponent) -> str:
-        return f"({source.ref(base)}**{source.ref(exponent)})"
+    def pow(base: str, exponent: str) -> str:
+        return f"({base}**{exponent})"
 
 
 #: The longest statement of the generated C, in characters (about an operation per 10): gcc's time on one expression
@@ -815,8 +796,7 @@ class _C:
     """C syntax for :class:`_Source`, on pairs of states (:func:`_c`: a value is a ``vec`` of two doubles, one state
     per lane, and a number stands for itself in both): every number a double literal (``2.0``, ``1e-05``: ``repr`` of
     the float, which round-trips and always has a ``.`` or an exponent), so no integer arithmetic (division) happens
-    anywhere; powers ``b*b`` for 2, ``1.0/b`` for -1, ``vsqrt(b)`` for 1/2 and ``vpow`` otherwise, the base named
-    first; ``vsin``, ``vcos``: the C library's functions lane by lane."""
+    anywhere; ``vsin``, ``vcos``, ``vsqrt``, ``vpow``: the C library's functions lane by lane."""
 
     longest = C_LONGEST
     prefix = "v"
@@ -829,15 +809,8 @@ class _C:
         return repr(value)
 
     @staticmethod
-    def power(source: _Source, base, exponent) -> str:
-        b = source.name(base)
-        if exponent == 2:
-            return f"({b}*{b})"
-        if exponent == -1:
-            return f"(1.0/{b})"
-        if exponent == HALF:
-            return f"vsqrt({b})"
-        return f"vpow({b}, {_C.number(exponent)})"
+    def pow(base: str, exponent: str) -> str:
+        return f"vpow({base}, {exponent})"
 
 
 class _Source:
@@ -905,10 +878,22 @@ class _Source:
         if e.is_Add or e.is_Mul:
             return self._joined(e.args, " + " if e.is_Add else "*")
         if e.is_Pow and e.args[1].is_Number:
-            return self.syntax.power(self, e.args[0], e.args[1])
+            return self._power(e.args[0], e.args[1])
         if isinstance(e, (sp.sin, sp.cos)):
             return f"{self.syntax.prefix}{type(e).__name__}({self.ref(e.args[0])})"
         raise TypeError(f"Euler–Lagrange codegen: unexpected expression {e!r}")
+
+    def _power(self, base, exponent) -> str:
+        """``b**e`` in both targets alike, the base named first: ``b*b`` for 2 and ``1.0/b`` for -1 (correctly rounded,
+        where the C library's ``pow`` may be off by half an ulp), ``sqrt(b)`` for 1/2, else the library's ``pow``."""
+        b = self.name(base)
+        if exponent == 2:
+            return f"({b}*{b})"
+        if exponent == -1:
+            return f"(1.0/{b})"
+        if exponent == HALF:
+            return f"{self.syntax.prefix}sqrt({b})"
+        return self.syntax.pow(b, self.syntax.number(exponent))
 
     def _joined(self, args, separator: str) -> str:
         """``(a0 <separator> a1 <separator> ...)``, evaluated left to right. Where the syntax bounds a statement's
@@ -1143,9 +1128,7 @@ _DERIVATION_HASH = hashlib.sha256(Path(__file__).read_bytes()).digest()
 
 
 def _cache_dir() -> Path:
-    root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
-    return Path(root) / "euler_lagrange"
+    return cache_dir("euler_lagrange")
 
 
 def cache_key(model: Model, chart: Chart | None = None) -> str:
@@ -1173,27 +1156,8 @@ def cached_source(model: Model, chart: Chart | None = None, language: str = "pyt
         return path.with_suffix(_SUFFIX[language]).read_text()
     sources = generate_sources(model, chart)
     for name, text in sources.items():
-        _write(path.with_suffix(_SUFFIX[name]), text.encode())
+        write_cache_file(path.with_suffix(_SUFFIX[name]), text.encode())
     return sources[language]
-
-
-def _write(path: Path, data: bytes) -> None:
-    """Write a cache file atomically (a temporary file in the same directory renamed into place), so a reader never
-    sees half of it and writers of the same entry do not disturb each other (the last one's file stays, and any is
-    whole). A cache that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home, a full disk) only costs
-    the work next time; the temporary file is removed."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    except OSError:
-        return
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(temporary, path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
@@ -1210,7 +1174,7 @@ def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
         if isinstance(code, types.CodeType):
             return code
     code = compile(cached_source(model, chart), str(path), "exec")
-    _write(code_path, marshal.dumps(code))
+    write_cache_file(code_path, marshal.dumps(code))
     return code
 
 
@@ -1252,9 +1216,12 @@ def _compiler_text() -> str:
 def evaluation() -> str:
     """Which evaluation this backend uses in this process (``crosscheck formalisms``): compiled C with the compiler
     and its options, or interpreted Python and why. A model whose C fails to compile is evaluated interpreted, with
-    a warning (:func:`_compiled`)."""
+    a warning (:class:`_Deferred`)."""
     reason = _no_compilation()
-    return f"compiled C ({_compiler_text()})" if reason is None else f"interpreted Python ({reason})"
+    if reason is not None:
+        return f"interpreted Python ({reason})"
+    return (f"compiled C ({_compiler_text()}) once a model has had {COMPILE_AFTER} states or its library is cached, "
+            "interpreted Python before")
 
 
 _DIGEST = hashlib.sha256().digest_size
@@ -1308,7 +1275,7 @@ def _layout(library: ctypes.CDLL, model: Model) -> tuple[int, int, int]:
 
 def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int, int, int]]:
     """The compiled library of the model in the chart and its layout: the cached one (``<key>.so``) when it is
-    intact and loads, else compiled from :func:`cached_source`'s C and written to the cache (:func:`_write`)."""
+    intact and loads, else compiled from :func:`cached_source`'s C and written to the cache (:func:`~formalisms.interface.write_cache_file`)."""
     path = _cache_dir() / f"{cache_key(model, chart)}.so"
     if _intact(path):
         try:
@@ -1317,8 +1284,42 @@ def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int,
         except (OSError, ValueError):  # whole, but not loadable here (another machine's) or not this model's
             pass
     data, library = _build(cached_source(model, chart, "c"))
-    _write(path, _seal(data))
+    write_cache_file(path, _seal(data))
     return library, _layout(library, model)
+
+
+#: CPU seconds of a cold derivation per (body, coordinate its pose depends on) pair: 21 ms in tiago's joint chart (48
+#: joints, 461 pairs, 9.8 s), 27 ms in its banded affine chart (682 pairs, 18.4 s), 30 ms in spatial_arm's dense one,
+#: 7-12 ms on planar chains of point masses (measured on the 2-core machine of the README, CPU time).
+SECONDS_PER_PAIR = 0.03
+
+
+def preparation_estimate(model: Model, chart: Chart | None = None) -> float:
+    """Estimated CPU seconds before the first answer in ``chart`` (None: the joint chart): 0 when the code is cached
+    on disk, else the derivation's cost, :data:`SECONDS_PER_PAIR` times the number of (body,
+    chart coordinate) pairs where the body's pose depends on the coordinate: the staged derivation names the
+    derivatives of each pose entry by each coordinate it depends on (module docstring, steps 1-3). The dependence is
+    read from psi's expressions (each joint coordinate's free symbols) and the tree (a body moves with its
+    ancestors' joints)."""
+    if (_cache_dir() / f"{cache_key(model, chart)}.py").exists():
+        return 0.0
+    return SECONDS_PER_PAIR * _dependence_pairs(model, chart)
+
+
+def _dependence_pairs(model: Model, chart: Chart | None) -> int:
+    """``sum_i |coordinates body i's pose depends on|`` (:func:`preparation_estimate`)."""
+    if chart is None or chart_key(model, chart) == JOINT_CHART or _representation(model, chart):
+        own = [frozenset(range(v, v + JOINT_DOF[b.joint][1])) for b, v in zip(model.bodies, model.v_index)]
+    else:
+        p = list(sp.symbols(f"p0:{model.n}"))
+        index = {s: k for k, s in enumerate(p)}
+        q = [frozenset(index[f] for f in e.free_symbols) for e in _psi(model, chart, p)]
+        own = [frozenset().union(*q[i:i + JOINT_DOF[b.joint][0]]) for b, i in zip(model.bodies, model.q_index)]
+    depends: list = [None] * len(model.bodies)
+    for i in model.topological_order:
+        parent = model.parent_index[i]
+        depends[i] = own[i] | (depends[parent] if parent >= 0 else frozenset())
+    return sum(len(d) for d in depends)
 
 
 class _ChartRef:
@@ -1411,7 +1412,8 @@ def _interpreted(model: Model, chart: Chart | None, reason: str) -> _Evaluator:
     numpy's on columns of states (each coordinate an array with one entry per state) for a batch; the batched call
     holds one array per local of the code."""
     code = cached_code(model, chart)
-    scalar, columns = {"sin": math.sin, "cos": math.cos}, {"sin": np.sin, "cos": np.cos}
+    scalar = {"sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
+    columns = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
     exec(code, scalar)
     exec(code, columns)
     one, many = scalar["evaluate"], columns["evaluate"]
@@ -1426,21 +1428,70 @@ def _interpreted(model: Model, chart: Chart | None, reason: str) -> _Evaluator:
     return _Evaluator(single, batch, len(many.__code__.co_varnames), f"interpreted Python ({reason})")
 
 
-@functools.lru_cache(maxsize=64)
-def _compiled(model: Model, ref: _ChartRef | None) -> _Evaluator:
-    """The evaluation of the model's derivation in the chart (None: the joint chart), keyed by (model, chart key):
-    the compiled C (:func:`_native`) unless :func:`_no_compilation` says why not, or the C fails to compile (a
-    RuntimeWarning with the compiler's message), else the interpreted Python (:func:`_interpreted`)."""
-    chart = None if ref is None else ref.chart
-    reason = _no_compilation()
-    if reason is None:
+#: States the generated code of one model in one chart evaluates interpreted in a process before it is compiled
+#: (module docstring, "Compilation"): compiling costs about three derivations (the Panda's C 2.9 s of CPU, its
+#: derivation 0.9 s), some thousands of interpreted states, so only a model evaluated this often (a batch, a campaign)
+#: pays for it. A library already in the cache is loaded at once.
+COMPILE_AFTER = 1000
+
+
+class _Deferred:
+    """The generated code of one model in one chart (:func:`_compiled`): the cached library when there is one, else
+    the interpreted Python (:func:`_interpreted`) until it has evaluated :data:`COMPILE_AFTER` states, then the
+    compiled C (:func:`_native`); without compilation (:func:`_no_compilation`), or when the C does not compile (a
+    RuntimeWarning with the compiler's message), interpreted throughout. Both round alike (:class:`_Source`)."""
+
+    def __init__(self, model: Model, chart: Chart | None):
+        self.model, self.chart, self.states = model, chart, 0
+        reason = _no_compilation()
+        self.current = self._cached() if reason is None else None
+        self.decided = reason is not None or self.current is not None
+        if self.current is None:
+            self.current = _interpreted(model, chart, reason or f"compiled after {COMPILE_AFTER} states")
+        self._due(0)
+
+    def _cached(self) -> _Evaluator | None:
+        if not _intact(_cache_dir() / f"{cache_key(self.model, self.chart)}.so"):
+            return None
         try:
-            return _native(model, chart)
-        except CompileError as exc:
-            reason = f"the C did not compile: {exc}"
-            warnings.warn(f"Euler–Lagrange: model '{model.name}': {reason}; evaluating it interpreted",
-                          RuntimeWarning, stacklevel=2)
-    return _interpreted(model, chart, reason)
+            return _native(self.model, self.chart)
+        except CompileError:
+            return None
+
+    def _due(self, states: int) -> _Evaluator:
+        if not self.decided:
+            self.states += states
+            if self.states >= COMPILE_AFTER:
+                self.decided = True
+                try:
+                    self.current = _native(self.model, self.chart)
+                except CompileError as exc:
+                    reason = f"the C did not compile: {exc}"
+                    warnings.warn(f"Euler–Lagrange: model '{self.model.name}': {reason}; evaluating it interpreted",
+                                  RuntimeWarning, stacklevel=3)
+                    self.current = self.current._replace(description=f"interpreted Python ({reason})")
+        return self.current
+
+    def single(self, x, xd) -> np.ndarray:
+        return self._due(1).single(x, xd)
+
+    def batch(self, X, XD) -> np.ndarray:
+        return self._due(len(X)).batch(X, XD)
+
+    @property
+    def entries(self) -> int:
+        return self.current.entries
+
+    @property
+    def description(self) -> str:
+        return self.current.description
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(model: Model, ref: _ChartRef | None) -> _Deferred:
+    """The evaluation of the model's derivation in the chart (None: the joint chart), keyed by (model, chart key):
+    :class:`_Deferred`."""
+    return _Deferred(model, None if ref is None else ref.chart)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1882,4 +1933,5 @@ FORMALISM = Formalism(
     split_chart=split_chart,
     split_batch=split_batch,
     evaluation=evaluation,
+    preparation=preparation_estimate,
 )

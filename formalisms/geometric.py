@@ -181,6 +181,23 @@ the numpy arrays), then the connection, the metric solves and (with constraints)
 stack in numpy: ``Gamma(pd, pd)`` as ``M^-1`` of the first-kind symbols contracted with the rates (the same
 connection, raised after contracting), batched Cholesky solves, the constrained states grouped by the rank of S.
 
+Compiled evaluation. casadi's interpreter spends most of a panda state's time on the Function (its SX virtual machine
+runs the 40k instructions at several ns each). Once a Function has evaluated :data:`COMPILE_AFTER` states in this
+process it is compiled to C by the system compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from
+then on, one C call per state or per block of states. The C is written here from the Function's own instruction list
+(:func:`_c_source`): one statement per SX instruction on casadi's work vector, in casadi's order, with the products
+and sums never fused (``-ffp-contract=off``), so the compiled code does the interpreter's arithmetic operation for
+operation; it is cut into functions of :data:`C_PART` statements, because the compiler's time grows faster than the
+size of one function (measured at -O1 on the panda's 40k instructions: 43 s of CPU as one function, 14 s in parts of
+1000, 8 s in parts of 100 to 250; casadi's own ``Function.generate``, one function, 16 s), while the code runs as
+fast. The shared library is cached
+on disk (``$CROSSCHECK_CACHE/geometric``, else ``~/.cache/crosscheck/geometric``) under a digest of the C and the
+compiler command, so code derived differently (a fault injected, another chart) is never served for it, and with a
+digest of its bytes beside it: a file that does not match, or does not load, is compiled again; a cache that cannot
+be written only costs the compilation next time. Without a compiler, with ``CROSSCHECK_COMPILE=0``, or when
+compiling fails (a RuntimeWarning with the compiler's message), the Function stays interpreted; :func:`evaluation`
+says which applies. The few states of a gate never pay a compilation.
+
 Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
 objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
 :func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``; with spherical or free joints in
@@ -191,10 +208,18 @@ for any metric,
 
 from __future__ import annotations
 
+import ctypes
+import hashlib
 import math
+import os
+import shutil
+import subprocess
+import tempfile
 import threading
+import warnings
 import weakref
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, NamedTuple
 
 import casadi as ca
@@ -204,7 +229,8 @@ import scipy.linalg
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, ModelNotSupported, Split, SplitBatch,
-                                  StateError, check_batch, chart_vectors, check_state, joint_vectors)
+                                  StateError, cache_dir, check_batch, chart_vectors, check_state, joint_vectors,
+                                  write_cache_file)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -581,10 +607,196 @@ def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
     return ca.vertcat(*[_constraint_rows(model, c, q, R, o) for c in model.constraints])
 
 
+# ------------------------------------------------------------------------------------------ compiled evaluation
+
+#: States a Function evaluates interpreted before it is compiled to C (module docstring, "Compiled evaluation"):
+#: compiling takes 0.1 s for a double pendulum and seconds for a 9-joint arm, a few hundred states of casadi's
+#: interpreter, so only a model evaluated this often (a batch, a campaign) pays for it.
+COMPILE_AFTER = 1000
+#: ``CROSSCHECK_COMPILE=0`` keeps every Function interpreted (casadi's SX virtual machine).
+COMPILE_ENV = "CROSSCHECK_COMPILE"
+#: The compilers looked for on the PATH, in order.
+COMPILERS = ("cc", "gcc")
+#: Compiler flags. -O1: the panda's Function runs 20 times faster than in the interpreter; -O2 takes half as long
+#: again to compile and runs no faster, -O0 runs no faster than the interpreter. No fused multiply-adds
+#: (``-ffp-contract=off``): the compiled code rounds exactly as the interpreter does.
+C_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")
+#: SX instructions per C function of the generated code (module docstring: the compiler's time grows faster than a
+#: function's size, so the code is cut into parts).
+C_PART = 200
+
+#: C of each casadi operation the Functions are made of (``{0}``, ``{1}`` the operands); any other operation leaves the
+#: Function interpreted. ``2.*x`` and ``x*x`` are what casadi's virtual machine computes for ``OP_TWICE`` and ``OP_SQ``.
+_C_OPERATIONS = {ca.OP_ASSIGN: "{0}", ca.OP_ADD: "{0}+{1}", ca.OP_SUB: "{0}-{1}", ca.OP_MUL: "{0}*{1}",
+                 ca.OP_DIV: "{0}/{1}", ca.OP_NEG: "-{0}", ca.OP_TWICE: "2.*{0}", ca.OP_SQ: "{0}*{0}",
+                 ca.OP_INV: "1./{0}", ca.OP_SQRT: "sqrt({0})", ca.OP_SIN: "sin({0})", ca.OP_COS: "cos({0})",
+                 ca.OP_POW: "pow({0},{1})", ca.OP_CONSTPOW: "pow({0},{1})"}
+_OPERATION_NAMES = {getattr(ca, name): name for name in dir(ca) if name.startswith("OP_")}
+_ENTRY = "crosscheck_geometric"
+_C_HEADER = """#include <math.h>
+#include <stdlib.h>
+#if defined(__GNUC__)
+#define PART static __attribute__((noinline)) void
+#else
+#define PART static void
+#endif
+"""
+
+
+class _NoCForm(Exception):
+    """The Function uses a casadi operation :data:`_C_OPERATIONS` has no C for."""
+
+
+def _c_number(value: float) -> str:
+    """``value`` as an exact C literal (hexadecimal floating point)."""
+    if math.isfinite(value):
+        return value.hex()
+    return "NAN" if math.isnan(value) else ("INFINITY" if value > 0 else "-INFINITY")
+
+
+def _c_statement(function: ca.Function, k: int) -> str:
+    """SX instruction ``k`` of ``function`` as a C statement on the work vector ``w`` (inputs ``p``, ``pd``, output
+    ``r``)."""
+    op, args, res = function.instruction_id(k), function.instruction_input(k), function.instruction_output(k)
+    if op == ca.OP_INPUT:
+        return f"w[{res[0]}]={('p', 'pd')[args[0]]}[{args[1]}];"
+    if op == ca.OP_OUTPUT:
+        return f"r[{res[1]}]=w[{args[0]}];"
+    if op == ca.OP_CONST:
+        return f"w[{res[0]}]={_c_number(function.instruction_constant(k))};"
+    if op not in _C_OPERATIONS:
+        raise _NoCForm(f"casadi operation {_OPERATION_NAMES.get(op, op)} has no C form here")
+    return f"w[{res[0]}]=" + _C_OPERATIONS[op].format(*(f"w[{a}]" for a in args)) + ";"
+
+
+def _c_source(function: ca.Function) -> str:
+    """C of ``function`` (inputs ``p``, ``pd``, one dense output): its SX instructions in casadi's order, one statement
+    each (:func:`_c_statement`), in parts of :data:`C_PART`, and the entry point
+    ``int crosscheck_geometric(p, pd, r, states)`` that runs them for ``states`` row-major states (0, or 1 when the
+    work vector cannot be allocated)."""
+    count = function.n_instructions()
+    parts = []
+    for start in range(0, count, C_PART):
+        body = "\n".join(f"  {_c_statement(function, k)}" for k in range(start, min(start + C_PART, count)))
+        parts.append(f"PART part{len(parts)}(const double* restrict p, const double* restrict pd, double* restrict r, "
+                     f"double* restrict w) {{\n{body}\n}}\n")
+    calls = "\n".join(f"    part{i}(p, pd, r, w);" for i in range(len(parts)))
+    sizes = function.nnz_in(0), function.nnz_in(1), function.nnz_out(0)
+    return (_C_HEADER + "".join(parts)
+            + f"int {_ENTRY}(const double* p, const double* pd, double* r, long states) {{\n"
+            + f"  double* w = malloc({function.sz_w() + 1} * sizeof(double));\n  if (!w) return 1;\n"
+            + f"  for (long s = 0; s < states; ++s, p += {sizes[0]}, pd += {sizes[1]}, r += {sizes[2]}) {{\n"
+            + f"{calls}\n  }}\n  free(w);\n  return 0;\n}}\n")
+
+
+class _Library:
+    """A compiled Function: ``(P, PD) -> (N, outputs)`` for N row-major states, one call of its C entry point (which
+    releases the GIL and allocates its own work vector, so calls need no lock)."""
+
+    def __init__(self, path: Path, outputs: int):
+        self._entry = getattr(ctypes.CDLL(str(path)), _ENTRY)   # OSError, AttributeError: not a library of ours
+        self._entry.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_long]
+        self._entry.restype = ctypes.c_int
+        self._outputs = outputs
+
+    def __call__(self, P: np.ndarray, PD: np.ndarray) -> np.ndarray:
+        P, PD = np.ascontiguousarray(P, dtype=float), np.ascontiguousarray(PD, dtype=float)
+        out = np.empty((len(P), self._outputs))
+        if self._entry(P.ctypes.data, PD.ctypes.data, out.ctypes.data, len(P)):
+            raise MemoryError("the compiled geometric Function could not allocate its work vector")
+        return out
+
+
+def _compiler() -> str | None:
+    """The first of :data:`COMPILERS` on the PATH (its full path), or None."""
+    return next((found for found in map(shutil.which, COMPILERS) if found), None)
+
+
+def _interpreted_reason() -> str | None:
+    """Why Functions stay interpreted in this process (compilation turned off, no compiler), or None."""
+    if os.environ.get(COMPILE_ENV) == "0":
+        return f"{COMPILE_ENV}=0"
+    if _compiler() is None:
+        return f"no C compiler found: none of {', '.join(COMPILERS)} on the PATH"
+    return None
+
+
+def evaluation() -> str:
+    """How this backend evaluates its casadi Functions in this process, for ``crosscheck formalisms``."""
+    reason = _interpreted_reason()
+    if reason is not None:
+        return f"interpreted casadi SX ({reason})"
+    return (f"compiled C ({Path(_compiler()).name} {C_FLAGS[0]}) once a model has had {COMPILE_AFTER} states, "
+            "interpreted casadi SX before")
+
+
+def _cache_dir() -> Path:
+    return cache_dir("geometric")
+
+
+def _cached(path: Path, outputs: int) -> _Library | None:
+    """The library cached at ``path`` when its bytes match the digest stored beside it and it loads, else None."""
+    try:
+        data, digest = path.read_bytes(), path.with_suffix(".sha256").read_text()
+    except OSError:
+        return None
+    if hashlib.sha256(data).hexdigest() != digest:
+        return None
+    try:
+        return _Library(path, outputs)
+    except (OSError, AttributeError):
+        return None
+
+
+def _build(source: str, command: list[str], path: Path, outputs: int) -> _Library:
+    """Compile ``source`` with ``command`` in a scratch directory, load it, and cache it at ``path`` with the digest of
+    its bytes (the loaded library outlives the scratch file). CalledProcessError, OSError or AttributeError (no entry
+    point) when it fails."""
+    with tempfile.TemporaryDirectory(prefix="crosscheck-geometric-") as scratch:
+        c_file, library_file = Path(scratch) / "geometric.c", Path(scratch) / "geometric.so"
+        c_file.write_text(source)
+        subprocess.run([*command, str(c_file), "-o", str(library_file), "-lm"], check=True, capture_output=True,
+                       text=True)
+        library, data = _Library(library_file, outputs), library_file.read_bytes()
+    write_cache_file(path, data)
+    write_cache_file(path.with_suffix(".sha256"), hashlib.sha256(data).hexdigest().encode())
+    return library
+
+
+def _native(function: ca.Function) -> tuple[_Library | None, str]:
+    """``function`` compiled to C (from the disk cache, or compiled now) and how it is evaluated; ``(None, why)`` when
+    it stays interpreted (module docstring, "Compiled evaluation"). A failed compilation also warns."""
+    reason = _interpreted_reason()
+    if reason is not None:
+        return None, f"interpreted casadi SX ({reason})"
+    try:
+        source = _c_source(function)
+    except _NoCForm as exc:
+        return None, f"interpreted casadi SX ({exc})"
+    command = [_compiler(), *C_FLAGS]
+    key = hashlib.sha256("\0".join([*command, source]).encode()).hexdigest()[:32]
+    path, outputs = _cache_dir() / f"{key}.so", function.nnz_out(0)
+    described = f"compiled C ({Path(command[0]).name} {C_FLAGS[0]})"
+    library = _cached(path, outputs)
+    if library is not None:
+        return library, described
+    try:
+        return _build(source, command, path, outputs), described
+    except subprocess.CalledProcessError as exc:
+        why = f"{' '.join(command)} failed with exit status {exc.returncode}: {(exc.stderr or '').strip()[-500:]}"
+    except (OSError, AttributeError) as exc:
+        why = f"compiling with {' '.join(command)} failed: {exc}"
+    warnings.warn(f"geometric: {why}; the Function '{function.name()}' stays interpreted", RuntimeWarning,
+                  stacklevel=2)
+    return None, f"interpreted casadi SX ({why})"
+
+
 class _Evaluator:
-    """A casadi Function ``(p, pd) -> one dense column`` called through casadi's buffer interface: the arguments
-    are copied into fixed numpy buffers and the result out of one, so a call costs microseconds instead of the
-    ~80 us of a regular Function call with its conversions. One buffer per Function, so calls are serialized."""
+    """A casadi Function ``(p, pd) -> one dense column``: interpreted through casadi's buffer interface (the arguments
+    copied into fixed numpy buffers and the result out of one, so a call costs microseconds instead of the ~80 us of a
+    regular Function call with its conversions; one buffer per Function, so these calls are serialized), and compiled
+    to C once it has evaluated :data:`COMPILE_AFTER` states (module docstring, "Compiled evaluation").
+    ``evaluation`` says which, and why."""
 
     def __init__(self, name: str, p: ca.SX, pd: ca.SX, out: ca.SX):
         self.function = ca.Function(name, [p, pd], [ca.densify(out)], {"cse": True})
@@ -596,28 +808,47 @@ class _Evaluator:
         self._lock = threading.Lock()
         self._mapped: dict[int, ca.Function] = {}
         self.size = self._out.size  # outputs per state
+        self._states, self._decided, self._library = 0, False, None
+        self.evaluation = "interpreted casadi SX (not yet compiled)"
+
+    def _native_when_due(self, states: int) -> _Library | None:
+        """Count ``states`` (called under the lock) and return the compiled Function, compiling it (once) when the count
+        reaches :data:`COMPILE_AFTER`; None while it is interpreted."""
+        if not self._decided:
+            self._states += states
+            if self._states >= COMPILE_AFTER:
+                self._decided = True
+                self._library, self.evaluation = _native(self.function)
+        return self._library
 
     def __call__(self, p: np.ndarray, pd: np.ndarray) -> np.ndarray:
         with self._lock:
-            self._p[:] = p
-            self._pd[:] = pd
-            self._trigger()
-            return self._out.copy()
+            library = self._native_when_due(1)
+            if library is None:
+                self._p[:] = p
+                self._pd[:] = pd
+                self._trigger()
+                return self._out.copy()
+        return library(p[None], pd[None])[0]
 
     def batch(self, P: np.ndarray, PD: np.ndarray) -> np.ndarray:
-        """The Function at N states at once (rows of ``P``, ``PD``), as an (N, outputs) array: the Function mapped over
-        N (``Function.map``), called through a buffer on the arrays themselves (a row-major (N, n) array is the
-        column-major (n, N) argument of the map, one state per column)."""
+        """The Function at N states at once (rows of ``P``, ``PD``), as an (N, outputs) array: compiled, one C call;
+        interpreted, the Function mapped over N (``Function.map``), called through a buffer on the arrays themselves
+        (a row-major (N, n) array is the column-major (n, N) argument of the map, one state per column)."""
         N = len(P)
         out = np.empty((N, self._out.size))
         if N == 0:
             return out
         with self._lock:
-            if N not in self._mapped:
-                if len(self._mapped) >= 4:  # the map of a block size, and of the last partial blocks
-                    self._mapped.clear()
-                self._mapped[N] = self.function.map(N)
-            mapped = self._mapped[N]
+            library = self._native_when_due(N)
+            if library is None:
+                if N not in self._mapped:
+                    if len(self._mapped) >= 4:  # the map of a block size, and of the last partial blocks
+                        self._mapped.clear()
+                    self._mapped[N] = self.function.map(N)
+                mapped = self._mapped[N]
+        if library is not None:
+            return library(P, PD)
         P, PD = (np.ascontiguousarray(a, dtype=float).reshape(-1) for a in (P, PD))
         buffer, trigger = mapped.buffer()
         buffer.set_arg(0, memoryview(P))
@@ -648,6 +879,8 @@ class _Compiled:
         upper[rows, cols] = upper[cols, rows] = np.arange(nu)
         self.M_index = upper                                                  # flat[M_index] = M
         self.dM_index = nu + nu * np.arange(n)[:, None, None] + upper[None]   # flat[dM_index] = dM, [k, i, j]
+        self.dM_upper_slice = slice(nu, nu + n * nu)                          # reshaped (n, nu): d_k M_upper
+        self.upper_pairs = rows, cols                                         # M_upper[u] = M[rows[u], cols[u]]
         at = nu + n * nu
         self.dV_slice, self.T_index = slice(at, at + n), at + n
         self.J_index = at + n + 1 + np.arange(k * n).reshape(n, k).T          # vec(J) is column-major
@@ -1178,8 +1411,9 @@ def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
 
 # ------------------------------------------------------------------------------------------------------- batches
 
-#: States per block of :func:`split_batch`, at most; a block's (block, n, n, n) metric derivatives and the Function's
-#: output have at most ``BATCH_ENTRIES`` numbers each (16 MB), so the memory stays bounded for long chains too.
+#: States per block of :func:`split_batch`, at most; a block's Function output (its largest array: the metric
+#: derivatives' upper triangles, ``n^2 (n + 1) / 2`` numbers a state) has at most ``BATCH_ENTRIES`` numbers (16 MB), so
+#: the memory stays bounded for long chains too.
 BATCH_BLOCK = 2048
 BATCH_ENTRIES = 2 ** 21
 
@@ -1251,16 +1485,28 @@ def _constrained_block(model: Model, Jc: np.ndarray, bias: np.ndarray, M: np.nda
     return tuple(out)
 
 
+def _first_kind_contracted(c: _Compiled, flat: np.ndarray, PD: np.ndarray) -> np.ndarray:
+    """``Gamma_{l,jk} pd^j pd^k`` (= ``M Gamma(pd, pd)``, the chart's ``C qd`` of eq. 7) of a stack of states, from the
+    upper triangles of the metric derivatives in the Function's output ``flat``, without forming the (n, n, n) symbols:
+    the first-kind formula of :func:`christoffel_first_kind` contracted with the rates, whose two first terms are equal
+    once contracted, ``(Mdot pd)_l - 1/2 pd^T (d_l M) pd`` with ``Mdot = d_k M pd^k``."""
+    rows, cols = c.upper_pairs
+    dM_upper = flat[:, c.dM_upper_slice].reshape(len(flat), PD.shape[1], rows.size)   # [state, k, upper entry]
+    Mdot = (PD[:, None, :] @ dM_upper)[:, 0, c.M_index]                     # d_k M pd^k, (N, n, n)
+    pairs = PD[:, rows] * PD[:, cols] * np.where(rows == cols, 1.0, 2.0)    # pd^i pd^j over the triangle
+    return _mv(Mdot, PD) - 0.5 * _mv(dM_upper, pairs)
+
+
 def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -> tuple:
     """``(drift, ctrl, total, lam, lam_drift)`` of a block of joint-chart states: the compiled Function mapped over the
     block, then eqs. (24)-(25) for the whole stack. ``Gamma(pd, pd) = M^-1 (Gamma_{.,jk} pd^j pd^k)``: the first-kind
-    symbols contracted with the rates, then raised by the metric (the same connection as :func:`_split`, which raises
-    every symbol first); with constraints :func:`_constrained_block`."""
+    symbols contracted with the rates (:func:`_first_kind_contracted`), then raised by the metric (the same connection
+    as :func:`_split`, which raises every symbol first); with constraints :func:`_constrained_block`."""
     c = _compiled(model, None)
     flat = c.evaluate.batch(P, PD)
-    M, dM, dV = flat[:, c.M_index], flat[:, c.dM_index], flat[:, c.dV_slice]
+    M, dV = flat[:, c.M_index], flat[:, c.dV_slice]
     L = _stack_cholesky(M, lambda j: _metric_factor(model, None, M[j], P[j]))
-    Cqd = _mv((christoffel_first_kind(dM) @ PD[:, None, :, None])[..., 0], PD)   # M Gamma(pd, pd) (eq. 7)
+    Cqd = _first_kind_contracted(c, flat, PD)                                # M Gamma(pd, pd) (eq. 7)
     if model.constraints:
         return _constrained_block(model, flat[:, c.Jc_index], flat[:, c.Jc_bias_slice], M, L, Cqd, dV, P, tau)
     gamma_pdpd, grad_V, ctrl, forced = np.moveaxis(_stack_cho_solve(L, np.stack([Cqd, dV, tau, tau - dV], -1)), -1, 0)
@@ -1272,7 +1518,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     (fewer for a long chain: :data:`BATCH_ENTRIES`), each by :func:`_split_block`."""
     Q, QD, U = check_batch(model, Q, QD, U)
     tau = U @ model.input_map.T
-    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // max(model.n ** 3, _compiled(model, None).evaluate.size)))
+    size = max(1, min(BATCH_BLOCK, BATCH_ENTRIES // _compiled(model, None).evaluate.size))
     blocks = [slice(i, i + size) for i in range(0, max(len(Q), 1), size)]
     parts = [_split_block(model, Q[b], QD[b], tau[b]) for b in blocks]
     drift, ctrl, total, lam, lam_drift = (None if p[0] is None else np.concatenate(p) for p in zip(*parts))
@@ -1286,4 +1532,5 @@ FORMALISM = Formalism(
     split=split,
     split_chart=split_chart,
     split_batch=split_batch,
+    evaluation=evaluation,
 )

@@ -22,7 +22,11 @@ The definitions those numbers follow are written out in :class:`Split`'s fields 
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
@@ -299,6 +303,23 @@ def split_batch_by_loop(split: Callable[[Model, np.ndarray, np.ndarray, np.ndarr
     return split_batch
 
 
+def with_block_form(split_many: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Sequence[Split]]):
+    """Declare ``split_many(model, Q, QD, U)`` the block form of the decorated ``split``: the :class:`Split` of each of
+    N states (rows of Q, QD, U) computed for the block at once, element ``i`` equal to ``split(model, Q[i], QD[i],
+    U[i])`` bit for bit, every field and extra. The harness evaluates blocks of a model's states through it
+    (:func:`block_form`). It is kept on the ``split`` function itself, so whatever wraps or replaces a backend's
+    ``split`` (a plugin's check, a test's altered backend) has no block form and is evaluated state by state."""
+    def declare(split):
+        split.split_many = split_many
+        return split
+    return declare
+
+
+def block_form(formalism: "Formalism") -> Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Sequence[Split]] | None:
+    """The block form of ``formalism.split`` (:func:`with_block_form`), None when it has none."""
+    return getattr(formalism.split, "split_many", None)
+
+
 @dataclass(frozen=True)
 class Formalism:
     """A named formulation of rigid-body dynamics behind the shared ``split`` contract.
@@ -306,10 +327,14 @@ class Formalism:
     ``split_chart(model, chart, p, pd, tau_p)``, when present, evaluates the same split directly in the chart
     ``q = psi(p)``: state ``(p, pd)``, the generalized force ``tau_p`` a covector in that chart, and the
     returned accelerations in that chart (``pdd``). None for a formalism that works only in the joint chart.
-    ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s);
-    None for a backend without one (the harness then loops over ``split``: :func:`split_batch_by_loop`).
-    ``evaluation()``, when present, says in a few words how the backend evaluates in this process, e.g.
-    ``"compiled C (gcc -O1)"`` or ``"interpreted Python (no C compiler found)"`` (``crosscheck formalisms``).
+    ``split_batch(model, Q, QD, U)`` evaluates N states at once (:class:`SplitBatch`, rows equal to ``split``'s
+    accelerations and multipliers); None for a backend without one (the harness then loops over ``split``:
+    :func:`split_batch_by_loop`). ``split`` may carry a block form that returns whole splits (:func:`with_block_form`).
+    ``evaluation()``, when present, says in a few words how the backend evaluates its expressions in this process,
+    and why (``"compiled C (cc -O1)"``, ``"interpreted casadi SX (no C compiler found)"``); ``crosscheck formalisms``
+    prints it. None for a backend with nothing to choose.
+    ``preparation(model, chart)``, when present, estimates the CPU seconds of the one-off work before the first answer
+    on ``model`` in ``chart`` (None: the joint chart), 0 when it is cached: a symbolic derivation, a compilation.
     """
 
     name: str
@@ -318,6 +343,7 @@ class Formalism:
     split_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Split] | None = None
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
     evaluation: Callable[[], str] | None = None
+    preparation: Callable[[Model, "Chart | None"], float] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:
@@ -377,5 +403,32 @@ def joint_vectors(model: Model, q, *rates) -> list[np.ndarray]:
 
 
 __all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "ModelNotSupported", "Split",
-           "SplitBatch", "StateError", "Unsupported", "chart_vectors", "check_batch", "check_state", "joint_vectors",
-           "split_batch_by_loop"]
+           "SplitBatch", "StateError", "Unsupported", "block_form", "chart_vectors", "check_batch", "check_state",
+           "joint_vectors", "split_batch_by_loop", "with_block_form"]
+
+
+def cache_dir(backend: str) -> Path:
+    """Where a backend keeps what it derives or compiles: ``$CROSSCHECK_CACHE/<backend>``, else
+    ``$XDG_CACHE_HOME/crosscheck/<backend>`` (``~/.cache`` without it)."""
+    root = os.environ.get("CROSSCHECK_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "crosscheck")
+    return Path(root) / backend
+
+
+def write_cache_file(path: Path, data: bytes) -> None:
+    """Write a cache file atomically (a temporary file in the same directory renamed into place), so a reader never
+    sees half of it and writers of the same entry do not disturb each other (the last one's file stays, and any is
+    whole). A cache that cannot be written (``CROSSCHECK_CACHE`` a file, a read-only home, a full disk) only costs
+    the work next time; the temporary file is removed."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    except OSError:
+        return
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(temporary, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)

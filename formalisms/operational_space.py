@@ -53,7 +53,8 @@ singular at every state, e.g. three task directions on a body hanging from a fix
 along its radius): a BREAKDOWN there (below), as the stretched double pendulum is at one configuration.
 
 Batches: every function below takes one state or a batch (a leading axis ``...`` on each state-dependent array);
-``split`` evaluates one state, ``split_batch`` blocks of states, through the same code.
+``split`` evaluates one state, ``split_batch`` blocks of states, through the same code, and ``split_many`` (the block
+form of ``split``, ``formalisms.interface.with_block_form``) the whole split of each state of a block.
 
 Joint-space terms by projection (Kane's form), from the COM Jacobians ``J_v,i`` and ``J_w,i``:
 
@@ -127,14 +128,14 @@ limit is calibrated against (tests/test_operational_space.py).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state)
+                                  check_state, with_block_form)
 
 
 @dataclass(frozen=True)
@@ -214,6 +215,13 @@ def _t(A: np.ndarray) -> np.ndarray:
 def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``A x`` for stacked matrices (..., r, c) and vectors (..., c), broadcasting."""
     return (A @ x[..., None])[..., 0]
+
+
+def _vm(x: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``x^T A`` for stacked vectors (..., r) and matrices (..., r, c), broadcasting: each state's vector-matrix
+    product on its own, the very product of one state (``x @ A`` on a stack of rows is one matrix product, whose
+    rounding may differ from the single state's)."""
+    return (x[..., None, :] @ A)[..., 0, :]
 
 
 def _diag(x: np.ndarray) -> np.ndarray:
@@ -423,7 +431,7 @@ def _task_kinematics(model: Model, kin: Kinematics, point: str | None) -> tuple[
     """``J = D J_v(p)`` (..., k, n) and the classical ``Jdot qd = D (point bias)`` (..., k) of a task point."""
     tp = model.task_point(point)
     _, Jv, bias = _point_kinematics(model, kin, tp.body, tp.offset)
-    return tp.directions @ Jv, bias @ tp.directions.T
+    return tp.directions @ Jv, _vm(bias, tp.directions.T)
 
 
 def _cond(model: Model, eig: np.ndarray) -> float | np.ndarray:
@@ -522,10 +530,10 @@ def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray
     """PointOnCircle: ``d = P (p - c)``, ``phi = d.d - R^2``, ``Jc = 2 d^T P J_v``,
     ``Jcdot qd = 2 |P J_v qd|^2 + 2 d^T P (Jdot_v qd)``."""
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
-    d, PJ = (p - c.center) @ c.plane.T, c.plane @ Jv
+    d, PJ = _vm(p - c.center, c.plane.T), c.plane @ Jv
     v = _mv(PJ, kin.qd)
     dot = (lambda a, b: np.sum(a * b, axis=-1, keepdims=True))  # noqa: E731
-    return dot(d, d) - c.radius**2, 2.0 * d[..., None, :] @ PJ, 2.0 * dot(v, v) + 2.0 * dot(d, bias @ c.plane.T)
+    return dot(d, d) - c.radius**2, 2.0 * d[..., None, :] @ PJ, 2.0 * dot(v, v) + 2.0 * dot(d, _vm(bias, c.plane.T))
 
 
 def _coincide(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -534,13 +542,13 @@ def _coincide(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     pa, Ja, ba = _point_kinematics(model, kin, c.body_a, c.offset_a)
     pb, Jb, bb = _point_kinematics(model, kin, c.body_b, c.offset_b)
     D = c.directions
-    return (pa - pb) @ D.T, D @ (Ja - Jb), (ba - bb) @ D.T
+    return _vm(pa - pb, D.T), D @ (Ja - Jb), _vm(ba - bb, D.T)
 
 
 def _line(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PointOnLine: ``N (p - origin)``, ``N J_v``, ``N Jdot_v qd``."""
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
-    return (p - c.origin) @ c.normals.T, c.normals @ Jv, bias @ c.normals.T
+    return _vm(p - c.origin, c.normals.T), c.normals @ Jv, _vm(bias, c.normals.T)
 
 
 def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -551,7 +559,7 @@ def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     row[[model.v_index[i] for i in bodies]] = c.coefficients
     position[[model.q_index[i] for i in bodies]] = c.coefficients
     batch = q.shape[:-1]
-    return (q @ position - c.offset)[..., None], np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
+    return _vm(q, position[:, None]) - c.offset, np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -679,7 +687,7 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     or a batch (a leading axis on each). ``report``: also rotate the task space back to the task coordinates."""
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
-    Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), u @ model.input_map.T
+    Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), _vm(u, model.input_map.T)
     J, Jdot_qd = _task_kinematics(model, kin, point)
 
     def through_task_space(tau_constr):
@@ -772,22 +780,8 @@ def constrained_split(model: Model, *, constraint: ConstraintSpace, Minv: np.nda
                  lam_scale=lam_scale, **free)
 
 
-def split(model: Model, q, qd, u) -> Split:
-    """The drift–control split (eq. 9) recomposed from task space (module docstring), in the principal axes:
-    ``drift = J_bar (xdd_drift - Jdot qd) - M^-1 N^T h``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T B u`` (directly),
-    ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``. With constraints the same with the constraint
-    forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u): :func:`constrained_split`.
-
-    ``task_drift`` is eq. (23) for ``model.task_point()``; ``task_inertia`` its ``Lambda`` (eq. 22, the reported one
-    of ``extras["task"]``; with constraints still ``(J M^-1 J^T)^-1`` of the unconstrained M, the constraints
-    entering eq. 22 as ``F_constr``); ``conditions = {"task": cond_2(A), "task_jacobian":`` :func:`_jacobian_condition`
-    ``}``;
-    ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
-    (``Lambda_c``). NaN accelerations where A is numerically singular. The control power in input space,
-    ``u . (B^T qd)`` (per coordinate ``(B u)_i qd_i``); cond(M) and the scales from :func:`_mass_conditioning`.
-    """
-    q, qd, u = check_state(model, q, qd, u)
-    s = _solve(model, q, qd, u, None)
+def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> Split:
+    """The :class:`Split` of one solved state ``s`` (:func:`_solve`) at ``(q, qd, u)`` (:func:`split`)."""
     drift, ctrl, total = s.accelerations
     cond_M, inverse_norm, accel_scale = _mass_conditioning(model, s, qd)
     free = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(u @ (model.input_map.T @ qd)),
@@ -805,9 +799,58 @@ def split(model: Model, q, qd, u) -> Split:
                              inverse_norm=inverse_norm, extras={"task": s.task, "constraint_inertia": c.Lambda}, **free)
 
 
+def _state(solved, i: int):
+    """State ``i`` of a block solved at once (:func:`_solve` on rows of states): row ``i`` of every array of the
+    :class:`_Solution` and of the task and constraint spaces it holds."""
+    if solved is None:
+        return None
+    if isinstance(solved, tuple):
+        return tuple(_state(part, i) for part in solved)
+    if isinstance(solved, (_Solution, TaskSpace, ConstraintSpace)):
+        return type(solved)(*(_state(getattr(solved, f.name), i) for f in fields(solved)))
+    return solved[i]
+
+
 #: Bound on the body-pair entries of the largest temporaries (N states x n bodies x n joints) that
-#: :func:`split_batch` lets one block of states hold: about 0.4 MB each, so a block stays near the caches.
+#: :func:`split_batch` and :func:`split_many` let one block of states hold: about 0.4 MB each, so a block stays near
+#: the caches.
 BLOCK_ENTRIES = 50_000
+
+
+def split_many(model: Model, Q, QD, U) -> list[Split]:
+    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit for
+    bit: the kinematics, Kane projection, task space and recomposition of :func:`_solve` with a leading batch axis on
+    blocks of states (the stacked products and LAPACK calls are the single state's, state by state), then each
+    state's conditioning and reported numbers by the very functions ``split`` uses."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    size = max(1, BLOCK_ENTRIES // model.n**2)
+    out = []
+    for start in range(0, len(Q), size):
+        rows = slice(start, start + size)
+        solved = _solve(model, Q[rows], QD[rows], U[rows], None)
+        out += [_split_of(model, _state(solved, i), q, qd, u) for i, (q, qd, u) in
+                enumerate(zip(Q[rows], QD[rows], U[rows]))]
+    return out
+
+
+@with_block_form(split_many)
+def split(model: Model, q, qd, u) -> Split:
+    """The drift–control split (eq. 9) recomposed from task space (module docstring), in the principal axes:
+    ``drift = J_bar (xdd_drift - Jdot qd) - M^-1 N^T h``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T B u`` (directly),
+    ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u - h)``. With constraints the same with the constraint
+    forces added (eqs. 12-17: lam, lam_drift; ctrl = B_c B u): :func:`constrained_split`.
+
+    ``task_drift`` is eq. (23) for ``model.task_point()``; ``task_inertia`` its ``Lambda`` (eq. 22, the reported one
+    of ``extras["task"]``; with constraints still ``(J M^-1 J^T)^-1`` of the unconstrained M, the constraints
+    entering eq. 22 as ``F_constr``); ``conditions = {"task": cond_2(A), "task_jacobian":`` :func:`_jacobian_condition`
+    ``}``;
+    ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
+    (``Lambda_c``). NaN accelerations where A is numerically singular. The control power in input space,
+    ``u . (B^T qd)`` (per coordinate ``(B u)_i qd_i``); cond(M) and the scales from :func:`_mass_conditioning`.
+    Its block form is :func:`split_many`.
+    """
+    q, qd, u = check_state(model, q, qd, u)
+    return _split_of(model, _solve(model, q, qd, u, None), q, qd, u)
 
 
 def split_batch(model: Model, Q, QD, U) -> SplitBatch:

@@ -7,6 +7,8 @@
 
       HYPOTHESIS_PROFILE=fuzz .venv/bin/pytest tests
 
+Compilation to C is off (``CROSSCHECK_COMPILE=0``) unless the environment says otherwise.
+
 Tests that pin their own ``@settings(max_examples=...)`` keep that count under either profile.
 The shared Euler–Lagrange disk cache is keyed by the model digest, the chart and a hash of the derivation's
 source, so sharing it between runs cannot change an answer; the Euler–Lagrange test modules still derive afresh
@@ -38,6 +40,11 @@ settings.register_profile(
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
+# The suite evaluates the backends' casadi Functions interpreted: compiling them to C (formalisms/geometric.py,
+# "Compiled evaluation") costs seconds per model, and the tests that check the compiled code against the interpreter
+# turn it on themselves. ``CROSSCHECK_COMPILE=1 pytest`` runs the whole suite compiled.
+os.environ.setdefault("CROSSCHECK_COMPILE", "0")
+
 
 @pytest.fixture(scope="session", autouse=True)
 def single_threaded_blas():
@@ -48,9 +55,8 @@ def single_threaded_blas():
         yield
 
 
-@pytest.fixture
-def dropped_coriolis(monkeypatch):
-    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would."""
+def _drop_coriolis(patch: pytest.MonkeyPatch) -> None:
+    """Euler–Lagrange with its velocity-product term silently dropped, as a real bug would (undone with ``patch``)."""
     import formalisms.euler_lagrange as el
     correct = el.evaluate
 
@@ -58,7 +64,20 @@ def dropped_coriolis(monkeypatch):
         terms, constraint_terms = correct(model, x, xd, chart)
         return terms._replace(Cqd=terms.Cqd * 0.0), constraint_terms
 
-    monkeypatch.setattr(el, "evaluate", broken)
+    patch.setattr(el, "evaluate", broken)
+
+
+@pytest.fixture
+def dropped_coriolis(monkeypatch):
+    """Euler–Lagrange with its velocity-product term silently dropped, for the test."""
+    _drop_coriolis(monkeypatch)
+
+
+@pytest.fixture(scope="session")
+def drop_coriolis():
+    """The same fault for a module-scoped fixture that computes something under it once: called with the fixture's
+    own ``pytest.MonkeyPatch.context()``, which undoes it."""
+    return _drop_coriolis
 
 
 @pytest.fixture(scope="module")

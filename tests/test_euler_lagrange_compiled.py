@@ -33,6 +33,7 @@ def scratch_cache(tmp_path, monkeypatch):
     """Every test derives and compiles into its own cache, and leaves nothing in the in-process one."""
     monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
     monkeypatch.delenv(el.COMPILE_VARIABLE, raising=False)
+    monkeypatch.setattr(el, "COMPILE_AFTER", 0)  # compiled from the first state
     el._compiled.cache_clear()
     yield tmp_path
     el._compiled.cache_clear()
@@ -242,3 +243,34 @@ def test_the_compiled_code_checks_its_arguments():
     with pytest.raises(ValueError, match=r"takes x of shape \(4, 2\)"):
         compiled.batch(np.zeros((4, 2)), np.zeros((4, 3)))
     assert math.isfinite(el.evaluate(model, np.zeros(2), np.zeros(2))[0].T)
+
+
+def test_a_model_is_compiled_once_it_has_had_enough_states(monkeypatch, scratch_cache):
+    """A gate's few states stay interpreted: the C is compiled on the state that reaches COMPILE_AFTER, and from then
+    on that model in that chart runs compiled; a library already in the cache is loaded at once."""
+    monkeypatch.setattr(el, "COMPILE_AFTER", 5)
+    model = cases.load("double_pendulum", m1=1.7)
+    q, qd = np.array([0.3, -1.1]), np.array([0.7, 2.0])
+    for _ in range(4):
+        el.evaluate(model, q, qd)
+    assert el._compiled(model, None).description == "interpreted Python (compiled after 5 states)"
+    assert not list(scratch_cache.rglob("*.so"))
+    el.evaluate_batch(model, np.array([q]), np.array([qd]))
+    assert el._compiled(model, None).description.startswith("compiled C (")
+    el._compiled.cache_clear()
+    assert el._compiled(model, None).description.startswith("compiled C (")
+
+
+@pytest.mark.parametrize("name", ["spatial_arm", "slider_crank", "panda"])
+def test_compiled_and_interpreted_code_round_alike(name):
+    """The same operations in the same order (powers 2, -1 and 1/2 written out in both targets, never the C
+    library's pow): one state's outputs are equal bit for bit, in the joint chart and an affine one, so a report does
+    not depend on whether a library was cached."""
+    model = cases.load(name)
+    rng = np.random.default_rng(7)
+    for chart in (None, charts.get("affine", model, 0, name)):
+        compiled, interpreted = el._native(model, chart), el._interpreted(model, chart, "the test's reference")
+        for _ in range(20):
+            x = rng.uniform(-2.0, 2.0, model.nq if chart is None else model.n)
+            xd = rng.uniform(-2.0, 2.0, model.n)
+            assert np.array_equal(compiled.single(x, xd), interpreted.single(x, xd)), (name, chart, x, xd)

@@ -114,11 +114,41 @@ FAULT = dict(seed=2, examples=6, chunk_examples=3, max_bodies=3, max_states=2, c
              conservation=False)
 
 
-def test_an_injected_fault_is_found_shrunk_saved_and_replayed(dropped_coriolis, monkeypatch, tmp_path, capsys):
+def interrupt_when_shrinking(patch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C at the first example after a failure: Hypothesis has started shrinking it."""
+    original = fuzz._Recorder.example
+
+    def interrupted(self, model):
+        if self.last_failure is not None:
+            raise KeyboardInterrupt
+        original(self, model)
+
+    patch.setattr(fuzz._Recorder, "example", interrupted)
+
+
+@pytest.fixture(scope="module")
+def fault_run(drop_coriolis, tmp_path_factory) -> fuzz.CampaignResult:
+    """The FAULT campaign on Euler–Lagrange without its Coriolis term (the longest campaign here: its failure is
+    shrunk), run once for the tests that read it."""
+    with pytest.MonkeyPatch.context() as patch:
+        drop_coriolis(patch)
+        return campaign(tmp_path_factory.mktemp("fuzz") / "fault", **FAULT)
+
+
+@pytest.fixture(scope="module")
+def interrupted_fault_run(drop_coriolis, tmp_path_factory) -> fuzz.CampaignResult:
+    """The FAULT campaign interrupted (Ctrl-C) as it starts shrinking its failure."""
+    with pytest.MonkeyPatch.context() as patch:
+        drop_coriolis(patch)
+        interrupt_when_shrinking(patch)
+        return campaign(tmp_path_factory.mktemp("fuzz") / "interrupted", **FAULT)
+
+
+def test_an_injected_fault_is_found_shrunk_saved_and_replayed(fault_run, dropped_coriolis, monkeypatch, capsys):
     """Euler–Lagrange without its Coriolis term: the campaign finds it, shrinks it to the smallest mechanism that has
     a Coriolis term (two bodies), names the outlier, saves it; replay fails with the fault and passes without it.
     (Conservation checks are off: the energy-rate check has a zero tolerance at rest, a finding of its own.)"""
-    result = campaign(tmp_path / "fault", **FAULT)
+    result = fault_run
     assert result.findings, "the campaign missed Euler–Lagrange without its Coriolis term"
     finding = result.findings[0]
     drift = next(c for c in finding["failing"] if c["key"] == "drift")
@@ -138,16 +168,8 @@ def test_an_injected_fault_is_found_shrunk_saved_and_replayed(dropped_coriolis, 
     assert "passes now" in capsys.readouterr().out
 
 
-def test_ctrl_c_while_shrinking_keeps_the_failure_in_hand(dropped_coriolis, monkeypatch, tmp_path):
-    original = fuzz._Recorder.example
-
-    def interrupted(self, model):
-        if self.last_failure is not None:       # the first call after a failure: Hypothesis starts shrinking
-            raise KeyboardInterrupt
-        original(self, model)
-
-    monkeypatch.setattr(fuzz._Recorder, "example", interrupted)
-    result = campaign(tmp_path / "int", **FAULT)
+def test_ctrl_c_while_shrinking_keeps_the_failure_in_hand(interrupted_fault_run):
+    result = interrupted_fault_run
     assert result.interrupted
     assert len(result.findings) == 1 and not result.findings[0]["shrunk"]
     assert result.chunks[-1]["interrupted"] and result.chunks[-1]["findings"] == [result.findings[0]["id"]]
@@ -170,23 +192,14 @@ def test_ctrl_c_after_a_finding_is_saved_leaves_it_on_disk(dropped_coriolis, mon
     assert result.findings[0]["id"] in (result.out / "report.md").read_text()
 
 
-def test_resuming_after_ctrl_c_while_shrinking_gives_the_uninterrupted_findings(dropped_coriolis, monkeypatch,
-                                                                              tmp_path):
+def test_resuming_after_ctrl_c_while_shrinking_gives_the_uninterrupted_findings(fault_run, interrupted_fault_run,
+                                                                              dropped_coriolis, tmp_path):
     """The failure saved when a chunk was interrupted mid-shrink is replaced by its chunk's run to the end: one failure
     is not counted twice (the same finding files as an uninterrupted run, the same report)."""
-    whole = campaign(tmp_path / "whole", **FAULT)
-    original = fuzz._Recorder.example
-
-    def interrupted(self, model):
-        if self.last_failure is not None:
-            raise KeyboardInterrupt
-        original(self, model)
-
-    with monkeypatch.context() as patch:
-        patch.setattr(fuzz._Recorder, "example", interrupted)
-        partial = campaign(tmp_path / "resumed", **FAULT)
+    whole, partial = fault_run, interrupted_fault_run
     assert partial.interrupted and not partial.findings[0]["shrunk"]
     assert partial.findings[0]["id"] not in {f["id"] for f in whole.findings}
+    shutil.copytree(partial.out, tmp_path / "resumed")
     resumed = campaign(tmp_path / "resumed", **FAULT)
     assert resumed.findings == whole.findings
     assert records(resumed) == records(whole)

@@ -149,6 +149,7 @@ def test_a_signal_mid_shrink_then_resume_gives_the_uninterrupted_findings(signam
         # an orderly stop: the workers were told, the failure in hand saved and logged, the report written
         assert proc.returncode == 130, proc.stderr
         assert "(interrupted)" in proc.stdout
+        assert "Traceback" not in proc.stderr and proc.stderr.splitlines()[-1].startswith("crosscheck: interrupted ")
         interrupted = [r for r in fuzz.load_chunks(out) if r["interrupted"]]
         held = {i for r in interrupted for i in r["findings"]}
         assert held and held <= set(findings(out)), "the failure being shrunk was lost"

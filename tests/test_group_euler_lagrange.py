@@ -346,7 +346,7 @@ def test_velocity_derivative_is_the_second_derivative_of_xi_at_the_origin(name):
 
 
 def _evaluator(model, order):
-    namespace = {"sin": math.sin, "cos": math.cos}
+    namespace = {"sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
     exec(el.generate_source(model, order=order), namespace)
     return namespace["evaluate"]
 
@@ -515,15 +515,12 @@ def test_zyx_chart_check_of_the_gate(name, chart_name, tmp_path, monkeypatch):
     """The gate's own chart check (``crosscheck.invariance.chart_checks`` through ``testing.assert_backends_agree``):
     the backend's native answers in the zyx chart, and in the exp chart (exponential coordinates about the centre
     drawn for the case), against Pinocchio's joint-chart split mapped into it, on every quantity the gate compares
-    there (the checks exist: the backend is not left out of the chart). First the cold derivation and compilation in
-    the chart (an empty cache), in seconds: measured 0.03-0.3 s for the cases, 1.1 s + 0.3 s compile for solo12's 18
-    velocities in zyx (the bound is loose for a shared machine)."""
+    there (the checks exist: the backend is not left out of the chart), from a cold derivation (an empty cache; its
+    time is measured by ``crosscheck bench``, not asserted here)."""
     model = model_of(name)
     chart = charts.get(chart_name, model, 0, name)
     monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
-    start = time.perf_counter()
     el.cached_code(model, chart)
-    assert time.perf_counter() - start < 20.0
     checked = 0
     for s in sampling.sample_states(model, 2 if name.startswith("solo") else 3, 43, name):
         outcome = testing.assert_backends_agree(model, s, backends=["euler_lagrange", "pinocchio"], chart=chart)

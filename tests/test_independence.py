@@ -7,9 +7,9 @@ allow-list: the standard library, the numeric libraries below, ``formalisms.inte
 (``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new
 dependency must be added here, with a reason. From ``formalisms.interface`` a formalism may use only the names in
 :data:`INTERFACE` (types, constants, validators, exceptions: imported, or read as attributes of the module), and
-``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for plugins): a power, a constraint
-force, a factorization, a rank decision, a conditioning or a task inertia computed there once for every backend
-would be compared bit-identically and prove nothing.
+``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for plugins) and ``block_form`` (the
+harness's look-up of a block form): a power, a constraint force, a factorization, a rank decision, a conditioning or
+a task inertia computed there once for every backend would be compared bit-identically and prove nothing.
 Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their argument is a
 string literal, and refused when it is not (they could load anything).
 """
@@ -36,7 +36,8 @@ PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
 # what a formalism may take from formalisms.interface: types, constants, validators and exceptions, nothing numeric
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
-             "joint_vectors"}
+             "joint_vectors", "with_block_form",
+             "cache_dir", "write_cache_file"}  # disk-cache plumbing: where a backend keeps its derivations, no numerics
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",
              "pin": "the external reference (Pinocchio) is kept apart from the five formalisms",
@@ -259,7 +260,7 @@ def test_the_interface_defines_only_the_allowed_names():
     defined |= {t.id for node in tree.body if isinstance(node, ast.Assign) for t in node.targets
                 if isinstance(t, ast.Name)}
     public = {name for name in defined if not name.startswith("_")} - {"__all__"}
-    assert public <= INTERFACE | {"split_batch_by_loop"}, sorted(public - INTERFACE)
+    assert public <= INTERFACE | {"split_batch_by_loop", "block_form"}, sorted(public - INTERFACE)
 
 
 GOOD = [

@@ -115,8 +115,10 @@ def test_gimbal_path_measures_the_zyx_chart(results):
         assert all(e < 1e3 * 2.2e-16 * c for e, c in finite if e < 0.1)
     mapped = [m.chart.worst("newton_euler") for m in ms]
     assert mapped[0] < 1e-13 and max(mapped) > 1e-6
-    # near the lock the Cholesky of M_p fails: recorded as raised, not a crash
-    assert natives <= set(ms[-1].chart.raised)
+    # near the lock a native either fails (Cholesky of M_p: recorded as raised, not a crash) or its answer is recorded
+    # with its error (Euler–Lagrange's M_p from Lagrange's equation still factors at delta = 1e-10)
+    assert all(v in ms[-1].chart.raised or v in ms[-1].chart.own for v in natives)
+    assert "geometric@zyx" in ms[-1].chart.raised
     # the joint chart itself is benign all along
     assert all(e < 1e-14 for m in ms for es in m.errors.values() for e in es.values())
 

@@ -24,7 +24,9 @@ arrays below have one row per body. This backend has no ``split_chart``, so no c
 
 ``split_batch`` evaluates N states in one pass of the same functions (kinematics, inertias, recursion, rows and
 solves all take a leading state axis; :mod:`~formalisms.screw.linalg` factors the N mass matrices at once), in
-blocks of :data:`BLOCK` states; ``split`` is that pass for one state, plus the extras below.
+blocks of :data:`BLOCK` states; ``split`` is that pass for one state, plus the extras below. ``split_many``, the block
+form of ``split`` (``formalisms.interface.with_block_form``), returns each state's whole split, extras included, with
+``split``'s very numbers.
 
 extras (numpy arrays, row ``i`` = body ``i`` in model order; twists ``(w, v)``, wrenches ``(moment, force)``):
 
@@ -65,7 +67,7 @@ from __future__ import annotations
 import numpy as np
 
 from cases.model import Model
-from formalisms.interface import Formalism, Split, SplitBatch, check_batch, check_state
+from formalisms.interface import Formalism, Split, SplitBatch, check_batch, check_state, with_block_form
 from formalisms.screw import conditioning, constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
@@ -76,21 +78,25 @@ BLOCK = 1024
 
 
 def _task_drift(kin: Kinematics, qd: np.ndarray, drift: np.ndarray):
-    """``D a`` for the default task point at the drift (eq. 23, classical acceleration)."""
+    """``D a`` for the default task point at the drift (eq. 23, classical acceleration), (..., k)."""
     model = kin.model
     tp = model.task_point()
     a = kinematics.point_acceleration(kin, model.body_index(tp.body), tp.offset, qd, drift)
-    return tp.directions @ a
+    return (tp.directions @ a[..., None])[..., 0]
 
 
-def _task_inertia(kin: Kinematics, factor: Cholesky) -> tuple[np.ndarray, float]:
-    """``task_inertia`` (eq. 22) of the default task point from its point Jacobian ``D [-[p] | I] J_s`` and the
-    factor of M, with its condition ``cond(J M^-1 J^T)`` (:func:`conditioning.task_inertia`)."""
+def _task_jacobian(kin: Kinematics) -> np.ndarray:
+    """The default task point's Jacobian ``D [-[p] | I] J_s`` (..., k, nv)."""
     model = kin.model
     tp = model.task_point()
     body = model.body_index(tp.body)
-    J = tp.directions @ kinematics.point_jacobian(kin, body, kinematics.point_position(kin, body, tp.offset))
-    return conditioning.task_inertia(model, J, factor)
+    return tp.directions @ kinematics.point_jacobian(kin, body, kinematics.point_position(kin, body, tp.offset))
+
+
+def _task_inertia(kin: Kinematics, factor: Cholesky) -> tuple[np.ndarray, float]:
+    """``task_inertia`` (eq. 22) of the default task point from its point Jacobian and the factor of M, with its
+    condition ``cond(J M^-1 J^T)`` (:func:`conditioning.task_inertia`)."""
+    return conditioning.task_inertia(kin.model, _task_jacobian(kin), factor)
 
 
 def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | None = None) -> np.ndarray:  # noqa: N803
@@ -98,7 +104,7 @@ def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | N
     torque ``torques[j]`` (per velocity column; None: no coupling) added along its body screw axis ``B_j``."""
     if torques is not None:
         F_body = F_body + kinematics.joint_twists(kin, torques)
-    return np.concatenate([F_body[:, 3:], F_body[:, :3]], axis=1)
+    return np.concatenate([F_body[..., 3:], F_body[..., :3]], axis=-1)
 
 
 def _kinetic_energy(G: dynamics.Inertias, twists_body: np.ndarray) -> float:  # noqa: N803
@@ -114,7 +120,7 @@ def _extras(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, total: np.nda
     external = None
     if constraint_wrenches is not None:                       # F_b = Ad_{T_i}^T F_s
         external = lie.wrench_to_body(kin.poses, np.stack(constraint_wrenches))
-    F = dynamics.wrenches(kin, G, qd, np.stack([total, drift]), np.ones(2), external)
+    F = dynamics.wrenches(kin, G, qd, np.stack([total, drift]), np.ones((2,) + (1,) * (np.ndim(qd) - 1)), external)
     extras = {
         "poses": kin.poses,
         "twists_space": V_s,
@@ -131,9 +137,8 @@ def _extras(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, total: np.nda
 
 def _unconstrained(factor: Cholesky, h: np.ndarray, tau_ctrl: np.ndarray) -> tuple[np.ndarray, ...]:
     """``(drift, ctrl, total) = M^-1 (-h), M^-1 B u, M^-1 (B u - h)`` (N, n) each (eq. 9, 10), solved on their own."""
-    rhs = np.stack([-h, tau_ctrl, tau_ctrl - h], axis=1)                 # (N, 3, n)
-    x = factor.solve(np.transpose(rhs, (2, 1, 0)))
-    return tuple(np.transpose(x, (2, 1, 0))[:, c] for c in range(3))
+    x = factor.solve(np.stack([-h, tau_ctrl, tau_ctrl - h], axis=-1))   # (N, n, 3)
+    return tuple(x[..., c] for c in range(3))
 
 
 def _constrained(gauss: constraints.Gauss, h: np.ndarray, tau_ctrl: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -158,6 +163,57 @@ def _power(model: Model, u: np.ndarray, qd: np.ndarray) -> dict:
     return {"power_ctrl": float(u @ (model.input_map.T @ qd)), "power_ctrl_per_coord": (model.input_map @ u) * qd}
 
 
+def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int | None = None) -> Cholesky:  # noqa: N803
+    """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, nq); a ValueError
+    naming the model, the first state whose M is not positive definite (``first``: the stack's offset in a batch; None
+    for one state) and its eigenvalues."""
+    factor = Cholesky.of(M)
+    if not factor.positive.all():
+        i = int(np.flatnonzero(~factor.positive)[0])
+        where = f"q = {Q[i].tolist()}" if first is None else f"state {first + i} of the batch, q = {Q[i].tolist()}"
+        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} (Cholesky "
+                         f"failed); eigenvalues {np.linalg.eigvalsh(M[i]).tolist()}")
+    return factor
+
+
+def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray,  # noqa: N803
+                          first: int) -> list[Split]:
+    """:func:`split` of a block of states of an unconstrained model: the kinematics, ``M``, ``h``, the solves, the
+    extras and the task quantities of the whole block in one pass of the same functions (a leading state axis, every
+    state summed as alone: ``B u`` and ``D a`` are products state by state), then each state's conditioning."""
+    kin, G = kinematics.forward_kinematics(model, Q), dynamics.Inertias.of(model)
+    M, h, c_qd, g = dynamics.terms(kin, G, QD)
+    factor, tau_ctrl = _factor(model, M, Q, first), (model.input_map @ U[..., None])[..., 0]
+    drift, ctrl, total = _unconstrained(factor, h, tau_ctrl)
+    extras, task_drift, J = _extras(kin, G, QD, total, drift), _task_drift(kin, QD, drift), _task_jacobian(kin)
+    wrenches = (_joint_wrenches(kin, extras["wrenches_body"]), _joint_wrenches(kin, extras["wrenches_body_drift"]))
+    out = []
+    for i, (qd, u) in enumerate(zip(QD, U)):
+        mass = conditioning.of_mass(model, M[i], c_qd[i], g[i], tau_ctrl[i], qd)
+        Lambda, task_cond = conditioning.task_inertia(model, J[i], factor.state(i))
+        own = {key: value[i] for key, value in extras.items()}
+        out.append(Split(drift=drift[i], ctrl=ctrl[i], total=total[i], lam=None, lam_drift=None, power_constr=None,
+                         power_constr_per_coord=None, accel_scale=mass.accel_scale,
+                         conditions={"task_inertia": task_cond}, extras=own, task_drift=task_drift[i],
+                         kinetic_energy=_kinetic_energy(G, own["twists_body"]), joint_wrenches=wrenches[0][i],
+                         joint_wrenches_drift=wrenches[1][i], cond_M=mass.cond, task_inertia=Lambda,
+                         **_power(model, u, qd)))
+    return out
+
+
+def split_many(model: Model, Q, QD, U) -> list[Split]:  # noqa: N803
+    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit for
+    bit, :data:`BLOCK` states per pass (:func:`_unconstrained_splits`). A constrained model's states go through
+    ``split`` one by one: Gauss's principle (``np.einsum``, whose loops depend on the length of the stack) and the
+    rows' products with their direction matrices round differently on a stack than on one state."""
+    Q, QD, U = check_batch(model, Q, QD, U)
+    if model.constraints:
+        return [split(model, q, qd, u) for q, qd, u in zip(Q, QD, U)]
+    return [s for i in range(0, len(Q), BLOCK)
+            for s in _unconstrained_splits(model, Q[i:i + BLOCK], QD[i:i + BLOCK], U[i:i + BLOCK], i)]
+
+
+@with_block_form(split_many)
 def split(model: Model, q, qd, u) -> Split:
     """The drift–control split of eq. (9) in screw coordinates: ``drift = -M^-1 h`` (eq. 10, ZTCF), ``ctrl =
     M^-1 B u`` solved directly, ``total = M^-1 (B u - h)`` solved on its own; ``M`` and ``h`` from eq. (27). A
@@ -207,19 +263,6 @@ def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Choles
                  **_reported(kin, G, qd, drift, extras,
                              (rows.coupling_torques(lam), rows.coupling_torques(lam_drift))),
                  **common)
-
-
-def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int | None = None) -> Cholesky:  # noqa: N803
-    """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, nq); a ValueError
-    naming the model, the first state whose M is not positive definite (``first``: the stack's offset in a batch; None
-    for one state) and its eigenvalues."""
-    factor = Cholesky.of(M)
-    if not factor.positive.all():
-        i = int(np.flatnonzero(~factor.positive)[0])
-        where = f"q = {Q[i].tolist()}" if first is None else f"state {first + i} of the batch, q = {Q[i].tolist()}"
-        raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at {where} (Cholesky "
-                         f"failed); eigenvalues {np.linalg.eigvalsh(M[i]).tolist()}")
-    return factor
 
 
 def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray, first: int) -> tuple:  # noqa: N803

@@ -76,7 +76,7 @@ def _inconsistency(model: Model, redundant: np.ndarray, factor: Cholesky, Jc: np
     the ``redundant`` eigenvectors of S (k, r) (module docstring)."""
     worst = 0.0
     for f in forces:
-        r = -bias - Jc @ factor.solve(f[:, None, None])[:, 0, 0]
+        r = -bias - Jc @ factor.solve(f[None, :, None])[0, :, 0]
         size = max(float(np.linalg.norm(r)), 1e-6 * model.length_scale * accel_scale)
         if size > 0.0:
             worst = max(worst, float(np.linalg.norm(redundant.T @ r)) / size)
@@ -110,7 +110,7 @@ def task_inertia(model: Model, J: np.ndarray, factor: Cholesky) -> tuple[np.ndar
     for ``k > n``), so ``Lambda = V s^-2 V^T``. NaN and inf where ``J M^-1 J^T`` is numerically singular (module
     docstring)."""
     k = len(J)
-    _, s, Vt = np.linalg.svd(factor.forward(J.T[:, :, None])[:, :, 0], full_matrices=True)
+    _, s, Vt = np.linalg.svd(factor.forward(J.T[None])[0], full_matrices=True)
     w = np.zeros(k)
     w[:len(s)] = s**2                                          # eigenvalues, descending, with the rows of Vt
     floor = max(k * np.finfo(float).eps * w[0], degenerate_floor(model))

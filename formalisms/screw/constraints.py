@@ -203,14 +203,9 @@ def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:
     return ConstraintTerms(phi, Jc, bias, coupling, tuple(part[3] for part in parts))
 
 
-def _states_last(x: np.ndarray) -> np.ndarray:
-    """(N, n) -> (n, 1, N): vectors of N states as one right-hand side for :class:`Cholesky`."""
-    return x.T[:, None, :]
-
-
-def _states_first(x: np.ndarray) -> np.ndarray:
-    """(n, 1, N) -> (N, n), the inverse of :func:`_states_last`."""
-    return x[:, 0, :].T
+def _column(x: np.ndarray) -> np.ndarray:
+    """(N, n) -> (N, n, 1): one vector per state as the right-hand side of its :class:`Cholesky` solve."""
+    return x[..., None]
 
 
 @dataclass(frozen=True)
@@ -229,7 +224,7 @@ class Gauss:
         """From the factors of ``M`` and the constraint rows. Singular values of ``A`` whose square (an eigenvalue of
         ``S = A A^T``) is at or below ``CONSTRAINT_RCOND s_max^2`` or the degenerate floor (redundant or vanished rows,
         :mod:`~formalisms.screw.conditioning`) are dropped, state by state."""
-        A = np.transpose(factor.forward(np.transpose(Jc, (2, 1, 0))), (2, 1, 0))      # (L^-1 Jc^T)^T
+        A = np.swapaxes(factor.forward(np.swapaxes(Jc, 1, 2)), 1, 2)                  # (L^-1 Jc^T)^T
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
         keep = s**2 > np.maximum(CONSTRAINT_RCOND * s[:, :1] ** 2, degenerate_floor(model))
         inverse = np.divide(1.0, s, out=np.zeros_like(s), where=keep)
@@ -237,16 +232,16 @@ class Gauss:
 
     def _lift(self, y: np.ndarray) -> np.ndarray:
         """``L^-T y`` (N, n)."""
-        return _states_first(self.factor.backward(_states_last(y)))
+        return self.factor.backward(_column(y))[..., 0]
 
     def solve(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(qdd, lam)`` (N, n), (N, k) of eq. (12, 13) for the generalized forces ``f`` (N, n), by Gauss's
         principle."""
-        a = _states_first(self.factor.solve(_states_last(f)))
+        a = self.factor.solve(_column(f))[..., 0]
         y = np.einsum("Nnk,Nk->Nn", self.A_pinv, -self.bias - np.einsum("Nkn,Nn->Nk", self.Jc, a))
         return a + self._lift(y), np.einsum("Nnk,Nn->Nk", self.A_pinv, y)
 
     def input_map(self, tau: np.ndarray) -> np.ndarray:
         """``B_c tau`` (N, n) of eq. (17): ``M^-1 tau - L^-T A^+ Jc M^-1 tau``."""
-        a = _states_first(self.factor.solve(_states_last(tau)))
+        a = self.factor.solve(_column(tau))[..., 0]
         return a - self._lift(np.einsum("Nnk,Nk->Nn", self.A_pinv, np.einsum("Nkn,Nn->Nk", self.Jc, a)))

@@ -136,10 +136,12 @@ def generalized_forces(kin: Kinematics, F: np.ndarray) -> np.ndarray:  # noqa: N
 
 def terms(kin: Kinematics, G: Inertias,  # noqa: N803
           qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(M, h, C qd, g)`` of eq. (2) at one state: M from the body Jacobians, and eq. (27) for three columns,
-    ``h = C qd + g`` (``qdd = 0``), ``C qd`` (gravity off) and ``g`` (``qd = 0``)."""
+    """``(M, h, C qd, g)`` of eq. (2) at one state or a stack (``qd`` (..., nv) with the kinematics' leading axes): M
+    from the body Jacobians, and eq. (27) for three columns, ``h = C qd + g`` (``qdd = 0``), ``C qd`` (gravity off)
+    and ``g`` (``qd = 0``)."""
     rates = np.stack([qd, qd, np.zeros_like(qd)])
-    tau = generalized_forces(kin, wrenches(kin, G, rates, None, np.array([1.0, 0.0, 1.0])))
+    weights = np.array([1.0, 0.0, 1.0]).reshape((3,) + (1,) * (np.ndim(qd) - 1))
+    tau = generalized_forces(kin, wrenches(kin, G, rates, None, weights))
     return mass_matrix_of(kin, G), tau[0], tau[1], tau[2]
 
 

@@ -259,7 +259,7 @@ def at_columns(kin: Kinematics, per_body: np.ndarray) -> np.ndarray:
 def _to_bodies(kin: Kinematics, per_column: np.ndarray) -> np.ndarray:
     """Per-column rows (..., nv, c) summed over each body's own columns (..., nb, c) (the same array when every
     column is its own body's)."""
-    return per_column if kin.screws.simple else _over_bodies(per_column, kin.screws.ownership)
+    return per_column if kin.screws.simple else _over_bodies(kin, per_column, kin.screws.ownership)
 
 
 def joint_twists(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
@@ -273,16 +273,21 @@ def _joint_rates(kin: Kinematics, rates: np.ndarray) -> np.ndarray:
     return kin.columns * np.asarray(rates, dtype=float)[..., None]
 
 
-def _over_bodies(x: np.ndarray, mix: np.ndarray) -> np.ndarray:
+def _over_bodies(kin: Kinematics, x: np.ndarray, mix: np.ndarray) -> np.ndarray:
     """``out_i = sum_j mix[i, j] x_j`` over the axis -2 of ``x`` (..., nv, c): one matrix product, the components
-    kept stored part by part (:func:`lie.components`)."""
-    d = x.ndim
-    return (x.transpose((d - 1,) + tuple(range(d - 1))) @ mix.T).transpose(tuple(range(1, d)) + (0,))
+    kept stored part by part (:func:`lie.components`). The kinematics' leading axes (one per state) go outermost and
+    each state keeps a single state's order (components, any stack of rates before the states, columns), so that a
+    state's sums are those of the state alone in a stack of any length (with the states among the rows of the
+    product, the last state of a stack rounded differently)."""
+    d, lead = x.ndim, kin.q.ndim - 1
+    stack = d - 2 - lead
+    order = tuple(range(stack, stack + lead)) + (d - 1,) + tuple(range(stack)) + (d - 2,)
+    return (x.transpose(order) @ mix.T).transpose(tuple(np.argsort(order)))
 
 
 def _accumulate(kin: Kinematics, per_joint: np.ndarray) -> np.ndarray:
     """Sum per-column terms over each body's supporting joints: ``out_i = sum_{j <= i} per_joint_j`` (..., nb, c)."""
-    return _over_bodies(per_joint, kin.screws.support)
+    return _over_bodies(kin, per_joint, kin.screws.support)
 
 
 def space_jacobian(kin: Kinematics, body: int) -> np.ndarray:
@@ -373,7 +378,8 @@ def point_jacobian(kin: Kinematics, body: int, p: np.ndarray) -> np.ndarray:
     """``dp/dq`` (..., 3, nv) of the body-fixed point at world position ``p`` (..., 3): column ``j`` is the velocity
     ``v_j + w_j x p`` the space twist ``S_j(q)`` gives the point."""
     S = kin.columns * kin.screws.support[body][:, None]
-    return np.swapaxes(S[..., 3:] + lie.cross(S[..., :3], p[..., None, :]), -1, -2)
+    # each state's columns stored as one state's are (an (nv, 3) block), so that products with J are one state's
+    return np.swapaxes(np.ascontiguousarray(S[..., 3:] + lie.cross(S[..., :3], p[..., None, :])), -1, -2)
 
 
 def point_acceleration(kin: Kinematics, body: int, offset: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:

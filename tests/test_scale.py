@@ -1,0 +1,53 @@
+"""Large models: the banded affine chart, the Euler–Lagrange preparation estimate and the gate's notice before a long
+preparation."""
+
+import numpy as np
+import pytest
+
+import cases
+from crosscheck import charts, gate
+from formalisms import euler_lagrange as el
+
+
+@pytest.mark.parametrize("n", [3, charts.AFFINE_DENSE_LIMIT])
+def test_the_affine_chart_of_a_small_model_is_dense(n):
+    A = charts.random_affine(cases.load("n_link_pendulum", n=n), 5, "x").A
+    assert np.all(A != 0.0) and np.linalg.cond(A) <= 10.0
+
+
+def test_the_affine_chart_of_a_large_model_is_banded_and_well_conditioned():
+    n = charts.AFFINE_DENSE_LIMIT + 9
+    A = charts.random_affine(cases.load("n_link_pendulum", n=n), 5, "x").A
+    distance = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    assert np.all(A[distance > charts.AFFINE_BAND] == 0.0)
+    assert np.all(A[distance <= charts.AFFINE_BAND] != 0.0)
+    assert np.linalg.cond(A) <= 10.0
+
+
+def test_the_dependence_pairs_of_a_chain():
+    """Body i of a chain moves with joints 0..i: n(n+1)/2 pairs in the joint chart; in a dense chart every body
+    depends on all n coordinates; in the banded one body i on 0..min(i + band, n - 1)."""
+    small = cases.load("n_link_pendulum", n=6)
+    assert el._dependence_pairs(small, None) == 21
+    assert el._dependence_pairs(small, charts.get("affine", small, 0, "x")) == 36
+    large = cases.load("n_link_pendulum", n=20)
+    band = charts.AFFINE_BAND
+    assert el._dependence_pairs(large, charts.get("affine", large, 0, "x")) == sum(min(i + band, 19) + 1
+                                                                                   for i in range(20))
+
+
+def test_the_estimate_is_zero_once_the_derivation_is_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
+    model = cases.load("double_pendulum", m1=1.25)
+    assert el.preparation_estimate(model) == pytest.approx(el.SECONDS_PER_PAIR * 3)
+    el.cached_source(model)
+    assert el.preparation_estimate(model) == 0.0
+
+
+def test_the_gate_announces_a_long_preparation_before_the_case(tmp_path, monkeypatch):
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
+    monkeypatch.setattr(gate, "PREPARATION_NOTICE_S", 0.5)
+    spec = gate.CaseSpec("n_link_pendulum", (("n", "14"),))
+    with pytest.warns(gate.PreparationNotice, match=r"euler_lagrange: preparing case 'n_link_pendulum' \(14 coordinates\)"
+                      r" in the joint chart, 3 chart\(s\) and 2 moved scene\(s\) takes about \d+ s"):
+        gate.announce_preparation(gate.CaseSetup.build(spec, 0), [el.FORMALISM])
