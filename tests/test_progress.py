@@ -17,6 +17,7 @@ import pytest
 from rich.console import Console
 
 import formalisms.newton_euler as ne
+import crosscheck
 from crosscheck import backends, bench, cli, faults, gate
 from crosscheck.faults import Hunt
 from crosscheck.gate import CaseSpec, Checks
@@ -223,3 +224,12 @@ def test_ctrl_c_to_the_process_group_stops_the_gates_workers_without_a_traceback
                                    f"flight are not in the report); partial report written to {report}"]
     text = report.read_text()
     assert "**PARTIAL**" in text and "PASS" not in text
+
+
+def test_only_a_spawned_pool_worker_ignores_ctrl_c():
+    """A process that inherits the worker mark from its parent but is not a pool worker multiprocessing spawned (a
+    ``crosscheck`` command a test or a script starts while its own pool is open) keeps its Ctrl-C."""
+    probe = "import signal, crosscheck; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    env = {**os.environ, crosscheck.WORKER: str(os.getpid())}
+    done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "True", done.stderr
