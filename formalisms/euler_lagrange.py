@@ -114,7 +114,7 @@ derivatives go through a memoized chain rule (forward-mode differentiation done 
 expressions never expand the kinematic chain. The symbolic engine is SymEngine, the C++ core of the sympy
 project with sympy's API, because pure-Python sympy takes minutes on a 9-joint arm.
 Compilation: the staged definitions in order, with repeated subexpressions computed once (tree-matching CSE, linear
-time: :class:`_Source`), written by one emitter as C and as Python (:func:`generate_sources`; the same operations in
+time: :class:`_Source`), written by one emitter as C and as Python (:func:`generate_source`; the same operations in
 the same order, so both round alike); one call returns M, C pd, g, the kinetic energy T and the constraint terms phi,
 Jc, Jcdot pd at the state.
   * Compiled (:func:`_native`). The C is compiled by the system compiler (``cc``, else ``gcc``; :data:`C_FLAGS`:
@@ -139,7 +139,8 @@ Caches: the sources (Python and C), the Python code object (``marshal``) and the
 the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
 with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
 process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
-Every file is written atomically (a temporary file renamed into place: :func:`~formalisms.interface.write_cache_file`), and a library is compiled in
+Every file is written atomically (a temporary file renamed into place:
+:func:`~formalisms.interface.write_cache_file`), and a library is compiled in
 a private directory, so processes filling the same entry at once do not disturb each other; a library is sealed with
 its SHA-256 and one that does not match (damaged, truncated) is compiled again, never loaded; a cache that cannot be
 written only costs the work next time.
@@ -1099,12 +1100,6 @@ def _c(program: _Program) -> str:
 LANGUAGES = {"python": _python, "c": _c}
 
 
-def generate_sources(model: Model, chart: Chart | None = None, order: int | None = None) -> dict[str, str]:
-    """:func:`generate_source` in every language of :data:`LANGUAGES`, from one derivation."""
-    program = _program(model, chart, EXP_ORDER if order is None else order)
-    return {language: render(program) for language, render in LANGUAGES.items()}
-
-
 def generate_source(model: Model, chart: Chart | None = None, order: int | None = None,
                     language: str = "python") -> str:
     """Source of the dynamics at a state in the chart, in Python or C (``language``, :data:`LANGUAGES`): Python's
@@ -1145,19 +1140,20 @@ _SUFFIX = {"python": ".py", "c": ".c"}
 
 
 def cached_source(model: Model, chart: Chart | None = None, language: str = "python") -> str:
-    """The generated source in ``language`` (:data:`LANGUAGES`), from the disk cache when present; a derivation writes
-    every language's source (:func:`generate_sources`), so the other one is at hand without deriving again.
+    """The generated source in ``language`` (:data:`LANGUAGES`), from the disk cache when present. Only that language
+    is rendered: the C is needed only by a model that is compiled (:class:`_Deferred`), and rendering it costs as
+    much again as the Python (a fifth of a fuzz campaign's time when both were written); compiling, three times the
+    derivation, pays for deriving once more.
 
     Keyed by the model digest, the chart's key and a hash of this module's own source, so a change to the
     derivation can never be hidden by code generated before it, and one chart's code is never served for another.
     """
-    path = _cache_dir() / cache_key(model, chart)
-    if path.with_suffix(_SUFFIX[language]).exists():
-        return path.with_suffix(_SUFFIX[language]).read_text()
-    sources = generate_sources(model, chart)
-    for name, text in sources.items():
-        write_cache_file(path.with_suffix(_SUFFIX[name]), text.encode())
-    return sources[language]
+    path = (_cache_dir() / cache_key(model, chart)).with_suffix(_SUFFIX[language])
+    if path.exists():
+        return path.read_text()
+    source = generate_source(model, chart, language=language)
+    write_cache_file(path, source.encode())
+    return source
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
@@ -1275,7 +1271,8 @@ def _layout(library: ctypes.CDLL, model: Model) -> tuple[int, int, int]:
 
 def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int, int, int]]:
     """The compiled library of the model in the chart and its layout: the cached one (``<key>.so``) when it is
-    intact and loads, else compiled from :func:`cached_source`'s C and written to the cache (:func:`~formalisms.interface.write_cache_file`)."""
+    intact and loads, else compiled from :func:`cached_source`'s C and written to the cache
+    (:func:`~formalisms.interface.write_cache_file`)."""
     path = _cache_dir() / f"{cache_key(model, chart)}.so"
     if _intact(path):
         try:
