@@ -56,7 +56,7 @@ class Scene:
         return cases.load(self.case, **dict(self.params))
 
 
-def _chain(n: int) -> Scene:
+def chain_scene(n: int) -> Scene:
     return Scene(f"n_link_pendulum n={n}", "n_link_pendulum", (("n", n),), links=n)
 
 
@@ -78,12 +78,12 @@ class Plan:
 
 _BASE = (Scene("double_pendulum", "double_pendulum"), Scene("panda", "panda"), Scene("four_bar", "four_bar"))
 
-FULL = Plan(scenes=_BASE + tuple(_chain(n) for n in (2, 3, 5, 8, 12, 16, 20, 25, 30)), error_states=8,
+FULL = Plan(scenes=_BASE + tuple(chain_scene(n) for n in (2, 3, 5, 8, 12, 16, 20, 25, 30)), error_states=8,
             timing_states=16, batch=1000, target_batch=10_000, min_time=0.2, prep=("double_pendulum", "panda",
                                                                                    "four_bar"),
-            representation=(Scene("double_pendulum", "double_pendulum"), _chain(8), Scene("four_bar", "four_bar")),
+            representation=(Scene("double_pendulum", "double_pendulum"), chain_scene(8), Scene("four_bar", "four_bar")),
             gate=True)
-QUICK = Plan(scenes=_BASE + tuple(_chain(n) for n in (2, 5)), error_states=2, timing_states=4, batch=100,
+QUICK = Plan(scenes=_BASE + tuple(chain_scene(n) for n in (2, 5)), error_states=2, timing_states=4, batch=100,
              target_batch=500, min_time=0.02, prep=("double_pendulum",),
              representation=(Scene("double_pendulum", "double_pendulum"),), gate=False)
 

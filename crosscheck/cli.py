@@ -695,6 +695,8 @@ def cmd_bench(args) -> int:
     from crosscheck import bench, bench_report
 
     preflight.claim_directory(args.out, "out")
+    if args.scale:
+        return _bench_scale(args)
     plan = bench.QUICK if args.quick else bench.FULL
     names = args.formalism or None
     for name in names or []:
@@ -712,6 +714,20 @@ def cmd_bench(args) -> int:
                 print(f"stability: {_stability_maps(args.out, args.quick, display)}")
             except KeyboardInterrupt:
                 return _interrupted(f"during the stability maps; {speed} is complete, stability.md not updated")
+    return 0
+
+
+def _bench_scale(args) -> int:
+    """``crosscheck bench --scale``: large robots and campaigns as whole processes (reports/scale.md)."""
+    from crosscheck import scale
+
+    plan = scale.QUICK if args.quick else scale.FULL
+    with Display("bench --scale", "steps", scale.steps(plan), quiet=args.quiet) as display:
+        try:
+            results = scale.run(plan, display)
+        except KeyboardInterrupt:
+            return _interrupted("scale measurements not written")
+    print(f"scale: {scale.write(results, Path(args.out))}")
     return 0
 
 
@@ -855,6 +871,8 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
+    bn.add_argument("--scale", action="store_true", help="instead: the gate on tiago, g1 and solo12, Euler–Lagrange "
+                    "preparation against joints, fuzz throughput, each a whole process (reports/scale.md)")
     add_plugin_option(bn)
     add_quiet_option(bn)
     bn.set_defaults(run=cmd_bench)

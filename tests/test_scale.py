@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import charts, gate
+from crosscheck import bench, charts, gate, scale
 from formalisms import euler_lagrange as el
 
 
@@ -51,3 +51,26 @@ def test_the_gate_announces_a_long_preparation_before_the_case(tmp_path, monkeyp
     with pytest.warns(gate.PreparationNotice, match=r"euler_lagrange: preparing case 'n_link_pendulum' \(14 coordinates\)"
                       r" in the joint chart, 3 chart\(s\) and 2 moved scene\(s\) takes about \d+ s"):
         gate.announce_preparation(gate.CaseSetup.build(spec, 0), [el.FORMALISM])
+
+
+def test_a_measured_child_reports_its_status_time_and_memory(tmp_path):
+    """``crosscheck bench --scale`` measures whole processes through the kernel: a command that works, and one that
+    fails with its last lines kept."""
+    run = scale.measured("cases", ["cases"], str(tmp_path))
+    assert run.status == 0 and run.wall_s > 0 and run.cpu_s > 0
+    assert run.peak_mib > 20  # a Python process with numpy loaded
+    assert "output" not in run.detail
+    failed = scale.measured("an unknown case", ["gate", "--case", "no_such_case"], str(tmp_path))
+    assert failed.status == 2 and any("no_such_case" in line for line in failed.detail["output"])
+
+
+def test_the_scale_report_shows_every_measurement():
+    gate_run = scale.Run("gate tiago (48 joints)", ["gate"], 0, 700.0, 690.0, 2600.0)
+    fuzz_run = scale.Run("fuzz", ["fuzz"], 0, 60.0, 58.0, 300.0,
+                         {"examples": 100, "models": 100, "states": 250, "chunk_s": 50.0})
+    results = scale.ScaleResults("full", {"cpus": 2}, [gate_run], [bench.Preparation("euler_lagrange", "chain", 1.5,
+                                                                                       0.01)], [fuzz_run])
+    text = scale.render(results)
+    assert "| tiago (48 joints) | 0 | 700.0 | 690.0 | 2600 |" in text
+    assert "| chain | 1.50 | 0.010 |" in text
+    assert "| 100 | 100 | 250 | 0 | 60.0 | 58.0 | 4.17 | 50.0, 5.00 | 300 |" in text
