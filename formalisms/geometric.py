@@ -171,7 +171,9 @@ representation chart of a model without group joints is ModelNotSupported.
 
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
-digest and the chart key: about 1 s for the 9-joint panda, 40k SX instructions); the rest is one Cholesky factor, one
+digest and the chart key: 0.1 s for the 9-joint panda, 65k SX instructions; built without casadi's common
+subexpression elimination, which takes 8-13 times as long and is left to the compiled code, :func:`_eliminated`); the
+rest is one Cholesky factor, one
 LAPACK solve with all right-hand sides and small numpy contractions (with constraints: one SVD of Jc, and the factor
 is that of ``Z^T M Z``). The small LAPACK calls (``potrs``, ``trtrs``, ``geqrf``, ``trtri``) are made directly: scipy's
 wrappers check their arguments for longer than the calls take.
@@ -182,8 +184,9 @@ stack in numpy: ``Gamma(pd, pd)`` as ``M^-1`` of the first-kind symbols contract
 connection, raised after contracting), batched Cholesky solves, the constrained states grouped by the rank of S.
 
 Compiled evaluation. casadi's interpreter spends most of a panda state's time on the Function (its SX virtual machine
-runs the 40k instructions at several ns each). Once a Function has evaluated :data:`COMPILE_AFTER` states in this
-process it is compiled to C by the system compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from
+runs the 65k instructions at several ns each). Once a Function has evaluated :data:`COMPILE_AFTER` states in this
+process it is rebuilt with common subexpressions eliminated (the panda's 40k instructions; the same numbers bit for
+bit) and compiled to C by the system compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from
 then on, one C call per state or per block of states. The C is written here from the Function's own instruction list
 (:func:`_c_source`): one statement per SX instruction on casadi's work vector, in casadi's order, with the products
 and sums never fused (``-ffp-contract=off``), so the compiled code does the interpreter's arithmetic operation for
@@ -791,6 +794,15 @@ def _native(function: ca.Function) -> tuple[_Library | None, str]:
     return None, f"interpreted casadi SX ({why})"
 
 
+def _eliminated(function: ca.Function) -> ca.Function:
+    """``function`` rebuilt with casadi's common subexpression elimination, for compiling (:class:`_Evaluator`): the
+    same values from fewer instructions (the panda's 65k become 40k; a 24-link chain's 495k, already shared as built,
+    490k). Building a Function with it takes 8-13 times as long (the panda 0.9 s instead of 0.1 s, in an affine chart
+    5.1 s instead of 0.5 s; a 24-link chain 6.7 s instead of 0.6 s), which only a compiled Function pays back."""
+    arguments = function.sx_in()
+    return ca.Function(function.name(), arguments, function.call(arguments), {"cse": True})
+
+
 class _Evaluator:
     """A casadi Function ``(p, pd) -> one dense column``: interpreted through casadi's buffer interface (the arguments
     copied into fixed numpy buffers and the result out of one, so a call costs microseconds instead of the ~80 us of a
@@ -799,7 +811,7 @@ class _Evaluator:
     ``evaluation`` says which, and why."""
 
     def __init__(self, name: str, p: ca.SX, pd: ca.SX, out: ca.SX):
-        self.function = ca.Function(name, [p, pd], [ca.densify(out)], {"cse": True})
+        self.function = ca.Function(name, [p, pd], [ca.densify(out)], {"cse": False})
         self._p, self._pd, self._out = np.zeros(p.numel()), np.zeros(pd.numel()), np.zeros(out.numel())
         self._buffer, self._trigger = self.function.buffer()
         self._buffer.set_arg(0, memoryview(self._p))
@@ -818,7 +830,7 @@ class _Evaluator:
             self._states += states
             if self._states >= COMPILE_AFTER:
                 self._decided = True
-                self._library, self.evaluation = _native(self.function)
+                self._library, self.evaluation = _native(_eliminated(self.function))
         return self._library
 
     def __call__(self, p: np.ndarray, pd: np.ndarray) -> np.ndarray:
