@@ -1411,14 +1411,26 @@ class EnergyRate:
 
 def energy_rate(model: Model, p, pd, pdd, chart=None) -> EnergyRate:
     """:class:`EnergyRate` of ``E = T + V`` at ``(p, pd)`` with acceleration ``pdd``, in ``chart``."""
-    p, pd, pdd = _vectors(model, chart, p, pd=pd, pdd=pdd)
+    (rate,) = energy_rates(model, p, pd, [pdd], chart)
+    return rate
+
+
+def energy_rates(model: Model, p, pd, accelerations, chart=None) -> list[EnergyRate]:
+    """:func:`energy_rate` at ``(p, pd)`` for each acceleration of ``accelerations``: E's gradient is evaluated once."""
+    if not len(accelerations):
+        return []
+    labels = ["pdd"] if len(accelerations) == 1 else [f"pdd[{i}]" for i in range(len(accelerations))]
+    p, pd, *accelerations = _vectors(model, chart, p, pd=pd, **dict(zip(labels, accelerations)))
     n = model.n
     values = _compiled(model, chart).energy(p, pd)
     dE_dp, dE_dpd = values[2:2 + n], values[2 + n:]
-    terms = np.concatenate([dE_dp * pd, dE_dpd * pdd])
     momentum = np.array(dE_dpd)
     momentum.setflags(write=False)
-    return EnergyRate(rate=float(terms.sum()), magnitude=float(np.abs(terms).sum()), momentum=momentum)
+    rates = []
+    for pdd in accelerations:
+        terms = np.concatenate([dE_dp * pd, dE_dpd * pdd])
+        rates.append(EnergyRate(rate=float(terms.sum()), magnitude=float(np.abs(terms).sum()), momentum=momentum))
+    return rates
 
 
 # ------------------------------------------------------------------------------------------------------- batches
