@@ -185,7 +185,8 @@ connection, raised after contracting), batched Cholesky solves, the constrained 
 
 Compiled evaluation. casadi's interpreter spends most of a panda state's time on the Function (its SX virtual machine
 runs the 65k instructions at several ns each). Once a Function has evaluated :data:`COMPILE_AFTER` states in this
-process it is rebuilt with common subexpressions eliminated (the panda's 40k instructions; the same numbers bit for
+process and spent as long interpreted as its compilation is estimated to take (:data:`COMPILE_SECONDS_PER_INSTRUCTION`:
+the total cost is then at most twice that of the better choice made in hindsight) it is rebuilt with common subexpressions eliminated (the panda's 40k instructions; the same numbers bit for
 bit) and compiled to C by the system compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from
 then on, one C call per state or per block of states. The C is written here from the Function's own instruction list
 (:func:`_c_source`): one statement per SX instruction on casadi's work vector, in casadi's order, with the products
@@ -219,6 +220,7 @@ import shutil
 import subprocess
 import tempfile
 import threading
+import time
 import warnings
 import weakref
 from dataclasses import dataclass
@@ -612,10 +614,14 @@ def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
 
 # ------------------------------------------------------------------------------------------ compiled evaluation
 
-#: States a Function evaluates interpreted before it is compiled to C (module docstring, "Compiled evaluation"):
-#: compiling takes 0.1 s for a double pendulum and seconds for a 9-joint arm, a few hundred states of casadi's
-#: interpreter, so only a model evaluated this often (a batch, a campaign) pays for it.
+#: States a Function evaluates interpreted before it may be compiled to C (module docstring, "Compiled evaluation").
 COMPILE_AFTER = 1000
+#: CPU seconds of compiling a Function, per SX instruction of it as built (before :func:`_eliminated`): the panda's 65k
+#: (40k after elimination) took 8 s, tiago's (1.0M after elimination) 225 s (-O1, parts of :data:`C_PART`). A Function is compiled once the seconds it has spent
+#: interpreted reach this estimate of its compilation (and it has had :data:`COMPILE_AFTER` states): a model
+#: evaluated long enough to pay for it, and never a large model in a gate's few states, whose compilation would
+#: cost more than all its interpreted evaluations (tiago's 225 s against about 10 ms a state).
+COMPILE_SECONDS_PER_INSTRUCTION = 1.2e-4
 #: ``CROSSCHECK_COMPILE=0`` keeps every Function interpreted (casadi's SX virtual machine).
 COMPILE_ENV = "CROSSCHECK_COMPILE"
 #: The compilers looked for on the PATH, in order.
@@ -729,8 +735,8 @@ def evaluation() -> str:
     reason = _interpreted_reason()
     if reason is not None:
         return f"interpreted casadi SX ({reason})"
-    return (f"compiled C ({Path(_compiler()).name} {C_FLAGS[0]}) once a model has had {COMPILE_AFTER} states, "
-            "interpreted casadi SX before")
+    return (f"compiled C ({Path(_compiler()).name} {C_FLAGS[0]}) once a model has had {COMPILE_AFTER} states and "
+            "as long interpreted as its compilation takes, interpreted casadi SX before")
 
 
 def _cache_dir() -> Path:
@@ -820,15 +826,17 @@ class _Evaluator:
         self._lock = threading.Lock()
         self._mapped: dict[int, ca.Function] = {}
         self.size = self._out.size  # outputs per state
-        self._states, self._decided, self._library = 0, False, None
+        self._states, self._seconds, self._decided, self._library = 0, 0.0, False, None
+        self.compile_estimate = COMPILE_SECONDS_PER_INSTRUCTION * self.function.n_instructions()
         self.evaluation = "interpreted casadi SX (not yet compiled)"
 
     def _native_when_due(self, states: int) -> _Library | None:
-        """Count ``states`` (called under the lock) and return the compiled Function, compiling it (once) when the count
-        reaches :data:`COMPILE_AFTER`; None while it is interpreted."""
+        """Count ``states`` (called under the lock) and return the compiled Function, compiling it (once) when it has
+        had :data:`COMPILE_AFTER` states and its interpreted seconds have reached its estimated compilation
+        (:data:`COMPILE_SECONDS_PER_INSTRUCTION`); None while it is interpreted."""
         if not self._decided:
             self._states += states
-            if self._states >= COMPILE_AFTER:
+            if self._states >= COMPILE_AFTER and self._seconds >= self.compile_estimate:
                 self._decided = True
                 self._library, self.evaluation = _native(_eliminated(self.function))
         return self._library
@@ -839,7 +847,9 @@ class _Evaluator:
             if library is None:
                 self._p[:] = p
                 self._pd[:] = pd
+                start = time.perf_counter()
                 self._trigger()
+                self._seconds += time.perf_counter() - start
                 return self._out.copy()
         return library(p[None], pd[None])[0]
 
@@ -866,7 +876,10 @@ class _Evaluator:
         buffer.set_arg(0, memoryview(P))
         buffer.set_arg(1, memoryview(PD))
         buffer.set_res(0, memoryview(out.reshape(-1)))
+        start = time.perf_counter()
         trigger()
+        with self._lock:
+            self._seconds += time.perf_counter() - start
         return out
 
 

@@ -7,7 +7,8 @@
   the Function stays interpreted and says why.
 * The disk cache: a library found there is loaded without compiling; a broken one (bytes that do not match their
   digest, or that do not load) is compiled again; a cache that cannot be written costs only the compilation.
-* A Function is compiled only once it has evaluated ``COMPILE_AFTER`` states.
+* A Function is compiled only once it has evaluated ``COMPILE_AFTER`` states and spent its estimated compilation
+  interpreted.
 
 Small models only: each compilation here takes a fraction of a second.
 """
@@ -34,6 +35,7 @@ def cache(tmp_path, monkeypatch):
     monkeypatch.setenv(geo.COMPILE_ENV, "1")
     monkeypatch.setattr(geo, "_COMPILED", {})
     monkeypatch.setattr(geo, "COMPILE_AFTER", 0)
+    monkeypatch.setattr(geo, "COMPILE_SECONDS_PER_INSTRUCTION", 0.0)
     return tmp_path / "geometric"
 
 
@@ -198,3 +200,19 @@ def test_formalisms_command_says_how_geometric_evaluates(monkeypatch, capsys):
     at = next(i for i, line in enumerate(lines) if line.startswith("geometric "))
     assert lines[at + 1].split() == ["evaluation:", "interpreted", "casadi", "SX", "(CROSSCHECK_COMPILE=0)"]
 
+
+
+def test_a_function_is_compiled_once_its_interpreted_time_pays_for_the_compilation(cache, monkeypatch):
+    """Enough states are not enough: the seconds spent interpreted must reach the estimated compilation, so a large
+    model's few states never pay for a compilation that costs more than they do."""
+    monkeypatch.setattr(geo, "COMPILE_AFTER", 1)
+    monkeypatch.setattr(geo, "COMPILE_SECONDS_PER_INSTRUCTION", 1.0)  # hours for the pendulum's Function
+    model, states = _joint_states("double_pendulum")
+    for q, qd, u in states:
+        geo.split(model, q, qd, u)
+    evaluator = geo._compiled(model, None).evaluate
+    assert evaluator.evaluation == "interpreted casadi SX (not yet compiled)"
+    assert 0.0 < evaluator._seconds < evaluator.compile_estimate
+    evaluator.compile_estimate = evaluator._seconds
+    geo.split(model, *states[0])
+    assert evaluator.evaluation.startswith("compiled C")
