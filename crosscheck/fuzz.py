@@ -55,6 +55,7 @@ import queue as queues
 import secrets
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -218,11 +219,22 @@ class _Interrupts:
 
     @contextlib.contextmanager
     def during(self, phase: str) -> Iterator[None]:
+        """In ``phase``. The KeyboardInterrupt :meth:`on_signal` raises can land in code that cannot raise (a garbage
+        collector callback of Hypothesis's), which Python reports as "Exception ignored" with a traceback: that
+        report is dropped here, since the interrupt is noted (``requested``) and the next example stops the chunk."""
         before, self.phase = self.phase, phase
+        hook = sys.unraisablehook
+
+        def quiet(unraisable) -> None:
+            if not (self.requested and issubclass(unraisable.exc_type, KeyboardInterrupt)):
+                hook(unraisable)
+
+        sys.unraisablehook = quiet
         try:
             yield
         finally:
             self.phase = before
+            sys.unraisablehook = hook
 
     @contextlib.contextmanager
     def chunk(self) -> Iterator[None]:

@@ -18,6 +18,7 @@ source, so sharing it between runs cannot change an answer; the Euler–Lagrange
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -44,6 +45,11 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 # "Compiled evaluation") costs seconds per model, and the tests that check the compiled code against the interpreter
 # turn it on themselves. ``CROSSCHECK_COMPILE=1 pytest`` runs the whole suite compiled.
 os.environ.setdefault("CROSSCHECK_COMPILE", "0")
+
+# Ctrl-C as Python has it by default, whatever this process inherited: a shell without job control starts a
+# background command (``pytest ... &``, a nohup'd or scheduled run) with SIGINT ignored, and an ignored signal stays
+# ignored in every child, so the tests that send SIGINT to a crosscheck command would see it run to the end.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -23,6 +23,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -267,3 +268,19 @@ def test_an_out_that_cannot_be_a_campaign_directory_is_refused(command, tmp_path
     assert afile.read_text() == "mine\n"
     assert cli.main(argv + [str(afile / "sub")]) == 2
     assert f"cannot create campaign directory {afile / 'sub'}: " in capsys.readouterr().err
+
+
+def test_an_interrupt_that_lands_where_it_cannot_raise_is_not_reported(monkeypatch):
+    """A KeyboardInterrupt from the signal handler inside a garbage-collector callback is "unraisable": Python would
+    print it with a traceback. During a chunk's run, once the interrupt is noted, that report is dropped (the next
+    example stops the chunk); any other unraisable exception is still reported."""
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", reported.append)
+    monkeypatch.setattr(fuzz._INTERRUPTS, "requested", True)
+    interrupt = types.SimpleNamespace(exc_type=KeyboardInterrupt)
+    other = types.SimpleNamespace(exc_type=ValueError)
+    with fuzz._INTERRUPTS.during("test"):
+        sys.unraisablehook(interrupt)
+        sys.unraisablehook(other)
+    assert reported == [other]
+    assert sys.unraisablehook == reported.append
