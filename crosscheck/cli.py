@@ -189,7 +189,7 @@ def cmd_gate(args) -> int:
         raise UsageError("--samples must be at least 1")
     if not 0 <= args.frames <= MAX_FRAMES:
         raise UsageError(f"--frames takes 0 (off) to {MAX_FRAMES} frame changes per case, got {args.frames}")
-    _workers(args.workers, 1)
+    _workers(args.workers, 0)
     specs = _specs(args)
     chosen = _backends(args.formalism)
     for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
@@ -744,8 +744,19 @@ def _stability_maps(out: str, quick: bool, display: Display) -> Path:
     return stability.write_report(Path(out), quick=quick, progress=measured)
 
 
+def _version() -> str:
+    """The installed distribution's version, or why there is none (run from a checkout without installing)."""
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("crosscheck")
+    except importlib.metadata.PackageNotFoundError:
+        return "(not installed: run from a source tree)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="crosscheck", description="Cross-formalism verification of rigid multibody dynamics.")
+    parser.add_argument("--version", action="version", version=f"crosscheck {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     sub.add_parser("cases", help="list the built-in cases and their parameters").set_defaults(run=cmd_cases)
     listing = sub.add_parser("formalisms", help="list the formalisms, the reference and the plugins")
@@ -778,7 +789,8 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
     gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
     gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                      help="cases run in this many processes (default: the number of CPUs; 1: in this process)")
+                      help="worker processes running the cases (default: the number of CPUs; 0: in this process; "
+                      "one case, or 1, also runs here: a pool of one would only add its start-up)")
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -833,7 +845,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "is not given)")
     fz.add_argument("--minutes", type=float, help="run for this long instead (the chunks in flight then finish)")
     fz.add_argument("--seed", type=_seed, default=0, help="campaign seed (default 0)")
-    fz.add_argument("--workers", type=int, default=1, help="worker processes (default 1; 0: in this process)")
+    fz.add_argument("--workers", type=int, default=1, help="worker processes running the chunks (default 1; 0: in "
+                    "this process; a worker is replaced every few chunks, which bounds the memory a campaign takes)")
     fz.add_argument("--shard", default="0/1", metavar="i/N", help="run the chunks k with k %% N == i (default 0/1)")
     fz.add_argument("--out", default=".crosscheck/fuzz", metavar="DIR",
                     help="campaign directory: findings, chunk log, report.md (default .crosscheck/fuzz)")

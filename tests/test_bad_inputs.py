@@ -90,7 +90,8 @@ def _refused(argv, capsys) -> str:
     # unbounded or misdirected work
     (["fuzz", "--minutes", "inf"], "--minutes takes a positive, finite number of minutes, got inf"),
     (["fuzz", "--workers", "1000"], "--workers takes 0 to"),
-    (["gate", *DP, "--workers", "1000"], "--workers takes 1 to"),
+    (["gate", *DP, "--workers", "1000"], "--workers takes 0 to"),
+    (["gate", *DP, "--workers", "-1"], "--workers takes 0 to"),
 ])
 def test_bad_input_is_refused_in_one_line(argv, fragment, capsys):
     assert fragment in _refused(argv, capsys)

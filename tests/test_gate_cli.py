@@ -46,15 +46,18 @@ def test_gate_passes_and_is_reproducible(tmp_path):
 
 def test_workers_give_the_same_report_with_the_cases_in_order(tmp_path, monkeypatch):
     """Cases in two spawned processes (the larger model, n_link_pendulum, starts first): the report of one process,
-    timings apart, cases in the order given."""
+    timings apart, cases in the order given. ``--workers`` means what it means for fuzz: 0 runs in this process."""
     pooled, real = [], gate._in_pool
     monkeypatch.setattr(gate, "_in_pool", lambda *args: pooled.append(args[0]) or real(*args))
     args = ("--case", "double_pendulum", "--case", "n_link_pendulum", "--samples", "4", "--seed", "2")
-    code, alone = _gate(tmp_path, *args, "--workers", "1")
+    code, alone = _gate(tmp_path, *args, "--workers", "0")
+    assert code == 0 and not pooled
+    code, one = _gate(tmp_path, *args, "--workers", "1")  # a pool of one buys nothing: this process too
     assert code == 0 and not pooled
     code, together = _gate(tmp_path, *args, "--workers", "2")
     assert code == 0 and len(pooled) == 1
-    assert _without_timing(together).replace("--workers 2", "--workers 1") == _without_timing(alone)
+    assert _without_timing(together).replace("--workers 2", "--workers 0") == _without_timing(alone)
+    assert _without_timing(one).replace("--workers 1", "--workers 0") == _without_timing(alone)
     timing = together.split("## Timing")[1]
     assert 0 < timing.index("| double_pendulum |") < timing.index("| n_link_pendulum |")
 
@@ -142,7 +145,7 @@ def test_eval_json_matches_article_closed_form(capsys):
     (["eval", "--case", "double_pendulum", "--q=0,0", "--formalism", "hamilton"], "valid: euler_lagrange"),
     (["eval", "--model", "/no/such/robot.urdf", "--q=0"], "/no/such/robot.urdf"),
     (["gate", "--samples", "0"], "--samples must be at least 1"),
-    (["gate", "--workers", "0"], "--workers takes 1 to"),
+    (["gate", "--workers", "-1"], "--workers takes 0 to"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_exits_2_with_one_line(argv, fragment, capsys):
@@ -253,3 +256,12 @@ def test_state_zero_is_the_home_configuration():
     states = sample_states(model, 3, seed=5, case="spatial_arm")
     assert states[0].q == (0.0,) * model.n and any(states[0].qd) and any(states[1].q)
     assert sample_states(model, 3, seed=5, case="spatial_arm") == states
+
+
+def test_version(capsys):
+    import importlib.metadata
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--version"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out == f"crosscheck {importlib.metadata.version('crosscheck')}\n"
