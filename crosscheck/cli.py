@@ -26,11 +26,11 @@ from crosscheck import backends, charts, frames, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck.compare import KNOWN, worst_of
+from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
 from crosscheck.report import render
 from formalisms import UnknownFormalism
-from formalisms.interface import ModelNotSupported, StateError
+from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
 DEFAULT_REPORT = "reports/gate.md"
 #: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
@@ -419,12 +419,15 @@ def cmd_eval(args) -> int:
     splits, unsupported, errors = _chart_splits(model, chart, p, pd, u, tau_p, chosen + ([closed] if closed else []))
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
            for name, (_, split) in splits.items()}
+    verdict = _eval_verdict(model, chart, p, pd, u, splits, errors, chosen)
     if args.json:
         print(json.dumps({"case": spec.name, "params": dict(spec.params), "chart": chart.name,
                           "frame": args.frame, "q": p.tolist(), "qd": pd.tolist(), "u": u.tolist(),
-                          "tau": tau_p.tolist(), "formalisms": out, "not_supported": unsupported,
-                          "errors": errors}, indent=1))
-        return 1 if errors else 0
+                          "tau": tau_p.tolist(), "formalisms": {name: _nulled(v) for name, v in out.items()},
+                          "unsupported_quantities": {name: _unsupported_keys(v) for name, v in out.items()
+                                                     if _unsupported_keys(v)},
+                          "not_supported": unsupported, "errors": errors, "verdict": verdict}, indent=1))
+        return 1 if errors or verdict["agree"] is False else 0
     where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
     if isinstance(chart, charts.VelocityRepresentation):
         where = f" in velocity representation {chart.name} (q as given, qd = w with v = T(q) w)"
@@ -447,7 +450,46 @@ def cmd_eval(args) -> int:
         print(f"{name}: NOT COMPARED ({reason})")
     for name, error in errors.items():
         print(f"{name}: ERROR at this state: {error}")
-    return 1 if errors else 0
+    print(f"verdict: {verdict['text']}")
+    return 1 if errors or verdict["agree"] is False else 0
+
+
+def _unsupported_keys(values: dict) -> list[str]:
+    return [key for key, value in values.items() if value == repr(UNSUPPORTED)]
+
+
+def _nulled(values: dict) -> dict:
+    """A backend's JSON fields with null for a quantity it does not supply (listed in ``unsupported_quantities``)."""
+    return {key: None if value == repr(UNSUPPORTED) else value for key, value in values.items()}
+
+
+def _eval_verdict(model, chart, p, pd, u, splits: dict, errors: dict, chosen: list) -> dict:
+    """The gate's comparison of the backends at this state (``crosscheck.gate.judge``: the tolerance table, the
+    conditioning audit, the vote for an outlier) in the joint chart; in another chart or velocity representation the
+    gate judges through the chart checks instead, so no verdict is given here. ``agree`` is None then, or when fewer
+    than two answers can be compared."""
+    if chart.name != "identity":
+        return {"agree": None, "text": f"not judged in chart {chart.name} (the gate compares charts through its chart "
+                                       "checks: run crosscheck gate)"}
+    state = sampling.State(0, tuple(p), tuple(pd), tuple(u))
+    outcome = gate.StateOutcome(state, {name: split for name, (_, split) in splits.items()}, dict(errors), {},
+                                {n: b for n, (_, s) in splits.items() if (b := policy.breakdown(s))})
+    gate.judge(model, outcome, chosen)
+    compared = [c for c in {**outcome.comparisons, **outcome.checks}.values() if len(c.voters) >= 2]
+    failing = [c for c in {**outcome.comparisons, **outcome.checks}.values() if c.verdict == DISAGREE]
+    worst = max((c.worst_ratio for c in compared), default=0.0)
+    outliers = sorted({c.outlier for c in failing if c.outlier})
+    if errors or failing:
+        named = ", ".join(c.quantity for c in failing[:6]) + (", ..." if len(failing) > 6 else "")
+        text = (f"DISAGREE: {named or 'errors'} (worst ratio {worst:.3g} of the tolerance"
+                + (f"; outlier {', '.join(outliers)}" if outliers else "; no single outlier") + ")"
+                + (f"; errors from {', '.join(errors)}" if errors else ""))
+        return {"agree": False, "worst_ratio": worst, "outliers": outliers, "failing": [c.quantity for c in failing],
+                "text": text}
+    if not compared:
+        return {"agree": None, "text": "nothing to compare (fewer than two backends answered)"}
+    return {"agree": True, "worst_ratio": worst, "outliers": [], "failing": [],
+            "text": f"agree (worst ratio {worst:.3g} of the tolerance, {len(compared)} quantities compared)"}
 
 
 def _unit_quaternions(model, q: np.ndarray, normalize: bool) -> np.ndarray:

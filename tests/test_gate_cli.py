@@ -88,8 +88,10 @@ def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis
     command = next(line for line in disagreements.splitlines() if "reproduce: `" in line).split("`")[1]
     argv = shlex.split(command)[1:] + ["--json"]
     capsys.readouterr()
-    assert cli.main(argv) == 0
-    out = json.loads(capsys.readouterr().out)["formalisms"]
+    assert cli.main(argv) == 1   # the backends disagree there: eval's verdict says so
+    data = json.loads(capsys.readouterr().out)
+    assert data["verdict"]["agree"] is False and data["verdict"]["outliers"] == ["euler_lagrange"]
+    out = data["formalisms"]
     assert not np.allclose(out["euler_lagrange"]["drift"], out["pinocchio"]["drift"])
     np.testing.assert_allclose(out["newton_euler"]["drift"], out["pinocchio"]["drift"], rtol=1e-12)
 
@@ -132,6 +134,23 @@ def test_eval_json_matches_article_closed_form(capsys):
         assert values["lam"] is None and values["lam_drift"] is None
         np.testing.assert_allclose(values["total"], np.linalg.solve(M, tau - h), rtol=1e-12, err_msg=name)
         np.testing.assert_allclose(values["ctrl"], np.linalg.solve(M, tau), rtol=1e-12, err_msg=name)
+
+
+def test_eval_ends_with_a_verdict_and_its_json_uses_null_for_what_a_backend_does_not_supply(capsys):
+    assert cli.main(["eval", "--case", "double_pendulum", *DP_STATE]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].startswith("verdict: agree (worst ratio ")
+    assert cli.main(["eval", "--case", "double_pendulum", *DP_STATE, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["verdict"]["agree"] is True and data["verdict"]["worst_ratio"] < 1.0
+    assert "task_inertia" in data["unsupported_quantities"]["euler_lagrange"]
+    assert data["formalisms"]["euler_lagrange"]["task_inertia"] is None
+    assert "UNSUPPORTED" not in json.dumps(data["formalisms"])
+
+
+def test_eval_names_the_disagreement_and_its_outlier(dropped_coriolis, capsys):
+    assert cli.main(["eval", "--case", "double_pendulum", *DP_STATE]) == 1
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("verdict: DISAGREE: ") and "outlier euler_lagrange" in last, last
 
 
 @pytest.mark.parametrize("argv, fragment", [

@@ -164,7 +164,8 @@ def test_eval_shows_the_plugin(capsys):
     M, Cqd, g = pendulum_terms((np.pi / 4, np.pi / 6), (2.0, -1.0))      # eqs. (6)-(8), typed in separately
     np.testing.assert_allclose(got["drift"], np.linalg.solve(M, -(Cqd + g)), rtol=1e-13)
     np.testing.assert_allclose(got["ctrl"], np.linalg.solve(M, [5.0, -2.0]), rtol=1e-13)
-    assert got["task_drift"] == "UNSUPPORTED" and data["not_supported"] == {}
+    assert got["task_drift"] is None and "task_drift" in data["unsupported_quantities"]["closed_form_pendulum"]
+    assert data["not_supported"] == {}
     assert cli.main(["eval", "--plugin", GOOD, "--case", "acrobot", "--q=0.1,0.2"]) == 0
     out = capsys.readouterr().out
     assert "closed_form_pendulum: NOT COMPARED (model 'acrobot' is not the point-mass double pendulum" in out
