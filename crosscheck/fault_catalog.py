@@ -24,8 +24,8 @@ EL, NE, SCREW, OSC, GEO = "euler_lagrange", "newton_euler", "screw", "operationa
 
 
 def _kinetic_energy_doubled(energies):
-    def faulty(model, st, poses, pd):
-        T, V = energies(model, st, poses, pd)
+    def faulty(model, st, poses):
+        T, V = energies(model, st, poses)
         return 2 * T, V
     return faulty
 

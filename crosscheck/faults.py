@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib
+import inspect
 import os
 import re
 import statistics
@@ -113,11 +114,27 @@ def patched(fault: str, target: str, replace: Callable[[Any], Any]) -> Iterator[
     """Within the block ``target`` is ``replace(original)`` (yielded); on exit, also on error, the original is back."""
     owner, name, original = resolve(fault, target)
     faulty = replace(original)
+    _same_call(fault, target, original, faulty)
     setattr(owner, name, faulty)
     try:
         yield faulty
     finally:
         setattr(owner, name, original)
+
+
+def _same_call(fault: str, target: str, original: Any, faulty: Any) -> None:
+    """A FaultError when the faulty function cannot be called as the original is (its required positional
+    parameters): a replacement written for an older signature would raise TypeError at every call, which the gate
+    reports as a backend error, so the fault would look caught without the bug it describes ever running."""
+    if not (inspect.isfunction(original) and callable(faulty)):
+        return
+    required = [p for p in inspect.signature(original).parameters.values()
+                if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    try:
+        inspect.signature(faulty).bind(*required)
+    except TypeError as exc:
+        raise FaultError(f"fault '{fault}': the replacement of '{target}' cannot be called as {target}"
+                         f"{inspect.signature(original)} is ({exc}); update the catalog") from None
 
 
 @contextmanager

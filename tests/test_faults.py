@@ -10,7 +10,7 @@ import os
 import pytest
 
 import formalisms
-from crosscheck import backends, cli, fault_catalog, faults
+from crosscheck import backends, cli, common_mode, fault_catalog, faults
 from crosscheck.faults import Fault, FaultError, Hunt, injected
 from crosscheck.gate import CaseSpec, Checks
 from crosscheck.sampling import sample_states
@@ -101,6 +101,25 @@ def test_a_derivation_fault_runs_on_empty_caches_and_leaves_the_originals():
         assert geometric._COMPILED == {}
         geometric.split(_setup("double_pendulum").setup.model, [0.1, 0.2], [0.3, 0.4], [0.0, 0.0])
     assert geometric._COMPILED == entries
+
+
+@pytest.mark.parametrize("fault", fault_catalog.CATALOG + common_mode.CATALOG,
+                         ids=[f.name for f in fault_catalog.CATALOG + common_mode.CATALOG])
+def test_every_replacement_can_be_called_as_its_target(fault):
+    """A replacement written for an older signature of its target raises TypeError at every call, which the gate
+    reports as a backend error: the fault would look caught without its bug ever running (this happened to
+    el-kinetic-energy-missing-half when Euler–Lagrange's ``_energies`` lost an argument)."""
+    for target in (fault.targets if isinstance(fault, common_mode.SharedFault) else (fault.target,)):
+        owner, name, original = faults.resolve(fault.name, target)
+        faults._same_call(fault.name, target, original, fault.replace(original))
+
+
+def test_a_replacement_for_an_older_signature_is_refused():
+    stale = Fault("el-stale-signature", "euler_lagrange", "written for _energies(model, st, poses, pd)",
+                  "formalisms.euler_lagrange:_energies", lambda energies: lambda model, st, poses, pd: None)
+    with pytest.raises(FaultError, match="el-stale-signature.*cannot be called as formalisms.euler_lagrange:_energies"):
+        with injected(stale):
+            pass
 
 
 def test_the_hunt_visits_the_gates_states():
