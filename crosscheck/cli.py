@@ -471,12 +471,12 @@ def _eval_verdict(model, chart, p, pd, u, splits: dict, errors: dict, chosen: li
     if chart.name != "identity":
         return {"agree": None, "text": f"not judged in chart {chart.name} (the gate compares charts through its chart "
                                        "checks: run crosscheck gate)"}
-    state = sampling.State(0, tuple(p), tuple(pd), tuple(u))
-    outcome = gate.StateOutcome(state, {name: split for name, (_, split) in splits.items()}, dict(errors), {},
-                                {n: b for n, (_, s) in splits.items() if (b := policy.breakdown(s))})
+    found = {name: (split, None) for name, (_, split) in splits.items()} | {n: (None, e) for n, e in errors.items()}
+    outcome = gate.outcome_of(sampling.State(0, tuple(p), tuple(pd), tuple(u)), found)
     gate.judge(model, outcome, chosen)
-    compared = [c for c in {**outcome.comparisons, **outcome.checks}.values() if len(c.voters) >= 2]
-    failing = [c for c in {**outcome.comparisons, **outcome.checks}.values() if c.verdict == DISAGREE]
+    verdicts = [*outcome.comparisons.values(), *outcome.checks.values()]
+    compared = [c for c in verdicts if len(c.voters) >= 2]
+    failing = [c for c in verdicts if c.verdict == DISAGREE]
     worst = max((c.worst_ratio for c in compared), default=0.0)
     outliers = sorted({c.outlier for c in failing if c.outlier})
     if errors or failing:

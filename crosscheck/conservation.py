@@ -55,10 +55,11 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
     |qd|_1 F`` (a fuzz finding: 7.5 times the backward-stable tolerance at cond(M) = 105), so F carries cond(M).
     """
     at_drift, at_total, tol = {}, {}, 0.0
-    finite = [s for s in splits.values() if np.all(np.isfinite(s.drift)) and np.all(np.isfinite(s.total))]
-    rates = iter(geometric.energy_rates(model, q, qd, [a for s in finite for a in (s.drift, s.total)]))
+    finite = {name: bool(np.all(np.isfinite(s.drift)) and np.all(np.isfinite(s.total))) for name, s in splits.items()}
+    rates = iter(geometric.energy_rates(model, q, qd, [a for name, s in splits.items() if finite[name]
+                                                       for a in (s.drift, s.total)]))
     for name, split in splits.items():
-        if not any(split is s for s in finite):
+        if not finite[name]:
             at_drift[name] = at_total[name] = np.nan   # an overflowed answer fails here too, it does not crash
             continue
         drift, total = next(rates), next(rates)

@@ -283,7 +283,7 @@ def run_block(model: Model, states: Sequence[State], backends: Sequence[Formalis
     clock = clock or Clock()
     found = {backend.name: clock.timed(backend.name, lambda: _split_states(backend, model, states), len(states))
              for backend in backends}
-    return [_outcome(state, {name: splits[k] for name, splits in found.items()}) for k, state in enumerate(states)]
+    return [outcome_of(state, {name: splits[k] for name, splits in found.items()}) for k, state in enumerate(states)]
 
 
 def _split_states(backend: Formalism, model: Model, states: Sequence[State]) -> list[tuple[Split | None, str | None]]:
@@ -316,7 +316,7 @@ def _split_one(backend: Formalism, model: Model, state: State) -> tuple[Split | 
         return None, f"{type(exc).__name__}: {exc}"
 
 
-def _outcome(state: State, found: dict[str, tuple[Split | None, str | None]]) -> StateOutcome:
+def outcome_of(state: State, found: dict[str, tuple[Split | None, str | None]]) -> StateOutcome:
     """The outcome at ``state`` of the backends' splits and errors (:func:`_split_one`, by backend), without the
     comparisons; the backends in BREAKDOWN found from their splits."""
     splits = {name: split for name, (split, _) in found.items() if split is not None}
