@@ -81,8 +81,8 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state, split_batch_by_loop)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, split_batch_by_loop, state_space)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -748,6 +748,25 @@ def split(model: Model, q, qd, u) -> Split:
                  kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
                  joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
                  joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p), task_inertia=inertia["task_inertia"])
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`, its tangent-space convention) from
+    Pinocchio's analytical derivatives of ABA (``computeABADerivatives``: ``dvdot/dq``, ``dvdot/dv`` and ``M^-1``, so
+    ``dvdot/du = M^-1 B``), in our coordinate order. Unconstrained models only: a constrained model's reference is
+    :func:`crosscheck.precise.linearize`."""
+    q, qd, u = check_state(model, q, qd, u)
+    if model.constraints:
+        raise ValueError(f"model '{model.name}' has constraints: the reference linearization of a constrained model is "
+                         "crosscheck.precise.linearize (the KKT system differentiated at 50 digits)")
+    c = _reference(model)
+    pm, order = c.model, c.order
+    data = pm.createData()
+    pin.computeABADerivatives(pm, data, c.configuration(q), qd[order], (model.input_map @ u)[order])
+    Minv = _ours_matrix(order, _sym(np.array(data.Minv)))
+    return state_space(model, qd, _ours_matrix(order, np.array(data.ddq_dq)),
+                       _ours_matrix(order, np.array(data.ddq_dv)), Minv @ model.input_map,
+                       _ours(order, np.array(data.ddq)))
 
 
 @dataclass(frozen=True)

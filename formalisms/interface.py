@@ -107,6 +107,13 @@ class Split:
                          invariant under a change of chart or of world frame. UNSUPPORTED from a formalism without
                          body-level forces.
     joint_wrenches_drift the same at ``qdd = drift`` with ``lam_drift`` (the passive loads of the ZTCF, article 6.1.4).
+    zvcf                 the zero-velocity counterfactual (article 4.5-4.6): the drift at the same ``q`` with ``qd = 0``,
+                         gravity's part of the drift, ``-M^-1 g`` (with constraints the KKT solve with ``f = -g`` and
+                         ``Jcdot qd = 0``), computed directly; UNSUPPORTED when a formalism does not report it.
+    drift_velocity       the velocity-product part of the drift, ``-M^-1 C(q, qd) qd`` (with constraints the KKT solve
+                         with ``f = -C qd`` and the bias ``Jcdot qd``), computed directly, not as ``drift - zvcf``:
+                         ``zvcf + drift_velocity = drift`` up to rounding, because the KKT system is linear in
+                         (f, bias).
     task_inertia         (k, k) ``Lambda = (J M^-1 J^T)^-1`` (eq. 22) of ``model.task_point()`` in its task coordinates
                          ``x_task = D p`` (the point and directions of ``task_drift``), from this formalism's own J and
                          M. With constraints it is still the unconstrained M's (eq. 22 puts the constraints in
@@ -150,6 +157,8 @@ class Split:
     joint_wrenches: np.ndarray | Unsupported = UNSUPPORTED
     joint_wrenches_drift: np.ndarray | Unsupported = UNSUPPORTED
     task_inertia: np.ndarray | Unsupported = UNSUPPORTED
+    zvcf: np.ndarray | Unsupported = UNSUPPORTED
+    drift_velocity: np.ndarray | Unsupported = UNSUPPORTED
     constraint_value: np.ndarray | None = None
     constraint_jacobian: np.ndarray | None = None
     constraint_bias: np.ndarray | None = None
@@ -172,7 +181,7 @@ class Split:
                   "lam": (k,), "lam_drift": (k,),
                   "power_constr_per_coord": (n,), "constraint_value": (k,), "constraint_jacobian": (k, n),
                   "constraint_bias": (k,), "constraint_velocity": (k,), "constraint_force": (n,),
-                  "constraint_force_drift": (n,)}
+                  "constraint_force_drift": (n,), "zvcf": (n,), "drift_velocity": (n,)}
         for name, shape in shapes.items():
             value = getattr(self, name)
             if value is None or isinstance(value, Unsupported):
@@ -210,6 +219,13 @@ class Split:
     def additivity(self) -> np.ndarray:
         """``drift + ctrl - total``: zero up to rounding, because the split of eq. (9) is exact (4.2, 5.3)."""
         return self.drift + self.ctrl - self.total
+
+    @property
+    def drift_parts(self) -> np.ndarray | Unsupported:
+        """``zvcf + drift_velocity - drift``: zero up to rounding (the drift's parts add up, 4.5-4.6)."""
+        if isinstance(self.zvcf, Unsupported) or isinstance(self.drift_velocity, Unsupported):
+            return UNSUPPORTED
+        return self.zvcf + self.drift_velocity - self.drift
 
     @property
     def admissibility_drift(self) -> np.ndarray | None:
@@ -260,6 +276,81 @@ class SplitBatch:
 
     def __len__(self) -> int:
         return len(self.drift)
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """The first-order model of the state-space dynamics at a state and input (article 4.8, eq. 11):
+    ``xdot ~ f(x_t, u_t) + A (x - x_t) + B (u - u_t)`` with ``x = (q, v)`` and ``f = (qdot, vdot)``.
+
+    Convention on Lie groups (``cases.model``: spherical and free joints): a configuration near ``q`` is written
+    ``q (+) dq`` (``cases.configuration.integrate``: ``q exp(dq)``, the perturbation on the right, in the joint's own
+    tangent space, Pinocchio's), so ``x`` has ``2 nv`` coordinates ``(dq, v)``. Then
+
+    * ``A = [[A_qq, I], [dvdot/dq, dvdot/dv]]`` (2nv x 2nv) and ``B = [[0], [dvdot/du]]`` (2nv x m);
+    * ``A_qq`` (:func:`tangent_kinematics`) is 0 on revolute and prismatic joints and ``-ad_v`` on group joints
+      (``d/dt dq = dv - ad_v dq`` for ``q(t) = q_t(t) exp(dq(t))``); ``dvdot/dq`` is the derivative along
+      ``q (+) dq`` at ``dq = 0`` (Pinocchio's ``computeABADerivatives`` convention).
+
+    With constraints, ``vdot`` is the KKT solution of eq. (12-13) (``M vdot + h = B u + Jc^T lam``, ``Jc vdot +
+    Jcdot v = 0``) as a function of ``(q, v, u)`` wherever ``S = Jc M^-1 Jc^T`` is regular, also off the constraint
+    manifold, and A and B are its derivatives (the KKT system differentiated). ``vdot`` is that solution at the state
+    (the drift when ``u = 0``). Unpacks as ``A, B = linearize(...)``.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    vdot: np.ndarray
+
+    def __post_init__(self):
+        A, B, vdot = (np.array(x, dtype=float) for x in (self.A, self.B, self.vdot))
+        nv = vdot.shape[0] if vdot.ndim == 1 else -1
+        if nv < 0 or A.shape != (2 * nv, 2 * nv) or B.ndim != 2 or B.shape[0] != 2 * nv:
+            raise ValueError(f"a formalism returned a linearization of shapes A {A.shape}, B {B.shape}, vdot "
+                             f"{vdot.shape}; expected (2nv, 2nv), (2nv, m), (nv,)")
+        for name, arr in (("A", A), ("B", B), ("vdot", vdot)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def __iter__(self):
+        return iter((self.A, self.B))
+
+    @property
+    def eigenvalues(self) -> np.ndarray:
+        """The eigenvalues of A, sorted by real part then imaginary part."""
+        w = np.linalg.eigvals(self.A)
+        return w[np.lexsort((w.imag, w.real))]
+
+
+def tangent_kinematics(model: Model, v) -> np.ndarray:
+    """``A_qq`` of :class:`Linearization` (nv x nv): ``d/dt dq = dv + A_qq dq`` for ``q = q_t exp(dq)``. Zero on a
+    revolute or prismatic joint; ``-[omega]x`` on a spherical joint (``v_i = omega``, body frame); ``-ad_V`` on a free
+    joint with the body twist ``V = (nu, omega)`` (linear first): ``ad_V = [[ [omega]x, [nu]x ], [0, [omega]x]]``.
+    It is the convention's definition (a group's kinematics, no dynamics), shared like the state validators."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros((model.nv, model.nv))
+
+    def hat(w):
+        return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    for i, body in enumerate(model.bodies):
+        j = model.v_index[i]
+        if body.joint == "spherical":
+            out[j:j + 3, j:j + 3] = -hat(v[j:j + 3])
+        elif body.joint == "free":
+            nu, omega = v[j:j + 3], v[j + 3:j + 6]
+            out[j:j + 3, j:j + 3] = -hat(omega)
+            out[j:j + 3, j + 3:j + 6] = -hat(nu)
+            out[j + 3:j + 6, j + 3:j + 6] = -hat(omega)
+    return out
+
+
+def state_space(model: Model, v, dvdot_dq, dvdot_dv, dvdot_du, vdot) -> Linearization:
+    """The :class:`Linearization` from a backend's derivatives of ``vdot`` (each nv x nv, nv x nv, nv x m) and
+    ``vdot``: stacks the kinematic rows ``[tangent_kinematics(model, v), I]`` and ``[0]`` above them."""
+    nv = model.nv
+    A = np.block([[tangent_kinematics(model, v), np.eye(nv)], [np.asarray(dvdot_dq), np.asarray(dvdot_dv)]])
+    B = np.vstack([np.zeros((nv, model.m)), np.asarray(dvdot_du).reshape(nv, model.m)])
+    return Linearization(A=A, B=B, vdot=vdot)
 
 
 def _numeric(label: str, value, kind: str) -> np.ndarray:
@@ -335,6 +426,9 @@ class Formalism:
     prints it. None for a backend with nothing to choose.
     ``preparation(model, chart)``, when present, estimates the CPU seconds of the one-off work before the first answer
     on ``model`` in ``chart`` (None: the joint chart), 0 when it is cached: a symbolic derivation, a compilation.
+    ``linearize(model, q, v, u)`` returns the :class:`Linearization` (A, B of eq. 11) from the backend's own exact
+    derivative of its own computation (no finite differences); ``linearize_chart(model, chart, p, pd, tau_p)`` the same
+    in a chart's coordinates ``x = (p, pd)`` (A_qq = 0 there). None for a backend without them.
     """
 
     name: str
@@ -344,6 +438,8 @@ class Formalism:
     split_batch: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], SplitBatch] | None = None
     evaluation: Callable[[], str] | None = None
     preparation: Callable[[Model, "Chart | None"], float] | None = None
+    linearize: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Linearization] | None = None
+    linearize_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Linearization] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:
@@ -402,9 +498,10 @@ def joint_vectors(model: Model, q, *rates) -> list[np.ndarray]:
     return out
 
 
-__all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "ModelNotSupported", "Split",
-           "SplitBatch", "StateError", "Unsupported", "block_form", "chart_vectors", "check_batch", "check_state",
-           "joint_vectors", "split_batch_by_loop", "with_block_form"]
+__all__ = ["CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Chart", "Formalism", "Linearization",
+           "ModelNotSupported", "Split", "SplitBatch", "StateError", "Unsupported", "block_form", "chart_vectors",
+           "check_batch", "check_state", "joint_vectors", "split_batch_by_loop", "state_space", "tangent_kinematics",
+           "with_block_form"]
 
 
 def cache_dir(backend: str) -> Path:
