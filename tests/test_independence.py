@@ -37,7 +37,10 @@ PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
              "joint_vectors", "with_block_form",
-             "cache_dir", "write_cache_file"}  # disk-cache plumbing: where a backend keeps its derivations, no numerics
+             "cache_dir", "write_cache_file",  # disk-cache plumbing: where a backend keeps its derivations, no numerics
+             # the linearization's type and its kinematic rows: the group convention (no dynamics), held against the
+             # flow of cases.configuration.integrate by tests/test_linearize.py, outside the vote
+             "Linearization", "state_space", "tangent_kinematics"}
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",
              "pin": "the external reference (Pinocchio) is kept apart from the five formalisms",
