@@ -69,7 +69,7 @@ from mpmath import mpf
 from cases.constraints import JointCoupling, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model
 from crosscheck.conditioning import redundant_below
-from formalisms.interface import check_state
+from formalisms.interface import Linearization, check_state, state_space
 
 #: Default working precision (significant decimal digits).
 DIGITS = 50
@@ -723,6 +723,89 @@ def bias_forces(model: Model, q, qd, digits: int = DIGITS) -> tuple:
         return tuple(_terms(model, q, qd)[3])
 
 
+# ----------------------------------------------------------------------------------------------- linearization
+
+
+def _quaternion_product(a, b) -> list:
+    """``a b`` of quaternions in ``(x, y, z, w)`` order."""
+    (ax, ay, az, aw), (bx, by, bz, bw) = a, b
+    return [aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
+
+
+def _quaternion_exp(w) -> list:
+    """``exp`` of the rotation vector ``w`` as a unit quaternion ``(sin(t/2) w/t, cos(t/2))``, t = |w|."""
+    t = mpmath.sqrt(mpmath.fsum(x * x for x in w))
+    s = mpf(1) / 2 if t == 0 else mpmath.sin(t / 2) / t
+    return [s * w[0], s * w[1], s * w[2], mpmath.cos(t / 2)]
+
+
+def _se3_translation(w, v) -> tuple:
+    """``V(w) v`` of SE(3)'s exponential (``cases.configuration``), the series below t = 1e-10 (error t^4)."""
+    t = mpmath.sqrt(mpmath.fsum(x * x for x in w))
+    if t < mpf("1e-10"):
+        a, b = mpf(1) / 2 - t * t / 24, mpf(1) / 6 - t * t / 120
+    else:
+        a, b = (1 - mpmath.cos(t)) / t**2, (t - mpmath.sin(t)) / t**3
+    wv = _cross(w, v)
+    return _add(_add(v, _scale(a, wv)), _scale(b, _cross(w, wv)))
+
+
+def _integrate(model: Model, q, dq) -> list:
+    """``q (+) dq`` (``cases.configuration.integrate``) in mpmath: each group joint moved by ``exp(dq)`` on the right."""
+    out = list(q)
+    for i, b in enumerate(model.bodies):
+        iq, iv = model.q_index[i], model.v_index[i]
+        if b.joint == "spherical":
+            out[iq:iq + 4] = _quaternion_product(q[iq:iq + 4], _quaternion_exp(dq[iv:iv + 3]))
+        elif b.joint == "free":
+            quat = q[iq + 3:iq + 7]
+            shift = _matvec(_quaternion_rotation(*quat), _se3_translation(dq[iv + 3:iv + 6], dq[iv:iv + 3]))
+            out[iq:iq + 3] = [x + d for x, d in zip(q[iq:iq + 3], shift)]
+            out[iq + 3:iq + 7] = _quaternion_product(quat, _quaternion_exp(dq[iv + 3:iv + 6]))
+        else:
+            out[iq] = q[iq] + dq[iv]
+    return out
+
+
+def linearize(model: Model, q, qd, u, digits: int = DIGITS) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`, its tangent convention) of the exact
+    dynamics, constrained ones included (the KKT solution as a function of the state): ``dvdot/dq`` and ``dvdot/dv``
+    by central differences at ``digits`` digits with the step ``h = 10^-(digits/3)`` along ``q (+) h e_j`` and
+    ``v + h e_j`` (truncation ``h^2`` times the third derivative over 6, rounding ``10^-digits / h``: both near
+    ``10^(-2 digits/3)``, 1e-33 at 50 digits, far below double's rounding), and ``dvdot/du = B_c B`` exactly, the
+    ``ctrl`` of each unit input (eq. 17). It is the harness's reference for a constrained model (Pinocchio's ABA
+    derivatives are unconstrained); a central difference is this reference's method, never a backend's (those
+    differentiate exactly)."""
+    digits = _check_digits(digits)
+    qd_float = check_state(model, q, qd, u)[1]
+    with mpmath.workdps(digits):
+        q, qd, u = _state(model, q, qd, u)
+        B = _prepare(model, mpmath.mp.prec).B
+        tau = _matvec_n(B, u)
+        step = mpf(10) ** (-(digits // 3))
+
+        def vdot(q_, qd_) -> list:
+            return list(_split(model, q_, qd_, tau, digits).total)
+
+        def column(plus: list, minus: list) -> list:
+            return [(a - b) / (2 * step) for a, b in zip(plus, minus)]
+        units = [[step if i == j else mpf(0) for i in range(model.nv)] for j in range(model.nv)]
+        dq = [column(vdot(_integrate(model, q, e), qd), vdot(_integrate(model, q, [-x for x in e]), qd))
+              for e in units]
+        dv = [column(vdot(q, [x + y for x, y in zip(qd, e)]), vdot(q, [x - y for x, y in zip(qd, e)]))
+              for e in units]
+        du = [list(_split(model, q, qd, [row[j] for row in B], digits).ctrl) for j in range(model.m)]
+        center = vdot(q, qd)
+    return state_space(model, qd_float, _columns(dq, model.nv), _columns(dv, model.nv), _columns(du, model.nv),
+                       np.array([float(x) for x in center]))
+
+
+def _columns(columns: list, rows: int) -> np.ndarray:
+    """A float matrix (rows x len(columns)) of mpf columns."""
+    return np.array([[float(x) for x in col] for col in columns], dtype=float).reshape(-1, rows).T
+
+
 def relative_error(value, exact) -> float:
     """Norm-wise relative error ``max_i |value_i - exact_i| / max_i |exact_i|``, evaluated in mpmath (float or mpf
     entries, taken exactly, at :data:`DIGITS` digits) and returned as a float. When ``exact`` is all zero there is no
@@ -740,4 +823,4 @@ def relative_error(value, exact) -> float:
 
 
 __all__ = ["DIGITS", "MIN_DIGITS", "PreciseChartSplit", "PreciseSplit", "bias_forces", "chart_split", "chart_split_at",
-           "mass_matrix", "relative_error", "split"]
+           "linearize", "mass_matrix", "relative_error", "split"]

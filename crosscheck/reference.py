@@ -732,6 +732,9 @@ def split(model: Model, q, qd, u) -> Split:
 
     total_p = np.array(pin.aba(pm, data, qp, vp, tp))
     drift_p = np.array(pin.aba(pm, data, qp, vp, np.zeros(model.n)))
+    zvcf_p = np.array(pin.aba(pm, data, qp, np.zeros(model.n), np.zeros(model.n)))
+    still = _gravity_free(model)
+    velocity_p = np.array(pin.aba(still, still.createData(), qp, vp, np.zeros(model.n)))
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
     dyn = _Dynamics.at(c, data, qp, vp)
@@ -747,7 +750,22 @@ def split(model: Model, q, qd, u) -> Split:
                  task_drift=model.task_point().directions @ np.array(task_accel), conditions=inertia["conditions"],
                  kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
                  joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
-                 joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p), task_inertia=inertia["task_inertia"])
+                 joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p), task_inertia=inertia["task_inertia"],
+                 zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p))
+
+
+_STILL: dict[tuple, pin.Model] = {}
+
+
+def _gravity_free(model: Model) -> pin.Model:
+    """The reference model with gravity zero (cached with it): ABA there at ``(q, qd, 0)`` is ``-M^-1 C qd``, the
+    drift's velocity-product part, computed directly."""
+    key, pm = _reference_key(model), _reference(model).model
+    with _LOCK:
+        if key not in _STILL:
+            _STILL[key] = pin.Model(pm)
+            _STILL[key].gravity = pin.Motion.Zero()
+    return _STILL[key]
 
 
 def linearize(model: Model, q, qd, u) -> Linearization:
@@ -834,6 +852,9 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     J_r, bias_r = rows.T @ Jc_p, rows.T @ bias
     total_p, lam_r = _kkt(c, data, qp, vp, tp, J_r, bias_r)
     drift_p, lam_drift_r = _kkt(c, data, qp, vp, np.zeros(model.n), J_r, bias_r)
+    zvcf_p, _ = _kkt(c, data, qp, np.zeros(model.n), np.zeros(model.n), J_r, np.zeros(len(bias_r)))
+    still = _gravity_free(model)
+    velocity_p = np.array(pin.forwardDynamics(still, still.createData(), qp, vp, np.zeros(model.n), J_r, bias_r, 0.0))
     lam, lam_drift = rows @ lam_r, rows @ lam_drift_r
     S_pinv = (S.axes[:, kept] / S.w[kept]) @ S.axes[:, kept].T
     B_c = Minv_p - Minv_p @ Jc_p.T @ S_pinv @ Jc_p @ Minv_p
@@ -863,7 +884,8 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
         kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)), joint_wrenches=wrenches[0],
         joint_wrenches_drift=wrenches[1], task_inertia=inertia["task_inertia"], constraint_value=phi,
         constraint_jacobian=Jc, constraint_bias=bias, constraint_velocity=velocity, constraint_force=force,
-        constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale)
+        constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,
+        zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p))
 
 
 # ------------------------------------------------------------------------------------------------- batches
