@@ -200,7 +200,8 @@ def cmd_gate(args) -> int:
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
-                    closed_forms=not args.no_closed_forms, self_test=not args.no_self_test)
+                    closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
+                    linearization=not args.no_linearization)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
@@ -819,6 +820,8 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
     gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
+    gate.add_argument("--no-linearization", action="store_true",
+                      help="skip the comparison of the linearizations A, B (eq. 11) at the first states of each case")
     gate.add_argument("--no-closed-forms", action="store_true",
                       help="leave the article's closed forms (voter closed_form) out of the vote")
     gate.add_argument("--no-self-test", action="store_true",

@@ -31,7 +31,7 @@ import numpy as np
 import cases
 from cases.model import Model
 from crosscheck import charts as chart_catalog
-from crosscheck import conditioning, conservation, frames, invariance
+from crosscheck import conditioning, conservation, equilibria, frames, invariance, linearization
 from crosscheck import coverage as coverage_of
 from crosscheck import tolerance as tolerance_policy
 from crosscheck import workers as worker_processes
@@ -56,6 +56,7 @@ class Checks:
     conservation: bool = True
     closed_forms: bool = True
     self_test: bool = True
+    linearization: bool = True
 
 
 @dataclass(frozen=True)
@@ -391,6 +392,17 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
         outcome.checks.update(conservation.checks(model, state, trusted, outcome.scales))
 
 
+def add_linearization_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+    """Add the comparisons of the backends' linearizations (``crosscheck.linearization``) at ``outcome``'s state, the
+    backends that raised in ``linearize`` joining its errors; nothing when no split is trusted (no scales)."""
+    if outcome.scales is None:
+        return
+    supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]
+    found, errors = linearization.checks(model, outcome.state, supported, outcome.scales)
+    outcome.checks.update(found)
+    outcome.errors.update({f"{name} (linearize)": message for name, message in errors.items()})
+
+
 @dataclass(frozen=True)
 class CaseSetup:
     """One case as the gate checks it (seeded): the model, its charts, its moved scenes (frame, moved model) and
@@ -402,6 +414,7 @@ class CaseSetup:
     scenes: tuple[tuple[frames.Frame, Model], ...]
     conservation: bool
     voters: tuple[Formalism, ...] = ()
+    linearization: bool = False
 
     @classmethod
     def build(cls, spec: CaseSpec, seed: int, checks: Checks = Checks()) -> "CaseSetup":
@@ -410,7 +423,8 @@ class CaseSetup:
         case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
         scenes = tuple((frame, frames.move_scene(model, frame)) for frame in case_frames)
         closed = spec.closed_form() if checks.closed_forms else None
-        return cls(spec, model, tuple(case_charts), scenes, checks.conservation, (closed,) if closed else ())
+        return cls(spec, model, tuple(case_charts), scenes, checks.conservation, (closed,) if closed else (),
+                   checks.linearization)
 
     def scene(self, state: State) -> tuple[frames.Frame, Model] | None:
         """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
@@ -427,13 +441,28 @@ class CaseSetup:
         """:meth:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in
         the joint chart and in each moved scene (the states checked there, :func:`run_block`), then state by state
         come the comparisons and the checks."""
-        backends = [*backends, *self.voters]
+        backends, own = [*backends, *self.voters], backends
         outcomes = run_block(self.model, states, backends, clock)
         moved = self._moved(states, backends)
         for outcome, there in zip(outcomes, moved):
             judge(self.model, outcome, backends)
             add_checks(self.model, outcome, backends, self.charts, self.scene(outcome.state), self.conservation, there)
+            if self.linearization and outcome.state.index < linearization.STATES:
+                add_linearization_checks(self.model, outcome, own)
+            if self.linearization and outcome.state.index == 0:
+                self._equilibria(outcome, own)
             yield outcome
+
+    def _equilibria(self, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+        """Add the checks of the case's equilibria with closed-form eigenvalues (``crosscheck.equilibria``) to the
+        outcome of its first state (a built-in case only: a model file has no closed form)."""
+        if self.spec.path is not None:
+            return
+        params = equilibria.case_params(self.spec.name, {k: float(v) for k, v in self.spec.params})
+        for equilibrium in equilibria.of_case(self.spec.name):
+            found, errors = equilibria.checks(equilibrium, params, self.model, backends, self.charts)
+            outcome.checks.update(found)
+            outcome.errors.update(errors)
 
     def _moved(self, states: Sequence[State], backends: Sequence[Formalism]) -> list[StateOutcome | None]:
         """The backends' outcome at each of ``states`` in the moved scene it is checked in (:meth:`scene`), each

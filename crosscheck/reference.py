@@ -82,7 +82,7 @@ import scipy.linalg
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
-                                  check_batch, check_state, split_batch_by_loop, state_space)
+                                  check_batch, check_state, split_batch_by_loop, state_space, ModelNotSupported)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -775,8 +775,8 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     :func:`crosscheck.precise.linearize`."""
     q, qd, u = check_state(model, q, qd, u)
     if model.constraints:
-        raise ValueError(f"model '{model.name}' has constraints: the reference linearization of a constrained model is "
-                         "crosscheck.precise.linearize (the KKT system differentiated at 50 digits)")
+        raise ModelNotSupported(f"model '{model.name}' has constraints: Pinocchio's ABA derivatives are unconstrained; "
+                                "the reference linearization of a constrained model is crosscheck.precise.linearize")
     c = _reference(model)
     pm, order = c.model, c.order
     data = pm.createData()
@@ -934,6 +934,7 @@ REFERENCE = Formalism(
             "built from the model's file when it was loaded from one (URDF), else from our model data",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
 
 __all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "joint_map", "mass_matrix",

@@ -202,7 +202,7 @@ def run(canaries: Sequence[Canary] = CANARIES, backends=None) -> SelfTest:
         key = (canary.case, canary.state)
         if key not in evaluated:
             setup = CaseSetup.build(CaseSpec(canary.case), SEED, Checks(charts=False, frames=0, conservation=False,
-                                                                        self_test=False))
+                                                                        self_test=False, linearization=False))
             state = sample_states(setup.model, STATES, SEED, canary.case)[canary.state]
             evaluated[key] = (setup.model, _clean(setup.model, setup.evaluate(state, chosen)))
             if evaluated[key][1] is None:

@@ -87,6 +87,9 @@ TOLERANCES: dict[str, tuple[str, float]] = {
     "ctrl": ("acceleration", 100.0),
     "total": ("acceleration", 100.0),
     "additivity": ("acceleration", 100.0),
+    "zvcf": ("acceleration", 100.0),
+    "drift_velocity": ("acceleration", 100.0),
+    "drift_parts": ("acceleration", 100.0),
     "power_ctrl": ("power", 100.0),
     "task_drift": ("task", 100.0),
     "kinetic_energy": ("energy", 100.0),
@@ -116,7 +119,7 @@ CONSTRAINED_QUANTITIES = ("lam", "lam_drift", "constraint_force", "constraint_fo
 QUANTITIES = tuple(q for q in TOLERANCES if q not in CONSTRAINED_QUANTITIES)
 
 #: Quantities with a value known exactly, which joins the vote as the voter ``exact``.
-EXACT = {"additivity": 0.0, "power_constr": 0.0, "admissibility_drift": 0.0, "admissibility_total": 0.0,
+EXACT = {"additivity": 0.0, "drift_parts": 0.0, "power_constr": 0.0, "admissibility_drift": 0.0, "admissibility_total": 0.0,
          "constraint_value": 0.0, "constraint_velocity": 0.0}
 
 
