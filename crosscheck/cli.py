@@ -22,7 +22,7 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
-from crosscheck import backends, charts, frames, sampling
+from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
@@ -421,13 +421,15 @@ def cmd_eval(args) -> int:
     out = {name: {key: _jsonable(getattr(split, key)) for key in split.__dataclass_fields__}
            for name, (_, split) in splits.items()}
     verdict = _eval_verdict(model, chart, p, pd, u, splits, errors, chosen)
+    linear = _eval_linearize(model, chart, p, pd, u, splits, chosen, verdict) if args.linearize else None
     if args.json:
         print(json.dumps({"case": spec.name, "params": dict(spec.params), "chart": chart.name,
                           "frame": args.frame, "q": p.tolist(), "qd": pd.tolist(), "u": u.tolist(),
                           "tau": tau_p.tolist(), "formalisms": {name: _nulled(v) for name, v in out.items()},
                           "unsupported_quantities": {name: _unsupported_keys(v) for name, v in out.items()
                                                      if _unsupported_keys(v)},
-                          "not_supported": unsupported, "errors": errors, "verdict": verdict}, indent=1))
+                          "not_supported": unsupported, "errors": errors, "verdict": verdict,
+                          **({"linearization": linear} if linear is not None else {})}, indent=1))
         return 1 if errors or verdict["agree"] is False else 0
     where = f" in chart {chart.name} (q = psi(p))" if chart.name != "identity" else ""
     if isinstance(chart, charts.VelocityRepresentation):
@@ -451,8 +453,51 @@ def cmd_eval(args) -> int:
         print(f"{name}: NOT COMPARED ({reason})")
     for name, error in errors.items():
         print(f"{name}: ERROR at this state: {error}")
+    if linear is not None:
+        _print_linearization(linear)
     print(f"verdict: {verdict['text']}")
     return 1 if errors or verdict["agree"] is False else 0
+
+
+def _eval_linearize(model, chart, p, pd, u, splits: dict, chosen: list, verdict: dict) -> dict:
+    """``eval --linearize``: each backend's A, B (eq. 11, ``crosscheck.linearization``) and the eigenvalues of A, the
+    reference's, and the gate's comparison of their blocks; a DISAGREE turns the verdict (joint chart only)."""
+    if chart.name != "identity":
+        raise UsageError("--linearize evaluates in the joint chart (the convention of formalisms.interface."
+                         "Linearization); leave out --chart")
+    state = sampling.State(0, tuple(p), tuple(pd), tuple(u))
+    found, errors, unsupported = linearization.linearizations(model, state, chosen)
+    trusted = [split for _, split in splits.values()]
+    out = {"convention": "x = (dq, v), q (+) dq on Lie groups; A (2nv x 2nv), B (2nv x m)",
+           "backends": {name: {"A": lin.A.tolist(), "B": lin.B.tolist(),
+                               "eigenvalues": [[float(w.real), float(w.imag)] for w in lin.eigenvalues]}
+                        for name, lin in found.items()},
+           "not_supported": unsupported, "errors": errors, "checks": {}}
+    if trusted:
+        at = policy.scales(trusted, model, p, pd, u=u)
+        comparisons, _ = linearization.checks(model, state, chosen, at)
+        out["checks"] = {name: {"verdict": c.verdict, "worst_ratio": c.worst_ratio, "outlier": c.outlier}
+                         for name, c in comparisons.items()}
+        failing = [name for name, c in comparisons.items() if c.verdict == DISAGREE]
+        if failing or errors:
+            verdict.update(agree=False, text=verdict["text"] + f"; linearization DISAGREE: "
+                           f"{', '.join(failing) or 'errors from ' + ', '.join(errors)}")
+    return out
+
+
+def _print_linearization(linear: dict) -> None:
+    print(f"linearization ({linear['convention']}):")
+    with np.printoptions(precision=6, suppress=False, linewidth=160):
+        for name, lin in linear["backends"].items():
+            print(f"{name}:\n  A =\n{np.array(lin['A'])}\n  B =\n{np.array(lin['B'])}")
+            print("  eigenvalues of A: " + ", ".join(f"{re:.6g}{im:+.6g}i" for re, im in lin["eigenvalues"]))
+    for name in linear["not_supported"]:
+        print(f"{name}: linearization NOT COMPARED (no linearize)")
+    for name, error in linear["errors"].items():
+        print(f"{name}: ERROR in linearize: {error}")
+    for name, c in linear["checks"].items():
+        print(f"{name}: {c['verdict']} (worst ratio {c['worst_ratio']:.3g})"
+              + (f", outlier {c['outlier']}" if c["outlier"] else ""))
 
 
 def _unsupported_keys(values: dict) -> list[str]:
@@ -864,6 +909,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--normalize", action="store_true",
                     help="divide each quaternion of --q (spherical and free joints) by its norm (else a quaternion "
                          "that is not unit is refused)")
+    ev.add_argument("--linearize", action="store_true",
+                    help="also print each backend's linearization A, B (eq. 11) and the eigenvalues of A, compared")
     ev.add_argument("--json", action="store_true", help="print JSON")
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
