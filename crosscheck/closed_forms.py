@@ -761,7 +761,7 @@ def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) 
     task_drift, Lambda, task_cond = task
     fields = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(t.tau @ qd), power_ctrl_per_coord=t.tau * qd,
                   cond_M=w[-1] / w[0], task_drift=task_drift, kinetic_energy=0.5 * qd @ t.M @ qd,
-                  task_inertia=Lambda)
+                  task_inertia=Lambda, **_drift_parts(t, kkt))
     if kkt is None:
         return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None,
                      accel_scale=accel_scale, conditions={"task_inertia": task_cond}, **fields)
@@ -777,6 +777,19 @@ def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) 
                  constraint_value=kkt.phi, constraint_jacobian=kkt.Jc, constraint_bias=kkt.bias,
                  constraint_velocity=kkt.Jc @ qd, constraint_force=force, constraint_force_drift=force_drift,
                  constraint_rank=S.rank, lam_scale=lam_scale, **fields)
+
+
+def _drift_parts(t: _Terms, kkt: _Kkt | None) -> dict:
+    """The drift's parts (article 4.5-4.6), each solved directly: ``zvcf`` with ``f = -g`` (and, with constraints, the
+    bias 0 of a state at rest) and ``drift_velocity`` with ``f = -C qd`` and the bias ``Jcdot qd``, by the range-space
+    method of :func:`_constrained` under the same rule."""
+    if kkt is None:
+        return {"zvcf": -t.Minv @ t.g, "drift_velocity": -t.Minv @ t.Cqd}
+    Spinv = kkt.rule.spectrum(kkt.Jc @ t.Minv @ kkt.Jc.T).pinv()
+
+    def solve(f, bias):
+        return t.Minv @ (f + kkt.Jc.T @ (Spinv @ (-bias - kkt.Jc @ t.Minv @ f)))
+    return {"zvcf": solve(-t.g, np.zeros_like(kkt.bias)), "drift_velocity": solve(-t.Cqd, kkt.bias)}
 
 
 def _task(J, bias, drift, inertia) -> tuple:
