@@ -721,7 +721,8 @@ def cmd_fuzz(args) -> int:
                           max_bodies=args.max_bodies, max_states=args.max_states,
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
                           group_joints=args.joints == "all", charts=not args.no_charts,
-                          frames=not args.no_frames, conservation=not args.no_conservation, **bound)
+                          frames=not args.no_frames, conservation=not args.no_conservation,
+                          linearization=not args.no_linearization, **bound)
         result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
@@ -955,6 +956,8 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     fz.add_argument("--no-frames", action="store_true", help="skip the frame invariance checks")
     fz.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
+    fz.add_argument("--no-linearization", action="store_true",
+                    help="skip the comparison of the linearizations A, B (eq. 11) at each example's first state")
     add_plugin_option(fz)
     add_quiet_option(fz)
     fz.set_defaults(run=cmd_fuzz)

@@ -96,7 +96,7 @@ POLL = 0.1
 LOST_AFTER = 2.0
 #: The parameters that make two runs parts of one campaign (merge and resume require them equal).
 IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "group_joints", "backends",
-            "plugins", "shrink_calls", "charts", "frames", "conservation")
+            "plugins", "shrink_calls", "charts", "frames", "conservation", "linearization")
 
 
 class FuzzError(ValueError):
@@ -130,9 +130,11 @@ class FuzzConfig:
     charts: bool = True
     frames: bool = True
     conservation: bool = True
+    linearization: bool = True
 
     def checks(self) -> dict:
-        return {"charts": self.charts, "frames": self.frames, "conservation": self.conservation}
+        return {"charts": self.charts, "frames": self.frames, "conservation": self.conservation,
+                "linearization": self.linearization}
 
     def identity(self) -> dict:
         return {key: _jsonable(getattr(self, key)) for key in IDENTITY}
@@ -401,6 +403,8 @@ def evaluate_block(model: Model, states: Sequence[State], chart: charts.Chart, f
         gate.judge(model, outcome, chosen)
         gate.add_checks(model, outcome, chosen, in_chart, scene, checks["conservation"],
                         None if moved is None else moved[k])
+        if checks.get("linearization") and state.index == 0:   # a finding saved before the check has none
+            gate.add_linearization_checks(model, outcome, chosen)
         yield outcome
 
 
@@ -1078,7 +1082,7 @@ def render_report(out: Path, command: str = "") -> str:
         f"constraints {({True: 'always', False: 'never', None: 'sometimes'})[ident.get('constraints')]}, joints "
         f"{'revolute, prismatic, spherical, free' if ident.get('group_joints', True) else 'revolute, prismatic'} |",
         "| checks | every quantity compared; "
-        + ", ".join(name for name in ("charts", "frames", "conservation") if ident.get(name)) + " |",
+        + ", ".join(name for name in ("charts", "frames", "conservation", "linearization") if ident.get(name)) + " |",
         f"| chunks | {len(chunks)} of {ident.get('chunk_examples')} examples (shards run: {', '.join(shards)}"
         + (f"; {len(interrupted)} interrupted" if interrupted else "") + ") |",
         f"| examples | {total['examples']} generated, {total['shrink_calls']} more calls while shrinking |",
