@@ -134,8 +134,8 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state, with_block_form)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, state_space, with_block_form)
 
 
 @dataclass(frozen=True)
@@ -199,20 +199,160 @@ class TaskSpace:
     cond: float | np.ndarray
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` over the last axis of stacked 3-vectors, broadcasting (np.cross pays for axis handling)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    for axis, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        out[..., axis] = a[..., i] * b[..., j] - a[..., j] * b[..., i]
-    return out
+class _Dual:
+    """A dual number for the forward-mode derivatives of eq. (11) (:func:`linearize`): a value ``val`` (...) and its
+    tangents ``tan`` (D, ...) along D directions at once. Sums add the tangents; the backend's products (elementwise,
+    ``@``) are bilinear, ``f(a, b)`` with the tangent ``f(da, b) + f(a, db)`` (the product rule), which the stacked
+    tangents get by broadcasting over their leading axis. Indexing must start with ``...`` (the tangent axis leads)."""
+
+    __array_ufunc__ = None                                   # numpy defers ndarray (op) _Dual to the methods below
+    __slots__ = ("val", "tan")
+
+    def __init__(self, val, tan):
+        self.val, self.tan = np.asarray(val), np.asarray(tan)
+
+    @property
+    def shape(self) -> tuple:
+        return self.val.shape
+
+    def lifted(self, ndim: int) -> np.ndarray:
+        """The tangents with singleton axes after the leading one, so they broadcast like a value of ``ndim`` axes."""
+        extra = max(ndim - self.val.ndim, 0)
+        return self.tan.reshape(self.tan.shape[:1] + (1,) * extra + self.val.shape)
+
+    def __getitem__(self, key):
+        if not (key is Ellipsis or (isinstance(key, tuple) and key and key[0] is Ellipsis)):
+            raise IndexError(f"a dual number is indexed from the right (key starting with ...), got {key!r}")
+        return _Dual(self.val[key], self.tan[key])
+
+    def reshape(self, shape) -> "_Dual":
+        val = self.val.reshape(shape)
+        return _Dual(val, self.tan.reshape(self.tan.shape[:1] + val.shape))
+
+    def __neg__(self):
+        return _Dual(-self.val, -self.tan)
+
+    def __add__(self, other):
+        return _sum_of(self, other, 1.0)
+
+    def __radd__(self, other):
+        return _sum_of(other, self, 1.0)
+
+    def __sub__(self, other):
+        return _sum_of(self, other, -1.0)
+
+    def __rsub__(self, other):
+        return _sum_of(other, self, -1.0)
+
+    def __mul__(self, other):
+        return _bilinear(np.multiply, self, other)
+
+    def __rmul__(self, other):
+        return _bilinear(np.multiply, other, self)
+
+    def __truediv__(self, other):
+        if isinstance(other, _Dual):
+            raise TypeError("a dual number is divided by constants only")
+        return _Dual(self.val / other, self.tan / other)
+
+    def __matmul__(self, other):
+        return _bilinear(np.matmul, self, other)
+
+    def __rmatmul__(self, other):
+        return _bilinear(np.matmul, other, self)
 
 
-def _t(A: np.ndarray) -> np.ndarray:
+def _value(x):
+    """The value of a dual number, or ``x`` itself."""
+    return x.val if isinstance(x, _Dual) else x
+
+
+def _tangents(x, shape: tuple, count: int) -> np.ndarray:
+    """The tangents of ``x`` broadcast to a value of ``shape`` (``count`` directions; zero for a constant)."""
+    if not isinstance(x, _Dual):
+        return np.zeros((count,) + shape)
+    return np.broadcast_to(x.lifted(len(shape)), (count,) + shape)
+
+
+def _count(xs) -> int | None:
+    """The number of tangent directions of the dual numbers among ``xs``, None when all are constants."""
+    return next((x.tan.shape[0] for x in xs if isinstance(x, _Dual)), None)
+
+
+def _sum_of(a, b, sign: float):
+    """``a + sign b`` (sign 1 or -1) with the tangents added."""
+    val = _value(a) + _value(b) if sign > 0 else _value(a) - _value(b)
+    count = _count((a, b))
+    ta, tb = _tangents(a, val.shape, count), _tangents(b, val.shape, count)
+    return _Dual(val, ta + tb if sign > 0 else ta - tb)
+
+
+def _bilinear(f, a, b):
+    """``f(a, b)`` of a bilinear ``f`` (elementwise product, matmul) with the tangent ``f(da, b) + f(a, db)``."""
+    av, bv = _value(a), _value(b)
+    val = f(av, bv)
+    tan = 0.0
+    if isinstance(a, _Dual):
+        tan = f(a.lifted(val.ndim), bv)
+    if isinstance(b, _Dual):
+        tan = tan + f(av, b.lifted(val.ndim))
+    return _Dual(val, tan)
+
+
+def _linear(f, x):
+    """``f(x)`` of an axis-wise linear map ``f`` (a transpose, a sum over negative axes), tangents mapped alike."""
+    return _Dual(f(x.val), f(x.tan)) if isinstance(x, _Dual) else f(x)
+
+
+def _stack(xs, axis: int, shape: tuple | None = None):
+    """``np.stack`` over a negative ``axis`` of arrays and dual numbers, each broadcast to ``shape`` (default: their
+    common shape) first."""
+    shape = np.broadcast_shapes(*(np.shape(_value(x)) for x in xs)) if shape is None else shape
+    vals = [np.broadcast_to(_value(x), shape) for x in xs]
+    count = _count(xs)
+    if count is None:
+        return np.stack(vals, axis=axis)
+    return _Dual(np.stack(vals, axis=axis), np.stack([_tangents(x, shape, count) for x in xs], axis=axis))
+
+
+def _concatenate(xs, axis: int):
+    """``np.concatenate`` over a negative ``axis`` of arrays and dual numbers."""
+    count = _count(xs)
+    if count is None:
+        return np.concatenate(xs, axis=axis)
+    return _Dual(np.concatenate([_value(x) for x in xs], axis=axis),
+                 np.concatenate([_tangents(x, np.shape(_value(x)), count) for x in xs], axis=axis))
+
+
+def _where(mask: np.ndarray, a, b):
+    """``np.where`` with a constant ``mask`` over arrays and dual numbers."""
+    val = np.where(mask, _value(a), _value(b))
+    count = _count((a, b))
+    if count is None:
+        return val
+    return _Dual(val, np.where(mask, _tangents(a, val.shape, count), _tangents(b, val.shape, count)))
+
+
+def _sin_cos(x) -> tuple:
+    """``(sin x, cos x)`` of an array or a dual number (``d sin = cos dx``, ``d cos = -sin dx``)."""
+    if not isinstance(x, _Dual):
+        return np.sin(x), np.cos(x)
+    s, c = np.sin(x.val), np.cos(x.val)
+    return _Dual(s, c * x.tan), _Dual(c, -s * x.tan)
+
+
+def _cross(a, b):
+    """``a x b`` over the last axis of stacked 3-vectors (or dual numbers), broadcasting (np.cross pays for axis
+    handling)."""
+    return _stack([a[..., i] * b[..., j] - a[..., j] * b[..., i] for i, j in ((1, 2), (2, 0), (0, 1))], -1)
+
+
+def _t(A):
     """The transposes of stacked matrices (..., r, c) -> (..., c, r)."""
-    return np.swapaxes(A, -1, -2)
+    return _linear(lambda x: np.swapaxes(x, -1, -2), A)
 
 
-def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+def _mv(A, x):
     """``A x`` for stacked matrices (..., r, c) and vectors (..., c), broadcasting."""
     return (A @ x[..., None])[..., 0]
 
@@ -242,15 +382,16 @@ def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     x, y, z = axes.T
     zero = np.zeros_like(x)
     K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + np.sin(angles)[..., None, None] * K + (1.0 - np.cos(angles))[..., None, None] * (K @ K)
+    sin, cos = _sin_cos(angles)
+    return np.eye(3) + sin[..., None, None] * K + (1.0 - cos)[..., None, None] * (K @ K)
 
 
 def _quaternion_rotations(quat: np.ndarray) -> np.ndarray:
     """``R(quat) = I + 2 w [v]x + 2 [v]x^2`` (stacked (..., 3, 3)) of unit quaternions ``(x, y, z, w) = (v, w)``
     (..., 4) (``cases.model``; article 2.1: a spherical joint's configuration on SO(3))."""
-    x, y, z, w = np.moveaxis(quat, -1, 0)
-    zero = np.zeros_like(x)
-    K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+    x, y, z, w = (quat[..., a] for a in range(4))
+    zero = np.zeros(np.shape(_value(x)))
+    K = _stack([_stack([zero, -z, y], -1), _stack([z, zero, -x], -1), _stack([-y, x, zero], -1)], -2)
     return np.eye(3) + 2.0 * w[..., None, None] * K + 2.0 * (K @ K)
 
 
@@ -283,7 +424,7 @@ def _moves(model: Model) -> np.ndarray:
 def _column_offsets(z: np.ndarray, o: np.ndarray, revolute: np.ndarray) -> np.ndarray:
     """The constant parts ``c_j`` (..., n, 3) of the linear Jacobian columns ``z_j x p + c_j``: ``o_j x z_j``
     (revolute: ``z_j x (p - o_j)``) or ``z_j`` (prismatic, whose columns have no ``z_j x p`` part)."""
-    return np.where(revolute[:, None], _cross(o, z), z)
+    return _where(revolute[:, None], _cross(o, z), z)
 
 
 def _linear_columns(z, o, revolute, moves_rows, points) -> np.ndarray:
@@ -293,16 +434,15 @@ def _linear_columns(z, o, revolute, moves_rows, points) -> np.ndarray:
     zr = (z * revolute[:, None])[..., None, :, :]
     c = _column_offsets(z, o, revolute)[..., None, :, :]
     p = points[..., :, None, :]
-    J = np.empty(np.broadcast_shapes(zr.shape[:-1], p.shape[:-1], moves_rows.shape)[:-1] + (3, zr.shape[-2]))
-    for axis, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
-        J[..., axis, :] = (zr[..., a] * p[..., b] - zr[..., b] * p[..., a] + c[..., axis]) * moves_rows
-    return J
+    return _stack([(zr[..., a] * p[..., b] - zr[..., b] * p[..., a] + c[..., axis]) * moves_rows
+                   for axis, (a, b) in enumerate(((1, 2), (2, 0), (0, 1)))], -2)
 
 
 def _angular_columns(kin: Kinematics, body: np.ndarray) -> np.ndarray:
     """Angular Jacobians (..., k, 3, n) of bodies ``body`` (k,): column ``z_j`` for the revolute joints moving
     them, zero elsewhere."""
-    axes = np.ascontiguousarray(_t(kin.z * kin.revolute[:, None]))
+    axes = _t(kin.z * kin.revolute[:, None])
+    axes = axes if isinstance(axes, _Dual) else np.ascontiguousarray(axes)
     return axes[..., None, :, :] * kin.moves[body][:, None, :]
 
 
@@ -321,32 +461,33 @@ def _kinematics(model: Model, q: np.ndarray, qd: np.ndarray) -> Kinematics:
     axes = np.array([b.axis for b in model.bodies])
     local = np.array([b.rotation for b in model.bodies])
     plain = not model.group_joints                    # one column per body: column rows are body rows
-    motion = _axis_rotations(axes, np.where(turns, q if plain else q[..., list(model.q_index)], 0.0))
-    R, o, z = np.empty(batch + (count, 3, 3)), np.empty(batch + (count, 3)), np.empty(batch + (n, 3))
+    motion = _axis_rotations(axes, _where(turns, q if plain else q[..., list(model.q_index)], 0.0))
+    R, o, z = [None] * count, [None] * count, [None] * n           # per body and column, stacked below
     for i in model.topological_order:
         b, p, k, j = model.bodies[i], model.parent_index[i], model.v_index[i], model.q_index[i]
         if p < 0:
             joint_frame, o_joint = local[i], b.translation
         else:
-            joint_frame, o_joint = R[..., p, :, :] @ local[i], o[..., p, :] + R[..., p, :, :] @ b.translation
+            joint_frame, o_joint = R[p] @ local[i], o[p] + R[p] @ b.translation
         if b.joint == "spherical" or b.joint == "free":       # module docstring, group joints
             free = b.joint == "free"
-            R[..., i, :, :] = joint_frame @ _quaternion_rotations(q[..., j + 3 * free:j + 3 * free + 4])
-            o[..., i, :] = (o_joint + _mv(joint_frame, q[..., j:j + 3])) if free else o_joint
-            z[..., k:k + 3 + 3 * free, :] = np.concatenate([_t(R[..., i, :, :])] * (1 + free), axis=-2)
+            R[i] = joint_frame @ _quaternion_rotations(q[..., j + 3 * free:j + 3 * free + 4])
+            o[i] = (o_joint + _mv(joint_frame, q[..., j:j + 3])) if free else o_joint
+            z[k:k + 3 + 3 * free] = [R[i][..., :, a % 3] for a in range(3 + 3 * free)]
             continue
-        z[..., k, :] = joint_frame @ axes[i]
-        R[..., i, :, :] = joint_frame @ motion[..., i, :, :]
-        o[..., i, :] = o_joint if turns[i] else o_joint + q[..., j, None] * z[..., k, :]
+        z[k] = joint_frame @ axes[i]
+        R[i] = joint_frame @ motion[..., i, :, :]
+        o[i] = o_joint if turns[i] else o_joint + q[..., j, None] * z[k]
+    R, o, z = _stack(R, -3, batch + (3, 3)), _stack(o, -2, batch + (3,)), _stack(z, -2, batch + (3,))
     moves = _moves(model)
     of_columns = (lambda rows: rows) if plain else (lambda rows: rows[..., owner, :])   # body rows -> column rows
     origin = of_columns(o)
-    rates, revolute_rates = moves * qd[..., None, :], moves * np.where(revolute, qd, 0.0)[..., None, :]
+    rates, revolute_rates = moves * qd[..., None, :], moves * _where(revolute, qd, 0.0)[..., None, :]
     w = revolute_rates @ z
     c_qd = rates @ _column_offsets(z, origin, revolute)
     odot = _cross(w, o) + c_qd
     zdot = _cross(of_columns(w), z)
-    cdot = np.where(revolute[:, None], _cross(of_columns(odot), z) + _cross(origin, zdot), zdot)
+    cdot = _where(revolute[:, None], _cross(of_columns(odot), z) + _cross(origin, zdot), zdot)
     return Kinematics(R, o, z, revolute, moves, qd, w, odot, zdot, revolute_rates @ zdot, c_qd, rates @ cdot,
                       owner, origin)
 
@@ -532,7 +673,7 @@ def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
     d, PJ = _vm(p - c.center, c.plane.T), c.plane @ Jv
     v = _mv(PJ, kin.qd)
-    dot = (lambda a, b: np.sum(a * b, axis=-1, keepdims=True))  # noqa: E731
+    dot = (lambda a, b: _linear(lambda x: np.sum(x, axis=-1, keepdims=True), a * b))  # noqa: E731
     return dot(d, d) - c.radius**2, 2.0 * d[..., None, :] @ PJ, 2.0 * dot(v, v) + 2.0 * dot(d, _vm(bias, c.plane.T))
 
 
@@ -576,7 +717,7 @@ def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.n
                             f"{type(c).__name__} ({c.name!r}); known: {[t.__name__ for t in _DECLARATIONS]}")
         rows.append(_DECLARATIONS[type(c)](model, kin, q, c))
     phi, Jc, bias = zip(*rows)
-    return np.concatenate(phi, axis=-1), np.concatenate(Jc, axis=-2), np.concatenate(bias, axis=-1)
+    return _concatenate(phi, -1), _concatenate(Jc, -2), _concatenate(bias, -1)
 
 
 def _degenerate_floor(model: Model) -> float:
@@ -868,6 +1009,70 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     return SplitBatch(drift, ctrl, total, lam, lam_drift)
 
 
+def _configuration_tangents(model: Model, q: np.ndarray) -> np.ndarray:
+    """``d/ds integrate(q, s e_j)`` at ``s = 0`` (nv, nq), the ambient image of each tangent direction (interface,
+    :class:`Linearization`): 1 at a revolute or prismatic coordinate; on a quaternion block ``0.5 quat (x) (e, 0)``
+    (Hamilton product, x y z w: ``(w e + v x e, -v . e) / 2`` with ``quat = (v, w)``); a free joint's linear
+    direction moves its position by ``R(quat) e``."""
+    T = np.zeros((model.nv, model.nq))
+    for i, body in enumerate(model.bodies):
+        k, j = model.v_index[i], model.q_index[i]
+        if body.joint not in ("spherical", "free"):
+            T[k, j] = 1.0
+            continue
+        free = body.joint == "free"
+        quat = q[j + 3 * free:j + 3 * free + 4]
+        v, w = quat[:3], quat[3]
+        for a, e in enumerate(np.eye(3)):
+            T[k + 3 * free + a, j + 3 * free:j + 3 * free + 4] = 0.5 * np.append(w * e + np.cross(v, e), -v @ e)
+        if free:
+            T[k:k + 3, j:j + 3] = _quaternion_rotations(quat).T
+    return T
+
+
+def _kkt_derivative(Minv: np.ndarray, Jc: np.ndarray | None, Lambda: np.ndarray | None, force: np.ndarray,
+                    rows: np.ndarray | None) -> np.ndarray:
+    """The solution ``dvdot`` (nv, c) of ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [force; rows]`` for c right-hand
+    sides (columns): ``dlam = Lambda_c (rows - Jc M^-1 force)`` in constraint space (the backend's ``Lambda_c = S^+``,
+    minimum norm over redundant directions), ``dvdot = M^-1 (force + Jc^T dlam)``; unconstrained ``M^-1 force``."""
+    free = Minv @ force
+    if Jc is None:
+        return free
+    return free + Minv @ (Jc.T @ (Lambda @ (rows - Jc @ free)))
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`) by forward-mode differentiation of this
+    backend's own passes: ``q`` and ``qd`` become dual numbers (:class:`_Dual`) with the 2 nv tangent directions
+    ``(d/ds integrate(q, s e_j), 0)`` (:func:`_configuration_tangents`) and ``(0, e_j)``, carried through the
+    kinematics, the Kane projection (``dM``, ``d(C qd)``, ``dg``) and the constraint rows (``dJc``,
+    ``d(Jcdot qd)``). Then the solve, in joint-space form (the task-space recomposition returns the same ``vdot``,
+    module docstring): ``a = M^-1 (B u - h)``, ``lam = Lambda_c (-Jcdot qd - Jc a)``, ``vdot = a + M^-1 Jc^T lam``,
+    and the differentiated KKT system per direction, ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [-dh - dM vdot + dJc^T
+    lam; -dJc vdot - d(Jcdot qd)]``; ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained)."""
+    q, qd, u = check_state(model, q, qd, u)
+    nv = model.nv
+    q_dual = _Dual(q, np.vstack([_configuration_tangents(model, q), np.zeros((nv, model.nq))]))
+    kin = _kinematics(model, q_dual, _Dual(qd, np.vstack([np.zeros((nv, nv)), np.eye(nv)])))
+    M, Cqd, g = _terms(model, kin)
+    h = Cqd + g
+    Minv = _inverse_mass_matrix(model, M.val, q)
+    Jc = Lambda = rows = None
+    vdot = Minv @ (model.input_map @ u - h.val)
+    force = -h.tan.T
+    if model.constraints:
+        _, Jc, bias = _constraint_rows(model, kin, q_dual)       # constant rows (a joint coupling): no tangents
+        (Jc, dJc), (bias, dbias) = ((_value(x), _tangents(x, np.shape(_value(x)), 2 * nv)) for x in (Jc, bias))
+        Lambda = _constraint_inertia(model, Jc, Minv)[0]
+        lam = Lambda @ (-bias - Jc @ vdot)
+        vdot = vdot + Minv @ (Jc.T @ lam)
+        force = force + (lam @ dJc).T
+        rows = -(dJc @ vdot).T - dbias.T
+    dvdot = _kkt_derivative(Minv, Jc, Lambda, force - (M.tan @ vdot).T, rows)
+    dvdot_du = _kkt_derivative(Minv, Jc, Lambda, model.input_map, None if Jc is None else np.zeros((len(Jc), model.m)))
+    return state_space(model, qd, dvdot[:, :nv], dvdot[:, nv:], dvdot_du, vdot)
+
+
 FORMALISM = Formalism(
     name="operational_space",
     summary="Operational space (article 6.3, eqs. 22-23): Kane-projected M, C qd, g; task-space Lambda, mu, p; "
@@ -875,4 +1080,5 @@ FORMALISM = Formalism(
             "constraint space (Lambda_c = S^+, eqs. 12-17) whose forces enter eq. 22 as F_constr",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
