@@ -178,7 +178,10 @@ class TaskSpace:
     J (k, n), Jdot_qd (k,) classical bias, A = J M^-1 J^T (k, k), Lambda = A^-1, mu, p (k,), J_bar (n, k),
     N (n, n), F_ctrl = J_bar^T B u (k,), F_constr and F_constr_drift = J_bar^T Jc^T lam (k,) with and without input
     (zero without constraints), xdd_drift = A (F_constr_drift - mu - p) (eq. 23), xdd_ctrl = A (F_ctrl + J_bar^T
-    Jc^T lam_ctrl), xdd_total = A (F_ctrl + F_constr - mu - p) (k,), cond = cond_2(A).
+    Jc^T lam_ctrl), xdd_total = A (F_ctrl + F_constr - mu - p) (k,), the drift's parts (article 4.5-4.6)
+    xdd_zvcf = A (F_constr_zvcf - p) (gravity's, at qd = 0) and xdd_velocity = A (F_constr_velocity - mu) (the
+    velocity products'), with ``F_constr_zvcf``, ``F_constr_velocity`` the images of their multipliers (not kept),
+    cond = cond_2(A).
     Everything but J, Jdot_qd and A is NaN where ``cond`` is inf (A numerically singular).
     """
 
@@ -196,6 +199,8 @@ class TaskSpace:
     xdd_drift: np.ndarray
     xdd_ctrl: np.ndarray
     xdd_total: np.ndarray
+    xdd_zvcf: np.ndarray
+    xdd_velocity: np.ndarray
     cond: float | np.ndarray
 
 
@@ -616,8 +621,8 @@ def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
                           tau_constr) -> tuple[TaskSpace, np.ndarray, np.ndarray]:
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
-    ``tau_constr`` (..., 3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone
-    and at the total (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
+    ``tau_constr`` (..., 5, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone,
+    at the total, of the zero-velocity counterfactual and of the velocity products (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
     Returns the :class:`TaskSpace` in those axes, ``A`` as assembled and ``V``. All NaN, ``cond`` inf, where ``A`` is
     numerically singular."""
     n = Minv.shape[-1]
@@ -632,11 +637,12 @@ def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
     p = _mv(_t(Minv_JT), g) / eig                            # Lambda J M^-1 g
     J_bar = Minv_JT / eig[..., None, :]                      # M^-1 J^T Lambda
     F_ctrl = _mv(_t(J_bar), tau_ctrl)
-    F_constr_drift, F_constr_ctrl, F_constr = np.moveaxis(tau_constr @ J_bar, -2, 0)
+    F_constr_drift, F_constr_ctrl, F_constr, F_constr_zvcf, F_constr_velocity = np.moveaxis(tau_constr @ J_bar, -2, 0)
     principal = TaskSpace(J=Jp, Jdot_qd=bias, A=_diag(eig), Lambda=_diag(1.0 / eig), mu=mu, p=p, J_bar=J_bar,
                           N=np.eye(n) - J_bar @ Jp, F_ctrl=F_ctrl, F_constr=F_constr, F_constr_drift=F_constr_drift,
                           xdd_drift=eig * (F_constr_drift - mu - p), xdd_ctrl=eig * (F_ctrl + F_constr_ctrl),
-                          xdd_total=eig * (F_ctrl + F_constr - mu - p), cond=cond)
+                          xdd_total=eig * (F_ctrl + F_constr - mu - p), xdd_zvcf=eig * (F_constr_zvcf - p),
+                          xdd_velocity=eig * (F_constr_velocity - mu), cond=cond)
     return principal, A, V
 
 
@@ -650,21 +656,25 @@ def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[
                          F_ctrl=_mv(V, principal.F_ctrl), F_constr=_mv(V, principal.F_constr),
                          F_constr_drift=_mv(V, principal.F_constr_drift), xdd_drift=_mv(V, principal.xdd_drift),
                          xdd_ctrl=_mv(V, principal.xdd_ctrl), xdd_total=_mv(V, principal.xdd_total),
+                         xdd_zvcf=_mv(V, principal.xdd_zvcf), xdd_velocity=_mv(V, principal.xdd_velocity),
                          cond=principal.cond)
     return principal, reported
 
 
-def _recompose(ts: TaskSpace, Minv: np.ndarray, h: np.ndarray, tau_ctrl: np.ndarray,
-               tau_constr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _recompose(ts: TaskSpace, Minv: np.ndarray, Cqd: np.ndarray, g: np.ndarray, tau_ctrl: np.ndarray,
+               tau_constr: np.ndarray) -> tuple[np.ndarray, ...]:
     """The joint accelerations from the principal-axes task space plus the dynamically consistent null space
-    (module docstring): ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl
-    + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam
-    - h)``, with the constraint forces ``tau_constr`` of :func:`_task_space`."""
-    f_drift, f_ctrl, f_total = np.moveaxis(tau_constr, -2, 0)
-    task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd], axis=-1)
-    forces = np.stack([f_drift - h, tau_ctrl + f_ctrl, tau_ctrl + f_total - h], axis=-1)
-    drift, ctrl, total = np.moveaxis(ts.J_bar @ task + Minv @ (_t(ts.N) @ forces), -1, 0)   # (..., n, 3) columns
-    return drift, ctrl, total
+    (module docstring), ``h = C qd + g``: ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``,
+    ``ctrl = J_bar xdd_ctrl + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) +
+    M^-1 N^T (B u + Jc^T lam - h)``, and the drift's parts, each directly: ``zvcf = J_bar xdd_zvcf + M^-1 N^T
+    (Jc^T lam_zvcf - g)`` (at qd = 0 there is no ``Jdot qd``), ``drift_velocity = J_bar (xdd_velocity - Jdot qd) +
+    M^-1 N^T (Jc^T lam_velocity - C qd)``; the constraint forces ``tau_constr`` of :func:`_task_space`."""
+    f_drift, f_ctrl, f_total, f_zvcf, f_velocity = np.moveaxis(tau_constr, -2, 0)
+    h = Cqd + g
+    task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd, ts.xdd_zvcf,
+                     ts.xdd_velocity - ts.Jdot_qd], axis=-1)
+    forces = np.stack([f_drift - h, tau_ctrl + f_ctrl, tau_ctrl + f_total - h, f_zvcf - g, f_velocity - Cqd], axis=-1)
+    return tuple(np.moveaxis(ts.J_bar @ task + Minv @ (_t(ts.N) @ forces), -1, 0))   # (..., n, 5) columns
 
 
 def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -752,7 +762,8 @@ class ConstraintSpace:
     phi (..., k), Jc (..., k, n), bias = Jcdot qd (..., k), Lambda = S^+ (..., k, k) the constraint-space inertia,
     with S's eigenvalues (..., k; ascending) and eigen-directions (..., k, k; columns);
     the multipliers lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved
-    directly) and lam (eq. 12), each (..., k).
+    directly) and lam (eq. 12), and the drift's parts (4.5-4.6), lam_zvcf (force ``-g``, bias 0) and lam_velocity
+    (force ``-C qd``, bias ``Jcdot qd``), each (..., k).
     """
 
     phi: np.ndarray
@@ -764,23 +775,27 @@ class ConstraintSpace:
     lam_drift: np.ndarray
     lam_ctrl: np.ndarray
     lam: np.ndarray
+    lam_zvcf: np.ndarray
+    lam_velocity: np.ndarray
 
     @property
     def forces(self) -> np.ndarray:
-        """The generalized constraint forces ``Jc^T lam`` (..., 3, n): at the drift, of the input alone, at the
-        total."""
-        return np.stack([self.lam_drift, self.lam_ctrl, self.lam], axis=-2) @ self.Jc
+        """The generalized constraint forces ``Jc^T lam`` (..., 5, n): at the drift, of the input alone, at the
+        total, of the zero-velocity counterfactual and of the velocity products."""
+        return np.stack([self.lam_drift, self.lam_ctrl, self.lam, self.lam_zvcf, self.lam_velocity], axis=-2) @ self.Jc
 
 
 def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.ndarray, free) -> ConstraintSpace:
     """Eq. (13) solved for the multipliers in constraint space, ``lam = Lambda_c (-Jcdot qd - Jc a)``, from the free
-    accelerations ``free = (a_drift, a_ctrl, a_total)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u - h)``)."""
+    accelerations ``free = (a_drift, a_ctrl, a_total, a_zvcf, a_velocity)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u
+    - h)``, ``M^-1 (-g)``, ``M^-1 (-C qd)``); the zero-velocity counterfactual has no bias (``qd = 0``)."""
     phi, Jc, bias = _constraint_rows(model, kin, q)
     Lambda, w, U = _constraint_inertia(model, Jc, Minv)
-    a_drift, a_ctrl, a_total = free
+    a_drift, a_ctrl, a_total, a_zvcf, a_velocity = free
     return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, eigenvalues=w, directions=U,
                            lam_drift=_mv(Lambda, -bias - _mv(Jc, a_drift)), lam_ctrl=-_mv(Lambda, _mv(Jc, a_ctrl)),
-                           lam=_mv(Lambda, -bias - _mv(Jc, a_total)))
+                           lam=_mv(Lambda, -bias - _mv(Jc, a_total)), lam_zvcf=-_mv(Lambda, _mv(Jc, a_zvcf)),
+                           lam_velocity=_mv(Lambda, -bias - _mv(Jc, a_velocity)))
 
 
 def _cholesky(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -809,7 +824,8 @@ def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarr
 @dataclass(frozen=True)
 class _Solution:
     """One state or a batch solved: the joint-space terms and the inverse mass matrix, the reported task space (None
-    when not asked for), (drift, ctrl, total), the constraint space (None without constraints)."""
+    when not asked for), the accelerations (drift, ctrl, total, zvcf, drift_velocity) of :func:`_recompose`, the
+    constraint space (None without constraints)."""
 
     M: np.ndarray
     Minv: np.ndarray
@@ -817,7 +833,7 @@ class _Solution:
     g: np.ndarray
     tau_ctrl: np.ndarray
     task: TaskSpace | None
-    accelerations: tuple[np.ndarray, np.ndarray, np.ndarray]
+    accelerations: tuple[np.ndarray, ...]
     constraint: ConstraintSpace | None
 
 
@@ -834,9 +850,9 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     def through_task_space(tau_constr):
         args = (model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
         ts, reported = _task_space(*args) if report else (_principal_task_space(*args)[0], None)
-        return reported, _recompose(ts, Minv, Cqd + g, tau_ctrl, tau_constr)
+        return reported, _recompose(ts, Minv, Cqd, g, tau_ctrl, tau_constr)
 
-    task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (3, model.n)))
+    task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (5, model.n)))
     constraint = None
     if model.constraints:
         constraint = _constraint_space(model, kin, q, Minv, accelerations)
@@ -923,9 +939,9 @@ def constrained_split(model: Model, *, constraint: ConstraintSpace, Minv: np.nda
 
 def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> Split:
     """The :class:`Split` of one solved state ``s`` (:func:`_solve`) at ``(q, qd, u)`` (:func:`split`)."""
-    drift, ctrl, total = s.accelerations
+    drift, ctrl, total, zvcf, drift_velocity = s.accelerations
     cond_M, inverse_norm, accel_scale = _mass_conditioning(model, s, qd)
-    free = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(u @ (model.input_map.T @ qd)),
+    free = dict(drift=drift, ctrl=ctrl, total=total, zvcf=zvcf, drift_velocity=drift_velocity, power_ctrl=float(u @ (model.input_map.T @ qd)),
                 power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M, task_drift=s.task.xdd_drift,
                 conditions={"task": s.task.cond,
                             "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
@@ -988,7 +1004,9 @@ def split(model: Model, q, qd, u) -> Split:
     ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
     (``Lambda_c``). NaN accelerations where A is numerically singular. The control power in input space,
     ``u . (B^T qd)`` (per coordinate ``(B u)_i qd_i``); cond(M) and the scales from :func:`_mass_conditioning`.
-    Its block form is :func:`split_many`.
+    The drift's parts (4.5-4.6), each recomposed directly (:func:`_recompose`): ``zvcf`` (``-M^-1 g``; with
+    constraints the KKT solve with ``-g`` and no bias) and ``drift_velocity`` (``-M^-1 C qd``; with ``-C qd`` and
+    the bias ``Jcdot qd``). Its block form is :func:`split_many`.
     """
     q, qd, u = check_state(model, q, qd, u)
     return _split_of(model, _solve(model, q, qd, u, None), q, qd, u)
