@@ -79,7 +79,10 @@ The joint answer is RECOMPOSED from task space plus the dynamically consistent n
 (using ``xdd - Jdot qd = J M^-1 (tau - h)`` and ``N^T = 1 - J^T Lambda J M^-1``): drift at ``tau = 0``, total at
 ``tau = B u``, and ctrl, the control increment computed directly, ``J_bar xdd_ctrl + M^-1 N^T B u`` with
 ``xdd_ctrl = A F_ctrl = J M^-1 B u`` (no bias). For a square task Jacobian (the double pendulum's endpoint)
-``J_bar = J^-1`` and ``N = 0``: the joint acceleration comes entirely from task space.
+``J_bar = J^-1`` and ``N = 0``: the joint acceleration comes entirely from task space. The drift's parts (article
+4.5-4.6) are recomposed the same way, each directly: the zero-velocity counterfactual ``zvcf = J_bar xdd_zvcf - M^-1
+N^T g`` with ``xdd_zvcf = -A p`` (no ``Jdot qd`` at ``qd = 0``), and ``drift_velocity = J_bar (xdd_velocity - Jdot
+qd) - M^-1 N^T C qd`` with ``xdd_velocity = -A mu``: ``-M^-1 g`` and ``-M^-1 C qd``, which add up to the drift.
 
 Breakdown (6.3.4): the method inverts ``A``, so every result carries ``cond = cond_2(A)`` (``Split.conditions
 ["task"]``) and how much shorter than its lever the task Jacobian is (``"task_jacobian"``, numerics below); the
@@ -124,6 +127,17 @@ results are rotated back. What remains is inherent to the recomposition: ``Jdot 
 the lost direction while ``J qdd`` there is O(sigma_min(J)), so ``xdd - Jdot qd`` cancels and ``J_bar`` amplifies
 the rounding: a joint error of about ``eps |Jdot qd| sqrt(cond(A) / lambda_max(A))``, the error the breakdown
 limit is calibrated against (tests/test_operational_space.py).
+
+Linearization (article 4.8, eq. 11; :func:`linearize`) by forward-mode differentiation of the passes above: ``q`` and
+``qd`` enter as dual numbers (:class:`_Dual`: a value and its tangents along all ``2 nv`` state directions at once,
+the configuration directions ``d/ds integrate(q, s e_j)`` of the interface's right-perturbation convention), and the
+kinematics, the Kane projection and the constraint rows run on them unchanged: their primitives (``_cross``, ``_t``,
+the stacks, ``_where``, the rotation builders) accept dual numbers, sums add tangents and every product is bilinear
+(the product rule by broadcasting over the tangent axis). That gives ``dM``, ``d(C qd)``, ``dg``, ``dJc`` and
+``d(Jcdot qd)`` exactly (no differences). The solve is differentiated in joint-space form, which the recomposition
+equals: ``M dvdot + dM vdot + dh = Jc^T dlam + dJc^T lam`` and ``Jc dvdot + dJc vdot + d(Jcdot qd) = 0``, solved
+through the constraint space like the multipliers (``dlam = Lambda_c (r - Jc M^-1 f)``, minimum norm over redundant
+directions); ``dvdot/du = B_c B`` (eq. 17).
 """
 
 from __future__ import annotations
@@ -222,8 +236,8 @@ class _Dual:
 
     def lifted(self, ndim: int) -> np.ndarray:
         """The tangents with singleton axes after the leading one, so they broadcast like a value of ``ndim`` axes."""
-        extra = max(ndim - self.val.ndim, 0)
-        return self.tan.reshape(self.tan.shape[:1] + (1,) * extra + self.val.shape)
+        extra = ndim - self.val.ndim
+        return self.tan.reshape(self.tan.shape[:1] + (1,) * extra + self.val.shape) if extra > 0 else self.tan
 
     def __getitem__(self, key):
         if not (key is Ellipsis or (isinstance(key, tuple) and key and key[0] is Ellipsis)):
@@ -276,7 +290,7 @@ def _tangents(x, shape: tuple, count: int) -> np.ndarray:
     """The tangents of ``x`` broadcast to a value of ``shape`` (``count`` directions; zero for a constant)."""
     if not isinstance(x, _Dual):
         return np.zeros((count,) + shape)
-    return np.broadcast_to(x.lifted(len(shape)), (count,) + shape)
+    return x.tan if x.val.shape == shape else np.broadcast_to(x.lifted(len(shape)), (count,) + shape)
 
 
 def _count(xs) -> int | None:
@@ -622,7 +636,8 @@ def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
     ``tau_constr`` (..., 5, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone,
-    at the total, of the zero-velocity counterfactual and of the velocity products (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
+    at the total, of the zero-velocity counterfactual and of the velocity products (zero without constraints); their
+    images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
     Returns the :class:`TaskSpace` in those axes, ``A`` as assembled and ``V``. All NaN, ``cond`` inf, where ``A`` is
     numerically singular."""
     n = Minv.shape[-1]
@@ -661,15 +676,17 @@ def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[
     return principal, reported
 
 
-def _recompose(ts: TaskSpace, Minv: np.ndarray, Cqd: np.ndarray, g: np.ndarray, tau_ctrl: np.ndarray,
+def _recompose(ts: TaskSpace, Minv: np.ndarray, h: tuple[np.ndarray, np.ndarray], tau_ctrl: np.ndarray,
                tau_constr: np.ndarray) -> tuple[np.ndarray, ...]:
     """The joint accelerations from the principal-axes task space plus the dynamically consistent null space
-    (module docstring), ``h = C qd + g``: ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``,
-    ``ctrl = J_bar xdd_ctrl + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) +
-    M^-1 N^T (B u + Jc^T lam - h)``, and the drift's parts, each directly: ``zvcf = J_bar xdd_zvcf + M^-1 N^T
-    (Jc^T lam_zvcf - g)`` (at qd = 0 there is no ``Jdot qd``), ``drift_velocity = J_bar (xdd_velocity - Jdot qd) +
-    M^-1 N^T (Jc^T lam_velocity - C qd)``; the constraint forces ``tau_constr`` of :func:`_task_space`."""
+    (module docstring), ``h = C qd + g`` given by its terms ``(C qd, g)``: ``drift = J_bar (xdd_drift - Jdot qd) +
+    M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total =
+    J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam - h)``, and the drift's parts, each directly: ``zvcf =
+    J_bar xdd_zvcf + M^-1 N^T (Jc^T lam_zvcf - g)`` (at qd = 0 there is no ``Jdot qd``), ``drift_velocity = J_bar
+    (xdd_velocity - Jdot qd) + M^-1 N^T (Jc^T lam_velocity - C qd)``; the constraint forces ``tau_constr`` of
+    :func:`_task_space`."""
     f_drift, f_ctrl, f_total, f_zvcf, f_velocity = np.moveaxis(tau_constr, -2, 0)
+    Cqd, g = h
     h = Cqd + g
     task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd, ts.xdd_zvcf,
                      ts.xdd_velocity - ts.Jdot_qd], axis=-1)
@@ -850,7 +867,7 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     def through_task_space(tau_constr):
         args = (model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
         ts, reported = _task_space(*args) if report else (_principal_task_space(*args)[0], None)
-        return reported, _recompose(ts, Minv, Cqd, g, tau_ctrl, tau_constr)
+        return reported, _recompose(ts, Minv, (Cqd, g), tau_ctrl, tau_constr)
 
     task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (5, model.n)))
     constraint = None
@@ -941,8 +958,9 @@ def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.n
     """The :class:`Split` of one solved state ``s`` (:func:`_solve`) at ``(q, qd, u)`` (:func:`split`)."""
     drift, ctrl, total, zvcf, drift_velocity = s.accelerations
     cond_M, inverse_norm, accel_scale = _mass_conditioning(model, s, qd)
-    free = dict(drift=drift, ctrl=ctrl, total=total, zvcf=zvcf, drift_velocity=drift_velocity, power_ctrl=float(u @ (model.input_map.T @ qd)),
-                power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M, task_drift=s.task.xdd_drift,
+    free = dict(drift=drift, ctrl=ctrl, total=total, zvcf=zvcf, drift_velocity=drift_velocity,
+                power_ctrl=float(u @ (model.input_map.T @ qd)), power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M,
+                task_drift=s.task.xdd_drift,
                 conditions={"task": s.task.cond,
                             "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
                 kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
