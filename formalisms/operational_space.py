@@ -269,11 +269,6 @@ class _Dual:
     def __rmul__(self, other):
         return _bilinear(np.multiply, other, self)
 
-    def __truediv__(self, other):
-        if isinstance(other, _Dual):
-            raise TypeError("a dual number is divided by constants only")
-        return _Dual(self.val / other, self.tan / other)
-
     def __matmul__(self, other):
         return _bilinear(np.matmul, self, other)
 
@@ -325,12 +320,16 @@ def _linear(f, x):
 
 def _stack(xs, axis: int, shape: tuple | None = None):
     """``np.stack`` over a negative ``axis`` of arrays and dual numbers, each broadcast to ``shape`` (default: their
-    common shape) first."""
+    common shape) first; arrays alone are written into one allocation (the stack's cost in the split)."""
     shape = np.broadcast_shapes(*(np.shape(_value(x)) for x in xs)) if shape is None else shape
-    vals = [np.broadcast_to(_value(x), shape) for x in xs]
     count = _count(xs)
     if count is None:
-        return np.stack(vals, axis=axis)
+        cut = len(shape) + axis + 1
+        out = np.empty(shape[:cut] + (len(xs),) + shape[cut:])
+        for k, x in enumerate(xs):
+            out[(Ellipsis, k) + (slice(None),) * (-axis - 1)] = x
+        return out
+    vals = [np.broadcast_to(_value(x), shape) for x in xs]
     return _Dual(np.stack(vals, axis=axis), np.stack([_tangents(x, shape, count) for x in xs], axis=axis))
 
 
