@@ -17,6 +17,8 @@ from mpmath import mpf
 import cases
 import formalisms
 from cases.configuration import quaternion_product, random_configuration, rotation
+from cases.constraints import PointsCoincide
+from cases.model import build_model
 from crosscheck import precise, reference, sampling, testing
 from formalisms import operational_space
 from formalisms.interface import StateError, tangent_kinematics
@@ -199,3 +201,22 @@ def test_constrained_drift_parts_match_the_reference_kkt_solutions(name):
     for other in many:
         np.testing.assert_array_equal(other.zvcf, s.zvcf)
         np.testing.assert_array_equal(other.drift_velocity, s.drift_velocity)
+
+
+def test_constrained_linearize_with_redundant_rows():
+    """The four-bar's loop closure declared again along z (a row that vanishes in the plane) and x (a duplicate):
+    rank 2 of 4 rows, ``S`` singular. The accelerations and their derivatives stay unique (the rank is constant
+    nearby) and agree with the precise KKT solution differentiated, whose multipliers follow the same minimum-norm
+    rule."""
+    base = cases.load("four_bar")
+    loop = base.constraints[0]
+    again = PointsCoincide(loop.name + "_again", loop.body_a, loop.offset_a, loop.body_b, loop.offset_b,
+                           np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
+    model = build_model("four_bar_redundant", base.bodies, gravity=base.gravity, input_map=base.input_map,
+                        task_points=base.task_points, constraints=[*base.constraints, again])
+    q, v, u = _state(model, 6)
+    assert operational_space.split(model, q, v, u).constraint_rank == 2
+    want = _precise_derivatives(model, q, v, u)
+    nv = model.nv
+    _assert_blocks_close(model, _blocks(model, operational_space.linearize(model, q, v, u)),
+                         (want[:, :nv], want[:, nv:2 * nv], want[:, 2 * nv:]))
