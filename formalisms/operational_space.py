@@ -79,7 +79,10 @@ The joint answer is RECOMPOSED from task space plus the dynamically consistent n
 (using ``xdd - Jdot qd = J M^-1 (tau - h)`` and ``N^T = 1 - J^T Lambda J M^-1``): drift at ``tau = 0``, total at
 ``tau = B u``, and ctrl, the control increment computed directly, ``J_bar xdd_ctrl + M^-1 N^T B u`` with
 ``xdd_ctrl = A F_ctrl = J M^-1 B u`` (no bias). For a square task Jacobian (the double pendulum's endpoint)
-``J_bar = J^-1`` and ``N = 0``: the joint acceleration comes entirely from task space.
+``J_bar = J^-1`` and ``N = 0``: the joint acceleration comes entirely from task space. The drift's parts (article
+4.5-4.6) are recomposed the same way, each directly: the zero-velocity counterfactual ``zvcf = J_bar xdd_zvcf - M^-1
+N^T g`` with ``xdd_zvcf = -A p`` (no ``Jdot qd`` at ``qd = 0``), and ``drift_velocity = J_bar (xdd_velocity - Jdot
+qd) - M^-1 N^T C qd`` with ``xdd_velocity = -A mu``: ``-M^-1 g`` and ``-M^-1 C qd``, which add up to the drift.
 
 Breakdown (6.3.4): the method inverts ``A``, so every result carries ``cond = cond_2(A)`` (``Split.conditions
 ["task"]``) and how much shorter than its lever the task Jacobian is (``"task_jacobian"``, numerics below); the
@@ -124,6 +127,17 @@ results are rotated back. What remains is inherent to the recomposition: ``Jdot 
 the lost direction while ``J qdd`` there is O(sigma_min(J)), so ``xdd - Jdot qd`` cancels and ``J_bar`` amplifies
 the rounding: a joint error of about ``eps |Jdot qd| sqrt(cond(A) / lambda_max(A))``, the error the breakdown
 limit is calibrated against (tests/test_operational_space.py).
+
+Linearization (article 4.8, eq. 11; :func:`linearize`) by forward-mode differentiation of the passes above: ``q`` and
+``qd`` enter as dual numbers (:class:`_Dual`: a value and its tangents along all ``2 nv`` state directions at once,
+the configuration directions ``d/ds integrate(q, s e_j)`` of the interface's right-perturbation convention), and the
+kinematics, the Kane projection and the constraint rows run on them unchanged: their primitives (``_cross``, ``_t``,
+the stacks, ``_where``, the rotation builders) accept dual numbers, sums add tangents and every product is bilinear
+(the product rule by broadcasting over the tangent axis). That gives ``dM``, ``d(C qd)``, ``dg``, ``dJc`` and
+``d(Jcdot qd)`` exactly (no differences). The solve is differentiated in joint-space form, which the recomposition
+equals: ``M dvdot + dM vdot + dh = Jc^T dlam + dJc^T lam`` and ``Jc dvdot + dJc vdot + d(Jcdot qd) = 0``, solved
+through the constraint space like the multipliers (``dlam = Lambda_c (r - Jc M^-1 f)``, minimum norm over redundant
+directions); ``dvdot/du = B_c B`` (eq. 17).
 """
 
 from __future__ import annotations
@@ -134,8 +148,8 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state, with_block_form)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, state_space, with_block_form)
 
 
 @dataclass(frozen=True)
@@ -178,7 +192,10 @@ class TaskSpace:
     J (k, n), Jdot_qd (k,) classical bias, A = J M^-1 J^T (k, k), Lambda = A^-1, mu, p (k,), J_bar (n, k),
     N (n, n), F_ctrl = J_bar^T B u (k,), F_constr and F_constr_drift = J_bar^T Jc^T lam (k,) with and without input
     (zero without constraints), xdd_drift = A (F_constr_drift - mu - p) (eq. 23), xdd_ctrl = A (F_ctrl + J_bar^T
-    Jc^T lam_ctrl), xdd_total = A (F_ctrl + F_constr - mu - p) (k,), cond = cond_2(A).
+    Jc^T lam_ctrl), xdd_total = A (F_ctrl + F_constr - mu - p) (k,), the drift's parts (article 4.5-4.6)
+    xdd_zvcf = A (F_constr_zvcf - p) (gravity's, at qd = 0) and xdd_velocity = A (F_constr_velocity - mu) (the
+    velocity products'), with ``F_constr_zvcf``, ``F_constr_velocity`` the images of their multipliers (not kept),
+    cond = cond_2(A).
     Everything but J, Jdot_qd and A is NaN where ``cond`` is inf (A numerically singular).
     """
 
@@ -196,23 +213,164 @@ class TaskSpace:
     xdd_drift: np.ndarray
     xdd_ctrl: np.ndarray
     xdd_total: np.ndarray
+    xdd_zvcf: np.ndarray
+    xdd_velocity: np.ndarray
     cond: float | np.ndarray
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` over the last axis of stacked 3-vectors, broadcasting (np.cross pays for axis handling)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    for axis, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        out[..., axis] = a[..., i] * b[..., j] - a[..., j] * b[..., i]
-    return out
+class _Dual:
+    """A dual number for the forward-mode derivatives of eq. (11) (:func:`linearize`): a value ``val`` (...) and its
+    tangents ``tan`` (D, ...) along D directions at once. Sums add the tangents; the backend's products (elementwise,
+    ``@``) are bilinear, ``f(a, b)`` with the tangent ``f(da, b) + f(a, db)`` (the product rule), which the stacked
+    tangents get by broadcasting over their leading axis. Indexing must start with ``...`` (the tangent axis leads)."""
+
+    __array_ufunc__ = None                                   # numpy defers ndarray (op) _Dual to the methods below
+    __slots__ = ("val", "tan")
+
+    def __init__(self, val, tan):
+        self.val, self.tan = np.asarray(val), np.asarray(tan)
+
+    @property
+    def shape(self) -> tuple:
+        return self.val.shape
+
+    def lifted(self, ndim: int) -> np.ndarray:
+        """The tangents with singleton axes after the leading one, so they broadcast like a value of ``ndim`` axes."""
+        extra = ndim - self.val.ndim
+        return self.tan.reshape(self.tan.shape[:1] + (1,) * extra + self.val.shape) if extra > 0 else self.tan
+
+    def __getitem__(self, key):
+        if not (key is Ellipsis or (isinstance(key, tuple) and key and key[0] is Ellipsis)):
+            raise IndexError(f"a dual number is indexed from the right (key starting with ...), got {key!r}")
+        return _Dual(self.val[key], self.tan[key])
+
+    def reshape(self, shape) -> "_Dual":
+        val = self.val.reshape(shape)
+        return _Dual(val, self.tan.reshape(self.tan.shape[:1] + val.shape))
+
+    def __neg__(self):
+        return _Dual(-self.val, -self.tan)
+
+    def __add__(self, other):
+        return _sum_of(self, other, 1.0)
+
+    def __radd__(self, other):
+        return _sum_of(other, self, 1.0)
+
+    def __sub__(self, other):
+        return _sum_of(self, other, -1.0)
+
+    def __rsub__(self, other):
+        return _sum_of(other, self, -1.0)
+
+    def __mul__(self, other):
+        return _bilinear(np.multiply, self, other)
+
+    def __rmul__(self, other):
+        return _bilinear(np.multiply, other, self)
+
+    def __matmul__(self, other):
+        return _bilinear(np.matmul, self, other)
+
+    def __rmatmul__(self, other):
+        return _bilinear(np.matmul, other, self)
 
 
-def _t(A: np.ndarray) -> np.ndarray:
+def _value(x):
+    """The value of a dual number, or ``x`` itself."""
+    return x.val if isinstance(x, _Dual) else x
+
+
+def _tangents(x, shape: tuple, count: int) -> np.ndarray:
+    """The tangents of ``x`` broadcast to a value of ``shape`` (``count`` directions; zero for a constant)."""
+    if not isinstance(x, _Dual):
+        return np.zeros((count,) + shape)
+    return x.tan if x.val.shape == shape else np.broadcast_to(x.lifted(len(shape)), (count,) + shape)
+
+
+def _count(xs) -> int | None:
+    """The number of tangent directions of the dual numbers among ``xs``, None when all are constants."""
+    return next((x.tan.shape[0] for x in xs if isinstance(x, _Dual)), None)
+
+
+def _sum_of(a, b, sign: float):
+    """``a + sign b`` (sign 1 or -1) with the tangents added."""
+    val = _value(a) + _value(b) if sign > 0 else _value(a) - _value(b)
+    count = _count((a, b))
+    ta, tb = _tangents(a, val.shape, count), _tangents(b, val.shape, count)
+    return _Dual(val, ta + tb if sign > 0 else ta - tb)
+
+
+def _bilinear(f, a, b):
+    """``f(a, b)`` of a bilinear ``f`` (elementwise product, matmul) with the tangent ``f(da, b) + f(a, db)``."""
+    av, bv = _value(a), _value(b)
+    val = f(av, bv)
+    tan = 0.0
+    if isinstance(a, _Dual):
+        tan = f(a.lifted(val.ndim), bv)
+    if isinstance(b, _Dual):
+        tan = tan + f(av, b.lifted(val.ndim))
+    return _Dual(val, tan)
+
+
+def _linear(f, x):
+    """``f(x)`` of an axis-wise linear map ``f`` (a transpose, a sum over negative axes), tangents mapped alike."""
+    return _Dual(f(x.val), f(x.tan)) if isinstance(x, _Dual) else f(x)
+
+
+def _stack(xs, axis: int, shape: tuple | None = None):
+    """``np.stack`` over a negative ``axis`` of arrays and dual numbers, each broadcast to ``shape`` (default: their
+    common shape) first; arrays alone are written into one allocation (the stack's cost in the split)."""
+    shape = np.broadcast_shapes(*(np.shape(_value(x)) for x in xs)) if shape is None else shape
+    count = _count(xs)
+    if count is None:
+        cut = len(shape) + axis + 1
+        out = np.empty(shape[:cut] + (len(xs),) + shape[cut:])
+        for k, x in enumerate(xs):
+            out[(Ellipsis, k) + (slice(None),) * (-axis - 1)] = x
+        return out
+    vals = [np.broadcast_to(_value(x), shape) for x in xs]
+    return _Dual(np.stack(vals, axis=axis), np.stack([_tangents(x, shape, count) for x in xs], axis=axis))
+
+
+def _concatenate(xs, axis: int):
+    """``np.concatenate`` over a negative ``axis`` of arrays and dual numbers."""
+    count = _count(xs)
+    if count is None:
+        return np.concatenate(xs, axis=axis)
+    return _Dual(np.concatenate([_value(x) for x in xs], axis=axis),
+                 np.concatenate([_tangents(x, np.shape(_value(x)), count) for x in xs], axis=axis))
+
+
+def _where(mask: np.ndarray, a, b):
+    """``np.where`` with a constant ``mask`` over arrays and dual numbers."""
+    val = np.where(mask, _value(a), _value(b))
+    count = _count((a, b))
+    if count is None:
+        return val
+    return _Dual(val, np.where(mask, _tangents(a, val.shape, count), _tangents(b, val.shape, count)))
+
+
+def _sin_cos(x) -> tuple:
+    """``(sin x, cos x)`` of an array or a dual number (``d sin = cos dx``, ``d cos = -sin dx``)."""
+    if not isinstance(x, _Dual):
+        return np.sin(x), np.cos(x)
+    s, c = np.sin(x.val), np.cos(x.val)
+    return _Dual(s, c * x.tan), _Dual(c, -s * x.tan)
+
+
+def _cross(a, b):
+    """``a x b`` over the last axis of stacked 3-vectors (or dual numbers), broadcasting (np.cross pays for axis
+    handling)."""
+    return _stack([a[..., i] * b[..., j] - a[..., j] * b[..., i] for i, j in ((1, 2), (2, 0), (0, 1))], -1)
+
+
+def _t(A):
     """The transposes of stacked matrices (..., r, c) -> (..., c, r)."""
-    return np.swapaxes(A, -1, -2)
+    return _linear(lambda x: np.swapaxes(x, -1, -2), A)
 
 
-def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+def _mv(A, x):
     """``A x`` for stacked matrices (..., r, c) and vectors (..., c), broadcasting."""
     return (A @ x[..., None])[..., 0]
 
@@ -242,15 +400,16 @@ def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     x, y, z = axes.T
     zero = np.zeros_like(x)
     K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + np.sin(angles)[..., None, None] * K + (1.0 - np.cos(angles))[..., None, None] * (K @ K)
+    sin, cos = _sin_cos(angles)
+    return np.eye(3) + sin[..., None, None] * K + (1.0 - cos)[..., None, None] * (K @ K)
 
 
 def _quaternion_rotations(quat: np.ndarray) -> np.ndarray:
     """``R(quat) = I + 2 w [v]x + 2 [v]x^2`` (stacked (..., 3, 3)) of unit quaternions ``(x, y, z, w) = (v, w)``
     (..., 4) (``cases.model``; article 2.1: a spherical joint's configuration on SO(3))."""
-    x, y, z, w = np.moveaxis(quat, -1, 0)
-    zero = np.zeros_like(x)
-    K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+    x, y, z, w = (quat[..., a] for a in range(4))
+    zero = np.zeros(np.shape(_value(x)))
+    K = _stack([_stack([zero, -z, y], -1), _stack([z, zero, -x], -1), _stack([-y, x, zero], -1)], -2)
     return np.eye(3) + 2.0 * w[..., None, None] * K + 2.0 * (K @ K)
 
 
@@ -283,7 +442,7 @@ def _moves(model: Model) -> np.ndarray:
 def _column_offsets(z: np.ndarray, o: np.ndarray, revolute: np.ndarray) -> np.ndarray:
     """The constant parts ``c_j`` (..., n, 3) of the linear Jacobian columns ``z_j x p + c_j``: ``o_j x z_j``
     (revolute: ``z_j x (p - o_j)``) or ``z_j`` (prismatic, whose columns have no ``z_j x p`` part)."""
-    return np.where(revolute[:, None], _cross(o, z), z)
+    return _where(revolute[:, None], _cross(o, z), z)
 
 
 def _linear_columns(z, o, revolute, moves_rows, points) -> np.ndarray:
@@ -293,16 +452,15 @@ def _linear_columns(z, o, revolute, moves_rows, points) -> np.ndarray:
     zr = (z * revolute[:, None])[..., None, :, :]
     c = _column_offsets(z, o, revolute)[..., None, :, :]
     p = points[..., :, None, :]
-    J = np.empty(np.broadcast_shapes(zr.shape[:-1], p.shape[:-1], moves_rows.shape)[:-1] + (3, zr.shape[-2]))
-    for axis, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
-        J[..., axis, :] = (zr[..., a] * p[..., b] - zr[..., b] * p[..., a] + c[..., axis]) * moves_rows
-    return J
+    return _stack([(zr[..., a] * p[..., b] - zr[..., b] * p[..., a] + c[..., axis]) * moves_rows
+                   for axis, (a, b) in enumerate(((1, 2), (2, 0), (0, 1)))], -2)
 
 
 def _angular_columns(kin: Kinematics, body: np.ndarray) -> np.ndarray:
     """Angular Jacobians (..., k, 3, n) of bodies ``body`` (k,): column ``z_j`` for the revolute joints moving
     them, zero elsewhere."""
-    axes = np.ascontiguousarray(_t(kin.z * kin.revolute[:, None]))
+    axes = _t(kin.z * kin.revolute[:, None])
+    axes = axes if isinstance(axes, _Dual) else np.ascontiguousarray(axes)
     return axes[..., None, :, :] * kin.moves[body][:, None, :]
 
 
@@ -321,32 +479,33 @@ def _kinematics(model: Model, q: np.ndarray, qd: np.ndarray) -> Kinematics:
     axes = np.array([b.axis for b in model.bodies])
     local = np.array([b.rotation for b in model.bodies])
     plain = not model.group_joints                    # one column per body: column rows are body rows
-    motion = _axis_rotations(axes, np.where(turns, q if plain else q[..., list(model.q_index)], 0.0))
-    R, o, z = np.empty(batch + (count, 3, 3)), np.empty(batch + (count, 3)), np.empty(batch + (n, 3))
+    motion = _axis_rotations(axes, _where(turns, q if plain else q[..., list(model.q_index)], 0.0))
+    R, o, z = [None] * count, [None] * count, [None] * n           # per body and column, stacked below
     for i in model.topological_order:
         b, p, k, j = model.bodies[i], model.parent_index[i], model.v_index[i], model.q_index[i]
         if p < 0:
             joint_frame, o_joint = local[i], b.translation
         else:
-            joint_frame, o_joint = R[..., p, :, :] @ local[i], o[..., p, :] + R[..., p, :, :] @ b.translation
+            joint_frame, o_joint = R[p] @ local[i], o[p] + R[p] @ b.translation
         if b.joint == "spherical" or b.joint == "free":       # module docstring, group joints
             free = b.joint == "free"
-            R[..., i, :, :] = joint_frame @ _quaternion_rotations(q[..., j + 3 * free:j + 3 * free + 4])
-            o[..., i, :] = (o_joint + _mv(joint_frame, q[..., j:j + 3])) if free else o_joint
-            z[..., k:k + 3 + 3 * free, :] = np.concatenate([_t(R[..., i, :, :])] * (1 + free), axis=-2)
+            R[i] = joint_frame @ _quaternion_rotations(q[..., j + 3 * free:j + 3 * free + 4])
+            o[i] = (o_joint + _mv(joint_frame, q[..., j:j + 3])) if free else o_joint
+            z[k:k + 3 + 3 * free] = [R[i][..., :, a % 3] for a in range(3 + 3 * free)]
             continue
-        z[..., k, :] = joint_frame @ axes[i]
-        R[..., i, :, :] = joint_frame @ motion[..., i, :, :]
-        o[..., i, :] = o_joint if turns[i] else o_joint + q[..., j, None] * z[..., k, :]
+        z[k] = joint_frame @ axes[i]
+        R[i] = joint_frame @ motion[..., i, :, :]
+        o[i] = o_joint if turns[i] else o_joint + q[..., j, None] * z[k]
+    R, o, z = _stack(R, -3, batch + (3, 3)), _stack(o, -2, batch + (3,)), _stack(z, -2, batch + (3,))
     moves = _moves(model)
     of_columns = (lambda rows: rows) if plain else (lambda rows: rows[..., owner, :])   # body rows -> column rows
     origin = of_columns(o)
-    rates, revolute_rates = moves * qd[..., None, :], moves * np.where(revolute, qd, 0.0)[..., None, :]
+    rates, revolute_rates = moves * qd[..., None, :], moves * _where(revolute, qd, 0.0)[..., None, :]
     w = revolute_rates @ z
     c_qd = rates @ _column_offsets(z, origin, revolute)
     odot = _cross(w, o) + c_qd
     zdot = _cross(of_columns(w), z)
-    cdot = np.where(revolute[:, None], _cross(of_columns(odot), z) + _cross(origin, zdot), zdot)
+    cdot = _where(revolute[:, None], _cross(of_columns(odot), z) + _cross(origin, zdot), zdot)
     return Kinematics(R, o, z, revolute, moves, qd, w, odot, zdot, revolute_rates @ zdot, c_qd, rates @ cdot,
                       owner, origin)
 
@@ -475,8 +634,9 @@ def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
                           tau_constr) -> tuple[TaskSpace, np.ndarray, np.ndarray]:
     """Eq. (22) and ``xdd = A (F - mu - p)`` (eq. 23 at ``F = 0``), evaluated in the principal axes of ``A``
     (``x' = V^T x`` with ``A = V diag(eig) V^T``, where ``Lambda = diag(1 / eig)``; module docstring, numerics).
-    ``tau_constr`` (..., 3, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone
-    and at the total (zero without constraints); their images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
+    ``tau_constr`` (..., 5, n) holds the generalized constraint forces ``Jc^T lam`` at the drift, of the input alone,
+    at the total, of the zero-velocity counterfactual and of the velocity products (zero without constraints); their
+    images ``J_bar^T Jc^T lam`` are the ``F_constr`` of eq. (22).
     Returns the :class:`TaskSpace` in those axes, ``A`` as assembled and ``V``. All NaN, ``cond`` inf, where ``A`` is
     numerically singular."""
     n = Minv.shape[-1]
@@ -491,11 +651,12 @@ def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
     p = _mv(_t(Minv_JT), g) / eig                            # Lambda J M^-1 g
     J_bar = Minv_JT / eig[..., None, :]                      # M^-1 J^T Lambda
     F_ctrl = _mv(_t(J_bar), tau_ctrl)
-    F_constr_drift, F_constr_ctrl, F_constr = np.moveaxis(tau_constr @ J_bar, -2, 0)
+    F_constr_drift, F_constr_ctrl, F_constr, F_constr_zvcf, F_constr_velocity = np.moveaxis(tau_constr @ J_bar, -2, 0)
     principal = TaskSpace(J=Jp, Jdot_qd=bias, A=_diag(eig), Lambda=_diag(1.0 / eig), mu=mu, p=p, J_bar=J_bar,
                           N=np.eye(n) - J_bar @ Jp, F_ctrl=F_ctrl, F_constr=F_constr, F_constr_drift=F_constr_drift,
                           xdd_drift=eig * (F_constr_drift - mu - p), xdd_ctrl=eig * (F_ctrl + F_constr_ctrl),
-                          xdd_total=eig * (F_ctrl + F_constr - mu - p), cond=cond)
+                          xdd_total=eig * (F_ctrl + F_constr - mu - p), xdd_zvcf=eig * (F_constr_zvcf - p),
+                          xdd_velocity=eig * (F_constr_velocity - mu), cond=cond)
     return principal, A, V
 
 
@@ -509,21 +670,27 @@ def _task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr) -> tuple[
                          F_ctrl=_mv(V, principal.F_ctrl), F_constr=_mv(V, principal.F_constr),
                          F_constr_drift=_mv(V, principal.F_constr_drift), xdd_drift=_mv(V, principal.xdd_drift),
                          xdd_ctrl=_mv(V, principal.xdd_ctrl), xdd_total=_mv(V, principal.xdd_total),
+                         xdd_zvcf=_mv(V, principal.xdd_zvcf), xdd_velocity=_mv(V, principal.xdd_velocity),
                          cond=principal.cond)
     return principal, reported
 
 
-def _recompose(ts: TaskSpace, Minv: np.ndarray, h: np.ndarray, tau_ctrl: np.ndarray,
-               tau_constr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _recompose(ts: TaskSpace, Minv: np.ndarray, h: tuple[np.ndarray, np.ndarray], tau_ctrl: np.ndarray,
+               tau_constr: np.ndarray) -> tuple[np.ndarray, ...]:
     """The joint accelerations from the principal-axes task space plus the dynamically consistent null space
-    (module docstring): ``drift = J_bar (xdd_drift - Jdot qd) + M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl
-    + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total = J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam
-    - h)``, with the constraint forces ``tau_constr`` of :func:`_task_space`."""
-    f_drift, f_ctrl, f_total = np.moveaxis(tau_constr, -2, 0)
-    task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd], axis=-1)
-    forces = np.stack([f_drift - h, tau_ctrl + f_ctrl, tau_ctrl + f_total - h], axis=-1)
-    drift, ctrl, total = np.moveaxis(ts.J_bar @ task + Minv @ (_t(ts.N) @ forces), -1, 0)   # (..., n, 3) columns
-    return drift, ctrl, total
+    (module docstring), ``h = C qd + g`` given by its terms ``(C qd, g)``: ``drift = J_bar (xdd_drift - Jdot qd) +
+    M^-1 N^T (Jc^T lam_0 - h)``, ``ctrl = J_bar xdd_ctrl + M^-1 N^T (B u + Jc^T lam_ctrl)`` (directly), ``total =
+    J_bar (xdd_total - Jdot qd) + M^-1 N^T (B u + Jc^T lam - h)``, and the drift's parts, each directly: ``zvcf =
+    J_bar xdd_zvcf + M^-1 N^T (Jc^T lam_zvcf - g)`` (at qd = 0 there is no ``Jdot qd``), ``drift_velocity = J_bar
+    (xdd_velocity - Jdot qd) + M^-1 N^T (Jc^T lam_velocity - C qd)``; the constraint forces ``tau_constr`` of
+    :func:`_task_space`."""
+    f_drift, f_ctrl, f_total, f_zvcf, f_velocity = np.moveaxis(tau_constr, -2, 0)
+    Cqd, g = h
+    h = Cqd + g
+    task = np.stack([ts.xdd_drift - ts.Jdot_qd, ts.xdd_ctrl, ts.xdd_total - ts.Jdot_qd, ts.xdd_zvcf,
+                     ts.xdd_velocity - ts.Jdot_qd], axis=-1)
+    forces = np.stack([f_drift - h, tau_ctrl + f_ctrl, tau_ctrl + f_total - h, f_zvcf - g, f_velocity - Cqd], axis=-1)
+    return tuple(np.moveaxis(ts.J_bar @ task + Minv @ (_t(ts.N) @ forces), -1, 0))   # (..., n, 5) columns
 
 
 def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -532,7 +699,7 @@ def _circle(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray
     p, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
     d, PJ = _vm(p - c.center, c.plane.T), c.plane @ Jv
     v = _mv(PJ, kin.qd)
-    dot = (lambda a, b: np.sum(a * b, axis=-1, keepdims=True))  # noqa: E731
+    dot = (lambda a, b: _linear(lambda x: np.sum(x, axis=-1, keepdims=True), a * b))  # noqa: E731
     return dot(d, d) - c.radius**2, 2.0 * d[..., None, :] @ PJ, 2.0 * dot(v, v) + 2.0 * dot(d, _vm(bias, c.plane.T))
 
 
@@ -576,7 +743,7 @@ def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.n
                             f"{type(c).__name__} ({c.name!r}); known: {[t.__name__ for t in _DECLARATIONS]}")
         rows.append(_DECLARATIONS[type(c)](model, kin, q, c))
     phi, Jc, bias = zip(*rows)
-    return np.concatenate(phi, axis=-1), np.concatenate(Jc, axis=-2), np.concatenate(bias, axis=-1)
+    return _concatenate(phi, -1), _concatenate(Jc, -2), _concatenate(bias, -1)
 
 
 def _degenerate_floor(model: Model) -> float:
@@ -611,7 +778,8 @@ class ConstraintSpace:
     phi (..., k), Jc (..., k, n), bias = Jcdot qd (..., k), Lambda = S^+ (..., k, k) the constraint-space inertia,
     with S's eigenvalues (..., k; ascending) and eigen-directions (..., k, k; columns);
     the multipliers lam_drift (eq. 14, u = 0), lam_ctrl (the input's share ``lam - lam_0`` of eq. 15, solved
-    directly) and lam (eq. 12), each (..., k).
+    directly) and lam (eq. 12), and the drift's parts (4.5-4.6), lam_zvcf (force ``-g``, bias 0) and lam_velocity
+    (force ``-C qd``, bias ``Jcdot qd``), each (..., k).
     """
 
     phi: np.ndarray
@@ -623,23 +791,27 @@ class ConstraintSpace:
     lam_drift: np.ndarray
     lam_ctrl: np.ndarray
     lam: np.ndarray
+    lam_zvcf: np.ndarray
+    lam_velocity: np.ndarray
 
     @property
     def forces(self) -> np.ndarray:
-        """The generalized constraint forces ``Jc^T lam`` (..., 3, n): at the drift, of the input alone, at the
-        total."""
-        return np.stack([self.lam_drift, self.lam_ctrl, self.lam], axis=-2) @ self.Jc
+        """The generalized constraint forces ``Jc^T lam`` (..., 5, n): at the drift, of the input alone, at the
+        total, of the zero-velocity counterfactual and of the velocity products."""
+        return np.stack([self.lam_drift, self.lam_ctrl, self.lam, self.lam_zvcf, self.lam_velocity], axis=-2) @ self.Jc
 
 
 def _constraint_space(model: Model, kin: Kinematics, q: np.ndarray, Minv: np.ndarray, free) -> ConstraintSpace:
     """Eq. (13) solved for the multipliers in constraint space, ``lam = Lambda_c (-Jcdot qd - Jc a)``, from the free
-    accelerations ``free = (a_drift, a_ctrl, a_total)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u - h)``)."""
+    accelerations ``free = (a_drift, a_ctrl, a_total, a_zvcf, a_velocity)`` (``M^-1 (-h)``, ``M^-1 B u``, ``M^-1 (B u
+    - h)``, ``M^-1 (-g)``, ``M^-1 (-C qd)``); the zero-velocity counterfactual has no bias (``qd = 0``)."""
     phi, Jc, bias = _constraint_rows(model, kin, q)
     Lambda, w, U = _constraint_inertia(model, Jc, Minv)
-    a_drift, a_ctrl, a_total = free
+    a_drift, a_ctrl, a_total, a_zvcf, a_velocity = free
     return ConstraintSpace(phi=phi, Jc=Jc, bias=bias, Lambda=Lambda, eigenvalues=w, directions=U,
                            lam_drift=_mv(Lambda, -bias - _mv(Jc, a_drift)), lam_ctrl=-_mv(Lambda, _mv(Jc, a_ctrl)),
-                           lam=_mv(Lambda, -bias - _mv(Jc, a_total)))
+                           lam=_mv(Lambda, -bias - _mv(Jc, a_total)), lam_zvcf=-_mv(Lambda, _mv(Jc, a_zvcf)),
+                           lam_velocity=_mv(Lambda, -bias - _mv(Jc, a_velocity)))
 
 
 def _cholesky(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -668,7 +840,8 @@ def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarr
 @dataclass(frozen=True)
 class _Solution:
     """One state or a batch solved: the joint-space terms and the inverse mass matrix, the reported task space (None
-    when not asked for), (drift, ctrl, total), the constraint space (None without constraints)."""
+    when not asked for), the accelerations (drift, ctrl, total, zvcf, drift_velocity) of :func:`_recompose`, the
+    constraint space (None without constraints)."""
 
     M: np.ndarray
     Minv: np.ndarray
@@ -676,7 +849,7 @@ class _Solution:
     g: np.ndarray
     tau_ctrl: np.ndarray
     task: TaskSpace | None
-    accelerations: tuple[np.ndarray, np.ndarray, np.ndarray]
+    accelerations: tuple[np.ndarray, ...]
     constraint: ConstraintSpace | None
 
 
@@ -693,9 +866,9 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     def through_task_space(tau_constr):
         args = (model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl, tau_constr)
         ts, reported = _task_space(*args) if report else (_principal_task_space(*args)[0], None)
-        return reported, _recompose(ts, Minv, Cqd + g, tau_ctrl, tau_constr)
+        return reported, _recompose(ts, Minv, (Cqd, g), tau_ctrl, tau_constr)
 
-    task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (3, model.n)))
+    task, accelerations = through_task_space(np.zeros(q.shape[:-1] + (5, model.n)))
     constraint = None
     if model.constraints:
         constraint = _constraint_space(model, kin, q, Minv, accelerations)
@@ -782,10 +955,11 @@ def constrained_split(model: Model, *, constraint: ConstraintSpace, Minv: np.nda
 
 def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> Split:
     """The :class:`Split` of one solved state ``s`` (:func:`_solve`) at ``(q, qd, u)`` (:func:`split`)."""
-    drift, ctrl, total = s.accelerations
+    drift, ctrl, total, zvcf, drift_velocity = s.accelerations
     cond_M, inverse_norm, accel_scale = _mass_conditioning(model, s, qd)
-    free = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(u @ (model.input_map.T @ qd)),
-                power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M, task_drift=s.task.xdd_drift,
+    free = dict(drift=drift, ctrl=ctrl, total=total, zvcf=zvcf, drift_velocity=drift_velocity,
+                power_ctrl=float(u @ (model.input_map.T @ qd)), power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M,
+                task_drift=s.task.xdd_drift,
                 conditions={"task": s.task.cond,
                             "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
                 kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
@@ -847,7 +1021,9 @@ def split(model: Model, q, qd, u) -> Split:
     ``extras = {"task": TaskSpace}`` in the task coordinates, and with constraints ``"constraint_inertia"``
     (``Lambda_c``). NaN accelerations where A is numerically singular. The control power in input space,
     ``u . (B^T qd)`` (per coordinate ``(B u)_i qd_i``); cond(M) and the scales from :func:`_mass_conditioning`.
-    Its block form is :func:`split_many`.
+    The drift's parts (4.5-4.6), each recomposed directly (:func:`_recompose`): ``zvcf`` (``-M^-1 g``; with
+    constraints the KKT solve with ``-g`` and no bias) and ``drift_velocity`` (``-M^-1 C qd``; with ``-C qd`` and
+    the bias ``Jcdot qd``). Its block form is :func:`split_many`.
     """
     q, qd, u = check_state(model, q, qd, u)
     return _split_of(model, _solve(model, q, qd, u, None), q, qd, u)
@@ -868,6 +1044,70 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     return SplitBatch(drift, ctrl, total, lam, lam_drift)
 
 
+def _configuration_tangents(model: Model, q: np.ndarray) -> np.ndarray:
+    """``d/ds integrate(q, s e_j)`` at ``s = 0`` (nv, nq), the ambient image of each tangent direction (interface,
+    :class:`Linearization`): 1 at a revolute or prismatic coordinate; on a quaternion block ``0.5 quat (x) (e, 0)``
+    (Hamilton product, x y z w: ``(w e + v x e, -v . e) / 2`` with ``quat = (v, w)``); a free joint's linear
+    direction moves its position by ``R(quat) e``."""
+    T = np.zeros((model.nv, model.nq))
+    for i, body in enumerate(model.bodies):
+        k, j = model.v_index[i], model.q_index[i]
+        if body.joint not in ("spherical", "free"):
+            T[k, j] = 1.0
+            continue
+        free = body.joint == "free"
+        quat = q[j + 3 * free:j + 3 * free + 4]
+        v, w = quat[:3], quat[3]
+        for a, e in enumerate(np.eye(3)):
+            T[k + 3 * free + a, j + 3 * free:j + 3 * free + 4] = 0.5 * np.append(w * e + np.cross(v, e), -v @ e)
+        if free:
+            T[k:k + 3, j:j + 3] = _quaternion_rotations(quat).T
+    return T
+
+
+def _kkt_derivative(Minv: np.ndarray, Jc: np.ndarray | None, Lambda: np.ndarray | None, force: np.ndarray,
+                    rows: np.ndarray | None) -> np.ndarray:
+    """The solution ``dvdot`` (nv, c) of ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [force; rows]`` for c right-hand
+    sides (columns): ``dlam = Lambda_c (rows - Jc M^-1 force)`` in constraint space (the backend's ``Lambda_c = S^+``,
+    minimum norm over redundant directions), ``dvdot = M^-1 (force + Jc^T dlam)``; unconstrained ``M^-1 force``."""
+    free = Minv @ force
+    if Jc is None:
+        return free
+    return free + Minv @ (Jc.T @ (Lambda @ (rows - Jc @ free)))
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`) by forward-mode differentiation of this
+    backend's own passes: ``q`` and ``qd`` become dual numbers (:class:`_Dual`) with the 2 nv tangent directions
+    ``(d/ds integrate(q, s e_j), 0)`` (:func:`_configuration_tangents`) and ``(0, e_j)``, carried through the
+    kinematics, the Kane projection (``dM``, ``d(C qd)``, ``dg``) and the constraint rows (``dJc``,
+    ``d(Jcdot qd)``). Then the solve, in joint-space form (the task-space recomposition returns the same ``vdot``,
+    module docstring): ``a = M^-1 (B u - h)``, ``lam = Lambda_c (-Jcdot qd - Jc a)``, ``vdot = a + M^-1 Jc^T lam``,
+    and the differentiated KKT system per direction, ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [-dh - dM vdot + dJc^T
+    lam; -dJc vdot - d(Jcdot qd)]``; ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained)."""
+    q, qd, u = check_state(model, q, qd, u)
+    nv = model.nv
+    q_dual = _Dual(q, np.vstack([_configuration_tangents(model, q), np.zeros((nv, model.nq))]))
+    kin = _kinematics(model, q_dual, _Dual(qd, np.vstack([np.zeros((nv, nv)), np.eye(nv)])))
+    M, Cqd, g = _terms(model, kin)
+    h = Cqd + g
+    Minv = _inverse_mass_matrix(model, M.val, q)
+    Jc = Lambda = rows = None
+    vdot = Minv @ (model.input_map @ u - h.val)
+    force = -h.tan.T
+    if model.constraints:
+        _, Jc, bias = _constraint_rows(model, kin, q_dual)       # constant rows (a joint coupling): no tangents
+        (Jc, dJc), (bias, dbias) = ((_value(x), _tangents(x, np.shape(_value(x)), 2 * nv)) for x in (Jc, bias))
+        Lambda = _constraint_inertia(model, Jc, Minv)[0]
+        lam = Lambda @ (-bias - Jc @ vdot)
+        vdot = vdot + Minv @ (Jc.T @ lam)
+        force = force + (lam @ dJc).T
+        rows = -(dJc @ vdot).T - dbias.T
+    dvdot = _kkt_derivative(Minv, Jc, Lambda, force - (M.tan @ vdot).T, rows)
+    dvdot_du = _kkt_derivative(Minv, Jc, Lambda, model.input_map, None if Jc is None else np.zeros((len(Jc), model.m)))
+    return state_space(model, qd, dvdot[:, :nv], dvdot[:, nv:], dvdot_du, vdot)
+
+
 FORMALISM = Formalism(
     name="operational_space",
     summary="Operational space (article 6.3, eqs. 22-23): Kane-projected M, C qd, g; task-space Lambda, mu, p; "
@@ -875,4 +1115,5 @@ FORMALISM = Formalism(
             "constraint space (Lambda_c = S^+, eqs. 12-17) whose forces enter eq. 22 as F_constr",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
