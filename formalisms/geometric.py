@@ -169,6 +169,26 @@ as for the right chart (the metric ``M_xi`` at 0 is ``T^T M T``, its derivatives
 control covector is ``T^T B u``, passed in as ``tau_p``) then give ``wdot`` from eqs. (24)-(25) directly. A
 representation chart of a model without group joints is ModelNotSupported.
 
+The drift's parts (article 4.5-4.6): ``zvcf = -grad V = -M^-1 dV/dp`` (the drift at rest) and ``drift_velocity =
+-Gamma(pd, pd)``, each raised by the metric on its own; with constraints each is its own null-space solve, zvcf with the
+forces ``-dV/dp`` and no bias, drift_velocity with ``-M Gamma(pd, pd)`` and the bias ``Jcdot pd``, so they add up to the
+drift to rounding (the system is linear in forces and bias). In every Split, joint chart and chart alike.
+
+Linearization (article 4.8, eq. 11; :func:`linearize`, :func:`linearize_chart`). The accelerations ``a`` (and
+multipliers) solve ``r(p, pd, a, lam) = (tau, 0)``, eqs. (12)-(13) written with this backend's own expressions,
+``r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam; Jc a + Jcdot pd] = [r_dyn; r_con]`` (M, the first-kind contraction
+from the dM of the Function, dV, Jc and Jcdot pd read out of the Function's own SX expression). casadi differentiates r
+in the point and in pd (a second Function, built on the first linearize of a (model, chart) and cached with the
+first; never by split), it is evaluated at the split's own ``(total, lam)``, and the implicit function theorem gives
+the derivatives: per direction ``M dvdot - Jc^T dlam = dtau - dr_dyn``, ``Jc dvdot = -dr_con``, solved as the split
+is (the metric's Cholesky factor; with constraints the same null-space solve with the same independent rows, which
+is eq. (17)'s ``B_c`` for the inputs). This is the KKT system differentiated, exact to rounding: no finite
+differences, and no symbolic solve (casadi SX has no Cholesky with the backend's rank rule, and its symbolic QR solve
+of an n x n system would be differentiated through n^3 operations). With spherical or free joints the point is the
+configuration q itself (the group chart's values at its origin are functions of q): ``dvdot/dq`` along ``q (+) dq``
+is the ambient derivative times the derivative of ``integrate`` (:func:`_tangent_map`), and the top rows are the
+interface's ``[-ad_v, I]``; in a chart they are ``[0, I]``.
+
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
 digest and the chart key: 0.1 s for the 9-joint panda, 65k SX instructions; built without casadi's common
@@ -202,7 +222,8 @@ be written only costs the compilation next time. Without a compiler, with ``CROS
 compiling fails (a RuntimeWarning with the compiler's message), the Function stays interpreted; :func:`evaluation`
 says which applies. The few states of a gate never pay a compilation.
 
-Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
+Public API: :func:`split`, :func:`split_chart`, :func:`split_batch`, :func:`linearize`, :func:`linearize_chart` (the
+:class:`Formalism` contract); the geometric
 objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
 :func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``; with spherical or free joints in
 the group chart at ``xi = 0`` when ``chart`` is None, or in a chart whose psi returns the whole q); the same machinery
