@@ -193,6 +193,39 @@ def _equilibrium(model) -> np.ndarray:
     return q
 
 
+@pytest.mark.parametrize("name, chart_name", [("spatial_arm", "nonlinear"), ("ball_double_pendulum", "zyx")])
+def test_chart_linearization_away_from_equilibrium_matches_the_mapped_reference(name, chart_name):
+    """Anywhere: the chart's accelerations are ``pdd = Dpsi^-1 (vdot(psi(p), Dpsi pd, u) - (d/dt Dpsi) pd)`` with
+    ``B u = Dpsi^-T tau_p`` (the harness's chart maps, the reference's vdot); its derivatives in (p, pd, tau_p) by
+    central differences (h = 1e-6) against linearize_chart, to 1e-7 relative per block."""
+    model = cases.load(name)
+    chart = charts.get(chart_name, model)
+    rng = np.random.default_rng(4)
+    p = chart.p_of(random_configuration(model, rng, 1.0, 0.3))
+    pd, tau_p = rng.normal(size=model.nv), rng.normal(size=model.nv)
+
+    def pdd(p, pd, tau_p):
+        D = chart.jacobian(p)
+        u = np.linalg.solve(model.input_map, np.linalg.solve(D.T, tau_p))
+        vdot = reference.split(model, chart.q_of(p), D @ pd, u).total
+        return np.linalg.solve(D, vdot - chart.jacobian_rate(p, pd))
+
+    h, x = 1e-6, [p, pd, tau_p]
+    columns = []
+    for slot in range(3):
+        for e in np.eye(model.nv):
+            ahead, behind = list(x), list(x)
+            ahead[slot], behind[slot] = x[slot] + h * e, x[slot] - h * e
+            columns.append((pdd(*ahead) - pdd(*behind)) / (2 * h))
+    fd = np.column_stack(columns)
+    nv = model.nv
+    want = Linearization(A=np.block([[np.zeros((nv, nv)), np.eye(nv)], [fd[:, :2 * nv]]]),
+                         B=np.vstack([np.zeros((nv, nv)), fd[:, 2 * nv:]]), vdot=pdd(p, pd, tau_p))
+    lin = geo.linearize_chart(model, chart, p, pd, tau_p)
+    _assert_agree(model, lin, want, 1e-7, _difference_floor(model, chart.q_of(p), chart.jacobian(p) @ pd,
+                                                            np.zeros(model.m)))
+
+
 @pytest.mark.parametrize("name", UNCONSTRAINED[:4] + CONSTRAINED)
 def test_the_drift_parts_add_up_and_match_the_reference(name):
     """``zvcf + drift_velocity = drift`` to rounding (1e-13 of the drift's scale); zvcf is the reference's drift at
