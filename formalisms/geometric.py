@@ -169,6 +169,26 @@ as for the right chart (the metric ``M_xi`` at 0 is ``T^T M T``, its derivatives
 control covector is ``T^T B u``, passed in as ``tau_p``) then give ``wdot`` from eqs. (24)-(25) directly. A
 representation chart of a model without group joints is ModelNotSupported.
 
+The drift's parts (article 4.5-4.6): ``zvcf = -grad V = -M^-1 dV/dp`` (the drift at rest) and ``drift_velocity =
+-Gamma(pd, pd)``, each raised by the metric on its own; with constraints each is its own null-space solve, zvcf with the
+forces ``-dV/dp`` and no bias, drift_velocity with ``-M Gamma(pd, pd)`` and the bias ``Jcdot pd``, so they add up to the
+drift to rounding (the system is linear in forces and bias). In every Split, joint chart and chart alike.
+
+Linearization (article 4.8, eq. 11; :func:`linearize`, :func:`linearize_chart`). The accelerations ``a`` (and
+multipliers) solve ``r(p, pd, a, lam) = (tau, 0)``, eqs. (12)-(13) written with this backend's own expressions,
+``r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam; Jc a + Jcdot pd] = [r_dyn; r_con]`` (M, the first-kind contraction
+from the dM of the Function, dV, Jc and Jcdot pd read out of the Function's own SX expression). casadi differentiates r
+in the point and in pd (a second Function, built on the first linearize of a (model, chart) and cached with the
+first; never by split), it is evaluated at the split's own ``(total, lam)``, and the implicit function theorem gives
+the derivatives: per direction ``M dvdot - Jc^T dlam = dtau - dr_dyn``, ``Jc dvdot = -dr_con``, solved as the split
+is (the metric's Cholesky factor; with constraints the same null-space solve with the same independent rows, which
+is eq. (17)'s ``B_c`` for the inputs). This is the KKT system differentiated, exact to rounding: no finite
+differences, and no symbolic solve (casadi SX has no Cholesky with the backend's rank rule, and its symbolic QR solve
+of an n x n system would be differentiated through n^3 operations). With spherical or free joints the point is the
+configuration q itself (the group chart's values at its origin are functions of q): ``dvdot/dq`` along ``q (+) dq``
+is the ambient derivative times the derivative of ``integrate`` (:func:`_tangent_map`), and the top rows are the
+interface's ``[-ad_v, I]``; in a chart they are ``[0, I]``.
+
 Performance: per (model, chart) one casadi SX Function evaluates M, every dM/dp_k, dV/dp, T, J, Jdot pd and (with
 constraints) phi, Jc, Jcdot pd in a single call through casadi's buffer interface (built once and cached by the model
 digest and the chart key: 0.1 s for the 9-joint panda, 65k SX instructions; built without casadi's common
@@ -202,7 +222,8 @@ be written only costs the compilation next time. Without a compiler, with ``CROS
 compiling fails (a RuntimeWarning with the compiler's message), the Function stays interpreted; :func:`evaluation`
 says which applies. The few states of a gate never pay a compilation.
 
-Public API: :func:`split`, :func:`split_chart`, :func:`split_batch` (the :class:`Formalism` contract); the geometric
+Public API: :func:`split`, :func:`split_chart`, :func:`split_batch`, :func:`linearize`, :func:`linearize_chart` (the
+:class:`Formalism` contract); the geometric
 objects of a mechanism :func:`metric`, :func:`metric_derivatives`, :func:`christoffel`, :func:`energy`,
 :func:`drift_field`, :func:`energy_rate` (all in the joint chart or any ``chart``; with spherical or free joints in
 the group chart at ``xi = 0`` when ``chart`` is None, or in a chart whose psi returns the whole q); the same machinery
@@ -233,9 +254,9 @@ import scipy.linalg
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, ModelNotSupported, Split, SplitBatch,
-                                  StateError, cache_dir, check_batch, chart_vectors, check_state, joint_vectors,
-                                  write_cache_file)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported,
+                                  Split, SplitBatch, StateError, cache_dir, check_batch, chart_vectors, check_state,
+                                  joint_vectors, state_space, write_cache_file)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -914,12 +935,48 @@ class _Compiled:
         self.phi_slice = slice(at, at + kc)
         self.Jc_index = at + kc + np.arange(kc * n).reshape(n, kc).T
         self.Jc_bias_slice = slice(at + kc + kc * n, at + 2 * kc + kc * n)
-        self.evaluate = _Evaluator("geometric", self.point, pd, self._at_origin(out))
+        self.kc, self.out = kc, self._at_origin(out)   # the Function's expression, of (point, pd)
+        self.evaluate = _Evaluator("geometric", self.point, pd, self.out)
         self._energy: _Evaluator | None = None
+        self._linearization: _Evaluator | None = None
 
     def _at_origin(self, expression: ca.SX) -> ca.SX:
         """``expression`` (of p, pd) at the chart's origin: p replaced by ``origin(point)`` for a group model."""
         return expression if self.origin is None else ca.substitute(expression, self.p, self.origin)
+
+    def _terms(self) -> tuple:
+        """``(M, Cqd, dV, Jc, Jcdot pd)`` as SX expressions of ``(point, pd)``, read out of the Function's own
+        expression :attr:`out` with its index arrays; ``Cqd = M Gamma(pd, pd)`` the first-kind symbols contracted with
+        the rates as in :func:`_first_kind_contracted`, ``(Mdot pd)_l - 1/2 pd^T (d_l M) pd``."""
+        n, kc, flat = self.n, self.kc, self.out
+        rows, cols = self.upper_pairs
+        M = ca.reshape(flat[[int(i) for i in self.M_index.ravel(order="F")]], n, n)
+        dM_upper = ca.reshape(flat[self.dM_upper_slice], rows.size, n)           # [upper entry, k]
+        Mdot_upper = ca.mtimes(dM_upper, self.pd)                                 # d_k M_upper pd^k
+        Mdot = ca.reshape(Mdot_upper[[int(i) for i in self.M_index.ravel(order="F")]], n, n)
+        pairs = ca.vertcat(*[self.pd[int(r)] * self.pd[int(c)] * (1.0 if r == c else 2.0) for r, c in zip(rows, cols)])
+        Cqd = ca.mtimes(Mdot, self.pd) - 0.5 * ca.mtimes(dM_upper.T, pairs)
+        at = self.phi_slice.stop
+        Jc = ca.reshape(flat[at:at + kc * n], kc, n)
+        return M, Cqd, flat[self.dV_slice], Jc, flat[self.Jc_bias_slice]
+
+    @property
+    def linearization(self) -> _Evaluator:
+        """``(point, [pd, a, lam]) -> [vec dr/dpoint, vec dr/dpd]``: the partial derivatives (casadi AD, built on first
+        use) of the residual of eqs. (12)-(13) at the acceleration ``a`` and multipliers ``lam``,
+
+            r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam;  Jc a + Jcdot pd]        ((n + kc) rows),
+
+        whose zero is the split's total (and lam): the implicit function theorem turns them into A and B
+        (:func:`_derivatives`). ``dr/dpoint`` has one column per coordinate of the Function's point (q, nq, for a model
+        with spherical or free joints: the derivative of the group chart's origin values, not of the chart)."""
+        if self._linearization is None:
+            a, lam = ca.SX.sym("a", self.n), ca.SX.sym("lam", self.kc)
+            M, Cqd, dV, Jc, Jc_bias = self._terms()
+            r = ca.vertcat(ca.mtimes(M, a) + Cqd + dV - ca.mtimes(Jc.T, lam), ca.mtimes(Jc, a) + Jc_bias)
+            self._linearization = _Evaluator("geometric_linearize", self.point, ca.vertcat(self.pd, a, lam), ca.vertcat(
+                ca.vec(ca.jacobian(r, self.point)), ca.vec(ca.jacobian(r, self.pd))))
+        return self._linearization
 
     @property
     def energy(self) -> _Evaluator:
@@ -1110,7 +1167,12 @@ def _degenerate_floor(model: Model) -> float:
 
 
 def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
-    pt = _evaluate(model, chart, p, pd)
+    return _split_at(model, chart, _evaluate(model, chart, p, pd), p, pd, tau)
+
+
+def _split_at(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
+    """The split at ``(p, pd)`` from the Function's numbers ``pt`` there: eqs. (24)-(25), or with constraints
+    :func:`_constrained_split`."""
     if model.constraints:
         return _constrained_split(model, chart, pt, p, pd, tau)
     factor = _metric_factor(model, chart, pt.M, p)
@@ -1126,7 +1188,8 @@ def _split(model: Model, chart, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) 
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=power,
                  power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
                  accel_scale=accel_scale, extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
-                 conditions={"task_inertia": task_cond}, kinetic_energy=pt.T, task_inertia=Lambda)
+                 conditions={"task_inertia": task_cond}, kinetic_energy=pt.T, task_inertia=Lambda,
+                 zvcf=-grad_V, drift_velocity=-gamma_pdpd)     # the drift's parts (4.5-4.6), each its own term
 
 
 def _task_inertia(model: Model, pt: _Point, factor) -> tuple[np.ndarray, float]:
@@ -1274,27 +1337,37 @@ def _constraint_conditioning(model: Model, pt: _Point, w: np.ndarray, independen
     return _ConstraintConditioning(conditions, int(kept.size), lam_scale, inverse_norm * jc_norm * lam_scale)
 
 
-def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
-    """Eqs. (12)-(17) by the null-space method (module docstring, "Constraints"): one particular admissible
-    acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the three projections onto ``D``:
-    ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
-    Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly); the multipliers from ``Jc^T lam = M pdd - f``. The
-    reaction covector ``Jc^T lam`` (and at the drift) paired with pd is the constraint power (5.5); ``Jc pd`` the
-    constraint covectors paired with the velocity; the conditioning from :func:`_constraint_conditioning`."""
+def _constraint_distribution(model: Model, chart, pt: _Point, p: np.ndarray) -> tuple:
+    """``(metric_factor, X, w, E, independent, dist)`` at a point (module docstring, "Rank"): the metric's Cholesky
+    factor, the whitened constraint covectors ``X = L^-1 Jc^T``, S's eigenvalues ``w`` and directions ``E``
+    (:func:`_constraint_spectrum`), the ``independent`` ones (:func:`_independent`) and their distribution."""
     metric_factor = _metric_factor(model, chart, pt.M, p)
     X = _whitened(metric_factor, pt.Jc.T)                    # the constraint covectors, whitened by the metric
     w, E = _constraint_spectrum(X)
     independent = _independent(model, w)
-    dist = _distribution(pt.Jc, E[:, independent])
+    return metric_factor, X, w, E, independent, _distribution(pt.Jc, E[:, independent])
+
+
+def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, tau: np.ndarray) -> Split:
+    """Eqs. (12)-(17) by the null-space method (module docstring, "Constraints"): one particular admissible
+    acceleration ``pdd_p = Jc^+ (-Jcdot pd)``, then in one LAPACK call the projections onto ``D`` (:func:`_projected`):
+    ``total`` (forces ``f = tau - M Gamma(pd, pd) - dV/dp``), ``drift`` (``f0 = f - tau``, eq. 14) and ``ctrl =
+    Z (Z^T M Z)^-1 Z^T tau`` (eq. 17, ``B_c tau`` directly), and the drift's parts (4.5-4.6) ``zvcf`` (forces
+    ``-dV/dp``, bias 0) and ``drift_velocity`` (``-M Gamma(pd, pd)``, bias ``Jcdot pd``), each its own solve, which add
+    up to the drift because the system is linear in (forces, bias); the multipliers from ``Jc^T lam = M pdd - f``. The
+    reaction covector ``Jc^T lam`` (and at the drift) paired with pd is the constraint power (5.5); ``Jc pd`` the
+    constraint covectors paired with the velocity; the conditioning from :func:`_constraint_conditioning`."""
+    metric_factor, X, w, E, independent, dist = _constraint_distribution(model, chart, pt, p)
     factor, Mz = _reduced_metric_factor(model, chart, pt.M, dist.Z, p)
     Cqd = (christoffel_first_kind(pt.dM) @ pd) @ pd          # M Gamma(pd, pd), the chart's C qd (eq. 7)
     f0 = -Cqd - pt.dV                                        # eq. (24) as a covector, tau = 0
     f = tau + f0
-    pdd_p = dist.solve(-pt.Jc_bias)                          # a point of H_t (eq. 16)
-    rhs = dist.Z.T @ np.column_stack([f - pt.M @ pdd_p, f0 - pt.M @ pdd_p, tau])
-    # separate right-hand sides (three solves); no step at all when the constraints leave no freedom (D = {0})
-    steps = dist.Z @ _cho_solve(factor, rhs) if dist.Z.shape[1] else np.zeros((len(pd), 3))
-    total, drift, ctrl = pdd_p + steps[:, 0], pdd_p + steps[:, 1], steps[:, 2]
+    # total, drift (eq. 14), ctrl (eq. 17), zvcf (f = -dV, bias 0) and drift_velocity (f = -Cqd, bias Jcdot pd), each
+    # its own right-hand side of one solve
+    no_bias = np.zeros_like(pt.Jc_bias)
+    total, drift, ctrl, zvcf, drift_velocity = _projected(
+        dist, factor, pt.M, np.column_stack([f, f0, tau, -pt.dV, -Cqd]),
+        np.column_stack([-pt.Jc_bias, -pt.Jc_bias, no_bias, no_bias, -pt.Jc_bias])).T
     lam = dist.solve_transposed(pt.M @ total - f)            # eq. (12): M pdd + h = tau + Jc^T lam
     lam_drift = dist.solve_transposed(pt.M @ drift - f0)     # eq. (14)
     cond_M, inverse_norm, accel_scale = _conditioning(model, metric_factor, Cqd, pt.dV, tau, pd)
@@ -1312,7 +1385,19 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
                  conditions={"reduced_metric": _condition(Mz), "task_inertia": task_cond, **cc.conditions},
                  kinetic_energy=pt.T, task_inertia=Lambda, constraint_value=pt.phi, constraint_jacobian=pt.Jc,
                  constraint_bias=pt.Jc_bias, constraint_velocity=pt.Jc @ pd, constraint_force=reaction,
-                 constraint_force_drift=reaction_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale)
+                 constraint_force_drift=reaction_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,
+                 zvcf=zvcf, drift_velocity=drift_velocity)
+
+
+def _projected(dist: _Distribution, factor, M: np.ndarray, forces: np.ndarray, biases: np.ndarray) -> np.ndarray:
+    """The null-space solution (module docstring, "Constraints") of ``M x = f + Jc^T lam``, ``Jc x = b`` for each
+    column ``f`` of ``forces`` (n, c) and ``b`` of ``biases`` (k, c): ``x = x_p + Z (Z^T M Z)^-1 Z^T (f - M x_p)`` with
+    ``x_p = Jc^+ b`` on the independent rows (a point of ``H_t``, eq. 16, for ``b = -Jcdot pd``; 0 for ``b = 0``),
+    ``factor`` that of ``Z^T M Z``; separate right-hand sides of one LAPACK call, no step when ``D = {0}``."""
+    x_p = dist.solve(biases.T).T
+    if not dist.Z.shape[1]:
+        return x_p
+    return x_p + dist.Z @ _cho_solve(factor, dist.Z.T @ (forces - M @ x_p))
 
 
 # ------------------------------------------------------------------------------------------------- public API
@@ -1351,6 +1436,99 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
     _check_group_chart(model, chart)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     return _split(model, chart, p, pd, tau_p)
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`) at ``(q, qd, u)`` in the joint chart, from
+    the exact derivatives of this backend's own equations (:func:`_derivatives`): ``vdot`` is the split's total, and
+    ``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du = M^-1 B`` (with constraints ``B_c B``, eq. 17) come from casadi's AD of
+    the residual of eqs. (12)-(13) and the implicit function theorem. With spherical or free joints, ``dvdot/dq`` is
+    along ``q (+) dq`` (the perturbation on the right): the derivative in the ambient q chained with the derivative
+    of the group's ``integrate`` (:func:`_tangent_map`)."""
+    q, qd, u = check_state(model, q, qd, u)
+    dq, dv, dtau, s = _derivatives(model, None, q, qd, model.input_map @ u, model.input_map)
+    return state_space(model, qd, dq @ _tangent_map(model, q), dv, dtau, s.total)
+
+
+def linearize_chart(model: Model, chart, p, pd, tau_p) -> Linearization:
+    """A and B of eq. (11) in the chart ``q = psi(p)`` with state ``x = (p, pd)`` and input ``tau_p`` (a covector in
+    the chart): ``A = [[0, I], [dpdd/dp, dpdd/dpd]]``, ``B = [[0], [dpdd/dtau_p]]`` (``M_p^-1``, with constraints the
+    chart's ``B_c``), from the chart's own evaluation (:func:`split_chart`'s Function, the same :func:`_derivatives`).
+    A chart whose ``representation`` is a base velocity (``"world"``, ``"mixed"``) is ModelNotSupported (x would be
+    q and w, not coordinates of one chart)."""
+    if _representation(model, chart) is not None:
+        raise ModelNotSupported(f"geometric: linearize_chart in the velocity representation of chart "
+                                f"'{_chart_name(chart)}' is not supported (use a chart q = psi(p))")
+    if model.group_joints and chart is None:
+        raise _refuse_chart(model, chart, "is the group chart itself: use linearize (q of nq entries, v)")
+    _check_group_chart(model, chart)
+    p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
+    dp, dpd, dtau, s = _derivatives(model, chart, p, pd, tau_p, np.eye(model.n))
+    n = model.n
+    return Linearization(A=np.block([[np.zeros((n, n)), np.eye(n)], [dp, dpd]]),
+                         B=np.vstack([np.zeros((n, n)), dtau]), vdot=s.total)
+
+
+def _derivatives(model: Model, chart, point: np.ndarray, pd: np.ndarray, tau: np.ndarray,
+                 inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, Split]:
+    """``(dvdot/dpoint, dvdot/dpd, dvdot/du, split)`` at ``(point, pd)`` with the generalized force ``tau`` and the
+    input map ``inputs`` (n x m; ``tau = inputs u``): the implicit function theorem on the residual ``r`` of
+    eqs. (12)-(13) (:attr:`_Compiled.linearization`), which is zero at the split's ``(total, lam)``. For each
+    direction ``x`` (a coordinate of the point, of pd, an input) the derivative ``(dvdot, dlam)`` solves the same
+    system differentiated,
+
+        M dvdot - Jc^T dlam = dtau/dx - d/dx (M a + M Gamma(pd, pd) + dV/dp - Jc^T lam)   at a = total,
+        Jc dvdot = -d/dx (Jc a + Jcdot pd),
+
+    i.e. ``dvdot = M^-1 (...)`` (the metric's Cholesky factor) or, with constraints, the split's own null-space solve
+    (:func:`_projected`, the same independent rows): exact, from casadi's AD of the backend's own expressions (M, its
+    derivatives, dV/dp, Jc, Jcdot pd), never finite differences. ``dvdot/dpoint`` has a column per coordinate of the
+    point (nq for a model with spherical or free joints: the ambient derivative at the group chart's origin)."""
+    c = _compiled(model, chart)
+    pt = _evaluate(model, chart, point, pd)
+    s = _split_at(model, chart, pt, point, pd, tau)
+    n, kc, width = model.n, c.kc, point.size
+    lam = np.asarray(s.lam, dtype=float) if model.constraints else np.zeros(0)
+    flat = c.linearization(point, np.concatenate([pd, s.total, lam]))
+    dr_dpoint = flat[:(n + kc) * width].reshape(width, n + kc).T             # vec is column-major
+    dr_dpd = flat[(n + kc) * width:].reshape(n, n + kc).T
+    forces = np.hstack([-dr_dpoint[:n], -dr_dpd[:n], inputs])
+    if model.constraints:
+        metric_factor, _, _, _, _, dist = _constraint_distribution(model, chart, pt, point)
+        factor, _ = _reduced_metric_factor(model, chart, pt.M, dist.Z, point)
+        biases = np.hstack([-dr_dpoint[n:], -dr_dpd[n:], np.zeros((kc, inputs.shape[1]))])
+        d = _projected(dist, factor, pt.M, forces, biases)
+    else:
+        d = _cho_solve(_metric_factor(model, chart, pt.M, point), forces)
+    return d[:, :width], d[:, width:width + n], d[:, width + n:], s
+
+
+def _tangent_map(model: Model, q: np.ndarray) -> np.ndarray:
+    """``d/ds q (+) s e_j`` at ``s = 0`` (nq x nv, column j), the group's ``integrate`` with the perturbation on the
+    right (Pinocchio's): 1 for a revolute or prismatic coordinate; for a quaternion block ``d quat = 1/2 quat (x)
+    (e, 0)`` (quaternion product, x y z w order: ``(w e + [x y z] x e, -[x y z] . e)``), and for a free joint also
+    ``d position = R(quat) e_linear`` (the body-frame linear velocity moves the origin along the body axes).
+    The identity for a model without spherical or free joints."""
+    T = np.zeros((model.nq, model.nv))
+    for i, body in enumerate(model.bodies):
+        a, v = model.q_index[i], model.v_index[i]
+        if body.joint in ("revolute", "prismatic"):
+            T[a, v] = 1.0
+            continue
+        if body.joint == "free":
+            quat = q[a + 3:a + 7]
+            K = _skew(quat[:3])
+            T[a:a + 3, v:v + 3] = np.eye(3) + 2.0 * quat[3] * K + 2.0 * K @ K     # R(quat)
+            a, v = a + 3, v + 3
+        quat = q[a:a + 4]
+        T[a:a + 3, v:v + 3] = 0.5 * (quat[3] * np.eye(3) + _skew(quat[:3]))
+        T[a + 3, v:v + 3] = -0.5 * quat[:3]
+    return T
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """``[w]x`` (numbers), so that ``[w]x e = w x e``."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
 def _vectors(model: Model, chart, p, **rates) -> list[np.ndarray]:
@@ -1570,4 +1748,6 @@ FORMALISM = Formalism(
     split_chart=split_chart,
     split_batch=split_batch,
     evaluation=evaluation,
+    linearize=linearize,
+    linearize_chart=linearize_chart,
 )
