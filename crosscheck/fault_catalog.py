@@ -393,7 +393,67 @@ GROUP = [
 ]
 
 
-CATALOG: list[Fault] = EULER_LAGRANGE + NEWTON_EULER + SCREW + OPERATIONAL_SPACE + GEOMETRIC + GROUP
+# ------------------------------------------------------------------ derivatives: the linearization (eq. 11)
+# Each changes only what ``linearize`` returns (A, B): the splits stay right, so only the gate's linearization checks
+# (``crosscheck.linearization``, the first states of every case) can see them.
+
+
+def _mass_derivative_dropped(terms):
+    """Operational space's forward mode with the tangents of M dropped: ``dM/dq vdot`` left out of ``dvdot/dq``."""
+    def faulty(model, kin):
+        from formalisms.operational_space import _Dual
+        M, Cqd, g = terms(model, kin)
+        return (_Dual(M.val, np.zeros_like(M.tan)) if isinstance(M, _Dual) else M), Cqd, g
+    return faulty
+
+
+def _product_rule_sign(bilinear):
+    """The dual numbers' product rule with a wrong sign on its second term: ``d(ab) = da b - a db``."""
+    def faulty(f, a, b):
+        from formalisms.operational_space import _Dual
+        out = bilinear(f, a, b)
+        if isinstance(a, _Dual) and isinstance(b, _Dual):
+            second = bilinear(f, a.val, b)
+            return _Dual(out.val, out.tan - 2.0 * second.tan)
+        return out
+    return faulty
+
+
+def _velocity_block_transposed(derivatives):
+    """casadi's column-major ``vec`` of ``dr/dpd`` read back row-major: the velocity block of A transposed."""
+    def faulty(*args):
+        dq, dv, dtau, split = derivatives(*args)
+        return dq, dv.T, dtau, split
+    return faulty
+
+
+def _input_map_dropped(derivatives):
+    """``dvdot/du`` formed as ``M^-1`` (the generalized force's derivative) without the input map B."""
+    def faulty(model, chart, point, pd, tau, inputs):
+        return derivatives(model, chart, point, pd, tau, np.eye(model.n))
+    return faulty
+
+
+DERIVATIVES = [
+    Fault("osc-linearize-mass-derivative-dropped", OSC,
+          "The linearization leaves dM/dq vdot out of dvdot/dq (only the derivatives of h and of the constraint "
+          "terms are kept).",
+          "formalisms.operational_space:_terms", _mass_derivative_dropped),
+    Fault("osc-dual-product-rule-sign", OSC,
+          "The dual numbers' product rule has the wrong sign on its second term: d(ab) = da b - a db.",
+          "formalisms.operational_space:_bilinear", _product_rule_sign),
+    Fault("geo-linearize-velocity-block-transposed", GEO,
+          "The Jacobian dr/dpd of casadi's column-major vec is read back row-major, so dvdot/dv (the Coriolis "
+          "derivative) comes out transposed.",
+          "formalisms.geometric:_derivatives", _velocity_block_transposed),
+    Fault("geo-linearize-input-map-dropped", GEO,
+          "B is formed as M^-1 (the derivative with respect to the generalized force) without the input map: "
+          "dvdot/du = M^-1 instead of M^-1 B.",
+          "formalisms.geometric:_derivatives", _input_map_dropped),
+]
+
+
+CATALOG: list[Fault] = EULER_LAGRANGE + NEWTON_EULER + SCREW + OPERATIONAL_SPACE + GEOMETRIC + GROUP + DERIVATIVES
 
 
 def names() -> list[str]:

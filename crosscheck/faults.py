@@ -39,7 +39,7 @@ import numpy as np
 import cases
 import formalisms
 from crosscheck import backends as backend_registry
-from crosscheck import charts, registry
+from crosscheck import charts, linearization, registry
 from crosscheck.compare import DISAGREE, backend_of, suspect
 from crosscheck.gate import CaseSetup, CaseSpec, Checks, StateOutcome
 from crosscheck.sampling import State, sample_states
@@ -212,8 +212,8 @@ def _flatten(prefix: str, value, out: dict[str, object]) -> None:
 
 def outputs(backend: Formalism, setup: CaseSetup, state: State) -> dict[str, object]:
     """Everything ``backend`` returns at ``state`` where the gate evaluates it: in the joint chart, in each of the
-    case's charts (``split_chart``, when the backend has it; the state carried over as the chart checks do) and on
-    the state's moved scene. Keys ``"<where>: <field>"``; a raising evaluation gives ``"<where>: error"``."""
+    case's charts (``split_chart``, when the backend has it; the state carried over as the chart checks do), on
+    the state's moved scene and, at the states the gate linearizes at, its linearization (A, B, vdot). Keys ``"<where>: <field>"``; a raising evaluation gives ``"<where>: error"``."""
     model = setup.model
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     calls: list[tuple[str, Callable[[], object]]] = [("joint", lambda: backend.split(model, q, qd, u))]
@@ -228,6 +228,8 @@ def outputs(backend: Formalism, setup: CaseSetup, state: State) -> dict[str, obj
     if scene is not None:
         frame, moved = scene
         calls.append((f"frame {frame.name}", functools.partial(backend.split, moved, q, qd, u)))
+    if backend.linearize is not None and setup.linearization and state.index < linearization.STATES:
+        calls.append(("linearization", functools.partial(backend.linearize, model, q, qd, u)))
     out: dict[str, object] = {}
     for where, call in calls:
         try:
@@ -264,7 +266,8 @@ def _difference(a, b) -> tuple[float, float]:
 #: The split fields a proof names first, in this order (the answers the gate compares), before any other output.
 ANSWERS = ("drift", "total", "ctrl", "lam", "lam_drift", "task_drift", "kinetic_energy", "constraint_force",
            "constraint_force_drift", "power_ctrl", "power_constr", "constraint_value", "constraint_jacobian",
-           "constraint_bias", "constraint_velocity", "joint_wrenches", "joint_wrenches_drift", "task_inertia")
+           "constraint_bias", "constraint_velocity", "joint_wrenches", "joint_wrenches_drift", "task_inertia",
+           "zvcf", "drift_velocity", "A", "B", "vdot")
 
 #: A change smaller than this, relative to the largest answer in its place, is not shown as the proof when a larger
 #: one exists (rounding where an answer is zero).
