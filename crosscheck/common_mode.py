@@ -306,6 +306,11 @@ CATALOG: list[SharedFault] = [
                  "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
                  "crosscheck.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
                 "the closed forms, the conditions audit and the exact H_t residual"),
+    SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
+                "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
+                "on the left) instead of dv - ad_v dq, on ball and free joints.",
+                ("formalisms.interface:tangent_kinematics",), lambda f: lambda model, v: -f(model, v),
+                "the Pinocchio reference's own kinematic rows (linearization check)"),
 ]
 
 

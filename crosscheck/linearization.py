@@ -3,8 +3,9 @@ with an external reference, with a tolerance derived like the others (README, "T
 
 ``xdot ~ f(x_t) + A (x - x_t) + B u`` with ``x = (q, v)`` in the tangent convention of
 :class:`formalisms.interface.Linearization`. The kinematic rows ``[A_qq, I]`` and ``[0]`` are the convention's
-(``tangent_kinematics``), so the checks compare the three dynamic blocks ``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du``
-(each backend's own exact derivative) and ``vdot`` itself. The references are Pinocchio's analytical ABA derivatives
+(``tangent_kinematics``, shared by the backends; the Pinocchio reference forms them with its own Lie algebra, so the
+comparison of the ``kinematic rows`` checks that shared code too), and the checks compare the three dynamic blocks
+``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du`` (each backend's own exact derivative) and ``vdot`` itself. The references are Pinocchio's analytical ABA derivatives
 (``crosscheck.reference.linearize``) on an unconstrained model and the 50-digit central differences of the exact
 KKT solution (``crosscheck.precise.linearize``, voter ``exact``) on a constrained one.
 
@@ -41,7 +42,7 @@ FACTOR = 100.0
 #: States of a case (the first ones) at which the gate checks the linearizations: derivatives cost n times a split.
 STATES = 2
 #: The dynamic blocks of A and B compared, by name: (rows of A or B, columns).
-BLOCKS = ("dvdot/dq", "dvdot/dv", "dvdot/du", "vdot")
+BLOCKS = ("dvdot/dq", "dvdot/dv", "dvdot/du", "vdot", "kinematic rows")
 
 
 def tangent_units(model: Model) -> np.ndarray:
@@ -58,7 +59,8 @@ def tangent_units(model: Model) -> np.ndarray:
 def blocks(model: Model, lin: Linearization) -> dict[str, np.ndarray]:
     """The dynamic blocks of a linearization (module doc) by name."""
     nv = model.nv
-    return {"dvdot/dq": lin.A[nv:, :nv], "dvdot/dv": lin.A[nv:, nv:], "dvdot/du": lin.B[nv:], "vdot": lin.vdot}
+    return {"dvdot/dq": lin.A[nv:, :nv], "dvdot/dv": lin.A[nv:, nv:], "dvdot/du": lin.B[nv:], "vdot": lin.vdot,
+            "kinematic rows": np.hstack([lin.A[:nv], lin.B[:nv]])}
 
 
 def linearizations(model: Model, state: State, backends: Sequence[Formalism]
@@ -93,6 +95,8 @@ def tolerances(model: Model, state: State, values: Mapping[str, np.ndarray], blo
     cond = at.cond_M * (max(at.cond_S, 1.0) if model.constraints else 1.0)
     if block == "vdot":
         return np.broadcast_to(policy.tolerance("total", at), (model.nv,))
+    if block == "kinematic rows":                    # entries of v and exact zeros and ones: rounding of |v| at most
+        return np.full(model.nv * (2 * model.nv + model.m), FACTOR * policy.EPS * (float(np.abs(state.qd).max()) + 1.0))
     size = np.abs(stacked).max(axis=(0, 1)) if stacked.size else np.zeros(stacked.shape[-1])
     if block == "dvdot/dq":
         terms = at.accel_scale / tangent_units(model)

@@ -82,7 +82,7 @@ import scipy.linalg
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
-                                  check_batch, check_state, split_batch_by_loop, state_space, ModelNotSupported)
+                                  check_batch, check_state, split_batch_by_loop, ModelNotSupported)
 
 _ALIGNED = {
     ("revolute", 0): pin.JointModelRX, ("revolute", 1): pin.JointModelRY, ("revolute", 2): pin.JointModelRZ,
@@ -782,9 +782,25 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     data = pm.createData()
     pin.computeABADerivatives(pm, data, c.configuration(q), qd[order], (model.input_map @ u)[order])
     Minv = _ours_matrix(order, _sym(np.array(data.Minv)))
-    return state_space(model, qd, _ours_matrix(order, np.array(data.ddq_dq)),
-                       _ours_matrix(order, np.array(data.ddq_dv)), Minv @ model.input_map,
-                       _ours(order, np.array(data.ddq)))
+    nv = model.nv
+    A = np.block([[_tangent_kinematics(model, qd), np.eye(nv)],
+                  [_ours_matrix(order, np.array(data.ddq_dq)), _ours_matrix(order, np.array(data.ddq_dv))]])
+    return Linearization(A=A, B=np.vstack([np.zeros((nv, model.m)), Minv @ model.input_map]),
+                         vdot=_ours(order, np.array(data.ddq)))
+
+
+def _tangent_kinematics(model: Model, qd: np.ndarray) -> np.ndarray:
+    """The kinematic rows' ``A_qq`` of the linearization's convention from Pinocchio's own Lie algebra, not from the
+    interface's ``tangent_kinematics`` the backends use: ``-ad_v`` (``pin.Motion(v).action``) on a free joint,
+    ``-[omega]x`` (``pin.skew``) on a spherical one, so the gate's reference checks that shared convention too."""
+    out = np.zeros((model.nv, model.nv))
+    for i, body in enumerate(model.bodies):
+        j = model.v_index[i]
+        if body.joint == "free":
+            out[j:j + 6, j:j + 6] = -pin.Motion(qd[j:j + 6]).action
+        elif body.joint == "spherical":
+            out[j:j + 3, j:j + 3] = -pin.skew(qd[j:j + 3])
+    return out
 
 
 @dataclass(frozen=True)

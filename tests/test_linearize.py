@@ -174,7 +174,7 @@ def test_eval_linearize_prints_a_b_and_eigenvalues(capsys):
     A = np.array(lin["backends"]["pinocchio"]["A"])
     assert A.shape == (4, 4) and np.array(lin["backends"]["pinocchio"]["B"]).shape == (4, 2)
     assert set(lin["checks"]) == {"linearization: dvdot/dq", "linearization: dvdot/dv", "linearization: dvdot/du",
-                                  "linearization: vdot"}
+                                  "linearization: vdot", "linearization: kinematic rows"}
     assert len(lin["backends"]["pinocchio"]["eigenvalues"]) == 4
 
 
