@@ -68,15 +68,15 @@ themselves like an actuator, so it appears in the axis components of the reactio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import JOINT_DOF, Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state, joint_vectors)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, joint_vectors, state_space)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -848,9 +848,255 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:  # noqa: N803
     return SplitBatch(*(stack(name) for name in ("drift", "ctrl", "total", "lam", "lam_drift")))
 
 
+# ----------------------------------------------------------------------------------------------------------
+# Linearization (article 4.8, eq. 11): the recursion's own passes differentiated in forward mode, one state, all
+# 2 nv state directions at once on a trailing axis (D): q directions ``q (+) s e_j`` first, then v directions
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Tangents:
+    """Per body, one state: the placement's tangents and the forward pass with its tangents at ``(qd, qdd)``.
+
+    ``th`` (3, D) the rotation of the body's own joint (body frame): ``d P_i = P_i [th_i]x``; ``dr`` (3, D) the
+    change of the body origin in the parent frame; ``Th`` (3, D) the body's whole rotation, ``d W_i = W_i [Th_i]x``
+    (``Th_i = P_i^T Th_parent + th_i``); ``o``, ``do`` the origin's world position and its tangent. ``motion`` is
+    ``(w, wd, a)`` of :func:`_forward`, ``V`` the origin's velocity (body frame), and ``dw, dwd, da, dV`` their
+    tangents (3, D)."""
+
+    th: list
+    dr: list
+    Th: list
+    o: list
+    do: list
+    motion: tuple
+    V: list
+    dw: list
+    dwd: list
+    da: list
+    dV: list
+
+
+def _joint_tangent(model: Model, kin, i: int, directions: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(th_i, dr_i)``: ``q_i (+) e`` moves body ``i``'s frame by the rotation ``S_w e`` and the origin by ``S_v e``
+    (body frame; :func:`_subspace`, the axis for a 1-DOF joint), so ``dP_i = P_i [S_w e]x``, ``dr_i = P_i S_v e`` (a
+    free joint: ``dp = R(quat) e_lin``, the first order of ``integrate``), nonzero in the body's own q columns."""
+    b, k = model.bodies[i], model.v_index[i]
+    if b.joint in ("revolute", "prismatic"):
+        axis, zero = b.axis[:, None], np.zeros((3, 1))
+        S_w, S_v = (axis, zero) if b.joint == "revolute" else (zero, axis)
+    else:
+        S_w, S_v = _subspace(b.joint)
+    th, dr = np.zeros((3, directions)), np.zeros((3, directions))
+    th[:, k:k + S_w.shape[1]] = S_w
+    dr[:, k:k + S_w.shape[1]] = kin[0][i] @ S_v
+    return th, dr
+
+
+def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Tangents:
+    """:func:`_forward` at ``(qd, qdd)`` (``qdd`` held fixed) and its tangents along the 2 nv state directions, each
+    line of the pass differentiated by the product rule. A body-frame vector ``E x`` (``E = P_i^T``) changes by
+    ``E dx + (E x) x th_i``; the origin velocity follows ``V_i = E (V_p + w_p x r_i) + S_v v_i`` (its time derivative
+    is the pass's ``a``)."""
+    P, r, W = kin
+    nb, nv = len(model.bodies), model.nv
+    w, wd, a = _forward(model, kin, qd, qdd)
+    dqd = np.hstack([np.zeros((nv, nv)), np.eye(nv)])                  # the v directions move qd
+    th, dr, Th, o, do = ([None] * nb for _ in range(5))
+    V, dw, dwd, da, dV = ([None] * nb for _ in range(5))
+    zero, dzero = np.zeros(3), np.zeros((3, 2 * nv))
+    for i in model.topological_order:
+        b, p, k = model.bodies[i], model.parent_index[i], model.v_index[i]
+        th[i], dr[i] = _joint_tangent(model, kin, i, 2 * nv)
+        E = P[i].T
+        if p < 0:
+            w_p = wd_p = a_p = V_p = zero
+            dw_p = dwd_p = da_p = dV_p = Th_p = do_p = dzero
+            o_p, W_p = zero, np.eye(3)
+        else:
+            w_p, wd_p, a_p, V_p = w[p], wd[p], a[p], V[p]
+            dw_p, dwd_p, da_p, dV_p, Th_p, do_p, o_p, W_p = dw[p], dwd[p], da[p], dV[p], Th[p], do[p], o[p], W[p]
+        Th[i] = E @ Th_p + th[i]
+        o[i] = o_p + W_p @ r[i]
+        do[i] = do_p + W_p @ (_cross(Th_p, r[i]) + dr[i])
+
+        def rotate(x, dx):
+            Ex = E @ x
+            return Ex, E @ dx + _cross(Ex, th[i])
+        wxr = _cross(w_p, r[i])
+        w_in, dw_in = rotate(w_p, dw_p)
+        wd_in, dwd_in = rotate(wd_p, dwd_p)
+        _, da_origin = rotate(a_p + _cross(wd_p, r[i]) + _cross(w_p, wxr),
+                              da_p + _cross(dwd_p, r[i]) + _cross(wd_p, dr[i]) + _cross(dw_p, wxr)
+                              + _cross(w_p, _cross(dw_p, r[i]) + _cross(w_p, dr[i])))
+        V_in, dV_in = rotate(V_p + wxr, dV_p + _cross(dw_p, r[i]) + _cross(w_p, dr[i]))
+        if b.joint in ("revolute", "prismatic"):
+            s, ds = b.axis * qd[k], np.multiply.outer(b.axis, dqd[k])
+            if b.joint == "revolute":
+                dw[i], dwd[i], da[i], V[i], dV[i] = (dw_in + ds, dwd_in + _cross(dw_in, s) + _cross(w_in, ds),
+                                                     da_origin, V_in, dV_in)
+            else:
+                dw[i], dwd[i], V[i], dV[i] = dw_in, dwd_in, V_in + s, dV_in + ds
+                da[i] = da_origin + 2.0 * (_cross(dw_in, s) + _cross(w_in, ds))
+        else:                                                 # _group_motion differentiated
+            S_w, S_v = _subspace(b.joint)
+            w_rel, v_lin, dw_rel, dv_lin = S_w @ qd[k:k + len(S_w.T)], S_v @ qd[k:k + len(S_w.T)], (
+                S_w @ dqd[k:k + len(S_w.T)]), S_v @ dqd[k:k + len(S_w.T)]
+            dw[i] = dw_in + dw_rel
+            dwd[i] = dwd_in + _cross(dw_in, w_rel) + _cross(w_in, dw_rel)
+            da[i] = da_origin + _cross(dw_in + dw[i], v_lin) + _cross(w_in + w[i], dv_lin)
+            V[i], dV[i] = V_in + v_lin, dV_in + dv_lin
+    return _Tangents(th, dr, Th, o, do, (w, wd, a), V, dw, dwd, da, dV)
+
+
+def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
+    """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
+    (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
+    ``loads`` (body -> (f, df): an external force through the body origin... with its moment ``offset x f``) are the
+    constraint forces in body frames (:func:`_constraint_load_tangents`)."""
+    P, r, W = kin
+    w, wd, a = t.motion
+    nb = len(model.bodies)
+    f, n = [0.0] * nb, [0.0] * nb
+    df, dn = [0.0] * nb, [0.0] * nb
+    for i in reversed(model.topological_order):
+        b = model.bodies[i]
+        F, N = _body_load(model, i, W[i], w[i], wd[i], a[i], gravity=True)
+        c, inertia = b.com, b.inertia
+        wxc = _cross(w[i], c)
+        da_c = t.da[i] + _cross(t.dwd[i], c) + _cross(t.dw[i], wxc) + _cross(w[i], _cross(t.dw[i], c))
+        dF = b.mass * (da_c - _cross(_body_gravity(W[i], model.gravity), t.Th[i]))
+        dN = (_cross(c, dF) + inertia @ t.dwd[i] + _cross(t.dw[i], inertia @ w[i])
+              + _cross(w[i], inertia @ t.dw[i]))
+        f[i], n[i], df[i], dn[i] = f[i] + F, n[i] + N, df[i] + dF, dn[i] + dN
+        for offset, fe, dfe in (loads or {}).get(i, ()):
+            f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
+            df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
+        p = model.parent_index[i]
+        if p >= 0:
+            fp, dfp = P[i] @ f[i], P[i] @ (df[i] + _cross(t.th[i], f[i]))
+            f[p], df[p] = f[p] + fp, df[p] + dfp
+            n[p] = n[p] + P[i] @ n[i] + _cross(r[i], fp)
+            dn[p] = dn[p] + P[i] @ (dn[i] + _cross(t.th[i], n[i])) + _cross(t.dr[i], fp) + _cross(r[i], dfp)
+    return np.array(df), np.array(dn)
+
+
+@dataclass(frozen=True)
+class _PointTangent:
+    """A body point's world position, velocity and classical acceleration at ``(qd, qdd)`` and their tangents (3, D):
+    ``p = o + W x``, ``pv = W (V + w x x)``, ``acc = W (a + wd x x + w x (w x x))`` (:func:`_point_acceleration`),
+    each ``d(W y) = W (Th x y + dy)``. A world point (body None) is fixed: zero tangents."""
+
+    body: int | None
+    offset: np.ndarray
+    p: np.ndarray
+    dp: np.ndarray
+    pv: np.ndarray
+    dpv: np.ndarray
+    acc: np.ndarray
+    dacc: np.ndarray
+
+
+def _point_tangent(kin, t: _Tangents, body: int | None, offset: np.ndarray) -> _PointTangent:
+    """:class:`_PointTangent` of the point ``offset`` of ``body`` (an index, None for the world)."""
+    if body is None:
+        zero, dzero = np.zeros(3), np.zeros((3, t.th[0].shape[1]))
+        return _PointTangent(None, offset, offset, dzero, zero, dzero, zero, dzero)
+    W, (w, wd, a) = kin[2][body], (x[body] for x in t.motion)
+    wxo, Th = _cross(w, offset), t.Th[body]
+    y = a + _cross(wd, offset) + _cross(w, wxo)
+    dy = t.da[body] + _cross(t.dwd[body], offset) + _cross(t.dw[body], wxo) + _cross(w, _cross(t.dw[body], offset))
+    z, dz = t.V[body] + wxo, t.dV[body] + _cross(t.dw[body], offset)
+    return _PointTangent(body, offset, t.o[body] + W @ offset, t.do[body] + W @ _cross(Th, offset), W @ z,
+                         W @ (_cross(Th, z) + dz), W @ y, W @ (_cross(Th, y) + dy))
+
+
+def _circle_tangent(model: Model, c, point):
+    """:func:`_circle` differentiated: ``c = Jc qdd + Jcdot qd = 2 |P pv|^2 + grad . acc`` with ``grad = 2 P^T P (p -
+    center)``, so ``dc = 4 (P pv) . (P dpv) + dgrad . acc + grad . dacc``, ``dgrad = 2 P^T P dp``; the force ``grad
+    lam`` at the point changes by ``dgrad lam``."""
+    x = point(c.body, c.offset)
+    gram = c.plane.T @ c.plane
+    grad, dgrad = 2.0 * gram @ (x.p - c.center), 2.0 * gram @ x.dp
+    dc = 4.0 * (c.plane @ x.pv) @ (c.plane @ x.dpv) + x.acc @ dgrad + grad @ x.dacc
+    return dc[None], ((x, grad[:, None], dgrad[:, None]),)
+
+
+def _coincide_tangent(model: Model, c, point):
+    """:func:`_coincide` differentiated: ``dc = D (dacc_a - dacc_b)``; the forces ``+-D^T lam`` are constant."""
+    xa, xb = point(c.body_a, c.offset_a), point(c.body_b, c.offset_b)
+    D, none = c.directions, np.zeros((3, len(c.directions), xa.dp.shape[1]))
+    return c.directions @ (xa.dacc - xb.dacc), ((xa, D.T, none), (xb, -D.T, none))
+
+
+def _line_tangent(model: Model, c, point):
+    """:func:`_line` differentiated: ``dc = N dacc``; the force ``N^T lam`` is constant."""
+    x = point(c.body, c.offset)
+    return c.normals @ x.dacc, ((x, c.normals.T, np.zeros(c.normals.T.shape + x.dp.shape[1:])),)
+
+
+def _coupling_tangent(model: Model, c, point):
+    """:func:`_coupling` differentiated: a constant row, ``dc = 0``, no point force."""
+    return np.zeros((1, 2 * model.nv)), ()
+
+
+#: The derivative of each declaration's rows (``dc`` of ``Jc qdd + Jcdot qd`` and the point forces), by its type.
+_TANGENTS = {PointOnCircle: _circle_tangent, PointsCoincide: _coincide_tangent, PointOnLine: _line_tangent,
+             JointCoupling: _coupling_tangent}
+
+
+def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
+    """``dc`` (k, D), the tangents of ``Jc qdd + Jcdot qd`` at the ``qdd`` of ``t`` (every declaration's rows
+    differentiated, :data:`_TANGENTS`), and the multipliers' point forces as body loads with their tangents:
+    body -> ``[(offset, f, df)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th + W^T dF lam``."""
+    point = (lambda name, offset: _point_tangent(kin, t, None if name is None else model.body_index(name), offset))
+    rows, loads, start = [], {}, 0
+    for c in model.constraints:
+        dc, forces = _TANGENTS[type(c)](model, c, point)
+        part, start = lam[start:start + len(dc)], start + len(dc)
+        for x, F, dF in forces:
+            if x.body is not None:
+                W = kin[2][x.body]
+                f = W.T @ (F @ part)
+                loads.setdefault(x.body, []).append(
+                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part)))
+        rows.append(dc)
+    return np.concatenate(rows), loads
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`Linearization`, the tangent-space convention on Lie groups) from the recursion's
+    own derivatives: the forward and backward passes differentiated in forward mode along all ``2 nv`` state
+    directions at once (:func:`_forward_tangents`, :func:`_backward_tangents`), at ``qdd = vdot`` held fixed.
+
+    Unconstrained: ``ID(q, qd, vdot) = B u``, so ``dvdot/dx = -M^-1 dID/dx`` and ``dvdot/du = M^-1 B`` (the Cholesky
+    factor of :func:`split`). Constrained (eq. 12, 13): the KKT system differentiated, ``M dvdot - Jc^T dlam = -dG``,
+    ``Jc dvdot = -dc``, with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces
+    applied, :func:`_constraint_loads`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
+    accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
+    q, qd, u = check_state(model, q, qd, u)
+    kin, units, bias_motion, h, M = _dynamics(model, q, qd)
+    L = _cholesky(model, M[..., None], q[:, None])
+    tau = model.input_map @ u
+    if model.constraints:
+        _, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
+        schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
+        vdot, lam = (x[:, 0] for x in schur.solve((tau - h)[:, None]))
+        t = _forward_tangents(model, kin, qd, vdot)
+        dc, loads = _constraint_tangents(model, kin, t, lam)
+        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads))
+        dvdot, dvdot_du = replace(schur, bias=dc).solve(-dG)[0], schur.input_map(model.input_map)
+    else:
+        vdot = _cho_solve(L, (tau - h)[:, None, None])[:, 0, 0]
+        t = _forward_tangents(model, kin, qd, vdot)
+        dID = _joint_torques(model, *_backward_tangents(model, kin, t))
+        dvdot, dvdot_du = -_cho_solve(L, dID[..., None])[..., 0], _cho_solve(L, model.input_map[..., None])[..., 0]
+    return state_space(model, qd, dvdot[:, :model.nv], dvdot[:, model.nv:], dvdot_du, vdot)
+
+
 FORMALISM = Formalism(
     name="newton_euler",
     summary="Recursive Newton–Euler in body frames (article 6.1, eqs. 18-19): 3-vector force balance per body",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
