@@ -786,23 +786,30 @@ def split(model: Model, q, qd, u) -> Split:
     common = dict(power_ctrl=float(power.sum()), power_ctrl_per_coord=power, cond_M=mass.cond,
                   kinetic_energy=0.5 * qd @ M @ qd)
     if model.constraints:
-        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common)
-    drift, ctrl, total = _cho_solve(L, np.column_stack([-h, tau_ctrl, tau_ctrl - h])[..., None])[..., 0].T
+        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common, (g, c_qd))
+    drift, ctrl, total, zvcf, drift_velocity = _cho_solve(
+        L, np.column_stack([-h, tau_ctrl, tau_ctrl - h, -g, -c_qd])[..., None])[..., 0].T
     extras, drift_motion = _extras(model, kin, qd, total, drift)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
                  power_constr_per_coord=None, accel_scale=mass.accel_scale, extras=extras,
-                 task_drift=_task_acceleration(model, kin, drift_motion), **_wrenches(extras), **common)
+                 task_drift=_task_acceleration(model, kin, drift_motion), zvcf=zvcf, drift_velocity=drift_velocity,
+                 **_wrenches(extras), **common)
 
 
 def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass: _MassScales,  # noqa: N803
-                       common: dict) -> Split:
+                       common: dict, parts: tuple) -> Split:
     """Eq. (12)-(17) by the range-space method (a batch of one), the reactions with the loop forces applied, and the
     constraint's own quantities (article 5.5): ``Jc^T lam`` and its power ``(Jc^T lam)_i qd_i``, ``Jc qd`` and the
-    conditioning of S; ``accel_scale`` adds what the constraint force can produce."""
+    conditioning of S; ``accel_scale`` adds what the constraint force can produce. The drift's parts (4.5-4.6) are
+    the same solve with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias ``Jcdot qd``
+    (``drift_velocity``); ``parts = (g, C qd)``."""
     rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
     schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
     (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
         x[:, 0] for x in schur.solve(-h[:, None]))                                      # eq. (12, 13), (14)
+    g, c_qd = parts
+    zvcf = replace(schur, bias=np.zeros_like(schur.bias)).solve(-g[:, None])[0][:, 0]
+    drift_velocity = schur.solve(-c_qd[:, None])[0][:, 0]
     extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
                                    _constraint_loads(model, kin, rows, lam_drift))
     cs = _constraint_scales(model, L[..., 0], Jc, bias, (tau_ctrl - h, -h), mass)
@@ -811,7 +818,7 @@ def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_c
     return Split(drift=drift, ctrl=schur.input_map(tau_ctrl[:, None])[:, 0], total=total, lam=lam,
                  lam_drift=lam_drift, power_constr=float(power.sum()), power_constr_per_coord=power,
                  accel_scale=mass.accel_scale + cs.force_scale, extras=extras,
-                 task_drift=_task_acceleration(model, kin, drift_motion),
+                 task_drift=_task_acceleration(model, kin, drift_motion), zvcf=zvcf, drift_velocity=drift_velocity,
                  conditions={"constraint": cs.cond_S, "constraint_consistency": cs.inconsistency,
                              "constraint_kept": cs.cond_kept},
                  constraint_value=np.concatenate([r.phi for r in rows]), constraint_jacobian=Jc, constraint_bias=bias,
@@ -951,8 +958,8 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
 def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
     (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
-    ``loads`` (body -> (f, df): an external force through the body origin... with its moment ``offset x f``) are the
-    constraint forces in body frames (:func:`_constraint_load_tangents`)."""
+    ``loads`` (body -> ``[(offset, f, df)]``: a force ``f`` at the body point ``offset``, its moment about the origin
+    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)
