@@ -36,7 +36,18 @@ velocity ``S_v v_i``): ``(I, 0)`` for a ball, ``([0 I], [I 0])`` for a free join
 A joint-coordinate chart ``q = psi(p)`` does not apply to a model with such joints, and the backend has no
 ``split_chart``.
 
-The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``.
+The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``. The drift's parts
+(4.5-4.6) are solved directly on the same factor: the zero-velocity counterfactual ``zvcf = -M^-1 g`` and
+``drift_velocity = -M^-1 C qd`` (``g`` the backward pass at rest, ``C qd`` the pass at ``qdd = 0`` without gravity), so
+that they add up to the drift to rounding.
+
+Linearization (4.8, eq. 11; :func:`linearize`): the passes differentiated in forward mode, every body carrying the
+directional derivatives of its placement, velocities, accelerations and loads along all ``2 nv`` state directions at
+once (a trailing axis). A q direction ``q_i (+) e`` turns body ``i``'s frame by ``S_w e`` and moves its origin by
+``S_v e`` (the joint's own motion, in its frame), so ``dP_i = P_i [S_w e]x``; the whole body turns by ``Th_i =
+P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame and the loop forces. With
+``qdd = vdot`` held fixed the backward pass gives ``dID/dx``, and ``dvdot/dx = -M^-1 dID/dx``, ``dvdot/du = M^-1 B``
+(the KKT system differentiated with constraints, below).
 
 Constraints (article 5; DESIGN.md, constraints). ``phi``, ``Jc`` and ``Jcdot qd`` come from the recursion's own
 point kinematics: the world position of a body point from the placements; column ``j`` of its Jacobian is the
@@ -50,7 +61,11 @@ from the range-space (Schur complement) method on the Cholesky factor of ``M``: 
 ``S^+`` from the eigendecomposition of ``S`` with the eigenvalues below ``CONSTRAINT_RCOND`` times the largest
 dropped: redundant rows get the minimum-norm multipliers and an inconsistent system (an empty ``H_t``) finite
 least-squares numbers. The drift is the same solve with ``u = 0`` (eq. 14) and ``ctrl = B_c B u`` directly
-(eq. 17).
+(eq. 17); the drift's parts are the solves with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias
+``Jcdot qd`` (``drift_velocity``). The linearization differentiates the KKT system: ``M dvdot - Jc^T dlam = -dG``,
+``Jc dvdot = -dc`` with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces,
+``lam`` fixed, their world directions turning with the bodies) and ``c = Jc vdot + Jcdot qd`` (the rows' second derivatives,
+from the points' accelerations at ``qdd = vdot``), solved by the same range-space method and rank rule.
 
 The numbers the split reports about its solves are this backend's own, by singular values rather than the
 eigendecomposition the solve uses: cond(M) and ``||M^-1||`` from those of the Cholesky factor ``L`` (``M = L L^T``),

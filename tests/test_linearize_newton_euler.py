@@ -61,9 +61,9 @@ def _assert_agrees_with_pinocchio(model, q, v, u):
 
 
 def _differences(model, q, v, u, digits: int = 50, h: str = "1e-20"):
-    """``d total / d(q, v, u)`` of the exact KKT split (``crosscheck.precise``, ``digits`` significant digits) by central
-    differences at ``h``: truncation ``h^2``, rounding ``10^-digits / h``, so the derivative of the float data to double
-    precision (a test's tool). Revolute and prismatic joints only, where ``q (+) dq = q + dq``."""
+    """``d total / d(q, v, u)`` of the exact KKT split (``crosscheck.precise``, ``digits`` significant digits) by
+    central differences at ``h``: truncation ``h^2``, rounding ``10^-digits / h``, so the derivative of the float data
+    to double precision (a test's tool). Revolute and prismatic joints only, where ``q (+) dq = q + dq``."""
     assert not model.group_joints
     with mpmath.workdps(digits):
         h = mpmath.mpf(h)
