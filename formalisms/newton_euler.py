@@ -64,8 +64,8 @@ least-squares numbers. The drift is the same solve with ``u = 0`` (eq. 14) and `
 (eq. 17); the drift's parts are the solves with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias
 ``Jcdot qd`` (``drift_velocity``). The linearization differentiates the KKT system: ``M dvdot - Jc^T dlam = -dG``,
 ``Jc dvdot = -dc`` with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces,
-``lam`` fixed, their world directions turning with the bodies) and ``c = Jc vdot + Jcdot qd`` (the rows' second derivatives,
-from the points' accelerations at ``qdd = vdot``), solved by the same range-space method and rank rule.
+``lam`` fixed, their world directions turning with the bodies) and ``c = Jc vdot + Jcdot qd`` (the rows' second
+derivatives, from the points' accelerations at ``qdd = vdot``), solved by the same range-space method and rank rule.
 
 The numbers the split reports about its solves are this backend's own, by singular values rather than the
 eigendecomposition the solve uses: cond(M) and ``||M^-1||`` from those of the Cholesky factor ``L`` (``M = L L^T``),
