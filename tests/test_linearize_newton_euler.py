@@ -5,7 +5,8 @@ Unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.refer
 convention on Lie groups). Constrained ones: central differences of the exact KKT split of the harness's
 high-precision reference (``crosscheck.precise``, 50 digits, h = 1e-20: the derivative to double precision; a float
 difference of ``reference.split`` at h = 1e-6 has 1e-8 of rounding, and at h = 1e-4 steps across the rank changes of
-degenerate rows that random models have within 1e-4). The bar is the issue's: every block of A and B within 1e-8
+degenerate rows that random models have within 1e-4); with group joints (solo12 standing) float differences of the
+reference along ``integrate`` (:func:`_group_differences`). The bar is the issue's: every block of A and B within 1e-8
 relative (max abs error / max abs entry of the reference block, :func:`_errors`); measured 1e-13 against Pinocchio
 and 1e-14 against the exact differences.
 """
@@ -20,7 +21,7 @@ from hypothesis import strategies as st
 
 import cases
 import formalisms
-from cases.configuration import random_configuration
+from cases.configuration import integrate, random_configuration
 from crosscheck import precise, reference, sampling, testing
 from formalisms import newton_euler as ne
 from formalisms.interface import StateError
@@ -92,6 +93,24 @@ def _assert_agrees_with_differences(model, q, v, u):
     np.testing.assert_allclose(lin.vdot, ref.total, rtol=0, atol=1e-10 * ref.accel_scale)
 
 
+def _group_differences(model, q, v, u, h=5e-4):
+    """The derivatives of ``reference.split(...).total`` for a model with group joints: along ``integrate`` by the
+    fourth-order central stencil (truncation and rounding near 1e-11 relative at h = 5e-4), and along v and u by the
+    second-order one at h = 1 (the KKT solution is quadratic in v and linear in u: the stencil is then exact, up to
+    rounding near 1e-15)."""
+    f = lambda q, v, u: reference.split(model, q, v, u).total  # noqa: E731
+
+    def fourth(g):
+        return (8.0 * (g(h) - g(-h)) - (g(2 * h) - g(-2 * h))) / (12.0 * h)
+
+    def exact(g):
+        return (g(1.0) - g(-1.0)) / 2.0
+    return {"dq": np.column_stack([fourth(lambda s: f(integrate(model, q, s * e), v, u)) for e in np.eye(model.nv)]),
+            "dv": np.column_stack([exact(lambda s: f(q, v + s * e, u)) for e in np.eye(model.nv)]),
+            "du": np.column_stack([exact(lambda s: f(q, v, u + s * e)) for e in np.eye(model.m)]).reshape(
+                model.nv, model.m)}
+
+
 def _random_state(model, seed):
     rng = np.random.default_rng(seed)
     return random_configuration(model, rng, 1.0, 0.3), rng.normal(size=model.nv), rng.normal(size=model.m)
@@ -113,6 +132,16 @@ def test_agrees_with_the_differentiated_reference_kkt_on_constrained_cases(name)
     model = cases.load(name)
     for state in sampling.sample_states(model, 2, 5, name)[1 if name == "panda" else 0:]:
         _assert_agrees_with_differences(model, *(np.array(x) for x in (state.q, state.qd, state.u)))
+
+
+def test_agrees_with_the_reference_kkt_on_a_floating_base_on_its_feet():
+    """solo12 standing (a free base, 12 contact rows): the q directions on SE(3) along ``integrate``."""
+    model = cases.load("solo12_standing")
+    state = sampling.sample_states(model, 2, 5, "solo12_standing")[1]
+    q, v, u = (np.array(x) for x in (state.q, state.qd, state.u))
+    lin = ne.linearize(model, q, v, u)
+    errors = _errors(model, lin, _group_differences(model, q, v, u), q, v, u)
+    assert max(errors.values()) <= RTOL, errors
 
 
 def test_the_constrained_derivative_holds_off_the_manifold():
