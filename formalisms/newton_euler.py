@@ -914,11 +914,37 @@ def _joint_tangent(model: Model, kin, i: int, directions: int) -> tuple[np.ndarr
     return th, dr
 
 
+def _rotated(E: np.ndarray, th: np.ndarray, x: np.ndarray, dx: np.ndarray) -> tuple:  # noqa: N803
+    """``E x`` (``E = P_i^T``: body <- parent) and its tangent ``E dx + (E x) x th_i`` (``dE = -[th_i]x E``)."""
+    Ex = E @ x
+    return Ex, E @ dx + _cross(Ex, th)
+
+
+def _joint_step_tangents(b, k: int, qd: np.ndarray, dqd: np.ndarray, w_in, dw_in, dwd_in, da_origin, V_in, dV_in,
+                         w_i: np.ndarray) -> tuple:
+    """The joint's own lines of :func:`_forward` (and :func:`_group_motion`) differentiated at fixed ``qdd``: the
+    tangents ``(dw, dwd, da)`` of body ``b`` and its origin velocity ``V`` with its tangent, from the inboard terms
+    (``w_in``, ``V_in`` and the tangents of ``w_in``, ``wd_in``, ``a_origin``, ``V_in``); ``w_i`` the body's ``w``. The
+    joint's velocity block moves only along the v directions (``dqd``)."""
+    if b.joint in ("revolute", "prismatic"):
+        s, ds = b.axis * qd[k], np.multiply.outer(b.axis, dqd[k])
+        if b.joint == "revolute":                            # w = w_in + s, wd = wd_in + axis qdd + w_in x s
+            return dw_in + ds, dwd_in + _cross(dw_in, s) + _cross(w_in, ds), da_origin, V_in, dV_in
+        return (dw_in, dwd_in, da_origin + 2.0 * (_cross(dw_in, s) + _cross(w_in, ds)),   # a += 2 w x s + axis qdd
+                V_in + s, dV_in + ds)
+    S_w, S_v = _subspace(b.joint)
+    block = slice(k, k + S_w.shape[1])
+    w_rel, v_lin, dw_rel, dv_lin = S_w @ qd[block], S_v @ qd[block], S_w @ dqd[block], S_v @ dqd[block]
+    dw = dw_in + dw_rel
+    return (dw, dwd_in + _cross(dw_in, w_rel) + _cross(w_in, dw_rel),
+            da_origin + _cross(dw_in + dw, v_lin) + _cross(w_in + w_i, dv_lin), V_in + v_lin, dV_in + dv_lin)
+
+
 def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Tangents:
     """:func:`_forward` at ``(qd, qdd)`` (``qdd`` held fixed) and its tangents along the 2 nv state directions, each
-    line of the pass differentiated by the product rule. A body-frame vector ``E x`` (``E = P_i^T``) changes by
-    ``E dx + (E x) x th_i``; the origin velocity follows ``V_i = E (V_p + w_p x r_i) + S_v v_i`` (its time derivative
-    is the pass's ``a``)."""
+    line of the pass differentiated by the product rule (:func:`_rotated` for the parent's terms moved into the body
+    frame, :func:`_joint_step_tangents` for the joint's own); the origin velocity follows ``V_i = E (V_p + w_p x r_i)
+    + S_v v_i`` (its time derivative is the pass's ``a``), the origin ``o_i = o_p + W_p r_i``."""
     P, r, W = kin
     nb, nv = len(model.bodies), model.nv
     w, wd, a = _forward(model, kin, qd, qdd)
@@ -927,46 +953,27 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
     V, dw, dwd, da, dV = ([None] * nb for _ in range(5))
     zero, dzero = np.zeros(3), np.zeros((3, 2 * nv))
     for i in model.topological_order:
-        b, p, k = model.bodies[i], model.parent_index[i], model.v_index[i]
+        p = model.parent_index[i]
         th[i], dr[i] = _joint_tangent(model, kin, i, 2 * nv)
-        E = P[i].T
         if p < 0:
-            w_p = wd_p = a_p = V_p = zero
+            w_p = wd_p = a_p = V_p = o_p = zero
             dw_p = dwd_p = da_p = dV_p = Th_p = do_p = dzero
-            o_p, W_p = zero, np.eye(3)
+            W_p = np.eye(3)
         else:
-            w_p, wd_p, a_p, V_p = w[p], wd[p], a[p], V[p]
-            dw_p, dwd_p, da_p, dV_p, Th_p, do_p, o_p, W_p = dw[p], dwd[p], da[p], dV[p], Th[p], do[p], o[p], W[p]
+            w_p, wd_p, a_p, V_p, o_p, W_p = w[p], wd[p], a[p], V[p], o[p], W[p]
+            dw_p, dwd_p, da_p, dV_p, Th_p, do_p = dw[p], dwd[p], da[p], dV[p], Th[p], do[p]
+        E, r_i, dr_i = P[i].T, r[i], dr[i]
         Th[i] = E @ Th_p + th[i]
-        o[i] = o_p + W_p @ r[i]
-        do[i] = do_p + W_p @ (_cross(Th_p, r[i]) + dr[i])
-
-        def rotate(x, dx):
-            Ex = E @ x
-            return Ex, E @ dx + _cross(Ex, th[i])
-        wxr = _cross(w_p, r[i])
-        w_in, dw_in = rotate(w_p, dw_p)
-        wd_in, dwd_in = rotate(wd_p, dwd_p)
-        _, da_origin = rotate(a_p + _cross(wd_p, r[i]) + _cross(w_p, wxr),
-                              da_p + _cross(dwd_p, r[i]) + _cross(wd_p, dr[i]) + _cross(dw_p, wxr)
-                              + _cross(w_p, _cross(dw_p, r[i]) + _cross(w_p, dr[i])))
-        V_in, dV_in = rotate(V_p + wxr, dV_p + _cross(dw_p, r[i]) + _cross(w_p, dr[i]))
-        if b.joint in ("revolute", "prismatic"):
-            s, ds = b.axis * qd[k], np.multiply.outer(b.axis, dqd[k])
-            if b.joint == "revolute":
-                dw[i], dwd[i], da[i], V[i], dV[i] = (dw_in + ds, dwd_in + _cross(dw_in, s) + _cross(w_in, ds),
-                                                     da_origin, V_in, dV_in)
-            else:
-                dw[i], dwd[i], V[i], dV[i] = dw_in, dwd_in, V_in + s, dV_in + ds
-                da[i] = da_origin + 2.0 * (_cross(dw_in, s) + _cross(w_in, ds))
-        else:                                                 # _group_motion differentiated
-            S_w, S_v = _subspace(b.joint)
-            w_rel, v_lin, dw_rel, dv_lin = S_w @ qd[k:k + len(S_w.T)], S_v @ qd[k:k + len(S_w.T)], (
-                S_w @ dqd[k:k + len(S_w.T)]), S_v @ dqd[k:k + len(S_w.T)]
-            dw[i] = dw_in + dw_rel
-            dwd[i] = dwd_in + _cross(dw_in, w_rel) + _cross(w_in, dw_rel)
-            da[i] = da_origin + _cross(dw_in + dw[i], v_lin) + _cross(w_in + w[i], dv_lin)
-            V[i], dV[i] = V_in + v_lin, dV_in + dv_lin
+        o[i], do[i] = o_p + W_p @ r_i, do_p + W_p @ (_cross(Th_p, r_i) + dr_i)
+        wxr = _cross(w_p, r_i)
+        w_in, dw_in = _rotated(E, th[i], w_p, dw_p)
+        _, dwd_in = _rotated(E, th[i], wd_p, dwd_p)
+        _, da_origin = _rotated(E, th[i], a_p + _cross(wd_p, r_i) + _cross(w_p, wxr),
+                                da_p + _cross(dwd_p, r_i) + _cross(wd_p, dr_i) + _cross(dw_p, wxr)
+                                + _cross(w_p, _cross(dw_p, r_i) + _cross(w_p, dr_i)))
+        V_in, dV_in = _rotated(E, th[i], V_p + wxr, dV_p + _cross(dw_p, r_i) + _cross(w_p, dr_i))
+        dw[i], dwd[i], da[i], V[i], dV[i] = _joint_step_tangents(
+            model.bodies[i], model.v_index[i], qd, dqd, w_in, dw_in, dwd_in, da_origin, V_in, dV_in, w[i])
     return _Tangents(th, dr, Th, o, do, (w, wd, a), V, dw, dwd, da, dV)
 
 
@@ -1093,7 +1100,7 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     Unconstrained: ``ID(q, qd, vdot) = B u``, so ``dvdot/dx = -M^-1 dID/dx`` and ``dvdot/du = M^-1 B`` (the Cholesky
     factor of :func:`split`). Constrained (eq. 12, 13): the KKT system differentiated, ``M dvdot - Jc^T dlam = -dG``,
     ``Jc dvdot = -dc``, with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces
-    applied, :func:`_constraint_loads`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
+    applied, :func:`_constraint_tangents`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
     accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
     q, qd, u = check_state(model, q, qd, u)
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
