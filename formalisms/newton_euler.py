@@ -36,7 +36,18 @@ velocity ``S_v v_i``): ``(I, 0)`` for a ball, ``([0 I], [I 0])`` for a free join
 A joint-coordinate chart ``q = psi(p)`` does not apply to a model with such joints, and the backend has no
 ``split_chart``.
 
-The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``.
+The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``. The drift's parts
+(4.5-4.6) are solved directly on the same factor: the zero-velocity counterfactual ``zvcf = -M^-1 g`` and
+``drift_velocity = -M^-1 C qd`` (``g`` the backward pass at rest, ``C qd`` the pass at ``qdd = 0`` without gravity), so
+that they add up to the drift to rounding.
+
+Linearization (4.8, eq. 11; :func:`linearize`): the passes differentiated in forward mode, every body carrying the
+directional derivatives of its placement, velocities, accelerations and loads along all ``2 nv`` state directions at
+once (a trailing axis). A q direction ``q_i (+) e`` turns body ``i``'s frame by ``S_w e`` and moves its origin by
+``S_v e`` (the joint's own motion, in its frame), so ``dP_i = P_i [S_w e]x``; the whole body turns by ``Th_i =
+P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame and the loop forces. With
+``qdd = vdot`` held fixed the backward pass gives ``dID/dx``, and ``dvdot/dx = -M^-1 dID/dx``, ``dvdot/du = M^-1 B``
+(the KKT system differentiated with constraints, below).
 
 Constraints (article 5; DESIGN.md, constraints). ``phi``, ``Jc`` and ``Jcdot qd`` come from the recursion's own
 point kinematics: the world position of a body point from the placements; column ``j`` of its Jacobian is the
@@ -50,7 +61,11 @@ from the range-space (Schur complement) method on the Cholesky factor of ``M``: 
 ``S^+`` from the eigendecomposition of ``S`` with the eigenvalues below ``CONSTRAINT_RCOND`` times the largest
 dropped: redundant rows get the minimum-norm multipliers and an inconsistent system (an empty ``H_t``) finite
 least-squares numbers. The drift is the same solve with ``u = 0`` (eq. 14) and ``ctrl = B_c B u`` directly
-(eq. 17).
+(eq. 17); the drift's parts are the solves with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias
+``Jcdot qd`` (``drift_velocity``). The linearization differentiates the KKT system: ``M dvdot - Jc^T dlam = -dG``,
+``Jc dvdot = -dc`` with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces,
+``lam`` fixed, their world directions turning with the bodies) and ``c = Jc vdot + Jcdot qd`` (the rows' second
+derivatives, from the points' accelerations at ``qdd = vdot``), solved by the same range-space method and rank rule.
 
 The numbers the split reports about its solves are this backend's own, by singular values rather than the
 eigendecomposition the solve uses: cond(M) and ``||M^-1||`` from those of the Cholesky factor ``L`` (``M = L L^T``),
@@ -68,15 +83,15 @@ themselves like an actuator, so it appears in the axis components of the reactio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import JOINT_DOF, Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Split, SplitBatch, check_batch,
-                                  check_state, joint_vectors)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, joint_vectors, state_space)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -786,23 +801,30 @@ def split(model: Model, q, qd, u) -> Split:
     common = dict(power_ctrl=float(power.sum()), power_ctrl_per_coord=power, cond_M=mass.cond,
                   kinetic_energy=0.5 * qd @ M @ qd)
     if model.constraints:
-        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common)
-    drift, ctrl, total = _cho_solve(L, np.column_stack([-h, tau_ctrl, tau_ctrl - h])[..., None])[..., 0].T
+        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common, (g, c_qd))
+    drift, ctrl, total, zvcf, drift_velocity = _cho_solve(
+        L, np.column_stack([-h, tau_ctrl, tau_ctrl - h, -g, -c_qd])[..., None])[..., 0].T
     extras, drift_motion = _extras(model, kin, qd, total, drift)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
                  power_constr_per_coord=None, accel_scale=mass.accel_scale, extras=extras,
-                 task_drift=_task_acceleration(model, kin, drift_motion), **_wrenches(extras), **common)
+                 task_drift=_task_acceleration(model, kin, drift_motion), zvcf=zvcf, drift_velocity=drift_velocity,
+                 **_wrenches(extras), **common)
 
 
 def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass: _MassScales,  # noqa: N803
-                       common: dict) -> Split:
+                       common: dict, parts: tuple) -> Split:
     """Eq. (12)-(17) by the range-space method (a batch of one), the reactions with the loop forces applied, and the
     constraint's own quantities (article 5.5): ``Jc^T lam`` and its power ``(Jc^T lam)_i qd_i``, ``Jc qd`` and the
-    conditioning of S; ``accel_scale`` adds what the constraint force can produce."""
+    conditioning of S; ``accel_scale`` adds what the constraint force can produce. The drift's parts (4.5-4.6) are
+    the same solve with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias ``Jcdot qd``
+    (``drift_velocity``); ``parts = (g, C qd)``."""
     rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
     schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
     (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
         x[:, 0] for x in schur.solve(-h[:, None]))                                      # eq. (12, 13), (14)
+    g, c_qd = parts
+    zvcf = replace(schur, bias=np.zeros_like(schur.bias)).solve(-g[:, None])[0][:, 0]
+    drift_velocity = schur.solve(-c_qd[:, None])[0][:, 0]
     extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
                                    _constraint_loads(model, kin, rows, lam_drift))
     cs = _constraint_scales(model, L[..., 0], Jc, bias, (tau_ctrl - h, -h), mass)
@@ -811,7 +833,7 @@ def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_c
     return Split(drift=drift, ctrl=schur.input_map(tau_ctrl[:, None])[:, 0], total=total, lam=lam,
                  lam_drift=lam_drift, power_constr=float(power.sum()), power_constr_per_coord=power,
                  accel_scale=mass.accel_scale + cs.force_scale, extras=extras,
-                 task_drift=_task_acceleration(model, kin, drift_motion),
+                 task_drift=_task_acceleration(model, kin, drift_motion), zvcf=zvcf, drift_velocity=drift_velocity,
                  conditions={"constraint": cs.cond_S, "constraint_consistency": cs.inconsistency,
                              "constraint_kept": cs.cond_kept},
                  constraint_value=np.concatenate([r.phi for r in rows]), constraint_jacobian=Jc, constraint_bias=bias,
@@ -848,9 +870,262 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:  # noqa: N803
     return SplitBatch(*(stack(name) for name in ("drift", "ctrl", "total", "lam", "lam_drift")))
 
 
+# ----------------------------------------------------------------------------------------------------------
+# Linearization (article 4.8, eq. 11): the recursion's own passes differentiated in forward mode, one state, all
+# 2 nv state directions at once on a trailing axis (D): q directions ``q (+) s e_j`` first, then v directions
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Tangents:
+    """Per body, one state: the placement's tangents and the forward pass with its tangents at ``(qd, qdd)``.
+
+    ``th`` (3, D) the rotation of the body's own joint (body frame): ``d P_i = P_i [th_i]x``; ``dr`` (3, D) the
+    change of the body origin in the parent frame; ``Th`` (3, D) the body's whole rotation, ``d W_i = W_i [Th_i]x``
+    (``Th_i = P_i^T Th_parent + th_i``); ``o``, ``do`` the origin's world position and its tangent. ``motion`` is
+    ``(w, wd, a)`` of :func:`_forward`, ``V`` the origin's velocity (body frame), and ``dw, dwd, da, dV`` their
+    tangents (3, D)."""
+
+    th: list
+    dr: list
+    Th: list
+    o: list
+    do: list
+    motion: tuple
+    V: list
+    dw: list
+    dwd: list
+    da: list
+    dV: list
+
+
+def _joint_tangent(model: Model, kin, i: int, directions: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(th_i, dr_i)``: ``q_i (+) e`` moves body ``i``'s frame by the rotation ``S_w e`` and the origin by ``S_v e``
+    (body frame; :func:`_subspace`, the axis for a 1-DOF joint), so ``dP_i = P_i [S_w e]x``, ``dr_i = P_i S_v e`` (a
+    free joint: ``dp = R(quat) e_lin``, the first order of ``integrate``), nonzero in the body's own q columns."""
+    b, k = model.bodies[i], model.v_index[i]
+    if b.joint in ("revolute", "prismatic"):
+        axis, zero = b.axis[:, None], np.zeros((3, 1))
+        S_w, S_v = (axis, zero) if b.joint == "revolute" else (zero, axis)
+    else:
+        S_w, S_v = _subspace(b.joint)
+    th, dr = np.zeros((3, directions)), np.zeros((3, directions))
+    th[:, k:k + S_w.shape[1]] = S_w
+    dr[:, k:k + S_w.shape[1]] = kin[0][i] @ S_v
+    return th, dr
+
+
+def _rotated(E: np.ndarray, th: np.ndarray, x: np.ndarray, dx: np.ndarray) -> tuple:  # noqa: N803
+    """``E x`` (``E = P_i^T``: body <- parent) and its tangent ``E dx + (E x) x th_i`` (``dE = -[th_i]x E``)."""
+    Ex = E @ x
+    return Ex, E @ dx + _cross(Ex, th)
+
+
+def _joint_step_tangents(b, k: int, qd: np.ndarray, dqd: np.ndarray, w_in, dw_in, dwd_in, da_origin, V_in, dV_in,
+                         w_i: np.ndarray) -> tuple:
+    """The joint's own lines of :func:`_forward` (and :func:`_group_motion`) differentiated at fixed ``qdd``: the
+    tangents ``(dw, dwd, da)`` of body ``b`` and its origin velocity ``V`` with its tangent, from the inboard terms
+    (``w_in``, ``V_in`` and the tangents of ``w_in``, ``wd_in``, ``a_origin``, ``V_in``); ``w_i`` the body's ``w``. The
+    joint's velocity block moves only along the v directions (``dqd``)."""
+    if b.joint in ("revolute", "prismatic"):
+        s, ds = b.axis * qd[k], np.multiply.outer(b.axis, dqd[k])
+        if b.joint == "revolute":                            # w = w_in + s, wd = wd_in + axis qdd + w_in x s
+            return dw_in + ds, dwd_in + _cross(dw_in, s) + _cross(w_in, ds), da_origin, V_in, dV_in
+        return (dw_in, dwd_in, da_origin + 2.0 * (_cross(dw_in, s) + _cross(w_in, ds)),   # a += 2 w x s + axis qdd
+                V_in + s, dV_in + ds)
+    S_w, S_v = _subspace(b.joint)
+    block = slice(k, k + S_w.shape[1])
+    w_rel, v_lin, dw_rel, dv_lin = S_w @ qd[block], S_v @ qd[block], S_w @ dqd[block], S_v @ dqd[block]
+    dw = dw_in + dw_rel
+    return (dw, dwd_in + _cross(dw_in, w_rel) + _cross(w_in, dw_rel),
+            da_origin + _cross(dw_in + dw, v_lin) + _cross(w_in + w_i, dv_lin), V_in + v_lin, dV_in + dv_lin)
+
+
+def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Tangents:
+    """:func:`_forward` at ``(qd, qdd)`` (``qdd`` held fixed) and its tangents along the 2 nv state directions, each
+    line of the pass differentiated by the product rule (:func:`_rotated` for the parent's terms moved into the body
+    frame, :func:`_joint_step_tangents` for the joint's own); the origin velocity follows ``V_i = E (V_p + w_p x r_i)
+    + S_v v_i`` (its time derivative is the pass's ``a``), the origin ``o_i = o_p + W_p r_i``."""
+    P, r, W = kin
+    nb, nv = len(model.bodies), model.nv
+    w, wd, a = _forward(model, kin, qd, qdd)
+    dqd = np.hstack([np.zeros((nv, nv)), np.eye(nv)])                  # the v directions move qd
+    th, dr, Th, o, do = ([None] * nb for _ in range(5))
+    V, dw, dwd, da, dV = ([None] * nb for _ in range(5))
+    zero, dzero = np.zeros(3), np.zeros((3, 2 * nv))
+    for i in model.topological_order:
+        p = model.parent_index[i]
+        th[i], dr[i] = _joint_tangent(model, kin, i, 2 * nv)
+        if p < 0:
+            w_p = wd_p = a_p = V_p = o_p = zero
+            dw_p = dwd_p = da_p = dV_p = Th_p = do_p = dzero
+            W_p = np.eye(3)
+        else:
+            w_p, wd_p, a_p, V_p, o_p, W_p = w[p], wd[p], a[p], V[p], o[p], W[p]
+            dw_p, dwd_p, da_p, dV_p, Th_p, do_p = dw[p], dwd[p], da[p], dV[p], Th[p], do[p]
+        E, r_i, dr_i = P[i].T, r[i], dr[i]
+        Th[i] = E @ Th_p + th[i]
+        o[i], do[i] = o_p + W_p @ r_i, do_p + W_p @ (_cross(Th_p, r_i) + dr_i)
+        wxr = _cross(w_p, r_i)
+        w_in, dw_in = _rotated(E, th[i], w_p, dw_p)
+        _, dwd_in = _rotated(E, th[i], wd_p, dwd_p)
+        _, da_origin = _rotated(E, th[i], a_p + _cross(wd_p, r_i) + _cross(w_p, wxr),
+                                da_p + _cross(dwd_p, r_i) + _cross(wd_p, dr_i) + _cross(dw_p, wxr)
+                                + _cross(w_p, _cross(dw_p, r_i) + _cross(w_p, dr_i)))
+        V_in, dV_in = _rotated(E, th[i], V_p + wxr, dV_p + _cross(dw_p, r_i) + _cross(w_p, dr_i))
+        dw[i], dwd[i], da[i], V[i], dV[i] = _joint_step_tangents(
+            model.bodies[i], model.v_index[i], qd, dqd, w_in, dw_in, dwd_in, da_origin, V_in, dV_in, w[i])
+    return _Tangents(th, dr, Th, o, do, (w, wd, a), V, dw, dwd, da, dV)
+
+
+def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
+    """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
+    (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
+    ``loads`` (body -> ``[(offset, f, df)]``: a force ``f`` at the body point ``offset``, its moment about the origin
+    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`)."""
+    P, r, W = kin
+    w, wd, a = t.motion
+    nb = len(model.bodies)
+    f, n = [0.0] * nb, [0.0] * nb
+    df, dn = [0.0] * nb, [0.0] * nb
+    for i in reversed(model.topological_order):
+        b = model.bodies[i]
+        F, N = _body_load(model, i, W[i], w[i], wd[i], a[i], gravity=True)
+        c, inertia = b.com, b.inertia
+        wxc = _cross(w[i], c)
+        da_c = t.da[i] + _cross(t.dwd[i], c) + _cross(t.dw[i], wxc) + _cross(w[i], _cross(t.dw[i], c))
+        dF = b.mass * (da_c - _cross(_body_gravity(W[i], model.gravity), t.Th[i]))
+        dN = (_cross(c, dF) + inertia @ t.dwd[i] + _cross(t.dw[i], inertia @ w[i])
+              + _cross(w[i], inertia @ t.dw[i]))
+        f[i], n[i], df[i], dn[i] = f[i] + F, n[i] + N, df[i] + dF, dn[i] + dN
+        for offset, fe, dfe in (loads or {}).get(i, ()):
+            f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
+            df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
+        p = model.parent_index[i]
+        if p >= 0:
+            fp, dfp = P[i] @ f[i], P[i] @ (df[i] + _cross(t.th[i], f[i]))
+            f[p], df[p] = f[p] + fp, df[p] + dfp
+            n[p] = n[p] + P[i] @ n[i] + _cross(r[i], fp)
+            dn[p] = dn[p] + P[i] @ (dn[i] + _cross(t.th[i], n[i])) + _cross(t.dr[i], fp) + _cross(r[i], dfp)
+    return np.array(df), np.array(dn)
+
+
+@dataclass(frozen=True)
+class _PointTangent:
+    """A body point's world position, velocity and classical acceleration at ``(qd, qdd)`` and their tangents (3, D):
+    ``p = o + W x``, ``pv = W (V + w x x)``, ``acc = W (a + wd x x + w x (w x x))`` (:func:`_point_acceleration`),
+    each ``d(W y) = W (Th x y + dy)``. A world point (body None) is fixed: zero tangents."""
+
+    body: int | None
+    offset: np.ndarray
+    p: np.ndarray
+    dp: np.ndarray
+    pv: np.ndarray
+    dpv: np.ndarray
+    acc: np.ndarray
+    dacc: np.ndarray
+
+
+def _point_tangent(kin, t: _Tangents, body: int | None, offset: np.ndarray) -> _PointTangent:
+    """:class:`_PointTangent` of the point ``offset`` of ``body`` (an index, None for the world)."""
+    if body is None:
+        zero, dzero = np.zeros(3), np.zeros((3, t.th[0].shape[1]))
+        return _PointTangent(None, offset, offset, dzero, zero, dzero, zero, dzero)
+    W, (w, wd, a) = kin[2][body], (x[body] for x in t.motion)
+    wxo, Th = _cross(w, offset), t.Th[body]
+    y = a + _cross(wd, offset) + _cross(w, wxo)
+    dy = t.da[body] + _cross(t.dwd[body], offset) + _cross(t.dw[body], wxo) + _cross(w, _cross(t.dw[body], offset))
+    z, dz = t.V[body] + wxo, t.dV[body] + _cross(t.dw[body], offset)
+    return _PointTangent(body, offset, t.o[body] + W @ offset, t.do[body] + W @ _cross(Th, offset), W @ z,
+                         W @ (_cross(Th, z) + dz), W @ y, W @ (_cross(Th, y) + dy))
+
+
+def _circle_tangent(model: Model, c, point):
+    """:func:`_circle` differentiated: ``c = Jc qdd + Jcdot qd = 2 |P pv|^2 + grad . acc`` with ``grad = 2 P^T P (p -
+    center)``, so ``dc = 4 (P pv) . (P dpv) + dgrad . acc + grad . dacc``, ``dgrad = 2 P^T P dp``; the force ``grad
+    lam`` at the point changes by ``dgrad lam``."""
+    x = point(c.body, c.offset)
+    gram = c.plane.T @ c.plane
+    grad, dgrad = 2.0 * gram @ (x.p - c.center), 2.0 * gram @ x.dp
+    dc = 4.0 * (c.plane @ x.pv) @ (c.plane @ x.dpv) + x.acc @ dgrad + grad @ x.dacc
+    return dc[None], ((x, grad[:, None], dgrad[:, None]),)
+
+
+def _coincide_tangent(model: Model, c, point):
+    """:func:`_coincide` differentiated: ``dc = D (dacc_a - dacc_b)``; the forces ``+-D^T lam`` are constant."""
+    xa, xb = point(c.body_a, c.offset_a), point(c.body_b, c.offset_b)
+    D, none = c.directions, np.zeros((3, len(c.directions), xa.dp.shape[1]))
+    return c.directions @ (xa.dacc - xb.dacc), ((xa, D.T, none), (xb, -D.T, none))
+
+
+def _line_tangent(model: Model, c, point):
+    """:func:`_line` differentiated: ``dc = N dacc``; the force ``N^T lam`` is constant."""
+    x = point(c.body, c.offset)
+    return c.normals @ x.dacc, ((x, c.normals.T, np.zeros(c.normals.T.shape + x.dp.shape[1:])),)
+
+
+def _coupling_tangent(model: Model, c, point):
+    """:func:`_coupling` differentiated: a constant row, ``dc = 0``, no point force."""
+    return np.zeros((1, 2 * model.nv)), ()
+
+
+#: The derivative of each declaration's rows (``dc`` of ``Jc qdd + Jcdot qd`` and the point forces), by its type.
+_TANGENTS = {PointOnCircle: _circle_tangent, PointsCoincide: _coincide_tangent, PointOnLine: _line_tangent,
+             JointCoupling: _coupling_tangent}
+
+
+def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
+    """``dc`` (k, D), the tangents of ``Jc qdd + Jcdot qd`` at the ``qdd`` of ``t`` (every declaration's rows
+    differentiated, :data:`_TANGENTS`), and the multipliers' point forces as body loads with their tangents:
+    body -> ``[(offset, f, df)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th + W^T dF lam``."""
+    point = (lambda name, offset: _point_tangent(kin, t, None if name is None else model.body_index(name), offset))
+    rows, loads, start = [], {}, 0
+    for c in model.constraints:
+        dc, forces = _TANGENTS[type(c)](model, c, point)
+        part, start = lam[start:start + len(dc)], start + len(dc)
+        for x, F, dF in forces:
+            if x.body is not None:
+                W = kin[2][x.body]
+                f = W.T @ (F @ part)
+                loads.setdefault(x.body, []).append(
+                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part)))
+        rows.append(dc)
+    return np.concatenate(rows), loads
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`Linearization`, the tangent-space convention on Lie groups) from the recursion's
+    own derivatives: the forward and backward passes differentiated in forward mode along all ``2 nv`` state
+    directions at once (:func:`_forward_tangents`, :func:`_backward_tangents`), at ``qdd = vdot`` held fixed.
+
+    Unconstrained: ``ID(q, qd, vdot) = B u``, so ``dvdot/dx = -M^-1 dID/dx`` and ``dvdot/du = M^-1 B`` (the Cholesky
+    factor of :func:`split`). Constrained (eq. 12, 13): the KKT system differentiated, ``M dvdot - Jc^T dlam = -dG``,
+    ``Jc dvdot = -dc``, with ``G = ID(q, qd, vdot) - Jc^T lam`` (the backward pass with the multipliers' point forces
+    applied, :func:`_constraint_tangents`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
+    accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
+    q, qd, u = check_state(model, q, qd, u)
+    kin, units, bias_motion, h, M = _dynamics(model, q, qd)
+    L = _cholesky(model, M[..., None], q[:, None])
+    tau = model.input_map @ u
+    if model.constraints:
+        _, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
+        schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
+        vdot, lam = (x[:, 0] for x in schur.solve((tau - h)[:, None]))
+        t = _forward_tangents(model, kin, qd, vdot)
+        dc, loads = _constraint_tangents(model, kin, t, lam)
+        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads))
+        dvdot, dvdot_du = replace(schur, bias=dc).solve(-dG)[0], schur.input_map(model.input_map)
+    else:
+        vdot = _cho_solve(L, (tau - h)[:, None, None])[:, 0, 0]
+        t = _forward_tangents(model, kin, qd, vdot)
+        dID = _joint_torques(model, *_backward_tangents(model, kin, t))
+        dvdot, dvdot_du = -_cho_solve(L, dID[..., None])[..., 0], _cho_solve(L, model.input_map[..., None])[..., 0]
+    return state_space(model, qd, dvdot[:, :model.nv], dvdot[:, model.nv:], dvdot_du, vdot)
+
+
 FORMALISM = Formalism(
     name="newton_euler",
     summary="Recursive Newton–Euler in body frames (article 6.1, eqs. 18-19): 3-vector force balance per body",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
