@@ -435,6 +435,11 @@ def _input_map_dropped(derivatives):
 
 
 DERIVATIVES = [
+    Fault("ne-linearize-at-zero-acceleration", NE,
+          "The derivative recursion runs at qdd = 0 instead of at qdd = vdot, so d(M vdot)/dq is left out of A: "
+          "the derivative of h alone.",
+          "formalisms.newton_euler:_forward_tangents",
+          lambda f: lambda model, kin, qd, qdd: f(model, kin, qd, np.zeros_like(qdd))),
     Fault("osc-linearize-mass-derivative-dropped", OSC,
           "The linearization leaves dM/dq vdot out of dvdot/dq (only the derivatives of h and of the constraint "
           "terms are kept).",
