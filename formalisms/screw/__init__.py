@@ -69,6 +69,7 @@ import numpy as np
 from cases.model import Model
 from formalisms.interface import Formalism, Split, SplitBatch, check_batch, check_state, with_block_form
 from formalisms.screw import conditioning, constraints, dynamics, kinematics, lie
+from formalisms.screw.derivatives import linearize
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
 
@@ -299,4 +300,5 @@ FORMALISM = Formalism(
     summary="Product of exponentials and screw theory (article 6.2, eqs. 20, 27): twists and wrenches on SE(3)",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )
