@@ -158,7 +158,7 @@ def _point_tangents(kin: Kinematics, qd: np.ndarray, d: Directions) -> Callable[
         S, dS = columns * support, dcolumns * support
         dp = d.dq @ x.J.T
         dJ = np.swapaxes(dS[..., 3:] + lie.cross(dS[..., :3], p) + lie.cross(S[:, :3], dp[:, None, :]), -1, -2)
-        w, v, wd, vd = Vs[i, :3], Vs[i, 3:], A[i, :3], A[i, 3:]
+        w, v, wd = Vs[i, :3], Vs[i, 3:], A[i, :3]
         dw, dv, dwd, dvd = dVs[:, i, :3], dVs[:, i, 3:], dA[:, i, :3], dA[:, i, 3:]
         pdot = v + lie.cross(w, p)
         dpdot = dv + lie.cross(dw, p) + lie.cross(w, dp)
