@@ -79,15 +79,15 @@ def _motion_tangents(kin: Kinematics, qd: np.ndarray, qdd: np.ndarray, d: Direct
     model, Ad = kin.model, kin.from_parent_adjoint
     ev, edv = kinematics.joint_twists(kin, qd), kinematics.joint_twists(kin, d.dv)
     dV = edv - lie.bracket(xi, _parents(kin, V))
-    dVdot = -lie.bracket(xi, _parents(kin, Vdot))
+    dVdot = lie.bracket(V, edv) - lie.bracket(xi, _parents(kin, Vdot))
+    by_own = np.swapaxes(lie.ad(ev), -1, -2)                   # [dV_i, E_i v_i] = -ad_{E_i v_i} dV_i, as rows
     for i in model.topological_order:
         p = model.parent_index[i]
         if p >= 0:
             dV[:, i] += dV[:, p] @ Ad[i].T
-        dVdot[:, i] += lie.bracket(dV[:, i], ev[i]) + lie.bracket(V[i], edv[:, i])
-        if p >= 0:
             dVdot[:, i] += dVdot[:, p] @ Ad[i].T
-    return dV, dVdot
+        dVdot[:, i] -= dV[:, i] @ by_own[i]
+    return np.ascontiguousarray(dV), np.ascontiguousarray(dVdot)
 
 
 def _weight_tangents(kin: Kinematics, G: dynamics.Inertias, eta: np.ndarray) -> np.ndarray:  # noqa: N803
@@ -111,10 +111,11 @@ def inverse_dynamics_tangents(kin: Kinematics, G: dynamics.Inertias, qd: np.ndar
     GV = G.apply(V)
     dF = (G.apply(dVdot) - lie.coad(dV, GV) - lie.coad(V, G.apply(dV))
           - _weight_tangents(kin, G, kinematics.body_twists(kin, d.dq)))
+    moved = lie.coad(xi, F)                                    # ad_{xi_c}^T F_c: the child's wrench as its frame turns
     for i in reversed(model.topological_order):
         p = model.parent_index[i]
         if p >= 0:
-            dF[:, p] += (dF[:, i] - lie.coad(xi[:, i], F[i])) @ kin.from_parent_adjoint[i]
+            dF[:, p] += (dF[:, i] - moved[:, i]) @ kin.from_parent_adjoint[i]
     return dynamics.generalized_forces(kin, dF)
 
 
