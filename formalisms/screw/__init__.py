@@ -5,7 +5,10 @@ Modules: :mod:`~formalisms.screw.lie` (SE(3) and se(3): exponentials, logarithms
 point kinematics), :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq. 27, ``M``, ``h``) and
 :mod:`~formalisms.screw.constraints` (``phi``, ``Jc``, ``Jcdot qd``, constraint wrenches and Gauss's principle,
 article 5), :mod:`~formalisms.screw.conditioning` (its own cond(M), conditioning of S, scales and task-space
-inertia). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
+inertia), :mod:`~formalisms.screw.derivatives` (the exact linearization of eq. 11: tangents of the PoE recursions and
+the differentiated KKT system, :func:`linearize`). This module holds the forward dynamics and the drift–control split
+(article 6.2.3; eq. 9, 10, 14-17), with the drift's parts ``zvcf = M^-1 (-g)`` and ``drift_velocity = M^-1 (-C qd)``
+(article 4.5-4.6; with constraints the KKT solves with the bias 0 and ``Jcdot qd``), each solved on its own.
 
 ``M = sum_i J_b,i^T G_i J_b,i`` and ``h = C qd + g`` from the wrench recursion of eq. (27), both in body frames
 (:mod:`~formalisms.screw.dynamics`: no moment about the world origin, so M and h round on the levers about the
