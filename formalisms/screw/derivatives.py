@@ -32,7 +32,11 @@ of each declaration are differentiated from these (``d phi``, ``d Jc``, ``d (Jcd
 Forward dynamics (eq. 2, 12-13). Unconstrained: ``dvdot/dx = -M^-1 dID/dx`` at ``a = vdot``, ``dvdot/du = M^-1 B``
 on the Cholesky factor of ``M``. Constrained: the KKT system differentiated, ``M dvdot = -dID + dJc^T lam + Jc^T
 dlam``, ``Jc dvdot = -(dJc vdot + d(Jcdot v))``, solved per direction by Gauss's principle on the split's own factor
-and pseudo-inverse (same rank rule, minimum-norm multipliers), and ``dvdot/du = B_c B`` (eq. 17).
+and pseudo-inverse (same rank rule, minimum-norm multipliers), and ``dvdot/du = B_c B`` (eq. 17). With redundant
+rows this is the derivative while the rank of ``S`` is locally constant (then ``dJc^T n`` of a null vector ``n`` of
+``Jc^T`` lies in the range of ``Jc^T``, so the choice of ``lam`` does not matter); where the rank changes nearby (rows
+dependent on the manifold, independent off it) the accelerations are not differentiable off the manifold and this is
+the derivative within the constant-rank family.
 """
 
 from __future__ import annotations
