@@ -5,7 +5,10 @@ Modules: :mod:`~formalisms.screw.lie` (SE(3) and se(3): exponentials, logarithms
 point kinematics), :mod:`~formalisms.screw.dynamics` (the wrench recursion of eq. 27, ``M``, ``h``) and
 :mod:`~formalisms.screw.constraints` (``phi``, ``Jc``, ``Jcdot qd``, constraint wrenches and Gauss's principle,
 article 5), :mod:`~formalisms.screw.conditioning` (its own cond(M), conditioning of S, scales and task-space
-inertia). This module holds the forward dynamics and the drift–control split (article 6.2.3; eq. 9, 10, 14-17).
+inertia), :mod:`~formalisms.screw.derivatives` (the exact linearization of eq. 11: tangents of the PoE recursions and
+the differentiated KKT system, :func:`linearize`). This module holds the forward dynamics and the drift–control split
+(article 6.2.3; eq. 9, 10, 14-17), with the drift's parts ``zvcf = M^-1 (-g)`` and ``drift_velocity = M^-1 (-C qd)``
+(article 4.5-4.6; with constraints the KKT solves with the bias 0 and ``Jcdot qd``), each solved on its own.
 
 ``M = sum_i J_b,i^T G_i J_b,i`` and ``h = C qd + g`` from the wrench recursion of eq. (27), both in body frames
 (:mod:`~formalisms.screw.dynamics`: no moment about the world origin, so M and h round on the levers about the
@@ -69,6 +72,7 @@ import numpy as np
 from cases.model import Model
 from formalisms.interface import Formalism, Split, SplitBatch, check_batch, check_state, with_block_form
 from formalisms.screw import conditioning, constraints, dynamics, kinematics, lie
+from formalisms.screw.derivatives import linearize
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
 
@@ -141,6 +145,20 @@ def _unconstrained(factor: Cholesky, h: np.ndarray, tau_ctrl: np.ndarray) -> tup
     return tuple(x[..., c] for c in range(3))
 
 
+def _drift_parts(factor: Cholesky, g: np.ndarray, c_qd: np.ndarray) -> dict[str, np.ndarray]:
+    """``zvcf = M^-1 (-g)`` and ``drift_velocity = M^-1 (-C qd)`` (N, n) each (article 4.5-4.6), solved on their own:
+    the drift's parts, ``zvcf + drift_velocity = drift`` to rounding."""
+    x = factor.solve(np.stack([-g, -c_qd], axis=-1))
+    return {"zvcf": x[..., 0], "drift_velocity": x[..., 1]}
+
+
+def _constrained_drift_parts(gauss: constraints.Gauss, g: np.ndarray, c_qd: np.ndarray) -> dict[str, np.ndarray]:
+    """The drift's parts with constraints (eq. 14 split by linearity in ``(f, Jcdot qd)``): ``zvcf`` the KKT solve with
+    ``f = -g`` and the bias 0 (at ``qd = 0`` the rows' ``Jcdot qd`` vanishes), ``drift_velocity`` with ``f = -C qd``
+    and the bias ``Jcdot qd`` (N, n) each."""
+    return {"zvcf": gauss.solve(-g, np.zeros_like(gauss.bias))[0], "drift_velocity": gauss.solve(-c_qd)[0]}
+
+
 def _constrained(gauss: constraints.Gauss, h: np.ndarray, tau_ctrl: np.ndarray) -> tuple[np.ndarray, ...]:
     """``(drift, ctrl, total, lam, lam_drift)`` (eq. 12-17) by Gauss's principle: total / lam with the input,
     drift / lam_drift without it (eq. 14), ``ctrl = B_c B u`` (eq. 17) directly."""
@@ -185,6 +203,7 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
     M, h, c_qd, g = dynamics.terms(kin, G, QD)
     factor, tau_ctrl = _factor(model, M, Q, first), (model.input_map @ U[..., None])[..., 0]
     drift, ctrl, total = _unconstrained(factor, h, tau_ctrl)
+    parts = _drift_parts(factor, g, c_qd)
     extras, task_drift, J = _extras(kin, G, QD, total, drift), _task_drift(kin, QD, drift), _task_jacobian(kin)
     wrenches = (_joint_wrenches(kin, extras["wrenches_body"]), _joint_wrenches(kin, extras["wrenches_body_drift"]))
     out = []
@@ -197,7 +216,7 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
                          conditions={"task_inertia": task_cond}, extras=own, task_drift=task_drift[i],
                          kinetic_energy=_kinetic_energy(G, own["twists_body"]), joint_wrenches=wrenches[0][i],
                          joint_wrenches_drift=wrenches[1][i], cond_M=mass.cond, task_inertia=Lambda,
-                         **_power(model, u, qd)))
+                         **{key: value[i] for key, value in parts.items()}, **_power(model, u, qd)))
     return out
 
 
@@ -232,23 +251,29 @@ def split(model: Model, q, qd, u) -> Split:
     Lambda, task_cond = _task_inertia(kin, factor)
     common = dict(cond_M=mass.cond, task_inertia=Lambda, **_power(model, u, qd))
     if model.constraints:
-        return _constrained_split(kin, G, qd, factor, h, tau_ctrl, mass, common, {"task_inertia": task_cond})
+        return _constrained_split(kin, G, qd, factor, (h, c_qd, g), tau_ctrl, mass, common,
+                                  {"task_inertia": task_cond})
     drift, ctrl, total = (x[0] for x in _unconstrained(factor, h[None], tau_ctrl[None]))
+    common.update({key: value[0] for key, value in _drift_parts(factor, g[None], c_qd[None]).items()})
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
                  power_constr_per_coord=None, accel_scale=mass.accel_scale, conditions={"task_inertia": task_cond},
                  **_reported(kin, G, qd, drift, _extras(kin, G, qd, total, drift)), **common)
 
 
-def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Cholesky, h, tau_ctrl,  # noqa: N803
+def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Cholesky, forces, tau_ctrl,  # noqa: N803
                        mass: conditioning.MassConditioning, common: dict, conditions: dict) -> Split:
-    """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state), the constraint wrenches of
-    both multipliers, and the constraint's own quantities (article 5.5): ``Jc^T lam`` and its power, ``Jc qd`` and the
-    conditioning of ``S`` (``accel_scale`` adds what the constraint force can produce)."""
+    """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state) with ``forces = (h, C qd, g)``,
+    the drift's parts, the constraint wrenches of both multipliers, and the constraint's own quantities (article
+    5.5): ``Jc^T lam`` and its power, ``Jc qd`` and the conditioning of ``S`` (``accel_scale`` adds what the
+    constraint force can produce)."""
     model = kin.model
+    h, c_qd, g = forces
     rows = constraints.terms(kin, kin.q, qd)
     Jc, bias = rows.jacobian, rows.bias
     gauss = constraints.Gauss.build(model, factor, Jc[None], bias[None])
     drift, ctrl, total, lam, lam_drift = (x[0] for x in _constrained(gauss, h[None], tau_ctrl[None]))
+    parts = _constrained_drift_parts(gauss, g[None], c_qd[None])
+    common = {**common, **{key: value[0] for key, value in parts.items()}}
     extras = _extras(kin, G, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
     cc = conditioning.of_constraints(model, factor, gauss.A[0], Jc, bias, (tau_ctrl - h, -h), mass)
     force = Jc.T @ lam
@@ -299,4 +324,5 @@ FORMALISM = Formalism(
     summary="Product of exponentials and screw theory (article 6.2, eqs. 20, 27): twists and wrenches on SE(3)",
     split=split,
     split_batch=split_batch,
+    linearize=linearize,
 )

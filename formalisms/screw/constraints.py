@@ -234,11 +234,12 @@ class Gauss:
         """``L^-T y`` (N, n)."""
         return self.factor.backward(_column(y))[..., 0]
 
-    def solve(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def solve(self, f: np.ndarray, bias: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(qdd, lam)`` (N, n), (N, k) of eq. (12, 13) for the generalized forces ``f`` (N, n), by Gauss's
-        principle."""
+        principle, with the rows' ``Jcdot qd`` or the given ``bias`` (N, k) (0 for the zero-velocity counterfactual)."""
         a = self.factor.solve(_column(f))[..., 0]
-        y = np.einsum("Nnk,Nk->Nn", self.A_pinv, -self.bias - np.einsum("Nkn,Nn->Nk", self.Jc, a))
+        bias = self.bias if bias is None else bias
+        y = np.einsum("Nnk,Nk->Nn", self.A_pinv, -bias - np.einsum("Nkn,Nn->Nk", self.Jc, a))
         return a + self._lift(y), np.einsum("Nnk,Nn->Nk", self.A_pinv, y)
 
     def input_map(self, tau: np.ndarray) -> np.ndarray:
