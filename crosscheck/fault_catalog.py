@@ -435,6 +435,15 @@ def _input_map_dropped(derivatives):
 
 
 DERIVATIVES = [
+    Fault("screw-linearize-gravity-tangent-sign", "screw",   # (SCREW is the list of screw faults by now)
+          "The derivative of the body-frame gravity R^T g along a body rotation eta has the wrong sign: "
+          "+omega x g instead of -omega x g.",
+          "formalisms.screw.derivatives:_weight_tangents", lambda f: lambda kin, G, eta: -f(kin, G, eta)),
+    Fault("screw-linearize-bias-derivative-dropped", "screw",
+          "The differentiated KKT system leaves out the derivative of Jcdot qd (the constraint rows' bias "
+          "treated as constant).",
+          "formalisms.screw.derivatives:constraint_tangents",
+          lambda f: lambda kin, qd, d: (lambda dJc, dbias: (dJc, np.zeros_like(dbias)))(*f(kin, qd, d))),
     Fault("ne-linearize-at-zero-acceleration", NE,
           "The derivative recursion runs at qdd = 0 instead of at qdd = vdot, so d(M vdot)/dq is left out of A: "
           "the derivative of h alone.",
