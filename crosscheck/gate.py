@@ -459,7 +459,7 @@ class CaseSetup:
         if self.spec.path is not None:
             return
         params = equilibria.case_params(self.spec.name, {k: float(v) for k, v in self.spec.params})
-        for equilibrium in equilibria.of_case(self.spec.name):
+        for equilibrium in equilibria.of_case(self.spec.name, params):
             found, errors = equilibria.checks(equilibrium, params, self.model, backends, self.charts)
             outcome.checks.update(found)
             outcome.errors.update(errors)

@@ -182,3 +182,16 @@ def test_eval_linearize_refuses_a_chart(capsys):
     from crosscheck.cli import main
     assert main(["eval", "--case", "double_pendulum", "--q", "0.3,0.2", "--chart", "absolute", "--linearize"]) == 2
     assert "joint chart" in capsys.readouterr().err
+
+
+def test_the_parallelogram_four_bar_at_rest_oscillates_at_its_closed_form():
+    """The four-bar (1-2-1-2) at rest, q = (0, pi/2, 0): omega^2 = 6 g / (5 a) from its one degree of freedom, the
+    50-digit reference's A has +-i omega and four eigenvalues at 0 (the constraint rows' d^2 phi/dt^2 = 0)."""
+    from crosscheck import equilibria, precise
+    (rest,) = equilibria.of_case("four_bar", equilibria.case_params("four_bar"))
+    model = cases.load("four_bar")
+    A = precise.linearize(model, rest.q(model), np.zeros(3), np.zeros(model.m)).A
+    omega = np.sqrt(6 * 9.81 / 5)
+    np.testing.assert_allclose(equilibria.motion(A, 2), [-1j * omega, 1j * omega], atol=1e-12)
+    assert np.sort(np.abs(np.linalg.eigvals(A)))[:4].max() < 1e-6
+    assert not equilibria.of_case("four_bar", equilibria.case_params("four_bar", {"coupler": 2.5}))
