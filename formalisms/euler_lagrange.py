@@ -151,6 +151,26 @@ Solving: Cholesky factorization of M, never an explicit inverse. With constraint
 as one block matrix, scaled by the Cholesky factor and the eigen-directions of ``S = Jc M^-1 Jc^T`` kept above
 ``CONSTRAINT_RCOND`` (rank-revealing: redundant constraints give the minimum-norm multipliers, :func:`_kkt`), and
 the control part from the constraint-consistent input map of eq. (17) (:func:`_constrained_input_map`).
+Drift's parts (article 4.5-4.6): every Split carries ``zvcf = -M^-1 g`` and ``drift_velocity = -M^-1 C xd``, each
+solved directly (:func:`_free_parts`; with constraints the KKT solves with ``f = -g`` and no bias, and with ``f = -C
+xd`` and the bias ``Jcdot xd``: :func:`_constrained_parts`), so that they add up to the drift to rounding.
+Linearization (article 4.8, eq. 11; :func:`linearize`): the exact derivatives of this derivation's own equations.
+  * Symbolic. With symbols ``a`` and ``lam`` as parameters, the KKT rows ``force = M a + C xd + g - Jc^T lam`` and
+    ``accel = Jc a + Jcdot xd`` are differentiated by every coordinate and rate with the staged chain rule (the same
+    :meth:`_Staged.diff` that made M and C; :func:`_linear_program`) and emitted as Python by the same emitter. They
+    are derived on the first ``linearize`` of a (model, chart), never during ``split``, and cached in memory and on
+    disk (:func:`linearization_key`: the dynamics' key, which holds this module's hash, with what is differentiated).
+  * Numeric. ``vdot`` and ``lam`` by the split's own solve; then per direction the differentiated KKT system
+    ``[[M, -Jc^T], [Jc, 0]] [dvdot; dlam] = [dtau - d force; -d accel]`` at ``a = vdot`` by the same scaled,
+    rank-revealing :func:`_kkt` (minimum-norm multipliers, the same rank rule), ``dvdot/du = B_c B`` (eq. 17); without
+    constraints ``dvdot = M^-1 (dtau - d force)``, ``dvdot/du = M^-1 B`` with the Cholesky factor.
+  * Group joints. The derivation runs in the local exponential chart ``q exp(xi)`` at ``xi = 0`` with the series to
+    order :data:`LINEAR_ORDER` = 3 (the xi-derivatives of ``C xd`` and ``Jcdot xd`` need the poses' third derivatives
+    in xi, which ``E_3`` has exactly). That chart's ``xidd = F(xi, xid, u)`` is converted to the contract's convention
+    (``vdot`` at ``q exp(s e)`` with v fixed) in closed form with the chart's own derivative, the right Jacobian
+    ``v = J_r(xi) xid``, ``J_r = dexp_-xi = I - ad_xi / 2 + ad_xi^2 / 6 - ...``: a v-force ``tau`` is the chart
+    covector ``J_r^T tau`` (``dtau = -ad_e^T tau / 2``, :func:`_chart_force`), ``xid = v + s ad_e v / 2`` and ``vdot =
+    J_r xidd + (d/dt J_r) xid``, giving :func:`_tangent`'s columns. ``dvdot/dv = dF/dxid`` at 0 (``J_r(0) = I``).
 Everything a split reports is computed here (the interface supplies only types and validators), by methods of its
 own: cond(M) and ``||M^-1||`` from M's extreme eigenvalues, each by Sturm-sequence bisection (:func:`_mass_spectrum`);
 S's eigenvalues, rank and the consistency of the KKT right-hand sides from the SVD of the scaled constraint block
@@ -2082,33 +2102,59 @@ def _tangent(model: Model, F_x: np.ndarray, F_xd: np.ndarray, vdot: np.ndarray, 
     return out
 
 
-def linearize(model: Model, q, qd, u) -> Linearization:
-    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`) from this derivation's own exact derivatives
-    (module docstring, "Linearization"): vdot and lam from the split's solve, then the KKT system of eqs. (12-13)
-    differentiated, ``[[M, -Jc^T], [Jc, 0]] [dvdot; dlam] = [dtau - d force; -d accel]`` per direction (the symbolic
-    derivatives of :func:`linear_terms` at ``a = vdot``, the same scaled, rank-revealing solve as the multipliers,
-    :func:`_kkt`; unconstrained ``dvdot = -M^-1 d force``), ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained),
-    and for group joints the chain rule from the local chart to the right perturbation (:func:`_tangent`)."""
-    q, qd, u = check_state(model, q, qd, u)
-    (M, Cqd, g, _), cons = evaluate(model, q, qd)
-    U, tau, B = _upper_factor(model, M, q), model.input_map @ u, model.input_map
+def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None) -> tuple[np.ndarray, ...]:
+    """``(vdot, dF/dx, dF/dxd, dF/dinputs)`` of the chart's ``xdd = F(x, xd)`` under the generalized force ``tau`` (the
+    KKT solution of eqs. 12-13 at ``a = vdot``; module docstring, "Linearization"): vdot and lam by the split's own
+    solve, then the differentiated KKT system ``[[M, -Jc^T], [Jc, 0]] [dF; dlam] = [dtau - d force; -d accel]`` per
+    direction, with :func:`linear_terms` (the symbolic derivatives) and the same scaled, rank-revealing :func:`_kkt`
+    (unconstrained: ``dF = M^-1 (dtau - d force)`` by the Cholesky factor), and ``dF/dinputs = B_c inputs`` (eq. 17;
+    ``M^-1 inputs`` unconstrained). ``dtau`` is the local chart's (:func:`_chart_force`) in the joint chart (None), 0
+    in a chart ``q = psi(p)``, whose force ``tau_p`` is its own coordinate's."""
+    n = model.n
+    (M, Cqd, g, _), cons = evaluate(model, x, xd, chart)
+    U = _upper_factor(model, M, x, None if chart is None else chart.name)
+    dtau = _chart_force(model, tau) if chart is None else np.zeros((n, n))
     if model.constraints:
         ((_, stacked),) = _scaled(model, U[None], cons.Jc[None])
         sc = _Scaled(*(a[0] for a in stacked))
         vdot, _, _, lam, _ = _constrained(sc, Cqd + g, tau, cons.bias)
-        lt = linear_terms(model, q, qd, vdot, lam)
-        forces = np.hstack([_chart_force(model, tau) - lt.force_x, -lt.force_xd])
-        dvdot = _kkt(sc, forces, np.hstack([lt.accel_x, lt.accel_xd]))[0]
-        dvdot_du = _constrained_input_map(sc) @ B
-    else:
-        _, _, vdot = _free(U, Cqd + g, tau)
-        lt = linear_terms(model, q, qd, vdot, np.zeros(0))
-        forces = np.hstack([_chart_force(model, tau) - lt.force_x, -lt.force_xd, B])
-        solved = _triangular(U, _triangular(U, forces, trans=True))
-        dvdot, dvdot_du = solved[:, :2 * model.n], solved[:, 2 * model.n:]
+        lt = linear_terms(model, x, xd, vdot, lam, chart)
+        dF = _kkt(sc, np.hstack([dtau - lt.force_x, -lt.force_xd]), np.hstack([lt.accel_x, lt.accel_xd]))[0]
+        return vdot, dF[:, :n], dF[:, n:], _constrained_input_map(sc) @ inputs
+    _, _, vdot = _free(U, Cqd + g, tau)
+    lt = linear_terms(model, x, xd, vdot, np.zeros(0), chart)
+    dF = _triangular(U, _triangular(U, np.hstack([dtau - lt.force_x, -lt.force_xd, inputs]), trans=True))
+    return vdot, dF[:, :n], dF[:, n:2 * n], dF[:, 2 * n:]
+
+
+def linearize(model: Model, q, qd, u) -> Linearization:
+    """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`, x = (q, v) with the right perturbation on
+    group joints) from this derivation's own exact derivatives (module docstring, "Linearization"): the differentiated
+    KKT system of the joint chart (:func:`_differentiated`, input map B: ``dvdot/du = B_c B``, eq. 17) and, for
+    spherical and free joints, the chain rule from the local chart to the contract's convention (:func:`_tangent`)."""
+    q, qd, u = check_state(model, q, qd, u)
+    vdot, F_x, F_xd, F_u = _differentiated(model, q, qd, model.input_map @ u, model.input_map)
+    return state_space(model, qd, _tangent(model, F_x, F_xd, vdot, qd), F_xd, F_u, vdot)
+
+
+def linearize_chart(model: Model, chart: Chart, p, pd, tau_p) -> Linearization:
+    """A and B of eq. (11) in the chart ``q = psi(p)`` (article 6.4.6): x = (p, pd), ``A = [[0, I], [dpdd/dp,
+    dpdd/dpd]]`` and ``B = [[0], [dpdd/dtau_p]]`` (2n x n: the input is the chart's generalized force ``tau_p``, so
+    ``dpdd/dtau_p = M_p^-1``, with constraints ``B_c`` of eq. 17 in the chart), from the chart's own derivation
+    differentiated (:func:`_differentiated`). The charts of :func:`split_chart` but the velocity representations
+    (whose coordinates are q itself: use :func:`linearize` and the representation's map), which are
+    :class:`ModelNotSupported`, as are charts of a model with group joints that do not return its whole q."""
+    if _representation(model, chart) is not None:
+        raise ModelNotSupported(f"Euler–Lagrange: chart '{getattr(chart, 'name', '?')}' is a velocity representation; "
+                                "linearize_chart takes a chart q = psi(p) of coordinates p")
+    if chart_key(model, chart) == JOINT_CHART and model.group_joints:
+        raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
+                                                  "entries, v of nv) is linearize's"))
+    p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     n = model.n
-    return state_space(model, qd, _tangent(model, dvdot[:, :n], dvdot[:, n:], vdot, qd), dvdot[:, n:], dvdot_du,
-                       vdot)
+    pdd, F_x, F_xd, F_u = _differentiated(model, p, pd, tau_p, np.eye(n), chart)
+    return Linearization(A=np.block([[np.zeros((n, n)), np.eye(n)], [F_x, F_xd]]),
+                         B=np.vstack([np.zeros((n, n)), F_u]), vdot=pdd)
 
 
 FORMALISM = Formalism(
@@ -2123,4 +2169,5 @@ FORMALISM = Formalism(
     evaluation=evaluation,
     preparation=preparation_estimate,
     linearize=linearize,
+    linearize_chart=linearize_chart,
 )
