@@ -236,3 +236,36 @@ def test_drift_parts_in_a_chart():
     rest = EL.split_chart(model, chart, p, np.zeros(model.n), np.zeros(model.n))
     np.testing.assert_allclose(s.zvcf, rest.drift, rtol=0, atol=1e-13 * np.abs(rest.drift).max())
     assert np.abs(s.drift_parts).max() <= 1e-13 * np.abs(s.drift).max()
+
+
+@pytest.mark.parametrize("name", ["double_pendulum"])  # spatial_arm in a dense chart: minutes to derive
+def test_linearize_chart_in_an_affine_chart_is_the_references_mapped(name):
+    """In ``q = A p + b``: ``pdd = A^-1 qdd`` with ``tau_q = A^-T tau_p``, so ``dpdd/dp = A^-1 (dvdot/dq) A``,
+    ``dpdd/dpd = A^-1 (dvdot/dv) A`` and ``dpdd/dtau_p = A^-1 M^-1 A^-T``, from Pinocchio's derivatives and M; the
+    chart's derivation is EL's own (M_p, C_p pd, g_p differentiated in p), nothing mapped."""
+    model = cases.load(name)
+    chart = charts.random_affine(model, 0, name)
+    A, b = np.asarray(chart.A), np.asarray(chart.b)
+    rng = np.random.default_rng(9)
+    p, pd, tau_p = rng.normal(size=model.n), rng.normal(size=model.n), rng.normal(size=model.n)
+    q, qd, tau_q = A @ p + b, A @ pd, np.linalg.solve(A.T, tau_p)
+    u = np.linalg.lstsq(model.input_map, tau_q, rcond=None)[0]
+    assert np.allclose(model.input_map @ u, tau_q)
+    ref, n = reference.linearize(model, q, qd, u), model.n
+    Ainv = np.linalg.inv(A)
+    want_A = np.block([[np.zeros((n, n)), np.eye(n)], [Ainv @ ref.A[n:, :n] @ A, Ainv @ ref.A[n:, n:] @ A]])
+    want_B = np.vstack([np.zeros((n, n)), Ainv @ np.linalg.inv(reference.mass_matrix(model, q)) @ Ainv.T])
+    lin = EL.linearize_chart(model, chart, p, pd, tau_p)
+    assert lin.A.shape == (2 * n, 2 * n) and lin.B.shape == (2 * n, n)
+    assert _relative(lin.A[n:, :n], want_A[n:, :n], 1e-300) <= 1e-8
+    assert _relative(lin.A[n:, n:], want_A[n:, n:], 1e-300) <= 1e-8
+    assert _relative(lin.B, want_B, 1e-300) <= 1e-8
+    np.testing.assert_array_equal(lin.A[:n], want_A[:n])
+    np.testing.assert_allclose(lin.vdot, Ainv @ ref.vdot, rtol=0, atol=1e-10 * np.abs(ref.vdot).max())
+
+
+def test_linearize_chart_refuses_a_velocity_representation():
+    model = cases.load("free_body")
+    with pytest.raises(formalisms.interface.ModelNotSupported, match="velocity representation"):
+        EL.linearize_chart(model, charts.velocity_representation(model, "world"), np.zeros(model.nq),
+                           np.zeros(model.nv), np.zeros(model.nv))
