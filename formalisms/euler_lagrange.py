@@ -171,6 +171,13 @@ Linearization (article 4.8, eq. 11; :func:`linearize`): the exact derivatives of
     ``v = J_r(xi) xid``, ``J_r = dexp_-xi = I - ad_xi / 2 + ad_xi^2 / 6 - ...``: a v-force ``tau`` is the chart
     covector ``J_r^T tau`` (``dtau = -ad_e^T tau / 2``, :func:`_chart_force`), ``xid = v + s ad_e v / 2`` and ``vdot =
     J_r xidd + (d/dt J_r) xid``, giving :func:`_tangent`'s columns. ``dvdot/dv = dF/dxid`` at 0 (``J_r(0) = I``).
+  * In a chart ``q = psi(p)`` (:func:`linearize_chart`): the chart's own derivation differentiated the same way, x =
+    (p, pd), ``A_qq = 0`` and the input ``tau_p`` (``B = [[0], [B_c]]``, n columns); no local chart, so no chain rule
+    (a zyx chart of group joints is a chart like any other). Velocity representations are refused.
+  * Cost (CPU, cold, one process on the 2-core machine): the derivative code is about ten times the dynamics' code,
+    forward-mode in 2n directions. Panda (9 joints + coupling): derivation and differentiation 8.6 s, Python emitted
+    3.2 s (2.7 MB), compiled 1.7 s; 13 ms a call after. solo12 (free base, nv 18): 23 s + 3.4 s + 2.3 s; 23 ms a
+    call. The code is interpreted (the C path is the dynamics' only).
 Everything a split reports is computed here (the interface supplies only types and validators), by methods of its
 own: cond(M) and ``||M^-1||`` from M's extreme eigenvalues, each by Sturm-sequence bisection (:func:`_mass_spectrum`);
 S's eigenvalues, rank and the consistency of the KKT right-hand sides from the SVD of the scaled constraint block
@@ -2145,8 +2152,8 @@ def linearize_chart(model: Model, chart: Chart, p, pd, tau_p) -> Linearization:
     (whose coordinates are q itself: use :func:`linearize` and the representation's map), which are
     :class:`ModelNotSupported`, as are charts of a model with group joints that do not return its whole q."""
     if _representation(model, chart) is not None:
-        raise ModelNotSupported(f"Euler–Lagrange: chart '{getattr(chart, 'name', '?')}' is a velocity representation; "
-                                "linearize_chart takes a chart q = psi(p) of coordinates p")
+        raise ModelNotSupported(f"Euler–Lagrange: chart '{getattr(chart, 'name', '?')}' is a velocity "
+                                "representation; linearize_chart takes a chart q = psi(p) of coordinates p")
     if chart_key(model, chart) == JOINT_CHART and model.group_joints:
         raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
                                                   "entries, v of nv) is linearize's"))

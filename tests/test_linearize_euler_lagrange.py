@@ -5,7 +5,7 @@
   derivatives (``crosscheck.reference.linearize``, same tangent convention), 1e-8 relative per block;
 * constrained models (four-bar, slider-crank, drawn models) against central differences (Richardson-extrapolated, here
   in the test only) of the reference's KKT solve along ``integrate``, 1e-7 relative;
-* the drift's parts against ``-M^-1 g`` and ``-M^-1 C qd`` from the reference's M, C qd and g, and adding up to the drift;
+* the drift's parts against ``-M^-1 g`` and ``-M^-1 C qd`` from the reference's M, C qd and g, adding up to the drift;
 * the derivation of the linearization is lazy (never during ``split``) and cached on disk under its own key.
 
 Every derivation goes to a scratch cache (``fresh_derivation_cache``), so the tests test the current code. Panda
@@ -47,7 +47,7 @@ def fresh_linear_code():
 
 
 def _relative(got: np.ndarray, want: np.ndarray, floor: float) -> float:
-    """max |got - want| / max |want|, the block's scale taken at least ``floor`` (a block that is 0 but for rounding)."""
+    """max |got - want| / max |want|, the block's scale at least ``floor`` (a block that is 0 but for rounding)."""
     return float(np.abs(got - want).max() / max(np.abs(want).max(), floor))
 
 
@@ -73,7 +73,8 @@ def _against_pinocchio(model, q, v, u) -> None:
     lin, want = EL.linearize(model, q, v, u), reference.linearize(model, q, v, u)
     errors = _blocks(model, lin, want)
     assert max(errors.values()) <= 1e-8, f"{model.name}: relative errors {errors}"
-    assert np.abs(lin.vdot - want.vdot).max() <= 1e-10 * max(np.abs(want.vdot).max(), np.linalg.norm(model.gravity), 1.0)
+    scale = max(np.abs(want.vdot).max(), np.linalg.norm(model.gravity), 1.0)
+    assert np.abs(lin.vdot - want.vdot).max() <= 1e-10 * scale
 
 
 def _central_differences(model, q, v, u, h=1e-6) -> np.ndarray:
