@@ -20,34 +20,39 @@ Joints. The built-in trajectories are restricted to vector joints (revolute, pri
 ``q + v`` and every method keeps its classical order; a model with spherical or free joints is refused with a
 one-line error (:class:`TrajectoryError`), rather than integrated at an order not measured.
 
-The reference (:func:`reference_trajectory`) integrates the exact acceleration of ``crosscheck.precise`` (the KKT
-solve in mpmath, :data:`DIGITS` digits) with Gragg–Bulirsch–Stoer extrapolation: the modified midpoint rule with
-``n = 2, 4, ..., 2K`` substeps per macro step H, extrapolated in ``h^2`` (order 2K, :data:`GBS_LEVELS` = K). Its
-own error is estimated by running it again with H/2 (step halving) and reported as the largest difference over the
-horizon (:attr:`Reference.error_estimate`).
+The reference (:func:`reference_trajectory`) integrates the exact acceleration at :data:`DIGITS` digits with
+Gragg–Bulirsch–Stoer extrapolation: the modified midpoint rule with ``n = 2, 4, ..., 2K`` substeps per step,
+extrapolated in ``h^2`` (order 2K, :data:`GBS_LEVELS` = K = 8), the step size controlled so that the last
+extrapolation's correction stays below :data:`REFERENCE_TOL` ``max(1, |x|)`` (a step is rejected and retried smaller
+otherwise; steps never cross an output time). The acceleration is ``crosscheck.precise``'s KKT solve in mpmath, or,
+for the double pendulum, the article's eqs. (6)-(8) in mpmath (:class:`_PendulumField`, about 25 times cheaper;
+checked against the generic split to 1e-44 in the tests). Its own error is estimated by a verification run with the
+local tolerance :data:`VERIFY_TOL` = ``REFERENCE_TOL 2^-(2K+1)`` (what halving every step gives at order 2K): the
+largest difference of the two runs over the horizon (:attr:`Reference.error_estimate`); the finer run is kept.
 
-Lyapunov exponent and envelope (:func:`lyapunov`, :func:`envelope`). A second reference trajectory starts
-:data:`LYAPUNOV_EPS` away along a fixed (seeded) direction in the tangent space of the constraints; ``G(t)`` =
-``|delta x(t)| / |delta x(0)|`` is the measured growth, the finite-time Lyapunov exponent is ``ln G(T) / T``, and
-the envelope exponent ``lambda_env`` is the largest ``ln(G(t) / G(s)) / (t - s)`` over windows at least
-:data:`WINDOW` long (or starting at 0), so that ``exp(lambda_env (t - s))`` bounds the growth measured over any
-such window.
+Lyapunov exponent and envelope (:func:`lyapunov`, :func:`envelope`). A third reference run starts
+:data:`LYAPUNOV_EPS` away along a fixed (seeded) direction, in the tangent space of the constraints for both q and
+v; ``G(t) = |delta x(t)|_inf / |delta x(0)|_inf`` is the measured growth and the finite-time Lyapunov exponent
+(FTLE) is ``ln G(T) / T``. The perturbation aligns with the most unstable direction, so ``G(t) / G(s)`` is the growth
+over the window ``[s, t]``; ``Ghat(tau) = max_s G(s + tau) / G(s)`` (at least 1, non-decreasing) is the worst growth
+measured over any window of length tau, and ``lambda_env = max_{tau >= WINDOW} ln Ghat(tau) / tau`` summarizes it.
 
 Two correct backends integrated with the same integrator and step differ by a perturbation injected at every step
-and carried by the linearized flow: ``d' = A(t) d + r(t)``, ``|r| <= sigma``, so ``|d(t)| <= sigma
-integral_0^t exp(lambda_env (t - s)) ds = sigma (exp(lambda_env t) - 1) / lambda_env``. ``sigma`` is derived, not
-fitted: each backend's acceleration is within ``eps * acceleration_bound`` of the exact one (the gate's tolerance
-claim, ``crosscheck.tolerance.acceleration_bound``, evaluated on the reference trajectory; maximum over time), and
-each step's update of x rounds at ``eps |x|`` per step, i.e. ``eps |x| / dt`` per unit time; a pair doubles both:
+and carried by the linearized flow: ``d' = A(t) d + r(t)``, ``|r| <= sigma``, so ``|d(t)| <= sigma integral_0^t
+Ghat(t - s) ds`` (``<= sigma (exp(lambda_env t) - 1) / lambda_env`` when the growth is exponential: the form
+``c eps exp(lambda t)``, ``c = sigma / (eps lambda)``). ``sigma`` is derived, not fitted: each backend's
+acceleration is within ``eps * acceleration_bound`` of the exact one (the gate's tolerance claim,
+``crosscheck.tolerance.acceleration_bound``, evaluated on the reference trajectory; maximum over time), and each
+step's update of x rounds at ``eps |x|`` per step, i.e. ``eps |x| / dt`` per unit time; a pair doubles both:
 ``sigma = 2 eps (max_t |bound(t)|_inf + max_t |x(t)|_inf / dt)``. The envelope adds the rounding of the states
-themselves, ``2 eps |x(t)|``, so ``E(t) = sigma (exp(lambda t) - 1) / lambda + 2 eps |x(t)|`` (for large t this is
-``c eps exp(lambda t)`` with ``c = sigma / (eps lambda)``). The judgment (:func:`judge`) holds each pair of
-backends to it while both are still near the reference (error below :data:`JUDGED_UNTIL` times the state's size:
-beyond that the linearization about the reference flow, hence lambda, no longer describes their difference); a
-backend outside the envelope against more than half of the others is named; with two backends a pair outside it
-names both. For the adaptive integrator the step sequences of two backends can differ (an accepted or rejected step
-decided differently), which injects a difference of the local error's size: its envelope adds ``2 ADAPTIVE_TOL
-max(1, |x|)`` to sigma per unit time of the mean step.
+themselves: ``E(t) = sigma integral_0^t Ghat(t - s) ds + 2 eps |x(t)|`` (:func:`envelope`; the integral by the
+right-endpoint sum on the output grid, which overestimates a non-decreasing Ghat). The judgment (:func:`judge`)
+holds each pair of backends to it while all of them are still near the reference (error below
+:data:`JUDGED_UNTIL` times the state's size: beyond that the linearization about the reference flow, hence Ghat, no
+longer describes their difference); a backend outside the envelope against more than half of the others is named;
+with two backends a pair outside it names both. For the adaptive integrator the step sequences of two backends can
+differ (an accepted or rejected step decided differently), which injects a difference of the local error's size:
+its sigma adds ``2 ADAPTIVE_TOL max(1, |x|) / dt``, dt the output interval.
 
 Constrained models: ``project='none'`` integrates the KKT drift as it is (phi drifts by the truncation error);
 ``'project'`` moves q back onto ``phi = 0`` and v onto ``Jc v = 0`` after every step (``crosscheck.sampling``'s
@@ -78,7 +83,9 @@ GAUSS_ITERATIONS = 60
 ADAPTIVE_TOL = 1e-12
 DIGITS = 50
 GBS_LEVELS = 8
-REFERENCE_TOL = 1e-32
+REFERENCE_TOL = 1e-28
+#: The verification run's (and the Lyapunov run's) local tolerance: what halving every step gives at order 2K.
+VERIFY_TOL = REFERENCE_TOL * 2.0 ** -(2 * GBS_LEVELS + 1)
 LYAPUNOV_EPS = 1e-20
 WINDOW = 1.0
 JUDGED_UNTIL = 1e-3
@@ -477,33 +484,51 @@ def _mp_run(model: Model, x0_mp: list, interval: float, intervals: int, tol, sch
     return out, f.evals
 
 
-def reference_trajectory(model: Model, q0, v0, horizon: float, H: float, schedule=None, digits: int = DIGITS,
-                         halving: bool = True, x0_mp: list | None = None, closed_form: dict | None = None) -> Reference:
-    """The reference on the grid ``k H``, k = 0..round(horizon / H); with ``halving`` a second run at H/2 gives the
-    error estimate (the difference of the two, per output time). ``closed_form``: the double pendulum's parameters,
-    to use the article's equations (:class:`_PendulumField`) instead of the generic multiprecision split."""
-    if closed_form is not None and (model.name != "double_pendulum" or model.n != 2):
-        raise TrajectoryError(f"the closed-form reference is the double pendulum's, not model '{model.name}'")
+def reference_run(model: Model, x0: Sequence[float], interval: float, intervals: int, tol: float, schedule=None,
+                  digits: int = DIGITS, closed_form: dict | None = None, perturb: Sequence[float] | None = None):
+    """One multiprecision run from the float state ``x0`` (plus ``LYAPUNOV_EPS * perturb``, exactly, in mpmath):
+    the states at ``k interval`` as mpf lists and the number of evaluations (a unit of work for a process pool)."""
     check_model(model)
-    start = time.perf_counter()
-    steps = int(round(horizon / H))
     with mpmath.workdps(digits):
-        if x0_mp is None:
-            x0_mp = [mpf(float(a)) for a in np.concatenate([np.asarray(q0, float), np.asarray(v0, float)])]
-        xs, evals = _mp_run(model, x0_mp, H, steps, REFERENCE_TOL, schedule, digits, closed_form)
-        if halving:
-            fine, e2 = _mp_run(model, x0_mp, H, steps, REFERENCE_TOL * 2.0 ** -(2 * GBS_LEVELS + 1), schedule,
-                               digits, closed_form)
-            evals += e2
-            err = np.array([float(max(abs(a - b) for a, b in zip(x, y))) for x, y in zip(xs, fine)])
-            xs = fine          # the finer run is the better one; its error is below the estimate
+        x0_mp = [mpf(float(a)) for a in x0]
+        if perturb is not None:
+            x0_mp = [a + mpf(LYAPUNOV_EPS) * mpf(float(b)) for a, b in zip(x0_mp, perturb)]
+        return _mp_run(model, x0_mp, interval, intervals, tol, schedule, digits, closed_form)
+
+
+def assemble_reference(model: Model, main: list, fine: list | None, interval: float, evals: int, seconds: float,
+                       digits: int = DIGITS, closed_form: dict | None = None) -> Reference:
+    """The :class:`Reference` from a run and its verification run (the finer one is kept; the difference of the two
+    per output time is the error estimate)."""
+    with mpmath.workdps(digits):
+        if fine is not None:
+            err = np.array([float(max(abs(a - b) for a, b in zip(x, y))) for x, y in zip(main, fine)])
+            xs = fine
         else:
-            err = np.full(len(xs), np.nan)
+            err, xs = np.full(len(main), np.nan), main
         n = model.n
         E = [mp_energy(model, x[:n], x[n:]) for x in xs]
     X = np.array([[float(a) for a in x] for x in xs])
-    return Reference(np.arange(steps + 1) * H, X, xs, E, err, H, evals, time.perf_counter() - start, digits,
-                     closed_form)
+    return Reference(np.arange(len(xs)) * interval, X, xs, E, err, interval, evals, seconds, digits, closed_form)
+
+
+def reference_trajectory(model: Model, q0, v0, horizon: float, H: float, schedule=None, digits: int = DIGITS,
+                         halving: bool = True, closed_form: dict | None = None) -> Reference:
+    """The reference on the output grid ``k H``, k = 0..round(horizon / H) (GBS steps inside each interval, their
+    size controlled to :data:`REFERENCE_TOL`); with ``halving`` a verification run at :data:`VERIFY_TOL` (what halving
+    every step gives at order 2K) provides the error estimate. ``closed_form``: the double pendulum's parameters, to
+    use the article's equations (:class:`_PendulumField`) instead of the generic multiprecision split."""
+    if closed_form is not None and (model.name != "double_pendulum" or model.n != 2):
+        raise TrajectoryError(f"the closed-form reference is the double pendulum's, not model '{model.name}'")
+    start = time.perf_counter()
+    steps = int(round(horizon / H))
+    x0 = np.concatenate([np.asarray(q0, float), np.asarray(v0, float)])
+    main, evals = reference_run(model, x0, H, steps, REFERENCE_TOL, schedule, digits, closed_form)
+    fine = None
+    if halving:
+        fine, e2 = reference_run(model, x0, H, steps, VERIFY_TOL, schedule, digits, closed_form)
+        evals += e2
+    return assemble_reference(model, main, fine, H, evals, time.perf_counter() - start, digits, closed_form)
 
 
 # ----------------------------------------------------------------------------------------------- Lyapunov
@@ -512,9 +537,10 @@ def reference_trajectory(model: Model, q0, v0, horizon: float, H: float, schedul
 @dataclass
 class Lyapunov:
     t: np.ndarray
-    growth: np.ndarray     # |delta x(t)| / |delta x(0)|
+    growth: np.ndarray     # G(t) = |delta x(t)| / |delta x(0)|
+    worst: np.ndarray      # Ghat(tau) = max_s G(s + tau) / G(s) on the grid's lags (module doc)
     ftle: float            # ln G(T) / T
-    exponent: float        # lambda_env (module doc)
+    exponent: float        # lambda_env = max over lags tau >= WINDOW of ln Ghat(tau) / tau
 
 
 def perturbation_direction(model: Model, q0, seed: int = 0) -> np.ndarray:
@@ -531,31 +557,30 @@ def perturbation_direction(model: Model, q0, seed: int = 0) -> np.ndarray:
     return d / np.abs(d).max()
 
 
-def lyapunov(model: Model, ref: Reference, schedule=None, seed: int = 0) -> Lyapunov:
-    """The growth of a :data:`LYAPUNOV_EPS` perturbation along the reference (module doc)."""
-    n = model.n
-    d = perturbation_direction(model, ref.x[0, :n], seed)
+def lyapunov(model: Model, ref: Reference, schedule=None, seed: int = 0, perturbed: list | None = None) -> Lyapunov:
+    """The growth of a :data:`LYAPUNOV_EPS` perturbation along the reference (module doc), integrated like the
+    reference's verification run (``perturbed``: that run, when a pool already made it)."""
+    if perturbed is None:
+        d = perturbation_direction(model, ref.x[0, :model.n], seed)
+        perturbed, _ = reference_run(model, ref.x[0], ref.H, len(ref.t) - 1, VERIFY_TOL, schedule, ref.digits,
+                                     ref.closed_form, d)
     with mpmath.workdps(ref.digits):
-        x0 = [a + mpf(LYAPUNOV_EPS) * mpf(float(b)) for a, b in zip(ref.x_mp[0], d)]
-        steps = len(ref.t) - 1
-        xs, _ = _mp_run(model, x0, ref.H, steps, REFERENCE_TOL * 2.0 ** -(2 * GBS_LEVELS + 1), schedule,
-                        ref.digits, ref.closed_form)
-        G = np.array([float(max(abs(a - b) for a, b in zip(x, y)) / mpf(LYAPUNOV_EPS)) for x, y in zip(xs, ref.x_mp)])
-    return Lyapunov(ref.t, G, *exponents(ref.t, G))
+        G = np.array([float(max(abs(a - b) for a, b in zip(x, y)) / mpf(LYAPUNOV_EPS))
+                      for x, y in zip(perturbed, ref.x_mp)])
+    return growth_summary(ref.t, G)
 
 
-def exponents(t: np.ndarray, G: np.ndarray, window: float = WINDOW) -> tuple[float, float]:
-    """(FTLE ln G(T) / T, lambda_env = max over windows [s, t], t - s >= window or s = 0, of ln(G(t)/G(s))/(t-s))."""
+def growth_summary(t: np.ndarray, G: np.ndarray, window: float = WINDOW) -> Lyapunov:
+    """FTLE, the worst growth per lag ``Ghat`` and ``lambda_env`` from a measured growth G on a uniform grid."""
+    G = np.maximum(np.asarray(G, float), 1e-300)
+    N = len(G)
+    worst = np.array([1.0] + [float(np.max(G[k:] / G[:N - k])) for k in range(1, N)])
+    worst = np.maximum.accumulate(np.maximum(worst, 1.0))      # a perturbation may also sit still: Ghat >= 1, monotone
     T = float(t[-1])
-    logG = np.log(np.maximum(G, 1e-300))
-    ftle = float(logG[-1] / T)
-    best = 0.0
-    for i in range(len(t)):
-        for j in range(i + 1, len(t)):
-            span = t[j] - t[i]
-            if i == 0 or span >= min(window, T / 4):
-                best = max(best, (logG[j] - logG[i]) / span)
-    return ftle, float(best)
+    lags = t - t[0]
+    long = lags >= min(window, T / 2)
+    exponent = float(np.max(np.log(worst[long]) / lags[long])) if long.any() else 0.0
+    return Lyapunov(np.asarray(t), G, worst, float(np.log(G[-1]) / T), exponent)
 
 
 # ----------------------------------------------------------------------------------------------- envelope, judgment
@@ -580,11 +605,14 @@ def rounding_rate(model: Model, ref: Reference, dt: float, integrator: str, samp
     return sigma
 
 
-def envelope(t: np.ndarray, size: np.ndarray, sigma: float, lam: float) -> np.ndarray:
-    """``E(t) = sigma (exp(lam t) - 1) / lam + 2 eps |x(t)|`` (module doc; ``sigma t`` as lam -> 0)."""
+def envelope(t: np.ndarray, size: np.ndarray, sigma: float, lyap: Lyapunov) -> np.ndarray:
+    """``E(t_j) = sigma sum_{i<j} Ghat(t_j - t_i) dt + 2 eps |x(t_j)|`` (module doc): each interval's injected
+    perturbation carried by the worst growth measured over that lag."""
     t = np.asarray(t, float)
-    grow = t if lam <= 1e-12 else np.expm1(lam * t) / lam
-    return sigma * grow + 2 * EPS * np.asarray(size, float)
+    N = len(t)
+    dt = t[1] - t[0] if N > 1 else 0.0
+    cum = np.concatenate([[0.0], np.cumsum(lyap.worst[1:N])])     # cum[j] = sum_{k=1}^{j} Ghat(k dt)
+    return sigma * dt * cum + 2 * EPS * np.asarray(size, float)
 
 
 @dataclass
@@ -623,7 +651,7 @@ def judge(runs: Sequence[Run], ref: Reference, lyap: Lyapunov, sigma: float) -> 
     for r in runs:
         near &= errors(r, ref)[:k] <= JUDGED_UNTIL * size
     stop = int(np.argmin(near)) if not near.all() else k
-    E = envelope(t, size, sigma, lyap.exponent)
+    E = envelope(t, size, sigma, lyap)
     ratio = {}
     for i, a in enumerate(runs):
         for b in runs[i + 1:]:
