@@ -83,7 +83,7 @@ GAUSS_ITERATIONS = 60
 ADAPTIVE_TOL = 1e-12
 DIGITS = 50
 GBS_LEVELS = 8
-REFERENCE_TOL = 1e-28
+REFERENCE_TOL = 1e-26
 #: The verification run's (and the Lyapunov run's) local tolerance: what halving every step gives at order 2K.
 VERIFY_TOL = REFERENCE_TOL * 2.0 ** -(2 * GBS_LEVELS + 1)
 LYAPUNOV_EPS = 1e-20
