@@ -289,6 +289,15 @@ def _t(x: float, extra: bool = False) -> str:
     return ("~" if extra else "") + f"{x:.2f}"
 
 
+def _color(backend: str) -> str:
+    """One colour per backend in every panel; a faulty wrapper takes its backend's colour (drawn dashed)."""
+    order = list(SHORT)
+    name = backend.split("+")[0]
+    if "+" in backend:
+        return "black"
+    return f"C{order.index(name) if name in order else len(order)}"
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
@@ -309,11 +318,12 @@ def _chart_family(fam: Family, path: Path, title: str) -> None:
         for r in rows:
             style = "--" if "+" in r.backend else "-"
             e = T.errors(r.run, fam.ref)
-            err_ax.semilogy(r.run.t, np.maximum(e, 1e-18), style, lw=1, label=SHORT.get(r.backend, r.backend))
+            err_ax.semilogy(r.run.t, np.maximum(e, 1e-18), style, lw=1, color=_color(r.backend),
+                            label=SHORT.get(r.backend, r.backend))
             e_ax.semilogy(r.run.t, np.maximum(T.constraint_drift(_model(fam.case, fam.params), r.run)
                                               if fam.case != "double_pendulum" else
                                               np.abs(T.energy_error(_model(fam.case, fam.params), r.run, fam.ref)),
-                                              1e-18), style, lw=1)
+                                              1e-18), style, lw=1, color=_color(r.backend))
         size = np.abs(fam.ref.x).max(axis=1)
         err_ax.semilogy(t, size, "k:", lw=1, label="|x| (digits gone)")
         err_ax.semilogy(t, np.maximum(fam.ref.error, 1e-40), color="gray", lw=1, label="reference's own error")
@@ -323,7 +333,7 @@ def _chart_family(fam: Family, path: Path, title: str) -> None:
             k = min(len(base.run.t), len(r.run.t))
             d = np.abs(base.run.x[:k] - r.run.x[:k]).max(axis=1)
             pair_ax.semilogy(base.run.t[:k], np.maximum(d, 1e-18), "--" if "+" in r.backend else "-", lw=1,
-                             label=f"{SHORT.get(r.backend, r.backend)} - {SHORT.get(base.backend, base.backend)}")
+                             color=_color(r.backend), label=f"{SHORT.get(r.backend, r.backend)} - {SHORT.get(base.backend, base.backend)}")
         j = fam.judgments[key]
         pair_ax.semilogy(t[:len(j.envelope)], j.envelope, "k-", lw=2, label="envelope")
         pair_ax.axvline(j.judged_until, color="gray", ls=":", lw=1)
@@ -333,8 +343,9 @@ def _chart_family(fam: Family, path: Path, title: str) -> None:
         e_ax.set_xlabel("t (s)")
         for ax in (err_ax, pair_ax, e_ax):
             ax.grid(True, which="major", alpha=0.3)
-    axes[0, -1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    axes[1, -1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    for row in (0, 1):          # the first column has every line (the fault runs with rk4 only): its legend, outside
+        handles, labels = axes[row, 0].get_legend_handles_labels()
+        axes[row, -1].legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=90)
     plt.close(fig)
