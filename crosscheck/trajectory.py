@@ -358,10 +358,19 @@ def energy(model: Model, q, v) -> float:
     return float(T + V)
 
 
+def _mp_input(schedule, t) -> list:
+    """``u(t)`` for the reference: the schedule is called with the mpf time and its values taken at the working
+    precision. A schedule written with mpmath functions (or piecewise constant) keeps the reference exact; one that
+    rounds to float (numpy) makes the field non-smooth at 1e-16 and the step-size control gives up
+    (:class:`TrajectoryError`)."""
+    return [a if isinstance(a, mpf) else mpf(float(a)) for a in schedule(t)]
+
+
 class _PendulumField:
-    """The double pendulum's exact acceleration from the article's eqs. (6)-(8) (``crosscheck.closed_forms``, in
-    mpmath with the case's parameters ``m1, m2, l1, l2, g``; point masses), solved by hand (2 x 2): about 50 times
-    cheaper than the generic multiprecision split, which it is checked against (tests)."""
+    """The double pendulum's exact acceleration from the article's eqs. (6)-(8) (as ``crosscheck.closed_forms`` types
+    them), in scalar mpmath arithmetic with the case's parameters ``m1, m2, l1, l2, g`` (point masses; the case's
+    input map is the identity, so ``tau = u``), solved by hand (2 x 2): about 25 times cheaper than the generic
+    multiprecision split, which it is checked against (tests)."""
 
     def __init__(self, params: dict, schedule=None):
         self.p = {k: mpf(float(params.get(k, d))) for k, d in (("m1", 1.0), ("m2", 1.0), ("l1", 1.0), ("l2", 1.0),
@@ -382,7 +391,7 @@ class _PendulumField:
         f0 = 2 * c * w1 * w2 + c * w2 * w2 - ((m1 + m2) * g * l1 * s1 + m2 * g * l2 * s12)
         f1 = -c * w1 * w1 - m2 * g * l2 * s12
         if self.schedule is not None:
-            u = [mpf(float(a)) for a in np.asarray(self.schedule(float(t)), dtype=float)]
+            u = _mp_input(self.schedule, t)
             f0, f1 = f0 + u[0], f1 + u[1]
         det = M11 * M22 - M12 * M12
         self.evals += 1
@@ -403,8 +412,7 @@ class _MpField:
         if self.schedule is None:
             tau = [mpf(0)] * n
         else:
-            u = [mpf(float(a)) for a in np.asarray(self.schedule(float(t)), dtype=float)]
-            tau = [mpmath.fdot(row, u) for row in self.B]
+            tau = [mpmath.fdot(row, _mp_input(self.schedule, t)) for row in self.B]
         self.evals += 1
         return list(v) + list(_mp_acceleration(self.model, q, v, tau))
 
@@ -480,6 +488,10 @@ def _mp_run(model: Model, x0_mp: list, interval: float, intervals: int, tol, sch
                 h = step * min(mpf(2), mpf("0.9") * (1 / max(ratio, mpf(10) ** -30)) ** (mpf(1) / order))
             else:
                 h = step * max(mpf("0.2"), mpf("0.9") * (1 / ratio) ** (mpf(1) / order))
+                if h < mpf(interval) * mpf(2) ** -30:
+                    raise TrajectoryError(f"reference: the step size control failed at t = {float(t):.6g} (local "
+                                          f"error {float(corr):.1e} > {float(tol):.0e}); is the field smooth at "
+                                          "the working precision (an input schedule rounded to float is not)?")
         out.append(list(x))
     return out, f.evals
 

@@ -110,7 +110,7 @@ def cmd_trajectory(args) -> int:
     rows = []
     for r in runs:
         rows.append({"backend": r.backend, "error_at_end": float(T.errors(r, ref)[-1]),
-                     "max_energy_error": float(np.max(T.energy_error(model, r, ref))) if args.case and True else None,
+                     "max_energy_error": float(np.max(T.energy_error(model, r, ref))),
                      "max_constraint_drift": float(np.max(T.constraint_drift(model, r))),
                      "digits_gone_at": T.digits_gone(r, ref), "inside_envelope": r.backend not in verdict.outside,
                      "failure": r.failure, "evaluations": r.evals, "seconds": round(r.seconds, 3)})

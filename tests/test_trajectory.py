@@ -173,3 +173,17 @@ def test_report_command_writes_the_files(tmp_path, monkeypatch):
     for png in ("trajectories_double_pendulum.png", "trajectories_lyapunov.png", "trajectories_four_bar.png",
                 "trajectories_maps.png"):
         assert (tmp_path / png).stat().st_size > 1000
+
+
+def test_input_schedule_reaches_backends_and_reference():
+    model = cases.load("double_pendulum")
+
+    def schedule(t):           # mpmath functions: exact at the reference's precision, float for the backends
+        return [mpmath.cos(3 * t), -0.5]
+    ref = T.reference_trajectory(model, [0.5, 0.2], [0.0, 0.0], 0.2, 0.05, schedule=schedule, closed_form={},
+                                 halving=False)
+    generic = T.reference_trajectory(model, [0.5, 0.2], [0.0, 0.0], 0.2, 0.05, schedule=schedule, halving=False)
+    assert np.abs(ref.x - generic.x).max() < 1e-15
+    run = T.simulate(model, "pinocchio", [0.5, 0.2], [0.0, 0.0], 0.2, 0.001, "rk4", every=50, schedule=schedule)
+    drift = T.simulate(model, "pinocchio", [0.5, 0.2], [0.0, 0.0], 0.2, 0.001, "rk4", every=50)
+    assert np.abs(run.x - ref.x).max() < 1e-11 < np.abs(drift.x - ref.x).max()
