@@ -990,6 +990,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--quick", action="store_true", help="a few points per path (CI; well under a minute)")
     st.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
     st.set_defaults(run=cmd_stability)
+    from crosscheck import trajectory_cli
+    trajectory_cli.add_parser(sub, _Parser)
     return parser
 
 
