@@ -435,6 +435,10 @@ def _input_map_dropped(derivatives):
 
 
 DERIVATIVES = [
+    Fault("el-linearize-local-chart-as-tangent", EL,
+          "The derivative in the local exponential chart of a ball or free joint is used as the derivative along "
+          "q exp(dq): the dexp correction (-ad_e vdot / 2 and the velocity terms) is left out of dvdot/dq.",
+          "formalisms.euler_lagrange:_tangent", lambda f: lambda model, F_x, F_xd, vdot, v: F_x.copy()),
     Fault("screw-linearize-gravity-tangent-sign", "screw",   # (SCREW is the list of screw faults by now)
           "The derivative of the body-frame gravity R^T g along a body rotation eta has the wrong sign: "
           "+omega x g instead of -omega x g.",
