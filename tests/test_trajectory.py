@@ -187,3 +187,13 @@ def test_input_schedule_reaches_backends_and_reference():
     run = T.simulate(model, "pinocchio", [0.5, 0.2], [0.0, 0.0], 0.2, 0.001, "rk4", every=50, schedule=schedule)
     drift = T.simulate(model, "pinocchio", [0.5, 0.2], [0.0, 0.0], 0.2, 0.001, "rk4", every=50)
     assert np.abs(run.x - ref.x).max() < 1e-11 < np.abs(drift.x - ref.x).max()
+
+
+@pytest.mark.parametrize("coefficients", [((0.25, 0.25 - T._S3 / 6), (0.25 - T._S3 / 6, 0.25)),   # A21's sign
+                                          ((0.25, 0.25 - T._S3 / 6), (0.25 + T._S3 / 6, 0.5))])   # a stage weight off
+def test_a_wrong_gauss_coefficient_fails_the_order_check(monkeypatch, coefficients):
+    """The integrators are shared by every backend, so the backends' vote cannot see a fault in them; the order
+    check against the exact solution does: a Gauss–Legendre tableau with a wrong coefficient is no longer order 4."""
+    monkeypatch.setattr(T, "GAUSS_A", coefficients)
+    ratio = _gauss_end(0.1) / _gauss_end(0.05)
+    assert not 14.0 < ratio < 18.0, ratio
