@@ -107,7 +107,7 @@ def test_a_failing_report_is_reproducible_and_puts_the_summary_first(tmp_path, d
     assert [first.index(h) for h in sections] == sorted(first.index(h) for h in sections)
     summary = first.split("## Disagreements")[0]
     assert "| double_pendulum | 6 | 5 |" in summary                  # states, failing states
-    assert "| double_pendulum | euler_lagrange | 10 |" in summary     # suspect: 2 quantities at 5 states
+    assert "| double_pendulum | euler_lagrange | 15 |" in summary     # suspect: drift, total, drift_velocity at 5
     assert "| double_pendulum | 2 | drift | 1 | 5 | 0 | 0 |" in summary and "| gross |" in summary
     detail = first.split("## Disagreements")[1].split("\n## ")[0]
     assert detail.count("- hint: euler_lagrange's drift error x4 when qd doubles, 0 at qd = 0") == 5

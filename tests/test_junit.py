@@ -18,7 +18,7 @@ from crosscheck.tolerance import quantities
 from formalisms.interface import Formalism
 
 ALL = [backends.get(name) for name in backends.names()]
-QUICK = Checks(charts=False, frames=0, conservation=False, closed_forms=False, self_test=False)
+QUICK = Checks(charts=False, frames=0, conservation=False, closed_forms=False, self_test=False, linearization=False)
 
 
 def _parsed(result, tmp_path):
@@ -59,7 +59,7 @@ def test_a_failing_gate_lists_the_failing_states_with_ratio_severity_outlier_and
     suite = _parsed(result, tmp_path).find("testsuite")
     testcases = _cases(suite)
     failed = {name for name, tc in testcases.items() if tc.find("failure") is not None}
-    assert failed == {"drift", "total"} and suite.get("failures") == "2"
+    assert failed == {"drift", "total", "drift_velocity"} and suite.get("failures") == "3"
     failure = testcases["drift"].find("failure")
     assert failure.get("type") == "DISAGREE"
     message = failure.get("message")
@@ -79,7 +79,7 @@ def test_known_passes_with_its_reason_and_breakdown_is_listed(tmp_path, dropped_
     result = run_gate([CaseSpec("double_pendulum")], ALL, 3, 0, checks=QUICK)
     reason = "test: velocity products dropped"
     text = "".join(f'[[divergence]]\nbackend = "euler_lagrange"\ncase = "*"\nquantity = "{q}"\nreason = "{reason}"\n'
-                   for q in ("drift", "total"))
+                   for q in ("drift", "total", "drift_velocity"))
     registry.apply(registry.parse(text), result)
     suite = _parsed(result, tmp_path).find("testsuite")
     drift = _cases(suite)["drift"]

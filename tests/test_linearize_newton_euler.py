@@ -153,10 +153,17 @@ def test_the_constrained_derivative_holds_off_the_manifold():
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
-def test_agrees_with_pinocchio_on_random_trees(data):
+def test_agrees_with_the_exact_reference_on_random_trees(data):
+    """Random trees against the 50-digit reference: on ill-conditioned ones Pinocchio's ABA derivatives are the less
+    accurate side (a free body carrying a 100 kg point mass, cond M 2e5: Pinocchio 1.5e-8 from the exact dvdot/dq,
+    every backend 2e-12 to 3e-10)."""
+    from crosscheck import precise
     model = data.draw(testing.models(max_bodies=4, group=True))
     state = data.draw(testing.states(model))
-    _assert_agrees_with_pinocchio(model, *(np.array(x) for x in (state.q, state.qd, state.u)))
+    q, v, u = (np.array(x) for x in (state.q, state.qd, state.u))
+    lin = ne.linearize(model, q, v, u)
+    errors = _errors(model, lin, _blocks(model, precise.linearize(model, q, v, u)), q, v, u)
+    assert max(errors.values()) <= RTOL, errors
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])

@@ -15,7 +15,7 @@ from crosscheck.sampling import sample_states
 
 ROOT = Path(__file__).resolve().parents[1]
 ALL = [backends.get(name) for name in backends.names()]
-QUICK = Checks(charts=False, frames=0, conservation=False)
+QUICK = Checks(charts=False, frames=0, conservation=False, linearization=False)
 REASON = "Christoffel term dropped on purpose in this test"
 
 
@@ -92,10 +92,11 @@ def test_an_explained_divergence_is_known_and_anything_unlisted_still_fails(drop
 
 def test_a_fully_explained_run_passes_and_the_report_says_why(dropped_coriolis):
     result = _coriolis_gate()
-    applied = registry.apply(registry.parse(_entry(quantity="drift") + _entry(quantity="total")), result)
-    assert result.passed and applied.known == 6
+    applied = registry.apply(registry.parse(_entry(quantity="drift") + _entry(quantity="total")
+                                            + _entry(quantity="drift_velocity")), result)
+    assert result.passed and applied.known == 9                   # drift, total and drift's velocity part, 3 states
     report = render(result, "test", applied)
-    assert "**PASS**" in report and "6 known divergence(s)" in report
+    assert "**PASS**" in report and "9 known divergence(s)" in report
     section = report.split("## Known divergences")[1].split("\n## ")[0]
     assert "| double_pendulum | drift | euler_lagrange | 3 |" in section and REASON in section
     assert "## Disagreements" not in report
@@ -127,7 +128,7 @@ def test_two_voters_without_a_vote_are_explained_by_either_backend(dropped_corio
         assert outcome.comparisons["drift"].outlier is None and outcome.failed
         usage = registry.apply_to_state(registry.parse(_entry(backend=backend, quantity="*")),
                                         ("double_pendulum",), outcome)
-        assert usage.matched[1] == 2 and not outcome.failed          # drift and total
+        assert usage.matched[1] == 3 and not outcome.failed          # drift, total and the drift's velocity part
 
 
 def test_apply_to_state_turns_checks_known_too(monkeypatch):
@@ -146,15 +147,16 @@ def test_apply_to_state_turns_checks_known_too(monkeypatch):
 
 def _gate(tmp_path, *args):
     return cli.main(["gate", "--case", "double_pendulum", "--samples", "4", "--frames", "0", "--no-charts",
-                     "--no-conservation", "--report", str(tmp_path / "gate.md"), *args])
+                     "--no-conservation", "--no-linearization", "--report", str(tmp_path / "gate.md"), *args])
 
 
 def test_the_gate_reads_a_registry_and_warns_about_stale_entries(tmp_path, dropped_coriolis, capsys):
     path = tmp_path / "known.toml"
-    path.write_text(_entry(quantity="drift") + _entry(quantity="total") + _entry(quantity="ctrl"))
+    path.write_text(_entry(quantity="drift") + _entry(quantity="total") + _entry(quantity="ctrl")
+                    + _entry(quantity="drift_velocity"))
     assert _gate(tmp_path, "--registry", str(path)) == 0
     captured = capsys.readouterr()
-    assert "PASS" in captured.out and "4 states, 0 failing, 6 known" in captured.out
+    assert "PASS" in captured.out and "4 states, 0 failing, 9 known" in captured.out
     assert f"crosscheck: warning: stale entry 3 (backend euler_lagrange, case double_pendulum, quantity ctrl) in " \
            f"{path}" in captured.err
     assert _gate(tmp_path, "--no-registry") == 1
@@ -163,9 +165,10 @@ def test_the_gate_reads_a_registry_and_warns_about_stale_entries(tmp_path, dropp
 def test_the_gate_uses_divergences_toml_in_the_current_directory(tmp_path, dropped_coriolis, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert _gate(tmp_path) == 1
-    (tmp_path / registry.DEFAULT_PATH).write_text(_entry(quantity="drift") + _entry(quantity="total"))
+    (tmp_path / registry.DEFAULT_PATH).write_text(_entry(quantity="drift") + _entry(quantity="total")
+                                                  + _entry(quantity="drift_velocity"))
     assert _gate(tmp_path) == 0
-    assert "divergence registry: `divergences.toml`, 2 entries; 6 comparison(s) KNOWN" in \
+    assert "divergence registry: `divergences.toml`, 3 entries; 9 comparison(s) KNOWN" in \
         (tmp_path / "gate.md").read_text()
 
 
