@@ -158,8 +158,8 @@ def test_drawn_constrained_models_match_central_differences(data):
     _against_differences(model, np.array(s.q), np.array(s.qd), np.array(s.u))
 
 
-@SLOW
 def test_panda_with_its_finger_coupling_matches_central_differences():
+    """The issue's named robot, always (about 13 s of cold derivation); the larger models below are opt-in."""
     model = cases.load("panda")
     _against_differences(model, *_state(model, 3))
 
