@@ -137,21 +137,30 @@ def _same_call(fault: str, target: str, original: Any, faulty: Any) -> None:
                          f"{inspect.signature(original)} is ({exc}); update the catalog") from None
 
 
+#: The Euler–Lagrange lru_caches of code derived from the model (a fault in the derivation must not outlive itself in
+#: any of them: a faulty linearization of the double pendulum once did, and named the next fault's backend wrongly).
+_EULER_LAGRANGE_CACHES = ("_compiled", "_linear_code")
+
+
 @contextmanager
 def _fresh_euler_lagrange() -> Iterator[None]:
     """The Euler–Lagrange caches empty for the fault: a temporary ``CROSSCHECK_CACHE`` directory (deleted on exit),
-    and in place of the lru_cache of compiled code an empty one of the same size, discarded on exit with every
-    faulty entry; the original, which never sees the fault, is put back with its entries."""
+    and in place of each lru_cache of derived code (the dynamics', the linearization's) an empty one of the same size,
+    discarded on exit with every faulty entry; the originals, which never see the fault, are put back with their
+    entries."""
     from formalisms import euler_lagrange
 
-    before, compiled = os.environ.get("CROSSCHECK_CACHE"), euler_lagrange._compiled
+    before = os.environ.get("CROSSCHECK_CACHE")
+    originals = {name: getattr(euler_lagrange, name) for name in _EULER_LAGRANGE_CACHES}
     with tempfile.TemporaryDirectory(prefix="crosscheck-fault-") as tmp:
         os.environ["CROSSCHECK_CACHE"] = tmp
-        euler_lagrange._compiled = functools.lru_cache(maxsize=compiled.cache_info().maxsize)(compiled.__wrapped__)
+        for name, cached in originals.items():
+            setattr(euler_lagrange, name, functools.lru_cache(maxsize=cached.cache_info().maxsize)(cached.__wrapped__))
         try:
             yield
         finally:
-            euler_lagrange._compiled = compiled
+            for name, cached in originals.items():
+                setattr(euler_lagrange, name, cached)
             if before is None:
                 os.environ.pop("CROSSCHECK_CACHE", None)
             else:

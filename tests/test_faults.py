@@ -187,3 +187,18 @@ def test_the_faults_command_exits_0_only_when_every_fault_is_caught(tmp_path, ca
     assert all(f"{f.name} " in listing and f.bug in listing for f in fault_catalog.CATALOG)
     assert cli.main(["faults", "--fault", "nope"]) == 2
     assert "unknown fault 'nope'" in capsys.readouterr().err
+
+
+def test_a_derivation_fault_does_not_outlive_itself_in_the_linearization():
+    """A faulty Euler–Lagrange derivation reaches the linearization's code too (derived from the same energies); that
+    code is cached apart, and must be discarded with the fault: once it was not, and the next fault's hunt blamed
+    euler_lagrange for the double pendulum's dvdot/dq."""
+    import numpy as np
+
+    import cases
+    from formalisms import euler_lagrange
+    model, q, v, u = cases.load("double_pendulum"), [0.3, 0.2], [1.0, -1.0], [0.0, 0.0]
+    clean = euler_lagrange.linearize(model, q, v, u).A
+    with injected(fault_catalog.get("el-kinetic-energy-missing-half")):
+        assert not np.allclose(euler_lagrange.linearize(model, q, v, u).A, clean)
+    np.testing.assert_array_equal(euler_lagrange.linearize(model, q, v, u).A, clean)
