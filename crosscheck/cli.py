@@ -475,7 +475,7 @@ def _eval_linearize(model, chart, p, pd, u, splits: dict, chosen: list, verdict:
            "not_supported": unsupported, "errors": errors, "checks": {}}
     if trusted:
         at = policy.scales(trusted, model, p, pd, u=u)
-        comparisons, _ = linearization.checks(model, state, chosen, at)
+        comparisons = linearization.compared(model, state, found, unsupported, at)
         out["checks"] = {name: {"verdict": c.verdict, "worst_ratio": c.worst_ratio, "outlier": c.outlier}
                          for name, c in comparisons.items()}
         failing = [name for name, c in comparisons.items() if c.verdict == DISAGREE]

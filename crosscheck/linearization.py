@@ -113,6 +113,13 @@ def checks(model: Model, state: State, backends: Sequence[Formalism], at: policy
            ) -> tuple[dict[str, Comparison], dict[str, str]]:
     """The comparisons of the dynamic blocks of A and B (module doc) at ``state``, and the backends' errors."""
     found, errors, unsupported = linearizations(model, state, backends)
+    return compared(model, state, found, unsupported, at), errors
+
+
+def compared(model: Model, state: State, found: Mapping[str, Linearization], unsupported: Sequence[str],
+             at: policy.Scales) -> dict[str, Comparison]:
+    """The comparison of each block (:data:`BLOCKS`) among the linearizations ``found`` (the ``unsupported``
+    backends joining as UNSUPPORTED), with the tolerance of :func:`tolerances`."""
     out = {}
     for block in BLOCKS:
         values = {name: blocks(model, lin)[block] for name, lin in found.items()}
@@ -120,4 +127,4 @@ def checks(model: Model, state: State, backends: Sequence[Formalism], at: policy
         flat = {name: np.asarray(value, dtype=float).ravel() for name, value in values.items()}
         flat.update(dict.fromkeys(unsupported, UNSUPPORTED))
         out[f"linearization: {block}"] = compare(block, flat, tol)
-    return out, errors
+    return out
