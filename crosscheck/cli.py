@@ -1,4 +1,8 @@
-"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench.
+"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench, stability,
+trajectory, reports.
+
+Outputs: every command writes under :data:`OUTPUT_DIR` (``crosscheck-out/``, git-ignored) unless told otherwise; the
+committed reports in :data:`REPORTS_DIR` are written only by ``crosscheck reports`` (:data:`REPORTS`).
 
 Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
 one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report).
@@ -9,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import shlex
 import sys
@@ -28,11 +33,17 @@ from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
-from crosscheck.report import render
+from crosscheck import report as gate_report
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
-DEFAULT_REPORT = "reports/gate.md"
+#: Where every command writes by default: untracked (``.gitignore``), so running a command never dirties a clone.
+OUTPUT_DIR = "crosscheck-out"
+#: The committed reports, written only by ``crosscheck reports`` (:data:`REPORTS`).
+REPORTS_DIR = "reports"
+DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
+#: ``fuzz --out`` and ``replay --dir`` (``crosscheck.fuzz.DEFAULT_DIR`` for the Python API).
+DEFAULT_FUZZ_DIR = f"{OUTPUT_DIR}/fuzz"
 #: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED = 130
 
@@ -72,12 +83,26 @@ MAX_SEED = 2**63 - 1
 WORKERS_PER_CPU = 2
 
 
-def _workers(count: int, least: int) -> int:
-    """``--workers``: from ``least`` to :data:`WORKERS_PER_CPU` per CPU."""
-    most = WORKERS_PER_CPU * (os.cpu_count() or 1)
-    if not least <= count <= most:
-        raise UsageError(f"--workers takes {least} to {most} ({WORKERS_PER_CPU} per CPU) processes, got {count}")
-    return count
+def workers(requested: int | None, units: float) -> int:
+    """The worker processes of a command (``--workers``, one meaning in every command): 0 runs the work in this
+    process, N >= 1 in N spawned worker processes, never more than the ``units`` of work there are (cases, chunks,
+    jobs); None, the default, is one per CPU, but this process when there is only one unit (a pool of one would only
+    add its start-up). At most :data:`WORKERS_PER_CPU` per CPU."""
+    cpus = os.cpu_count() or 1
+    most = WORKERS_PER_CPU * cpus
+    if requested is None:
+        return 0 if units <= 1 else int(min(cpus, units))
+    if not 0 <= requested <= most:
+        raise UsageError(f"--workers takes 0 to {most} ({WORKERS_PER_CPU} per CPU) processes, got {requested}")
+    return int(min(requested, max(units, 1)))
+
+
+def add_workers_option(parser: argparse.ArgumentParser, unit: str) -> None:
+    """``--workers N`` with the one meaning of :func:`workers`; ``unit`` names what the processes share out."""
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help=f"0: run in this process; N >= 1: N worker processes, at most one per {unit} (default: "
+                             f"one per CPU, or this process when there is only one {unit}; at most "
+                             f"{WORKERS_PER_CPU} per CPU)")
 
 
 #: Most rigid frame changes a gate run samples (``--frames``); ``eval --frame gK`` takes K below it.
@@ -189,14 +214,15 @@ def cmd_gate(args) -> int:
         raise UsageError("--samples must be at least 1")
     if not 0 <= args.frames <= MAX_FRAMES:
         raise UsageError(f"--frames takes 0 (off) to {MAX_FRAMES} frame changes per case, got {args.frames}")
-    _workers(args.workers, 0)
     specs = _specs(args)
+    count = workers(args.workers, len(specs))
     chosen = _backends(args.formalism)
     for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
         preflight.check_model(model)
     known = _registry(args)
     placeholder = "# crosscheck gate\n\nThe run writing this report has not finished (interrupted or failed).\n"
     report = preflight.claim_output(args.report, "report", placeholder)
+    preflight.claim_output(gate_report.details_path(report), "report (its details file)", placeholder)
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
@@ -205,16 +231,16 @@ def cmd_gate(args) -> int:
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
-                              workers=args.workers, required=_required(args))
+                              workers=count, required=_required(args))
         except gate.Interrupted as stop:
             result = stop.result
     applied = registry.apply(known, result) if known else None
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
-        report.write_text(render(result, command, applied))
+        gate_report.write(result, command, report, applied)
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    report.write_text(render(result, command, applied))
+    _, details = gate_report.write(result, command, report, applied)
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():
@@ -247,7 +273,7 @@ def cmd_gate(args) -> int:
             print(f"FAIL self-test: {line}", file=sys.stderr)
         print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
               "canaries caught and named", file=sys.stderr)
-    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
+    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report} (details in {details})")
     return 0 if result.passed else 1
 
 
@@ -579,7 +605,7 @@ def _frame(name: str, seed: int, case: str) -> frames.Frame:
     return frames.sampled(seed, case, int(name[1:]) + 1)[-1]
 
 
-DEFAULT_FAULTS_REPORT = "reports/faults.md"
+DEFAULT_FAULTS_REPORT = f"{OUTPUT_DIR}/faults.md"
 
 
 def _chosen_faults(args):
@@ -703,6 +729,17 @@ def _shard(text: str) -> tuple[int, int]:
     return int(index), int(count)
 
 
+def _fuzz_chunks(args) -> float:
+    """The chunks this shard of the campaign runs (the units its ``--workers`` share out); inf for ``--minutes``."""
+    from crosscheck import fuzz
+
+    if args.minutes is not None:
+        return float("inf")
+    index, count = _shard(args.shard)
+    chunks = math.ceil((args.examples or fuzz.DEFAULT_EXAMPLES) / max(args.chunk_examples or fuzz.CHUNK_EXAMPLES, 1))
+    return len(range(index, chunks, count)) if count else 0   # a bad shard or count: fuzz.config says what is wrong
+
+
 def cmd_fuzz(args) -> int:
     from crosscheck import fuzz
 
@@ -716,7 +753,8 @@ def cmd_fuzz(args) -> int:
     if args.chunk_examples is not None:
         bound["chunk_examples"] = args.chunk_examples
     try:
-        cfg = fuzz.config(seed=args.seed, workers=_workers(args.workers, 0), shard=_shard(args.shard), out=args.out,
+        cfg = fuzz.config(seed=args.seed, workers=workers(args.workers, _fuzz_chunks(args)), shard=_shard(args.shard),
+                          out=args.out,
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
@@ -779,8 +817,8 @@ def cmd_stability(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``crosscheck bench``: time and error of every backend (reports/speed_accuracy.md and its charts), then the
-    stability maps (reports/stability.md), so one command regenerates both reports. Exit 0: it measures."""
+    """``crosscheck bench``: time and error of every backend (DIR/speed_accuracy.md and its charts), then the
+    stability maps (DIR/stability.md), so one command regenerates both reports. Exit 0: it measures."""
     from crosscheck import bench, bench_report
 
     preflight.claim_directory(args.out, "out")
@@ -807,7 +845,7 @@ def cmd_bench(args) -> int:
 
 
 def _bench_scale(args) -> int:
-    """``crosscheck bench --scale``: large robots and campaigns as whole processes (reports/scale.md)."""
+    """``crosscheck bench --scale``: large robots and campaigns as whole processes (DIR/scale.md)."""
     from crosscheck import scale
 
     plan = scale.QUICK if args.quick else scale.FULL
@@ -831,6 +869,61 @@ def _stability_maps(out: str, quick: bool, display: Display) -> Path:
         display.doing(f"stability: {path} {done}/{count}")
 
     return stability.write_report(Path(out), quick=quick, progress=measured)
+
+
+#: The committed reports (in :data:`REPORTS_DIR`) and the command that writes each there: ``crosscheck reports``
+#: runs these, so the reports carry the command that regenerates them.
+REPORTS = {
+    "gate": ["gate", "--report", f"{REPORTS_DIR}/gate.md"],
+    "faults": ["faults", "--report", f"{REPORTS_DIR}/faults.md"],
+    "bench": ["bench", "--no-stability", "--out", REPORTS_DIR],
+    "stability": ["stability", "--out", REPORTS_DIR],
+    "scale": ["bench", "--scale", "--out", REPORTS_DIR],
+    "trajectories": ["trajectory", "--report", REPORTS_DIR],
+}
+#: The commands of :data:`REPORTS` that take ``--quiet``.
+QUIET = ("gate", "faults", "bench", "scale")
+
+
+def _only(text: str) -> list[str]:
+    """``--only a,b``: report names of :data:`REPORTS`, in the order given."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in REPORTS]
+    if unknown or not names:
+        raise UsageError(f"--only takes report names separated by commas from {', '.join(REPORTS)}; got '{text}'")
+    return list(dict.fromkeys(names))
+
+
+def cmd_reports(args) -> int:
+    """``crosscheck reports``: regenerate the committed reports in :data:`REPORTS_DIR` by running each report's own
+    command (:data:`REPORTS`) in turn. Exit 0 when each command exits 0, 130 at Ctrl-C (the reports not yet run keep
+    their old contents), else 1 (a failing gate or fault hunt still writes its report)."""
+    chosen = _only(args.only) if args.only else list(REPORTS)
+    if not Path(REPORTS_DIR).is_dir():
+        raise UsageError(f"there is no {REPORTS_DIR}/ directory here ({Path.cwd()}): run crosscheck reports from the "
+                         "repository's root, where the committed reports are")
+    codes = {}
+    for name in chosen:
+        argv = REPORTS[name] + (["--quiet"] if args.quiet and name in QUIET else [])
+        print(f"reports: {name}: crosscheck {' '.join(argv)}", flush=True)
+        sub = build_parser().parse_args(argv)
+        sub.argv = argv
+        codes[name] = sub.run(sub)
+        if codes[name] == INTERRUPTED:
+            return _interrupted(f"while regenerating {name}; not run: {', '.join(chosen[len(codes):]) or 'none'}")
+    failed = [name for name, code in codes.items() if code]
+    print(f"reports: {len(chosen)} regenerated in {REPORTS_DIR}/" + (f"; exit non-zero: {', '.join(failed)}"
+                                                                     if failed else ""))
+    return 1 if failed else 0
+
+
+def add_reports_parser(sub) -> None:
+    rep = sub.add_parser("reports", help=f"regenerate the committed reports in {REPORTS_DIR}/ (every other command "
+                         f"writes to {OUTPUT_DIR}/ by default)")
+    rep.add_argument("--only", metavar="NAMES", help=f"comma-separated, from {', '.join(REPORTS)} (default: all; "
+                     "each a full run: the faults alone take about 17 minutes on 2 CPUs)")
+    rep.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    rep.set_defaults(run=cmd_reports)
 
 
 def _version() -> str:
@@ -862,7 +955,9 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
-    gate.add_argument("--report", default=DEFAULT_REPORT, help=f"markdown report path (default {DEFAULT_REPORT})")
+    gate.add_argument("--report", default=DEFAULT_REPORT, metavar="PATH",
+                      help=f"markdown report path (default {DEFAULT_REPORT}); its details go next to it, "
+                           "NAME-details.md")
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
     gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
@@ -879,9 +974,7 @@ def build_parser() -> argparse.ArgumentParser:
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
     gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
-    gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                      help="worker processes running the cases (default: the number of CPUs; 0: in this process; "
-                      "one case, or 1, also runs here: a pool of one would only add its start-up)")
+    add_workers_option(gate, "case")
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -938,11 +1031,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "is not given)")
     fz.add_argument("--minutes", type=float, help="run for this long instead (the chunks in flight then finish)")
     fz.add_argument("--seed", type=_seed, default=0, help="campaign seed (default 0)")
-    fz.add_argument("--workers", type=int, default=1, help="worker processes running the chunks (default 1; 0: in "
-                    "this process; a worker is replaced every few chunks, which bounds the memory a campaign takes)")
+    add_workers_option(fz, "chunk")   # a worker is replaced every few chunks: that bounds a campaign's memory
     fz.add_argument("--shard", default="0/1", metavar="i/N", help="run the chunks k with k %% N == i (default 0/1)")
-    fz.add_argument("--out", default=".crosscheck/fuzz", metavar="DIR",
-                    help="campaign directory: findings, chunk log, report.md (default .crosscheck/fuzz)")
+    fz.add_argument("--out", default=DEFAULT_FUZZ_DIR, metavar="DIR",
+                    help=f"campaign directory: findings, chunk log, report.md (default {DEFAULT_FUZZ_DIR})")
     fz.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     fz.add_argument("--max-bodies", type=int, default=4, help="largest drawn model (default 4 bodies)")
     fz.add_argument("--chunk-examples", type=int, default=None, metavar="N",
@@ -964,7 +1056,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rp = sub.add_parser("replay", help="evaluate a saved fuzzing finding again")
     rp.add_argument("id", help="the finding's ID (or a unique prefix), as in the campaign report")
-    rp.add_argument("--dir", default=".crosscheck/fuzz", help="campaign directory (default .crosscheck/fuzz)")
+    rp.add_argument("--dir", default=DEFAULT_FUZZ_DIR, help=f"campaign directory (default {DEFAULT_FUZZ_DIR})")
     rp.add_argument("--formalism", action="append", help="evaluate these backends instead of the finding's")
     add_plugin_option(rp)
     rp.set_defaults(run=cmd_replay)
@@ -974,24 +1066,26 @@ def build_parser() -> argparse.ArgumentParser:
     mg.add_argument("--out", required=True, metavar="DIR", help="the merged campaign directory")
     mg.set_defaults(run=cmd_merge)
 
-    bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (reports/)")
+    bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (speed_accuracy.md, "
+                        "stability.md and their charts)")
     bn.add_argument("--quick", action="store_true", help="few scenes, states and repeats (CI; about a minute)")
-    bn.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    bn.add_argument("--out", default=OUTPUT_DIR, metavar="DIR", help=f"report directory (default {OUTPUT_DIR})")
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
-    bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
+    bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (DIR/stability.md)")
     bn.add_argument("--scale", action="store_true", help="instead: the gate on tiago, g1 and solo12, Euler–Lagrange "
-                    "preparation against joints, fuzz throughput, each a whole process (reports/scale.md)")
+                    "preparation against joints, fuzz throughput, each a whole process (DIR/scale.md)")
     add_plugin_option(bn)
     add_quiet_option(bn)
     bn.set_defaults(run=cmd_bench)
 
     st = sub.add_parser("stability", help="true errors and condition numbers along paths into trouble "
-                        "(reports/stability.md)")
+                        "(stability.md)")
     st.add_argument("--quick", action="store_true", help="a few points per path (CI; well under a minute)")
-    st.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    st.add_argument("--out", default=OUTPUT_DIR, metavar="DIR", help=f"report directory (default {OUTPUT_DIR})")
     st.set_defaults(run=cmd_stability)
     from crosscheck import trajectory_cli
-    trajectory_cli.add_parser(sub, _Parser)
+    trajectory_cli.add_parser(sub, _Parser, OUTPUT_DIR, add_workers_option)
+    add_reports_parser(sub)
     return parser
 
 

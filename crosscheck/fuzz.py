@@ -76,7 +76,7 @@ from crosscheck import workers as worker_processes
 from crosscheck.gate import StateOutcome
 from crosscheck.sampling import State
 
-DEFAULT_DIR = ".crosscheck/fuzz"
+DEFAULT_DIR = "crosscheck-out/fuzz"
 #: Examples of a campaign given neither a number of examples nor of minutes (the command line's default).
 DEFAULT_EXAMPLES = 100
 #: ``--constraints`` words -> ``FuzzConfig.constraints`` (``crosscheck.testing.models``).

@@ -573,14 +573,14 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     sample is degenerate (``crosscheck.coverage``), every ``required`` backend took part in some comparison and the
     self-test canaries are caught (``crosscheck.selftest``, unless ``checks.self_test`` is off).
 
-    ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
-    outcomes are the same as in this process and come back in case order, so the report is too (its timings
-    apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
-    run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
+    ``workers`` 0 runs the cases in this process; N >= 1 in N spawned processes (:func:`_in_pool`), at most one per
+    case (``crosscheck.cli.workers``: the one meaning of ``--workers``); the outcomes are the same as in this
+    process and come back in case order, so the report is too (its timings apart). Backends that cannot be sent to
+    another process (not picklable: a lambda, a local function) keep the run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
     of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
     tell = progress or _ignore
     count = min(workers, len(specs))
-    pooled = count > 1 and _picklable(backends)
+    pooled = count >= 1 and _picklable(backends)
     outcomes: list[CaseOutcome] = []
     result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
     try:

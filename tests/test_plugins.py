@@ -22,6 +22,7 @@ import pytest
 import cases
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
+from crosscheck import report as gate_report
 from crosscheck.compare import NOT_COMPARED
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from formalisms.interface import Unsupported
@@ -70,7 +71,7 @@ def plugin_path(monkeypatch, tmp_path):
 def _gate(tmp_path, *args):
     report = tmp_path / "gate.md"
     code = cli.main(["gate", *args, "--report", str(report)])
-    return code, report.read_text() if report.exists() else ""
+    return code, gate_report.read(report) if report.exists() else ""
 
 
 def _cells(line: str) -> list[str]:
