@@ -1010,7 +1010,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(run=cmd_eval)
 
     hunt = sub.add_parser("faults", help="inject each catalogued fault and measure whether the default gate "
-                          "catches it")
+                          "catches it", description="Runs in this process, no --workers: each fault is injected "
+                          "into this process's backends in turn.")
     hunt.add_argument("--fault", action="append", default=[], metavar="NAME",
                       help="run only this fault (repeatable; default: the whole catalog, see --list)")
     hunt.add_argument("--samples", type=int, default=100, help="at most this many states per case (default 100)")
@@ -1067,7 +1068,8 @@ def build_parser() -> argparse.ArgumentParser:
     mg.set_defaults(run=cmd_merge)
 
     bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (speed_accuracy.md, "
-                        "stability.md and their charts)")
+                        "stability.md and their charts)", description="Runs in this process, no --workers: the "
+                        "timings need the machine as quiet as it gets.")
     bn.add_argument("--quick", action="store_true", help="few scenes, states and repeats (CI; about a minute)")
     bn.add_argument("--out", default=OUTPUT_DIR, metavar="DIR", help=f"report directory (default {OUTPUT_DIR})")
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
