@@ -48,9 +48,12 @@ INERTIA = "inertia / mass matrix"
 
 
 def without_gravity(model: Model) -> Model:
-    """The same model with gravity switched off."""
+    """The same model with gravity switched off; a file source is kept, marked gravity-free, so that the reference
+    and a plugin that reads the file (``crosscheck.backends``, "What a plugin needs") see the same scene."""
+    source = None if model.source is None else model.source.without_gravity()
     return cases.build_model(f"{model.name} without gravity", model.bodies, gravity=np.zeros(3),
-                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints)
+                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints,
+                             source=source)
 
 
 def _value(split: Split, quantity: str) -> np.ndarray | None:
