@@ -17,7 +17,7 @@ import pytest
 import cases
 from crosscheck import backends, cli, diagnosis, frames
 from crosscheck.assemble import Sizes, unconstrained_split
-from crosscheck.compare import NOT_COMPARED
+from crosscheck.compare import NOT_COMPARED, suspect
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.needs import PinocchioScene, SourceScene
 
@@ -62,13 +62,13 @@ def chain_path(tmp_path) -> str:
 
 
 class Recorder:
-    """A backend that records what it is given and answers with the reference's numbers read off it: Pinocchio's
-    ABA on the Pinocchio model it gets (``needs = "pinocchio"``)."""
+    """A backend that records what it is given and answers with Pinocchio's ABA on the Pinocchio model it gets
+    (``needs = "pinocchio"``); with ``c`` > 0 it adds a viscous force ``-c qd`` (a deliberate bug)."""
 
     needs = "pinocchio"
-    name = "recorder"
 
-    def __init__(self):
+    def __init__(self, name: str = "recorder", c: float = 0.0):
+        self.name, self.c = name, c
         self.seen: list[PinocchioScene] = []
 
     def split(self, scene: PinocchioScene, q, qd, u):
@@ -77,8 +77,8 @@ class Recorder:
         self.seen.append(scene)
         pm, data = scene.model, scene.data
         qp, vp, tau = scene.configuration(q), scene.velocity(qd), scene.input_map @ np.asarray(u, dtype=float)
-        drift = scene.ours(pin.aba(pm, data, qp, vp, np.zeros(pm.nv)))
-        total = scene.ours(pin.aba(pm, data, qp, vp, scene.velocity(tau)))
+        drift = scene.ours(pin.aba(pm, data, qp, vp, -self.c * vp))
+        total = scene.ours(pin.aba(pm, data, qp, vp, scene.velocity(tau) - self.c * vp))
         M_p = np.array(pin.crba(pm, data, qp))
         M = scene.ours_matrix(np.triu(M_p) + np.triu(M_p, 1).T)           # crba fills the upper triangle
         g = scene.ours(pin.computeGeneralizedGravity(pm, data, qp))
@@ -107,6 +107,8 @@ def test_mujoco_with_damping_left_on_fails_and_is_named(chain_path):
     assert blamed and all("outlier **mujoco_damping_left_on**" in line for line in blamed)
     commands = [line for line in text.splitlines() if "reproduce: `crosscheck eval" in line]
     assert commands and all(f"--plugin {DAMPED}" in line for line in commands)
+    hints = [line for line in text.splitlines() if "a force linear in qd" in line]
+    assert hints and "mass matrix" not in " ".join(hints)
 
 
 def test_source_scenes_follow_moved_scenes_and_gravity_free_copies(chain_path):
@@ -193,3 +195,18 @@ def test_a_plugin_loaded_from_a_file_goes_to_worker_processes_by_its_spec():
     context = multiprocessing.get_context("spawn")
     with context.Pool(1) as pool:                 # there: nothing of the parent's plugins but the spec
         assert pool.apply(operator.attrgetter("name"), (formalism,)) == "mujoco"
+
+
+def test_a_force_linear_in_qd_is_hinted_as_damping_not_the_mass_matrix():
+    """A backend adding ``-c qd`` (joint damping left on): its drift and total are off, ctrl agrees, the error doubles
+    with qd and vanishes at rest; the hint names a force linear in qd, not the mass matrix."""
+    backends.register(Recorder("viscous", c=0.3))
+    chosen = [backends.get(name) for name in ("pinocchio", "newton_euler", "screw", "viscous")]
+    result = run_gate([CaseSpec("double_pendulum")], chosen, samples=3, seed=1,
+                      checks=Checks(charts=False, frames=0, conservation=False, linearization=False))
+    assert diagnosis.annotate(result, chosen) == 3
+    for state in result.cases[0].states:
+        assert {q for q, c in state.comparisons.items() if c.verdict == "DISAGREE"} >= {"drift", "total"}
+        assert state.comparisons["ctrl"].verdict == "agree" and suspect(state.comparisons["drift"]) == "viscous"
+        assert "error x2 when qd doubles, 0 at qd = 0" in state.hint, state.hint
+        assert diagnosis.DAMPING in state.hint and diagnosis.INERTIA not in state.hint
