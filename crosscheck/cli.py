@@ -741,6 +741,11 @@ def cmd_replay(args) -> int:
         finding = fuzz.find(Path(args.dir), args.id)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
+    missing = [name for name in (args.formalism or finding["backends"]) if name not in backends.names()]
+    if missing:
+        command = fuzz.replay_command(finding["id"], Path(args.dir), fuzz.campaign_plugins(Path(args.dir)))
+        raise UsageError(f"finding {finding['id']} was evaluated with backend(s) {', '.join(missing)}, not loaded "
+                         f"here; run `{command}`")
     outcome = fuzz.replay(finding, args.formalism)
     print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
           f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")

@@ -9,13 +9,14 @@ from __future__ import annotations
 import multiprocessing
 import operator
 import pickle
+import shlex
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import cases
-from crosscheck import backends, cli, diagnosis, frames
+from crosscheck import backends, cli, diagnosis, frames, fuzz
 from crosscheck.assemble import Sizes, unconstrained_split
 from crosscheck.compare import NOT_COMPARED, suspect
 from crosscheck.gate import CaseSpec, Checks, run_gate
@@ -210,3 +211,28 @@ def test_a_force_linear_in_qd_is_hinted_as_damping_not_the_mass_matrix():
         assert state.comparisons["ctrl"].verdict == "agree" and suspect(state.comparisons["drift"]) == "viscous"
         assert "error x2 when qd doubles, 0 at qd = 0" in state.hint, state.hint
         assert diagnosis.DAMPING in state.hint and diagnosis.INERTIA not in state.hint
+
+
+def test_a_plugin_finding_prints_a_replay_command_that_runs_as_printed(tmp_path, capsys):
+    """A fuzz campaign with a plugin loaded from a file: the finding's replay command carries ``--plugin`` and, run
+    as printed (in a fresh registry), reproduces it; without the flag, replay says which command to run."""
+    (tmp_path / "viscous_plugin.py").write_text("from test_plugin_needs import Recorder\n\n"
+                                                "BACKEND = Recorder('viscous', c=0.3)\n")
+    spec = f"{tmp_path / 'viscous_plugin.py'}:BACKEND"
+    out = tmp_path / "campaign"
+    backends.load_plugin(spec)
+    cfg = fuzz.config(seed=0, examples=4, workers=0, out=str(out), backends=("pinocchio", "newton_euler", "viscous"),
+                      plugins=backends.plugin_specs(), constraints=False, group_joints=False, max_bodies=2,
+                      max_states=1, shrink_calls=0, charts=False, frames=False, conservation=False,
+                      linearization=False)
+    result = fuzz.run_campaign(cfg, quiet=True)
+    assert result.findings
+    printed = fuzz.summary(result)
+    command = next(line.split("; ", 1)[1] for line in printed.splitlines() if "crosscheck replay" in line)
+    assert command.endswith(f"--plugin {spec}") and f"`{command}`" in (out / "report.md").read_text()
+    backends.reset()
+    assert cli.main(shlex.split(command)[1:]) == 1
+    assert "FAILS" in capsys.readouterr().out
+    backends.reset()
+    assert cli.main(shlex.split(command.split(" --plugin")[0])[1:]) == 2
+    assert f"backend(s) viscous, not loaded here; run `{command}`" in capsys.readouterr().err
