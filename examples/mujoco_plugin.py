@@ -44,7 +44,8 @@ Conventions (``cases.model``): ``q`` per body in the scene's coordinate order (`
 each joint moves, which is MuJoCo's body name too); a quaternion is ``(x, y, z, w)`` (MuJoCo: ``(w, x, y, z)``); a
 free joint's velocity is the body twist, linear velocity then angular velocity, both in the body frame (MuJoCo: the
 linear velocity in the world frame), and its acceleration is the time derivative of that twist. MuJoCo's free joint
-is always relative to the world, so its pose is moved by the scene's transform here. A model with constraint
+is always relative to the world, so its pose is composed here with the joint's frame (MuJoCo's ``qpos0``: the
+body's pose in the file, moved by the scene's transform). A model with constraint
 declarations (a URDF ``<mimic>``) is not supported: MuJoCo's equality constraints are soft (``solref``,
 ``solimp``), not the ideal constraints of article section 5.
 
@@ -77,6 +78,13 @@ def _quat_of(R: np.ndarray) -> np.ndarray:
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R, dtype=float).reshape(9))
     return quat
+
+
+def _matrix(quat: np.ndarray) -> np.ndarray:
+    """The rotation matrix of MuJoCo's quaternion ``(w, x, y, z)``."""
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
+    return R.reshape(3, 3)
 
 
 def _without_geometry(path: str) -> str:
@@ -127,7 +135,6 @@ class _Compiled:
     model: mujoco.MjModel
     qpos: tuple[int, ...]       # qpos address of each body's joint
     dof: tuple[int, ...]        # dof address of each body's joint
-    placement: np.ndarray       # the scene's transform g = (R, t) as a 4x4 matrix (free joints are moved by it)
 
 
 class MuJoCo:
@@ -168,9 +175,7 @@ class MuJoCo:
         if model.nv != scene.nv:
             raise ModelNotSupported(f"MuJoCo's model of '{scene.path}' has {model.nv} velocities, the scene "
                                     f"{scene.nv}")
-        g = np.eye(4)
-        g[:3, :3], g[:3, 3] = R, t
-        return _Compiled(model, tuple(qpos), tuple(dof), g)
+        return _Compiled(model, tuple(qpos), tuple(dof))
 
     def compiled(self, scene) -> _Compiled:
         key = (scene.kind, scene.path, scene.root, scene.gravity, np.asarray(scene.rotation).tobytes(),
@@ -185,7 +190,6 @@ class MuJoCo:
     def _to_mujoco(c: _Compiled, scene, q, qd):
         """MuJoCo's qpos and qvel of the scene's ``q``, ``qd``, and the map T of velocities (``qvel = T qd``)."""
         qpos, qvel, T = c.model.qpos0.copy(), np.zeros(c.model.nv), np.eye(c.model.nv)
-        R_g, t_g = c.placement[:3, :3], c.placement[:3, 3]
         for i, joint in enumerate(scene.joints):
             a, d, iq, iv = c.qpos[i], c.dof[i], scene.q_index[i], scene.v_index[i]
             if joint in ("revolute", "prismatic"):
@@ -193,12 +197,11 @@ class MuJoCo:
             elif joint == "spherical":
                 x, y, z, w = q[iq:iq + 4]
                 qpos[a:a + 4], qvel[d:d + 3] = (w, x, y, z), qd[iv:iv + 3]
-            else:                                    # free: world pose g * (p, R), linear velocity in the world
-                x, y, z, w = q[iq + 3:iq + 7]
-                R = np.empty(9)
-                mujoco.mju_quat2Mat(R, np.array([w, x, y, z]))
-                R_world = R_g @ R.reshape(3, 3)
-                qpos[a:a + 3], qpos[a + 3:a + 7] = R_g @ q[iq:iq + 3] + t_g, _quat_of(R_world)
+            else:     # free: world pose X0 * (p, R), X0 the joint frame (qpos0: the file's pose moved by g)
+                R0, R = _matrix(c.model.qpos0[a + 3:a + 7]), _matrix(np.array([q[iq + 6], *q[iq + 3:iq + 6]]))
+                R_world = R0 @ R
+                qpos[a:a + 3] = R0 @ q[iq:iq + 3] + c.model.qpos0[a:a + 3]
+                qpos[a + 3:a + 7] = _quat_of(R_world)
                 T[d:d + 3, d:d + 3] = R_world
                 qvel[d:d + 3], qvel[d + 3:d + 6] = R_world @ qd[iv:iv + 3], qd[iv + 3:iv + 6]
         return qpos, qvel, T

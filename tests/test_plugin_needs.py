@@ -98,6 +98,19 @@ def test_mujoco_example_passes_on_a_urdf_with_damping_limits_and_geometry(chain_
     assert "pinocchio, mujoco)" in text and "took part in no comparison" not in text
 
 
+def test_mujoco_example_passes_on_free_and_ball_joints_of_an_mjcf(tmp_path):
+    """An MJCF torso on a free joint placed above the world, a ball shoulder, a hinge and a slider: MuJoCo's free
+    joint is relative to the world and its linear velocity is in the world frame, converted to crosscheck's."""
+    from test_floating_loaders import MJCF
+
+    path, report = tmp_path / "limb.xml", tmp_path / "limb.md"
+    path.write_text(MJCF)
+    code = cli.main(["gate", "--plugin", MUJOCO, "--model", str(path), "--samples", "2", "--report", str(report),
+                     "--quiet", "--no-linearization"])
+    text = report.read_text()
+    assert code == 0 and "**PASS**" in text and "pinocchio, mujoco)" in text
+
+
 def test_mujoco_with_damping_left_on_fails_and_is_named(chain_path):
     report = Path(chain_path).with_suffix(".md")
     code = cli.main(["gate", "--plugin", DAMPED, "--model", chain_path, "--samples", "3", "--report", str(report),
