@@ -625,8 +625,9 @@ def _case_table(result: GateResult) -> list[str]:
         worst = [(s, k, c) for s in case.states for k, c in s.comparisons.items() if c.verdict != NOT_COMPARED]
         checks = [(s, k, c) for s in case.states for k, c in s.checks.items() if c.verdict != NOT_COMPARED]
         known = sum(c.verdict == KNOWN for s in case.states for c in _all(s))
+        broken = sum(bool(s.breakdowns) for s in case.states)
         rows.append(f"| {case.spec.name} | {case.model.n} | {len(case.states)} | "
-                    f"{sum(s.failed for s in case.states)} | {known} | {sum(bool(s.breakdowns) for s in case.states)} | "
+                    f"{sum(s.failed for s in case.states)} | {known} | {broken} | "
                     f"{_where_worst(worst)} | {_where_worst(checks)} | "
                     f"{'**degenerate**' if case.coverage and case.coverage.degenerate else 'ok'} |")
     return ["## Cases", "",
