@@ -688,9 +688,13 @@ def cmd_faults(args) -> int:
 def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list) -> None:
     """Hunt each backend fault, then each common-mode fault, with the default gate (``crosscheck.faults``,
     ``crosscheck.common_mode``), appending to ``hunts`` and ``shared_hunts`` as each ends (so that an interrupted run
-    keeps them); a line per fault on stdout."""
+    keeps them); a line per fault on stdout. ``--workers`` (:func:`workers`, one process per fault at most): in this
+    process, or in a pool (:func:`_hunt_in_pool`), with the same hunts in the same order."""
     from crosscheck import common_mode, faults
 
+    count = workers(args.workers, len(chosen) + len(shared))
+    if count:
+        return _hunt_in_pool(args, chosen, shared, known, display, hunts, shared_hunts, count)
     for fault in chosen:
         hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known,
                                  progress=_hunting(display, fault.name)))
@@ -701,6 +705,52 @@ def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, sha
                                              progress=_hunting(display, fault.name)))
         print(common_mode.line(shared_hunts[-1]), flush=True)
         display.advance()
+
+
+def _init_hunter() -> None:
+    """A fault-hunting worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread."""
+    import signal
+
+    global _HUNTER_LIMITS
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _HUNTER_LIMITS = threadpool_limits(limits=BLAS_THREADS, user_api="blas")
+
+
+_HUNTER_LIMITS = None
+
+
+def _hunt_one(shared: bool, name: str, samples: int, seed: int, known):
+    """One fault hunted in a worker process, found by name in its catalog. The hunt comes back without its fault (a
+    fault holds its faulty function, which does not pickle): the parent puts it back."""
+    from crosscheck import common_mode, fault_catalog, faults
+
+    if shared:
+        found = common_mode.hunt(common_mode.get(name), samples=samples, seed=seed, known=known)
+    else:
+        found = faults.hunt(fault_catalog.get(name), samples=samples, seed=seed, known=known)
+    return dataclasses.replace(found, fault=None)
+
+
+def _hunt_in_pool(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list,
+                  count: int) -> None:
+    """:func:`_hunt_faults` in ``count`` spawned processes: every fault submitted at once, the hunts taken back in
+    catalog order (each printed and appended as it comes, so Ctrl-C keeps the ones in before it)."""
+    import multiprocessing
+
+    from crosscheck import common_mode, faults
+    from crosscheck import workers as worker_processes
+
+    ctx = multiprocessing.get_context("spawn")
+    jobs = [(False, f) for f in chosen] + [(True, f) for f in shared]
+    display.doing(f"{len(jobs)} faults in {count} worker processes")
+    with worker_processes.spawning(), ctx.Pool(count, initializer=_init_hunter) as pool:
+        pending = [pool.apply_async(_hunt_one, (is_shared, f.name, args.samples, args.seed, known))
+                   for is_shared, f in jobs]
+        for (is_shared, fault), result in zip(jobs, pending):
+            found = dataclasses.replace(result.get(), fault=fault)
+            (shared_hunts if is_shared else hunts).append(found)
+            print((common_mode.line if is_shared else faults.line)(found), flush=True)
+            display.advance()
 
 
 def _hunting(display: Display, fault: str):
@@ -931,7 +981,7 @@ def add_reports_parser(sub) -> None:
     rep = sub.add_parser("reports", help=f"regenerate the committed reports in {REPORTS_DIR}/ (every other command "
                          f"writes to {OUTPUT_DIR}/ by default)")
     rep.add_argument("--only", metavar="NAMES", help=f"comma-separated, from {', '.join(REPORTS)} (default: all; "
-                     "each a full run: the faults alone take about 17 minutes on 2 CPUs)")
+                     "each a full run: the faults took about 17 minutes on 2 CPUs in one process)")
     rep.add_argument("--quiet", action="store_true", help="no progress on stderr")
     rep.set_defaults(run=cmd_reports)
 
@@ -1024,8 +1074,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(run=cmd_eval)
 
     hunt = sub.add_parser("faults", help="inject each catalogued fault and measure whether the default gate "
-                          "catches it", description="Runs in this process, no --workers: each fault is injected "
-                          "into this process's backends in turn.")
+                          "catches it")
     hunt.add_argument("--fault", action="append", default=[], metavar="NAME",
                       help="run only this fault (repeatable; default: the whole catalog, see --list)")
     hunt.add_argument("--samples", type=int, default=100, help="at most this many states per case (default 100)")
@@ -1038,6 +1087,7 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    add_workers_option(hunt, "fault")
     add_quiet_option(hunt)
     hunt.set_defaults(run=cmd_faults)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -149,11 +150,11 @@ def test_a_failing_gate_report_leads_with_the_failures(tmp_path, dropped_corioli
 
 
 def test_every_workers_option_has_one_meaning_and_one_default():
-    """Each ``--workers`` (gate, fuzz, trajectory --report) is ``cli.add_workers_option``'s: default None, resolved by
+    """Each ``--workers`` (gate, fuzz, faults, trajectory --report) is ``cli.add_workers_option``'s: default None, resolved by
     ``cli.workers``, and the same help."""
     found = {name: _option(parser, "workers") for name, parser in _subcommands().items()}
     found = {name: action for name, action in found.items() if action is not None}
-    assert set(found) == {"gate", "fuzz", "trajectory"}
+    assert set(found) == {"gate", "fuzz", "faults", "trajectory"}
     for name, action in found.items():
         assert action.default is None and action.type is int, name
         assert action.help.startswith("0: run in this process; N >= 1: N worker processes, at most one per "), name
@@ -193,6 +194,20 @@ def test_gate_workers_1_is_one_worker_process(monkeypatch, tmp_path):
         pools.clear()
         assert cli.main([*argv, *workers]) == 0
         assert pools == expected, workers
+
+
+def test_faults_in_worker_processes_give_the_same_report(tmp_path, capsys):
+    """``faults --workers 1`` hunts the faults in one spawned process, each found there by name: the same hunts, lines
+    and report as in this process, in catalog order (timings apart)."""
+    argv = ["faults", "--fault", "osc-task-bias-dropped", "--fault", "geo-task-bias-dropped", "--samples", "3",
+            "--sensitivity-states", "0", "--quiet"]
+    texts, lines = [], []
+    for workers in ("0", "1"):
+        assert cli.main([*argv, "--workers", workers, "--report", str(tmp_path / "f.md")]) == 0
+        lines.append(capsys.readouterr().out.splitlines()[:2])
+        texts.append(re.sub(r"[0-9.]+ s\b", "T s", (tmp_path / "f.md").read_text()).replace(f"--workers {workers} ", ""))
+    assert lines[0] == lines[1] and lines[0][0].startswith("caught osc-task-bias-dropped")
+    assert texts[0] == texts[1] and "| `geo-task-bias-dropped` | geometric | yes |" in texts[1]
 
 
 def test_fuzz_workers_share_out_the_chunks_of_its_shard():

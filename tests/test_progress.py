@@ -146,7 +146,7 @@ def test_ctrl_c_in_faults_keeps_the_faults_hunted(tmp_path, capsys, monkeypatch)
     monkeypatch.setattr(faults, "hunt", hunt)
     report = tmp_path / "faults.md"
     code = cli.main(["faults", "--fault", "geo-task-bias-dropped", "--fault", "osc-task-bias-dropped", "--quiet",
-                     "--report", str(report)])
+                     "--workers", "0", "--report", str(report)])
     captured = capsys.readouterr()
     assert code == 130 and "Traceback" not in captured.err
     assert captured.err.splitlines() == [f"crosscheck: interrupted after 1/2 faults; partial report written to "
