@@ -22,6 +22,7 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
+from cases.task import TaskPointError
 from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
@@ -119,7 +120,10 @@ def _specs(args) -> list[CaseSpec]:
         raise UsageError("--base applies to a --model URDF file (fixed: the root link welded to the world; free: a "
                          "free joint added above it)")
     specs += [CaseSpec(Path(path).stem, path=path, base=base) for path in args.model]
-    return specs
+    point = getattr(args, "task_point", None)
+    if point is not None and len(specs) != 1:
+        raise UsageError("--task-point needs exactly one --case or --model (a body of that model)")
+    return [dataclasses.replace(spec, task_point=point) for spec in specs]
 
 
 def _backends(selected: list[str] | None):
@@ -131,6 +135,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
     runs, so they are in ``backends.names()``; a worker process loads them from ``backends.plugin_specs()``."""
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+
+
+def add_task_point_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task-point", metavar="BODY[:x,y,z]",
+                        help="the task point: a body's point at offset x,y,z in its frame (m); BODY alone: its centre "
+                        "of mass (an offset point of it if that lies on a joint axis). Default: the model's own")
 
 
 def add_quiet_option(parser: argparse.ArgumentParser) -> None:
@@ -399,7 +409,7 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base,
+                                     base=args.base, task_point=args.task_point,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
@@ -882,6 +892,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                       help="worker processes running the cases (default: the number of CPUs; 0: in this process; "
                       "one case, or 1, also runs here: a pool of one would only add its start-up)")
+    add_task_point_option(gate)
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -913,6 +924,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--linearize", action="store_true",
                     help="also print each backend's linearization A, B (eq. 11) and the eigenvalues of A, compared")
     ev.add_argument("--json", action="store_true", help="print JSON")
+    add_task_point_option(ev)
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
 
@@ -1029,7 +1041,7 @@ def _main(argv: list[str] | None) -> int:
         backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
-    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
+    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism, TaskPointError,
             backends.PluginError, charts.ChartError, sampling.ProjectionError, preflight.PreflightError,
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)

@@ -11,6 +11,7 @@ import shlex
 
 import numpy as np
 
+from cases import task
 from crosscheck import backends, charts, reference
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
@@ -382,6 +383,30 @@ def _voters_section(result: GateResult) -> list[str]:
     return (["Voters:", ""] + lines + [""]) if lines else []
 
 
+#: The conditions of a task point (``crosscheck.tolerance.BREAKDOWN_LIMITS``): a BREAKDOWN on them is the task's.
+TASK_CONDITIONS = ("task", "task_jacobian", "task_inertia")
+
+
+def task_point_lines(case: CaseOutcome) -> list[str]:
+    """The task point a case used (name, body, offset, directions) and how it was chosen; when a backend was in
+    BREAKDOWN on a task condition at most states, why, from the model's own point kinematics at the first such state
+    (``cases.task.rank_deficiency``: "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")."""
+    tp = case.model.task_point()
+    choice = tp.choice or "declared with the model"
+    lines = [f"- {case.spec.name}: task point `{tp.name}` on body `{tp.body}` at {_vec(tp.offset)} m in its frame, "
+             f"task directions {np.round(tp.directions, 6).tolist()}; {choice}"]
+    broken = [s for s in case.states if any(set(c) & set(TASK_CONDITIONS) for c in s.breakdowns.values())]
+    if broken and len(broken) > len(case.states) / 2:
+        first = broken[0]
+        why = task.rank_deficiency(case.model, np.array(first.state.q))
+        worst = max(v for s in broken for c in s.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS)
+        lines.append(f"  - a task condition was in BREAKDOWN at {len(broken)} of {len(case.states)} states (worst "
+                     f"{worst:.3g}); at state #{first.state.index}: " +
+                     (why or "the task Jacobian has full rank there: a near-singular configuration") +
+                     f". Choose another point with `--task-point BODY[:x,y,z]`.")
+    return lines
+
+
 def _verdict_line(key: str, comp: Comparison) -> str:
     """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
     disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
@@ -544,6 +569,7 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
     lines += _counts_rows(result) + [""]
     lines += _suspects_section(result)
     lines += _voters_section(result)
+    lines += ["Task points:", ""] + [line for case in result.cases for line in task_point_lines(case)] + [""]
     lines += ["Per quantity:", "",
               "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
               "at state | not supplied by |",
