@@ -29,7 +29,7 @@ from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
-from crosscheck.report import render
+from crosscheck.report import mechanism_figures, render
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
@@ -224,7 +224,7 @@ def cmd_gate(args) -> int:
         report.write_text(render(result, command, applied))
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    report.write_text(render(result, command, applied))
+    report.write_text(render(result, command, applied, mechanism_figures(result, report)))
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():

@@ -108,6 +108,9 @@ def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, 
     assert cli.main(base + ["--task-point", "link2:0,0,0"]) == 0
     text = report.read_text()
     assert "- double_pendulum_continuous: task point `task_point:link2` on body `link2` at [0, 0, 0] m" in text
-    assert ("a task condition was in BREAKDOWN at 2 of 2 states (worst inf); at state #0: task Jacobian rank 1 < 2: "
-            "the point lies on the axis of joint 'link2'") in text
+    assert ("a task condition was in BREAKDOWN at 2 of 2 states (worst inf); at state #1: task Jacobian rank 1 < 2: "
+            "the point lies on the axis of joint 'link2'") in text     # state #0 is the home configuration
+    picture = "gate_double_pendulum_continuous_state1.png"       # the mechanism there, next to the report
+    assert f"- double_pendulum_continuous: ![double_pendulum_continuous]({picture})" in text
+    assert (tmp_path / picture).read_bytes()[:4] == b"\x89PNG"
     assert "--task-point link2:0,0,0" in text       # the reproduce commands carry it
