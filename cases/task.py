@@ -111,9 +111,8 @@ def axes_through(model: Model, body: str, offset, qs: Sequence[np.ndarray] | Non
     configuration of ``qs`` (default :func:`probes`), as phrases ("the axis of joint 'link2'"), root-most last."""
     qs = probes(model) if qs is None else qs
     i = model.body_index(body)
-    found = [set(_columns_on_axis(model, point_jacobian(model, q, body, offset), i)) for q in qs]
-    common = set.intersection(*found) if found else set()
-    return [phrase for phrase in _columns_on_axis(model, np.zeros((3, model.nv)), i) if phrase in common]
+    found = [_columns_on_axis(model, point_jacobian(model, q, body, offset), i) for q in qs]
+    return [phrase for phrase in found[0] if all(phrase in other for other in found[1:])] if found else []
 
 
 def _canonical(basis: np.ndarray) -> np.ndarray:
@@ -175,14 +174,16 @@ def _candidates(model: Model, body: str) -> list[tuple[np.ndarray, str]]:
     return out
 
 
-def choose(model: Model, candidates: Sequence[TaskPoint], reasons: Sequence[str] = ()) -> TaskPoint:
+def choose(model: Model, candidates: Sequence[TaskPoint], reasons: Sequence[str] = (),
+           name: str | None = None) -> TaskPoint:
     """The first of ``candidates`` (then the COM and offsets of each candidate's body, :func:`_candidates`) whose task
     Jacobian has full row rank at a generic configuration (:func:`full_rank`) in the task directions it moves in
     (:func:`motion_directions`), with a ``choice`` saying how it was chosen and what was passed over and why (the
     joint axes it lies on, :func:`axes_through`). A point on a joint axis whose other joints still move it in every
     direction (a tool centre point on a wrist's axis) is kept: its task-space inertia exists. ``reasons[k]``
     describes candidate ``k`` ("the URDF leaf link 'tool'"). Without such a point, the candidate that moves in the
-    most directions."""
+    most directions. The point is named ``name``, else as its candidate (``BODY:com``, ``BODY:offset`` for the
+    points added)."""
     qs = probes(model)
     tried: list[str] = []
     fallback = None
@@ -190,7 +191,12 @@ def choose(model: Model, candidates: Sequence[TaskPoint], reasons: Sequence[str]
     for tp in candidates:
         pool += [(TaskPoint(f"{tp.body}:com" if k == 0 else f"{tp.body}:offset", tp.body, offset), how)
                  for k, (offset, how) in enumerate(_candidates(model, tp.body))]
+    seen: list[tuple[str, np.ndarray]] = []
     for tp, how in pool:
+        if any(body == tp.body and np.array_equal(offset, tp.offset) for body, offset in seen):
+            continue
+        seen.append((tp.body, np.asarray(tp.offset)))
+        tp = tp if name is None else TaskPoint(name, tp.body, tp.offset)
         D = motion_directions(model, tp.body, tp.offset, qs)
         if len(D) and full_rank(model, tp.body, tp.offset, D, qs):
             note = f"; passed over: {'; '.join(tried)}" if tried else ""
@@ -209,7 +215,7 @@ def default_task_point(model: Model) -> TaskPoint:
     joint axis, then an offset point of that body (:func:`choose`)."""
     last = model.bodies[-1]
     return choose(model, [TaskPoint("tip", last.name, np.array(last.com))],
-                  [f"the centre of mass of the last body '{last.name}'"])
+                  [f"the centre of mass of the last body '{last.name}'"], name="tip")
 
 
 def parse(text: str) -> tuple[str, np.ndarray | None]:
@@ -217,18 +223,19 @@ def parse(text: str) -> tuple[str, np.ndarray | None]:
     wrong for anything else (:class:`TaskPointError`)."""
     body, sep, rest = text.partition(":")
     if not body:
-        raise TaskPointError(f"--task-point takes BODY or BODY:x,y,z (an offset in the body's frame, in m), got '{text}'")
+        raise TaskPointError(f"--task-point takes BODY or BODY:x,y,z (an offset in the body's frame, in m), got "
+                             f"'{text}'")
     if not sep:
         return body, None
     parts = rest.split(",")
     try:
         offset = np.array([float(p) for p in parts])
     except ValueError:
-        raise TaskPointError(f"--task-point '{text}': the offset '{rest}' is not three numbers x,y,z (in m, in the body's "
-                         "frame)") from None
+        raise TaskPointError(f"--task-point '{text}': the offset '{rest}' is not three numbers x,y,z (in m, in the "
+                             "body's frame)") from None
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise TaskPointError(f"--task-point '{text}': the offset needs three finite numbers x,y,z (in m, in the body's "
-                         f"frame), got {len(parts)} entr{'y' if len(parts) == 1 else 'ies'}")
+        raise TaskPointError(f"--task-point '{text}': the offset needs three finite numbers x,y,z (in m, in the "
+                             f"body's frame), got {len(parts)} entr{'y' if len(parts) == 1 else 'ies'}")
     return body, offset
 
 
@@ -236,14 +243,14 @@ def with_task_point(model: Model, body: str, offset=None, directions=None) -> Mo
     """``model`` with its default task point replaced by a point of ``body``: at ``offset`` (body frame, m) when
     given, else at the body's COM (or an offset point of the body if the COM lies on a joint axis: :func:`choose`).
     ``directions`` (orthonormal world rows) default to the directions the point moves in. The model's other task
-    points follow. An unknown body is a :class:`TaskPointError` listing the bodies; a point on a joint axis is accepted (it is
-    asked for) but its ``choice`` says so."""
+    points follow. An unknown body is a :class:`TaskPointError` listing the bodies; a point on a joint axis is
+    accepted (it is asked for) but its ``choice`` says so."""
     names = [b.name for b in model.bodies]
     if body not in names:
         raise TaskPointError(f"--task-point: model '{model.name}' has no body '{body}'; bodies: {', '.join(names)}")
     if offset is None:
         tp = choose(model, [TaskPoint(f"task_point:{body}", body, np.array(model.bodies[names.index(body)].com))],
-                    [f"the centre of mass of body '{body}' (given: --task-point {body})"])
+                    [f"the centre of mass of body '{body}' (given: --task-point {body})"], name=f"task_point:{body}")
         tp = dataclasses.replace(tp, choice=tp.choice.replace("default: ", "given body; ", 1))
     else:
         offset = np.asarray(offset, dtype=float)

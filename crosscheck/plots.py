@@ -82,8 +82,8 @@ def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarra
 
 def stick_figure(model, q, path: Path, title: str = "") -> Path:
     """A 3-D stick figure of ``model`` at ``q`` (:func:`stick_points`): link segments between joint origins (from
-    the world origin for a root body, to the centre of mass for a leaf body), joint origins as dots, the task point as a star (dashed to its body's origin),
-    equal axis scales."""
+    the world origin for a root body, to the centre of mass for a leaf body), joint origins as dots, the task point
+    as a star (dashed to its body's origin), equal axis scales."""
     plt = pyplot()
     origins, segments, ends, task = stick_points(model, q)
     fig = plt.figure(figsize=(NARROW_IN * 0.8, NARROW_IN * 0.7))
