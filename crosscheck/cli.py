@@ -29,7 +29,7 @@ from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
-from crosscheck.report import mechanism_figures, render
+from crosscheck.report import mechanism_figures, render, task_point_lines
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
@@ -242,6 +242,9 @@ def cmd_gate(args) -> int:
               f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
+    for case in result.cases:
+        for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
+            print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)

@@ -101,7 +101,7 @@ def stick_figure(model, q, path: Path, title: str = "") -> Path:
     ax.scatter(*task, color="tab:red", marker="*", s=80, depthshade=False, label="task point")
     ax.scatter(0, 0, 0, color="black", marker="s", s=20, depthshade=False, label="world origin")
     points = np.vstack([origins, ends, task, np.zeros(3)])
-    centre, half = points.mean(axis=0), max(np.ptp(points, axis=0).max() / 2, 1e-3)
+    centre, half = (points.max(axis=0) + points.min(axis=0)) / 2, 0.55 * max(np.ptp(points, axis=0).max(), 2e-3)
     ax.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half),
            zlim=(centre[2] - half, centre[2] + half), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title=title)
     ax.set_box_aspect((1, 1, 1))

@@ -106,6 +106,8 @@ def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, 
     assert cli.main(base + ["--task-point", "hand"]) == 2
     assert "has no body 'hand'; bodies: link1, link2" in capsys.readouterr().err
     assert cli.main(base + ["--task-point", "link2:0,0,0"]) == 0
+    assert ("note double_pendulum_continuous: a task condition was in BREAKDOWN at 2 of 2 states"
+            in capsys.readouterr().err)
     text = report.read_text()
     assert "- double_pendulum_continuous: task point `task_point:link2` on body `link2` at [0, 0, 0] m" in text
     assert ("a task condition was in BREAKDOWN at 2 of 2 states (worst inf); at state #1: task Jacobian rank 1 < 2: "
