@@ -116,3 +116,34 @@ def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, 
     assert f"- double_pendulum_continuous: ![double_pendulum_continuous]({picture})" in text
     assert (tmp_path / picture).read_bytes()[:4] == b"\x89PNG"
     assert "--task-point link2:0,0,0" in text       # the reproduce commands carry it
+
+
+def test_every_built_in_task_point_has_a_full_rank_task_jacobian():
+    # only Panda's tool centre point lies on a joint axis (the flange's, joint 7's), and its other six joints still
+    # move it in every direction: its task-space inertia exists, so it stays the default
+    import cases
+
+    on_axis = {}
+    for name in cases.names():
+        model = cases.load(name)
+        tp = model.task_point()
+        assert task.full_rank(model, tp.body, tp.offset, tp.directions), name
+        axes = task.axes_through(model, tp.body, tp.offset)
+        if axes:
+            on_axis[name] = axes
+    assert on_axis == {"panda": ["the axis of joint 'panda_link7'"]}
+
+
+def test_a_given_task_point_leaves_the_closed_forms_task_quantities_out():
+    from crosscheck.gate import CaseSpec
+    from formalisms.interface import UNSUPPORTED
+
+    given = CaseSpec("double_pendulum", task_point="link2:0.1,-0.5,0")
+    model = given.build()
+    assert model.task_point().body == "link2" and given.cli_args().endswith("--task-point link2:0.1,-0.5,0")
+    state = (np.array([0.3, -0.7]), np.array([1.0, 0.5]), np.array([0.2, -0.1]))
+    split, plain = given.closed_form().split(model, *state), CaseSpec("double_pendulum").closed_form().split(
+        CaseSpec("double_pendulum").build(), *state)
+    assert split.task_drift is UNSUPPORTED and split.task_inertia is UNSUPPORTED
+    assert "task_inertia" not in split.conditions
+    np.testing.assert_array_equal(split.total, plain.total)
