@@ -82,13 +82,15 @@ def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarra
 
 def stick_figure(model, q, path: Path, title: str = "") -> Path:
     """A 3-D stick figure of ``model`` at ``q`` (:func:`stick_points`): link segments between joint origins (from
-    the world origin for a root body, to the centre of mass for a leaf body), joint origins as dots, the task point
+    the world origin for a root body not on a free joint, to the centre of mass for a leaf body), joint origins as dots, the task point
     as a star (dashed to its body's origin), equal axis scales."""
     plt = pyplot()
     origins, segments, ends, task = stick_points(model, q)
     fig = plt.figure(figsize=(NARROW_IN * 0.8, NARROW_IN * 0.7))
     ax = fig.add_subplot(projection="3d")
     for parent, child in segments:
+        if parent < 0 and model.bodies[child].joint == "free":
+            continue                        # a floating base: nothing links it to the world
         start = np.zeros(3) if parent < 0 else origins[parent]
         ax.plot(*zip(start, origins[child]), color="0.3", lw=2)
     leaves = [i for i in range(len(model.bodies)) if i not in model.parent_index]
