@@ -53,6 +53,7 @@ import multiprocessing
 import os
 import queue as queues
 import secrets
+import shlex
 import shutil
 import signal
 import sys
@@ -1023,7 +1024,18 @@ def describe_model(d: dict) -> list[str]:
     return lines
 
 
-def _finding_section(f: dict, out: Path) -> list[str]:
+def replay_command(finding_id: str, out: Path, plugins: Sequence[str]) -> str:
+    """The command that evaluates a finding again: ``crosscheck replay ID --dir OUT`` with a ``--plugin`` flag for
+    each plugin the campaign loaded by spec (its findings name those backends; entry points load themselves)."""
+    return f"crosscheck replay {finding_id} --dir {out}" + "".join(f" --plugin {shlex.quote(p)}" for p in plugins)
+
+
+def campaign_plugins(out: Path) -> list[str]:
+    """The plugin specs of the campaign in ``out`` (its identity), none for a directory without one."""
+    return list((load_campaign(out) or {"identity": {}})["identity"].get("plugins", []))
+
+
+def _finding_section(f: dict, out: Path, plugins: Sequence[str] = ()) -> list[str]:
     s, chart, frame = f["state"], f["chart"], f["frame"]
     camp = f["campaign"]
     how = "shrunk" if f["shrunk"] else "NOT fully shrunk (" + (
@@ -1039,7 +1051,7 @@ def _finding_section(f: dict, out: Path) -> list[str]:
              f"{frame['rotation']}, translation {frame['translation']}",
              f"- backends: {', '.join(f['backends'])}; checks: "
              + ", ".join(["comparison"] + [name for name, on in f["checks"].items() if on]),
-             f"- reproduce: `crosscheck replay {f['id']} --dir {out}`", ""]
+             f"- reproduce: `{replay_command(f['id'], out, plugins)}`", ""]
     if f["failing"]:
         lines += ["| check | error/tolerance | tolerance | outlier |", "|---|---|---|---|"]
         lines += [f"| {c['key']} | {c['worst_ratio']:.3g} | {c['tolerance']:.3g} | {c['outlier'] or '-'} |"
@@ -1102,7 +1114,7 @@ def render_report(out: Path, command: str = "") -> str:
     if not findings:
         lines += ["None: every backend agreed at every state.", ""]
     for f in findings:
-        lines += _finding_section(f, out)
+        lines += _finding_section(f, out, ident.get("plugins", []))
     return "\n".join(lines)
 
 
@@ -1111,9 +1123,10 @@ def summary(result: CampaignResult) -> str:
     chunks = result.chunks
     lines = [f"{len(chunks)} chunks, {sum(r['examples'] for r in chunks)} examples, {sum(r['states'] for r in chunks)} "
              f"states, {len(result.findings)} findings" + (" (interrupted)" if result.interrupted else "")]
+    plugins = campaign_plugins(result.out)
     for f in result.findings:
         what = ", ".join([c["key"] for c in f["failing"][:3]] + [f"error {e}" for e in f["errors"]][:3])
-        lines.append(f"  {f['id']}: {what}; crosscheck replay {f['id']} --dir {result.out}")
+        lines.append(f"  {f['id']}: {what}; {replay_command(f['id'], result.out, plugins)}")
     lines.append(f"report written to {result.out / 'report.md'}")
     return "\n".join(lines)
 

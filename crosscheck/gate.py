@@ -65,19 +65,20 @@ class Checks:
 @dataclass(frozen=True)
 class CaseSpec:
     """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
-    URDF ``base`` ("fixed", "free", or None: the file's own; ``cases.from_file``); ``task_point``, when given, the
-    default task point as ``BODY[:x,y,z]`` (``cases.task.with_task_point``; a ``cases.task.TaskPointError`` for an
-    unknown body or bad numbers)."""
+    URDF ``base`` ("fixed", "free", or None: the file's own) and ``actuated`` joints (None: every joint but a free
+    base's; ``cases.from_file``); ``task_point``, when given, the default task point as ``BODY[:x,y,z]``
+    (``cases.task.with_task_point``; a ``cases.task.TaskPointError`` for an unknown body or bad numbers)."""
 
     name: str
     params: tuple[tuple[str, str], ...] = ()
     path: str | None = None
     base: str | None = None
+    actuated: tuple[str, ...] | None = None
     task_point: str | None = None
 
     def build(self) -> Model:
         if self.path is not None:
-            model = cases.from_file(self.path, name=self.name, base=self.base)
+            model = cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated)
         else:
             model = cases.load(self.name, **dict(self.params))
         return model if self.task_point is None else task_points.with_task_point(model, *task_points.parse(
@@ -101,7 +102,8 @@ class CaseSpec:
         """The command-line arguments that select this case."""
         point = f" --task-point {self.task_point}" if self.task_point is not None else ""
         if self.path is not None:
-            return f"--model {self.path}" + (f" --base {self.base}" if self.base else "") + point
+            return (f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
+                    + (f" --actuated {','.join(self.actuated)}" if self.actuated is not None else "") + point)
         return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params]) + point
 
 
