@@ -111,7 +111,7 @@ def chart_speed_accuracy(res: Results, path: Path) -> None:
     names = _order(m.backend for m in res.measurements)
     families = _order(family(m) for m in res.measurements)
     cols = 2 if len(families) > 1 else 1
-    rows = -(-len(families) // cols)
+    rows = max(1, -(-len(families) // cols))   # an interrupted bench may have measured nothing yet
     fig, axes = plt.subplots(rows, cols, figsize=(plots.WIDTH_IN, 3.3 * rows + 0.9), squeeze=False, sharex=True,
                              sharey=True, layout="constrained")
     for ax, fam in zip(axes.flat, families):

@@ -43,6 +43,9 @@ def test_bench_charts_render_again_from_the_saved_json(tmp_path):
         assert (out / name).read_bytes()[:8] == PNG
     assert (out / "speed_accuracy.json").read_text() == saved.read_text()
     assert [bench_report.family(m) for m in res.measurements[:4]] == ["double_pendulum"] + ["n_link_pendulum"] * 3
+    nothing = bench.Results("quick", res.machine, [], [], [], None, 0.0)    # a bench interrupted before a measurement
+    bench_report.chart_speed_accuracy(nothing, tmp_path / "empty.png")
+    assert (tmp_path / "empty.png").read_bytes()[:8] == PNG
 
 
 def test_stability_chart_renders_a_small_path(tmp_path):
