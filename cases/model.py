@@ -44,6 +44,7 @@ Frames and conventions
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 from dataclasses import dataclass, field
@@ -97,12 +98,16 @@ class TaskPoint:
     point's world position ``p`` (article 6.3.2); the default is all three. A planar mechanism uses the rows of its
     plane (article 6.3.4: ``x_task = [x_2, y_2]``), since a direction the point can never move in makes the
     task-space inertia singular everywhere.
+
+    ``choice`` says how the point was chosen, for reports: empty when declared with the model, else the default's
+    rule or what was given (``cases.task``). It is provenance, not physics: :meth:`Model.digest` leaves it out.
     """
 
     name: str
     body: str
     offset: np.ndarray
     directions: np.ndarray | None = None
+    choice: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -399,7 +404,7 @@ def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str
                          (1, 2, 3))
     if len(problems) > n_before:
         return None
-    return TaskPoint(tp.name, tp.body, frozen(offset, 3), D)
+    return TaskPoint(tp.name, tp.body, frozen(offset, 3), D, str(tp.choice))
 
 
 def _moving_mass(problems: list[str], bodies: Sequence[Body], parent: Sequence[int]) -> None:
@@ -454,7 +459,9 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     """Validate the description and return an immutable :class:`Model`.
 
     Every violated precondition is collected and reported together in one :class:`ModelError`.
-    Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body.
+    Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body, or, when that
+    lies on a joint axis, an offset point of it, with the task directions it moves in (``cases.task.choose``: a planar
+    chain's plane), so that its task Jacobian has full row rank away from singular configurations.
     ``source``: the file the description was converted from (:class:`ModelSource`; loaders set it).
     """
     bodies = list(bodies)
@@ -467,11 +474,9 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     n = sum(JOINT_DOF.get(b.joint, (1, 1))[1] for b in bodies)
     B = _input_map(problems, input_map, n)
     names = {b.name for b in bodies}
-    if task_points is None:
-        last = valid[-1] if valid else None
-        task_points = [TaskPoint("tip", last.name, last.com)] if last is not None else []
-    task_points = list(task_points)
-    if not task_points:
+    default = task_points is None
+    task_points = [] if default else list(task_points)
+    if not task_points and not default:
         problems.append("a model needs at least one task point (the task drift and the operational-space backend "
                         "use the first); leave task_points out for the default, the COM of the last body")
     tps = [tp for tp in (_validate_task_point(problems, tp, names) for tp in task_points) if tp is not None]
@@ -493,6 +498,12 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
         raise ModelError(name, problems)
     B = B.copy()
     B.setflags(write=False)
-    return Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
-                 task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
-                 source=source)
+    model = Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
+                  task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
+                  source=source)
+    if default:
+        from cases.task import default_task_point  # cases.task builds on this module
+
+        tp = _validate_task_point(problems, default_task_point(model), names)
+        model = dataclasses.replace(model, task_points=(tp,))
+    return model

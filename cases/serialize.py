@@ -59,7 +59,8 @@ def model_to_dict(model: Model) -> dict:
         "gravity": _plain(model.gravity),
         "input_map": _plain(model.input_map),
         "task_points": [{"name": tp.name, "body": tp.body, "offset": _plain(tp.offset),
-                         "directions": _plain(tp.directions)} for tp in model.task_points],
+                         "directions": _plain(tp.directions), **({"choice": tp.choice} if tp.choice else {})}
+                        for tp in model.task_points],
         "constraints": [{"type": type(c).__name__, **{f.name: _plain(getattr(c, f.name))
                                                       for f in dataclasses.fields(c)}} for c in model.constraints],
     }
@@ -126,7 +127,8 @@ def _body(d, where: str) -> Body:
 def _task_point(d, where: str) -> TaskPoint:
     directions = _get(d, "directions", where)
     return TaskPoint(_text(d, "name", where), _text(d, "body", where), _numbers(d, "offset", where),
-                     None if directions is None else _numbers(d, "directions", where))
+                     None if directions is None else _numbers(d, "directions", where),
+                     (_text(d, "choice", where) if "choice" in d else ""))
 
 
 def _constraint(d, where: str):

@@ -36,8 +36,11 @@ floating, or given twice) is a :class:`~cases.model.ModelError` listing the mova
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
-first, so they are the default; the rest keep Pinocchio's frame order. Leaves welded to the universe are
-skipped.
+first; the rest keep Pinocchio's frame order. Leaves welded to the universe are skipped. The default (first) task
+point is the first leaf that lies on no joint axis of its chain, with the task directions it moves in
+(``cases.task.choose``): a leaf link's origin is often its own joint's origin, on its axis, where the task Jacobian
+is rank-deficient at every state; then the leaf's COM (or an offset point of it) is the default, named
+``LINK:com`` (``LINK:offset``), and a planar chain's task directions are its plane.
 
 Mimic joints: a joint ``A`` with ``<mimic joint="J" multiplier="m" offset="o"/>`` (defaults m = 1, o = 0) keeps its
 own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
@@ -71,6 +74,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cases import task
 from cases.constraints import JointCoupling
 from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoint, build_model
 
@@ -501,9 +505,22 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
         raise ModelError(model_name, problems + [where])
     leaves = _task_points(pin, pm, link_of)
     try:
-        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
-                           input_map=_input_map(bodies, driven_links),
-                           task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
-                           source=source)
+        model = build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
+                            input_map=_input_map(bodies, driven_links),
+                            task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
+                            source=source)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
         raise ModelError(model_name, list(exc.problems) + [where]) from None
+    return _with_default_task_point(model, leaves, source)
+
+
+def _with_default_task_point(model: Model, leaves: list[TaskPoint], source: ModelSource) -> Model:
+    """``model`` with the first leaf that lies on no joint axis (or a point of a leaf body, ``cases.task.choose``) as
+    its default task point, the other leaves after it (module docstring, "Task points")."""
+    if not leaves:
+        return model
+    kind = source.kind.upper()
+    chosen = task.choose(model, leaves, [f"the {kind} leaf link '{tp.name}' (its origin)" for tp in leaves])
+    rest = [tp for tp in model.task_points if tp.name != chosen.name]
+    return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
+                       task_points=[chosen, *rest], constraints=model.constraints, source=model.source)

@@ -27,6 +27,7 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
+from cases.task import TaskPointError
 from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
@@ -34,6 +35,7 @@ from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
 from crosscheck import report as gate_report
+from crosscheck.report import task_point_lines
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
@@ -149,7 +151,10 @@ def _specs(args) -> list[CaseSpec]:
                          "a built-in case has its own input map")
     actuated = None if actuated is None else tuple(name.strip() for name in actuated.split(","))
     specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
-    return specs
+    point = getattr(args, "task_point", None)
+    if point is not None and len(specs) != 1:
+        raise UsageError("--task-point needs exactly one --case or --model (a body of that model)")
+    return [dataclasses.replace(spec, task_point=point) for spec in specs]
 
 
 def _backends(selected: list[str] | None):
@@ -161,6 +166,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
     runs, so they are in ``backends.names()``; a worker process loads them from ``backends.plugin_specs()``."""
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+
+
+def add_task_point_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task-point", metavar="BODY[:x,y,z]",
+                        help="the task point: a body's point at offset x,y,z in its frame (m); BODY alone: its centre "
+                        "of mass (an offset point of it if that lies on a joint axis). Default: the model's own")
 
 
 def add_quiet_option(parser: argparse.ArgumentParser) -> None:
@@ -245,7 +256,7 @@ def cmd_gate(args) -> int:
         gate_report.write(result, command, report, applied)
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    _, details = gate_report.write(result, command, report, applied)
+    _, details = gate_report.write(result, command, report, applied, gate_report.mechanism_figures(result, report))
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():
@@ -263,6 +274,9 @@ def cmd_gate(args) -> int:
               f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
+    for case in result.cases:
+        for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
+            print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
@@ -430,7 +444,7 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base, actuated=args.actuated,
+                                     base=args.base, actuated=args.actuated, task_point=args.task_point,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
@@ -1037,6 +1051,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
     gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
     add_workers_option(gate, "case")
+    add_task_point_option(gate)
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -1070,6 +1085,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--linearize", action="store_true",
                     help="also print each backend's linearization A, B (eq. 11) and the eigenvalues of A, compared")
     ev.add_argument("--json", action="store_true", help="print JSON")
+    add_task_point_option(ev)
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
 
@@ -1189,7 +1205,7 @@ def _main(argv: list[str] | None) -> int:
         backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
-    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
+    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism, TaskPointError,
             backends.PluginError, charts.ChartError, sampling.ProjectionError, preflight.PreflightError,
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)

@@ -530,6 +530,20 @@ def task_jacobian(model: Model, q) -> np.ndarray:
     return J
 
 
+def body_origins(model: Model, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World positions at ``q`` of every body frame's origin (its joint's origin) and centre of mass (bodies x 3
+    each, in body order) and of the default task point, from the model of our data (:func:`to_pinocchio`): for
+    pictures of the mechanism."""
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.forwardKinematics(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    pin.updateFramePlacements(c.model, data)
+    joints = [c.joint_of[b.name] for b in model.bodies]
+    origins = np.array([data.oMi[j].translation for j in joints])
+    coms = np.array([data.oMi[j].act(c.model.inertias[j].lever) for j in joints])
+    return origins, coms, np.array(data.oMf[c.task_frame].translation)
+
+
 def centroidal_momentum_map(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rate of the centroidal momentum ``h_G = (P, L_G)`` (linear momentum, angular momentum about the centre of
     mass; world axes) as an affine function of the accelerations, ``dh_G/dt = A_G qdd + b``: ``(A_G, b, c)`` with

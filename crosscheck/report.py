@@ -1,9 +1,11 @@
 """Markdown report of a gate run, in two parts. The summary (:func:`summary`, the file ``--report`` names) is
 short: the verdict, a failing run's disagreements with their severity, vote, hint and reproduce command (and any
-other failure), what was run, the worst ratio, what was checked and skipped and why, one line per case. The details
+other failure), what was run, the worst ratio, what was checked and skipped and why (with the task point of a case
+whose task condition broke down at most states), the pictures of the mechanism, one line per case. The details
 (:func:`details`, next to it as ``NAME-details.md``): the tolerance policy, counts per verdict, suspects, voters, the
-per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns, the invariance
-and conservation checks, the constraint power audit, the drift's parts, the worst state per case and the timing.
+task points, the per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns,
+the invariance and conservation checks, the constraint power audit, the drift's parts, the worst state per case and
+the timing.
 
 Same seed, same report byte for byte, apart from the timing section at the end of the details.
 """
@@ -15,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cases import task
 from crosscheck import backends, charts, reference
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
@@ -386,6 +389,75 @@ def _voters_section(result: GateResult) -> list[str]:
     return (["Voters:", ""] + lines + [""]) if lines else []
 
 
+#: The conditions of a task point (``crosscheck.tolerance.BREAKDOWN_LIMITS``): a BREAKDOWN on them is the task's.
+TASK_CONDITIONS = ("task", "task_jacobian", "task_inertia")
+
+
+def _task_broken(case: CaseOutcome) -> list[StateOutcome]:
+    """The states where some backend was in BREAKDOWN on a task condition."""
+    return [s for s in case.states if any(set(c) & set(TASK_CONDITIONS) for c in s.breakdowns.values())]
+
+
+def _typical(states: list[StateOutcome]) -> StateOutcome:
+    """The first of ``states`` away from the home configuration q = 0 (a stretched chain is singular anyway)."""
+    return next((s for s in states if any(s.state.q)), states[0])
+
+
+def task_point_lines(case: CaseOutcome) -> list[str]:
+    """The task point a case used (name, body, offset, directions) and how it was chosen; when a backend was in
+    BREAKDOWN on a task condition at most states, why, from the model's own point kinematics at such a state
+    (``cases.task.rank_deficiency``: "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")."""
+    tp = case.model.task_point()
+    choice = tp.choice or "declared with the model"
+    lines = [f"- {case.spec.name}: task point `{tp.name}` on body `{tp.body}` at {_vec(tp.offset)} m in its frame, "
+             f"task directions {np.round(tp.directions, 6).tolist()}; {choice}"]
+    broken = _task_broken(case)
+    if broken and len(broken) > len(case.states) / 2:
+        first = _typical(broken)
+        why = task.rank_deficiency(case.model, np.array(first.state.q))
+        worst = max(v for s in broken for c in s.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS)
+        lines.append(f"  - a task condition was in BREAKDOWN at {len(broken)} of {len(case.states)} states (worst "
+                     f"{worst:.3g}); at state #{first.state.index}: " +
+                     (why or "the task Jacobian has full rank there: a near-singular configuration") +
+                     f". Choose another point with `--task-point BODY[:x,y,z]`.")
+    return lines
+
+
+#: At most this many pictures of the mechanism per report.
+MAX_FIGURES = 3
+
+
+def mechanism_figures(result: GateResult, report: Path) -> dict[str, str]:
+    """Stick figures of the mechanism (``crosscheck.plots.stick_figure``) written next to ``report`` where they help:
+    for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN at
+    most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
+    from crosscheck import plots
+
+    chosen = []
+    for case in result.cases:
+        failed = [s for s in case.states if s.failed]
+        broken = _task_broken(case)
+        if failed:
+            chosen.append((case, max(failed, key=lambda s: s.worst_ratio), "worst failing state"))
+        elif len(broken) > len(case.states) / 2:
+            chosen.append((case, _typical(broken), "task condition in BREAKDOWN"))
+    out = {}
+    for case, state, why in chosen[:MAX_FIGURES]:
+        name = f"{report.stem}_{case.spec.name}_state{state.state.index}.png"
+        plots.stick_figure(case.model, np.array(state.state.q), report.parent / name,
+                           f"{case.spec.name}, state #{state.state.index} ({why})")
+        out[case.spec.name] = name
+    return out
+
+
+def figure_lines(figures: dict[str, str]) -> list[str]:
+    """The report's links to the pictures :func:`mechanism_figures` wrote."""
+    if not figures:
+        return []
+    return ["Pictures of the mechanism (joint origins, links, task point; from the reference's forward kinematics):",
+            ""] + [f"- {case}: ![{case}]({name})" for case, name in figures.items()] + [""]
+
+
 def _verdict_line(key: str, comp: Comparison) -> str:
     """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
     disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
@@ -522,11 +594,12 @@ def details_path(path: str | Path) -> Path:
     return path.with_name(f"{path.stem}-details{path.suffix or '.md'}")
 
 
-def write(result: GateResult, command: str, path: str | Path, applied: Applied | None = None) -> tuple[Path, Path]:
-    """Write the short report to ``path`` (:func:`summary`) and everything else next to it (:func:`details`, at
-    :func:`details_path`); the two paths."""
+def write(result: GateResult, command: str, path: str | Path, applied: Applied | None = None,
+          figures: dict[str, str] | None = None) -> tuple[Path, Path]:
+    """Write the short report to ``path`` (:func:`summary`, linking ``figures``: :func:`mechanism_figures`) and
+    everything else next to it (:func:`details`, at :func:`details_path`); the two paths."""
     path, more = Path(path), details_path(path)
-    path.write_text(summary(result, command, applied, details_link=more.name))
+    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures))
     more.write_text(details(result, command, applied, summary_link=path.name))
     return path, more
 
@@ -537,11 +610,13 @@ def read(path: str | Path) -> str:
     return path.read_text() + ("\n" + more.read_text() if more.exists() else "")
 
 
-def render(result: GateResult, command: str, applied: Applied | None = None) -> str:
+def render(result: GateResult, command: str, applied: Applied | None = None,
+           figures: dict[str, str] | None = None) -> str:
     """The whole report as one markdown text: the summary (:func:`summary`), then the details (:func:`details`);
     ``command`` is the gate command that produced it, ``applied`` the divergence registry as applied to ``result``
-    (``crosscheck.registry.apply``), if any. The command line writes the two parts to two files (:func:`write`)."""
-    return summary(result, command, applied) + "\n" + details(result, command, applied)
+    (``crosscheck.registry.apply``), if any, ``figures`` the pictures of the mechanism to link
+    (:func:`mechanism_figures`). The command line writes the two parts to two files (:func:`write`)."""
+    return summary(result, command, applied, figures=figures) + "\n" + details(result, command, applied)
 
 
 def _verdict(result: GateResult) -> str:
@@ -709,24 +784,29 @@ def _silent_lines(result: GateResult) -> list[str]:
     return lines
 
 
-def summary(result: GateResult, command: str, applied: Applied | None = None, details_link: str | None = None) -> str:
+def summary(result: GateResult, command: str, applied: Applied | None = None, details_link: str | None = None,
+            figures: dict[str, str] | None = None) -> str:
     """The report's first part, short: the verdict, a failing run's failures with their reproduce commands, what
-    was run, one line per case, the worst ratio, what was checked and skipped; ``details_link`` the file holding
-    :func:`details` (None: they follow in the same text)."""
+    was run, one line per case, the worst ratio, what was checked and skipped, the task point of each case where a
+    task condition was in BREAKDOWN at most states and why, the pictures of the mechanism (``figures``);
+    ``details_link`` the file holding :func:`details` (None: they follow in the same text)."""
     where = f"[{details_link}]({details_link})" if details_link else "below"
     lines = _headline(result) + _failures_section(result)
     lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
-    lines += [f"- details {where}: suspects, voters, per-quantity table, self-test, sampling coverage, known "
-              "divergences, breakdowns, invariance and conservation checks, power audit, the drift's parts, worst "
-              "state per case, timing, tolerance policy", ""]
+    lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
+    lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
+              "known divergences, breakdowns, invariance and conservation checks, power audit, the drift's parts, "
+              "worst state per case, timing, tolerance policy", ""]
+    lines += figure_lines(figures or {})
     lines += _case_table(result)
     return "\n".join(lines) + "\n"
 
 
 def details(result: GateResult, command: str, applied: Applied | None = None, summary_link: str | None = None) -> str:
-    """The report's second part: the tolerance policy, suspects, voters, the per-quantity table, then each section
-    (self-test, coverage, known divergences, stale registry entries, breakdowns, checks, power audit, the drift's
-    parts), the worst state per case and the timing; ``summary_link`` the file holding :func:`summary`, if any."""
+    """The report's second part: the tolerance policy, suspects, voters, task points, the per-quantity table, then
+    each section (self-test, coverage, known divergences, stale registry entries, breakdowns, checks, power audit,
+    the drift's parts), the worst state per case and the timing; ``summary_link`` the file holding :func:`summary`,
+    if any."""
     back = f" (summary: [{summary_link}]({summary_link}))" if summary_link else ""
     lines = [f"# crosscheck gate report: details{back}", "",
              f"**{_verdict(result)}**; command `{command}`, seed {result.seed}.", ""]
@@ -735,6 +815,7 @@ def details(result: GateResult, command: str, applied: Applied | None = None, su
     lines += _counts_rows(result) + [""]
     lines += _suspects_section(result)
     lines += _voters_section(result)
+    lines += ["Task points:", ""] + [line for case in result.cases for line in task_point_lines(case)] + [""]
     lines += ["Per quantity:", "",
               "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
               "at state | not supplied by |",
