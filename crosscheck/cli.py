@@ -201,7 +201,7 @@ def cmd_gate(args) -> int:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
-                    linearization=not args.no_linearization)
+                    linearization=not args.no_linearization, joint_limits=not args.ignore_limits)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
@@ -870,6 +870,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="skip the comparison of the linearizations A, B (eq. 11) at the first states of each case")
     gate.add_argument("--no-closed-forms", action="store_true",
                       help="leave the article's closed forms (voter closed_form) out of the vote")
+    gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
+                      "(a URDF or MJCF file) declares joint limits (default: within them)")
     gate.add_argument("--no-self-test", action="store_true",
                       help="skip the self-test canaries (known tiny faults the gate must catch)")
     gate.add_argument("--optional", action="append", default=[], metavar="NAME",
