@@ -414,6 +414,8 @@ def cmd_eval(args) -> int:
     _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
+    for problem in sampling.outside_limits(model, p) if on_q else ():
+        print(f"crosscheck: warning: {problem}; evaluated there all the same", file=sys.stderr)
     u, tau_p = _inputs(args, model, chart, p)
     chosen = _backends(args.formalism)
     closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too

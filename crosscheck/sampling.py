@@ -105,6 +105,20 @@ def within_limits(model: Model, q: np.ndarray, home: bool = False) -> np.ndarray
     return q
 
 
+def outside_limits(model: Model, q) -> list[str]:
+    """One sentence per limited joint (``Body.limits``) whose coordinate in ``q`` lies outside its limits (``eval``
+    takes any q it is given and says so: the gate samples within the limits unless told ``--ignore-limits``)."""
+    q = np.asarray(q, dtype=float)
+    out = []
+    for i in limited_joints(model):
+        body, value = model.bodies[i], float(q[model.q_index[i]])
+        lower, upper = body.limits
+        if not lower <= value <= upper:
+            out.append(f"q[{model.q_index[i]}] = {value:g} ({body.name}, {body.joint}) is outside its joint limits "
+                       f"[{lower:g}, {upper:g}]")
+    return out
+
+
 def project_configuration(model: Model, q) -> np.ndarray:
     """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps in velocity space (``Jc`` is
     ``dphi`` along the velocities; a step moves q by ``cases.configuration.integrate``, on the group for spherical

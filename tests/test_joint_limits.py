@@ -89,3 +89,77 @@ def test_coverage_measures_a_limited_joint_against_its_limits():
     assert not coverage.measure(model, sampling.sample_states(model, 30, 0, "arm")).degenerate
     stuck = [sampling.State(i, (0.01 * i / 30, 0.02), (1.0, 1.0), (1.0, 1.0)) for i in range(30)]
     assert "q0 (a) spans 0.00967 of 0.75" in coverage.measure(model, stuck).problems[0]
+
+
+def _link(name: str) -> str:
+    return (f'<link name="{name}"><inertial><mass value="1"/><origin xyz="0.3 0 0"/><inertia ixx="0.01" iyy="0.01" '
+            'izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+
+
+def test_a_urdf_limit_without_lower_and_upper_is_no_limit(tmp_path):
+    """URDF reads ``<limit effort velocity/>`` without lower and upper as (0, 0): taken as the joint held at 0 it
+    would never move in a sampled state, so it is no limit (drawn freely); a file's lower > upper is none either."""
+    joints = [("j1", "base", "l1", "revolute", '<limit effort="1" velocity="1"/>'),
+              ("j2", "l1", "l2", "revolute", '<limit lower="-1" upper="0.5" effort="1" velocity="1"/>'),
+              ("j3", "l2", "l3", "prismatic", '<limit lower="0.2" upper="0.1" effort="1" velocity="1"/>')]
+    text = '<robot name="r"><link name="base"/>' + "".join(_link(f"l{i}") for i in (1, 2, 3)) + "".join(
+        f'<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0.6 0 0"/>'
+        f'<axis xyz="0 1 0"/>{limit}</joint>' for n, p, c, t, limit in joints) + "</robot>"
+    path = tmp_path / "r.urdf"
+    path.write_text(text)
+    model = cases.from_urdf(str(path), base="fixed")
+    assert [b.limits for b in model.bodies] == [None, (-1.0, 0.5), None]
+
+
+MJCF = """<mujoco model="m">{compiler}
+ <default><joint limited="auto"/><default class="free"><joint limited="false"/></default></default>
+ <worldbody>
+  <body name="b1"><joint name="h1" type="hinge" axis="0 0 1" range="-90 45"/><geom size="0.1" pos="0.3 0 0" mass="1"/>
+   <body name="b2" pos="0.6 0 0"><joint name="s2" type="slide" axis="1 0 0" range="-0.1 0.2"/>
+    <geom size="0.1" pos="0.3 0 0" mass="1"/>
+    <body name="b3" pos="0.6 0 0"><joint name="h3" class="free" axis="0 1 0" range="-1 1"/>
+     <geom size="0.1" pos="0.3 0 0" mass="1"/>
+     <body name="b4" pos="0.6 0 0"><joint name="h4" axis="0 1 0" range="-1 1" limited="true"/>
+      <geom size="0.1" pos="0.3 0 0" mass="1"/>
+      <body name="b5" pos="0.6 0 0"><joint name="h5" axis="0 1 0"/><geom size="0.1" pos="0.3 0 0" mass="1"/></body>
+ </body></body></body></body>
+ </worldbody>
+</mujoco>"""
+
+
+@pytest.mark.parametrize("compiler, expected", [
+    ("", [(-np.pi / 2, np.pi / 4), (-0.1, 0.2), None, (-np.pi / 180, np.pi / 180), None]),
+    ('<compiler angle="radian"/>', [(-90.0, 45.0), (-0.1, 0.2), None, (-1.0, 1.0), None]),
+    ('<compiler angle="radian" autolimits="false"/>', [None, None, None, (-1.0, 1.0), None]),
+])
+def test_mjcf_ranges_are_read_as_mujoco_reads_them(tmp_path, compiler, expected):
+    """A hinge's range in the compiler's angle unit, a slide's in metres whatever that unit (Pinocchio 4.1 converts
+    it from degrees too), no limits where the joint or its default class says ``limited="false"``, nor where
+    autolimits is off and the joint does not say ``limited="true"``, nor where there is no range."""
+    from cases.mjcf import from_mjcf
+
+    path = tmp_path / "m.xml"
+    path.write_text(MJCF.format(compiler=compiler))
+    found = [b.limits for b in from_mjcf(path).bodies]
+    assert [f is None for f in found] == [e is None for e in expected]
+    for f, e in zip(found, expected):
+        if e is not None:
+            np.testing.assert_allclose(f, e, rtol=1e-15)
+
+
+def test_eval_warns_of_a_q_outside_the_limits_and_evaluates_it(capsys):
+    """``eval`` takes the q it is given: the Panda's stretched elbow (0, outside [-3.0718, -0.0698]) is named on stderr,
+    and the state is evaluated all the same."""
+    model = _arm()
+    assert sampling.outside_limits(model, [0.0, 0.2]) == []
+    assert sampling.outside_limits(model, [0.3, 0.05]) == [
+        "q[0] = 0.3 (a, revolute) is outside its joint limits [-0.5, 0.25]",
+        "q[1] = 0.05 (b, prismatic) is outside its joint limits [0.1, 0.3]"]
+    for elbow, warned in (("0", True), ("-1", False)):
+        argv = ["eval", "--case", "panda", f"--q=0,0,0,{elbow},0,1,0,0.01,0.01", "--qd=1,0,0,0,0,0,0,0,0",
+                "--formalism", "newton_euler", "--formalism", "pinocchio"]
+        assert cli.main(argv) == 0
+        out, err = capsys.readouterr()
+        assert err.splitlines() == (["crosscheck: warning: q[3] = 0 (panda_link4, revolute) is outside its joint "
+                                     "limits [-3.0718, -0.0698]; evaluated there all the same"] if warned else [])
+        assert "verdict: agree" in out
