@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import cases
 from cases.model import Body, ModelError, build_model
@@ -163,3 +165,15 @@ def test_eval_warns_of_a_q_outside_the_limits_and_evaluates_it(capsys):
         assert err.splitlines() == (["crosscheck: warning: q[3] = 0 (panda_link4, revolute) is outside its joint "
                                      "limits [-3.0718, -0.0698]; evaluated there all the same"] if warned else [])
         assert "verdict: agree" in out
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.data())
+def test_property_tests_draw_within_the_limits_too(data):
+    """``crosscheck.testing.states`` (the fuzz campaigns' and property tests' states) draws a limited joint within its
+    limits, as the gate does; random models (``testing.models``) declare none."""
+    from crosscheck import testing
+
+    state = data.draw(testing.states(_arm()))
+    assert -0.5 <= state.q[0] <= 0.25 and 0.1 <= state.q[1] <= 0.3
+    assert all(b.limits is None for b in data.draw(testing.models(max_bodies=3)).bodies)
