@@ -116,18 +116,24 @@ class ModelSource:
     ``crosscheck.frames``). ``root`` says how the loader attached the file's root link: ``"fixed"`` as the file has
     it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
     A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
-    gravity ``g`` is ``rotation @ g``."""
+    gravity ``g`` is ``rotation @ g``; ``gravity`` False: the scene is the file's without gravity (a gravity-free
+    copy, ``crosscheck.diagnosis.without_gravity``), so whatever is built from the file sets gravity to zero."""
 
     kind: str
     path: str
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     root: str = "fixed"
+    gravity: bool = True
 
     def moved(self, rotation: np.ndarray, translation: np.ndarray) -> "ModelSource":
         """The source of the scene moved by ``g = (rotation, translation)``: placement ``g * (R, t)``."""
         R, t = np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float)
-        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root)
+        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root, self.gravity)
+
+    def without_gravity(self) -> "ModelSource":
+        """The same file and placement with gravity switched off."""
+        return ModelSource(self.kind, self.path, self.rotation, self.translation, self.root, False)
 
     @property
     def is_identity(self) -> bool:
@@ -137,7 +143,8 @@ class ModelSource:
     def key(self) -> str:
         """A stable text of every field (for caches of whatever is built from the file)."""
         placement = np.concatenate([np.ravel(self.rotation), np.ravel(self.translation)]).astype("<f8")
-        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}"
+        weight = "" if self.gravity else ":no-gravity"
+        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}{weight}"
 
     def __eq__(self, other) -> bool:
         return isinstance(other, ModelSource) and self.key() == other.key()
@@ -458,9 +465,12 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
                                  or np.linalg.det(rotation) < 0):
         problems.append(f"source rotation is not a proper rotation: {rotation.tolist()}")
     translation = as_array(problems, "source translation", source.translation, (3,))
+    if not isinstance(source.gravity, bool):
+        problems.append(f"source gravity must be True (the file's gravity acts) or False, got {source.gravity!r}")
     if len(problems) > n_before:
         return None
-    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root)
+    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root,
+                       source.gravity)
 
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,

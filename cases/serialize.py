@@ -69,6 +69,8 @@ def model_to_dict(model: Model) -> dict:
                        "rotation": _plain(model.source.rotation), "translation": _plain(model.source.translation)}
         if model.source.root != "fixed":      # written only when not the default, so older dicts read the same
             d["source"]["root"] = model.source.root
+        if not model.source.gravity:          # likewise: a gravity-free copy (ModelSource.without_gravity)
+            d["source"]["gravity"] = False
     return d
 
 
@@ -158,7 +160,7 @@ def _source(d: dict) -> ModelSource | None:
         return None
     return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
                        _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"),
-                       _text(value, "root", "source") if "root" in value else "fixed")
+                       _text(value, "root", "source") if "root" in value else "fixed", value.get("gravity", True))
 
 
 def model_from_dict(d: dict) -> Model:

@@ -29,7 +29,10 @@ one :class:`BaseNotice` warning saying so and how to float it. The source record
 (``ModelSource.root``), so the reference reads the file the same way.
 
 Inputs: the identity's columns of every joint velocity but a free joint's, whose six velocities are unactuated
-(a floating base has no motor to the world).
+(a floating base has no motor to the world). ``actuated`` (URDF joint names, e.g. ``["joint1", "joint3"]``; the
+command line's ``--actuated joint1,joint3``) makes B the identity's columns of those joints only, in the order given:
+``u[k]`` is the force or torque of ``actuated[k]``. A name that is not a movable joint of the file (unknown, fixed,
+floating, or given twice) is a :class:`~cases.model.ModelError` listing the movable joints.
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
@@ -377,6 +380,40 @@ def _actuated(bodies: list[Body]) -> np.ndarray:
     return np.eye(len(driven))[:, driven]
 
 
+def _named_inputs(robot: ET.Element, actuated, problems: list[str]) -> list[str]:
+    """The child links of the ``actuated`` URDF joints (module docstring, "Inputs"), in the order given; a problem
+    for each name that is not a movable joint of the file, or given twice."""
+    if isinstance(actuated, str) or not all(isinstance(name, str) for name in actuated):
+        problems.append(f"actuated must be a list of URDF joint names, got {actuated!r}")
+        return []
+    types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
+    movable = sorted(name for name, kind in types.items() if kind in ("revolute", "continuous", "prismatic"))
+    n_before = len(problems)
+    if not actuated:
+        problems.append(f"actuated names no joint; name at least one of the movable joints {movable}")
+    problems += [f"actuated names joint '{name}' {actuated.count(name)} times; name each joint once"
+                 for name in sorted(set(actuated)) if actuated.count(name) > 1]
+    for name in dict.fromkeys(actuated):
+        if name not in types:
+            problems.append(f"actuated joint '{name}' is not a joint of the file; movable joints: {movable}")
+        elif name not in movable:
+            problems.append(f"actuated joint '{name}' is {types[name]}, which no motor drives here; movable joints: "
+                            f"{movable}")
+    links = _joint_links(robot)
+    return [] if len(problems) > n_before else [links[name][1] for name in actuated]
+
+
+def _input_map(bodies: list[Body], driven_links: list[str] | None) -> np.ndarray:
+    """B (module docstring, "Inputs"): :func:`_actuated`, or the identity's columns of the bodies ``driven_links``
+    names (each a one-velocity joint), in that order."""
+    if driven_links is None:
+        return _actuated(bodies)
+    index = {b.name: k for k, b in enumerate(bodies)}
+    nv = sum(JOINT_DOF[b.joint][1] for b in bodies)
+    starts = np.cumsum([0] + [JOINT_DOF[b.joint][1] for b in bodies[:-1]])
+    return np.eye(nv)[:, [int(starts[index[link]]) for link in driven_links]]
+
+
 def _couplings(pm, link_of: dict, mimics: list[Mimic]) -> list[JointCoupling]:
     """The mimic tags as joint couplings on the bodies the joints move, in Pinocchio's order of the mimic joints."""
     by_joint = sorted(mimics, key=lambda m: pm.getJointId(m.joint))
@@ -433,9 +470,10 @@ def read_file(pin, kind: str, path: str, root: str = "fixed"):
     return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if root == "free" else pin.buildModelFromUrdf(path)
 
 
-def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
+def from_urdf(path, name: str | None = None, base: str | None = None, actuated=None) -> Model:
     """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring), with a
-    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`).
+    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`) and, with
+    ``actuated`` (URDF joint names), the input map of those joints only (module docstring, "Inputs").
 
     Raises :class:`FileNotFoundError` if the path does not exist, :class:`UrdfError` if it cannot be read or
     parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no equivalent here (planar,
@@ -447,6 +485,8 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
     model_name = name if name is not None else robot.get("name") or path.stem
     problems = _tree_problems(robot)
     mimics = _mimics(robot, problems)
+    driven = None if actuated is None or problems else _named_inputs(
+        robot, actuated if isinstance(actuated, str) else list(actuated), problems)
     root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
     if problems:
         raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
@@ -456,7 +496,7 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
         raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
                           "(pip install pin)") from exc
     source = ModelSource("urdf", str(path.resolve()), root=root)
-    model = convert(pin, _parse(pin, path, root), model_name, source, mimics)
+    model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven)
     if notice is not None:
         import warnings
 
@@ -464,9 +504,11 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
     return model
 
 
-def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = ()) -> Model:
+def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = (),
+            driven_links: list[str] | None = None) -> Model:
     """Our :class:`Model` of a parsed Pinocchio model (module docstring): bodies, gravity, task points, the mimic
-    couplings and the file's ``source``; a ModelError naming the file for what cannot be converted."""
+    couplings, the input map (of the bodies ``driven_links`` names, else every joint but a free one) and the file's
+    ``source``; a ModelError naming the file for what cannot be converted."""
     problems: list[str] = []
     link_of = _links_of(pin, pm)
     bodies = _bodies(pm, link_of, problems)
@@ -477,7 +519,8 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
         raise ModelError(model_name, problems + [where])
     leaves = _task_points(pin, pm, link_of)
     try:
-        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear), input_map=_actuated(bodies),
+        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
+                           input_map=_input_map(bodies, driven_links),
                            task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
                            source=source)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from

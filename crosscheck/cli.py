@@ -118,7 +118,12 @@ def _specs(args) -> list[CaseSpec]:
     if base is not None and not args.model:
         raise UsageError("--base applies to a --model URDF file (fixed: the root link welded to the world; free: a "
                          "free joint added above it)")
-    specs += [CaseSpec(Path(path).stem, path=path, base=base) for path in args.model]
+    actuated = getattr(args, "actuated", None)
+    if actuated is not None and not args.model:
+        raise UsageError("--actuated applies to a --model URDF file (its joint names, e.g. --actuated joint1,joint3); "
+                         "a built-in case has its own input map")
+    actuated = None if actuated is None else tuple(name.strip() for name in actuated.split(","))
+    specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
     return specs
 
 
@@ -399,7 +404,7 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base,
+                                     base=args.base, actuated=args.actuated,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
@@ -743,6 +748,11 @@ def cmd_replay(args) -> int:
         finding = fuzz.find(Path(args.dir), args.id)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
+    missing = [name for name in (args.formalism or finding["backends"]) if name not in backends.names()]
+    if missing:
+        command = fuzz.replay_command(finding["id"], Path(args.dir), fuzz.campaign_plugins(Path(args.dir)))
+        raise UsageError(f"finding {finding['id']} was evaluated with backend(s) {', '.join(missing)}, not loaded "
+                         f"here; run `{command}`")
     outcome = fuzz.replay(finding, args.formalism)
     print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
           f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")
@@ -861,6 +871,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a URDF (.urdf) or MJCF (.xml) file (repeatable)")
     gate.add_argument("--base", choices=("fixed", "free"),
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                      "of u (default: every joint but a free base's)")
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
@@ -896,6 +908,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--model", metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file instead of --case")
     ev.add_argument("--base", choices=("fixed", "free"),
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    ev.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                    "of u (default: every joint but a free base's)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
                     "--chart world or mixed), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "

@@ -61,6 +61,7 @@ import multiprocessing
 import os
 import queue as queues
 import secrets
+import shlex
 import shutil
 import signal
 import sys
@@ -1032,7 +1033,18 @@ def describe_model(d: dict) -> list[str]:
     return lines
 
 
-def _finding_section(f: dict, out: Path) -> list[str]:
+def replay_command(finding_id: str, out: Path, plugins: Sequence[str]) -> str:
+    """The command that evaluates a finding again: ``crosscheck replay ID --dir OUT`` with a ``--plugin`` flag for
+    each plugin the campaign loaded by spec (its findings name those backends; entry points load themselves)."""
+    return f"crosscheck replay {finding_id} --dir {out}" + "".join(f" --plugin {shlex.quote(p)}" for p in plugins)
+
+
+def campaign_plugins(out: Path) -> list[str]:
+    """The plugin specs of the campaign in ``out`` (its identity), none for a directory without one."""
+    return list((load_campaign(out) or {"identity": {}})["identity"].get("plugins", []))
+
+
+def _finding_section(f: dict, out: Path, plugins: Sequence[str] = ()) -> list[str]:
     s, chart, frame = f["state"], f["chart"], f["frame"]
     camp = f["campaign"]
     how = "shrunk" if f["shrunk"] else "NOT fully shrunk (" + (
@@ -1048,7 +1060,7 @@ def _finding_section(f: dict, out: Path) -> list[str]:
              f"{frame['rotation']}, translation {frame['translation']}",
              f"- backends: {', '.join(f['backends'])}; checks: "
              + ", ".join(["comparison"] + [name for name, on in f["checks"].items() if on]),
-             f"- reproduce: `crosscheck replay {f['id']} --dir {out}`", ""]
+             f"- reproduce: `{replay_command(f['id'], out, plugins)}`", ""]
     if f["failing"]:
         lines += ["| check | error/tolerance | tolerance | outlier |", "|---|---|---|---|"]
         lines += [f"| {c['key']} | {c['worst_ratio']:.3g} | {c['tolerance']:.3g} | {c['outlier'] or '-'} |"
@@ -1218,7 +1230,7 @@ def render_report(out: Path, command: str = "") -> str:
     if not findings:
         lines += ["None: every backend agreed at every state.", ""]
     for f in findings:
-        lines += _finding_section(f, out)
+        lines += _finding_section(f, out, ident.get("plugins", []))
     return "\n".join(lines)
 
 
@@ -1231,13 +1243,13 @@ def summary(result: CampaignResult) -> str:
     lines = [f"{len(chunks)} chunks, examples: {examples}; {sum(r['states'] for r in chunks)} states, "
              f"{len(findings)} findings" + (f" in {len(group(findings))} signature(s)" if findings else "")
              + (" (interrupted)" if result.interrupted else "")]
+    plugins = campaign_plugins(result.out)
     for (checks, outliers, errors, shape), members in group(findings):
         what = "; ".join(part for part in (f"failing {checks}" if checks != "-" else "",
                                            f"outlier {outliers}" if outliers != "-" else "",
                                            f"errors in {errors}" if errors != "-" else "", shape) if part)
-        first = members[0]["id"]
         lines.append(f"  {len(members)} x {what}: {', '.join(f['id'] for f in members)}")
-        lines.append(f"    crosscheck replay {first} --dir {result.out}")
+        lines.append(f"    {replay_command(members[0]['id'], result.out, plugins)}")
     lines.append(f"report written to {result.out / 'report.md'}")
     return "\n".join(lines)
 

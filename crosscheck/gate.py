@@ -63,16 +63,18 @@ class Checks:
 @dataclass(frozen=True)
 class CaseSpec:
     """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
-    URDF ``base`` ("fixed", "free", or None: the file's own; ``cases.from_file``)."""
+    URDF ``base`` ("fixed", "free", or None: the file's own) and ``actuated`` joints (None: every joint but a free
+    base's; ``cases.from_file``)."""
 
     name: str
     params: tuple[tuple[str, str], ...] = ()
     path: str | None = None
     base: str | None = None
+    actuated: tuple[str, ...] | None = None
 
     def build(self) -> Model:
         if self.path is not None:
-            return cases.from_file(self.path, name=self.name, base=self.base)
+            return cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated)
         return cases.load(self.name, **dict(self.params))
 
     def closed_form(self):
@@ -87,7 +89,8 @@ class CaseSpec:
     def cli_args(self) -> str:
         """The command-line arguments that select this case."""
         if self.path is not None:
-            return f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
+            return (f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
+                    + (f" --actuated {','.join(self.actuated)}" if self.actuated is not None else ""))
         return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params])
 
 

@@ -258,7 +258,8 @@ def _parent_frame(frame) -> int:
 def _read_file(source: ModelSource) -> pin.Model:
     """The file's Pinocchio model (``cases.urdf.read_file``: ``buildModelFromUrdf``, with a free-flyer root joint when
     the source's root is "free", or ``buildModelFromMJCF``) placed in the model's world by the source's ``g = (R,
-    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file`` (zero for a source
+    without gravity, ``ModelSource.without_gravity``)."""
     from cases.urdf import read_file
 
     try:
@@ -276,7 +277,7 @@ def _read_file(source: ModelSource) -> pin.Model:
         if _parent_joint(frame) == 0:
             frame.placement = pin.SE3(R @ frame.placement.rotation, R @ frame.placement.translation + t)
             pm.frames[k] = frame
-    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear), np.zeros(3))
+    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear) if source.gravity else np.zeros(3), np.zeros(3))
     return pm
 
 
@@ -448,6 +449,14 @@ def to_pinocchio(model: Model) -> pin.Model:
     of the bodies), whatever its source: the speed anchor and the harness's view. Treat it as read-only: it is
     shared between calls."""
     return _from_data(model).model
+
+
+def reference_model(model: Model) -> _Compiled:
+    """The Pinocchio model :func:`split` evaluates for ``model`` (built from the file for a model with a source, with
+    the scene's placement and gravity, else from our data) and how our coordinates map onto it: ``order`` (our index
+    of each Pinocchio velocity) and ``configuration(q)``. Shared and cached: read-only (``crosscheck.needs`` copies
+    it for a plugin)."""
+    return _reference(model)
 
 
 def joint_map(model: Model) -> tuple[JointMapRow, ...] | None:
