@@ -88,6 +88,9 @@ class Body:
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: ``(lower, upper)`` of a revolute (rad) or prismatic (m) joint's coordinate, as the source file declares them;
+    #: None: unlimited. Not physics (left out of the digest): the sampler draws within them (``crosscheck.sampling``).
+    limits: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -338,11 +341,33 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
             problems.append(f"{where} joint placement rotation is not a proper rotation "
                             f"(|R^T R - I| = {err:.2e}, det = {np.linalg.det(rotation):.6f})")
     translation = as_array(problems, f"{where} joint placement translation", body.translation, (3,))
+    limits = _limits(problems, where, body)
     if len(problems) > n_before:
         return None
     return Body(name=body.name, parent=body.parent, joint=body.joint, axis=frozen(axis, 3), mass=mass,
                 com=frozen(com, 3), inertia=frozen(0.5 * (inertia + inertia.T), (3, 3)),
-                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3))
+                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3), limits=limits)
+
+
+def _limits(problems: list[str], where: str, body: Body) -> tuple[float, float] | None:
+    """The body's joint limits as two floats, or None; a problem for limits on a joint without one coordinate, or
+    limits that are not two finite numbers with lower <= upper."""
+    if body.limits is None:
+        return None
+    if body.joint not in ("revolute", "prismatic"):
+        problems.append(f"{where} has a {body.joint} joint with limits {body.limits!r}; only revolute and prismatic "
+                        "joints take limits (lower, upper)")
+        return None
+    try:
+        lower, upper = (float(x) for x in body.limits)
+    except (TypeError, ValueError):
+        problems.append(f"{where} joint limits {body.limits!r} are not two numbers (lower, upper)")
+        return None
+    if not (np.isfinite(lower) and np.isfinite(upper) and lower <= upper):
+        problems.append(f"{where} joint limits ({lower}, {upper}) are not finite with lower <= upper; leave them out "
+                        "(None) for an unlimited joint")
+        return None
+    return lower, upper
 
 
 def _topology(problems: list[str], bodies: Sequence[Body]) -> tuple[tuple[int, ...], tuple[int, ...]]:

@@ -55,7 +55,8 @@ def model_to_dict(model: Model) -> dict:
         "version": VERSION,
         "name": model.name,
         "bodies": [{"name": b.name, "parent": b.parent, "joint": b.joint, "mass": float(b.mass),
-                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS}} for b in model.bodies],
+                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS},
+                    **({} if b.limits is None else {"limits": list(b.limits)})} for b in model.bodies],
         "gravity": _plain(model.gravity),
         "input_map": _plain(model.input_map),
         "task_points": [{"name": tp.name, "body": tp.body, "offset": _plain(tp.offset),
@@ -119,9 +120,11 @@ def _items(d, key: str, where: str) -> list:
 
 
 def _body(d, where: str) -> Body:
+    limits = _numbers(d, "limits", where) if isinstance(d, dict) and d.get("limits") is not None else None
     return Body(name=_text(d, "name", where), parent=_text(d, "parent", where, optional=True),
                 joint=_text(d, "joint", where), mass=_numbers(d, "mass", where),
-                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS})
+                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS},
+                limits=None if limits is None else tuple(np.atleast_1d(limits).tolist()))
 
 
 def _task_point(d, where: str) -> TaskPoint:

@@ -354,8 +354,26 @@ def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
         bodies.append(Body(name=link_of[j], parent=link_of[pm.parents[j]], joint=joint, axis=axis,
                            mass=float(inertia.mass), com=np.array(inertia.lever),
                            inertia=np.array(inertia.inertia), rotation=np.array(placement.rotation),
-                           translation=np.array(placement.translation)))
+                           translation=np.array(placement.translation), limits=_position_limits(pm, j, jm)))
     return bodies
+
+
+#: Beyond this a position limit is taken as none: Pinocchio fills a joint without limits with the largest double.
+UNLIMITED = 1e10
+
+
+def _position_limits(pm, j: int, jm) -> tuple[float, float] | None:
+    """The file's position limits of a one-coordinate joint (revolute, prismatic; a continuous joint has nq 2 in
+    Pinocchio and no limits), or None (then the joint is sampled freely) where there are none (a bound beyond
+    :data:`UNLIMITED`), where the file gives lower > upper, or where the range is empty, lower = upper: URDF's
+    ``<limit effort=".." velocity=".."/>`` without ``lower`` and ``upper`` reads as (0, 0), which would hold the joint
+    at 0 in every sampled state and leave its dynamics unchecked."""
+    if jm.nq != 1:
+        return None
+    lower, upper = float(pm.lowerPositionLimit[jm.idx_q]), float(pm.upperPositionLimit[jm.idx_q])
+    if not (abs(lower) < UNLIMITED and abs(upper) < UNLIMITED and lower < upper):
+        return None
+    return lower, upper
 
 
 def _actuated(bodies: list[Body]) -> np.ndarray:

@@ -80,7 +80,7 @@ def _vector(text: str, label: str) -> list[float]:
 
 #: Largest seed: numpy's and Hypothesis' generators take any non-negative integer; 2^63 - 1 keeps it one int64.
 MAX_SEED = 2**63 - 1
-#: Worker processes per CPU at most (``--workers`` of gate, fuzz and trajectory): each holds the backends, Pinocchio
+#: Worker processes per CPU at most (``--workers`` of gate, fuzz, faults, trajectory): each holds the backends, Pinocchio
 #: and the models' compiled code (hundreds of MB), and more processes than CPUs only share them.
 WORKERS_PER_CPU = 2
 
@@ -243,7 +243,7 @@ def cmd_gate(args) -> int:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
-                    linearization=not args.no_linearization)
+                    linearization=not args.no_linearization, joint_limits=not args.ignore_limits)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
@@ -459,6 +459,8 @@ def cmd_eval(args) -> int:
     _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
+    for problem in sampling.outside_limits(model, p) if on_q else ():
+        print(f"crosscheck: warning: {problem}; evaluated there all the same", file=sys.stderr)
     u, tau_p = _inputs(args, model, chart, p)
     chosen = _backends(args.formalism)
     closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too
@@ -1041,6 +1043,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="skip the comparison of the linearizations A, B (eq. 11) at the first states of each case")
     gate.add_argument("--no-closed-forms", action="store_true",
                       help="leave the article's closed forms (voter closed_form) out of the vote")
+    gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
+                      "(a URDF or MJCF file) declares joint limits (default: within them)")
     gate.add_argument("--no-self-test", action="store_true",
                       help="skip the self-test canaries (known tiny faults the gate must catch)")
     gate.add_argument("--optional", action="append", default=[], metavar="NAME",

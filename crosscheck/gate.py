@@ -60,6 +60,7 @@ class Checks:
     closed_forms: bool = True
     self_test: bool = True
     linearization: bool = True
+    joint_limits: bool = True   # sample within the joint limits a model declares (``--ignore-limits``: freely)
 
 
 @dataclass(frozen=True)
@@ -507,7 +508,7 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
     announce_preparation(setup, backends)
-    states = sample_states(setup.model, samples, seed, spec.name)
+    states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
     outcomes: list[StateOutcome] = []
 
     def at(phase: str) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cases import task
-from crosscheck import backends, charts, reference
+from crosscheck import backends, charts, reference, sampling
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
@@ -201,6 +201,20 @@ def _checks_section(result: GateResult) -> list[str]:
     lines += ["Charts per case: " + "; ".join(charts_used) + ".", ""]
     lines += [f"- frames {line}" for line in frames_used] + [""]
     return lines
+
+
+def _limits_line(result: GateResult) -> list[str]:
+    """How the states of models with joint limits were drawn (none for a run without such a model)."""
+    limited = [(case.spec.name, len(sampling.limited_joints(case.model)), len(case.model.bodies))
+               for case in result.cases if sampling.limited_joints(case.model)]
+    if not limited:
+        return []
+    where = ", ".join(f"{name} {k} of {n} joints" for name, k, n in limited)
+    if result.checks.joint_limits:
+        return [f"- states drawn within the joint limits the models declare ({where}); `--ignore-limits` draws "
+                "them freely"]
+    return [f"- joint limits ignored (`--ignore-limits`): states drawn freely, also where the models declare limits "
+            f"({where})"]
 
 
 def _condition(state: StateOutcome, backend: str, name: str, value: float) -> str:
@@ -653,9 +667,10 @@ def _worst_line(result: GateResult) -> str:
 
 
 def _run_lines(result: GateResult, command: str, applied: Applied | None) -> list[str]:
-    """What was run: the command, seed and sample size, the self-test and the divergence registry."""
+    """What was run: the command, seed and sample size, the joint limits the states keep, the self-test and the
+    divergence registry."""
     return [f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
-            _self_test_line(result), _registry_line(applied)]
+            *_limits_line(result), _self_test_line(result), _registry_line(applied)]
 
 
 def _policy_lines() -> list[str]:

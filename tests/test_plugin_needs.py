@@ -241,7 +241,7 @@ def test_a_plugin_finding_prints_a_replay_command_that_runs_as_printed(tmp_path,
     result = fuzz.run_campaign(cfg, quiet=True)
     assert result.findings
     printed = fuzz.summary(result)
-    command = next(line.split("; ", 1)[1] for line in printed.splitlines() if "crosscheck replay" in line)
+    command = next(line.strip() for line in printed.splitlines() if line.strip().startswith("crosscheck replay"))
     assert command.endswith(f"--plugin {spec}") and f"`{command}`" in (out / "report.md").read_text()
     backends.reset()
     assert cli.main(shlex.split(command)[1:]) == 1
