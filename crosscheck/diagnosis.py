@@ -48,9 +48,10 @@ INERTIA = "inertia / mass matrix"
 
 
 def without_gravity(model: Model) -> Model:
-    """The same model with gravity switched off."""
+    """The same model with gravity switched off (its external loads kept: only gravity differs)."""
     return cases.build_model(f"{model.name} without gravity", model.bodies, gravity=np.zeros(3),
-                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints)
+                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints,
+                             loads=model.loads)
 
 
 def _value(split: Split, quantity: str) -> np.ndarray | None:
