@@ -447,6 +447,8 @@ def cmd_eval(args) -> int:
         if model.constraints:
             keys += ("lam", "lam_drift", "constraint_force", "power_constr", "power_constr_per_coord",
                      "constraint_rank")
+        if model.loads:                   # the external loads' generalized force tau_ext and its power
+            keys += ("external_force", "power_ext")
         for key in keys:
             print(f"  {key:22s} {values[key]}")
     for name, reason in unsupported.items():
