@@ -1079,11 +1079,16 @@ def _external_covector(model: Model, R: list, o: list, p: ca.SX, pd: ca.SX, spin
             stretch = ca.sqrt(ca.dot(d, d)) - load.rest_length if load.rest_length else None
             springs += 0.5 * load.stiffness * (stretch * stretch if load.rest_length else ca.dot(d, d))
             continue
-        turn = (lambda v: ca.DM(v)) if load.frame == "world" else (lambda v, b=b: ca.mtimes(R[b], ca.DM(v)))
-        power += ca.dot(turn(load.force), ca.jtimes(x, p, pd))
+        power += ca.dot(_in_world(load, R[b], load.force), ca.jtimes(x, p, pd))
         if isinstance(load, ExternalWrench):
-            power += ca.dot(turn(load.moment), ca.mtimes(R[b], spins[b]))
+            power += ca.dot(_in_world(load, R[b], load.moment), ca.mtimes(R[b], spins[b]))
     return ca.gradient(power, pd) - ca.gradient(springs, p)
+
+
+def _in_world(load, R: ca.SX, v) -> ca.SX:
+    """A load's vector ``v`` (its force or couple) in the world: as given for ``frame = "world"``, ``R v`` for
+    ``"body"`` (R the body's orientation, world <- body)."""
+    return ca.DM(v) if load.frame == "world" else ca.mtimes(R, ca.DM(v))
 
 
 _LOCK = threading.Lock()

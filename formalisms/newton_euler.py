@@ -359,8 +359,14 @@ def _external_loads(model: Model, kin) -> np.ndarray | None:
             if isinstance(load, ExternalWrench):
                 moment = _mv(to_body, _column(load.moment, batch)) if world else _column(load.moment, batch)
         rows[i, :3] += f
-        rows[i, 3:] += moment + _cross(offset, f)
+        rows[i, 3:] += _moment_about_origin(offset, f, moment)
     return rows
+
+
+def _moment_about_origin(offset, f, couple):
+    """The moment about the body origin of a force ``f`` at the body point ``offset`` and a couple: ``couple + offset x
+    f`` (body frame)."""
+    return couple + _cross(offset, f)
 
 
 def _external_torques(model: Model, kin, external: np.ndarray) -> np.ndarray:

@@ -128,8 +128,14 @@ def external_wrenches(model: Model, kin: Kinematics) -> np.ndarray | None:
             f = np.broadcast_to(np.asarray(load.force, dtype=float), W.shape[:-2] + (3,))
             if isinstance(load, ExternalWrench):
                 couple = np.asarray(load.moment, dtype=float)
-        W[..., i, :] += lie.join(lie.cross(np.broadcast_to(offset, f.shape), f) + couple, f)
+        W[..., i, :] += about_origin(np.broadcast_to(offset, f.shape), f, couple)
     return W
+
+
+def about_origin(offset: np.ndarray, f: np.ndarray, couple) -> np.ndarray:
+    """The body wrench ``(offset x f + couple, f)`` about the body origin of a force ``f`` at the body point ``offset``
+    and a couple (body frame, stacks)."""
+    return lie.join(lie.cross(offset, f) + couple, f)
 
 
 def external_forces(kin: Kinematics, W: np.ndarray) -> np.ndarray:  # noqa: N803
