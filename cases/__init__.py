@@ -13,7 +13,7 @@ package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do,
 
 from __future__ import annotations
 
-from cases import constrained, floating, loaded  # noqa: F401 (register the constrained, Lie-group and loaded cases)
+from cases import constrained, floating  # noqa: F401 (register the constrained and the Lie-group cases)
 from cases.factories import REGISTRY, CaseError, CaseInfo
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.loads import ExternalForce, ExternalWrench, PointSpring
