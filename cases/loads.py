@@ -145,12 +145,3 @@ def digest_bytes(load) -> bytes:
             parts.append(repr(value).encode())
     return b"|".join(parts)
 
-
-def size_bound(load, reach: float) -> tuple[float, float]:
-    """``(force, moment)``: bounds on the sizes of the load's force and couple for a model whose points lie within
-    ``reach`` of the world origin (the tolerance policy's scale; no kinematics): a spring's force is at most ``k
-    (reach + |anchor| + L0)``."""
-    if isinstance(load, PointSpring):
-        return load.stiffness * (reach + float(np.linalg.norm(load.anchor)) + load.rest_length), 0.0
-    moment = float(np.linalg.norm(load.moment)) if isinstance(load, ExternalWrench) else 0.0
-    return float(np.linalg.norm(load.force)), moment

@@ -80,6 +80,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
@@ -378,11 +379,19 @@ def _load_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, 
 
 
 def _external_size(model, R: float) -> float:
-    """The external loads' forces and couples summed (:func:`cases.loads.size_bound`), 0 without loads: the joint
+    """The external loads' forces and couples summed (:func:`size_bound`), 0 without loads: the joint
     loads carry them, their moments over lever arms up to the reach R."""
-    from cases.loads import size_bound
-
     return float(sum(sum(size_bound(load, R)) for load in model.loads))
+
+
+def size_bound(load, reach: float) -> tuple[float, float]:
+    """``(force, moment)``: bounds on the sizes of an external load's force and couple (``cases.loads``) for a model
+    whose points lie within ``reach`` of the world origin, without kinematics: a spring's force is at most ``k (reach +
+    |anchor| + L0)``."""
+    if isinstance(load, PointSpring):
+        return load.stiffness * (reach + float(np.linalg.norm(load.anchor)) + load.rest_length), 0.0
+    moment = float(np.linalg.norm(load.moment)) if isinstance(load, ExternalWrench) else 0.0
+    return float(np.linalg.norm(load.force)), moment
 
 
 def _task_condition(split) -> float:
@@ -504,10 +513,8 @@ def external_terms(model, q) -> np.ndarray:
     """The sizes of the terms each entry of ``tau_ext = sum J_p^T f + J_w^T m`` sums (``cases.loads``), eps aside, per
     velocity coordinate j: for each load on a body that column j moves, ``(R + |offset|) |f| + |m|`` where j turns
     (a world lever, at most the model's reach R plus the point's offset, times the force, and the couple) and ``|f|``
-    where it slides; ``|f|`` and ``|m|`` the declarations' bounds (:func:`cases.loads.size_bound`: a spring's force at
+    where it slides; ``|f|`` and ``|m|`` the declarations' bounds (:func:`size_bound`: a spring's force at
     most ``k (R + |anchor| + L0)``). Zeros for a model without loads."""
-    from cases.loads import size_bound
-
     geo = _constants(model, _Geometry)
     R = reach(model, q)
     out = np.zeros(model.nv)
