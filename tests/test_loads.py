@@ -76,3 +76,93 @@ def test_the_spring_potential():
     spring = LOADS[2]
     assert spring.potential(1.4) == pytest.approx(0.5 * 12.0 * 1.0**2)
     assert spring.potential(0.4) == 0.0
+
+
+# ------------------------------------------------------------------------------------------ the backends
+
+from cases import configuration  # noqa: E402
+from crosscheck import gate, precise, reference  # noqa: E402
+from crosscheck.faults import default_backends  # noqa: E402
+from crosscheck.sampling import sample_states  # noqa: E402
+
+
+def _loaded(name: str) -> cases.Model:
+    """A built-in model with one load of each kind and frame on its first and last bodies (3-D offsets and vectors)."""
+    base = cases.load(name)
+    first, last = base.bodies[0].name, base.bodies[-1].name
+    loads = [cases.ExternalForce("push", last, (0.3, 0.1, 0.05), (0.5, -2.0, 0.3)),
+             cases.ExternalForce("carried", last, (0.2, 0.0, 0.1), (0.5, 1.0, 0.3), "body"),
+             cases.ExternalWrench("wind", first, (0.3, 0.1, 0.0), (1.0, 0.5, 0.2), (0.1, -0.2, 0.7), "body"),
+             cases.ExternalWrench("gust", last, (0.1, -0.2, 0.0), (0.3, 0.5, -0.2), (0.4, 0.2, -0.1), "world"),
+             cases.PointSpring("spring", last, (0.5, 0.0, 0.0), (1.0, -1.0, 0.2), 12.0, 0.4)]
+    return build_model(f"{name}_loaded", base.bodies, base.gravity, base.input_map, base.task_points,
+                       base.constraints, loads=loads)
+
+
+def _virtual_work(model, q, step=1e-6) -> np.ndarray:
+    """``tau_ext_j = sum f . dx/dq_j + m . w_j`` by central differences of the poses (``cases.configuration``) along
+    ``q (+) h e_j``, the loads' definitions (``cases.loads``) typed in here: no backend's code."""
+    def at(qq):
+        poses = configuration.poses(model, qq)
+        out = []
+        for load in model.loads:
+            R, o = poses[model.body_index(load.body)]
+            out.append((R, o + R @ load.offset))
+        return out
+    base = at(q)
+    tau = np.zeros(model.nv)
+    for j in range(model.nv):
+        e = np.zeros(model.nv)
+        e[j] = step
+        plus, minus = at(configuration.integrate(model, q, e)), at(configuration.integrate(model, q, -e))
+        for load, (R, x), (Rp, xp), (Rm, xm) in zip(model.loads, base, plus, minus):
+            dx = (xp - xm) / (2 * step)
+            if isinstance(load, cases.PointSpring):
+                d = x - load.anchor
+                f = -load.stiffness * (np.linalg.norm(d) - load.rest_length) * d / np.linalg.norm(d)
+            else:
+                f = load.force if load.frame == "world" else R @ load.force
+            tau[j] += f @ dx
+            if isinstance(load, cases.ExternalWrench):
+                S = (Rp - Rm) / (2 * step) @ R.T                    # [w_j]x: the turn per unit q_j
+                m = load.moment if load.frame == "world" else R @ load.moment
+                tau[j] += m @ np.array([S[2, 1], S[0, 2], S[1, 0]])
+    return tau
+
+
+@pytest.mark.parametrize("name", ["spatial_arm", "ball_double_pendulum"])
+def test_the_reference_tau_ext_is_the_virtual_work_of_the_loads(name):
+    model = _loaded(name)
+    for state in sample_states(model, 3, 0, name):
+        expected = _virtual_work(model, np.array(state.q))
+        got = reference.split(model, state.q, state.qd, state.u).external_force
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("name", ["spatial_arm", "ball_double_pendulum", "four_bar"])
+def test_every_backend_maps_every_load_and_the_gate_agrees(name):
+    """All five backends and Pinocchio, with every kind of load on a 3-D arm, a ball chain and a closed loop: the gate's
+    comparisons (tau_ext, its power, the drift and its part at rest, the joint loads ...) agree at each state."""
+    model = _loaded(name)
+    backends = default_backends()
+    for state in sample_states(model, 2, 1, name):
+        outcome = gate.evaluate(model, state, backends)
+        assert not outcome.errors, outcome.errors
+        assert {"external_force", "power_ext"} <= set(outcome.comparisons)
+        compared = outcome.comparisons["external_force"]
+        assert compared.verdict == "agree" and len(compared.voters) == 6, compared
+        assert [q for q, c in outcome.comparisons.items() if c.verdict != "agree" and c.verdict != "NOT COMPARED"] == []
+
+
+def test_the_drift_at_rest_carries_the_loads_and_the_50_digit_reference_agrees():
+    """zvcf is the drift at qd = 0 (the loads are velocity-independent: eq. 14 at rest), and the drift of the exact
+    reference (crosscheck.precise) equals Pinocchio's with the loads."""
+    model = _loaded("spatial_arm")
+    state = sample_states(model, 1, 2, "x")[0]
+    at_rest = reference.split(model, state.q, np.zeros(model.nv), np.zeros(model.m))
+    moving = reference.split(model, state.q, state.qd, state.u)
+    np.testing.assert_allclose(moving.zvcf, at_rest.drift, rtol=1e-12, atol=1e-12)
+    exact = precise.split(model, state.q, state.qd, state.u)
+    np.testing.assert_allclose(moving.drift, exact.floats("drift"), rtol=1e-10, atol=1e-10)
+    without = reference.split(cases.load("spatial_arm"), state.q, state.qd, state.u)
+    assert np.abs(moving.external_force).max() > 1.0 and np.abs(moving.drift - without.drift).max() > 1e-3
