@@ -53,7 +53,8 @@ Linearization (4.8, eq. 11; :func:`linearize`): the passes differentiated in for
 directional derivatives of its placement, velocities, accelerations and loads along all ``2 nv`` state directions at
 once (a trailing axis). A q direction ``q_i (+) e`` turns body ``i``'s frame by ``S_w e`` and moves its origin by
 ``S_v e`` (the joint's own motion, in its frame), so ``dP_i = P_i [S_w e]x``; the whole body turns by ``Th_i =
-P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame and the loop forces. With
+P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame, the loop forces and the
+external loads' world vectors (a spring's force also follows its point: :func:`_external_tangents`). With
 ``qdd = vdot`` held fixed the backward pass gives ``dID/dx``, and ``dvdot/dx = -M^-1 dID/dx``, ``dvdot/du = M^-1 B``
 (the KKT system differentiated with constraints, below).
 
@@ -99,8 +100,8 @@ import numpy as np
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported, Split,
-                                  SplitBatch, check_batch, check_state, joint_vectors, state_space)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, joint_vectors, state_space)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -1038,11 +1039,12 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
     return _Tangents(th, dr, Th, o, do, (w, wd, a), V, dw, dwd, da, dV)
 
 
-def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
+def _backward_tangents(model: Model, kin, t: _Tangents, loads=None, couples=None) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
     (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
     ``loads`` (body -> ``[(offset, f, df)]``: a force ``f`` at the body point ``offset``, its moment about the origin
-    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`)."""
+    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`) and the external
+    loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples (:func:`_external_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)
@@ -1061,6 +1063,8 @@ def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.
         for offset, fe, dfe in (loads or {}).get(i, ()):
             f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
             df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
+        for me, dme in (couples or {}).get(i, ()):
+            n[i], dn[i] = n[i] - me, dn[i] - dme
         p = model.parent_index[i]
         if p >= 0:
             fp, dfp = P[i] @ f[i], P[i] @ (df[i] + _cross(t.th[i], f[i]))
@@ -1153,6 +1157,40 @@ def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
     return np.concatenate(rows), loads
 
 
+def _external_tangents(model: Model, kin, t: _Tangents) -> tuple[dict, dict]:
+    """The external loads (``cases.loads``) with their tangents along the directions of ``t``, for
+    :func:`_backward_tangents`: forces body -> ``[(offset, f, df)]`` and couples body -> ``[(m, dm)]``, body frame. A
+    world vector ``x`` is ``W^T x`` there, whose tangent is ``(W^T x) x Th`` (the body turns under it); a body-frame
+    vector is constant; a spring's world force ``F = -k (1 - L0 / |d|) d`` (``d = p - anchor``) changes with the
+    point, ``dF = -k [(1 - L0 / |d|) dd + L0 (d . dd) d / |d|^3]`` with ``dd = dp`` (:func:`_point_tangent`)."""
+    forces, couples = {}, {}
+    W = kin[2]
+    for load in model.loads:
+        i = model.body_index(load.body)
+        offset = np.asarray(load.offset, dtype=float)
+        if isinstance(load, PointSpring):
+            x = _point_tangent(kin, t, i, offset)
+            d, dd = x.p - load.anchor, x.dp
+            length = float(np.sqrt(d @ d))
+            if load.rest_length:
+                F = -load.stiffness * (1.0 - load.rest_length / length) * d
+                dF = -load.stiffness * ((1.0 - load.rest_length / length) * dd
+                                        + load.rest_length * np.outer(d, d @ dd) / length**3)
+            else:
+                F, dF = -load.stiffness * d, -load.stiffness * dd
+            f = W[i].T @ F
+            forces.setdefault(i, []).append((offset, f, _cross(f, t.Th[i]) + W[i].T @ dF))
+            continue
+        world = load.frame == "world"
+        f = W[i].T @ load.force if world else np.asarray(load.force, dtype=float)
+        df = _cross(f, t.Th[i]) if world else np.zeros_like(t.Th[i])
+        forces.setdefault(i, []).append((offset, f, df))
+        if isinstance(load, ExternalWrench):
+            m = W[i].T @ load.moment if world else np.asarray(load.moment, dtype=float)
+            couples.setdefault(i, []).append((m, _cross(m, t.Th[i]) if world else np.zeros_like(t.Th[i])))
+    return forces, couples
+
+
 def linearize(model: Model, q, qd, u) -> Linearization:
     """A and B of eq. (11) (:class:`Linearization`, the tangent-space convention on Lie groups) from the recursion's
     own derivatives: the forward and backward passes differentiated in forward mode along all ``2 nv`` state
@@ -1164,9 +1202,6 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     applied, :func:`_constraint_tangents`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
     accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
     q, qd, u = check_state(model, q, qd, u)
-    if model.loads:
-        raise ModelNotSupported(f"model '{model.name}' has external loads: the Newton–Euler linearization does not "
-                                "differentiate them yet (their q-derivatives through the body rotations)")
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
     L = _cholesky(model, M[..., None], q[:, None])
     tau = model.input_map @ u
@@ -1176,12 +1211,15 @@ def linearize(model: Model, q, qd, u) -> Linearization:
         vdot, lam = (x[:, 0] for x in schur.solve((tau - h)[:, None]))
         t = _forward_tangents(model, kin, qd, vdot)
         dc, loads = _constraint_tangents(model, kin, t, lam)
-        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads))
+        applied, couples = _external_tangents(model, kin, t)
+        for body, entries in applied.items():
+            loads.setdefault(body, []).extend(entries)
+        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads, couples))
         dvdot, dvdot_du = replace(schur, bias=dc).solve(-dG)[0], schur.input_map(model.input_map)
     else:
         vdot = _cho_solve(L, (tau - h)[:, None, None])[:, 0, 0]
         t = _forward_tangents(model, kin, qd, vdot)
-        dID = _joint_torques(model, *_backward_tangents(model, kin, t))
+        dID = _joint_torques(model, *_backward_tangents(model, kin, t, *_external_tangents(model, kin, t)))
         dvdot, dvdot_du = -_cho_solve(L, dID[..., None])[..., 0], _cho_solve(L, model.input_map[..., None])[..., 0]
     return state_space(model, qd, dvdot[:, :model.nv], dvdot[:, model.nv:], dvdot_du, vdot)
 
