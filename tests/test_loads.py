@@ -166,3 +166,36 @@ def test_the_drift_at_rest_carries_the_loads_and_the_50_digit_reference_agrees()
     np.testing.assert_allclose(moving.drift, exact.floats("drift"), rtol=1e-10, atol=1e-10)
     without = reference.split(cases.load("spatial_arm"), state.q, state.qd, state.u)
     assert np.abs(moving.external_force).max() > 1.0 and np.abs(moving.drift - without.drift).max() > 1e-3
+
+
+@pytest.mark.parametrize("name", ["double_pendulum", "four_bar"])
+def test_every_linearization_differentiates_the_loads(name):
+    """A and B of eq. (11) with every kind of load (world vectors turning in the body frames, a spring following its
+    point): each backend's exact derivative against the 50-digit central differences (the reference Pinocchio's fext
+    derivatives cannot give for world-frame loads), with the gate's tolerance."""
+    from crosscheck import linearization, tolerance
+
+    model = _loaded(name)
+    state = sample_states(model, 1, 3, name)[0]
+    backends = default_backends()
+    found, errors, unsupported = linearization.linearizations(model, state, backends)
+    assert not errors and not unsupported and "exact" in found and len(found) == 6
+    at = tolerance.scales([b.split(model, state.q, state.qd, state.u) for b in backends], model, state.q, state.qd,
+                          u=state.u)
+    compared = linearization.compared(model, state, found, unsupported, at)
+    assert {key: c.verdict for key, c in compared.items()} == dict.fromkeys(compared, "agree")
+
+
+def test_pinocchio_linearizes_body_frame_loads_and_declines_world_ones():
+    """Pinocchio's ABA derivatives hold fext fixed in the joint frames: right for body-frame forces and wrenches, which
+    it then linearizes (and agrees with the 50-digit reference); a world-frame force is ModelNotSupported."""
+    from formalisms.interface import ModelNotSupported
+
+    base = cases.load("spatial_arm")
+    body_only = build_model("carried", base.bodies, base.gravity, base.input_map, base.task_points, loads=[
+        cases.ExternalWrench("tool", base.bodies[-1].name, (0.1, 0.2, 0.0), (1.0, -2.0, 0.5), (0.3, 0.0, 0.2), "body")])
+    state = sample_states(body_only, 1, 4, "x")[0]
+    ours, exact = (f.linearize(body_only, state.q, state.qd, state.u) for f in (reference, precise))
+    np.testing.assert_allclose(ours.A, exact.A, rtol=0, atol=1e-9 * np.abs(exact.A).max())
+    with pytest.raises(ModelNotSupported, match="world-frame"):
+        reference.linearize(_loaded("spatial_arm"), state.q, state.qd, state.u)
