@@ -199,3 +199,26 @@ def test_pinocchio_linearizes_body_frame_loads_and_declines_world_ones():
     np.testing.assert_allclose(ours.A, exact.A, rtol=0, atol=1e-9 * np.abs(exact.A).max())
     with pytest.raises(ModelNotSupported, match="world-frame"):
         reference.linearize(_loaded("spatial_arm"), state.q, state.qd, state.u)
+
+
+@pytest.mark.parametrize("name", ["ball_double_pendulum", "four_bar"])
+def test_block_forms_and_batches_carry_the_loads(name):
+    """A backend's block form gives its split bit for bit with loads too (``formalisms.interface.with_block_form``),
+    and its batch the split's accelerations."""
+    import formalisms
+    from formalisms.interface import block_form
+
+    model = _loaded(name)
+    states = sample_states(model, 4, 5, name)
+    Q, QD, U = (np.array([getattr(s, key) for s in states]) for key in ("q", "qd", "u"))
+    for backend in formalisms.names():
+        f = formalisms.get(backend)
+        alone = [f.split(model, s.q, s.qd, s.u) for s in states]
+        many = block_form(f)
+        if many is not None:
+            for one, blocked in zip(alone, many(model, Q, QD, U)):
+                for field in ("drift", "total", "zvcf", "external_force", "joint_wrenches"):
+                    assert np.asarray(getattr(one, field)).tobytes() == np.asarray(getattr(blocked, field)).tobytes()
+        batch = f.split_batch(model, Q, QD, U)
+        for i, one in enumerate(alone):
+            np.testing.assert_allclose(batch.drift[i], one.drift, rtol=1e-12, atol=1e-12 * np.abs(one.drift).max())
