@@ -81,7 +81,7 @@ def test_the_spring_potential():
 # ------------------------------------------------------------------------------------------ the backends
 
 from cases import configuration  # noqa: E402
-from crosscheck import gate, precise, reference  # noqa: E402
+from crosscheck import gate, precise, reference, testing  # noqa: E402
 from crosscheck.faults import default_backends  # noqa: E402
 from crosscheck.sampling import sample_states  # noqa: E402
 
@@ -142,12 +142,19 @@ def test_the_reference_tau_ext_is_the_virtual_work_of_the_loads(name):
 @pytest.mark.parametrize("name", ["spatial_arm", "ball_double_pendulum", "four_bar"])
 def test_every_backend_maps_every_load_and_the_gate_agrees(name):
     """All five backends and Pinocchio, with every kind of load on a 3-D arm, a ball chain and a closed loop: the gate's
-    comparisons (tau_ext, its power, the drift and its part at rest, the joint loads ...) agree at each state."""
+    comparisons (tau_ext, its power, the drift and its part at rest, the joint loads ...) agree at each state, and so
+    do the frame checks in a moved scene (world loads moved with it) and the energy balance with P_ext."""
+    from crosscheck import frames as frame_tools
+
     model = _loaded(name)
     backends = default_backends()
+    frame = frame_tools.sampled(0, name, 1)[0]
+    scene = (frame, frame_tools.move_scene(model, frame))
     for state in sample_states(model, 2, 1, name):
         outcome = gate.evaluate(model, state, backends)
-        assert not outcome.errors, outcome.errors
+        gate.add_checks(model, outcome, backends, [], scene, True)
+        assert not outcome.errors and not outcome.failed, testing.describe_failure(outcome)
+        assert "frame: external_force" in outcome.checks and "conservation: energy rate at drift" in outcome.checks
         assert {"external_force", "power_ext"} <= set(outcome.comparisons)
         compared = outcome.comparisons["external_force"]
         assert compared.verdict == "agree" and len(compared.voters) == 6, compared
