@@ -229,3 +229,16 @@ def test_block_forms_and_batches_carry_the_loads(name):
         batch = f.split_batch(model, Q, QD, U)
         for i, one in enumerate(alone):
             np.testing.assert_allclose(batch.drift[i], one.drift, rtol=1e-12, atol=1e-12 * np.abs(one.drift).max())
+
+
+def test_a_wrong_load_mapping_is_named_and_hinted():
+    """A backend whose tau_ext is wrong (its moment about the body origin with the lever crossed the wrong way round)
+    is the outlier on external_force, and the hint points at the loads' mapping."""
+    from crosscheck import diagnosis, fault_catalog, faults
+
+    model = cases.load("double_pendulum_tip_force")
+    backends = default_backends()
+    with faults.injected(fault_catalog.get("ne-external-moment-shift-sign")):
+        outcome = gate.evaluate(model, sample_states(model, 1, 0, "double_pendulum_tip_force")[0], backends)
+        assert outcome.comparisons["external_force"].outlier == "newton_euler"
+        assert "external loads' mapping" in diagnosis.hint(model, outcome, backends)
