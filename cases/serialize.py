@@ -58,11 +58,13 @@ def model_to_dict(model: Model) -> dict:
         "version": VERSION,
         "name": model.name,
         "bodies": [{"name": b.name, "parent": b.parent, "joint": b.joint, "mass": float(b.mass),
-                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS}} for b in model.bodies],
+                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS},
+                    **({} if b.limits is None else {"limits": list(b.limits)})} for b in model.bodies],
         "gravity": _plain(model.gravity),
         "input_map": _plain(model.input_map),
         "task_points": [{"name": tp.name, "body": tp.body, "offset": _plain(tp.offset),
-                         "directions": _plain(tp.directions)} for tp in model.task_points],
+                         "directions": _plain(tp.directions), **({"choice": tp.choice} if tp.choice else {})}
+                        for tp in model.task_points],
         "constraints": [{"type": type(c).__name__, **{f.name: _plain(getattr(c, f.name))
                                                       for f in dataclasses.fields(c)}} for c in model.constraints],
     }
@@ -74,6 +76,8 @@ def model_to_dict(model: Model) -> dict:
                        "rotation": _plain(model.source.rotation), "translation": _plain(model.source.translation)}
         if model.source.root != "fixed":      # written only when not the default, so older dicts read the same
             d["source"]["root"] = model.source.root
+        if not model.source.gravity:          # likewise: a gravity-free copy (ModelSource.without_gravity)
+            d["source"]["gravity"] = False
     return d
 
 
@@ -122,15 +126,18 @@ def _items(d, key: str, where: str) -> list:
 
 
 def _body(d, where: str) -> Body:
+    limits = _numbers(d, "limits", where) if isinstance(d, dict) and d.get("limits") is not None else None
     return Body(name=_text(d, "name", where), parent=_text(d, "parent", where, optional=True),
                 joint=_text(d, "joint", where), mass=_numbers(d, "mass", where),
-                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS})
+                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS},
+                limits=None if limits is None else tuple(np.atleast_1d(limits).tolist()))
 
 
 def _task_point(d, where: str) -> TaskPoint:
     directions = _get(d, "directions", where)
     return TaskPoint(_text(d, "name", where), _text(d, "body", where), _numbers(d, "offset", where),
-                     None if directions is None else _numbers(d, "directions", where))
+                     None if directions is None else _numbers(d, "directions", where),
+                     (_text(d, "choice", where) if "choice" in d else ""))
 
 
 def _constraint(d, where: str):
@@ -174,7 +181,7 @@ def _source(d: dict) -> ModelSource | None:
         return None
     return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
                        _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"),
-                       _text(value, "root", "source") if "root" in value else "fixed")
+                       _text(value, "root", "source") if "root" in value else "fixed", value.get("gravity", True))
 
 
 def model_from_dict(d: dict) -> Model:

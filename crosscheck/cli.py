@@ -22,13 +22,14 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
+from cases.task import TaskPointError
 from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
-from crosscheck.report import render
+from crosscheck.report import mechanism_figures, render, task_point_lines
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
@@ -118,8 +119,16 @@ def _specs(args) -> list[CaseSpec]:
     if base is not None and not args.model:
         raise UsageError("--base applies to a --model URDF file (fixed: the root link welded to the world; free: a "
                          "free joint added above it)")
-    specs += [CaseSpec(Path(path).stem, path=path, base=base) for path in args.model]
-    return specs
+    actuated = getattr(args, "actuated", None)
+    if actuated is not None and not args.model:
+        raise UsageError("--actuated applies to a --model URDF file (its joint names, e.g. --actuated joint1,joint3); "
+                         "a built-in case has its own input map")
+    actuated = None if actuated is None else tuple(name.strip() for name in actuated.split(","))
+    specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
+    point = getattr(args, "task_point", None)
+    if point is not None and len(specs) != 1:
+        raise UsageError("--task-point needs exactly one --case or --model (a body of that model)")
+    return [dataclasses.replace(spec, task_point=point) for spec in specs]
 
 
 def _backends(selected: list[str] | None):
@@ -131,6 +140,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
     runs, so they are in ``backends.names()``; a worker process loads them from ``backends.plugin_specs()``."""
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+
+
+def add_task_point_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task-point", metavar="BODY[:x,y,z]",
+                        help="the task point: a body's point at offset x,y,z in its frame (m); BODY alone: its centre "
+                        "of mass (an offset point of it if that lies on a joint axis). Default: the model's own")
 
 
 def add_quiet_option(parser: argparse.ArgumentParser) -> None:
@@ -201,7 +216,7 @@ def cmd_gate(args) -> int:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
-                    linearization=not args.no_linearization)
+                    linearization=not args.no_linearization, joint_limits=not args.ignore_limits)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
@@ -214,7 +229,7 @@ def cmd_gate(args) -> int:
         report.write_text(render(result, command, applied))
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    report.write_text(render(result, command, applied))
+    report.write_text(render(result, command, applied, mechanism_figures(result, report)))
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():
@@ -232,6 +247,9 @@ def cmd_gate(args) -> int:
               f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
+    for case in result.cases:
+        for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
+            print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
@@ -399,7 +417,7 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base,
+                                     base=args.base, actuated=args.actuated, task_point=args.task_point,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
@@ -414,6 +432,8 @@ def cmd_eval(args) -> int:
     _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
+    for problem in sampling.outside_limits(model, p) if on_q else ():
+        print(f"crosscheck: warning: {problem}; evaluated there all the same", file=sys.stderr)
     u, tau_p = _inputs(args, model, chart, p)
     chosen = _backends(args.formalism)
     closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too
@@ -744,6 +764,11 @@ def cmd_replay(args) -> int:
         finding = fuzz.find(Path(args.dir), args.id)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
+    missing = [name for name in (args.formalism or finding["backends"]) if name not in backends.names()]
+    if missing:
+        command = fuzz.replay_command(finding["id"], Path(args.dir), fuzz.campaign_plugins(Path(args.dir)))
+        raise UsageError(f"finding {finding['id']} was evaluated with backend(s) {', '.join(missing)}, not loaded "
+                         f"here; run `{command}`")
     outcome = fuzz.replay(finding, args.formalism)
     print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
           f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")
@@ -862,6 +887,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a URDF (.urdf) or MJCF (.xml) file (repeatable)")
     gate.add_argument("--base", choices=("fixed", "free"),
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                      "of u (default: every joint but a free base's)")
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
@@ -873,6 +900,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="skip the comparison of the linearizations A, B (eq. 11) at the first states of each case")
     gate.add_argument("--no-closed-forms", action="store_true",
                       help="leave the article's closed forms (voter closed_form) out of the vote")
+    gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
+                      "(a URDF or MJCF file) declares joint limits (default: within them)")
     gate.add_argument("--no-self-test", action="store_true",
                       help="skip the self-test canaries (known tiny faults the gate must catch)")
     gate.add_argument("--optional", action="append", default=[], metavar="NAME",
@@ -885,6 +914,7 @@ def build_parser() -> argparse.ArgumentParser:
     gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                       help="worker processes running the cases (default: the number of CPUs; 0: in this process; "
                       "one case, or 1, also runs here: a pool of one would only add its start-up)")
+    add_task_point_option(gate)
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -895,6 +925,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--model", metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file instead of --case")
     ev.add_argument("--base", choices=("fixed", "free"),
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    ev.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                    "of u (default: every joint but a free base's)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
                     "--chart world or mixed), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "
@@ -916,6 +948,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--linearize", action="store_true",
                     help="also print each backend's linearization A, B (eq. 11) and the eigenvalues of A, compared")
     ev.add_argument("--json", action="store_true", help="print JSON")
+    add_task_point_option(ev)
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
 
@@ -1034,7 +1067,7 @@ def _main(argv: list[str] | None) -> int:
         backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
-    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
+    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism, TaskPointError,
             backends.PluginError, charts.ChartError, sampling.ProjectionError, preflight.PreflightError,
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)

@@ -165,8 +165,8 @@ def _inertia_about_origin(kw):
 
 
 def _rates_never_sampled(sample):
-    def faulty(model, count, seed, case):
-        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in sample(model, count, seed, case)]
+    def faulty(model, count, seed, case, **options):
+        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in sample(model, count, seed, case, **options)]
     return faulty
 
 

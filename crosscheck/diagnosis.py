@@ -8,6 +8,9 @@ the median of the others, or the spread of all voters when none is named. Per ar
 
 - an error that grows like ``|qd|^2`` and vanishes at qd = 0 is in the velocity-product terms (``C qd``: Coriolis,
   centrifugal, gyroscopic; ``Jcdot qd`` with constraints);
+- one that doubles with qd and vanishes at qd = 0 is a force linear in qd, ``-c qd``: damping or viscous friction,
+  which is no term of the rigid-body equation (a simulator's joint damping left on, a friction model in the
+  dynamics code), not the mass matrix;
 - one independent of qd that vanishes without gravity is in ``g``; one that persists is in the inertia;
 - one in ctrl while the drift agrees is in the input map (``B``, or the solve of ``M^-1 B u``); one in ctrl and in
   the drift or the kinetic energy is in what they share, M (and the constraint projection, eq. 17);
@@ -41,17 +44,24 @@ VANISHED = 1e-3
 #: Ratios read as "unchanged" (independent of qd) and as "grows like |qd|^2" when qd doubles.
 UNCHANGED = (0.8, 1.25)
 QUADRATIC = (3.0, 5.0)
+#: Ratios read as "grows like |qd|" when qd doubles (a force linear in qd).
+LINEAR = (1.6, 2.5)
 
 VELOCITY = "velocity-product terms (Coriolis/centrifugal, gyroscopic, Jcdot qd)"
 GRAVITY = "gravity"
 INERTIA = "inertia / mass matrix"
+DAMPING = ("a force linear in qd, -c qd (damping, viscous friction): no term of M qdd + C qd + g = B u; turn joint "
+           "damping off in the backend's model")
 
 
 def without_gravity(model: Model) -> Model:
-    """The same model with gravity switched off (its external loads kept: only gravity differs)."""
+    """The same model with gravity switched off (its external loads kept: only gravity differs); a file source is kept,
+    marked gravity-free, so that the reference and a plugin that reads the file (``crosscheck.backends``, "What a
+    plugin needs") see the same scene."""
+    source = None if model.source is None else model.source.without_gravity()
     return cases.build_model(f"{model.name} without gravity", model.bodies, gravity=np.zeros(3),
                              input_map=model.input_map, task_points=model.task_points, constraints=model.constraints,
-                             loads=model.loads)
+                             source=source, loads=model.loads)
 
 
 def _value(split: Split, quantity: str) -> np.ndarray | None:
@@ -147,6 +157,8 @@ def _shape(probe: Probe, quantity: str, tol: float) -> tuple[str, str]:
             f"{_times(eg, e1, tol)} without gravity")
     if _vanished(e0, e1, tol) and _between(e2, e1, QUADRATIC):
         return text, VELOCITY
+    if _vanished(e0, e1, tol) and _between(e2, e1, LINEAR):
+        return text, DAMPING
     if _between(e2, e1, UNCHANGED) and _between(e0, e1, UNCHANGED):
         if _vanished(eg, e1, tol):
             return text, GRAVITY

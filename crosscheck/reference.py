@@ -268,7 +268,8 @@ def _parent_frame(frame) -> int:
 def _read_file(source: ModelSource) -> pin.Model:
     """The file's Pinocchio model (``cases.urdf.read_file``: ``buildModelFromUrdf``, with a free-flyer root joint when
     the source's root is "free", or ``buildModelFromMJCF``) placed in the model's world by the source's ``g = (R,
-    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file`` (zero for a source
+    without gravity, ``ModelSource.without_gravity``)."""
     from cases.urdf import read_file
 
     try:
@@ -286,7 +287,7 @@ def _read_file(source: ModelSource) -> pin.Model:
         if _parent_joint(frame) == 0:
             frame.placement = pin.SE3(R @ frame.placement.rotation, R @ frame.placement.translation + t)
             pm.frames[k] = frame
-    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear), np.zeros(3))
+    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear) if source.gravity else np.zeros(3), np.zeros(3))
     return pm
 
 
@@ -460,6 +461,14 @@ def to_pinocchio(model: Model) -> pin.Model:
     return _from_data(model).model
 
 
+def reference_model(model: Model) -> _Compiled:
+    """The Pinocchio model :func:`split` evaluates for ``model`` (built from the file for a model with a source, with
+    the scene's placement and gravity, else from our data) and how our coordinates map onto it: ``order`` (our index
+    of each Pinocchio velocity) and ``configuration(q)``. Shared and cached: read-only (``crosscheck.needs`` copies
+    it for a plugin)."""
+    return _reference(model)
+
+
 def joint_map(model: Model) -> tuple[JointMapRow, ...] | None:
     """How the file-built reference maps our coordinates to the file's joints (module docstring), one row per
     coordinate; None for a model without a file source. A ValueError names what does not map."""
@@ -529,6 +538,20 @@ def task_jacobian(model: Model, q) -> np.ndarray:
     J = np.empty_like(J_p)
     J[:, c.order] = J_p
     return J
+
+
+def body_origins(model: Model, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World positions at ``q`` of every body frame's origin (its joint's origin) and centre of mass (bodies x 3
+    each, in body order) and of the default task point, from the model of our data (:func:`to_pinocchio`): for
+    pictures of the mechanism."""
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.forwardKinematics(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    pin.updateFramePlacements(c.model, data)
+    joints = [c.joint_of[b.name] for b in model.bodies]
+    origins = np.array([data.oMi[j].translation for j in joints])
+    coms = np.array([data.oMi[j].act(c.model.inertias[j].lever) for j in joints])
+    return origins, coms, np.array(data.oMf[c.task_frame].translation)
 
 
 def centroidal_momentum_map(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -8,10 +8,12 @@ Same seed, same report byte for byte, apart from the timing section at the end.
 from __future__ import annotations
 
 import shlex
+from pathlib import Path
 
 import numpy as np
 
-from crosscheck import backends, charts, reference
+from cases import task
+from crosscheck import backends, charts, reference, sampling
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
@@ -194,6 +196,20 @@ def _checks_section(result: GateResult) -> list[str]:
     lines += ["Charts per case: " + "; ".join(charts_used) + ".", ""]
     lines += [f"- frames {line}" for line in frames_used] + [""]
     return lines
+
+
+def _limits_line(result: GateResult) -> list[str]:
+    """How the states of models with joint limits were drawn (none for a run without such a model)."""
+    limited = [(case.spec.name, len(sampling.limited_joints(case.model)), len(case.model.bodies))
+               for case in result.cases if sampling.limited_joints(case.model)]
+    if not limited:
+        return []
+    where = ", ".join(f"{name} {k} of {n} joints" for name, k, n in limited)
+    if result.checks.joint_limits:
+        return [f"- states drawn within the joint limits the models declare ({where}); `--ignore-limits` draws "
+                "them freely"]
+    return [f"- joint limits ignored (`--ignore-limits`): states drawn freely, also where the models declare limits "
+            f"({where})"]
 
 
 def _condition(state: StateOutcome, backend: str, name: str, value: float) -> str:
@@ -407,6 +423,75 @@ def _voters_section(result: GateResult) -> list[str]:
     return (["Voters:", ""] + lines + [""]) if lines else []
 
 
+#: The conditions of a task point (``crosscheck.tolerance.BREAKDOWN_LIMITS``): a BREAKDOWN on them is the task's.
+TASK_CONDITIONS = ("task", "task_jacobian", "task_inertia")
+
+
+def _task_broken(case: CaseOutcome) -> list[StateOutcome]:
+    """The states where some backend was in BREAKDOWN on a task condition."""
+    return [s for s in case.states if any(set(c) & set(TASK_CONDITIONS) for c in s.breakdowns.values())]
+
+
+def _typical(states: list[StateOutcome]) -> StateOutcome:
+    """The first of ``states`` away from the home configuration q = 0 (a stretched chain is singular anyway)."""
+    return next((s for s in states if any(s.state.q)), states[0])
+
+
+def task_point_lines(case: CaseOutcome) -> list[str]:
+    """The task point a case used (name, body, offset, directions) and how it was chosen; when a backend was in
+    BREAKDOWN on a task condition at most states, why, from the model's own point kinematics at such a state
+    (``cases.task.rank_deficiency``: "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")."""
+    tp = case.model.task_point()
+    choice = tp.choice or "declared with the model"
+    lines = [f"- {case.spec.name}: task point `{tp.name}` on body `{tp.body}` at {_vec(tp.offset)} m in its frame, "
+             f"task directions {np.round(tp.directions, 6).tolist()}; {choice}"]
+    broken = _task_broken(case)
+    if broken and len(broken) > len(case.states) / 2:
+        first = _typical(broken)
+        why = task.rank_deficiency(case.model, np.array(first.state.q))
+        worst = max(v for s in broken for c in s.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS)
+        lines.append(f"  - a task condition was in BREAKDOWN at {len(broken)} of {len(case.states)} states (worst "
+                     f"{worst:.3g}); at state #{first.state.index}: " +
+                     (why or "the task Jacobian has full rank there: a near-singular configuration") +
+                     f". Choose another point with `--task-point BODY[:x,y,z]`.")
+    return lines
+
+
+#: At most this many pictures of the mechanism per report.
+MAX_FIGURES = 3
+
+
+def mechanism_figures(result: GateResult, report: Path) -> dict[str, str]:
+    """Stick figures of the mechanism (``crosscheck.plots.stick_figure``) written next to ``report`` where they help:
+    for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN at
+    most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
+    from crosscheck import plots
+
+    chosen = []
+    for case in result.cases:
+        failed = [s for s in case.states if s.failed]
+        broken = _task_broken(case)
+        if failed:
+            chosen.append((case, max(failed, key=lambda s: s.worst_ratio), "worst failing state"))
+        elif len(broken) > len(case.states) / 2:
+            chosen.append((case, _typical(broken), "task condition in BREAKDOWN"))
+    out = {}
+    for case, state, why in chosen[:MAX_FIGURES]:
+        name = f"{report.stem}_{case.spec.name}_state{state.state.index}.png"
+        plots.stick_figure(case.model, np.array(state.state.q), report.parent / name,
+                           f"{case.spec.name}, state #{state.state.index} ({why})")
+        out[case.spec.name] = name
+    return out
+
+
+def figure_lines(figures: dict[str, str]) -> list[str]:
+    """The report's links to the pictures :func:`mechanism_figures` wrote."""
+    if not figures:
+        return []
+    return ["Pictures of the mechanism (joint origins, links, task point; from the reference's forward kinematics):",
+            ""] + [f"- {case}: ![{case}]({name})" for case, name in figures.items()] + [""]
+
+
 def _verdict_line(key: str, comp: Comparison) -> str:
     """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
     disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
@@ -537,9 +622,11 @@ def _self_test_line(result: GateResult) -> str:
     return f"- self-test: {sum(r.passed for r in test.results)} of {len(test.results)} canaries caught and named"
 
 
-def render(result: GateResult, command: str, applied: Applied | None = None) -> str:
+def render(result: GateResult, command: str, applied: Applied | None = None,
+           figures: dict[str, str] | None = None) -> str:
     """The whole report as markdown; ``command`` is the gate command that produced it, ``applied`` the divergence
-    registry as applied to ``result`` (``crosscheck.registry.apply``), if any."""
+    registry as applied to ``result`` (``crosscheck.registry.apply``), if any; ``figures`` the pictures of the
+    mechanism to link (:func:`mechanism_figures`)."""
     verdict = "PARTIAL" if result.interrupted else "PASS" if result.passed else "FAIL"
     n_states = sum(len(c.states) for c in result.cases)
     failed = [(c, s) for c in result.cases for s in c.states if s.failed]
@@ -553,6 +640,7 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
              f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
              f"{broken} state(s) with a backend in BREAKDOWN.", "",
              f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
+             *_limits_line(result),
              _self_test_line(result),
              _registry_line(applied),
              "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
@@ -569,6 +657,8 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
     lines += _counts_rows(result) + [""]
     lines += _suspects_section(result)
     lines += _voters_section(result)
+    lines += ["Task points:", ""] + [line for case in result.cases for line in task_point_lines(case)] + [""]
+    lines += figure_lines(figures or {})
     lines += ["Per quantity:", "",
               "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
               "at state | not supplied by |",

@@ -372,11 +372,12 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
 @st.composite
 def states(draw, model: Model, index: int = 0) -> sampling.State:
     """Admissible states of ``model`` over ``crosscheck.sampling``'s ranges (positions one turn or +-0.5 m, rates,
-    inputs). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
+    inputs), a joint with limits (``Body.limits``: a model from a file; :func:`models` draws none) within them as the
+    gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
     (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
     manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, is rejected (``hypothesis.assume``).
     Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
-    drawn = draw(configurations(model))
+    drawn = sampling.within_limits(model, draw(configurations(model)))
     qd = np.array(draw(st.tuples(*[_values(-sampling.RATE_RANGE, sampling.RATE_RANGE)] * model.n)), dtype=float)
     u = np.array(draw(st.tuples(*[_values(-sampling.INPUT_RANGE, sampling.INPUT_RANGE)] * model.m)), dtype=float)
     q = drawn

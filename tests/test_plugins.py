@@ -188,7 +188,8 @@ def test_moved_scene_and_two_link_chain_are_supported():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ("closed_form_pendulum", "a plugin is given as MODULE:OBJECT (e.g. mypkg.dynamics:BACKEND), got "
+    ("closed_form_pendulum", "a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
+                             "examples/mujoco_plugin.py:MUJOCO), got "
                              "'closed_form_pendulum'"),
     ("no_such_module_abc:X", "plugin 'no_such_module_abc:X': module 'no_such_module_abc' not found"),
     ("raises_on_import:X", "plugin 'raises_on_import:X': importing module 'raises_on_import' failed: "
