@@ -16,6 +16,7 @@ from __future__ import annotations
 from cases import constrained, floating  # noqa: F401 (register the constrained and the Lie-group cases)
 from cases.factories import REGISTRY, CaseError, CaseInfo
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.loads import ExternalForce, ExternalWrench, PointSpring
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
 

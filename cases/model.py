@@ -37,6 +37,8 @@ Frames and conventions
 * A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
   from two prismatic joints and a revolute one. Every joint must still move some mass.
 * ``constraints`` are declarations from :mod:`cases.constraints`; ``Model.k`` counts their rows (``phi`` in R^k).
+* ``loads`` are external load declarations from :mod:`cases.loads` (a force or a wrench on a body at a point, in the
+  world or the body frame; a spring to a world point): the ``tau_ext`` of eq. (12), which every backend maps itself.
 * ``source`` (optional, :class:`ModelSource`) records the file a loaded model was converted from and where the scene
   places that file's world, so that the external reference can read the file itself instead of our conversion of it.
   It is provenance, not physics: :meth:`Model.digest` leaves it out.
@@ -53,6 +55,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from cases import constraints as constraint_decl
+from cases import loads as load_decl
 from cases.validation import as_array, finite, frozen, orthonormal_rows
 
 #: Joint types with their numbers of coordinates and of velocities (nq, nv) (module docstring).
@@ -171,6 +174,7 @@ class Model:
     parent_index: tuple[int, ...] = ()
     topological_order: tuple[int, ...] = ()
     source: ModelSource | None = None
+    loads: tuple = ()
 
     @property
     def n(self) -> int:
@@ -273,6 +277,8 @@ class Model:
                 h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
         for c in self.constraints:
             h.update(constraint_decl.digest_bytes(c))
+        for load in self.loads:       # nothing for a model without loads: its digest is what it was before loads
+            h.update(b"load:" + load_decl.digest_bytes(load))
         return h.hexdigest()
 
     def __hash__(self) -> int:
@@ -480,7 +486,7 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
                 task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = (),
-                source: ModelSource | None = None) -> Model:
+                source: ModelSource | None = None, loads: Iterable = ()) -> Model:
     """Validate the description and return an immutable :class:`Model`.
 
     Every violated precondition is collected and reported together in one :class:`ModelError`.
@@ -488,6 +494,7 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     lies on a joint axis, an offset point of it, with the task directions it moves in (``cases.task.choose``: a planar
     chain's plane), so that its task Jacobian has full row rank away from singular configurations.
     ``source``: the file the description was converted from (:class:`ModelSource`; loaders set it).
+    ``loads``: external load declarations (:mod:`cases.loads`), validated like the constraints.
     """
     bodies = list(bodies)
     problems: list[str] = []
@@ -519,13 +526,17 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if len(set(declared)) < len(declared):
         problems.append(f"constraint names repeat: {declared}; give each constraint its own name")
     source = _validate_source(problems, source)
+    loads = tuple(load_decl.validate(problems, load, names) for load in loads)
+    load_names = [load.name for load in loads if load is not None]
+    if len(set(load_names)) < len(load_names):
+        problems.append(f"load names repeat: {load_names}; give each load its own name")
     if problems:
         raise ModelError(name, problems)
     B = B.copy()
     B.setflags(write=False)
     model = Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
                   task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
-                  source=source)
+                  source=source, loads=loads)
     if default:
         from cases.task import default_task_point  # cases.task builds on this module
 

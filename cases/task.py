@@ -266,7 +266,8 @@ def with_task_point(model: Model, body: str, offset=None, directions=None) -> Mo
     others = [t for t in model.task_points if t.name != tp.name]
     try:
         return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
-                           task_points=[tp, *others], constraints=model.constraints, source=model.source)
+                           task_points=[tp, *others], constraints=model.constraints, source=model.source,
+                           loads=model.loads)
     except ModelError as exc:
         raise TaskPointError(f"--task-point {body}: {'; '.join(exc.problems)}") from None
 

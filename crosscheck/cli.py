@@ -494,6 +494,8 @@ def cmd_eval(args) -> int:
         if model.constraints:
             keys += ("lam", "lam_drift", "constraint_force", "power_constr", "power_constr_per_coord",
                      "constraint_rank")
+        if model.loads:                   # the external loads' generalized force tau_ext and its power
+            keys += ("external_force", "power_ext")
         for key in keys:
             print(f"  {key:22s} {values[key]}")
     for name, reason in unsupported.items():
@@ -829,6 +831,7 @@ def cmd_fuzz(args) -> int:
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
+                          loads=fuzz.CONSTRAINT_CHOICES[args.loads],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation,
                           linearization=not args.no_linearization, **bound)
@@ -1127,6 +1130,8 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
     fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
                     help="constrained models (default sometimes)")
+    fz.add_argument("--loads", choices=["never", "sometimes", "always"], default="sometimes",
+                    help="models with external loads: forces, wrenches, springs (default sometimes)")
     fz.add_argument("--joints", choices=["all", "scalar"], default="all",
                     help="joint types drawn: all (revolute, prismatic, spherical, free; default) or scalar (revolute "
                          "and prismatic only)")

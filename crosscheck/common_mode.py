@@ -213,6 +213,14 @@ def _scaled(factor: float):
     return lambda f: lambda *args, **kw: factor * f(*args, **kw)
 
 
+def _world_loads_validated_as_body(validate):
+    """``cases.loads.validate`` returning a world-frame force or wrench as a body-frame one."""
+    def faulty(problems, load, bodies):
+        out = validate(problems, load, bodies)
+        return dataclasses.replace(out, frame="body") if out is not None and getattr(out, "frame", "") == "world" else out
+    return faulty
+
+
 CATALOG: list[SharedFault] = [
     SharedFault("urdf-joint-rotation-transposed", "URDF conversion",
                 "The URDF loader stores each joint placement's rotation transposed (parent <- child read as child "
@@ -306,6 +314,20 @@ CATALOG: list[SharedFault] = [
                  "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
                  "crosscheck.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
                 "the closed forms, the conditions audit and the exact H_t residual"),
+    SharedFault("loads-world-force-validated-as-body", "load declarations",
+                "An external force or wrench declared in the world frame is validated into a body-frame one (its "
+                "vector then turns with the body).",
+                ("cases.loads:validate",), _world_loads_validated_as_body,
+                "the closed forms (double_pendulum_tip_force)"),
+    SharedFault("frames-loads-not-moved", "frames",
+                "A moved scene keeps the external loads' world data (force directions, spring anchors) as they were "
+                "instead of moving them with the scene.",
+                ("crosscheck.frames:move_load",), lambda f: lambda load, frame: load, "the frame checks"),
+    SharedFault("conservation-external-power-dropped", "conservation",
+                "The energy balance leaves the external loads' power out: dE/dt is checked against P_ctrl alone "
+                "(against 0 under the drift), as if only gravity and the inputs acted.",
+                ("crosscheck.conservation:_external_power",), lambda f: lambda model, split: 0.0,
+                "the energy-rate conservation checks"),
     SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
                 "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
                 "on the left) instead of dv - ad_v dq, on ball and free joints.",

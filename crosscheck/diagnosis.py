@@ -55,12 +55,13 @@ DAMPING = ("a force linear in qd, -c qd (damping, viscous friction): no term of 
 
 
 def without_gravity(model: Model) -> Model:
-    """The same model with gravity switched off; a file source is kept, marked gravity-free, so that the reference
-    and a plugin that reads the file (``crosscheck.backends``, "What a plugin needs") see the same scene."""
+    """The same model with gravity switched off (its external loads kept: only gravity differs); a file source is kept,
+    marked gravity-free, so that the reference and a plugin that reads the file (``crosscheck.backends``, "What a
+    plugin needs") see the same scene."""
     source = None if model.source is None else model.source.without_gravity()
     return cases.build_model(f"{model.name} without gravity", model.bodies, gravity=np.zeros(3),
                              input_map=model.input_map, task_points=model.task_points, constraints=model.constraints,
-                             source=source)
+                             source=source, loads=model.loads)
 
 
 def _value(split: Split, quantity: str) -> np.ndarray | None:
@@ -230,6 +231,10 @@ def hint(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> 
             return f"{where}; {who}'s {first} is {k:.3g} times the others': a sign or scale convention"
         text, cause = _shape(probe, first, tol[first])
         return f"{where} (phi, Jc, Jcdot qd); {subject} {first} {text}: {cause}"
+    if "external_force" in failing:
+        return (f"{subject} tau_ext itself is off ({names}): the external loads' mapping (cases.loads): the frame of "
+                "a force or couple (world or body), its point or lever (the moment about the body origin), a spring's "
+                "force")
     if "ctrl" in failing:
         k = proportion(outcome.voters("ctrl"), "ctrl", who, tol["ctrl"])
         scaled = f"; {who}'s ctrl is {k:.3g} times the others'" if k is not None else ""
@@ -264,7 +269,8 @@ ALONE = {"power_ctrl": "the input power u . B^T qd (the input map in the power)"
          "kinetic_energy": "the kinetic energy bookkeeping (M, or the body twists)",
          "joint_wrenches": LOADS,
          "joint_wrenches_drift": LOADS,
-         "task_inertia": "the task-space inertia: J, or the inverse of J M^-1 J^T (eq. 22)"}
+         "task_inertia": "the task-space inertia: J, or the inverse of J M^-1 J^T (eq. 22)",
+         "power_ext": "the external loads' power tau_ext . qd"}
 
 
 #: Failing states per run that get a hint (the report lists the same first ones in detail).

@@ -104,7 +104,7 @@ POLL = 0.1
 #: Seconds a chunk's result may take to arrive after its worker exited before the worker counts as lost.
 LOST_AFTER = 2.0
 #: The parameters that make two runs parts of one campaign (merge and resume require them equal).
-IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "group_joints", "backends",
+IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "loads", "group_joints", "backends",
             "plugins", "shrink_calls", "charts", "frames", "conservation", "linearization")
 
 
@@ -119,7 +119,8 @@ class FuzzConfig:
     ``chunk_examples``), else ``minutes`` does; ``workers`` 0 runs in this process (tests, debugging).
     ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones.
     ``group_joints``: the drawn trees may have spherical joints, and free joints on bodies hung from the world
-    (``crosscheck.testing.models(group=True)``). ``charts``,
+    (``crosscheck.testing.models(group=True)``). ``loads``: the drawn models carry external loads (``cases.loads``):
+    False never, True always, None sometimes (``crosscheck.testing.models(loads=...)``). ``charts``,
     ``frames`` and ``conservation`` turn the gate's checks on or off (the chart and frame are drawn either way)."""
 
     seed: int = 0
@@ -134,6 +135,7 @@ class FuzzConfig:
     max_bodies: int = 4
     max_states: int = 4
     constraints: bool | None = None
+    loads: bool | None = None
     group_joints: bool = True
     shrink_calls: int = SHRINK_CALLS
     charts: bool = True
@@ -444,7 +446,8 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
     @given(st.data())
     def backends_agree(data):
         _INTERRUPTS.poll()
-        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints), label="model")
+        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints, loads=cfg.loads),
+                          label="model")
         count = data.draw(st.integers(1, cfg.max_states), label="number of states")
         states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
         chart_spec = data.draw(testing.chart_specs(model), label="chart (name, seed)")

@@ -110,8 +110,18 @@ class PinocchioScene:
         return M
 
 
+def _no_loads(model: Model, plugin: str, need: str) -> None:
+    """ModelNotSupported for a model with external loads (``cases.loads``): a file or a Pinocchio model does not carry
+    them, so a plugin that reads one would answer without them (NOT COMPARED, not a false DISAGREE)."""
+    if model.loads:
+        raise ModelNotSupported(f"plugin '{plugin}' needs {need} (needs = \"{need}\"), which does not carry model "
+                                f"'{model.name}''s external loads ({', '.join(x.name for x in model.loads)}); "
+                                "give the plugin needs = \"model\" to read them from crosscheck's Model.loads")
+
+
 def source_scene(model: Model, plugin: str) -> SourceScene:
     """The :class:`SourceScene` of ``model``; ModelNotSupported for a model without a file."""
+    _no_loads(model, plugin, "source")
     src = model.source
     if src is None:
         raise ModelNotSupported(f"plugin '{plugin}' needs the model's source file (needs = \"source\"), and model "
@@ -133,6 +143,7 @@ def pinocchio_scene(model: Model, plugin: str) -> PinocchioScene:
 
     from crosscheck.reference import reference_model
 
+    _no_loads(model, plugin, "pinocchio")
     c = reference_model(model)
     key = (plugin, model.digest(), None if model.source is None else model.source.key())
     with _LOCK:

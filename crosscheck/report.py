@@ -252,6 +252,31 @@ def _coordinates(model, per_coord: np.ndarray, sign: float) -> str:
     return ", ".join(picked[:2]) or "-"
 
 
+def _external_power(result: GateResult) -> list[str]:
+    """The external loads' power beside the input's (article 2.3, 5.5; ``cases.loads``): per case with loads, the
+    largest ``|tau_ext . qd|`` and ``|u . B^T qd|`` over the states (medians over the backends that report them)."""
+    rows = []
+    for case in result.cases:
+        if not case.model.loads:
+            continue
+        sizes = []
+        for state in case.states:
+            voters = state.voters("power_ext")
+            if voters:
+                sizes.append((float(np.median([abs(s.power_ext) for s in voters.values()])),
+                              float(np.median([abs(s.power_ctrl) for s in voters.values()]))))
+        if sizes:
+            rows.append(f"| {case.spec.name} | {len(case.model.loads)} | {len(sizes)} | "
+                        f"{max(e for e, _ in sizes):.4g} | {max(c for _, c in sizes):.4g} |")
+    if not rows:
+        return []
+    return ["## External load power (article 2.3)", "",
+            "The external loads' generalized force `tau_ext` (compared above as external_force) does work `P_ext = "
+            "tau_ext . qd` beside the input's `P_ctrl = u . B^T qd` (compared as power_ext; the energy balance checks "
+            "`dE/dt = P_ctrl + P_ext`). Largest magnitudes over the states, medians over the backends.", "",
+            "| case | loads | states | max abs P_ext (W) | max abs P_ctrl (W) |", "|---|---|---|---|---|", *rows, ""]
+
+
 def _power_audit(result: GateResult) -> list[str]:
     """Section 5.5: the constraint power is zero in total but moves energy between coordinates."""
     rows = []
@@ -845,6 +870,7 @@ def details(result: GateResult, command: str, applied: Applied | None = None, su
     lines += _breakdown_section(result)
     lines += _checks_section(result)
     lines += _power_audit(result)
+    lines += _external_power(result)
     lines += _drift_parts_section(result)
     lines += _worst_states_section(result)
     lines += _timing_section(result)
