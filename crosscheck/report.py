@@ -835,9 +835,8 @@ def summary(result: GateResult, command: str, applied: Applied | None = None, de
     lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
     lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
     lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
-              "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, the "
-              "drift's parts, "
-              "worst state per case, timing, tolerance policy", ""]
+              "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, "
+              "the drift's parts, worst state per case, timing, tolerance policy", ""]
     lines += figure_lines(figures or {})
     lines += _case_table(result)
     return "\n".join(lines) + "\n"
