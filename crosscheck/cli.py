@@ -80,8 +80,8 @@ def _vector(text: str, label: str) -> list[float]:
 
 #: Largest seed: numpy's and Hypothesis' generators take any non-negative integer; 2^63 - 1 keeps it one int64.
 MAX_SEED = 2**63 - 1
-#: Worker processes per CPU at most (``--workers`` of gate, fuzz, faults, trajectory): each holds the backends, Pinocchio
-#: and the models' compiled code (hundreds of MB), and more processes than CPUs only share them.
+#: Worker processes per CPU at most (``--workers`` of gate, fuzz, faults, trajectory): each holds the backends,
+#: Pinocchio and the models' compiled code (hundreds of MB), and more processes than CPUs only share them.
 WORKERS_PER_CPU = 2
 
 
