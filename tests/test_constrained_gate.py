@@ -183,8 +183,8 @@ def test_a_constraint_row_that_vanishes_identically_is_dropped_by_every_backend(
     for q in ([0.0, 0.0, 1.0], [0.4, -0.2, 2.0]):
         outcome = evaluate(model, State(0, tuple(q), (0.5, 1.0, -2.0), (1.0, 2.0, 3.0)), chosen)
         assert not outcome.failed, {k: c.worst_ratio for k, c in outcome.comparisons.items()}
-        trusted = outcome.trusted           # operational space is in task BREAKDOWN: its task point is on the axes
-        assert len(trusted) == 5 and all(s.constraint_rank == 0 and np.all(s.lam == 0.0) for s in trusted.values())
+        trusted = outcome.trusted           # the five backends and Pinocchio: the default task point is off the axes
+        assert len(trusted) == 6 and all(s.constraint_rank == 0 and np.all(s.lam == 0.0) for s in trusted.values())
 
 
 def test_multipliers_of_a_short_constraint_row_carry_its_rounding():
