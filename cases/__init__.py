@@ -13,9 +13,11 @@ package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do,
 
 from __future__ import annotations
 
-from cases import constrained, floating  # noqa: F401 (register the constrained and the Lie-group cases)
+from cases import constrained, floating, nonholonomic  # noqa: F401 (register the constrained, Lie-group and
+#                                                            nonholonomic cases)
 from cases.factories import REGISTRY, CaseError, CaseInfo
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
 
@@ -101,7 +103,7 @@ def parameters(name: str, **params) -> dict:
     return {**info.parameters, **kwargs}
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "Model", "ModelError", "PointOnCircle", "PointOnLine",
-           "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_file",
+__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
+           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_file",
            "from_urdf", "load",
            "names", "parameters"]

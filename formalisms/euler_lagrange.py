@@ -208,7 +208,7 @@ import numpy as np
 import scipy.linalg
 import symengine as sp
 
-from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity, RollingContact
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, cache_dir, chart_vectors, check_batch, check_state, state_space,
@@ -572,10 +572,11 @@ def _point(model: Model, st: _Staged, poses, body: str, offset) -> sp.DenseMatri
     return (p + R * _matrix(offset)).applyfunc(st.name)
 
 
-def _constraint_rows(model: Model, st: _Staged, poses) -> list:
-    """``phi(p)``, the rows of every declaration in order, exactly as :mod:`cases.constraints` fixes them."""
+def _constraint_rows(model: Model, st: _Staged, poses, declarations=None) -> list:
+    """``phi(p)``, the rows of every (holonomic) declaration in order (``declarations``, default the model's), exactly
+    as :mod:`cases.constraints` fixes them."""
     rows: list = []
-    for c in model.constraints:
+    for c in (model.constraints if declarations is None else declarations):
         if isinstance(c, PointOnCircle):
             d = _matrix(c.plane) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.center))
             rows.append((d.T * d)[0] - _exact(c.radius**2))
@@ -591,13 +592,56 @@ def _constraint_rows(model: Model, st: _Staged, poses) -> list:
     return rows
 
 
+def _angular_velocity(st: _Staged, R: sp.DenseMatrix) -> sp.DenseMatrix:
+    """The world angular velocity ``w`` of a body of world rotation ``R``: ``[w]x = Rdot R^T`` (staged ``dt``)."""
+    W = R.applyfunc(st.dt) * R.T
+    return sp.DenseMatrix([st.name(W[2, 1]), st.name(W[0, 2]), st.name(W[1, 0])])
+
+
+def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
+    """The velocity rows ``A(p) pd`` of a Pfaffian declaration exactly as :mod:`cases.constraints` fixes them, from the
+    staged time derivatives of this backend's own poses: a point's velocity ``dt(p)``, a body's angular velocity from
+    ``Rdot R^T``. For a rolling contact the material point at the contact ``p_c = c - r u`` moves with ``dt(c) + w x
+    (p_c - c)``; ``Jc`` and ``Jcdot pd`` then follow by differentiating the rows (:func:`_constraints`)."""
+    R, _ = poses[model.body_index(c.body)]
+    if isinstance(c, PointVelocity):
+        return list(_matrix(c.directions) * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))
+    if isinstance(c, KnifeEdge):
+        e = R * _matrix(c.direction)
+        return [(e.T * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))[0]]
+    # RollingContact
+    n = _matrix(np.cross(c.plane[0], c.plane[1]))
+    a = (R * _matrix(c.axis)).applyfunc(st.name)
+    raw = (n - (n.T * a)[0] * a).applyfunc(st.name)
+    length = st.name(sp.sqrt((raw.T * raw)[0]))
+    e = (raw * (-_exact(c.radius) / length)).applyfunc(st.name)
+    w = _angular_velocity(st, R)
+    velocity = _point(model, st, poses, c.body, c.center).applyfunc(st.dt) + _skew(w) * e
+    return list(_matrix(c.plane) * velocity)
+
+
 def _constraints(model: Model, st: _Staged, poses) -> tuple[list, list, list]:
     """``phi``, ``Jc = dphi/dp`` (rows) and ``Jcdot pd = d^2 phi / dt^2`` at ``pdd = 0`` (eqs. 13, 16; module
-    docstring, step 4), the last as the staged second time derivative of each row (:meth:`_Staged.dt`)."""
+    docstring, step 4), the last as the staged second time derivative of each row (:meth:`_Staged.dt`). A Pfaffian
+    declaration's rows are velocity rows ``a = A(p) pd`` (:func:`_pfaffian_rows`): ``phi = 0``, ``A = da/dpd`` and
+    ``Adot pd = dt(a)`` (the rates held: ``pdd = 0``)."""
     n = model.n
-    phi = [st.name(e) for e in _constraint_rows(model, st, poses)]
-    Jc = [[st.name(st.diff(e, j)) for j in range(n)] for e in phi]
-    bias = [st.dt(st.dt(e)) for e in phi]
+    holonomic = [c for c in model.constraints if c.holonomic]
+    phi_rows = iter(st.name(e) for e in _constraint_rows(model, st, poses, holonomic))
+    phi, Jc, bias = [], [], []
+    for c in model.constraints:
+        if c.holonomic:
+            for _ in range(c.size):
+                e = next(phi_rows)
+                phi.append(e)
+                Jc.append([st.name(st.diff(e, j)) for j in range(n)])
+                bias.append(st.dt(st.dt(e)))
+            continue
+        for a in _pfaffian_rows(model, st, poses, c):
+            a = st.name(a)
+            phi.append(ZERO)
+            Jc.append([st.name(st.diff(a, n + j)) for j in range(n)])
+            bias.append(st.dt(a))
     return phi, Jc, bias
 
 
@@ -2135,11 +2179,19 @@ def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None
     return vdot, dF[:, :n], dF[:, n:2 * n], dF[:, 2 * n:]
 
 
+def _refuse_pfaffian_linearization(model: Model) -> None:
+    """ModelNotSupported for a model with Pfaffian rows: this linearization differentiates holonomic rows only."""
+    if model.pfaffian_rows.any():
+        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the Euler–Lagrange linearization "
+                                "differentiates holonomic rows only")
+
+
 def linearize(model: Model, q, qd, u) -> Linearization:
     """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`, x = (q, v) with the right perturbation on
     group joints) from this derivation's own exact derivatives (module docstring, "Linearization"): the differentiated
     KKT system of the joint chart (:func:`_differentiated`, input map B: ``dvdot/du = B_c B``, eq. 17) and, for
     spherical and free joints, the chain rule from the local chart to the contract's convention (:func:`_tangent`)."""
+    _refuse_pfaffian_linearization(model)
     q, qd, u = check_state(model, q, qd, u)
     vdot, F_x, F_xd, F_u = _differentiated(model, q, qd, model.input_map @ u, model.input_map)
     return state_space(model, qd, _tangent(model, F_x, F_xd, vdot, qd), F_xd, F_u, vdot)
@@ -2158,6 +2210,7 @@ def linearize_chart(model: Model, chart: Chart, p, pd, tau_p) -> Linearization:
     if chart_key(model, chart) == JOINT_CHART and model.group_joints:
         raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
                                                   "entries, v of nv) is linearize's"))
+    _refuse_pfaffian_linearization(model)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     n = model.n
     pdd, F_x, F_xd, F_u = _differentiated(model, p, pd, tau_p, np.eye(n), chart)

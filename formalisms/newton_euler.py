@@ -88,10 +88,11 @@ from typing import Callable
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.model import JOINT_DOF, Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
-                                  check_batch, check_state, joint_vectors, state_space)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported, Split,
+                                  SplitBatch, check_batch, check_state, joint_vectors, state_space)
 
 #: States per block of ``split_batch`` (bounds the memory of the passes: a peak near 20 MB on panda).
 BLOCK = 2048
@@ -548,19 +549,96 @@ def _coupling(model: Model, c, point, q, qd) -> _Rows:
                  np.zeros((1,) + batch))
 
 
+# Pfaffian rows (``cases.constraints``: ``A(q) qd = 0``, no phi; reported phi = 0): ``A`` and ``Adot qd`` from the
+# recursion's point kinematics and the body's angular velocity ``w = W w_body`` of the forward pass at ``qdd = 0``,
+# its angular Jacobian ``W wd`` of the unit motions and its bias angular acceleration ``W wd`` at ``qdd = 0``.
+
+@dataclass(frozen=True)
+class _Spin:
+    """A body's world rotation ``W`` (3, 3, *B), angular velocity ``w`` (3, *B), angular Jacobian ``Jw`` (3, n, *B)
+    and bias angular acceleration ``wd`` (``Jw_dot qd``, 3, *B), all world frame."""
+
+    W: np.ndarray
+    w: np.ndarray
+    Jw: np.ndarray
+    wd: np.ndarray
+
+
+def _spin(model: Model, kin, units, bias_motion, body: str) -> _Spin:
+    """The angular kinematics of ``body`` (:class:`_Spin`) from the unit motions and the forward pass at qdd = 0."""
+    i, W = model.body_index(body), kin[2][model.body_index(body)]
+    batch = kin[1][0].shape[1:]
+    Jw = np.zeros((3, model.nv) + batch)
+    Jw[:, _paths(model)[i]] = _mv(_over_motions(W, 2), units[0][i])
+    return _Spin(W, _mv(W, bias_motion[0][i]), Jw, _mv(W, bias_motion[1][i]))
+
+
+def _zero_phi(rows: int, batch: tuple) -> np.ndarray:
+    """The reported ``phi`` of Pfaffian rows: 0 (they have no position-level function)."""
+    return np.zeros((rows,) + batch)
+
+
+def _point_velocity(model: Model, c, point, spin, q, qd) -> _Rows:
+    """PointVelocity: ``A = D J``, ``Adot qd = D a`` (D world-fixed); the force ``D^T lam`` at the point."""
+    x = point(c.body, c.offset)
+    D = c.directions
+    return _Rows(_zero_phi(len(D), x.p.shape[1:]), _cmv(D, x.J), _cmv(D, x.a), ((x.body, x.offset, D.T),))
+
+
+def _knife_edge(model: Model, c, point, spin, q, qd) -> _Rows:
+    """KnifeEdge: ``e = W d`` turns with the body, so ``A = e^T J``, ``Adot qd = (w x e) . v + e . a`` with ``v = J
+    qd`` the point's velocity; the force ``e lam`` at the point (one state)."""
+    x, s = point(c.body, c.offset), spin(c.body)
+    e = _mv(s.W, c.direction)
+    v = (x.J * qd[None]).sum(axis=1)
+    bias = _dot(_cross(s.w, e), v) + _dot(e, x.a)
+    return _Rows(_zero_phi(1, x.p.shape[1:]), _dot(e[:, None], x.J)[None], bias[None],
+                 ((x.body, x.offset, e[:, None]),))
+
+
+def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
+    """RollingContact: with ``a = W axis``, ``u = (n - (n.a) a) / |.|``, the contact ``p_c = c - r u`` and ``e = p_c
+    - c``, the material point at the contact moves with ``v_c + w x e``: ``A = T (J_c + Jw x e)`` (column by
+    column). Its time derivative at ``qdd = 0`` is ``T (a_c + wd x e + w x edot)`` with ``edot = -r udot``, ``udot =
+    (I - u u^T) wdot / |.|``, ``wdot = -(n.adot) a - (n.a) adot``, ``adot = w x a``: the contact point slides over
+    the disk, so it is not the body-fixed point's ``w x (w x e)``. The force ``T^T lam`` at the contact (one
+    state: its body-frame offset ``W^T (p_c - o)``)."""
+    x, s = point(c.body, c.center), spin(c.body)
+    batch = x.p.shape[1:]
+    n, T, r = _column(np.cross(c.plane[0], c.plane[1]), batch), c.plane, c.radius
+    a = _mv(s.W, c.axis)
+    w_raw = n - _dot(n, a) * a
+    length = np.sqrt(_dot(w_raw, w_raw))
+    u = w_raw / length
+    e = -r * u
+    a_dot = _cross(s.w, a)
+    w_dot = -_dot(n, a_dot) * a - _dot(n, a) * a_dot
+    u_dot = (w_dot - _dot(u, w_dot) * u) / length
+    J = x.J + _cross(s.Jw, e[:, None])
+    acc = x.a + _cross(s.wd, e) + _cross(s.w, -r * u_dot)
+    loads = () if batch else ((x.body, c.center + s.W.T @ e, T.T),)     # p_c - o = W center + e
+    return _Rows(_zero_phi(2, batch), _cmv(T, J), _cmv(T, acc), loads)
+
+
 #: The rows of each declaration of ``cases.constraints``, by its type.
 _DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+#: The Pfaffian declarations' rows (they also read the body's angular kinematics).
+_PFAFFIAN = {PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def _constraint_rows(model: Model, kin, units, bias_motion, q: np.ndarray, qd: np.ndarray) -> list[_Rows]:
     """The rows of every declaration, in model order."""
     point = _point_kinematics(model, kin, units, bias_motion)
+    spin = (lambda body: _spin(model, kin, units, bias_motion, body))  # noqa: E731
     rows = []
     for c in model.constraints:
+        if type(c) in _PFAFFIAN:
+            rows.append(_PFAFFIAN[type(c)](model, c, point, spin, q, qd))
+            continue
         if type(c) not in _DECLARATIONS:
             raise TypeError(f"model '{model.name}': the Newton–Euler backend does not know the constraint "
                             f"declaration {c!r} of type {type(c).__name__}; "
-                            f"known: {[t.__name__ for t in _DECLARATIONS]}")
+                            f"known: {[t.__name__ for t in (*_DECLARATIONS, *_PFAFFIAN)]}")
         rows.append(_DECLARATIONS[type(c)](model, c, point, q, qd))
     return rows
 
@@ -1103,6 +1181,9 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     applied, :func:`_constraint_tangents`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
     accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
     q, qd, u = check_state(model, q, qd, u)
+    if model.pfaffian_rows.any():
+        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the Newton–Euler linearization "
+                                "differentiates holonomic rows only")
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
     L = _cholesky(model, M[..., None], q[:, None])
     tau = model.input_map @ u

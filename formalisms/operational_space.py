@@ -146,10 +146,11 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
-                                  check_batch, check_state, state_space, with_block_form)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported, Split,
+                                  SplitBatch, check_batch, check_state, state_space, with_block_form)
 
 
 @dataclass(frozen=True)
@@ -729,8 +730,57 @@ def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     return _vm(q, position[:, None]) - c.offset, np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
+def _pfaffian_point(model: Model, kin: Kinematics, body: str, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J_v`` (..., 3, n) and the classical bias (..., 3) of the material point of ``body`` at world ``p`` (..., 3)."""
+    i = np.array([model.body_index(body)])
+    p = p[..., None, :]
+    Jv = _linear_columns(kin.z, kin.column_origin, kin.revolute, kin.moves[i], p)
+    return Jv[..., 0, :, :], point_bias(kin, i, p, point_velocity(kin, i, p))[..., 0, :]
+
+
+def _point_velocity(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PointVelocity (Pfaffian, phi reported 0): ``A = D J_v``, ``Adot qd = D Jdot_v qd``."""
+    _, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    D = c.directions
+    return np.zeros(q.shape[:-1] + (len(D),)), D @ Jv, _vm(bias, D.T)
+
+
+def _knife_edge(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KnifeEdge (Pfaffian, phi 0): ``e = R d``, ``A = e^T J_v``, ``Adot qd = (w x e) . (J_v qd) + e . Jdot_v qd``."""
+    i = model.body_index(c.body)
+    _, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    e = _mv(kin.R[..., i, :, :], c.direction)
+    pdot = _mv(Jv, kin.qd)
+    rate = np.sum(_cross(kin.w[..., i, :], e) * pdot + e * bias, axis=-1, keepdims=True)
+    return np.zeros(q.shape[:-1] + (1,)), e[..., None, :] @ Jv, rate
+
+
+def _rolling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RollingContact (Pfaffian, phi 0): the contact ``p_c = c - r u`` (``cases.constraints``), ``e = p_c - c``;
+    ``A = T J_v(p_c)`` (the material point there) and ``Adot qd = T (a_c + w_bias x e + w x edot)`` from the centre's
+    classical bias ``a_c``, the body's ``Jdot_w qd`` and ``edot = -r udot`` (``udot`` from ``adot = w x a``): the
+    contact point slides over the disk."""
+    i = model.body_index(c.body)
+    center, _, a_center = _point_kinematics(model, kin, c.body, c.center)
+    w = kin.w[..., i, :]
+    a = _mv(kin.R[..., i, :, :], c.axis)
+    n = np.cross(c.plane[0], c.plane[1])
+    dot = (lambda x, y: np.sum(x * y, axis=-1, keepdims=True))  # noqa: E731
+    raw = n - dot(n, a) * a
+    length = np.sqrt(dot(raw, raw))
+    u = raw / length
+    e = -c.radius * u
+    a_dot = _cross(w, a)
+    raw_dot = -dot(n, a_dot) * a - dot(n, a) * a_dot
+    e_dot = -c.radius * (raw_dot - dot(u, raw_dot) * u) / length
+    Jv, _ = _pfaffian_point(model, kin, c.body, center + e)
+    rate = a_center + _cross(kin.w_bias[..., i, :], e) + _cross(w, e_dot)
+    return np.zeros(q.shape[:-1] + (2,)), c.plane @ Jv, _vm(rate, c.plane.T)
+
+
 #: The rows of each declaration of ``cases.constraints``, by its type.
-_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling,
+                 PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1086,6 +1136,9 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     and the differentiated KKT system per direction, ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [-dh - dM vdot + dJc^T
     lam; -dJc vdot - d(Jcdot qd)]``; ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained)."""
     q, qd, u = check_state(model, q, qd, u)
+    if model.pfaffian_rows.any():
+        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the operational-space "
+                                "linearization differentiates holonomic rows only")
     nv = model.nv
     q_dual = _Dual(q, np.vstack([_configuration_tangents(model, q), np.zeros((nv, model.nq))]))
     kin = _kinematics(model, q_dual, _Dual(qd, np.vstack([np.zeros((nv, nv)), np.eye(nv)])))

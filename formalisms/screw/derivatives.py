@@ -48,7 +48,7 @@ import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import Model
-from formalisms.interface import Linearization, check_state, state_space
+from formalisms.interface import Linearization, ModelNotSupported, check_state, state_space
 from formalisms.screw import constraints, dynamics, kinematics, lie
 from formalisms.screw.kinematics import Kinematics
 from formalisms.screw.linalg import Cholesky
@@ -227,6 +227,9 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     recursions (module docstring): ``dvdot/d(q, v) = -M^-1 dID`` (unconstrained) or the differentiated KKT system of
     eq. (12-13), and ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained). ``vdot`` is the split's total."""
     q, qd, u = check_state(model, q, qd, u)
+    if model.pfaffian_rows.any():
+        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the screw linearization "
+                                "differentiates holonomic rows only")
     kin, G = kinematics.forward_kinematics(model, q), dynamics.Inertias.of(model)
     M, h, _, _ = dynamics.terms(kin, G, qd)
     factor = Cholesky.of(M[None])
