@@ -117,6 +117,19 @@ def _without_bias(rows):
     return faulty
 
 
+def _cross3(a, b):
+    """``a x b`` of 3-vectors (component-first, as the Newton–Euler backend's arrays)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _pfaffian_bias_dropped(terms):
+    """The screw backend's constraint terms with ``Adot qd`` zeroed on the Pfaffian rows (``A qdd = 0``)."""
+    def faulty(kin, q, qd):
+        t = terms(kin, q, qd)
+        return dataclasses.replace(t, bias=np.where(kin.model.pfaffian_rows, 0.0, t.bias))
+    return faulty
+
+
 def _loads_with_transposed_rotation(loads):
     return lambda model, kin, rows, lam: loads(model, (kin[0], kin[1], [W.T for W in kin[2]]), rows, lam)
 
@@ -149,6 +162,12 @@ NEWTON_EULER = [
           "formalisms.newton_euler:_extras",
           lambda f: lambda model, kin, qd, total, drift, loads=None, loads_drift=None: f(
               model, kin, qd, drift, drift, loads, loads_drift)),
+    Fault("ne-rolling-contact-body-fixed", NE,
+          "The rolling contact point is taken as fixed in the disk in Adot qd: the contact direction turns with the "
+          "disk (udot = w x u), so the bias is T times the classical acceleration of a body-fixed point, not of the "
+          "point that follows the contact.",
+          "formalisms.newton_euler:_contact_rate",
+          lambda f: lambda w, a, n, u, length: _cross3(w, u)),
     Fault("ne-constraint-force-wrong-frame", NE,
           "The constraint forces are rotated into the body frames with W instead of W^T before the backward pass "
           "(the joint reactions carry them in the wrong frame).",
@@ -181,6 +200,10 @@ def _point_jacobian_from_body_jacobian(point_jacobian):
 
 
 SCREW = [
+    Fault("screw-pfaffian-bias-dropped", SCREW,
+          "Adot qd is dropped for the Pfaffian rows (A qdd = 0 instead of -Adot qd: a knife edge's or a rolling "
+          "contact's rows differentiated as if A were constant).",
+          "formalisms.screw.constraints:terms", _pfaffian_bias_dropped),
     Fault("screw-coadjoint-dropped", SCREW,
           "The wrench balance (27) misses the coadjoint term ad_V^T (G V) (gyroscopic and velocity-product "
           "wrenches).",

@@ -596,6 +596,15 @@ def _knife_edge(model: Model, c, point, spin, q, qd) -> _Rows:
                  ((x.body, x.offset, e[:, None]),))
 
 
+def _contact_rate(w: np.ndarray, a: np.ndarray, n: np.ndarray, u: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """``udot`` of the contact direction ``u = (n - (n.a) a) / length`` as the axle turns (``adot = w x a``): ``(I - u
+    u^T) (-(n.adot) a - (n.a) adot) / length``. It follows the ground, not the disk: ``w x u`` would be the rate of a
+    body-fixed direction."""
+    a_dot = _cross(w, a)
+    raw_dot = -_dot(n, a_dot) * a - _dot(n, a) * a_dot
+    return (raw_dot - _dot(u, raw_dot) * u) / length
+
+
 def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
     """RollingContact: with ``a = W axis``, ``u = (n - (n.a) a) / |.|``, the contact ``p_c = c - r u`` and ``e = p_c
     - c``, the material point at the contact moves with ``v_c + w x e``: ``A = T (J_c + Jw x e)`` (column by
@@ -611,11 +620,8 @@ def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
     length = np.sqrt(_dot(w_raw, w_raw))
     u = w_raw / length
     e = -r * u
-    a_dot = _cross(s.w, a)
-    w_dot = -_dot(n, a_dot) * a - _dot(n, a) * a_dot
-    u_dot = (w_dot - _dot(u, w_dot) * u) / length
     J = x.J + _cross(s.Jw, e[:, None])
-    acc = x.a + _cross(s.wd, e) + _cross(s.w, -r * u_dot)
+    acc = x.a + _cross(s.wd, e) + _cross(s.w, -r * _contact_rate(s.w, a, n, u, length))
     loads = () if batch else ((x.body, c.center + s.W.T @ e, T.T),)     # p_c - o = W center + e
     return _Rows(_zero_phi(2, batch), _cmv(T, J), _cmv(T, acc), loads)
 
