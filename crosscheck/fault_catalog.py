@@ -163,9 +163,8 @@ NEWTON_EULER = [
           lambda f: lambda model, kin, qd, total, drift, loads=None, loads_drift=None: f(
               model, kin, qd, drift, drift, loads, loads_drift)),
     Fault("ne-rolling-contact-body-fixed", NE,
-          "The rolling contact point is taken as fixed in the disk in Adot qd: the contact direction turns with the "
-          "disk (udot = w x u), so the bias is T times the classical acceleration of a body-fixed point, not of the "
-          "point that follows the contact.",
+          "The rolling contact point is taken as fixed in the disk in Adot qd (udot = w x u): the bias is T times "
+          "the classical acceleration of a body-fixed point, not of the point that follows the contact.",
           "formalisms.newton_euler:_contact_rate",
           lambda f: lambda w, a, n, u, length: _cross3(w, u)),
     Fault("ne-constraint-force-wrong-frame", NE,
