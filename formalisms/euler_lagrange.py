@@ -2179,19 +2179,11 @@ def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None
     return vdot, dF[:, :n], dF[:, n:2 * n], dF[:, 2 * n:]
 
 
-def _refuse_pfaffian_linearization(model: Model) -> None:
-    """ModelNotSupported for a model with Pfaffian rows: this linearization differentiates holonomic rows only."""
-    if model.pfaffian_rows.any():
-        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the Euler–Lagrange linearization "
-                                "differentiates holonomic rows only")
-
-
 def linearize(model: Model, q, qd, u) -> Linearization:
     """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`, x = (q, v) with the right perturbation on
     group joints) from this derivation's own exact derivatives (module docstring, "Linearization"): the differentiated
     KKT system of the joint chart (:func:`_differentiated`, input map B: ``dvdot/du = B_c B``, eq. 17) and, for
     spherical and free joints, the chain rule from the local chart to the contract's convention (:func:`_tangent`)."""
-    _refuse_pfaffian_linearization(model)
     q, qd, u = check_state(model, q, qd, u)
     vdot, F_x, F_xd, F_u = _differentiated(model, q, qd, model.input_map @ u, model.input_map)
     return state_space(model, qd, _tangent(model, F_x, F_xd, vdot, qd), F_xd, F_u, vdot)
@@ -2210,7 +2202,6 @@ def linearize_chart(model: Model, chart: Chart, p, pd, tau_p) -> Linearization:
     if chart_key(model, chart) == JOINT_CHART and model.group_joints:
         raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
                                                   "entries, v of nv) is linearize's"))
-    _refuse_pfaffian_linearization(model)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     n = model.n
     pdd, F_x, F_xd, F_u = _differentiated(model, p, pd, tau_p, np.eye(n), chart)

@@ -1483,13 +1483,6 @@ def split_chart(model: Model, chart, p, pd, tau_p) -> Split:
     return _split(model, chart, p, pd, tau_p)
 
 
-def _refuse_pfaffian_linearization(model: Model) -> None:
-    """ModelNotSupported for a model with Pfaffian rows: this linearization differentiates holonomic rows only."""
-    if model.pfaffian_rows.any():
-        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the geometric linearization "
-                                "differentiates holonomic rows only")
-
-
 def linearize(model: Model, q, qd, u) -> Linearization:
     """A and B of eq. (11) (:class:`~formalisms.interface.Linearization`) at ``(q, qd, u)`` in the joint chart, from
     the exact derivatives of this backend's own equations (:func:`_derivatives`): ``vdot`` is the split's total, and
@@ -1497,7 +1490,6 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     the residual of eqs. (12)-(13) and the implicit function theorem. With spherical or free joints, ``dvdot/dq`` is
     along ``q (+) dq`` (the perturbation on the right): the derivative in the ambient q chained with the derivative
     of the group's ``integrate`` (:func:`_tangent_map`)."""
-    _refuse_pfaffian_linearization(model)
     q, qd, u = check_state(model, q, qd, u)
     dq, dv, dtau, s = _derivatives(model, None, q, qd, model.input_map @ u, model.input_map)
     return state_space(model, qd, dq @ _tangent_map(model, q), dv, dtau, s.total)
@@ -1515,7 +1507,6 @@ def linearize_chart(model: Model, chart, p, pd, tau_p) -> Linearization:
     if model.group_joints and chart is None:
         raise _refuse_chart(model, chart, "is the group chart itself: use linearize (q of nq entries, v)")
     _check_group_chart(model, chart)
-    _refuse_pfaffian_linearization(model)
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     dp, dpd, dtau, s = _derivatives(model, chart, p, pd, tau_p, np.eye(model.n))
     n = model.n

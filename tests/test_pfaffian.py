@@ -13,6 +13,7 @@ from cases.constraints import KnifeEdge, RollingContact
 from cases.serialize import model_from_dict, model_to_dict
 from crosscheck import closed_forms, precise, reference, sampling
 from formalisms import euler_lagrange, geometric, newton_euler, operational_space, screw
+from formalisms.interface import ModelNotSupported
 
 BACKENDS = (euler_lagrange, newton_euler, screw, operational_space, geometric)
 NONHOLONOMIC = ("knife_edge", "rolling_disk", "differential_drive")
@@ -114,3 +115,19 @@ def test_sampler_leaves_configurations_free_and_velocities_admissible():
         _, A, _ = reference.constraint_kinematics(model, np.array(s.q), np.zeros(3))
         assert abs(A @ np.array(s.qd)).max() < 1e-13
     assert sampling.project_configuration(model, np.array([0.3, -0.4, 2.0])).tolist() == [0.3, -0.4, 2.0]
+
+
+@pytest.mark.parametrize("case", ("knife_edge", "rolling_disk"))
+def test_linearizations_with_pfaffian_rows(case):
+    """Euler–Lagrange and geometric differentiate the KKT system with A(q) and Adot qd (q, qd) as they do holonomic
+    rows, and match the 50-digit reference's central differences; the recursive backends refuse (ModelNotSupported)."""
+    model = cases.load(case)
+    q, qd, u = _state(model, 6)
+    exact = precise.linearize(model, q, qd, u)
+    for backend in (euler_lagrange, geometric):
+        lin = backend.FORMALISM.linearize(model, q, qd, u)
+        np.testing.assert_allclose(lin.A, exact.A, atol=1e-11, err_msg=backend.__name__)
+        np.testing.assert_allclose(lin.B, exact.B, atol=1e-11, err_msg=backend.__name__)
+    for backend in (newton_euler, screw, operational_space):
+        with pytest.raises(ModelNotSupported, match="Pfaffian"):
+            backend.FORMALISM.linearize(model, q, qd, u)
