@@ -722,7 +722,7 @@ def cmd_fuzz(args) -> int:
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation,
-                          linearization=not args.no_linearization, **bound)
+                          linearization=not args.no_linearization, pfaffian=args.pfaffian, **bound)
         result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
@@ -950,6 +950,8 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
     fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
                     help="constrained models (default sometimes)")
+    fz.add_argument("--pfaffian", action="store_true",
+                    help="the drawn constraints may also be Pfaffian: knife edges, point velocities, rolling contacts")
     fz.add_argument("--joints", choices=["all", "scalar"], default="all",
                     help="joint types drawn: all (revolute, prismatic, spherical, free; default) or scalar (revolute "
                          "and prismatic only)")

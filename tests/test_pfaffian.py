@@ -131,3 +131,24 @@ def test_linearizations_with_pfaffian_rows(case):
     for backend in (newton_euler, screw, operational_space):
         with pytest.raises(ModelNotSupported, match="Pfaffian"):
             backend.FORMALISM.linearize(model, q, qd, u)
+
+
+
+def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    from crosscheck import testing
+
+    seen = set()
+
+    @settings(max_examples=25, database=None, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(st.data())
+    def admissible(data):
+        model = data.draw(testing.models(3, True, pfaffian=True))
+        seen.update(type(c).__name__ for c in model.constraints if not c.holonomic)
+        s = data.draw(testing.states(model))
+        Jc = reference.constraint_kinematics(model, np.array(s.q), np.zeros(model.nv))[1]
+        assert np.abs(Jc @ np.array(s.qd)).max() <= 1e-12 * (1.0 + np.abs(s.qd).max())
+    admissible()
+    assert seen == {"KnifeEdge", "PointVelocity", "RollingContact"}, seen
