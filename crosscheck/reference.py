@@ -551,6 +551,21 @@ def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, 
     return phi, Jc, bias
 
 
+def contact_sines(model: Model, q) -> np.ndarray:
+    """For each RollingContact of the model (in order), ``|n x a|``: the sine of the angle between the disk's axle
+    ``a = R axis`` and the ground's normal n at ``q``, from Pinocchio's placements of the model of our data (0 where
+    the disk lies flat and has no contact point; the harness's tolerance scales grow as it shrinks)."""
+    contacts = [con for con in model.constraints if isinstance(con, RollingContact)]
+    if not contacts:
+        return np.zeros(0)
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.framesForwardKinematics(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    return np.array([np.linalg.norm(np.cross(np.cross(con.plane[0], con.plane[1]),
+                                             np.array(data.oMi[c.joint_of[con.body]].rotation) @ con.axis))
+                     for con in contacts])
+
+
 def _point_kinematics(c: _Compiled, data, body, offset, n: int):
     """World position, linear Jacobian (3 x n, Pinocchio order) and classical acceleration at qdd = 0 of a
     body point; a world point (body None) is fixed. Needs forwardKinematics(q, v, 0) and computeJointJacobians."""
@@ -1021,5 +1036,5 @@ REFERENCE = Formalism(
     linearize=linearize,
 )
 
-__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "joint_map", "mass_matrix",
+__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "contact_sines", "joint_map", "mass_matrix",
            "provenance", "split", "split_batch", "task_jacobian", "to_pinocchio"]

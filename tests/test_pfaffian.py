@@ -152,3 +152,15 @@ def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
         assert np.abs(Jc @ np.array(s.qd)).max() <= 1e-12 * (1.0 + np.abs(s.qd).max())
     admissible()
     assert seen == {"KnifeEdge", "PointVelocity", "RollingContact"}, seen
+
+
+def test_the_tolerance_grows_as_the_rolling_disk_lies_flat():
+    """The contact direction is a unit vector divided by |n x a| = |cos(lean)| for the rolling disk's chain, and its
+    rate by its square: the constraint kinematics' scale carries 1 / cos(lean)^2."""
+    from crosscheck import tolerance
+
+    model = cases.load("rolling_disk")
+    for lean in (0.3, 1.55, -1.5703):
+        q = np.array([0.1, 0.2, 0.7, lean, 0.4])
+        assert tolerance._contact_gain(model, q) == pytest.approx(1.0 / np.cos(lean) ** 2, rel=1e-9)
+    assert tolerance._contact_gain(cases.load("knife_edge"), np.zeros(3)) == 1.0
