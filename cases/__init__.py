@@ -4,7 +4,9 @@
     >>> cases.names()
     ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'rotor', 'inclined_slider',
      'spherical_pendulum', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum',
-     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums']
+     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums', 'free_body', 'ball_pendulum',
+     'ball_double_pendulum', 'satellite_arm', 'solo12', 'solo12_standing', 'knife_edge', 'rolling_disk',
+     'differential_drive']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
