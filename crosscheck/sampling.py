@@ -126,6 +126,11 @@ def project_velocity(model: Model, q, qd) -> np.ndarray:
     from crosscheck.reference import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
+    if not np.all(np.isfinite(Jc)):
+        bad = int(np.argwhere(~np.isfinite(Jc))[0][0])
+        raise ProjectionError(f"model '{model.name}': constraint row {bad} is not finite at q = {np.asarray(q).tolist()} "
+                              "(a rolling disk lying flat on its ground plane has no contact point); no velocity "
+                              "can be made admissible there")
     _, sigma, Vt = np.linalg.svd(Jc)
     rank = int(np.sum(sigma > VELOCITY_RCOND * sigma.max())) if sigma.size and sigma.max() > 0.0 else 0
     N = Vt[rank:].T

@@ -360,12 +360,18 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared)
 
 
+#: A drawn state whose rolling disk is flatter than this (the sine of its axle against the ground normal) is rejected:
+#: a disk lying flat has no contact point, and near it the rows are ill-conditioned by ``1 / sine^2``.
+MIN_CONTACT_SINE = 1e-3
+
+
 @st.composite
 def states(draw, model: Model, index: int = 0) -> sampling.State:
     """Admissible states of ``model`` over ``crosscheck.sampling``'s ranges (positions one turn or +-0.5 m, rates,
     inputs). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
     (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
-    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, is rejected (``hypothesis.assume``).
+    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, or leaves a rolling disk flatter than
+    :data:`MIN_CONTACT_SINE`, is rejected (``hypothesis.assume``).
     Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
     drawn = draw(configurations(model))
     qd = np.array(draw(st.tuples(*[_values(-sampling.RATE_RANGE, sampling.RATE_RANGE)] * model.n)), dtype=float)
@@ -377,6 +383,7 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
         except sampling.ProjectionError:
             assume(False)
         assume(np.abs(q - drawn).max() <= MAX_PROJECTION_STEP)
+        assume(not len(reference.contact_sines(model, q)) or reference.contact_sines(model, q).min() > MIN_CONTACT_SINE)
         qd = sampling.project_velocity(model, q, qd)
     return sampling.State(index, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist()))
 
