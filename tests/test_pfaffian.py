@@ -106,6 +106,10 @@ def test_rolling_disk_matches_the_literature_rolling_constraint():
     for backend in BACKENDS:
         np.testing.assert_allclose(backend.FORMALISM.split(model, q, qd, u).total, expected, atol=1e-10,
                                    err_msg=backend.__name__)
+    # Newton for the disk at u = 0: the ground's friction (lam, along x and y) is the only horizontal force on it, so it
+    # is m times the horizontal acceleration of the centre (the task point "center", at the drift)
+    drift = newton_euler.split(model, q, qd, np.zeros(5))
+    np.testing.assert_allclose(drift.lam_drift, m * drift.task_drift[:2], atol=1e-12)
 
 
 def test_sampler_leaves_configurations_free_and_velocities_admissible():
