@@ -1064,8 +1064,9 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
 def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
     (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
-    ``loads`` (body -> ``[(offset, f, df)]``: a force ``f`` at the body point ``offset``, its moment about the origin
-    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`)."""
+    ``loads`` (body -> ``[(offset, f, df, doffset)]``: a force ``f`` at the body point ``offset``, its moment about the
+    origin ``offset x f``, body frame; ``doffset`` the offset's tangent where the point moves over the body, else None)
+    are the multipliers' point forces (:func:`_constraint_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)
@@ -1081,9 +1082,11 @@ def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.
         dN = (_cross(c, dF) + inertia @ t.dwd[i] + _cross(t.dw[i], inertia @ w[i])
               + _cross(w[i], inertia @ t.dw[i]))
         f[i], n[i], df[i], dn[i] = f[i] + F, n[i] + N, df[i] + dF, dn[i] + dN
-        for offset, fe, dfe in (loads or {}).get(i, ()):
+        for offset, fe, dfe, doffset in (loads or {}).get(i, ()):
             f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
             df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
+            if doffset is not None:                  # a point that moves over the body (a rolling contact)
+                dn[i] = dn[i] - _cross(doffset, fe[:, None])
         p = model.parent_index[i]
         if p >= 0:
             fp, dfp = P[i] @ f[i], P[i] @ (df[i] + _cross(t.th[i], f[i]))
@@ -1157,21 +1160,111 @@ _TANGENTS = {PointOnCircle: _circle_tangent, PointsCoincide: _coincide_tangent, 
              JointCoupling: _coupling_tangent}
 
 
+@dataclass(frozen=True)
+class _SpinTangent:
+    """A body's world rotation ``W``, its tangent ``Th`` (``dW = W [Th]x``), and its world angular velocity ``w`` and
+    angular acceleration ``wd`` at ``(qd, qdd)`` with their tangents (3, D): ``d(W y) = W (Th x y + dy)``."""
+
+    W: np.ndarray
+    Th: np.ndarray
+    w: np.ndarray
+    dw: np.ndarray
+    wd: np.ndarray
+    dwd: np.ndarray
+
+
+def _spin_tangent(kin, t: _Tangents, body: int) -> _SpinTangent:
+    """:class:`_SpinTangent` of ``body`` from the forward pass's tangents."""
+    W, Th, w, wd = kin[2][body], t.Th[body], t.motion[0][body], t.motion[1][body]
+    return _SpinTangent(W, Th, W @ w, W @ (_cross(Th, w) + t.dw[body]), W @ wd, W @ (_cross(Th, wd) + t.dwd[body]))
+
+
+@dataclass(frozen=True)
+class _MovingPoint:
+    """A load's point whose body-frame ``offset`` changes with the state (a rolling contact): ``doffset`` (3, D)."""
+
+    body: int
+    offset: np.ndarray
+    doffset: np.ndarray
+
+
+def _along(x: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """``x . dy`` (D,) of a vector (3,) and a tangent (3, D)."""
+    return x @ dy
+
+
+def _point_velocity_tangent(model: Model, c, point, spin):
+    """:func:`_point_velocity` differentiated: ``dc = D dacc``; the force ``D^T lam`` is constant."""
+    x = point(c.body, c.offset)
+    D = c.directions
+    return D @ x.dacc, ((x, D.T, np.zeros(D.T.shape + x.dp.shape[1:])),)
+
+
+def _knife_edge_tangent(model: Model, c, point, spin):
+    """:func:`_knife_edge` differentiated: ``c = (w x e) . pv + e . acc`` with ``e = W d`` (``de = W (Th x d)``), so
+    ``dc = (dw x e + w x de) . pv + (w x e) . dpv + de . acc + e . dacc``; the force ``e lam`` turns: ``de lam``."""
+    x, s = point(c.body, c.offset), spin(model.body_index(c.body))
+    e, de = s.W @ c.direction, s.W @ _cross(s.Th, c.direction)
+    we = _cross(s.w, e)
+    dwe = _cross(s.dw, e[:, None]) + _cross(s.w[:, None], de)
+    dc = (dwe * x.pv[:, None]).sum(axis=0) + _along(we, x.dpv) + _along(x.acc, de) + _along(e, x.dacc)
+    return dc[None], ((x, e[:, None], de[:, None, :]),)
+
+
+def _rolling_tangent(model: Model, c, point, spin):
+    """:func:`_rolling` differentiated: ``c = T (a_c + wd x e + w x edot)`` at the ``qdd`` of the tangents, with the
+    contact terms of :func:`_contact_rate` differentiated by the chain rule (``a = W axis``, ``raw = n - (n.a) a``,
+    ``u = raw / |raw|``, ``e = -r u``, ``adot = w x a``, ``edot = -r (I - u u^T) rawdot / |raw|``); the force ``T^T
+    lam`` is constant, its point (the contact, ``center + W^T e`` in the body) moves: ``d(W^T e) = W^T de - Th x W^T
+    e``."""
+    i = model.body_index(c.body)
+    x, s = point(c.body, c.center), spin(i)
+    n, r, col = np.cross(c.plane[0], c.plane[1]), c.radius, (lambda v: v[:, None])  # noqa: E731
+    a, da = s.W @ c.axis, s.W @ _cross(s.Th, c.axis)
+    raw, draw = n - (n @ a) * a, -col(a) * (n @ da) - (n @ a) * da
+    length = float(np.sqrt(raw @ raw))
+    u = raw / length
+    dlength = u @ draw
+    du = (draw - col(u) * (u @ draw)) / length
+    a_dot = _cross(s.w, a)
+    da_dot = _cross(s.dw, col(a)) + _cross(col(s.w), da)
+    raw_dot = -(n @ a_dot) * a - (n @ a) * a_dot
+    draw_dot = -col(a) * (n @ da_dot) - col(a_dot) * (n @ da) - (n @ a_dot) * da - (n @ a) * da_dot
+    u_dot = (raw_dot - u * (u @ raw_dot)) / length
+    du_dot = ((draw_dot - du * (u @ raw_dot) - col(u) * (raw_dot @ du + u @ draw_dot)) / length
+              - col(u_dot) * dlength / length)
+    e, de, e_dot, de_dot = -r * u, -r * du, -r * u_dot, -r * du_dot
+    dc = c.plane @ (x.dacc + _cross(s.dwd, col(e)) + _cross(col(s.wd), de) + _cross(s.dw, col(e_dot))
+                    + _cross(col(s.w), de_dot))
+    local = s.W.T @ e
+    contact = _MovingPoint(i, c.center + local, s.W.T @ de - _cross(s.Th, col(local)))
+    return dc, ((contact, c.plane.T, np.zeros(c.plane.T.shape + x.dp.shape[1:])),)
+
+
+#: The Pfaffian declarations' derivatives (they also read the body's angular kinematics and its tangents).
+_PFAFFIAN_TANGENTS = {PointVelocity: _point_velocity_tangent, KnifeEdge: _knife_edge_tangent,
+                      RollingContact: _rolling_tangent}
+
+
 def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
     """``dc`` (k, D), the tangents of ``Jc qdd + Jcdot qd`` at the ``qdd`` of ``t`` (every declaration's rows
-    differentiated, :data:`_TANGENTS`), and the multipliers' point forces as body loads with their tangents:
-    body -> ``[(offset, f, df)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th + W^T dF lam``."""
+    differentiated, :data:`_TANGENTS`, :data:`_PFAFFIAN_TANGENTS`), and the multipliers' point forces as body loads
+    with their tangents: body -> ``[(offset, f, df, doffset)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th +
+    W^T dF lam``, ``doffset`` the tangent of a moving point's offset (None for a body-fixed point)."""
     point = (lambda name, offset: _point_tangent(kin, t, None if name is None else model.body_index(name), offset))
+    spin = (lambda body: _spin_tangent(kin, t, body))  # noqa: E731
     rows, loads, start = [], {}, 0
     for c in model.constraints:
-        dc, forces = _TANGENTS[type(c)](model, c, point)
+        dc, forces = (_PFAFFIAN_TANGENTS[type(c)](model, c, point, spin) if type(c) in _PFAFFIAN_TANGENTS
+                      else _TANGENTS[type(c)](model, c, point))
         part, start = lam[start:start + len(dc)], start + len(dc)
         for x, F, dF in forces:
             if x.body is not None:
                 W = kin[2][x.body]
                 f = W.T @ (F @ part)
                 loads.setdefault(x.body, []).append(
-                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part)))
+                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part),
+                     getattr(x, "doffset", None)))
         rows.append(dc)
     return np.concatenate(rows), loads
 
@@ -1187,9 +1280,6 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     applied, :func:`_constraint_tangents`, ``lam`` held fixed) and ``c = Jc vdot + Jcdot qd`` (the rows' point
     accelerations), solved by the range-space method of the split with its rank rule; ``dvdot/du = B_c B`` (eq. 17)."""
     q, qd, u = check_state(model, q, qd, u)
-    if model.pfaffian_rows.any():
-        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the Newton–Euler linearization "
-                                "differentiates holonomic rows only")
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
     L = _cholesky(model, M[..., None], q[:, None])
     tau = model.input_map @ u
