@@ -626,22 +626,15 @@ def _constraints(model: Model, st: _Staged, poses) -> tuple[list, list, list]:
     declaration's rows are velocity rows ``a = A(p) pd`` (:func:`_pfaffian_rows`): ``phi = 0``, ``A = da/dpd`` and
     ``Adot pd = dt(a)`` (the rates held: ``pdd = 0``)."""
     n = model.n
-    holonomic = [c for c in model.constraints if c.holonomic]
-    phi_rows = iter(st.name(e) for e in _constraint_rows(model, st, poses, holonomic))
-    phi, Jc, bias = [], [], []
+    phi_rows = iter([st.name(e) for e in _constraint_rows(model, st, poses,
+                                                          [c for c in model.constraints if c.holonomic])])
+    rows = []                     # (phi, None) for a holonomic row, (0, a) for a Pfaffian one, in model order
     for c in model.constraints:
-        if c.holonomic:
-            for _ in range(c.size):
-                e = next(phi_rows)
-                phi.append(e)
-                Jc.append([st.name(st.diff(e, j)) for j in range(n)])
-                bias.append(st.dt(st.dt(e)))
-            continue
-        for a in _pfaffian_rows(model, st, poses, c):
-            a = st.name(a)
-            phi.append(ZERO)
-            Jc.append([st.name(st.diff(a, n + j)) for j in range(n)])
-            bias.append(st.dt(a))
+        rows += ([(next(phi_rows), None) for _ in range(c.size)] if c.holonomic
+                 else [(ZERO, st.name(a)) for a in _pfaffian_rows(model, st, poses, c)])
+    phi = [e for e, _ in rows]
+    Jc = [[st.name(st.diff(e, j) if a is None else st.diff(a, n + j)) for j in range(n)] for e, a in rows]
+    bias = [st.dt(st.dt(e)) if a is None else st.dt(a) for e, a in rows]
     return phi, Jc, bias
 
 
