@@ -15,6 +15,8 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
   ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_c``;
 * each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point
   Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
+  a Pfaffian declaration's ``A`` and ``Adot qd`` (``phi`` 0) likewise, a rolling contact's from the material point at
+  the contact plus the sliding of the contact over the disk (:func:`_pfaffian_rows`);
 * the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
   lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``crosscheck.conditioning.redundant_below`` dropped
   (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and

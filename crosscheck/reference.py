@@ -48,7 +48,9 @@ own (no numerics from ``formalisms.interface``), with the definitions every back
 * the task inertia ``(J M^-1 J^T)^-1`` and ``conditions["task_inertia"]`` likewise from the SVD of ``L^-1 J^T``.
 
 Constraints: :func:`constraint_kinematics` forms ``phi``, ``Jc`` and ``Jcdot qd`` of the declarations
-(``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations, and
+(``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations (a
+Pfaffian declaration's ``A`` and ``Adot qd``, ``phi`` 0, from the joint Jacobian, velocity and classical acceleration
+of its body: :func:`_pfaffian_rows`), and
 the constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynamics(q, v, tau, J, gamma)``) for
 total / lam and drift / lam_drift. At a degenerate state (S singular up to ``CONSTRAINT_RCOND``) Pinocchio's
 Cholesky-based KKT solve has no answer: the reference gives it the independent combinations of the rows (S's
