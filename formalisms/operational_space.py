@@ -149,8 +149,8 @@ import numpy as np
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
 from cases.model import Model
-from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported, Split,
-                                  SplitBatch, check_batch, check_state, state_space, with_block_form)
+from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
+                                  check_batch, check_state, state_space, with_block_form)
 
 
 @dataclass(frozen=True)
@@ -730,6 +730,24 @@ def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     return _vm(q, position[:, None]) - c.offset, np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
+def _row_sum(x):
+    """``sum`` over the last axis, kept (of an array or a dual number)."""
+    return _linear(lambda v: np.sum(v, axis=-1, keepdims=True), x)
+
+
+def _reciprocal(x):
+    """``1 / x`` elementwise of an array or a dual number (tangent ``-dx / x^2``)."""
+    return _Dual(1.0 / x.val, -x.tan / x.val**2) if isinstance(x, _Dual) else 1.0 / x
+
+
+def _root(x):
+    """``sqrt(x)`` elementwise of an array or a dual number (tangent ``dx / (2 sqrt(x))``)."""
+    if not isinstance(x, _Dual):
+        return np.sqrt(x)
+    val = np.sqrt(x.val)
+    return _Dual(val, x.tan / (2.0 * val))
+
+
 def _pfaffian_point(model: Model, kin: Kinematics, body: str, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``J_v`` (..., 3, n) and the classical bias (..., 3) of the material point of ``body`` at world ``p`` (..., 3)."""
     i = np.array([model.body_index(body)])
@@ -751,7 +769,7 @@ def _knife_edge(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.nda
     _, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
     e = _mv(kin.R[..., i, :, :], c.direction)
     pdot = _mv(Jv, kin.qd)
-    rate = np.sum(_cross(kin.w[..., i, :], e) * pdot + e * bias, axis=-1, keepdims=True)
+    rate = _row_sum(_cross(kin.w[..., i, :], e) * pdot + e * bias)
     return np.zeros(q.shape[:-1] + (1,)), e[..., None, :] @ Jv, rate
 
 
@@ -765,14 +783,14 @@ def _rolling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarra
     w = kin.w[..., i, :]
     a = _mv(kin.R[..., i, :, :], c.axis)
     n = np.cross(c.plane[0], c.plane[1])
-    dot = (lambda x, y: np.sum(x * y, axis=-1, keepdims=True))  # noqa: E731
+    dot = (lambda x, y: _row_sum(x * y))  # noqa: E731
     raw = n - dot(n, a) * a
-    length = np.sqrt(dot(raw, raw))
-    u = raw / length
+    inverse_length = _reciprocal(_root(dot(raw, raw)))
+    u = raw * inverse_length
     e = -c.radius * u
     a_dot = _cross(w, a)
     raw_dot = -dot(n, a_dot) * a - dot(n, a) * a_dot
-    e_dot = -c.radius * (raw_dot - dot(u, raw_dot) * u) / length
+    e_dot = -c.radius * ((raw_dot - dot(u, raw_dot) * u) * inverse_length)
     Jv, _ = _pfaffian_point(model, kin, c.body, center + e)
     rate = a_center + _cross(kin.w_bias[..., i, :], e) + _cross(w, e_dot)
     return np.zeros(q.shape[:-1] + (2,)), c.plane @ Jv, _vm(rate, c.plane.T)
@@ -1136,9 +1154,6 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     and the differentiated KKT system per direction, ``[[M, Jc^T], [Jc, 0]] [dvdot; dlam] = [-dh - dM vdot + dJc^T
     lam; -dJc vdot - d(Jcdot qd)]``; ``dvdot/du = B_c B`` (eq. 17; ``M^-1 B`` unconstrained)."""
     q, qd, u = check_state(model, q, qd, u)
-    if model.pfaffian_rows.any():
-        raise ModelNotSupported(f"model '{model.name}' has Pfaffian constraint rows: the operational-space "
-                                "linearization differentiates holonomic rows only")
     nv = model.nv
     q_dual = _Dual(q, np.vstack([_configuration_tangents(model, q), np.zeros((nv, model.nq))]))
     kin = _kinematics(model, q_dual, _Dual(qd, np.vstack([np.zeros((nv, nv)), np.eye(nv)])))
