@@ -20,14 +20,16 @@ from cases import constrained, floating, nonholonomic  # noqa: F401 (register th
 from cases.factories import REGISTRY, CaseError, CaseInfo
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalForce, ExternalWrench, PointSpring
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
 
 
-def from_file(path, name: str | None = None, base: str | None = None) -> Model:
+def from_file(path, name: str | None = None, base: str | None = None, actuated=None) -> Model:
     """A model file by its extension: ``.urdf`` through :func:`from_urdf` (with ``base`` "fixed" or "free"; None: as
-    the file says, with a notice when it is fixed), ``.xml`` or ``.mjcf`` through ``cases.mjcf.from_mjcf`` (whose free
-    joints are in the file: ``base`` must be None). Anything else is a UrdfError naming the extensions."""
+    the file says, with a notice when it is fixed; ``actuated``: the URDF joints driven by u, in order; None: every
+    joint but a free base's), ``.xml`` or ``.mjcf`` through ``cases.mjcf.from_mjcf`` (whose free joints are in the
+    file: ``base`` and ``actuated`` must be None). Anything else is a UrdfError naming the extensions."""
     from pathlib import Path
 
     suffix = Path(path).suffix.lower()
@@ -37,10 +39,13 @@ def from_file(path, name: str | None = None, base: str | None = None) -> Model:
         if base is not None:
             raise UrdfError(f"'{path}' is an MJCF file, whose free joints are declared in it (<freejoint/>); a base "
                             "applies to URDF files only")
+        if actuated is not None:
+            raise UrdfError(f"'{path}' is an MJCF file; actuated joints apply to URDF files only (an MJCF file is "
+                            "driven at every joint but a free one)")
         return from_mjcf(path, name=name)
     if suffix != ".urdf":
         raise UrdfError(f"'{path}' is not a model file this loads: give a .urdf (URDF) or a .xml / .mjcf (MJCF) file")
-    return from_urdf(path, name=name, base=base)
+    return from_urdf(path, name=name, base=base, actuated=actuated)
 
 
 def names() -> list[str]:
@@ -106,6 +111,7 @@ def parameters(name: str, **params) -> dict:
 
 
 __all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
-           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_file",
+           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model",
+           "catalog", "constrained", "from_file",
            "from_urdf", "load",
            "names", "parameters"]

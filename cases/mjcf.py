@@ -8,8 +8,14 @@ The source is ``ModelSource("mjcf", <absolute path>)``, so the reference reads t
 
 What the model language has no word for is refused, naming it (:class:`~cases.model.ModelError`), never dropped:
 a body with several joints (Pinocchio makes one composite joint of them), ``<equality>`` constraints, and joint
-``armature`` (rotor inertia added to M). Contacts, actuators, damping and limits do not enter the dynamics the
-harness checks (``M qdd + h = B u``, fully actuated by default) and are not read.
+``armature`` (rotor inertia added to M). Contacts, actuators and damping do not enter the dynamics the harness checks
+(``M qdd + h = B u``, fully actuated by default) and are not read.
+
+Joint limits do not enter the dynamics either; they bound the states the gate samples (``Body.limits``,
+``crosscheck.sampling``). A hinge or slide joint's ``range`` is read as MuJoCo reads it (:func:`_limits`): in
+radians or degrees as ``<compiler angle>`` says for a hinge, in metres for a slide (Pinocchio's parser, 4.1, converts
+a slide's range from degrees too), and only where the joint is limited (``limited="false"``, on the joint or its
+default class, leaves it free; so does ``<compiler autolimits="false">`` without ``limited="true"``).
 """
 
 from __future__ import annotations
@@ -69,4 +75,65 @@ def from_mjcf(path, name: str | None = None) -> Model:
     problems = _unsupported(root, pm)
     if problems:
         raise ModelError(model_name, problems + [f"(from MJCF file '{path}')"])
+    _limits(root, pin, pm)
     return convert(pin, pm, model_name, ModelSource("mjcf", str(path.resolve())))
+
+
+def _joint_defaults(root: ET.Element) -> tuple[dict[str, dict[str, str]], dict[str, str | None]]:
+    """The ``<joint>`` attributes each ``<default>`` class sets (its own only) and each class's parent class; the
+    top-level default is class ``main``."""
+    own: dict[str, dict[str, str]] = {}
+    parent: dict[str, str | None] = {}
+
+    def visit(element: ET.Element, above: str | None) -> None:
+        name = element.get("class", "main" if above is None else None)
+        if name is None:
+            return
+        joint = element.find("joint")
+        own[name], parent[name] = {} if joint is None else dict(joint.attrib), above
+        for child in element.findall("default"):
+            visit(child, name)
+
+    for top in root.findall("default"):
+        visit(top, None)
+    return own, parent
+
+
+def _limits(root: ET.Element, pin, pm) -> None:
+    """Set ``pm``'s position limits of every hinge and slide joint to what MuJoCo reads in the file (module doc):
+    unlimited (infinite) where the joint is not limited, a slide's range in metres. The other joints keep Pinocchio's
+    reading (a joint without a range is unlimited there already)."""
+    compiler = {k: v for c in root.findall("compiler") for k, v in c.attrib.items()}
+    degrees, auto = compiler.get("angle", "degree") == "degree", compiler.get("autolimits", "true") == "true"
+    own, parent = _joint_defaults(root)
+    lower, upper = np.array(pm.lowerPositionLimit, dtype=float), np.array(pm.upperPositionLimit, dtype=float)
+
+    def attribute(joint: ET.Element, cls: str | None, key: str) -> str | None:
+        if key in joint.attrib:
+            return joint.get(key)
+        while cls is not None:
+            if key in own.get(cls, {}):
+                return own[cls][key]
+            cls = parent.get(cls)
+        return None
+
+    def visit(body: ET.Element, childclass: str) -> None:
+        childclass = body.get("childclass", childclass)
+        for joint in body.findall("joint"):
+            cls = joint.get("class", childclass)
+            kind, name = attribute(joint, cls, "type") or "hinge", joint.get("name")
+            if kind not in ("hinge", "slide") or name is None or not pm.existJointName(name):
+                continue
+            iq = pm.joints[pm.getJointId(name)].idx_q
+            limited = attribute(joint, cls, "limited") or "auto"
+            if limited == "false" or (limited == "auto" and not auto):
+                lower[iq], upper[iq] = -np.inf, np.inf
+            elif kind == "slide" and degrees:
+                lower[iq], upper[iq] = np.degrees(lower[iq]), np.degrees(upper[iq])
+        for child in body.findall("body"):
+            visit(child, childclass)
+
+    for world in root.findall("worldbody"):
+        for body in world.findall("body"):
+            visit(body, "main")
+    pm.lowerPositionLimit, pm.upperPositionLimit = lower, upper

@@ -37,6 +37,8 @@ Frames and conventions
 * A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
   from two prismatic joints and a revolute one. Every joint must still move some mass.
 * ``constraints`` are declarations from :mod:`cases.constraints`; ``Model.k`` counts their rows (``phi`` in R^k).
+* ``loads`` are external load declarations from :mod:`cases.loads` (a force or a wrench on a body at a point, in the
+  world or the body frame; a spring to a world point): the ``tau_ext`` of eq. (12), which every backend maps itself.
 * ``source`` (optional, :class:`ModelSource`) records the file a loaded model was converted from and where the scene
   places that file's world, so that the external reference can read the file itself instead of our conversion of it.
   It is provenance, not physics: :meth:`Model.digest` leaves it out.
@@ -44,6 +46,7 @@ Frames and conventions
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 from dataclasses import dataclass, field
@@ -52,6 +55,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from cases import constraints as constraint_decl
+from cases import loads as load_decl
 from cases.validation import as_array, finite, frozen, orthonormal_rows
 
 #: Joint types with their numbers of coordinates and of velocities (nq, nv) (module docstring).
@@ -87,6 +91,9 @@ class Body:
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: ``(lower, upper)`` of a revolute (rad) or prismatic (m) joint's coordinate, as the source file declares them;
+    #: None: unlimited. Not physics (left out of the digest): the sampler draws within them (``crosscheck.sampling``).
+    limits: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -97,12 +104,16 @@ class TaskPoint:
     point's world position ``p`` (article 6.3.2); the default is all three. A planar mechanism uses the rows of its
     plane (article 6.3.4: ``x_task = [x_2, y_2]``), since a direction the point can never move in makes the
     task-space inertia singular everywhere.
+
+    ``choice`` says how the point was chosen, for reports: empty when declared with the model, else the default's
+    rule or what was given (``cases.task``). It is provenance, not physics: :meth:`Model.digest` leaves it out.
     """
 
     name: str
     body: str
     offset: np.ndarray
     directions: np.ndarray | None = None
+    choice: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,18 +124,24 @@ class ModelSource:
     ``crosscheck.frames``). ``root`` says how the loader attached the file's root link: ``"fixed"`` as the file has
     it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
     A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
-    gravity ``g`` is ``rotation @ g``."""
+    gravity ``g`` is ``rotation @ g``; ``gravity`` False: the scene is the file's without gravity (a gravity-free
+    copy, ``crosscheck.diagnosis.without_gravity``), so whatever is built from the file sets gravity to zero."""
 
     kind: str
     path: str
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     root: str = "fixed"
+    gravity: bool = True
 
     def moved(self, rotation: np.ndarray, translation: np.ndarray) -> "ModelSource":
         """The source of the scene moved by ``g = (rotation, translation)``: placement ``g * (R, t)``."""
         R, t = np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float)
-        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root)
+        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root, self.gravity)
+
+    def without_gravity(self) -> "ModelSource":
+        """The same file and placement with gravity switched off."""
+        return ModelSource(self.kind, self.path, self.rotation, self.translation, self.root, False)
 
     @property
     def is_identity(self) -> bool:
@@ -134,7 +151,8 @@ class ModelSource:
     def key(self) -> str:
         """A stable text of every field (for caches of whatever is built from the file)."""
         placement = np.concatenate([np.ravel(self.rotation), np.ravel(self.translation)]).astype("<f8")
-        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}"
+        weight = "" if self.gravity else ":no-gravity"
+        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}{weight}"
 
     def __eq__(self, other) -> bool:
         return isinstance(other, ModelSource) and self.key() == other.key()
@@ -156,6 +174,7 @@ class Model:
     parent_index: tuple[int, ...] = ()
     topological_order: tuple[int, ...] = ()
     source: ModelSource | None = None
+    loads: tuple = ()
 
     @property
     def n(self) -> int:
@@ -271,6 +290,8 @@ class Model:
                 h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
         for c in self.constraints:
             h.update(constraint_decl.digest_bytes(c))
+        for load in self.loads:       # nothing for a model without loads: its digest is what it was before loads
+            h.update(b"load:" + load_decl.digest_bytes(load))
         return h.hexdigest()
 
     def __hash__(self) -> int:
@@ -339,11 +360,33 @@ def _validate_body(problems: list[str], body: Body) -> Body | None:
             problems.append(f"{where} joint placement rotation is not a proper rotation "
                             f"(|R^T R - I| = {err:.2e}, det = {np.linalg.det(rotation):.6f})")
     translation = as_array(problems, f"{where} joint placement translation", body.translation, (3,))
+    limits = _limits(problems, where, body)
     if len(problems) > n_before:
         return None
     return Body(name=body.name, parent=body.parent, joint=body.joint, axis=frozen(axis, 3), mass=mass,
                 com=frozen(com, 3), inertia=frozen(0.5 * (inertia + inertia.T), (3, 3)),
-                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3))
+                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3), limits=limits)
+
+
+def _limits(problems: list[str], where: str, body: Body) -> tuple[float, float] | None:
+    """The body's joint limits as two floats, or None; a problem for limits on a joint without one coordinate, or
+    limits that are not two finite numbers with lower <= upper."""
+    if body.limits is None:
+        return None
+    if body.joint not in ("revolute", "prismatic"):
+        problems.append(f"{where} has a {body.joint} joint with limits {body.limits!r}; only revolute and prismatic "
+                        "joints take limits (lower, upper)")
+        return None
+    try:
+        lower, upper = (float(x) for x in body.limits)
+    except (TypeError, ValueError):
+        problems.append(f"{where} joint limits {body.limits!r} are not two numbers (lower, upper)")
+        return None
+    if not (np.isfinite(lower) and np.isfinite(upper) and lower <= upper):
+        problems.append(f"{where} joint limits ({lower}, {upper}) are not finite with lower <= upper; leave them out "
+                        "(None) for an unlimited joint")
+        return None
+    return lower, upper
 
 
 def _topology(problems: list[str], bodies: Sequence[Body]) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -405,7 +448,7 @@ def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str
                          (1, 2, 3))
     if len(problems) > n_before:
         return None
-    return TaskPoint(tp.name, tp.body, frozen(offset, 3), D)
+    return TaskPoint(tp.name, tp.body, frozen(offset, 3), D, str(tp.choice))
 
 
 def _moving_mass(problems: list[str], bodies: Sequence[Body], parent: Sequence[int]) -> None:
@@ -446,19 +489,25 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
                                  or np.linalg.det(rotation) < 0):
         problems.append(f"source rotation is not a proper rotation: {rotation.tolist()}")
     translation = as_array(problems, "source translation", source.translation, (3,))
+    if not isinstance(source.gravity, bool):
+        problems.append(f"source gravity must be True (the file's gravity acts) or False, got {source.gravity!r}")
     if len(problems) > n_before:
         return None
-    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root)
+    return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root,
+                       source.gravity)
 
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
                 task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = (),
-                source: ModelSource | None = None) -> Model:
+                source: ModelSource | None = None, loads: Iterable = ()) -> Model:
     """Validate the description and return an immutable :class:`Model`.
 
     Every violated precondition is collected and reported together in one :class:`ModelError`.
-    Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body.
+    Default input map: identity (fully actuated). Default task point ``tip``: the COM of the last body, or, when that
+    lies on a joint axis, an offset point of it, with the task directions it moves in (``cases.task.choose``: a planar
+    chain's plane), so that its task Jacobian has full row rank away from singular configurations.
     ``source``: the file the description was converted from (:class:`ModelSource`; loaders set it).
+    ``loads``: external load declarations (:mod:`cases.loads`), validated like the constraints.
     """
     bodies = list(bodies)
     problems: list[str] = []
@@ -470,11 +519,9 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     n = sum(JOINT_DOF.get(b.joint, (1, 1))[1] for b in bodies)
     B = _input_map(problems, input_map, n)
     names = {b.name for b in bodies}
-    if task_points is None:
-        last = valid[-1] if valid else None
-        task_points = [TaskPoint("tip", last.name, last.com)] if last is not None else []
-    task_points = list(task_points)
-    if not task_points:
+    default = task_points is None
+    task_points = [] if default else list(task_points)
+    if not task_points and not default:
         problems.append("a model needs at least one task point (the task drift and the operational-space backend "
                         "use the first); leave task_points out for the default, the COM of the last body")
     tps = [tp for tp in (_validate_task_point(problems, tp, names) for tp in task_points) if tp is not None]
@@ -492,10 +539,20 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     if len(set(declared)) < len(declared):
         problems.append(f"constraint names repeat: {declared}; give each constraint its own name")
     source = _validate_source(problems, source)
+    loads = tuple(load_decl.validate(problems, load, names) for load in loads)
+    load_names = [load.name for load in loads if load is not None]
+    if len(set(load_names)) < len(load_names):
+        problems.append(f"load names repeat: {load_names}; give each load its own name")
     if problems:
         raise ModelError(name, problems)
     B = B.copy()
     B.setflags(write=False)
-    return Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
-                 task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
-                 source=source)
+    model = Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
+                  task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
+                  source=source, loads=loads)
+    if default:
+        from cases.task import default_task_point  # cases.task builds on this module
+
+        tp = _validate_task_point(problems, default_task_point(model), names)
+        model = dataclasses.replace(model, task_points=(tp,))
+    return model

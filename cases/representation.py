@@ -9,8 +9,9 @@ total and lam (to rounding); only the work the model lets a backend skip differs
 With the joint frame ``J' = J R_i`` and axis ``R_i^T a``, the body frame becomes ``B' = B R_i`` for any q (a rotation
 about ``R_i^T a`` seen in ``J R_i`` is the rotation about ``a`` in ``J``); a child's placement, expressed in ``B'``,
 is ``(R_p^T rotation R_i, R_p^T translation)``; body-fixed points (COM, task points, constrained points) turn by
-``R_i^T`` (a knife edge's direction, a rolling disk's centre and axle too), inertias by ``R_i^T I R_i``. World-fixed
-data (gravity, circle centres, lines, task directions, a rolling contact's ground plane) stay.
+``R_i^T`` (a knife edge's direction, a rolling disk's centre and axle too), inertias by ``R_i^T I R_i``, and so do
+the external loads' offsets and body-frame vectors. World-fixed data (gravity, circle centres, lines, task directions,
+a rolling contact's ground plane, world-frame loads, spring anchors) stay.
 
 A body on a spherical or free joint keeps its frame (``R_i = I``): its coordinates are its orientation (and position)
 in the joint frame and its velocities are body-frame components (``cases.model``), so turning the frame would change
@@ -48,6 +49,18 @@ def _turn_constraint(c, turn: dict):
     return c
 
 
+def _turn_load(load, turn: dict):
+    """An external load (``cases.loads``) on the turned bodies: its offset, and a body-frame force or couple, by
+    ``R^T``; world data stay."""
+    R = turn[load.body]
+    moved = {"offset": R.T @ load.offset}
+    if getattr(load, "frame", "world") == "body":
+        moved["force"] = R.T @ load.force
+        if hasattr(load, "moment"):
+            moved["moment"] = R.T @ load.moment
+    return dataclasses.replace(load, **moved)
+
+
 def general_3d(model: Model, seed: int = 0) -> Model:
     """``model`` with every body frame turned by a random rotation (module doc): the same physics in the same
     joint coordinates, written as general 3-D bodies. Deterministic for a given seed."""
@@ -63,4 +76,5 @@ def general_3d(model: Model, seed: int = 0) -> Model:
     tasks = [dataclasses.replace(tp, offset=turn[tp.body].T @ tp.offset) for tp in model.task_points]
     return build_model(f"{model.name} (general 3-D frames)", bodies, gravity=model.gravity,
                        input_map=model.input_map, task_points=tasks,
-                       constraints=[_turn_constraint(c, turn) for c in model.constraints])
+                       constraints=[_turn_constraint(c, turn) for c in model.constraints],
+                       loads=[_turn_load(load, turn) for load in model.loads])

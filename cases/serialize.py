@@ -7,7 +7,8 @@ rebuilt model has the same ``digest()`` and every backend gives it the same spli
     True
 
 The dict holds the bodies (joint, axis, placement, mass, centre of mass, inertia), gravity, the input map, the task
-points, the constraint declarations of every type in :mod:`cases.constraints` and, for a model loaded from a file,
+points, the constraint declarations of every type in :mod:`cases.constraints`, the external loads of every type in
+:mod:`cases.loads` (a field written only when there are loads) and, for a model loaded from a file,
 its ``source`` (kind, path, world placement; :class:`cases.model.ModelSource`). A dict without ``source`` (written
 before it existed, or of a model built in code) loads as a model without one. :func:`model_from_dict` rebuilds
 through :func:`cases.build_model`, so a dict edited by hand is validated like any model; a missing or mistyped field
@@ -21,6 +22,7 @@ import dataclasses
 import numpy as np
 
 from cases import constraints as constraint_decl
+from cases import loads as load_decl
 from cases.model import Body, Model, ModelSource, TaskPoint, build_model
 
 FORMAT = "crosscheck.model"
@@ -30,6 +32,7 @@ VERSION = 1
 _BODY_ARRAYS = ("axis", "com", "inertia", "rotation", "translation")
 
 _CONSTRAINT_TYPES = {cls.__name__: cls for cls in constraint_decl.CONSTRAINT_TYPES}
+_LOAD_TYPES = {cls.__name__: cls for cls in load_decl.LOAD_TYPES}
 
 
 class SerializeError(ValueError):
@@ -55,19 +58,26 @@ def model_to_dict(model: Model) -> dict:
         "version": VERSION,
         "name": model.name,
         "bodies": [{"name": b.name, "parent": b.parent, "joint": b.joint, "mass": float(b.mass),
-                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS}} for b in model.bodies],
+                    **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS},
+                    **({} if b.limits is None else {"limits": list(b.limits)})} for b in model.bodies],
         "gravity": _plain(model.gravity),
         "input_map": _plain(model.input_map),
         "task_points": [{"name": tp.name, "body": tp.body, "offset": _plain(tp.offset),
-                         "directions": _plain(tp.directions)} for tp in model.task_points],
+                         "directions": _plain(tp.directions), **({"choice": tp.choice} if tp.choice else {})}
+                        for tp in model.task_points],
         "constraints": [{"type": type(c).__name__, **{f.name: _plain(getattr(c, f.name))
                                                       for f in dataclasses.fields(c)}} for c in model.constraints],
     }
+    if model.loads:                           # written only when there are loads, so older dicts read the same
+        d["loads"] = [{"type": type(x).__name__, **{f.name: _plain(getattr(x, f.name)) for f in dataclasses.fields(x)}}
+                      for x in model.loads]
     if model.source is not None:
         d["source"] = {"kind": model.source.kind, "path": model.source.path,
                        "rotation": _plain(model.source.rotation), "translation": _plain(model.source.translation)}
         if model.source.root != "fixed":      # written only when not the default, so older dicts read the same
             d["source"]["root"] = model.source.root
+        if not model.source.gravity:          # likewise: a gravity-free copy (ModelSource.without_gravity)
+            d["source"]["gravity"] = False
     return d
 
 
@@ -116,15 +126,18 @@ def _items(d, key: str, where: str) -> list:
 
 
 def _body(d, where: str) -> Body:
+    limits = _numbers(d, "limits", where) if isinstance(d, dict) and d.get("limits") is not None else None
     return Body(name=_text(d, "name", where), parent=_text(d, "parent", where, optional=True),
                 joint=_text(d, "joint", where), mass=_numbers(d, "mass", where),
-                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS})
+                **{key: _numbers(d, key, where) for key in _BODY_ARRAYS},
+                limits=None if limits is None else tuple(np.atleast_1d(limits).tolist()))
 
 
 def _task_point(d, where: str) -> TaskPoint:
     directions = _get(d, "directions", where)
     return TaskPoint(_text(d, "name", where), _text(d, "body", where), _numbers(d, "offset", where),
-                     None if directions is None else _numbers(d, "directions", where))
+                     None if directions is None else _numbers(d, "directions", where),
+                     (_text(d, "choice", where) if "choice" in d else ""))
 
 
 def _constraint(d, where: str):
@@ -147,6 +160,19 @@ def _constraint(d, where: str):
     return cls(**kwargs)
 
 
+def _load(d, where: str):
+    """One load declaration (:mod:`cases.loads`) from its dict; the values are checked by ``build_model``."""
+    kind = _text(d, "type", where)
+    cls = _LOAD_TYPES.get(kind)
+    if cls is None:
+        raise SerializeError(f"serialized model: field '{where}.type' is {kind!r}; valid types: {', '.join(_LOAD_TYPES)}")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        kwargs[f.name] = (_text(d, f.name, where) if f.name in ("name", "body", "frame")
+                          else _numbers(d, f.name, where))
+    return cls(**kwargs)
+
+
 def _source(d: dict) -> ModelSource | None:
     """The optional ``source`` field as a :class:`ModelSource` (absent or null: None); its placement is checked by
     ``build_model``."""
@@ -155,7 +181,7 @@ def _source(d: dict) -> ModelSource | None:
         return None
     return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
                        _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"),
-                       _text(value, "root", "source") if "root" in value else "fixed")
+                       _text(value, "root", "source") if "root" in value else "fixed", value.get("gravity", True))
 
 
 def model_from_dict(d: dict) -> Model:
@@ -173,4 +199,5 @@ def model_from_dict(d: dict) -> Model:
         _text(d, "name", ""), bodies, gravity=_numbers(d, "gravity", ""), input_map=_numbers(d, "input_map", ""),
         task_points=[_task_point(t, f"task_points[{i}]") for i, t in enumerate(_items(d, "task_points", ""))],
         constraints=[_constraint(c, f"constraints[{i}]") for i, c in enumerate(_items(d, "constraints", ""))],
-        source=_source(d))
+        source=_source(d),
+        loads=[_load(x, f"loads[{i}]") for i, x in enumerate(_items(d, "loads", "") if "loads" in d else [])])

@@ -29,12 +29,18 @@ one :class:`BaseNotice` warning saying so and how to float it. The source record
 (``ModelSource.root``), so the reference reads the file the same way.
 
 Inputs: the identity's columns of every joint velocity but a free joint's, whose six velocities are unactuated
-(a floating base has no motor to the world).
+(a floating base has no motor to the world). ``actuated`` (URDF joint names, e.g. ``["joint1", "joint3"]``; the
+command line's ``--actuated joint1,joint3``) makes B the identity's columns of those joints only, in the order given:
+``u[k]`` is the force or torque of ``actuated[k]``. A name that is not a movable joint of the file (unknown, fixed,
+floating, or given twice) is a :class:`~cases.model.ModelError` listing the movable joints.
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
-first, so they are the default; the rest keep Pinocchio's frame order. Leaves welded to the universe are
-skipped.
+first; the rest keep Pinocchio's frame order. Leaves welded to the universe are skipped. The default (first) task
+point is the first leaf that lies on no joint axis of its chain, with the task directions it moves in
+(``cases.task.choose``): a leaf link's origin is often its own joint's origin, on its axis, where the task Jacobian
+is rank-deficient at every state; then the leaf's COM (or an offset point of it) is the default, named
+``LINK:com`` (``LINK:offset``), and a planar chain's task directions are its plane.
 
 Mimic joints: a joint ``A`` with ``<mimic joint="J" multiplier="m" offset="o"/>`` (defaults m = 1, o = 0) keeps its
 own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
@@ -68,6 +74,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cases import task
 from cases.constraints import JointCoupling
 from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoint, build_model
 
@@ -347,8 +354,26 @@ def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
         bodies.append(Body(name=link_of[j], parent=link_of[pm.parents[j]], joint=joint, axis=axis,
                            mass=float(inertia.mass), com=np.array(inertia.lever),
                            inertia=np.array(inertia.inertia), rotation=np.array(placement.rotation),
-                           translation=np.array(placement.translation)))
+                           translation=np.array(placement.translation), limits=_position_limits(pm, j, jm)))
     return bodies
+
+
+#: Beyond this a position limit is taken as none: Pinocchio fills a joint without limits with the largest double.
+UNLIMITED = 1e10
+
+
+def _position_limits(pm, j: int, jm) -> tuple[float, float] | None:
+    """The file's position limits of a one-coordinate joint (revolute, prismatic; a continuous joint has nq 2 in
+    Pinocchio and no limits), or None (then the joint is sampled freely) where there are none (a bound beyond
+    :data:`UNLIMITED`), where the file gives lower > upper, or where the range is empty, lower = upper: URDF's
+    ``<limit effort=".." velocity=".."/>`` without ``lower`` and ``upper`` reads as (0, 0), which would hold the joint
+    at 0 in every sampled state and leave its dynamics unchecked."""
+    if jm.nq != 1:
+        return None
+    lower, upper = float(pm.lowerPositionLimit[jm.idx_q]), float(pm.upperPositionLimit[jm.idx_q])
+    if not (abs(lower) < UNLIMITED and abs(upper) < UNLIMITED and lower < upper):
+        return None
+    return lower, upper
 
 
 def _actuated(bodies: list[Body]) -> np.ndarray:
@@ -357,6 +382,40 @@ def _actuated(bodies: list[Body]) -> np.ndarray:
     driven = [j == "driven" for b in bodies for j in (["free"] * 6 if b.joint == "free" else
                                                        ["driven"] * JOINT_DOF[b.joint][1])]
     return np.eye(len(driven))[:, driven]
+
+
+def _named_inputs(robot: ET.Element, actuated, problems: list[str]) -> list[str]:
+    """The child links of the ``actuated`` URDF joints (module docstring, "Inputs"), in the order given; a problem
+    for each name that is not a movable joint of the file, or given twice."""
+    if isinstance(actuated, str) or not all(isinstance(name, str) for name in actuated):
+        problems.append(f"actuated must be a list of URDF joint names, got {actuated!r}")
+        return []
+    types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
+    movable = sorted(name for name, kind in types.items() if kind in ("revolute", "continuous", "prismatic"))
+    n_before = len(problems)
+    if not actuated:
+        problems.append(f"actuated names no joint; name at least one of the movable joints {movable}")
+    problems += [f"actuated names joint '{name}' {actuated.count(name)} times; name each joint once"
+                 for name in sorted(set(actuated)) if actuated.count(name) > 1]
+    for name in dict.fromkeys(actuated):
+        if name not in types:
+            problems.append(f"actuated joint '{name}' is not a joint of the file; movable joints: {movable}")
+        elif name not in movable:
+            problems.append(f"actuated joint '{name}' is {types[name]}, which no motor drives here; movable joints: "
+                            f"{movable}")
+    links = _joint_links(robot)
+    return [] if len(problems) > n_before else [links[name][1] for name in actuated]
+
+
+def _input_map(bodies: list[Body], driven_links: list[str] | None) -> np.ndarray:
+    """B (module docstring, "Inputs"): :func:`_actuated`, or the identity's columns of the bodies ``driven_links``
+    names (each a one-velocity joint), in that order."""
+    if driven_links is None:
+        return _actuated(bodies)
+    index = {b.name: k for k, b in enumerate(bodies)}
+    nv = sum(JOINT_DOF[b.joint][1] for b in bodies)
+    starts = np.cumsum([0] + [JOINT_DOF[b.joint][1] for b in bodies[:-1]])
+    return np.eye(nv)[:, [int(starts[index[link]]) for link in driven_links]]
 
 
 def _couplings(pm, link_of: dict, mimics: list[Mimic]) -> list[JointCoupling]:
@@ -415,9 +474,10 @@ def read_file(pin, kind: str, path: str, root: str = "fixed"):
     return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if root == "free" else pin.buildModelFromUrdf(path)
 
 
-def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
+def from_urdf(path, name: str | None = None, base: str | None = None, actuated=None) -> Model:
     """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring), with a
-    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`).
+    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`) and, with
+    ``actuated`` (URDF joint names), the input map of those joints only (module docstring, "Inputs").
 
     Raises :class:`FileNotFoundError` if the path does not exist, :class:`UrdfError` if it cannot be read or
     parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no equivalent here (planar,
@@ -429,6 +489,8 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
     model_name = name if name is not None else robot.get("name") or path.stem
     problems = _tree_problems(robot)
     mimics = _mimics(robot, problems)
+    driven = None if actuated is None or problems else _named_inputs(
+        robot, actuated if isinstance(actuated, str) else list(actuated), problems)
     root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
     if problems:
         raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
@@ -438,7 +500,7 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
         raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
                           "(pip install pin)") from exc
     source = ModelSource("urdf", str(path.resolve()), root=root)
-    model = convert(pin, _parse(pin, path, root), model_name, source, mimics)
+    model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven)
     if notice is not None:
         import warnings
 
@@ -446,9 +508,11 @@ def from_urdf(path, name: str | None = None, base: str | None = None) -> Model:
     return model
 
 
-def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = ()) -> Model:
+def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = (),
+            driven_links: list[str] | None = None) -> Model:
     """Our :class:`Model` of a parsed Pinocchio model (module docstring): bodies, gravity, task points, the mimic
-    couplings and the file's ``source``; a ModelError naming the file for what cannot be converted."""
+    couplings, the input map (of the bodies ``driven_links`` names, else every joint but a free one) and the file's
+    ``source``; a ModelError naming the file for what cannot be converted."""
     problems: list[str] = []
     link_of = _links_of(pin, pm)
     bodies = _bodies(pm, link_of, problems)
@@ -459,8 +523,22 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
         raise ModelError(model_name, problems + [where])
     leaves = _task_points(pin, pm, link_of)
     try:
-        return build_model(model_name, bodies, gravity=np.array(pm.gravity.linear), input_map=_actuated(bodies),
-                           task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
-                           source=source)
+        model = build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
+                            input_map=_input_map(bodies, driven_links),
+                            task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
+                            source=source)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
         raise ModelError(model_name, list(exc.problems) + [where]) from None
+    return _with_default_task_point(model, leaves, source)
+
+
+def _with_default_task_point(model: Model, leaves: list[TaskPoint], source: ModelSource) -> Model:
+    """``model`` with the first leaf that lies on no joint axis (or a point of a leaf body, ``cases.task.choose``) as
+    its default task point, the other leaves after it (module docstring, "Task points")."""
+    if not leaves:
+        return model
+    kind = source.kind.upper()
+    chosen = task.choose(model, leaves, [f"the {kind} leaf link '{tp.name}' (its origin)" for tp in leaves])
+    rest = [tp for tp in model.task_points if tp.name != chosen.name]
+    return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
+                       task_points=[chosen, *rest], constraints=model.constraints, source=model.source)

@@ -11,21 +11,37 @@ itself, so that a bug here cannot move them together.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from cases.model import Model
-from crosscheck.conditioning import constraint_conditions, normwise_scales
+from crosscheck.conditioning import constraint_conditions, normwise_scales, scales_of
 from formalisms.interface import UNSUPPORTED, Split
 
 
-def unconstrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, drift, ctrl, total, extras=None,
+@dataclass(frozen=True)
+class Sizes:
+    """What the definition of ``accel_scale`` reads off a model, for a plugin given no crosscheck Model (``needs =
+    "source"`` or ``"pinocchio"``, :mod:`crosscheck.needs`): the total mass (kg) and the gravity vector (world, m/s^2)
+    of the plugin's own model of the scene. Pass it to :func:`unconstrained_split` in place of the model."""
+
+    mass: float
+    gravity: np.ndarray
+
+
+def unconstrained_split(model: Model | Sizes, *, M, Cqd, g, tau_ctrl, qd, drift, ctrl, total, extras=None,
                         task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
                         joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED,
                         task_inertia=UNSUPPORTED) -> Split:
     """The :class:`Split` of an unconstrained model from a backend's drift, ctrl and total and its own M, ``C qd``,
     ``g`` and applied force ``tau_ctrl = B u``: adds the control power ``tau_ctrl . qd`` (per coordinate too),
-    ``cond(M)`` and ``accel_scale``."""
-    cond_M, accel_scale = normwise_scales(model, np.asarray(M, dtype=float), Cqd, g, tau_ctrl, qd)
+    ``cond(M)`` and ``accel_scale`` (from the model, or from :class:`Sizes`)."""
+    M = np.asarray(M, dtype=float)
+    if isinstance(model, Sizes):
+        cond_M, accel_scale = scales_of(M, Cqd, g, tau_ctrl, qd, model.mass, model.gravity)
+    else:
+        cond_M, accel_scale = normwise_scales(model, M, Cqd, g, tau_ctrl, qd)
     per = np.asarray(tau_ctrl, dtype=float) * np.asarray(qd, dtype=float)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=float(per.sum()),
                  power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
@@ -40,6 +56,9 @@ def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, l
     constraint power ``(Jc^T lam) . qd`` (per coordinate too, 5.5), ``Jc qd``, and the conditions ``constraint``,
     ``constraint_kept``, ``constraint_consistency``, the rank and ``lam_scale``; ``accel_scale`` includes the
     accelerations the constraint force can produce."""
+    if isinstance(model, Sizes):
+        raise TypeError("constrained_split needs crosscheck's Model (its length and inertia scales define the "
+                        "constraint conditions): declare needs = 'model', or build the Split's fields yourself")
     Jc, bias = np.asarray(Jc, dtype=float), np.asarray(bias, dtype=float)
     lam, lam_drift = np.asarray(lam, dtype=float).reshape(-1), np.asarray(lam_drift, dtype=float).reshape(-1)
     free_split = unconstrained_split(model, M=M, Cqd=Cqd, g=g, tau_ctrl=tau_ctrl, qd=qd, **free)

@@ -1,13 +1,33 @@
 """The backends the harness evaluates: the built-in formalisms, the Pinocchio reference, and plugins.
 
 A plugin is a user's own backend behind the formalisms' contract (:class:`formalisms.interface.Formalism`): an
-object with a ``name`` (letters, digits, ``_`` and ``-``), a callable ``split(model, q, qd, u)`` returning a
-:class:`~formalisms.interface.Split`, and optionally a one-line ``summary`` and a ``split_chart``. It joins in one
-of two ways:
+object with a ``name`` (letters, digits, ``_`` and ``-``), a callable ``split(X, q, qd, u)`` returning a
+:class:`~formalisms.interface.Split`, and optionally a one-line ``summary``, a ``split_chart(X, chart, p, pd,
+tau_p)`` and ``needs``, what ``X`` is. It joins in one of two ways:
 
 * an entry point in the group ``crosscheck.formalisms`` of an installed distribution, named like the backend
   (``closed_form_pendulum = "closed_form_pendulum:CLOSED_FORM"``), discovered on first use, in name order;
-* :func:`load_plugin` (``"module:object"``, the command line's ``--plugin``) or :func:`register` (the object).
+* :func:`load_plugin` (the command line's ``--plugin``): ``"module:object"`` (a module on ``sys.path`` or in the
+  current directory) or ``"path/to/file.py:object"`` (a file, no installation or environment variable needed);
+  or :func:`register` (the object).
+
+What a plugin needs
+-------------------
+``needs`` (a string attribute; default ``"model"``) declares what ``X`` is (:mod:`crosscheck.needs`):
+
+* ``"model"``: crosscheck's :class:`cases.model.Model` (bodies, inertias, gravity, B, constraints);
+* ``"source"``: a :class:`crosscheck.needs.SourceScene`, the file the model was loaded from (URDF or MJCF) and where
+  the scene places it (rigid placement, gravity on or off), with the layout of a state: for code that reads the
+  file itself (``examples/mujoco_plugin.py``);
+* ``"pinocchio"``: a :class:`crosscheck.needs.PinocchioScene`, a Pinocchio model and data built from the same source
+  (the file for a loaded model, else our data) and the maps between our coordinate order and Pinocchio's.
+
+``split`` is called on the case's scene and also on **moved scenes** (the frame checks: the file's world placed by
+a rigid transform, gravity turned with it) and on **gravity-free copies** (the hints at a failing state): ``X``
+always describes the scene of that call, never the case as loaded. A value of ``needs`` not in
+:data:`crosscheck.needs.NEEDS` is a PluginError at load. What an input cannot describe raises
+``ModelNotSupported``: a ``"source"`` plugin on a model built in code (a built-in case, a fuzz model) has no file,
+and is NOT COMPARED there.
 
 Order (:func:`names`): the five formalisms, the reference, then the plugins (entry points first). Plugins come
 last so that adding one never moves a built-in backend: with and without plugins the built-ins keep their places
@@ -21,15 +41,18 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import importlib.util
 import os
 import re
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
 import formalisms
+from crosscheck.needs import NEEDS, given
 from formalisms.interface import Formalism, Split, Unsupported
 
 REFERENCE_NAME = "pinocchio"
@@ -50,14 +73,24 @@ class PluginError(Exception):
 
 @dataclass(frozen=True)
 class _Checked:
-    """A plugin's ``split`` (or ``split_chart``) whose result must be a Split; anything else is a TypeError, which
-    the gate reports as that backend's error at that state."""
+    """A plugin's ``split`` (or ``split_chart``), given what the plugin ``need``s for the model of each call
+    (:func:`crosscheck.needs.given`), whose result must be a Split; anything else is a TypeError, which the gate
+    reports as that backend's error at that state. A plugin loaded by spec is sent to a worker process as its spec
+    (:meth:`__reduce__`), so a plugin loaded from a file path needs no importable module there."""
 
     name: str
     function: Callable[..., Any]
+    need: str = "model"
+    spec: str | None = None
+    attribute: str = "split"
+
+    def __reduce__(self):
+        if self.spec is None:
+            return super().__reduce__()
+        return _reloaded, (self.spec, self.name, self.attribute)
 
     def __call__(self, model, *args, **kwargs) -> Split:
-        out = self.function(model, *args, **kwargs)
+        out = self.function(given(self.need, model, self.name), *args, **kwargs)
         if not isinstance(out, Split):
             raise TypeError(f"plugin '{self.name}' returned {type(out).__name__}, not a formalisms.interface.Split "
                             "(build one with crosscheck.assemble.unconstrained_split or constrained_split)")
@@ -84,6 +117,11 @@ _plugins: dict[str, _Plugin] = {}
 _discovered = False
 
 
+def _reloaded(spec: str, name: str, attribute: str) -> _Checked:
+    """A plugin's checked ``split`` or ``split_chart`` in another process: the plugin loaded there by its spec."""
+    return getattr(load_plugin(spec), attribute)
+
+
 def _problems(obj) -> list[str]:
     """What keeps ``obj`` from being a backend (empty when nothing)."""
     name, split = getattr(obj, "name", None), getattr(obj, "split", None)
@@ -100,6 +138,11 @@ def _problems(obj) -> list[str]:
                    "coordinates only)")
     if not isinstance(summary, str):
         out.append(f"a 'summary' that is not a string (got {type(summary).__name__})")
+    need = getattr(obj, "needs", NEEDS[0])
+    if not isinstance(need, str) or need not in NEEDS:
+        out.append(f"needs = {need!r}: declare one of 'model' (crosscheck's Model, the default), 'source' (the file "
+                   "the model was loaded from and the scene's placement) or 'pinocchio' (a Pinocchio model and data "
+                   "of the same source)")
     return out
 
 
@@ -117,9 +160,9 @@ def _add(obj, source: str, spec: str | None) -> Formalism:
             return _plugins[name].formalism
         raise PluginError(f"{source} is named '{name}', a name already taken by {_plugins[name].source}; "
                           "give one of them another name")
-    chart = getattr(obj, "split_chart", None)
-    formalism = Formalism(name, getattr(obj, "summary", ""), _Checked(name, obj.split),
-                          None if chart is None else _Checked(name, chart))
+    chart, need = getattr(obj, "split_chart", None), getattr(obj, "needs", NEEDS[0])
+    formalism = Formalism(name, getattr(obj, "summary", ""), _Checked(name, obj.split, need, spec),
+                          None if chart is None else _Checked(name, chart, need, spec, "split_chart"))
     _plugins[name] = _Plugin(obj, formalism, source, spec)
     return formalism
 
@@ -147,8 +190,35 @@ def _discover() -> None:
     _discovered = True
 
 
+def _import_file(path_text: str, spec: str):
+    """Import the plugin's module from a ``.py`` file (relative to the current directory), as a module named after
+    the file."""
+    path = Path(path_text).resolve()
+    if not path.is_file():
+        raise PluginError(f"plugin '{spec}': file '{path_text}' not found (from {os.getcwd()})")
+    name = path.stem
+    loaded = sys.modules.get(name)
+    if loaded is not None:
+        if getattr(loaded, "__file__", None) and Path(loaded.__file__).resolve() == path:
+            return loaded
+        raise PluginError(f"plugin '{spec}': a module named '{name}' is already imported (from "
+                          f"{getattr(loaded, '__file__', None) or 'built in'}); rename the file")
+    found = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(found)
+    sys.modules[name] = module
+    try:
+        found.loader.exec_module(module)
+    except Exception as exc:  # user code: any failure at import is reported as such
+        del sys.modules[name]
+        raise PluginError(f"plugin '{spec}': importing file '{path_text}' failed: {type(exc).__name__}: "
+                          f"{exc}") from exc
+    return module
+
+
 def _import(module_name: str, spec: str):
     """Import the plugin's module; the current directory is searched too (after the installed packages)."""
+    if module_name.endswith(".py"):
+        return _import_file(module_name, spec)
     if os.getcwd() not in sys.path:
         sys.path.append(os.getcwd())
     try:
@@ -165,10 +235,12 @@ def _import(module_name: str, spec: str):
 
 
 def load_plugin(spec: str) -> Formalism:
-    """Load and register the backend ``"module:object"`` (``object`` may be dotted); loading it again is a no-op."""
-    module_name, sep, attr = spec.partition(":")
+    """Load and register the backend ``"module:object"`` or ``"path/to/file.py:object"`` (``object`` may be dotted);
+    loading it again is a no-op."""
+    module_name, sep, attr = spec.rpartition(":")
     if not sep or not module_name or not attr:
-        raise PluginError(f"a plugin is given as MODULE:OBJECT (e.g. mypkg.dynamics:BACKEND), got '{spec}'")
+        raise PluginError(f"a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
+                          f"examples/mujoco_plugin.py:MUJOCO), got '{spec}'")
     _discover()
     obj = _import(module_name, spec)
     for part in attr.split("."):

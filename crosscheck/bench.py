@@ -138,6 +138,14 @@ class Results:
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1, sort_keys=True)
 
+    @classmethod
+    def from_json(cls, text: str) -> "Results":
+        """The results :meth:`to_json` wrote (``reports/speed_accuracy.json``), to render them again."""
+        d = json.loads(text)
+        return cls(d["plan"], d["machine"], [Measurement(**m) for m in d["measurements"]],
+                   [Preparation(**p) for p in d["preparations"]], [Representation(**r) for r in d["representations"]],
+                   d["gate_s"], d["seconds"])
+
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C during :func:`run`: ``results`` holds what was measured until then, ``where`` what was running."""

@@ -1,10 +1,13 @@
 """The bench's markdown report and charts (``reports/speed_accuracy.md``, ``speed_accuracy.png``,
-``speed_scaling.png``) from :class:`crosscheck.bench.Results`."""
+``speed_scaling.png``) from :class:`crosscheck.bench.Results`, as measured or as saved in ``speed_accuracy.json``
+(:func:`write_from_json`: ``python -m crosscheck.bench_report reports/speed_accuracy.json`` renders them again
+without measuring)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from crosscheck import plots
 from crosscheck.bench import Results
 
 #: Relative errors below this are drawn at it on log axes (an exact answer has error 0).
@@ -84,56 +87,71 @@ def _representation_table(res: Results) -> list[str]:
     return lines
 
 
-def _marker_styles(names: list[str]) -> dict:
-    markers = "osD^v<>PX*h"
-    return {name: markers[i % len(markers)] for i, name in enumerate(names)}
-
-
 def _order(values) -> list:
     return list(dict.fromkeys(values))
 
 
-def chart_speed_accuracy(res: Results, path: Path) -> None:
-    """Time per state against the largest relative error of the total (log-log): one marker per backend, one colour
-    per scene; single calls left, batches right."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def family(m) -> str:
+    """The scene family a measurement belongs to: the planar chain of any length is one family."""
+    return "n_link_pendulum" if m.links is not None else m.scene
 
-    names, scenes = _order(m.backend for m in res.measurements), _order(m.scene for m in res.measurements)
-    marker, colour = _marker_styles(names), {s: plt.cm.tab20(i % 20) for i, s in enumerate(scenes)}
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
-    for ax, attr, title in ((axes[0], "single_s", "single call"), (axes[1], "batch_s", "batch")):
-        for m in res.measurements:
-            if not m.error_max["total"] == m.error_max["total"]:
-                continue
-            ax.scatter(getattr(m, attr) * 1e6, max(m.error_max["total"], ERROR_FLOOR), marker=marker[m.backend],
-                       color=colour[m.scene], s=36, edgecolors="black", linewidths=0.3)
-        ax.set(xscale="log", yscale="log", xlabel="time per state (us)", title=title)
+
+def _error(m) -> float | None:
+    """The largest relative error of the total drawn on log axes (at least :data:`ERROR_FLOOR`), None for NaN."""
+    e = m.error_max["total"]
+    return None if e != e else max(e, ERROR_FLOOR)
+
+
+def chart_speed_accuracy(res: Results, path: Path) -> None:
+    """Time per state against the largest relative error of the total (log-log), one panel per scene family; a
+    colour per backend (the same in every figure), a filled circle for a single call and an open square for a batch
+    (the chain's lengths joined by a line, n growing with the time); the same axes in every panel; the legend under
+    the panels."""
+    plt = plots.pyplot()
+    names = _order(m.backend for m in res.measurements)
+    families = _order(family(m) for m in res.measurements)
+    cols = 2 if len(families) > 1 else 1
+    rows = max(1, -(-len(families) // cols))   # an interrupted bench may have measured nothing yet
+    fig, axes = plt.subplots(rows, cols, figsize=(plots.WIDTH_IN, 3.3 * rows + 0.9), squeeze=False, sharex=True,
+                             sharey=True, layout="constrained")
+    for ax, fam in zip(axes.flat, families):
+        for name in names:
+            colour = plots.backend_colour(name, names)
+            for attr, marker, face in (("single_s", "o", colour), ("batch_s", "s", "none")):
+                ms = sorted((m for m in res.measurements if family(m) == fam and m.backend == name
+                             and _error(m) is not None), key=lambda m: m.links or 0)
+                x, y = [getattr(m, attr) * 1e6 for m in ms], [_error(m) for m in ms]
+                ax.plot(x, y, marker=marker, ls="-" if len(ms) > 1 else "", lw=0.8, ms=5, color=colour,
+                        markerfacecolor=face, markeredgecolor=colour)
+        links = sorted({m.links for m in res.measurements if family(m) == fam and m.links is not None})
+        title = fam + (f" (n = {', '.join(map(str, links))})" if links else "")
+        ax.set(xscale="log", yscale="log", title=title)
         ax.grid(True, which="major", alpha=0.3)
-    axes[0].set_ylabel("max relative error of total vs 50-digit reference")
-    handles = [plt.Line2D([], [], marker=marker[n], linestyle="", color="grey", label=n) for n in names]
-    handles += [plt.Line2D([], [], marker="s", linestyle="", color=colour[s], label=s) for s in scenes]
-    fig.legend(handles=handles, loc="center right", fontsize=7, frameon=False)
-    fig.subplots_adjust(right=0.8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    for ax in axes[-1]:
+        ax.set_xlabel("time per state (us)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("max relative error of total")
+    for ax in list(axes.flat)[len(families):]:
+        ax.set_visible(False)
+    handles = [plt.Line2D([], [], color=plots.backend_colour(n, names), marker="o", ls="", label=n) for n in names]
+    handles += [plt.Line2D([], [], color="0.3", marker="o", ls="", label="single call"),
+                plt.Line2D([], [], color="0.3", marker="s", markerfacecolor="none", ls="", label="batch")]
+    fig.suptitle("Speed against accuracy (error against the 50-digit reference; same axes in every panel)")
+    plots.legend_below(fig, handles, columns=4)
+    plots.save(fig, path)
 
 
 def chart_scaling(res: Results, path: Path) -> None:
     """Time per state against the number of links of the planar chain: solid single call, dashed batch, dotted
-    Pinocchio aba."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    Pinocchio aba; the legend right of the panel."""
+    plt = plots.pyplot()
     chain = [m for m in res.measurements if m.links is not None]
     names = _order(m.backend for m in chain)
-    fig, ax = plt.subplots(figsize=(10, 5))
-    for i, name in enumerate(names):
+    fig, ax = plt.subplots(figsize=(plots.WIDTH_IN, 4.5))
+    for name in names:
         rows = sorted((m for m in chain if m.backend == name), key=lambda m: m.links)
         x = [m.links for m in rows]
-        colour = plt.cm.tab10(i % 10)
+        colour = plots.backend_colour(name, names)
         ax.plot(x, [m.single_s * 1e6 for m in rows], "-o", color=colour, ms=3, label=f"{name} single")
         ax.plot(x, [m.batch_s * 1e6 for m in rows], "--", color=colour, label=f"{name} batch")
     aba = sorted({(m.links, m.aba_s) for m in chain if m.backend == names[0]}) if names else []
@@ -144,10 +162,8 @@ def chart_scaling(res: Results, path: Path) -> None:
     ax.set_xticks(links, [str(n) for n in links])
     ax.minorticks_off()
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plots.legend_right(fig, ax.get_legend_handles_labels()[0], width=0.25)
+    plots.save(fig, path)
 
 
 def render(res: Results, target: str = "panda", interrupted: str = "") -> str:
@@ -211,6 +227,13 @@ def render(res: Results, target: str = "panda", interrupted: str = "") -> str:
     return "\n".join(lines)
 
 
+def write_from_json(json_path: Path, out_dir: Path | None = None) -> Path:
+    """Render the report and its charts again from the raw numbers a bench saved (``speed_accuracy.json``), into
+    ``out_dir`` (default: beside the JSON), without measuring anything; returns the markdown's path."""
+    json_path = Path(json_path)
+    return write(Results.from_json(json_path.read_text()), Path(out_dir) if out_dir else json_path.parent)
+
+
 def write(res: Results, out_dir: Path, interrupted: str = "") -> Path:
     """``speed_accuracy.md``, its two charts and the raw numbers (``speed_accuracy.json``) in ``out_dir``;
     ``interrupted``: :func:`render`."""
@@ -222,3 +245,10 @@ def write(res: Results, out_dir: Path, interrupted: str = "") -> Path:
     path.write_text(render(res, interrupted=interrupted))
     return path
 
+
+
+if __name__ == "__main__":
+    import sys
+
+    print(write_from_json(Path(sys.argv[1] if len(sys.argv) > 1 else "reports/speed_accuracy.json"),
+                          Path(sys.argv[2]) if len(sys.argv) > 2 else None))

@@ -1,4 +1,8 @@
-"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench.
+"""The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench, stability,
+trajectory, reports.
+
+Outputs: every command writes under :data:`OUTPUT_DIR` (``crosscheck-out/``, git-ignored) unless told otherwise; the
+committed reports in :data:`REPORTS_DIR` are written only by ``crosscheck reports`` (:data:`REPORTS`).
 
 Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
 one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report).
@@ -9,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import shlex
 import sys
@@ -22,17 +27,25 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
+from cases.task import TaskPointError
 from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
-from crosscheck.report import render
+from crosscheck import report as gate_report
+from crosscheck.report import task_point_lines
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
-DEFAULT_REPORT = "reports/gate.md"
+#: Where every command writes by default: untracked (``.gitignore``), so running a command never dirties a clone.
+OUTPUT_DIR = "crosscheck-out"
+#: The committed reports, written only by ``crosscheck reports`` (:data:`REPORTS`).
+REPORTS_DIR = "reports"
+DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
+#: ``fuzz --out`` and ``replay --dir`` (``crosscheck.fuzz.DEFAULT_DIR`` for the Python API).
+DEFAULT_FUZZ_DIR = f"{OUTPUT_DIR}/fuzz"
 #: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED = 130
 
@@ -67,17 +80,31 @@ def _vector(text: str, label: str) -> list[float]:
 
 #: Largest seed: numpy's and Hypothesis' generators take any non-negative integer; 2^63 - 1 keeps it one int64.
 MAX_SEED = 2**63 - 1
-#: Worker processes per CPU at most (``--workers`` of gate and fuzz): each holds the backends, Pinocchio and the
-#: models' compiled code (hundreds of MB), and more processes than CPUs only share them.
+#: Worker processes per CPU at most (``--workers`` of gate, fuzz, faults, trajectory): each holds the backends,
+#: Pinocchio and the models' compiled code (hundreds of MB), and more processes than CPUs only share them.
 WORKERS_PER_CPU = 2
 
 
-def _workers(count: int, least: int) -> int:
-    """``--workers``: from ``least`` to :data:`WORKERS_PER_CPU` per CPU."""
-    most = WORKERS_PER_CPU * (os.cpu_count() or 1)
-    if not least <= count <= most:
-        raise UsageError(f"--workers takes {least} to {most} ({WORKERS_PER_CPU} per CPU) processes, got {count}")
-    return count
+def workers(requested: int | None, units: float) -> int:
+    """The worker processes of a command (``--workers``, one meaning in every command): 0 runs the work in this
+    process, N >= 1 in N spawned worker processes, never more than the ``units`` of work there are (cases, chunks,
+    jobs); None, the default, is one per CPU, but this process when there is only one unit (a pool of one would only
+    add its start-up). At most :data:`WORKERS_PER_CPU` per CPU."""
+    cpus = os.cpu_count() or 1
+    most = WORKERS_PER_CPU * cpus
+    if requested is None:
+        return 0 if units <= 1 else int(min(cpus, units))
+    if not 0 <= requested <= most:
+        raise UsageError(f"--workers takes 0 to {most} ({WORKERS_PER_CPU} per CPU) processes, got {requested}")
+    return int(min(requested, max(units, 1)))
+
+
+def add_workers_option(parser: argparse.ArgumentParser, unit: str) -> None:
+    """``--workers N`` with the one meaning of :func:`workers`; ``unit`` names what the processes share out."""
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help=f"0: run in this process; N >= 1: N worker processes, at most one per {unit} (default: "
+                             f"one per CPU, or this process when there is only one {unit}; at most "
+                             f"{WORKERS_PER_CPU} per CPU)")
 
 
 #: Most rigid frame changes a gate run samples (``--frames``); ``eval --frame gK`` takes K below it.
@@ -118,8 +145,16 @@ def _specs(args) -> list[CaseSpec]:
     if base is not None and not args.model:
         raise UsageError("--base applies to a --model URDF file (fixed: the root link welded to the world; free: a "
                          "free joint added above it)")
-    specs += [CaseSpec(Path(path).stem, path=path, base=base) for path in args.model]
-    return specs
+    actuated = getattr(args, "actuated", None)
+    if actuated is not None and not args.model:
+        raise UsageError("--actuated applies to a --model URDF file (its joint names, e.g. --actuated joint1,joint3); "
+                         "a built-in case has its own input map")
+    actuated = None if actuated is None else tuple(name.strip() for name in actuated.split(","))
+    specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
+    point = getattr(args, "task_point", None)
+    if point is not None and len(specs) != 1:
+        raise UsageError("--task-point needs exactly one --case or --model (a body of that model)")
+    return [dataclasses.replace(spec, task_point=point) for spec in specs]
 
 
 def _backends(selected: list[str] | None):
@@ -131,6 +166,12 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
     runs, so they are in ``backends.names()``; a worker process loads them from ``backends.plugin_specs()``."""
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+
+
+def add_task_point_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task-point", metavar="BODY[:x,y,z]",
+                        help="the task point: a body's point at offset x,y,z in its frame (m); BODY alone: its centre "
+                        "of mass (an offset point of it if that lies on a joint axis). Default: the model's own")
 
 
 def add_quiet_option(parser: argparse.ArgumentParser) -> None:
@@ -189,32 +230,33 @@ def cmd_gate(args) -> int:
         raise UsageError("--samples must be at least 1")
     if not 0 <= args.frames <= MAX_FRAMES:
         raise UsageError(f"--frames takes 0 (off) to {MAX_FRAMES} frame changes per case, got {args.frames}")
-    _workers(args.workers, 0)
     specs = _specs(args)
+    count = workers(args.workers, len(specs))
     chosen = _backends(args.formalism)
     for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
         preflight.check_model(model)
     known = _registry(args)
     placeholder = "# crosscheck gate\n\nThe run writing this report has not finished (interrupted or failed).\n"
     report = preflight.claim_output(args.report, "report", placeholder)
+    preflight.claim_output(gate_report.details_path(report), "report (its details file)", placeholder)
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
-                    linearization=not args.no_linearization)
+                    linearization=not args.no_linearization, joint_limits=not args.ignore_limits)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
-                              workers=args.workers, required=_required(args))
+                              workers=count, required=_required(args))
         except gate.Interrupted as stop:
             result = stop.result
     applied = registry.apply(known, result) if known else None
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
-        report.write_text(render(result, command, applied))
+        gate_report.write(result, command, report, applied)
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    report.write_text(render(result, command, applied))
+    _, details = gate_report.write(result, command, report, applied, gate_report.mechanism_figures(result, report))
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():
@@ -233,6 +275,9 @@ def cmd_gate(args) -> int:
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
     for case in result.cases:
+        for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
+            print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)
+    for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
     for name in result.absent:
@@ -247,7 +292,7 @@ def cmd_gate(args) -> int:
             print(f"FAIL self-test: {line}", file=sys.stderr)
         print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
               "canaries caught and named", file=sys.stderr)
-    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}")
+    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report} (details in {details})")
     return 0 if result.passed else 1
 
 
@@ -399,7 +444,7 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base,
+                                     base=args.base, actuated=args.actuated, task_point=args.task_point,
                                      param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
@@ -414,6 +459,8 @@ def cmd_eval(args) -> int:
     _in_chart_domain(chart, p, pd)
     if model.constraints:
         p, pd = _admissible(model, chart, p, pd, args.project)
+    for problem in sampling.outside_limits(model, p) if on_q else ():
+        print(f"crosscheck: warning: {problem}; evaluated there all the same", file=sys.stderr)
     u, tau_p = _inputs(args, model, chart, p)
     chosen = _backends(args.formalism)
     closed = None if args.formalism else spec.closed_form()       # the case's closed form votes in the gate too
@@ -447,6 +494,8 @@ def cmd_eval(args) -> int:
         if model.constraints:
             keys += ("lam", "lam_drift", "constraint_force", "power_constr", "power_constr_per_coord",
                      "constraint_rank")
+        if model.loads:                   # the external loads' generalized force tau_ext and its power
+            keys += ("external_force", "power_ext")
         for key in keys:
             print(f"  {key:22s} {values[key]}")
     for name, reason in unsupported.items():
@@ -579,7 +628,7 @@ def _frame(name: str, seed: int, case: str) -> frames.Frame:
     return frames.sampled(seed, case, int(name[1:]) + 1)[-1]
 
 
-DEFAULT_FAULTS_REPORT = "reports/faults.md"
+DEFAULT_FAULTS_REPORT = f"{OUTPUT_DIR}/faults.md"
 
 
 def _chosen_faults(args):
@@ -657,9 +706,13 @@ def cmd_faults(args) -> int:
 def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list) -> None:
     """Hunt each backend fault, then each common-mode fault, with the default gate (``crosscheck.faults``,
     ``crosscheck.common_mode``), appending to ``hunts`` and ``shared_hunts`` as each ends (so that an interrupted run
-    keeps them); a line per fault on stdout."""
+    keeps them); a line per fault on stdout. ``--workers`` (:func:`workers`, one process per fault at most): in this
+    process, or in a pool (:func:`_hunt_in_pool`), with the same hunts in the same order."""
     from crosscheck import common_mode, faults
 
+    count = workers(args.workers, len(chosen) + len(shared))
+    if count:
+        return _hunt_in_pool(args, chosen, shared, known, display, hunts, shared_hunts, count)
     for fault in chosen:
         hunts.append(faults.hunt(fault, samples=args.samples, seed=args.seed, known=known,
                                  progress=_hunting(display, fault.name)))
@@ -670,6 +723,52 @@ def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, sha
                                              progress=_hunting(display, fault.name)))
         print(common_mode.line(shared_hunts[-1]), flush=True)
         display.advance()
+
+
+def _init_hunter() -> None:
+    """A fault-hunting worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread."""
+    import signal
+
+    global _HUNTER_LIMITS
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _HUNTER_LIMITS = threadpool_limits(limits=BLAS_THREADS, user_api="blas")
+
+
+_HUNTER_LIMITS = None
+
+
+def _hunt_one(shared: bool, name: str, samples: int, seed: int, known):
+    """One fault hunted in a worker process, found by name in its catalog. The hunt comes back without its fault (a
+    fault holds its faulty function, which does not pickle): the parent puts it back."""
+    from crosscheck import common_mode, fault_catalog, faults
+
+    if shared:
+        found = common_mode.hunt(common_mode.get(name), samples=samples, seed=seed, known=known)
+    else:
+        found = faults.hunt(fault_catalog.get(name), samples=samples, seed=seed, known=known)
+    return dataclasses.replace(found, fault=None)
+
+
+def _hunt_in_pool(args, chosen, shared, known, display: Display, hunts: list, shared_hunts: list,
+                  count: int) -> None:
+    """:func:`_hunt_faults` in ``count`` spawned processes: every fault submitted at once, the hunts taken back in
+    catalog order (each printed and appended as it comes, so Ctrl-C keeps the ones in before it)."""
+    import multiprocessing
+
+    from crosscheck import common_mode, faults
+    from crosscheck import workers as worker_processes
+
+    ctx = multiprocessing.get_context("spawn")
+    jobs = [(False, f) for f in chosen] + [(True, f) for f in shared]
+    display.doing(f"{len(jobs)} faults in {count} worker processes")
+    with worker_processes.spawning(), ctx.Pool(count, initializer=_init_hunter) as pool:
+        pending = [pool.apply_async(_hunt_one, (is_shared, f.name, args.samples, args.seed, known))
+                   for is_shared, f in jobs]
+        for (is_shared, fault), result in zip(jobs, pending):
+            found = dataclasses.replace(result.get(), fault=fault)
+            (shared_hunts if is_shared else hunts).append(found)
+            print((common_mode.line if is_shared else faults.line)(found), flush=True)
+            display.advance()
 
 
 def _hunting(display: Display, fault: str):
@@ -703,6 +802,17 @@ def _shard(text: str) -> tuple[int, int]:
     return int(index), int(count)
 
 
+def _fuzz_chunks(args) -> float:
+    """The chunks this shard of the campaign runs (the units its ``--workers`` share out); inf for ``--minutes``."""
+    from crosscheck import fuzz
+
+    if args.minutes is not None:
+        return float("inf")
+    index, count = _shard(args.shard)
+    chunks = math.ceil((args.examples or fuzz.DEFAULT_EXAMPLES) / max(args.chunk_examples or fuzz.CHUNK_EXAMPLES, 1))
+    return len(range(index, chunks, count)) if count else 0   # a bad shard or count: fuzz.config says what is wrong
+
+
 def cmd_fuzz(args) -> int:
     from crosscheck import fuzz
 
@@ -716,10 +826,12 @@ def cmd_fuzz(args) -> int:
     if args.chunk_examples is not None:
         bound["chunk_examples"] = args.chunk_examples
     try:
-        cfg = fuzz.config(seed=args.seed, workers=_workers(args.workers, 0), shard=_shard(args.shard), out=args.out,
+        cfg = fuzz.config(seed=args.seed, workers=workers(args.workers, _fuzz_chunks(args)), shard=_shard(args.shard),
+                          out=args.out,
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
                           constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
+                          loads=fuzz.CONSTRAINT_CHOICES[args.loads],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation,
                           linearization=not args.no_linearization, pfaffian=args.pfaffian, **bound)
@@ -741,6 +853,11 @@ def cmd_replay(args) -> int:
         finding = fuzz.find(Path(args.dir), args.id)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
+    missing = [name for name in (args.formalism or finding["backends"]) if name not in backends.names()]
+    if missing:
+        command = fuzz.replay_command(finding["id"], Path(args.dir), fuzz.campaign_plugins(Path(args.dir)))
+        raise UsageError(f"finding {finding['id']} was evaluated with backend(s) {', '.join(missing)}, not loaded "
+                         f"here; run `{command}`")
     outcome = fuzz.replay(finding, args.formalism)
     print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
           f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")
@@ -779,8 +896,8 @@ def cmd_stability(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``crosscheck bench``: time and error of every backend (reports/speed_accuracy.md and its charts), then the
-    stability maps (reports/stability.md), so one command regenerates both reports. Exit 0: it measures."""
+    """``crosscheck bench``: time and error of every backend (DIR/speed_accuracy.md and its charts), then the
+    stability maps (DIR/stability.md), so one command regenerates both reports. Exit 0: it measures."""
     from crosscheck import bench, bench_report
 
     preflight.claim_directory(args.out, "out")
@@ -807,7 +924,7 @@ def cmd_bench(args) -> int:
 
 
 def _bench_scale(args) -> int:
-    """``crosscheck bench --scale``: large robots and campaigns as whole processes (reports/scale.md)."""
+    """``crosscheck bench --scale``: large robots and campaigns as whole processes (DIR/scale.md)."""
     from crosscheck import scale
 
     plan = scale.QUICK if args.quick else scale.FULL
@@ -831,6 +948,61 @@ def _stability_maps(out: str, quick: bool, display: Display) -> Path:
         display.doing(f"stability: {path} {done}/{count}")
 
     return stability.write_report(Path(out), quick=quick, progress=measured)
+
+
+#: The committed reports (in :data:`REPORTS_DIR`) and the command that writes each there: ``crosscheck reports``
+#: runs these, so the reports carry the command that regenerates them.
+REPORTS = {
+    "gate": ["gate", "--report", f"{REPORTS_DIR}/gate.md"],
+    "faults": ["faults", "--report", f"{REPORTS_DIR}/faults.md"],
+    "bench": ["bench", "--no-stability", "--out", REPORTS_DIR],
+    "stability": ["stability", "--out", REPORTS_DIR],
+    "scale": ["bench", "--scale", "--out", REPORTS_DIR],
+    "trajectories": ["trajectory", "--report", REPORTS_DIR],
+}
+#: The commands of :data:`REPORTS` that take ``--quiet``.
+QUIET = ("gate", "faults", "bench", "scale")
+
+
+def _only(text: str) -> list[str]:
+    """``--only a,b``: report names of :data:`REPORTS`, in the order given."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in REPORTS]
+    if unknown or not names:
+        raise UsageError(f"--only takes report names separated by commas from {', '.join(REPORTS)}; got '{text}'")
+    return list(dict.fromkeys(names))
+
+
+def cmd_reports(args) -> int:
+    """``crosscheck reports``: regenerate the committed reports in :data:`REPORTS_DIR` by running each report's own
+    command (:data:`REPORTS`) in turn. Exit 0 when each command exits 0, 130 at Ctrl-C (the reports not yet run keep
+    their old contents), else 1 (a failing gate or fault hunt still writes its report)."""
+    chosen = _only(args.only) if args.only else list(REPORTS)
+    if not Path(REPORTS_DIR).is_dir():
+        raise UsageError(f"there is no {REPORTS_DIR}/ directory here ({Path.cwd()}): run crosscheck reports from the "
+                         "repository's root, where the committed reports are")
+    codes = {}
+    for name in chosen:
+        argv = REPORTS[name] + (["--quiet"] if args.quiet and name in QUIET else [])
+        print(f"reports: {name}: crosscheck {' '.join(argv)}", flush=True)
+        sub = build_parser().parse_args(argv)
+        sub.argv = argv
+        codes[name] = sub.run(sub)
+        if codes[name] == INTERRUPTED:
+            return _interrupted(f"while regenerating {name}; not run: {', '.join(chosen[len(codes):]) or 'none'}")
+    failed = [name for name, code in codes.items() if code]
+    print(f"reports: {len(chosen)} regenerated in {REPORTS_DIR}/" + (f"; exit non-zero: {', '.join(failed)}"
+                                                                     if failed else ""))
+    return 1 if failed else 0
+
+
+def add_reports_parser(sub) -> None:
+    rep = sub.add_parser("reports", help=f"regenerate the committed reports in {REPORTS_DIR}/ (every other command "
+                         f"writes to {OUTPUT_DIR}/ by default)")
+    rep.add_argument("--only", metavar="NAMES", help=f"comma-separated, from {', '.join(REPORTS)} (default: all; "
+                     "each a full run: the faults took about 17 minutes on 2 CPUs in one process)")
+    rep.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    rep.set_defaults(run=cmd_reports)
 
 
 def _version() -> str:
@@ -859,10 +1031,14 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a URDF (.urdf) or MJCF (.xml) file (repeatable)")
     gate.add_argument("--base", choices=("fixed", "free"),
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                      "of u (default: every joint but a free base's)")
     gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
-    gate.add_argument("--report", default=DEFAULT_REPORT, help=f"markdown report path (default {DEFAULT_REPORT})")
+    gate.add_argument("--report", default=DEFAULT_REPORT, metavar="PATH",
+                      help=f"markdown report path (default {DEFAULT_REPORT}); its details go next to it, "
+                           "NAME-details.md")
     gate.add_argument("--frames", type=int, default=2, help="rigid frame changes per case (default 2; 0: off)")
     gate.add_argument("--no-charts", action="store_true", help="skip the chart invariance checks")
     gate.add_argument("--no-conservation", action="store_true", help="skip the energy and Christoffel checks")
@@ -870,6 +1046,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="skip the comparison of the linearizations A, B (eq. 11) at the first states of each case")
     gate.add_argument("--no-closed-forms", action="store_true",
                       help="leave the article's closed forms (voter closed_form) out of the vote")
+    gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
+                      "(a URDF or MJCF file) declares joint limits (default: within them)")
     gate.add_argument("--no-self-test", action="store_true",
                       help="skip the self-test canaries (known tiny faults the gate must catch)")
     gate.add_argument("--optional", action="append", default=[], metavar="NAME",
@@ -879,9 +1057,8 @@ def build_parser() -> argparse.ArgumentParser:
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     gate.add_argument("--no-registry", action="store_true", help="use no divergence registry")
     gate.add_argument("--junit", metavar="PATH", help="also write a JUnit XML report there")
-    gate.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                      help="worker processes running the cases (default: the number of CPUs; 0: in this process; "
-                      "one case, or 1, also runs here: a pool of one would only add its start-up)")
+    add_workers_option(gate, "case")
+    add_task_point_option(gate)
     add_plugin_option(gate)
     add_quiet_option(gate)
     gate.set_defaults(run=cmd_gate)
@@ -892,6 +1069,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--model", metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file instead of --case")
     ev.add_argument("--base", choices=("fixed", "free"),
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
+    ev.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
+                    "of u (default: every joint but a free base's)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
                     "--chart world or mixed), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "
@@ -913,6 +1092,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--linearize", action="store_true",
                     help="also print each backend's linearization A, B (eq. 11) and the eigenvalues of A, compared")
     ev.add_argument("--json", action="store_true", help="print JSON")
+    add_task_point_option(ev)
     add_plugin_option(ev)
     ev.set_defaults(run=cmd_eval)
 
@@ -930,6 +1110,7 @@ def build_parser() -> argparse.ArgumentParser:
     hunt.add_argument("--registry", metavar="PATH", help="divergence registry, as for gate "
                       f"(default: {registry.DEFAULT_PATH} in the current directory, if present)")
     hunt.add_argument("--no-registry", action="store_true", help="use no divergence registry")
+    add_workers_option(hunt, "fault")
     add_quiet_option(hunt)
     hunt.set_defaults(run=cmd_faults)
 
@@ -938,11 +1119,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "is not given)")
     fz.add_argument("--minutes", type=float, help="run for this long instead (the chunks in flight then finish)")
     fz.add_argument("--seed", type=_seed, default=0, help="campaign seed (default 0)")
-    fz.add_argument("--workers", type=int, default=1, help="worker processes running the chunks (default 1; 0: in "
-                    "this process; a worker is replaced every few chunks, which bounds the memory a campaign takes)")
+    add_workers_option(fz, "chunk")   # a worker is replaced every few chunks: that bounds a campaign's memory
     fz.add_argument("--shard", default="0/1", metavar="i/N", help="run the chunks k with k %% N == i (default 0/1)")
-    fz.add_argument("--out", default=".crosscheck/fuzz", metavar="DIR",
-                    help="campaign directory: findings, chunk log, report.md (default .crosscheck/fuzz)")
+    fz.add_argument("--out", default=DEFAULT_FUZZ_DIR, metavar="DIR",
+                    help=f"campaign directory: findings, chunk log, report.md (default {DEFAULT_FUZZ_DIR})")
     fz.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     fz.add_argument("--max-bodies", type=int, default=4, help="largest drawn model (default 4 bodies)")
     fz.add_argument("--chunk-examples", type=int, default=None, metavar="N",
@@ -952,6 +1132,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="constrained models (default sometimes)")
     fz.add_argument("--pfaffian", action="store_true",
                     help="the drawn constraints may also be Pfaffian: knife edges, point velocities, rolling contacts")
+    fz.add_argument("--loads", choices=["never", "sometimes", "always"], default="sometimes",
+                    help="models with external loads: forces, wrenches, springs (default sometimes)")
     fz.add_argument("--joints", choices=["all", "scalar"], default="all",
                     help="joint types drawn: all (revolute, prismatic, spherical, free; default) or scalar (revolute "
                          "and prismatic only)")
@@ -966,7 +1148,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rp = sub.add_parser("replay", help="evaluate a saved fuzzing finding again")
     rp.add_argument("id", help="the finding's ID (or a unique prefix), as in the campaign report")
-    rp.add_argument("--dir", default=".crosscheck/fuzz", help="campaign directory (default .crosscheck/fuzz)")
+    rp.add_argument("--dir", default=DEFAULT_FUZZ_DIR, help=f"campaign directory (default {DEFAULT_FUZZ_DIR})")
     rp.add_argument("--formalism", action="append", help="evaluate these backends instead of the finding's")
     add_plugin_option(rp)
     rp.set_defaults(run=cmd_replay)
@@ -976,24 +1158,27 @@ def build_parser() -> argparse.ArgumentParser:
     mg.add_argument("--out", required=True, metavar="DIR", help="the merged campaign directory")
     mg.set_defaults(run=cmd_merge)
 
-    bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (reports/)")
+    bn = sub.add_parser("bench", help="speed against accuracy of every backend, stability maps (speed_accuracy.md, "
+                        "stability.md and their charts)", description="Runs in this process, no --workers: the "
+                        "timings need the machine as quiet as it gets.")
     bn.add_argument("--quick", action="store_true", help="few scenes, states and repeats (CI; about a minute)")
-    bn.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    bn.add_argument("--out", default=OUTPUT_DIR, metavar="DIR", help=f"report directory (default {OUTPUT_DIR})")
     bn.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
-    bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (reports/stability.md)")
+    bn.add_argument("--no-stability", action="store_true", help="skip the stability maps (DIR/stability.md)")
     bn.add_argument("--scale", action="store_true", help="instead: the gate on tiago, g1 and solo12, Euler–Lagrange "
-                    "preparation against joints, fuzz throughput, each a whole process (reports/scale.md)")
+                    "preparation against joints, fuzz throughput, each a whole process (DIR/scale.md)")
     add_plugin_option(bn)
     add_quiet_option(bn)
     bn.set_defaults(run=cmd_bench)
 
     st = sub.add_parser("stability", help="true errors and condition numbers along paths into trouble "
-                        "(reports/stability.md)")
+                        "(stability.md)")
     st.add_argument("--quick", action="store_true", help="a few points per path (CI; well under a minute)")
-    st.add_argument("--out", default="reports", metavar="DIR", help="report directory (default reports)")
+    st.add_argument("--out", default=OUTPUT_DIR, metavar="DIR", help=f"report directory (default {OUTPUT_DIR})")
     st.set_defaults(run=cmd_stability)
     from crosscheck import trajectory_cli
-    trajectory_cli.add_parser(sub, _Parser)
+    trajectory_cli.add_parser(sub, _Parser, OUTPUT_DIR, add_workers_option)
+    add_reports_parser(sub)
     return parser
 
 
@@ -1031,7 +1216,7 @@ def _main(argv: list[str] | None) -> int:
         backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)
-    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism,
+    except (UsageError, cases.CaseError, cases.UrdfError, ModelError, StateError, UnknownFormalism, TaskPointError,
             backends.PluginError, charts.ChartError, sampling.ProjectionError, preflight.PreflightError,
             OSError) as exc:
         print(f"crosscheck: error: {_one_line(exc)}", file=sys.stderr)

@@ -37,6 +37,8 @@ geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` r
 free_body                      Newton's and Euler's equations in the body frame (:func:`free_body_terms`)
 knife_edge                     the Chaplygin sleigh: Newton and Euler along and across the runner, a ``KnifeEdge``
                                (Pfaffian) row (:func:`sleigh_terms`, :func:`sleigh_motion`)
+double_pendulum_tip_force      eqs. (4)-(9) with ``tau_ext = J^T f`` of a world force at the tip (:func:`tip_force`)
+double_pendulum_spring         eqs. (4)-(9) with a tip spring and a body-frame wrench on link 2 (:func:`tip_spring`)
 =============================  =====================================================================================
 
 Each supplies drift, ctrl and total (eq. 9; eqs. 14, 15, 17 with constraints; ctrl ``B_c B u`` computed directly),
@@ -698,6 +700,7 @@ class _Terms:
     tau: np.ndarray
     mass: float
     gravity: float
+    tau_ext: np.ndarray | None = None     # the external loads' generalized force; ``g`` is then ``dV/dq - tau_ext``
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Eq. (9), each directly: drift ``-M^-1 (C qd + g)``, ctrl ``M^-1 B u``, total ``M^-1 (B u - C qd - g)``."""
@@ -711,8 +714,9 @@ class _Terms:
         """``accel_scale = ||M^-1|| H``, ``H = |C qd|_1 + |g|_1 + |B u|_1 + lambda_max(M) |qd|^2 + |gravity|_1
         sqrt(m_total lambda_max(M))`` (the definition of ``Split.accel_scale``, before the constraint force)."""
         w = eigenvalues(self.M)
+        external = 0.0 if self.tau_ext is None else np.abs(self.tau_ext).sum()
         return (np.abs(self.Cqd).sum() + np.abs(self.g).sum() + np.abs(self.tau).sum() + w[-1] * float(qd @ qd)
-                + self.gravity * np.sqrt(self.mass * w[-1])) / w[0]
+                + self.gravity * np.sqrt(self.mass * w[-1]) + external) / w[0]
 
 
 @dataclass(frozen=True)
@@ -764,6 +768,8 @@ def _assemble(t: _Terms, qd, drift, ctrl, total, task, kkt: _Kkt | None = None) 
     fields = dict(drift=drift, ctrl=ctrl, total=total, power_ctrl=float(t.tau @ qd), power_ctrl_per_coord=t.tau * qd,
                   cond_M=w[-1] / w[0], task_drift=task_drift, kinetic_energy=0.5 * qd @ t.M @ qd,
                   task_inertia=Lambda, **_drift_parts(t, kkt))
+    if t.tau_ext is not None:
+        fields.update(external_force=t.tau_ext, power_ext=float(t.tau_ext @ qd))
     if kkt is None:
         return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None,
                      accel_scale=accel_scale, conditions={"task_inertia": task_cond}, **fields)
@@ -811,6 +817,49 @@ def _double_pendulum(p, q, qd, u) -> Split:
     drift, ctrl, total = t.accelerations()
     J = endpoint_jacobian(q, l1, l2)
     return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)))
+
+
+def tip_force(q, l1, l2, fx, fy) -> np.ndarray:
+    """``tau_ext = J(q)^T (fx, fy)``: the virtual work of a world force at the tip, J of eq. (5), i.e.
+    ``tau_1 = fx (l1 cos t1 + l2 cos(t1 + t2)) + fy (l1 sin t1 + l2 sin(t1 + t2))``, ``tau_2 = fx l2 cos(t1 + t2) + fy
+    l2 sin(t1 + t2)``."""
+    return endpoint_jacobian(q, l1, l2).T @ np.array([fx, fy])
+
+
+def tip_spring(q, l1, l2, k, rest, ax, ay, bfx, bfy, couple) -> np.ndarray:
+    """``tau_ext`` of ``cases.double_pendulum_spring`` by hand: the spring's force ``-k (|d| - rest) d / |d|`` at the
+    tip, ``d = x2 - (ax, ay)`` (x2 of eq. 4), and link 2's body-frame force ``(bfx, bfy)`` turned by the link's
+    absolute angle ``t1 + t2`` (``R = [[cos, -sin], [sin, cos]]``), both through ``J^T`` (eq. 5); the couple about z
+    does ``couple (t1d + t2d)`` of work (link 2 turns at ``t1d + t2d``): ``(couple, couple)``."""
+    x, y = tip_position(q, l1, l2)
+    d = np.array([x - ax, y - ay])
+    length = float(np.hypot(*d))
+    spring = -k * (length - rest) / length * d
+    c, s = np.cos(q[0] + q[1]), np.sin(q[0] + q[1])
+    body = np.array([c * bfx - s * bfy, s * bfx + c * bfy])
+    return endpoint_jacobian(q, l1, l2).T @ (spring + body) + np.array([couple, couple])
+
+
+def _loaded_pendulum(p, q, qd, u, tau_ext) -> Split:
+    """The double pendulum (eqs. 4-9) with the external generalized force ``tau_ext`` beside gravity (eq. 12, 14):
+    ``M qdd + C qd + g = B u + tau_ext``."""
+    l1, l2 = p["l1"], p["l2"]
+    M, Cqd, grav = pendulum_terms(q, qd, p["m1"], p["m2"], l1, l2, p["g"])
+    t = _Terms(M, inv2(M), Cqd, grav - tau_ext, u, p["m1"] + p["m2"], abs(p["g"]), tau_ext)
+    drift, ctrl, total = t.accelerations()
+    J = endpoint_jacobian(q, l1, l2)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, tip_bias(q, qd, l1, l2), drift, task_inertia_square(J, M)))
+
+
+def _double_pendulum_tip_force(p, q, qd, u) -> Split:
+    """Eqs. (4)-(9) with :func:`tip_force`."""
+    return _loaded_pendulum(p, q, qd, u, tip_force(q, p["l1"], p["l2"], p["fx"], p["fy"]))
+
+
+def _double_pendulum_spring(p, q, qd, u) -> Split:
+    """Eqs. (4)-(9) with :func:`tip_spring`."""
+    return _loaded_pendulum(p, q, qd, u, tip_spring(q, p["l1"], p["l2"], p["k"], p["rest"], p["ax"], p["ay"],
+                                                     p["bfx"], p["bfy"], p["couple"]))
 
 
 def _n_link_pendulum(p, q, qd, u) -> Split:
@@ -1111,6 +1160,7 @@ UNCONSTRAINED = ("drift", "ctrl", "total", "additivity", "power_ctrl", "task_dri
 CONSTRAINED = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr",
                "power_constr_per_coord", "admissibility_drift", "admissibility_total", "constraint_value",
                "constraint_velocity", "constraint_jacobian", "constraint_bias")
+LOADED = ("external_force", "power_ext")
 
 
 @dataclass(frozen=True)
@@ -1123,10 +1173,11 @@ class ClosedForm:
     shape: Callable[[dict], tuple[int, int, int]]
     split: Callable[[dict, np.ndarray, np.ndarray, np.ndarray], Split]
     rule: Callable[[dict], Rule] | None = None
+    loaded: bool = False
 
     def supplies(self, params: dict) -> tuple[str, ...]:
         """The compared quantities it supplies (the joint loads are not among them)."""
-        return UNCONSTRAINED + (CONSTRAINED if self.shape(params)[2] else ())
+        return UNCONSTRAINED + (CONSTRAINED if self.shape(params)[2] else ()) + (LOADED if self.loaded else ())
 
 
 CLOSED_FORMS: dict[str, ClosedForm] = {
@@ -1161,6 +1212,12 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
                              "edge's Pfaffian row, eqs. (12)-(17)", lambda p: (3, 3, 1), _knife_edge, _sleigh_rule),
     "geared_pendulums": ClosedForm("two uniform rods by hand coupled by a JointCoupling gear, eqs. (12)-(17)",
                                    lambda p: (2, 2, 1), _geared_pendulums, _gear_rule),
+    "double_pendulum_tip_force": ClosedForm("article section 3, eqs. (4)-(9), with tau_ext = J^T f of the tip force "
+                                            "(eq. 12, 14)", lambda p: (2, 2, 0), _double_pendulum_tip_force,
+                                            loaded=True),
+    "double_pendulum_spring": ClosedForm("article section 3, eqs. (4)-(9), with tau_ext of the tip spring and the "
+                                         "body-frame wrench by hand (eq. 12, 14)", lambda p: (2, 2, 0),
+                                         _double_pendulum_spring, loaded=True),
 }
 
 

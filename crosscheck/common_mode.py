@@ -165,8 +165,8 @@ def _inertia_about_origin(kw):
 
 
 def _rates_never_sampled(sample):
-    def faulty(model, count, seed, case):
-        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in sample(model, count, seed, case)]
+    def faulty(model, count, seed, case, **options):
+        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in sample(model, count, seed, case, **options)]
     return faulty
 
 
@@ -228,6 +228,14 @@ def _about_z(quat: np.ndarray) -> np.ndarray:
 
 def _scaled(factor: float):
     return lambda f: lambda *args, **kw: factor * f(*args, **kw)
+
+
+def _world_loads_validated_as_body(validate):
+    """``cases.loads.validate`` returning a world-frame force or wrench as a body-frame one."""
+    def faulty(problems, load, bodies):
+        out = validate(problems, load, bodies)
+        return dataclasses.replace(out, frame="body") if out is not None and getattr(out, "frame", "") == "world" else out
+    return faulty
 
 
 CATALOG: list[SharedFault] = [
@@ -328,6 +336,20 @@ CATALOG: list[SharedFault] = [
                  "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
                  "crosscheck.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
                 "the closed forms, the conditions audit and the exact H_t residual"),
+    SharedFault("loads-world-force-validated-as-body", "load declarations",
+                "An external force or wrench declared in the world frame is validated into a body-frame one (its "
+                "vector then turns with the body).",
+                ("cases.loads:validate",), _world_loads_validated_as_body,
+                "the closed forms (double_pendulum_tip_force)"),
+    SharedFault("frames-loads-not-moved", "frames",
+                "A moved scene keeps the external loads' world data (force directions, spring anchors) as they were "
+                "instead of moving them with the scene.",
+                ("crosscheck.frames:move_load",), lambda f: lambda load, frame: load, "the frame checks"),
+    SharedFault("conservation-external-power-dropped", "conservation",
+                "The energy balance leaves the external loads' power out: dE/dt is checked against P_ctrl alone "
+                "(against 0 under the drift), as if only gravity and the inputs acted.",
+                ("crosscheck.conservation:_external_power",), lambda f: lambda model, split: 0.0,
+                "the energy-rate conservation checks"),
     SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
                 "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
                 "on the left) instead of dv - ad_v dq, on ball and free joints.",

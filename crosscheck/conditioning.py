@@ -81,10 +81,16 @@ def normwise_scales(model: Model, M: np.ndarray, Cqd, g, tau, qd) -> tuple[float
     ``Split.accel_scale``): H the size of the forces summed in ``B u - C qd - g``, plus configuration-robust
     magnitudes of the terms that can cancel, ``||M|| |qd|^2`` for the velocity products and ``|gravity|_1
     sqrt(m_total ||M||)`` for gravity; 1-norms, so tiny vectors do not underflow."""
+    return scales_of(M, Cqd, g, tau, qd, sum(b.mass for b in model.bodies), model.gravity)
+
+
+def scales_of(M: np.ndarray, Cqd, g, tau, qd, mass: float, gravity) -> tuple[float, float]:
+    """:func:`normwise_scales` with the model's total ``mass`` and ``gravity`` given (a plugin's own model of the
+    scene: ``crosscheck.assemble.Sizes``)."""
     eig = np.linalg.eigvalsh(M)
-    mass = sum(b.mass for b in model.bodies)
+    qd = np.asarray(qd, dtype=float)
     H = (np.abs(Cqd).sum() + np.abs(g).sum() + np.abs(tau).sum() + eig[-1] * float(qd @ qd)
-         + np.abs(model.gravity).sum() * np.sqrt(mass * eig[-1]))
+         + np.abs(np.asarray(gravity, dtype=float)).sum() * np.sqrt(mass * eig[-1]))
     return float(eig[-1] / eig[0]), float(H / eig[0])
 
 

@@ -1,8 +1,10 @@
 """Conservation checks at one state (article section 9; 4.7.1 step 3).
 
 Energy. With ``E = T + V`` the energy rate along an acceleration is ``dE/dt = dE/dq . qd + dE/dqd . qdd``
-(= ``qd^T M qdd + 1/2 qd^T Mdot qd + g . qd``). Under the drift nothing does work, so ``dE/dt = 0``; under the
-total acceleration the only work is the input's, so ``dE/dt = u . B^T qd``. Each backend's accelerations are
+(= ``qd^T M qdd + 1/2 qd^T Mdot qd + g . qd``). Under the drift only the external loads (``cases.loads``) do work, so
+``dE/dt = tau_ext . qd`` (0 without loads); under the total acceleration the input's work joins it, so ``dE/dt = u .
+B^T qd + tau_ext . qd``. V is gravity's: a spring's energy is counted as the work of its force (its power is in
+``power_ext``), so the check needs no potential of the loads. Each backend's accelerations are
 put through one energy bookkeeping, the geometric formalism's ``energy_rate`` (automatic differentiation of
 ``T + V``), and the exact values vote with them, so a backend whose drift does work is named.
 
@@ -55,6 +57,7 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
     |qd|_1 F`` (a fuzz finding: 7.5 times the backward-stable tolerance at cond(M) = 105), so F carries cond(M).
     """
     at_drift, at_total, tol = {}, {}, 0.0
+    external = {name: _external_power(model, s) for name, s in splits.items()}
     finite = {name: bool(np.all(np.isfinite(s.drift)) and np.all(np.isfinite(s.total))) for name, s in splits.items()}
     rates = iter(geometric.energy_rates(model, q, qd, [a for name, s in splits.items() if finite[name]
                                                        for a in (s.drift, s.total)]))
@@ -63,11 +66,20 @@ def _energy_rates(model: Model, q, qd, splits: Mapping[str, Split], force: float
             at_drift[name] = at_total[name] = np.nan   # an overflowed answer fails here too, it does not crash
             continue
         drift, total = next(rates), next(rates)
-        at_drift[name], at_total[name] = drift.rate, total.rate - split.power_ctrl
+        at_drift[name], at_total[name] = drift.rate - external[name], total.rate - split.power_ctrl - external[name]
         for rate in (drift, total):
-            tol = max(tol, FACTOR * EPS * (rate.magnitude + abs(split.power_ctrl)
+            tol = max(tol, FACTOR * EPS * (rate.magnitude + abs(split.power_ctrl) + abs(external[name])
                                            + np.abs(qd).sum() * force * cond_M))
     return at_drift, at_total, tol
+
+
+def _external_power(model: Model, split: Split) -> float:
+    """The external loads' power ``tau_ext . qd`` the split reports (``power_ext``), 0 for a model without loads; NaN
+    when a backend does not report it for a loaded model (its energy balance cannot be closed)."""
+    if not model.loads:
+        return 0.0
+    power = split.power_ext
+    return float(power) if isinstance(power, (int, float)) else float("nan")
 
 
 def checks(model: Model, state: State, splits: Mapping[str, Split],
@@ -117,9 +129,10 @@ def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: policy.Sc
 def _momentum_rows(model: Model, c: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """``(R, exact)``: the checked rates are ``R (dh_G/dt)`` with R (r x 6) picking momentum components (about the
     root's point) and ``exact`` (r,) their value under the drift (module doc); None
-    when no momentum law applies (constrained, several roots not all free, or no law for the root's joint)."""
+    when no momentum law applies (constrained, external loads, several roots not all free, or no law for the root's
+    joint)."""
     roots = [i for i, p in enumerate(model.parent_index) if p < 0]
-    if model.constraints:
+    if model.constraints or model.loads:      # external loads change the momentum by their own wrench
         return None
     m, g = sum(b.mass for b in model.bodies), np.asarray(model.gravity, dtype=float)
     if all(model.bodies[i].joint == "free" for i in roots):

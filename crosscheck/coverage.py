@@ -10,7 +10,7 @@ harness's own constraint kinematics), and names what makes the sample degenerate
 * every input zero (at two or more states) for a model with inputs;
 * from :data:`SLIVER_STATES` states on, configurations in a sliver: an unconstrained model with a coordinate whose
   sampled range is below :data:`SLIVER` of the span the gate promises (:data:`REVOLUTE_SPAN`,
-  :data:`PRISMATIC_SPAN`) (uniform draws over the span leave that with
+  :data:`PRISMATIC_SPAN`, or the width of the joint limits a model declares) (uniform draws over the span leave that with
   probability below 1e-8), a constrained one with every coordinate so (the constraints may confine some, not all).
 
 A degenerate sample fails the gate (``crosscheck.gate``): the report says what was not sampled.
@@ -73,11 +73,17 @@ def _ranks(model: Model, Q: np.ndarray) -> tuple[int, int] | None:
     return min(ranks), max(ranks)
 
 
+def _promised(body) -> tuple[float, ...]:
+    """The spans promised for the body's coordinates: its joint limits' width where the model declares limits (the
+    gate draws within them unless told otherwise; drawn freely, the sample only spans more), else :data:`_SPANS`."""
+    return (body.limits[1] - body.limits[0],) if body.limits is not None else _SPANS[body.joint]
+
+
 def measure(model: Model, states: Sequence[sampling.State]) -> Coverage:
     """The coverage of ``states`` of ``model`` and its problems (module doc)."""
     Q, QD, U = (np.array([getattr(s, name) for s in states], dtype=float).reshape(len(states), size)
                 for name, size in (("q", model.nq), ("qd", model.nv), ("u", model.m)))
-    span = np.array([span for b in model.bodies for span in _SPANS[b.joint]])
+    span = np.array([span for b in model.bodies for span in _promised(b)])
     ranks = _ranks(model, Q)
     problems = []
     if len(states) >= 2 and not np.any(QD) and not (ranks is not None and ranks[0] == model.n):

@@ -8,6 +8,9 @@ the median of the others, or the spread of all voters when none is named. Per ar
 
 - an error that grows like ``|qd|^2`` and vanishes at qd = 0 is in the velocity-product terms (``C qd``: Coriolis,
   centrifugal, gyroscopic; ``Jcdot qd`` with constraints);
+- one that doubles with qd and vanishes at qd = 0 is a force linear in qd, ``-c qd``: damping or viscous friction,
+  which is no term of the rigid-body equation (a simulator's joint damping left on, a friction model in the
+  dynamics code), not the mass matrix;
 - one independent of qd that vanishes without gravity is in ``g``; one that persists is in the inertia;
 - one in ctrl while the drift agrees is in the input map (``B``, or the solve of ``M^-1 B u``); one in ctrl and in
   the drift or the kinetic energy is in what they share, M (and the constraint projection, eq. 17);
@@ -41,16 +44,24 @@ VANISHED = 1e-3
 #: Ratios read as "unchanged" (independent of qd) and as "grows like |qd|^2" when qd doubles.
 UNCHANGED = (0.8, 1.25)
 QUADRATIC = (3.0, 5.0)
+#: Ratios read as "grows like |qd|" when qd doubles (a force linear in qd).
+LINEAR = (1.6, 2.5)
 
 VELOCITY = "velocity-product terms (Coriolis/centrifugal, gyroscopic, Jcdot qd)"
 GRAVITY = "gravity"
 INERTIA = "inertia / mass matrix"
+DAMPING = ("a force linear in qd, -c qd (damping, viscous friction): no term of M qdd + C qd + g = B u; turn joint "
+           "damping off in the backend's model")
 
 
 def without_gravity(model: Model) -> Model:
-    """The same model with gravity switched off."""
+    """The same model with gravity switched off (its external loads kept: only gravity differs); a file source is kept,
+    marked gravity-free, so that the reference and a plugin that reads the file (``crosscheck.backends``, "What a
+    plugin needs") see the same scene."""
+    source = None if model.source is None else model.source.without_gravity()
     return cases.build_model(f"{model.name} without gravity", model.bodies, gravity=np.zeros(3),
-                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints)
+                             input_map=model.input_map, task_points=model.task_points, constraints=model.constraints,
+                             source=source, loads=model.loads)
 
 
 def _value(split: Split, quantity: str) -> np.ndarray | None:
@@ -146,6 +157,8 @@ def _shape(probe: Probe, quantity: str, tol: float) -> tuple[str, str]:
             f"{_times(eg, e1, tol)} without gravity")
     if _vanished(e0, e1, tol) and _between(e2, e1, QUADRATIC):
         return text, VELOCITY
+    if _vanished(e0, e1, tol) and _between(e2, e1, LINEAR):
+        return text, DAMPING
     if _between(e2, e1, UNCHANGED) and _between(e0, e1, UNCHANGED):
         if _vanished(eg, e1, tol):
             return text, GRAVITY
@@ -218,6 +231,10 @@ def hint(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> 
             return f"{where}; {who}'s {first} is {k:.3g} times the others': a sign or scale convention"
         text, cause = _shape(probe, first, tol[first])
         return f"{where} (phi, Jc, Jcdot qd); {subject} {first} {text}: {cause}"
+    if "external_force" in failing:
+        return (f"{subject} tau_ext itself is off ({names}): the external loads' mapping (cases.loads): the frame of "
+                "a force or couple (world or body), its point or lever (the moment about the body origin), a spring's "
+                "force")
     if "ctrl" in failing:
         k = proportion(outcome.voters("ctrl"), "ctrl", who, tol["ctrl"])
         scaled = f"; {who}'s ctrl is {k:.3g} times the others'" if k is not None else ""
@@ -252,7 +269,8 @@ ALONE = {"power_ctrl": "the input power u . B^T qd (the input map in the power)"
          "kinetic_energy": "the kinetic energy bookkeeping (M, or the body twists)",
          "joint_wrenches": LOADS,
          "joint_wrenches_drift": LOADS,
-         "task_inertia": "the task-space inertia: J, or the inverse of J M^-1 J^T (eq. 22)"}
+         "task_inertia": "the task-space inertia: J, or the inverse of J M^-1 J^T (eq. 22)",
+         "power_ext": "the external loads' power tau_ext . qd"}
 
 
 #: Failing states per run that get a hint (the report lists the same first ones in detail).

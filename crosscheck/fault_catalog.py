@@ -134,6 +134,20 @@ def _loads_with_transposed_rotation(loads):
     return lambda model, kin, rows, lam: loads(model, (kin[0], kin[1], [W.T for W in kin[2]]), rows, lam)
 
 
+def _world_loads_as_body(external_loads):
+    """The external loads' world-frame forces and couples read as body-frame vectors (not turned by W^T)."""
+    def faulty(model, kin):
+        as_body = tuple(dataclasses.replace(x, frame="body") if hasattr(x, "frame") else x for x in model.loads)
+        return external_loads(dataclasses.replace(model, loads=as_body), kin)
+    return faulty
+
+
+def _moment_shift_reversed(moment_about_origin):
+    from formalisms.newton_euler import _cross
+
+    return lambda offset, f, couple: couple + _cross(f, offset)
+
+
 NEWTON_EULER = [
     Fault("ne-gyroscopic-dropped", NE,
           "Euler's equation (19) misses the gyroscopic moment w x (I w).",
@@ -171,6 +185,14 @@ NEWTON_EULER = [
           "The constraint forces are rotated into the body frames with W instead of W^T before the backward pass "
           "(the joint reactions carry them in the wrong frame).",
           "formalisms.newton_euler:_constraint_loads", _loads_with_transposed_rotation),
+    Fault("ne-external-force-world-as-body", NE,
+          "A world-frame external force (or couple) is applied in the backward pass as if it were given in the body "
+          "frame: the rotation W^T into body frame i is left out.",
+          "formalisms.newton_euler:_external_loads", _world_loads_as_body),
+    Fault("ne-external-moment-shift-sign", NE,
+          "The moment about the body origin of an external force at a body point is taken as f x offset, the lever "
+          "crossed the wrong way round.",
+          "formalisms.newton_euler:_moment_about_origin", _moment_shift_reversed),
 ]
 
 
@@ -196,6 +218,10 @@ def _point_jacobian_from_body_jacobian(point_jacobian):
         Jb = kinematics.body_jacobian(kin, body)
         return Jb[3:] - lie.hat3(p) @ Jb[:3]
     return faulty
+
+
+def _moment_not_shifted(about_origin):
+    return lambda offset, f, couple: about_origin(np.zeros_like(offset), f, couple)
 
 
 SCREW = [
@@ -229,6 +255,10 @@ SCREW = [
           "A constrained point's Jacobian is built from the body Jacobian J_b with the point's world position "
           "(body and space frames mixed).",
           "formalisms.screw.kinematics:point_jacobian", _point_jacobian_from_body_jacobian),
+    Fault("screw-external-moment-not-shifted", SCREW,
+          "An external force at a body point enters eq. (27) as the body wrench (0, f): its moment offset x f about "
+          "the body origin is left out (the wrench taken about the point of application).",
+          "formalisms.screw.dynamics:about_origin", _moment_not_shifted),
 ]
 
 
@@ -319,6 +349,12 @@ def _ctrl_unprojected(constrained_split):
     return faulty
 
 
+def _casadi_vector(v):
+    import casadi
+
+    return casadi.DM(v)
+
+
 GEOMETRIC = [
     Fault("geo-christoffel-index-order", GEO,
           "The Christoffel symbols of the first kind have the minus sign on the wrong term: "
@@ -343,6 +379,10 @@ GEOMETRIC = [
           "metric (Z^T M Z).",
           "formalisms.geometric:_reduced_metric_factor",
           lambda f: lambda model, chart, M, Z, p: f(model, chart, np.eye(len(M)), Z, p)),
+    Fault("geo-external-body-force-unturned", GEO,
+          "A body-frame external force (or couple) enters the virtual power as a world vector: the body's rotation R "
+          "is left out.",
+          "formalisms.geometric:_in_world", lambda f: lambda load, R, v: _casadi_vector(v), derived=True),
 ]
 
 

@@ -128,10 +128,17 @@ def _same_call(fault: str, target: str, original: Any, faulty: Any) -> None:
     reports as a backend error, so the fault would look caught without the bug it describes ever running."""
     if not (inspect.isfunction(original) and callable(faulty)):
         return
-    required = [p for p in inspect.signature(original).parameters.values()
+    parameters = inspect.signature(original).parameters.values()
+    required = [p for p in parameters
                 if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    optional = {p.name: p.default for p in parameters
+                if p.default is not p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    signature = inspect.signature(faulty)
     try:
-        inspect.signature(faulty).bind(*required)
+        try:
+            signature.bind(*required, **optional)      # the optional parameters by name ...
+        except TypeError:
+            signature.bind(*required, *optional)       # ... or in order (a replacement forwarding *args)
     except TypeError as exc:
         raise FaultError(f"fault '{fault}': the replacement of '{target}' cannot be called as {target}"
                          f"{inspect.signature(original)} is ({exc}); update the catalog") from None

@@ -67,8 +67,9 @@ def rotate_gravity(frame: Frame, gravity: np.ndarray) -> np.ndarray:
 
 
 def move_scene(model: Model, frame: Frame) -> Model:
-    """The same scene moved by ``frame``: root placements ``g * placement``, gravity and task directions rotated, and
-    a file source's world placement ``g * placement`` (``ModelSource.moved``)."""
+    """The same scene moved by ``frame``: root placements ``g * placement``, gravity and task directions rotated, the
+    external loads' world data moved (:func:`move_load`), and a file source's world placement ``g * placement``
+    (``ModelSource.moved``)."""
     R, t = frame.rotation, frame.translation
     bodies = [dataclasses.replace(b, rotation=R @ b.rotation, translation=R @ b.translation + t)
               if b.parent is None else b for b in model.bodies]
@@ -77,7 +78,20 @@ def move_scene(model: Model, frame: Frame) -> Model:
     source = None if model.source is None else model.source.moved(R, t)
     return cases.build_model(f"{model.name}@{frame.name}", bodies, gravity=rotate_gravity(frame, model.gravity),
                              input_map=model.input_map, task_points=task_points, constraints=constraints,
-                             source=source)
+                             source=source, loads=[move_load(load, frame) for load in model.loads])
+
+
+def move_load(load, frame: Frame):
+    """An external load declaration (``cases.loads``) on the moved scene: a world-frame force and couple turn by R, a
+    spring's world anchor moves by g; body-frame data (offsets, body-frame forces) do not change."""
+    R, t = frame.rotation, frame.translation
+    if isinstance(load, cases.PointSpring):
+        return dataclasses.replace(load, anchor=R @ load.anchor + t)
+    if load.frame == "body":
+        return load
+    if isinstance(load, cases.ExternalWrench):
+        return dataclasses.replace(load, force=R @ load.force, moment=R @ load.moment)
+    return dataclasses.replace(load, force=R @ load.force)
 
 
 def move_constraint(c, frame: Frame):

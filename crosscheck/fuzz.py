@@ -13,6 +13,14 @@ k % N == i) run on N machines and merged give the findings of the unsharded run,
 W processes (spawned, each loading the plugins by their specs; a worker process is replaced every
 ``CHUNKS_PER_PROCESS`` chunks, which bounds the memory the backends' per-model caches take).
 
+A chunk generates fewer examples than it was given when it fails: Hypothesis stops generating at a chunk's first
+failing example and shrinks it instead, so the rest of that chunk's examples are never drawn (a campaign of 100
+examples in chunks of 10 with a failure in 8 chunks generated 56). The report and the command's summary state the
+examples generated against those asked and account for every one not generated (:func:`account`: a chunk that ended
+at its failure, an interrupted chunk, a chunk not run yet). Findings are grouped by signature (:func:`signature`: the
+failing checks, the outlier, the backends in error and the shrunk mechanism's joint types and constraint kinds), since
+one bug is typically found again by many chunks.
+
 The campaign directory holds ``campaign.json`` (the parameters; a run in a directory with the same parameters
 resumes, skipping the chunks already logged and not interrupted), ``chunks.jsonl`` (one line per chunk, appended as
 each ends), ``findings/ID.json`` (written atomically as soon as a chunk ends with a failure, or is interrupted with
@@ -53,6 +61,7 @@ import multiprocessing
 import os
 import queue as queues
 import secrets
+import shlex
 import shutil
 import signal
 import sys
@@ -76,7 +85,7 @@ from crosscheck import workers as worker_processes
 from crosscheck.gate import StateOutcome
 from crosscheck.sampling import State
 
-DEFAULT_DIR = ".crosscheck/fuzz"
+DEFAULT_DIR = "crosscheck-out/fuzz"
 #: Examples of a campaign given neither a number of examples nor of minutes (the command line's default).
 DEFAULT_EXAMPLES = 100
 #: ``--constraints`` words -> ``FuzzConfig.constraints`` (``crosscheck.testing.models``).
@@ -95,7 +104,7 @@ POLL = 0.1
 #: Seconds a chunk's result may take to arrive after its worker exited before the worker counts as lost.
 LOST_AFTER = 2.0
 #: The parameters that make two runs parts of one campaign (merge and resume require them equal).
-IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "group_joints", "backends",
+IDENTITY = ("seed", "chunk_examples", "max_bodies", "max_states", "constraints", "loads", "group_joints", "backends",
             "plugins", "shrink_calls", "charts", "frames", "conservation", "linearization")
 
 
@@ -111,7 +120,9 @@ class FuzzConfig:
     ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones.
     ``group_joints``: the drawn trees may have spherical joints, and free joints on bodies hung from the world
     (``crosscheck.testing.models(group=True)``); ``pfaffian``: the drawn constraints may be knife edges, point
-    velocities and rolling contacts too (``testing.models(pfaffian=True)``). ``charts``,
+    velocities and rolling contacts too (``testing.models(pfaffian=True)``). ``loads``: the drawn models carry external
+    loads (``cases.loads``): False never, True always, None sometimes (``crosscheck.testing.models(loads=...)``).
+    ``charts``,
     ``frames`` and ``conservation`` turn the gate's checks on or off (the chart and frame are drawn either way)."""
 
     seed: int = 0
@@ -126,6 +137,7 @@ class FuzzConfig:
     max_bodies: int = 4
     max_states: int = 4
     constraints: bool | None = None
+    loads: bool | None = None
     group_joints: bool = True
     shrink_calls: int = SHRINK_CALLS
     charts: bool = True
@@ -440,8 +452,8 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
     @given(st.data())
     def backends_agree(data):
         _INTERRUPTS.poll()
-        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints,
-                                                  pfaffian=cfg.pfaffian), label="model")
+        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints, loads=cfg.loads,
+                                         pfaffian=cfg.pfaffian), label="model")
         count = data.draw(st.integers(1, cfg.max_states), label="number of states")
         states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
         chart_spec = data.draw(testing.chart_specs(model), label="chart (name, seed)")
@@ -513,7 +525,8 @@ def run_chunk(cfg: FuzzConfig, k: int, progress: Callable[[int, int, float], Non
             finding = {**rec.last_failure, "campaign": campaign, "shrunk": shrunk}
             save_finding(Path(cfg.out), finding)
             findings.append(finding["id"])
-        return {"chunk": k, "examples": rec.examples, "shrink_calls": rec.shrinking, "states": rec.states,
+        return {"chunk": k, "planned": chunk_size(cfg, k), "examples": rec.examples, "shrink_calls": rec.shrinking,
+                "states": rec.states,
                 "models": len(rec.models), "worst_ratio": rec.worst, "worst_key": rec.worst_key,
                 "worst_agreeing": rec.agreeing, "worst_agreeing_key": rec.agreeing_key,
                 "seconds": round(time.perf_counter() - start, 3), "findings": findings, "interrupted": interrupted}
@@ -1029,7 +1042,18 @@ def describe_model(d: dict) -> list[str]:
     return lines
 
 
-def _finding_section(f: dict, out: Path) -> list[str]:
+def replay_command(finding_id: str, out: Path, plugins: Sequence[str]) -> str:
+    """The command that evaluates a finding again: ``crosscheck replay ID --dir OUT`` with a ``--plugin`` flag for
+    each plugin the campaign loaded by spec (its findings name those backends; entry points load themselves)."""
+    return f"crosscheck replay {finding_id} --dir {out}" + "".join(f" --plugin {shlex.quote(p)}" for p in plugins)
+
+
+def campaign_plugins(out: Path) -> list[str]:
+    """The plugin specs of the campaign in ``out`` (its identity), none for a directory without one."""
+    return list((load_campaign(out) or {"identity": {}})["identity"].get("plugins", []))
+
+
+def _finding_section(f: dict, out: Path, plugins: Sequence[str] = ()) -> list[str]:
     s, chart, frame = f["state"], f["chart"], f["frame"]
     camp = f["campaign"]
     how = "shrunk" if f["shrunk"] else "NOT fully shrunk (" + (
@@ -1045,7 +1069,7 @@ def _finding_section(f: dict, out: Path) -> list[str]:
              f"{frame['rotation']}, translation {frame['translation']}",
              f"- backends: {', '.join(f['backends'])}; checks: "
              + ", ".join(["comparison"] + [name for name, on in f["checks"].items() if on]),
-             f"- reproduce: `crosscheck replay {f['id']} --dir {out}`", ""]
+             f"- reproduce: `{replay_command(f['id'], out, plugins)}`", ""]
     if f["failing"]:
         lines += ["| check | error/tolerance | tolerance | outlier |", "|---|---|---|---|"]
         lines += [f"| {c['key']} | {c['worst_ratio']:.3g} | {c['tolerance']:.3g} | {c['outlier'] or '-'} |"
@@ -1058,6 +1082,110 @@ def _finding_section(f: dict, out: Path) -> list[str]:
     if f["errors"]:
         lines += ["Errors:", "", "```"] + [f"{name}: {message}" for name, message in f["errors"].items()] + ["```", ""]
     return lines
+
+
+#: Why examples of a campaign were not generated (:func:`account`), in report order.
+FAILED = "in chunks that ended at their first failure (Hypothesis shrinks it instead of generating the rest)"
+INTERRUPTED = "in interrupted chunks (they run again when the same command resumes the campaign)"
+NOT_RUN = "in chunks not run yet (the run was stopped before them; the same command resumes the campaign)"
+EARLY = "in chunks where Hypothesis stopped without a failure (it had nothing new to draw)"
+
+
+@dataclass(frozen=True)
+class Accounting:
+    """The examples a campaign was asked for (``asked``; None when bounded by ``minutes``) and ``generated``, and the
+    ones not generated, as ``(reason, chunks, examples)`` per reason (:data:`FAILED`, :data:`INTERRUPTED`,
+    :data:`NOT_RUN`, :data:`EARLY`) with at least one example."""
+
+    asked: int | None
+    minutes: float | None
+    generated: int
+    missing: tuple[tuple[str, int, int], ...]
+
+    def text(self) -> str:
+        """``56 of 100 asked generated`` and what became of the rest, or ``56 generated (asked: 5 minutes)``."""
+        if self.asked is None:
+            return f"{self.generated} generated" + (f" (asked: {self.minutes:g} minutes)" if self.minutes else "")
+        text = f"{self.generated} of {self.asked} asked generated"
+        if self.missing:
+            text += "; not generated: " + "; ".join(f"{n} {why} ({chunks} chunk{'s' * (chunks != 1)})"
+                                                     for why, chunks, n in self.missing)
+        return text
+
+
+def _asked(campaign: dict) -> tuple[int | None, float | None, list[tuple[int, int]]]:
+    """The latest run's bound (examples or minutes) and every shard (i, N) run in this directory."""
+    runs = campaign.get("runs", [])
+    last = runs[-1] if runs else {}
+    shards = sorted({tuple(int(x) for x in r["shard"].split("/")) for r in runs if "shard" in r})
+    return last.get("examples"), last.get("minutes"), shards
+
+
+def account(campaign: dict, chunks: Sequence[dict]) -> Accounting:
+    """The campaign's examples asked, generated and not generated, and why (:class:`Accounting`): a chunk's planned
+    examples are its record's ``planned`` (else the campaign's ``chunk_examples``); the chunks an examples-bounded
+    campaign plans for the shards run here and that are not in the log are not run yet."""
+    asked, minutes, shards = _asked(campaign)
+    size = campaign.get("identity", {}).get("chunk_examples") or CHUNK_EXAMPLES
+    missing = {FAILED: [0, 0], INTERRUPTED: [0, 0], NOT_RUN: [0, 0], EARLY: [0, 0]}
+    for r in chunks:
+        short = r.get("planned", size) - r["examples"]
+        if short > 0:
+            why = INTERRUPTED if r["interrupted"] else FAILED if r["findings"] else EARLY
+            missing[why][0] += 1
+            missing[why][1] += short
+    if asked is not None:
+        logged = {r["chunk"] for r in chunks}
+        for k in range(math.ceil(asked / size)):
+            if k not in logged and any(k % count == index for index, count in shards):
+                missing[NOT_RUN][0] += 1
+                missing[NOT_RUN][1] += min(size, asked - k * size)
+    return Accounting(asked, minutes, sum(r["examples"] for r in chunks),
+                      tuple((why, c, n) for why, (c, n) in missing.items() if n > 0))
+
+
+def mechanism(d: dict) -> str:
+    """A serialized model's shape: how many joints of each type, and of each constraint kind (``2 revolute,
+    1 prismatic; 1 PointOnCircle``)."""
+    def counted(names) -> str:
+        kinds = sorted(set(names))
+        return ", ".join(f"{list(names).count(kind)} {kind}" for kind in kinds)
+
+    text = counted([b["joint"] for b in d["bodies"]]) or "no joints"
+    constraints = [c["type"] for c in d["constraints"]]
+    return text + (f"; {counted(constraints)}" if constraints else "")
+
+
+def signature(finding: dict) -> tuple[str, str, str, str]:
+    """What one bug found many times has in common (module doc): the failing checks, the outliers the vote named,
+    the backends in error and the mechanism (:func:`mechanism`), each as text (``-`` for none)."""
+    failing = finding["failing"]
+    return (", ".join(sorted(c["key"] for c in failing)) or "-",
+            ", ".join(sorted({c["outlier"] for c in failing if c["outlier"]})) or "-",
+            ", ".join(sorted(finding["errors"])) or "-",
+            mechanism(finding["model"]))
+
+
+def group(findings: Sequence[dict]) -> list[tuple[tuple[str, str, str, str], list[dict]]]:
+    """The findings by :func:`signature`, the largest group first (then by their first finding's order)."""
+    groups: dict[tuple[str, str, str, str], list[dict]] = {}
+    for f in findings:
+        groups.setdefault(signature(f), []).append(f)
+    return sorted(groups.items(), key=lambda item: -len(item[1]))
+
+
+def _signature_section(findings: Sequence[dict]) -> list[str]:
+    """The findings grouped by signature: one row per group with its count and IDs."""
+    if not findings:
+        return []
+    lines = ["## Findings by signature", "",
+             "Findings with the same failing checks, outlier, backend errors and mechanism (joint types and constraint "
+             "kinds, after shrinking) are most likely one bug found several times.", "",
+             "| findings | failing checks | outlier | backend errors | mechanism | IDs |", "|---|---|---|---|---|---|"]
+    for (checks, outliers, errors, shape), members in group(findings):
+        ids = ", ".join(f"`{f['id']}`" for f in members)
+        lines.append(f"| {len(members)} | {checks} | {outliers} | {errors} | {shape} | {ids} |")
+    return lines + [""]
 
 
 def render_report(out: Path, command: str = "") -> str:
@@ -1086,40 +1214,51 @@ def render_report(out: Path, command: str = "") -> str:
         f"| backends | {', '.join(ident.get('backends', []))} |",
         f"| drawn | up to {ident.get('max_bodies')} bodies, up to {ident.get('max_states')} states per model, "
         f"constraints {({True: 'always', False: 'never', None: 'sometimes'})[ident.get('constraints')]}, joints "
-        f"{'revolute, prismatic, spherical, free' if ident.get('group_joints', True) else 'revolute, prismatic'} |",
+        f"{'revolute, prismatic, spherical, free' if ident.get('group_joints', True) else 'revolute, prismatic'}, "
+        "without joint limits (each coordinate over its whole range) |",
         "| checks | every quantity compared; "
         + ", ".join(name for name in ("charts", "frames", "conservation", "linearization") if ident.get(name)) + " |",
         f"| chunks | {len(chunks)} of {ident.get('chunk_examples')} examples (shards run: {', '.join(shards)}"
         + (f"; {len(interrupted)} interrupted" if interrupted else "") + ") |",
-        f"| examples | {total['examples']} generated, {total['shrink_calls']} more calls while shrinking |",
+        f"| examples | {account(campaign, chunks).text()}; {total['shrink_calls']} more calls while shrinking |",
         f"| models | {total['models']} |",
         f"| states | {total['states']} |",
         f"| worst error/tolerance | {worst['worst_ratio'] if worst else 0.0:.3g}{where} |",
         f"| worst error/tolerance at states that passed | {margin['worst_agreeing'] if margin else 0.0:.3g}"
         f"{margin_where} |",
-        f"| findings (disagreements and backend errors) | {len(findings)} |",
+        f"| findings (disagreements and backend errors) | {len(findings)}"
+        + (f", {len(group(findings))} signature(s) (below)" if findings else "") + " |",
         f"| false alarms | {len(findings)} findings on {total['states']} states ({rate}): with correct backends each "
         "finding is a false alarm of the tolerance policy unless replaying it shows a backend bug |",
         f"| compute time | {seconds:.1f} s in chunks |",
         f"| wall time | {wall:.1f} s |",
         f"| throughput | {total['examples'] / seconds if seconds else 0.0:.2f} examples/s, "
         f"{total['states'] / seconds if seconds else 0.0:.2f} states/s (per process) |", ""]
+    lines += _signature_section(findings)
     lines += ["## Findings", ""]
     if not findings:
         lines += ["None: every backend agreed at every state.", ""]
     for f in findings:
-        lines += _finding_section(f, out)
+        lines += _finding_section(f, out, ident.get("plugins", []))
     return "\n".join(lines)
 
 
 def summary(result: CampaignResult) -> str:
-    """A few lines for the terminal: what ran, what was found (each finding with its replay command), the report."""
+    """A few lines for the terminal: what ran (the examples generated of those asked, and why fewer), what was found
+    (grouped by :func:`signature`, each group with its count, IDs and one replay command), the report."""
     chunks = result.chunks
-    lines = [f"{len(chunks)} chunks, {sum(r['examples'] for r in chunks)} examples, {sum(r['states'] for r in chunks)} "
-             f"states, {len(result.findings)} findings" + (" (interrupted)" if result.interrupted else "")]
-    for f in result.findings:
-        what = ", ".join([c["key"] for c in f["failing"][:3]] + [f"error {e}" for e in f["errors"]][:3])
-        lines.append(f"  {f['id']}: {what}; crosscheck replay {f['id']} --dir {result.out}")
+    findings = result.findings
+    examples = account(load_campaign(result.out) or {}, chunks).text()
+    lines = [f"{len(chunks)} chunks, examples: {examples}; {sum(r['states'] for r in chunks)} states, "
+             f"{len(findings)} findings" + (f" in {len(group(findings))} signature(s)" if findings else "")
+             + (" (interrupted)" if result.interrupted else "")]
+    plugins = campaign_plugins(result.out)
+    for (checks, outliers, errors, shape), members in group(findings):
+        what = "; ".join(part for part in (f"failing {checks}" if checks != "-" else "",
+                                           f"outlier {outliers}" if outliers != "-" else "",
+                                           f"errors in {errors}" if errors != "-" else "", shape) if part)
+        lines.append(f"  {len(members)} x {what}: {', '.join(f['id'] for f in members)}")
+        lines.append(f"    {replay_command(members[0]['id'], result.out, plugins)}")
     lines.append(f"report written to {result.out / 'report.md'}")
     return "\n".join(lines)
 

@@ -19,16 +19,19 @@ partial result: every state evaluated until then, marked as interrupted, never p
 
 from __future__ import annotations
 
+import dataclasses
 import pickle
 import signal
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
 import cases
+from cases import task as task_points
 from cases.model import Model
 from crosscheck import charts as chart_catalog
 from crosscheck import conditioning, conservation, equilibria, frames, invariance, linearization
@@ -57,37 +60,59 @@ class Checks:
     closed_forms: bool = True
     self_test: bool = True
     linearization: bool = True
+    joint_limits: bool = True   # sample within the joint limits a model declares (``--ignore-limits``: freely)
 
 
 @dataclass(frozen=True)
 class CaseSpec:
     """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
-    URDF ``base`` ("fixed", "free", or None: the file's own; ``cases.from_file``)."""
+    URDF ``base`` ("fixed", "free", or None: the file's own) and ``actuated`` joints (None: every joint but a free
+    base's; ``cases.from_file``); ``task_point``, when given, the default task point as ``BODY[:x,y,z]``
+    (``cases.task.with_task_point``; a ``cases.task.TaskPointError`` for an unknown body or bad numbers)."""
 
     name: str
     params: tuple[tuple[str, str], ...] = ()
     path: str | None = None
     base: str | None = None
+    actuated: tuple[str, ...] | None = None
+    task_point: str | None = None
 
     def build(self) -> Model:
         if self.path is not None:
-            return cases.from_file(self.path, name=self.name, base=self.base)
-        return cases.load(self.name, **dict(self.params))
+            model = cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated)
+        else:
+            model = cases.load(self.name, **dict(self.params))
+        return model if self.task_point is None else task_points.with_task_point(model, *task_points.parse(
+            self.task_point))
 
     def closed_form(self):
         """The ``closed_form`` voter bound to this built-in case and its parameters (``crosscheck.closed_forms``),
-        None when the case has none (a model file never has one)."""
+        None when the case has none (a model file never has one). With a ``task_point`` given, it votes on
+        everything but the task quantities, which its equations have for the case's own task point."""
         if self.path is not None:
             return None
         from crosscheck import closed_forms
 
-        return closed_forms.voter(self.name, dict(self.params))
+        voter = closed_forms.voter(self.name, dict(self.params))
+        if voter is None or self.task_point is None:
+            return voter
+        return dataclasses.replace(voter, split=partial(_without_task, voter.split),
+                                   summary=f"{voter.summary} (not the task quantities: --task-point given)")
 
     def cli_args(self) -> str:
         """The command-line arguments that select this case."""
+        point = f" --task-point {self.task_point}" if self.task_point is not None else ""
         if self.path is not None:
-            return f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
-        return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params])
+            return (f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
+                    + (f" --actuated {','.join(self.actuated)}" if self.actuated is not None else "") + point)
+        return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params]) + point
+
+
+def _without_task(split: Callable[..., Split], model: Model, q, qd, u) -> Split:
+    """``split``'s answer with the task drift, the task inertia and its condition declared unsupported."""
+    s = split(model, q, qd, u)
+    return dataclasses.replace(s, task_drift=UNSUPPORTED, task_inertia=UNSUPPORTED,
+                               conditions={k: v for k, v in s.conditions.items() if k != "task_inertia"})
 
 
 @dataclass
@@ -483,7 +508,7 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
     announce_preparation(setup, backends)
-    states = sample_states(setup.model, samples, seed, spec.name)
+    states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
     outcomes: list[StateOutcome] = []
 
     def at(phase: str) -> None:
@@ -563,7 +588,8 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
         return "none (a model file; its reference is built from the file)"
     from crosscheck import closed_forms
 
-    return closed_forms.coverage(spec.name, dict(spec.params))
+    given = " (not the task quantities: --task-point given)" if spec.task_point is not None else ""
+    return closed_forms.coverage(spec.name, dict(spec.params)) + given
 
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
@@ -573,14 +599,14 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     sample is degenerate (``crosscheck.coverage``), every ``required`` backend took part in some comparison and the
     self-test canaries are caught (``crosscheck.selftest``, unless ``checks.self_test`` is off).
 
-    ``workers`` > 1 runs the cases in that many spawned processes (:func:`_in_pool`), at most one per case; the
-    outcomes are the same as in this process and come back in case order, so the report is too (its timings
-    apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
-    run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
+    ``workers`` 0 runs the cases in this process; N >= 1 in N spawned processes (:func:`_in_pool`), at most one per
+    case (``crosscheck.cli.workers``: the one meaning of ``--workers``); the outcomes are the same as in this
+    process and come back in case order, so the report is too (its timings apart). Backends that cannot be sent to
+    another process (not picklable: a lambda, a local function) keep the run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
     of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
     tell = progress or _ignore
     count = min(workers, len(specs))
-    pooled = count > 1 and _picklable(backends)
+    pooled = count >= 1 and _picklable(backends)
     outcomes: list[CaseOutcome] = []
     result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
     try:

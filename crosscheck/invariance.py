@@ -49,8 +49,14 @@ CONSTRAINED_INVARIANT = ("lam", "lam_drift", "constraint_force", "constraint_for
                          "constraint_value")
 
 
+#: With external loads (``cases.loads``), also: ``tau_ext`` is a covector (``Dpsi^T`` into a chart, invariant under a
+#: frame change: the moved scene moves the loads' world data with it) and its power is invariant.
+LOADED_INVARIANT = ("external_force", "power_ext")
+
+
 def _invariant(model: Model) -> tuple[str, ...]:
-    return INVARIANT + (CONSTRAINED_INVARIANT if model.constraints else ())
+    return (INVARIANT + (CONSTRAINED_INVARIANT if model.constraints else ())
+            + (LOADED_INVARIANT if model.loads else ()))
 
 
 def _votes(split: Split, quantity: str) -> bool:
@@ -87,7 +93,7 @@ def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict 
     elif quantity == "additivity":
         value = (_mapped(chart, p, pd, split, "drift", done) + _mapped(chart, p, pd, split, "ctrl", done)
                  - _mapped(chart, p, pd, split, "total", done))
-    elif quantity in ("constraint_force", "constraint_force_drift"):
+    elif quantity in ("constraint_force", "constraint_force_drift", "external_force"):
         value = charts.force_to_chart(chart, p, split.quantity(quantity))
     else:
         value = split.quantity(quantity)     # power, energy, task accelerations, multipliers, phi: no map
@@ -182,12 +188,24 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
         values.update({name: split.quantity(quantity) for name, split in native.items()
                        if quantity not in left_out[name]})
         gains = (1.0, gain) if quantity in ("drift", "ctrl", "total", "additivity") else (1.0, 1.0)
+        if quantity == "external_force":     # a covector: Dpsi^T carries each joint-chart entry's rounding into p
+            gains = (covector_gain := float(np.abs(at_p.jacobian(p)).sum(axis=0).max()), covector_gain)
         tol = _tolerance(quantity, at, gains)
         if quantity == "power_ctrl":
             tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, tau_p))
+        if quantity == "power_ext":          # as the input's power: pd carries the state's rounding into the chart
+            tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, _loads_in_chart(
+                at_p, p, joint)))
         record["tolerances"][quantity] = tol
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, tol)
     return out
+
+
+def _loads_in_chart(chart: charts.Chart, p: np.ndarray, joint: Mapping[str, Split]) -> np.ndarray:
+    """The largest (entry by entry) of the joint-chart splits' ``tau_ext`` mapped into the chart, ``Dpsi^T tau_ext``."""
+    forces = [np.abs(charts.force_to_chart(chart, p, s.external_force)) for s in joint.values()
+              if s.external_force is not None and not isinstance(s.external_force, Unsupported)]
+    return np.max(forces, axis=0) if forces else np.zeros(len(p))
 
 
 def _transfer(chart: charts.Chart, p: np.ndarray, pd: np.ndarray, tau_p: np.ndarray) -> float:

@@ -17,6 +17,10 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
   Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
   a Pfaffian declaration's ``A`` and ``Adot qd`` (``phi`` 0) likewise, a rolling contact's from the material point at
   the contact plus the sliding of the contact over the disk (:func:`_pfaffian_rows`);
+* the external loads (``cases.loads``) as world wrenches about the world origin (``x x f + m`` with ``x`` the load's
+  point, body-frame vectors turned by R, a spring's force ``-k (|d| - L0) d / |d|``) subtracted from each body's own
+  in the Newton–Euler pass: ``h`` is then ``C qd + g - tau_ext`` (so :func:`bias_forces` of a loaded model includes
+  ``-tau_ext``), and the drift (eq. 14) carries them;
 * the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
   lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``crosscheck.conditioning.redundant_below`` dropped
   (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
@@ -69,6 +73,7 @@ import numpy as np
 from mpmath import mpf
 
 from cases.constraints import JointCoupling, KnifeEdge, PointOnLine, PointsCoincide, PointVelocity, RollingContact
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model
 from crosscheck.conditioning import redundant_below
 from formalisms.interface import Linearization, check_state, state_space
@@ -146,6 +151,7 @@ class _Data:
     rows: tuple       # per declaration, its numbers as mpf (see _constraint_data)
     q_index: tuple    # where body i's block of q starts
     cols: tuple       # body i's velocity columns (indices into v, M's rows): range(v_index[i], v_index[i] + nv_i)
+    loads: tuple = ()  # per external load, its numbers as mpf (see _load_data)
 
 
 def _vec(x) -> tuple:
@@ -195,6 +201,16 @@ def _constraint_data(model: Model, c) -> tuple:
             _mat(c.plane))
 
 
+def _load_data(model: Model, load) -> tuple:
+    """An external load's kind, body (index), offset and numbers as mpf: ``("spring", i, offset, anchor, k, L0)`` or
+    ``(kind, i, offset, force, moment, in_world)`` (moment zero for a force)."""
+    i, offset = model.body_index(load.body), _vec(load.offset)
+    if isinstance(load, PointSpring):
+        return ("spring", i, offset, _vec(load.anchor), mpf(load.stiffness), mpf(load.rest_length))
+    moment = _vec(load.moment) if isinstance(load, ExternalWrench) else _ZERO3
+    return ("wrench", i, offset, _vec(load.force), moment, load.frame == "world")
+
+
 @functools.lru_cache(maxsize=32)
 def _prepare(model: Model, prec: int) -> _Data:
     """The model's data at binary precision ``prec`` (the mpmath context must be at that precision)."""
@@ -204,7 +220,8 @@ def _prepare(model: Model, prec: int) -> _Data:
                    for i, b in enumerate(model.bodies))
     cols = tuple(tuple(range(v, v + JOINT_DOF[b.joint][1])) for v, b in zip(model.v_index, model.bodies))
     return _Data(bodies, tuple(model.topological_order), _vec(model.gravity), _mat(model.input_map),
-                 tuple(_constraint_data(model, c) for c in model.constraints), tuple(model.q_index), cols)
+                 tuple(_constraint_data(model, c) for c in model.constraints), tuple(model.q_index), cols,
+                 tuple(_load_data(model, load) for load in model.loads))
 
 
 def _check_digits(digits) -> int:
@@ -377,11 +394,31 @@ def _bias(data: _Data, kin: _Kin) -> list:
         Iw = kin.inertia[i]
         if Iw is not None:
             moment[i] = _add(moment[i], _add(_matvec(Iw, kin.alpha[i]), _cross(w, _matvec(Iw, w))))
+    for i, f, m in _external_wrenches(data, kin):         # the external loads act on the bodies: h - tau_ext
+        force[i], moment[i] = _sub(force[i], f), _sub(moment[i], m)
     for i in reversed(data.order):
         j = data.bodies[i].parent
         if j >= 0:
             force[j], moment[j] = _add(force[j], force[i]), _add(moment[j], moment[i])
     return [_dot(kin.S[c][0], moment[i]) + _dot(kin.S[c][1], force[i]) for i in range(n) for c in data.cols[i]]
+
+
+def _external_wrenches(data: _Data, kin: _Kin) -> list:
+    """``(body, force, moment about the world origin)`` of each external load in the world frame (module doc)."""
+    out = []
+    for kind, i, offset, *numbers in data.loads:
+        R = kin.R[i]
+        x = _add(kin.p[i], _matvec(R, offset))
+        couple = _ZERO3
+        if kind == "spring":
+            anchor, k, rest = numbers
+            d = _sub(x, anchor)
+            f = _scale(-k * (1 - rest / mpmath.sqrt(_dot(d, d))) if rest else -k, d)
+        else:
+            force, moment, in_world = numbers
+            f, couple = (force, moment) if in_world else (_matvec(R, force), _matvec(R, moment))
+        out.append((i, f, _add(_cross(x, f), couple)))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- constraints

@@ -66,6 +66,15 @@ constraints the point forces of ``lam`` (``lam_drift``) are applied as RNEA's ex
 frame, moment about the joint origin); a joint coupling's ``c_j lam`` is not a point force, so RNEA leaves it in
 the coupled joint's own load, the convention of ``Split.joint_wrenches``.
 
+External loads (``cases.loads``): each declaration is a ``pinocchio.Force`` in its joint's local frame, moment
+about the joint origin (:func:`_external_fext`, from ``data.oMi``: a world vector ``x`` is ``R^T x`` there, a spring's
+force formed from ``oMi * offset``), passed as ABA's and RNEA's ``fext``: the accelerations, the drift at rest
+(``aba(q, 0, 0, fext)``) and the joint loads carry them. ``tau_ext`` itself is ``-rnea(q, 0, 0, fext)`` of the
+gravity-free model. The constrained solve (``forwardDynamics`` takes no fext) adds ``tau_ext`` to the applied force.
+The linearization takes ``computeABADerivatives(..., fext)``, whose fext is constant in the joint frames: body-frame
+forces and wrenches only (a world-frame force or a spring turns in the joint frame and has further q-derivatives;
+:func:`linearize` declines those models).
+
 States and results are permuted (and continuous joints mapped to ``(cos q, sin q)``) in and out, so callers always
 use our coordinate order.
 """
@@ -83,6 +92,7 @@ import scipy.linalg
 
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
                                   check_batch, check_state, split_batch_by_loop, ModelNotSupported)
@@ -261,7 +271,8 @@ def _parent_frame(frame) -> int:
 def _read_file(source: ModelSource) -> pin.Model:
     """The file's Pinocchio model (``cases.urdf.read_file``: ``buildModelFromUrdf``, with a free-flyer root joint when
     the source's root is "free", or ``buildModelFromMJCF``) placed in the model's world by the source's ``g = (R,
-    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file``."""
+    t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file`` (zero for a source
+    without gravity, ``ModelSource.without_gravity``)."""
     from cases.urdf import read_file
 
     try:
@@ -279,7 +290,7 @@ def _read_file(source: ModelSource) -> pin.Model:
         if _parent_joint(frame) == 0:
             frame.placement = pin.SE3(R @ frame.placement.rotation, R @ frame.placement.translation + t)
             pm.frames[k] = frame
-    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear), np.zeros(3))
+    pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear) if source.gravity else np.zeros(3), np.zeros(3))
     return pm
 
 
@@ -453,6 +464,14 @@ def to_pinocchio(model: Model) -> pin.Model:
     return _from_data(model).model
 
 
+def reference_model(model: Model) -> _Compiled:
+    """The Pinocchio model :func:`split` evaluates for ``model`` (built from the file for a model with a source, with
+    the scene's placement and gravity, else from our data) and how our coordinates map onto it: ``order`` (our index
+    of each Pinocchio velocity) and ``configuration(q)``. Shared and cached: read-only (``crosscheck.needs`` copies
+    it for a plugin)."""
+    return _reference(model)
+
+
 def joint_map(model: Model) -> tuple[JointMapRow, ...] | None:
     """How the file-built reference maps our coordinates to the file's joints (module docstring), one row per
     coordinate; None for a model without a file source. A ValueError names what does not map."""
@@ -522,6 +541,20 @@ def task_jacobian(model: Model, q) -> np.ndarray:
     J = np.empty_like(J_p)
     J[:, c.order] = J_p
     return J
+
+
+def body_origins(model: Model, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World positions at ``q`` of every body frame's origin (its joint's origin) and centre of mass (bodies x 3
+    each, in body order) and of the default task point, from the model of our data (:func:`to_pinocchio`): for
+    pictures of the mechanism."""
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.forwardKinematics(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    pin.updateFramePlacements(c.model, data)
+    joints = [c.joint_of[b.name] for b in model.bodies]
+    origins = np.array([data.oMi[j].translation for j in joints])
+    coms = np.array([data.oMi[j].act(c.model.inertias[j].lever) for j in joints])
+    return origins, coms, np.array(data.oMf[c.task_frame].translation)
 
 
 def centroidal_momentum_map(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -801,6 +834,39 @@ def _constraint_fext(model: Model, c: _Compiled, data, lam: np.ndarray) -> list:
     return fext
 
 
+def _external_fext(model: Model, c: _Compiled, data) -> list | None:
+    """The external loads (``cases.loads``) as ABA's and RNEA's ``fext``: per joint a ``pinocchio.Force`` in its local
+    frame, moment about the joint origin (module docstring); None without loads. Needs the placements (``data.oMi``,
+    after forwardKinematics)."""
+    if not model.loads:
+        return None
+    fext = [pin.Force.Zero() for _ in range(c.model.njoints)]
+    for load in model.loads:
+        jid = c.joint_of[load.body]
+        R, origin = np.array(data.oMi[jid].rotation), np.array(data.oMi[jid].translation)
+        couple = np.zeros(3)
+        if isinstance(load, PointSpring):
+            d = origin + R @ load.offset - load.anchor
+            length = float(np.linalg.norm(d))
+            local = R.T @ (-load.stiffness * (length - load.rest_length) / length * d if load.rest_length
+                           else -load.stiffness * d)
+        else:
+            to_local = R.T if load.frame == "world" else np.eye(3)
+            local = to_local @ load.force
+            if isinstance(load, ExternalWrench):
+                couple = to_local @ load.moment
+        fext[jid] = fext[jid] + pin.Force(local, np.cross(load.offset, local) + couple)
+    return fext
+
+
+def _external_force(model: Model, c: _Compiled, q_p: np.ndarray, fext: list) -> np.ndarray:
+    """``tau_ext`` in Pinocchio's order: ``-rnea(q, 0, 0, fext)`` of the gravity-free model (the joint torques that
+    hold the external loads at rest, negated)."""
+    still = _gravity_free(model)
+    zero = np.zeros(model.nv)
+    return -np.array(pin.rnea(still, still.createData(), q_p, zero, zero, fext))
+
+
 def split(model: Model, q, qd, u) -> Split:
     """Drift / control / total accelerations from Pinocchio (ABA twice; ``M^-1 B u`` by a Cholesky solve on CRBA's M:
     computeMinverse lost 256 eps on a single rotor, a fuzz finding); task drift from the classical acceleration of
@@ -814,10 +880,13 @@ def split(model: Model, q, qd, u) -> Split:
     data = pm.createData()  # fresh Data: the result cannot depend on call history
     tau_ctrl = model.input_map @ u
     qp, vp, tp = c.configuration(q), qd[order], tau_ctrl[order]
+    pin.forwardKinematics(pm, data, qp)
+    fext = _external_fext(model, c, data)
+    loads = () if fext is None else (fext,)
 
-    total_p = np.array(pin.aba(pm, data, qp, vp, tp))
-    drift_p = np.array(pin.aba(pm, data, qp, vp, np.zeros(model.n)))
-    zvcf_p = np.array(pin.aba(pm, data, qp, np.zeros(model.n), np.zeros(model.n)))
+    total_p = np.array(pin.aba(pm, data, qp, vp, tp, *loads))
+    drift_p = np.array(pin.aba(pm, data, qp, vp, np.zeros(model.n), *loads))
+    zvcf_p = np.array(pin.aba(pm, data, qp, np.zeros(model.n), np.zeros(model.n), *loads))
     still = _gravity_free(model)
     velocity_p = np.array(pin.aba(still, still.createData(), qp, vp, np.zeros(model.n)))
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
@@ -825,7 +894,8 @@ def split(model: Model, q, qd, u) -> Split:
     dyn = _Dynamics.at(c, data, qp, vp)
     M, Cqd, g = _ours_matrix(order, dyn.M), _ours(order, dyn.Cqd), _ours(order, dyn.g)
     ctrl = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), tau_ctrl)
-    cond_M, accel_scale = _conditioning(c, dyn, tau_ctrl, qd)
+    tau_ext = None if fext is None else _ours(order, _external_force(model, c, qp, fext))
+    cond_M, accel_scale = _conditioning(c, dyn, tau_ctrl if tau_ext is None else np.abs(tau_ctrl) + np.abs(tau_ext), qd)
     power, power_per = _input_power(model, u, qd)
     pin.computeJointJacobians(pm, data, qp)
     inertia = _task_inertia(model, c, data, dyn.L)
@@ -834,9 +904,10 @@ def split(model: Model, q, qd, u) -> Split:
                  cond_M=cond_M, accel_scale=accel_scale, extras={"M": M, "Cqd": Cqd, "g": g},
                  task_drift=model.task_point().directions @ np.array(task_accel), conditions=inertia["conditions"],
                  kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
-                 joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p),
-                 joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p), task_inertia=inertia["task_inertia"],
-                 zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p))
+                 joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p, fext),
+                 joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p, fext), task_inertia=inertia["task_inertia"],
+                 zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p), external_force=tau_ext,
+                 power_ext=None if tau_ext is None else float(tau_ext @ qd))
 
 
 _STILL: dict[tuple, pin.Model] = {}
@@ -862,10 +933,16 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     if model.constraints:
         raise ModelNotSupported(f"model '{model.name}' has constraints: Pinocchio's ABA derivatives are unconstrained; "
                                 "the reference linearization of a constrained model is crosscheck.precise.linearize")
+    if any(isinstance(x, PointSpring) or x.frame == "world" for x in model.loads):
+        raise ModelNotSupported(f"model '{model.name}' has world-frame external loads or springs: Pinocchio's ABA "
+                                "derivatives hold fext constant in the joint frames (body-frame loads only)")
     c = _reference(model)
     pm, order = c.model, c.order
     data = pm.createData()
-    pin.computeABADerivatives(pm, data, c.configuration(q), qd[order], (model.input_map @ u)[order])
+    qp = c.configuration(q)
+    pin.forwardKinematics(pm, data, qp)
+    fext = _external_fext(model, c, data)
+    pin.computeABADerivatives(pm, data, qp, qd[order], (model.input_map @ u)[order], *(() if fext is None else (fext,)))
     Minv = _ours_matrix(order, _sym(np.array(data.Minv)))
     nv = model.nv
     A = np.block([[_tangent_kinematics(model, qd), np.eye(nv)],
@@ -943,6 +1020,9 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     phi, Jc_p, bias = _constraint_terms(model, c, data, q, qd)
     tau_ctrl = model.input_map @ u
     qp, vp, tp = c.configuration(q), qd[order], tau_ctrl[order]
+    pin.forwardKinematics(pm, data, qp)
+    fext = _external_fext(model, c, data)
+    ext_p = np.zeros(model.n) if fext is None else _external_force(model, c, qp, fext)   # forwardDynamics: no fext
     dyn = _Dynamics.at(c, data, qp, vp)
     Minv_p = scipy.linalg.cho_solve((dyn.L, True), np.eye(model.n))
     S = _Gram.of(dyn.L, Jc_p)
@@ -951,9 +1031,9 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     # singular S: Pinocchio's KKT on the independent combinations of the rows, the redundant directions dropped as
     # the formalisms drop them; lam = rows lam_r is then the minimum-norm multiplier
     J_r, bias_r = rows.T @ Jc_p, rows.T @ bias
-    total_p, lam_r = _kkt(c, data, qp, vp, tp, J_r, bias_r)
-    drift_p, lam_drift_r = _kkt(c, data, qp, vp, np.zeros(model.n), J_r, bias_r)
-    zvcf_p, _ = _kkt(c, data, qp, np.zeros(model.n), np.zeros(model.n), J_r, np.zeros(len(bias_r)))
+    total_p, lam_r = _kkt(c, data, qp, vp, tp + ext_p, J_r, bias_r)
+    drift_p, lam_drift_r = _kkt(c, data, qp, vp, ext_p, J_r, bias_r)
+    zvcf_p, _ = _kkt(c, data, qp, np.zeros(model.n), ext_p, J_r, np.zeros(len(bias_r)))
     still = _gravity_free(model)
     velocity_p = np.array(pin.forwardDynamics(still, still.createData(), qp, vp, np.zeros(model.n), J_r, bias_r, 0.0))
     lam, lam_drift = rows @ lam_r, rows @ lam_drift_r
@@ -963,12 +1043,16 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
     pin.updateFramePlacements(pm, data)
     inertia = _task_inertia(model, c, data, dyn.L)
     fext, fext_drift = _constraint_fext(model, c, data, lam), _constraint_fext(model, c, data, lam_drift)
+    applied = _external_fext(model, c, data)
+    if applied is not None:                                      # the external loads act in both
+        fext, fext_drift = ([a + b for a, b in zip(f, applied)] for f in (fext, fext_drift))
     wrenches = _joint_wrenches(c, data, qp, vp, total_p, fext), _joint_wrenches(c, data, qp, vp, drift_p, fext_drift)
     pin.forwardKinematics(pm, data, qp, vp, drift_p)
     task_accel = pin.getFrameClassicalAcceleration(pm, data, c.task_frame, pin.LOCAL_WORLD_ALIGNED).linear
 
-    cond_M, accel_scale = _conditioning(c, dyn, tau_ctrl, qd)
-    cc = _constraint_conditions(c, dyn, S, Jc_p, bias, (tp - dyn.Cqd - dyn.g, -dyn.Cqd - dyn.g), accel_scale)
+    cond_M, accel_scale = _conditioning(c, dyn, np.abs(tau_ctrl) + np.abs(_ours(order, ext_p)), qd)
+    cc = _constraint_conditions(c, dyn, S, Jc_p, bias, (tp + ext_p - dyn.Cqd - dyn.g, ext_p - dyn.Cqd - dyn.g),
+                                accel_scale)
     Jc = np.empty_like(Jc_p)
     Jc[:, order] = Jc_p
     velocity = Jc @ qd
@@ -986,7 +1070,9 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
         joint_wrenches_drift=wrenches[1], task_inertia=inertia["task_inertia"], constraint_value=phi,
         constraint_jacobian=Jc, constraint_bias=bias, constraint_velocity=velocity, constraint_force=force,
         constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,
-        zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p))
+        zvcf=_ours(order, zvcf_p), drift_velocity=_ours(order, velocity_p),
+        external_force=_ours(order, ext_p) if model.loads else None,
+        power_ext=float(_ours(order, ext_p) @ qd) if model.loads else None)
 
 
 # ------------------------------------------------------------------------------------------------- batches
@@ -1013,7 +1099,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
     model, which is ``M^-1 B u`` (eq. 9) computed directly. A constrained model goes state by state through
     :func:`split` (Pinocchio's KKT solve has no batched form in its Python API)."""
     Q, QD, U = check_batch(model, Q, QD, U)
-    if model.constraints or not len(Q):
+    if model.constraints or model.loads or not len(Q):
         return split_batch_by_loop(split)(model, Q, QD, U)
     c = _reference(model)
     order = c.order

@@ -1,17 +1,24 @@
-"""Markdown report of a gate run: the summary (verdict, counts, suspects) first, then every disagreement with its
-severity, vote, hint and reproduce command, the known divergences, stale registry entries, breakdowns, the checks,
-the constraint power audit and the worst states.
+"""Markdown report of a gate run, in two parts. The summary (:func:`summary`, the file ``--report`` names) is
+short: the verdict, a failing run's disagreements with their severity, vote, hint and reproduce command (and any
+other failure), what was run, the worst ratio, what was checked and skipped and why (with the task point of a case
+whose task condition broke down at most states), the pictures of the mechanism, one line per case. The details
+(:func:`details`, next to it as ``NAME-details.md``): the tolerance policy, counts per verdict, suspects, voters, the
+task points, the per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns,
+the invariance and conservation checks, the constraint power audit, the drift's parts, the worst state per case and
+the timing.
 
-Same seed, same report byte for byte, apart from the timing section at the end.
+Same seed, same report byte for byte, apart from the timing section at the end of the details.
 """
 
 from __future__ import annotations
 
 import shlex
+from pathlib import Path
 
 import numpy as np
 
-from crosscheck import backends, charts, reference
+from cases import task
+from crosscheck import backends, charts, reference, sampling
 from crosscheck.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
 from crosscheck.gate import CaseOutcome, GateResult, StateOutcome
@@ -196,6 +203,20 @@ def _checks_section(result: GateResult) -> list[str]:
     return lines
 
 
+def _limits_line(result: GateResult) -> list[str]:
+    """How the states of models with joint limits were drawn (none for a run without such a model)."""
+    limited = [(case.spec.name, len(sampling.limited_joints(case.model)), len(case.model.bodies))
+               for case in result.cases if sampling.limited_joints(case.model)]
+    if not limited:
+        return []
+    where = ", ".join(f"{name} {k} of {n} joints" for name, k, n in limited)
+    if result.checks.joint_limits:
+        return [f"- states drawn within the joint limits the models declare ({where}); `--ignore-limits` draws "
+                "them freely"]
+    return [f"- joint limits ignored (`--ignore-limits`): states drawn freely, also where the models declare limits "
+            f"({where})"]
+
+
 def _condition(state: StateOutcome, backend: str, name: str, value: float) -> str:
     """``cond NAME = v > limit``, with the rank of ``Jc M^-1 Jc^T`` for the constraint condition (5.6)."""
     text = f"cond {name} = {value:.3g} > {BREAKDOWN_LIMITS[name]:.3g}"
@@ -229,6 +250,31 @@ def _coordinates(model, per_coord: np.ndarray, sign: float) -> str:
     labels = model.velocity_labels
     picked = [f"{labels[i]} ({per_coord[i]:+.3g} W)" for i in order if sign * per_coord[i] > 0.0]
     return ", ".join(picked[:2]) or "-"
+
+
+def _external_power(result: GateResult) -> list[str]:
+    """The external loads' power beside the input's (article 2.3, 5.5; ``cases.loads``): per case with loads, the
+    largest ``|tau_ext . qd|`` and ``|u . B^T qd|`` over the states (medians over the backends that report them)."""
+    rows = []
+    for case in result.cases:
+        if not case.model.loads:
+            continue
+        sizes = []
+        for state in case.states:
+            voters = state.voters("power_ext")
+            if voters:
+                sizes.append((float(np.median([abs(s.power_ext) for s in voters.values()])),
+                              float(np.median([abs(s.power_ctrl) for s in voters.values()]))))
+        if sizes:
+            rows.append(f"| {case.spec.name} | {len(case.model.loads)} | {len(sizes)} | "
+                        f"{max(e for e, _ in sizes):.4g} | {max(c for _, c in sizes):.4g} |")
+    if not rows:
+        return []
+    return ["## External load power (article 2.3)", "",
+            "The external loads' generalized force `tau_ext` (compared above as external_force) does work `P_ext = "
+            "tau_ext . qd` beside the input's `P_ctrl = u . B^T qd` (compared as power_ext; the energy balance checks "
+            "`dE/dt = P_ctrl + P_ext`). Largest magnitudes over the states, medians over the backends.", "",
+            "| case | loads | states | max abs P_ext (W) | max abs P_ctrl (W) |", "|---|---|---|---|---|", *rows, ""]
 
 
 def _power_audit(result: GateResult) -> list[str]:
@@ -382,6 +428,75 @@ def _voters_section(result: GateResult) -> list[str]:
     return (["Voters:", ""] + lines + [""]) if lines else []
 
 
+#: The conditions of a task point (``crosscheck.tolerance.BREAKDOWN_LIMITS``): a BREAKDOWN on them is the task's.
+TASK_CONDITIONS = ("task", "task_jacobian", "task_inertia")
+
+
+def _task_broken(case: CaseOutcome) -> list[StateOutcome]:
+    """The states where some backend was in BREAKDOWN on a task condition."""
+    return [s for s in case.states if any(set(c) & set(TASK_CONDITIONS) for c in s.breakdowns.values())]
+
+
+def _typical(states: list[StateOutcome]) -> StateOutcome:
+    """The first of ``states`` away from the home configuration q = 0 (a stretched chain is singular anyway)."""
+    return next((s for s in states if any(s.state.q)), states[0])
+
+
+def task_point_lines(case: CaseOutcome) -> list[str]:
+    """The task point a case used (name, body, offset, directions) and how it was chosen; when a backend was in
+    BREAKDOWN on a task condition at most states, why, from the model's own point kinematics at such a state
+    (``cases.task.rank_deficiency``: "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")."""
+    tp = case.model.task_point()
+    choice = tp.choice or "declared with the model"
+    lines = [f"- {case.spec.name}: task point `{tp.name}` on body `{tp.body}` at {_vec(tp.offset)} m in its frame, "
+             f"task directions {np.round(tp.directions, 6).tolist()}; {choice}"]
+    broken = _task_broken(case)
+    if broken and len(broken) > len(case.states) / 2:
+        first = _typical(broken)
+        why = task.rank_deficiency(case.model, np.array(first.state.q))
+        worst = max(v for s in broken for c in s.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS)
+        lines.append(f"  - a task condition was in BREAKDOWN at {len(broken)} of {len(case.states)} states (worst "
+                     f"{worst:.3g}); at state #{first.state.index}: " +
+                     (why or "the task Jacobian has full rank there: a near-singular configuration") +
+                     f". Choose another point with `--task-point BODY[:x,y,z]`.")
+    return lines
+
+
+#: At most this many pictures of the mechanism per report.
+MAX_FIGURES = 3
+
+
+def mechanism_figures(result: GateResult, report: Path) -> dict[str, str]:
+    """Stick figures of the mechanism (``crosscheck.plots.stick_figure``) written next to ``report`` where they help:
+    for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN at
+    most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
+    from crosscheck import plots
+
+    chosen = []
+    for case in result.cases:
+        failed = [s for s in case.states if s.failed]
+        broken = _task_broken(case)
+        if failed:
+            chosen.append((case, max(failed, key=lambda s: s.worst_ratio), "worst failing state"))
+        elif len(broken) > len(case.states) / 2:
+            chosen.append((case, _typical(broken), "task condition in BREAKDOWN"))
+    out = {}
+    for case, state, why in chosen[:MAX_FIGURES]:
+        name = f"{report.stem}_{case.spec.name}_state{state.state.index}.png"
+        plots.stick_figure(case.model, np.array(state.state.q), report.parent / name,
+                           f"{case.spec.name}, state #{state.state.index} ({why})")
+        out[case.spec.name] = name
+    return out
+
+
+def figure_lines(figures: dict[str, str]) -> list[str]:
+    """The report's links to the pictures :func:`mechanism_figures` wrote."""
+    if not figures:
+        return []
+    return ["Pictures of the mechanism (joint origins, links, task point; from the reference's forward kinematics):",
+            ""] + [f"- {case}: ![{case}]({name})" for case, name in figures.items()] + [""]
+
+
 def _verdict_line(key: str, comp: Comparison) -> str:
     """``- **key**: VERDICT (severity), worst error/tolerance r (tolerance t), outlier **x**`` and, for a
     disagreement without an outlier, how the vote came out; for a KNOWN one, the registry's reason."""
@@ -512,45 +627,94 @@ def _self_test_line(result: GateResult) -> str:
     return f"- self-test: {sum(r.passed for r in test.results)} of {len(test.results)} canaries caught and named"
 
 
-def render(result: GateResult, command: str, applied: Applied | None = None) -> str:
-    """The whole report as markdown; ``command`` is the gate command that produced it, ``applied`` the divergence
-    registry as applied to ``result`` (``crosscheck.registry.apply``), if any."""
-    verdict = "PARTIAL" if result.interrupted else "PASS" if result.passed else "FAIL"
+def details_path(path: str | Path) -> Path:
+    """Where the details of the report at ``path`` go: next to it, ``gate.md`` -> ``gate-details.md``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}-details{path.suffix or '.md'}")
+
+
+def write(result: GateResult, command: str, path: str | Path, applied: Applied | None = None,
+          figures: dict[str, str] | None = None) -> tuple[Path, Path]:
+    """Write the short report to ``path`` (:func:`summary`, linking ``figures``: :func:`mechanism_figures`) and
+    everything else next to it (:func:`details`, at :func:`details_path`); the two paths."""
+    path, more = Path(path), details_path(path)
+    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures))
+    more.write_text(details(result, command, applied, summary_link=path.name))
+    return path, more
+
+
+def read(path: str | Path) -> str:
+    """The whole report :func:`write` left at ``path``: the summary, then the details (when there are any)."""
+    path, more = Path(path), details_path(path)
+    return path.read_text() + ("\n" + more.read_text() if more.exists() else "")
+
+
+def render(result: GateResult, command: str, applied: Applied | None = None,
+           figures: dict[str, str] | None = None) -> str:
+    """The whole report as one markdown text: the summary (:func:`summary`), then the details (:func:`details`);
+    ``command`` is the gate command that produced it, ``applied`` the divergence registry as applied to ``result``
+    (``crosscheck.registry.apply``), if any, ``figures`` the pictures of the mechanism to link
+    (:func:`mechanism_figures`). The command line writes the two parts to two files (:func:`write`)."""
+    return summary(result, command, applied, figures=figures) + "\n" + details(result, command, applied)
+
+
+def _verdict(result: GateResult) -> str:
+    return "PARTIAL" if result.interrupted else "PASS" if result.passed else "FAIL"
+
+
+def _failed(result: GateResult) -> list[tuple[CaseOutcome, StateOutcome]]:
+    return [(c, s) for c in result.cases for s in c.states if s.failed]
+
+
+def _headline(result: GateResult) -> list[str]:
+    """The title, the PARTIAL warning of an interrupted run, and the verdict line with the counts."""
     n_states = sum(len(c.states) for c in result.cases)
-    failed = [(c, s) for c in result.cases for s in c.states if s.failed]
     broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
     known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in _all(s))
     partial = [f"**PARTIAL REPORT: the run was interrupted {result.interrupted}.** It holds only the states "
                "evaluated until then and gives no verdict (a disagreement below is still one).", ""]
-    lines = ["# crosscheck gate report", "", *(partial if result.interrupted else []),
-             f"**{verdict}**: {len(failed)} of {n_states} states disagree or fail "
-             f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
-             f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
-             f"{broken} state(s) with a backend in BREAKDOWN.", "",
-             f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
-             _self_test_line(result),
-             _registry_line(applied),
-             "- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale"
-                                                     for q, (k, f) in TOLERANCES.items()),
-             "  (accelerations: one tolerance per coordinate, |M^-1| (f + Mterm |x| + d d.|x|), the sizes of the terms"
-             " summed in M and h (crosscheck.tolerance.acceleration_bound);",
-             "  task scale = L (sum of the acceleration scales + |qd|_1^2), L the task point's lever arm)",
-             "- severity of a DISAGREE by error/tolerance: " + ", ".join(
-                 f"{name} up to {bound:g}" if bound != float("inf") else f"{name} above (or NaN)"
-                 for bound, name in SEVERITY),
-             "- BREAKDOWN limits: " + ", ".join(f"cond {k} > {v:.3g}" for k, v in BREAKDOWN_LIMITS.items()), "",
-             "## Summary", "",
-             "Comparisons per verdict (quantities and checks) and states:", ""]
-    lines += _counts_rows(result) + [""]
-    lines += _suspects_section(result)
-    lines += _voters_section(result)
-    lines += ["Per quantity:", "",
-              "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
-              "at state | not supplied by |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for case in result.cases:
-        lines += _summary_rows(case)
-    lines.append("")
+    return ["# crosscheck gate report", "", *(partial if result.interrupted else []),
+            f"**{_verdict(result)}**: {len(_failed(result))} of {n_states} states disagree or fail "
+            f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
+            f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
+            f"{broken} state(s) with a backend in BREAKDOWN.", ""]
+
+
+def _worst_line(result: GateResult) -> str:
+    """The largest error/tolerance of the run over every comparison and check, and where it was."""
+    found = [(case, state, key, comp) for case in result.cases for state in case.states
+             for key, comp in {**state.comparisons, **state.checks}.items() if comp.verdict != NOT_COMPARED]
+    if not found:
+        return "- worst error/tolerance: - (nothing compared)"
+    case, state, key, comp = max(found, key=lambda f: _ratio(f[3]))
+    return (f"- worst error/tolerance: {comp.worst_ratio:.3g} ({case.spec.name}, {key}, state "
+            f"#{state.state.index}; below 1 agrees)")
+
+
+def _run_lines(result: GateResult, command: str, applied: Applied | None) -> list[str]:
+    """What was run: the command, seed and sample size, the joint limits the states keep, the self-test and the
+    divergence registry."""
+    return [f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
+            *_limits_line(result), _self_test_line(result), _registry_line(applied)]
+
+
+def _policy_lines() -> list[str]:
+    """The tolerance table, the severity bands and the breakdown limits the verdicts used."""
+    return ["- tolerance per quantity: " + ", ".join(f"{q}: {f:g} eps x {k} scale" for q, (k, f) in TOLERANCES.items()),
+            "  (accelerations: one tolerance per coordinate, |M^-1| (f + Mterm |x| + d d.|x|), the sizes of the terms"
+            " summed in M and h (crosscheck.tolerance.acceleration_bound);",
+            "  task scale = L (sum of the acceleration scales + |qd|_1^2), L the task point's lever arm)",
+            "- severity of a DISAGREE by error/tolerance: " + ", ".join(
+                f"{name} up to {bound:g}" if bound != float("inf") else f"{name} above (or NaN)"
+                for bound, name in SEVERITY),
+            "- BREAKDOWN limits: " + ", ".join(f"cond {k} > {v:.3g}" for k, v in BREAKDOWN_LIMITS.items())]
+
+
+def _failures_section(result: GateResult) -> list[str]:
+    """What failed the run, first: the failing states with their reproduce commands, degenerate samples, required
+    backends that compared nothing, missed canaries."""
+    failed = _failed(result)
+    lines = []
     if failed:
         lines += ["## Disagreements", ""]
         for case, state in failed[:MAX_LISTED_FAILURES]:
@@ -558,6 +722,147 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
                                    full=False)
         if len(failed) > MAX_LISTED_FAILURES:
             lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
+    other = [f"- **{case.spec.name}: degenerate sample**: {p}" for case in result.cases
+             for p in (case.coverage.problems if case.coverage else ())]
+    other += [f"- **FAIL: {name} took part in no comparison** (named on the command line; it declined every case or "
+              f"was in BREAKDOWN everywhere). Name it with `--optional {name}` if that is expected."
+              for name in result.absent]
+    other += [f"- **self-test: {line}**" for line in (result.self_test.failures() if result.self_test else ())]
+    if other:
+        lines += ["## Other failures", ""] + other + [""]
+    return lines
+
+
+def _case_table(result: GateResult) -> list[str]:
+    """One line per case: states, failing, KNOWN, BREAKDOWN states, the worst comparison and the worst check."""
+    rows = []
+    for case in result.cases:
+        worst = [(s, k, c) for s in case.states for k, c in s.comparisons.items() if c.verdict != NOT_COMPARED]
+        checks = [(s, k, c) for s in case.states for k, c in s.checks.items() if c.verdict != NOT_COMPARED]
+        known = sum(c.verdict == KNOWN for s in case.states for c in _all(s))
+        broken = sum(bool(s.breakdowns) for s in case.states)
+        rows.append(f"| {case.spec.name} | {case.model.n} | {len(case.states)} | "
+                    f"{sum(s.failed for s in case.states)} | {known} | {broken} | "
+                    f"{_where_worst(worst)} | {_where_worst(checks)} | "
+                    f"{'**degenerate**' if case.coverage and case.coverage.degenerate else 'ok'} |")
+    return ["## Cases", "",
+            "| case | n | states | failing | KNOWN | BREAKDOWN states | worst quantity (error/tolerance, state) | "
+            "worst check | sample |", "|---|---|---|---|---|---|---|---|---|"] + rows + [""]
+
+
+def _where_worst(found: list[tuple[StateOutcome, str, Comparison]]) -> str:
+    if not found:
+        return "-"
+    state, key, comp = max(found, key=lambda f: _ratio(f[2]))
+    return f"{key} {comp.worst_ratio:.3g} #{state.state.index}"
+
+
+def _checked_lines(result: GateResult) -> list[str]:
+    """What the run checked besides the backends' comparison, and what it left out and why (an option, or a case
+    where a check does not apply)."""
+    c = result.checks
+    on = {"chart invariance": (c.charts, "--no-charts"), "frame changes": (c.frames, "--frames 0"),
+          "energy and Christoffel conservation": (c.conservation, "--no-conservation"),
+          "linearizations A, B (eq. 11)": (c.linearization, "--no-linearization"),
+          "the article's closed forms as a voter": (c.closed_forms, "--no-closed-forms"),
+          "self-test canaries": (c.self_test, "--no-self-test")}
+    shown = {"frame changes": f"{c.frames} frame change(s) per case"}
+    lines = ["- checked: every quantity every backend supplies, "
+             + ", ".join(shown.get(k, k) for k, (v, _) in on.items() if v)]
+    off = [f"{k} ({flag})" for k, (v, flag) in on.items() if not v]
+    if off:
+        lines.append("- skipped by option: " + ", ".join(off))
+    if c.charts:
+        none = [case.spec.name for case in result.cases if not case.charts]
+        if none:
+            lines.append(f"- no chart applies (spherical or free joints: quaternion coordinates): {', '.join(none)}")
+    if c.closed_forms:
+        none = [case.spec.name for case in result.cases if case.closed_form.startswith("none")]
+        if none:
+            lines.append(f"- no closed form: {', '.join(none)}")
+    lines += _not_supplied_lines(result) + _breakdown_lines(result) + _silent_lines(result)
+    return lines
+
+
+def _breakdown_lines(result: GateResult) -> list[str]:
+    """Per backend and condition, the cases and states where it was in BREAKDOWN (left out of the comparisons)."""
+    found: dict[tuple[str, str], dict[str, int]] = {}
+    for case, _, backend, name, _ in _breakdowns(result):
+        per_case = found.setdefault((backend, name), {})
+        per_case[case.spec.name] = per_case.get(case.spec.name, 0) + 1
+    parts = [f"{backend} cond {name} > {BREAKDOWN_LIMITS[name]:.3g} (" + ", ".join(
+        f"{case} {_count(n, 'state', 'states')}" for case, n in per_case.items()) + ")"
+        for (backend, name), per_case in found.items()]
+    return ["- in BREAKDOWN, so left out of the comparisons there (ill-conditioned method, not a failure): "
+            + "; ".join(parts)] if parts else []
+
+
+def _not_supplied_lines(result: GateResult) -> list[str]:
+    """Per quantity, the backends that do not supply it (NOT COMPARED for them, declared unsupported)."""
+    missing: dict[str, set[str]] = {}
+    for case in result.cases:
+        for state in case.states:
+            for quantity, comp in state.comparisons.items():
+                missing.setdefault(quantity, set()).update(comp.not_compared)
+    parts = [f"{q}: {', '.join(sorted(names))}" for q, names in missing.items() if names]
+    return ["- not supplied (declared unsupported, so not compared for that backend): " + "; ".join(parts)] if parts \
+        else []
+
+
+def _silent_lines(result: GateResult) -> list[str]:
+    """Backends that took part in no comparison of a case, or were in BREAKDOWN at most of its states."""
+    lines = []
+    for case in result.cases:
+        silent = [name for name in result.backends if name not in case.voted()]
+        broken = [f"{name} ({sum(bool(s.breakdowns.get(name)) for s in case.states)} of {len(case.states)} states)"
+                  for name in result.backends
+                  if sum(bool(s.breakdowns.get(name)) for s in case.states) > len(case.states) / 2]
+        if silent:
+            lines.append(f"- {case.spec.name}: took part in no comparison: {', '.join(silent)}")
+        if broken:
+            lines.append(f"- {case.spec.name}: in BREAKDOWN at most states (checks little here): {', '.join(broken)}")
+    return lines
+
+
+def summary(result: GateResult, command: str, applied: Applied | None = None, details_link: str | None = None,
+            figures: dict[str, str] | None = None) -> str:
+    """The report's first part, short: the verdict, a failing run's failures with their reproduce commands, what
+    was run, one line per case, the worst ratio, what was checked and skipped, the task point of each case where a
+    task condition was in BREAKDOWN at most states and why, the pictures of the mechanism (``figures``);
+    ``details_link`` the file holding :func:`details` (None: they follow in the same text)."""
+    where = f"[{details_link}]({details_link})" if details_link else "below"
+    lines = _headline(result) + _failures_section(result)
+    lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
+    lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
+    lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
+              "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, "
+              "the drift's parts, worst state per case, timing, tolerance policy", ""]
+    lines += figure_lines(figures or {})
+    lines += _case_table(result)
+    return "\n".join(lines) + "\n"
+
+
+def details(result: GateResult, command: str, applied: Applied | None = None, summary_link: str | None = None) -> str:
+    """The report's second part: the tolerance policy, suspects, voters, task points, the per-quantity table, then
+    each section (self-test, coverage, known divergences, stale registry entries, breakdowns, checks, power audit,
+    the drift's parts), the worst state per case and the timing; ``summary_link`` the file holding :func:`summary`,
+    if any."""
+    back = f" (summary: [{summary_link}]({summary_link}))" if summary_link else ""
+    lines = [f"# crosscheck gate report: details{back}", "",
+             f"**{_verdict(result)}**; command `{command}`, seed {result.seed}.", ""]
+    lines += _policy_lines() + ["", "## Summary", "", "Comparisons per verdict (quantities and checks) and states:",
+                                ""]
+    lines += _counts_rows(result) + [""]
+    lines += _suspects_section(result)
+    lines += _voters_section(result)
+    lines += ["Task points:", ""] + [line for case in result.cases for line in task_point_lines(case)] + [""]
+    lines += ["Per quantity:", "",
+              "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
+              "at state | not supplied by |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for case in result.cases:
+        lines += _summary_rows(case)
+    lines.append("")
     lines += _self_test_section(result)
     lines += _coverage_section(result)
     lines += _known_section(result)
@@ -565,17 +870,28 @@ def render(result: GateResult, command: str, applied: Applied | None = None) -> 
     lines += _breakdown_section(result)
     lines += _checks_section(result)
     lines += _power_audit(result)
+    lines += _external_power(result)
     lines += _drift_parts_section(result)
-    lines += ["## Worst state per case", ""]
+    lines += _worst_states_section(result)
+    lines += _timing_section(result)
+    return "\n".join(lines) + "\n"
+
+
+def _worst_states_section(result: GateResult) -> list[str]:
+    lines = ["## Worst state per case", ""]
     for case in result.cases:
         worst = max(case.states, key=lambda s: s.worst_ratio, default=None)
         if worst is not None:
             lines += _state_detail(case, worst, f"{case.spec.name}, state #{worst.state.index}", result.seed)
-    lines += ["## Timing (varies run to run)", "", "| case | backend | first call (s, includes preparation) | "
-              "per state (ms) |", "|---|---|---|---|"]
+    return lines
+
+
+def _timing_section(result: GateResult) -> list[str]:
+    lines = ["## Timing (varies run to run)", "", "| case | backend | first call (s, includes preparation) | "
+             "per state (ms) |", "|---|---|---|---|"]
     for case in result.cases:
         for name in result.backends:
             if name in case.per_state_s:
                 lines.append(f"| {case.spec.name} | {name} | {case.first_call_s[name]:.3f} | "
                              f"{1e3 * case.per_state_s[name]:.3f} |")
-    return "\n".join(lines) + "\n"
+    return lines

@@ -57,14 +57,16 @@ def _configuration(model: Model, rng: np.random.Generator) -> np.ndarray:
     return configuration.random_configuration(model, rng, ANGLE_RANGE, DISPLACEMENT_RANGE)
 
 
-def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]:
+def sample_states(model: Model, count: int, seed: int, case: str, limits: bool = True) -> list[State]:
     """``count`` states: q uniform over one turn (revolute) or +-0.5 m (prismatic; a free base's position),
     orientations of spherical and free joints uniform on SO(3), qd and u uniform.
 
     State 0 has the home configuration (``q = 0``, identity orientations; qd and u still random): serial chains are
     often singular there (the stretched double pendulum of article 6.3.4), so every gate run visits one such boundary
     state. A constrained model's q and qd are then made admissible (module doc); state 0 starts its projection at
-    home.
+    home. With ``limits`` (the default) a joint with limits (``Body.limits``, from a URDF or MJCF file) is drawn
+    uniformly within them instead (:func:`within_limits`), the same draws mapped, so the other joints' values do
+    not change; a constrained model's projection may then leave them.
     """
     rng = case_rng(seed, case)
     states = []
@@ -72,12 +74,50 @@ def sample_states(model: Model, count: int, seed: int, case: str) -> list[State]
         q = _configuration(model, rng)
         if i == 0:
             q = configuration.neutral(model)
+        if limits:
+            q = within_limits(model, q, home=i == 0)
         qd = rng.uniform(-RATE_RANGE, RATE_RANGE, model.nv)
         u = rng.uniform(-INPUT_RANGE, INPUT_RANGE, model.m)
         if model.constraints:
             q, qd = admissible(model, q, qd, rng)
         states.append(State(i, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist())))
     return states
+
+
+def limited_joints(model: Model) -> list[int]:
+    """The bodies whose joint has limits (``Body.limits``)."""
+    return [i for i, b in enumerate(model.bodies) if b.limits is not None]
+
+
+def within_limits(model: Model, q: np.ndarray, home: bool = False) -> np.ndarray:
+    """``q`` with each limited joint's value mapped linearly from its free range (``+-ANGLE_RANGE`` for a revolute,
+    ``+-DISPLACEMENT_RANGE`` for a prismatic joint) onto its limits, so a uniform draw stays uniform; for the
+    ``home`` configuration the value 0 is clipped into the limits instead (the stretched configuration where the
+    limits allow it)."""
+    q = np.array(q, dtype=float)
+    for i in limited_joints(model):
+        body, iq = model.bodies[i], model.q_index[i]
+        lower, upper = body.limits
+        if home:
+            q[iq] = min(max(q[iq], lower), upper)
+        else:
+            span = ANGLE_RANGE if body.joint == "revolute" else DISPLACEMENT_RANGE
+            q[iq] = min(max(lower + (q[iq] + span) / (2.0 * span) * (upper - lower), lower), upper)
+    return q
+
+
+def outside_limits(model: Model, q) -> list[str]:
+    """One sentence per limited joint (``Body.limits``) whose coordinate in ``q`` lies outside its limits (``eval``
+    takes any q it is given and says so: the gate samples within the limits unless told ``--ignore-limits``)."""
+    q = np.asarray(q, dtype=float)
+    out = []
+    for i in limited_joints(model):
+        body, value = model.bodies[i], float(q[model.q_index[i]])
+        lower, upper = body.limits
+        if not lower <= value <= upper:
+            out.append(f"q[{model.q_index[i]}] = {value:g} ({body.name}, {body.joint}) is outside its joint limits "
+                       f"[{lower:g}, {upper:g}]")
+    return out
 
 
 def project_configuration(model: Model, q) -> np.ndarray:

@@ -186,10 +186,11 @@ class Session:
     def _backends(self, faulty: str, backend: Formalism) -> list[Formalism]:
         return [backend if name == faulty else c.formalism() for name, c in self.cached.items()]
 
-    def measure(self, backend: str, term: str, case: str) -> Measurement:
-        """:class:`Measurement` of ``term`` in ``backend`` on ``case`` (module doc)."""
+    def measure(self, backend: str, term: str, case: str, count: int | None = None) -> Measurement:
+        """:class:`Measurement` of ``term`` in ``backend`` on ``case`` (module doc), over the case's first ``count``
+        states (all the session drew by default)."""
         target, hook = TERM_HOOKS[backend]
-        setup, states = self.setups[case], self.states[case]
+        setup, states = self.setups[case], self.states[case][:count]
 
         def worst_at(size: float, among) -> tuple[float, str, int]:
             with faults.patched(f"sensitivity-{backend}", target, hook(term, size)):

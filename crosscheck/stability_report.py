@@ -6,6 +6,7 @@ report byte for byte, apart from the total runtime on its last line.
 
 from __future__ import annotations
 
+from crosscheck import plots
 from crosscheck.charts import GIMBAL_LIMIT as GIMBAL
 from crosscheck.compare import DISAGREE
 from crosscheck.stability import Measurement, PathResult
@@ -233,31 +234,41 @@ def _spans(xs: list[float], flags: list[bool]) -> list[tuple[float, float]]:
     return [(edges[i], edges[i + 1]) for i, f in enumerate(flags) if f]
 
 
-def _line(ax, points, label, marker) -> None:
+def _line(ax, points, label, marker, colour=None) -> None:
     """Finite points as a line; an infinite one (no finite answer, or a singular matrix) as a triangle at the top."""
     finite = [(x, y) for x, y in points if y < float("inf")]
-    line, = ax.loglog(*zip(*finite), marker=marker, ms=3, label=label) if finite else ax.loglog([], [], label=label)
+    line, = (ax.loglog(*zip(*finite), marker=marker, ms=3, label=label, color=colour) if finite
+             else ax.loglog([], [], label=label, color=colour))
     top = [x for x, y in points if y == float("inf")]
     if top:
         ax.plot(top, [1.0] * len(top), "^", ms=5, color=line.get_color(), transform=ax.get_xaxis_transform(),
                 clip_on=False)
 
 
+def _legends_outside(err, tol, cond) -> None:
+    """The voters' legend right of the error panel (the tolerance panel has the same lines) and the conditions'
+    right of theirs, outside the data."""
+    err.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    cond.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    tol.text(1.02, 0.5, "colours as above;\ndashed: the limit 1", transform=tol.transAxes, va="center")
+
+
 def plot(result: PathResult, file) -> None:
     """Three panels against the path parameter (log-log): relative error per backend, true error over the gate's
     tolerance with the line 1, condition numbers; points where the gate has some backend in BREAKDOWN for a
     measured quantity shaded, an infinite value (a NaN answer, a singular matrix) a triangle on the top edge."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib import ticker
+
+    plt = plots.pyplot()
 
     ms, path = result.measurements, result.path
     xs = [m.point.x for m in ms]
-    fig, (err, tol, cond) = plt.subplots(3, 1, figsize=(6.4, 7.6), sharex=True, constrained_layout=True)
+    fig, (err, tol, cond) = plt.subplots(3, 1, figsize=(plots.WIDTH_IN, 8.0), sharex=True, layout="constrained")
     for b in result.backends:
-        _line(err, [(m.point.x, max(worst_error(m, b), FLOOR)) for m in ms if b in m.point.backends], _short(b), "o")
-        _line(tol, [(m.point.x, max(r, FLOOR)) for m in ms for r in [_ratio(m, b)] if r == r], _short(b), "o")
+        colour = plots.backend_colour(b, result.backends)
+        _line(err, [(m.point.x, max(worst_error(m, b), FLOOR)) for m in ms if b in m.point.backends], _short(b), "o",
+              colour)
+        _line(tol, [(m.point.x, max(r, FLOOR)) for m in ms for r in [_ratio(m, b)] if r == r], _short(b), "o", colour)
     for c in ("M",) + path.conditions:
         _line(cond, [(m.point.x, m.conditions[c]) for m in ms if c in m.conditions],
               CONDITION_LABELS.get(c, f"cond {c}"), "s")
@@ -278,10 +289,8 @@ def plot(result: PathResult, file) -> None:
     err.set(title=path.title, ylabel="relative error")
     tol.set(ylabel="true error / tolerance")
     cond.set(ylabel="condition number", xlabel=path.parameter)
-    err.legend(fontsize=7, ncol=4)
-    cond.legend(fontsize=7)
-    fig.savefig(file, dpi=90)
-    plt.close(fig)
+    _legends_outside(err, tol, cond)
+    plots.save(fig, file)
 
 
 def _ratio(m: Measurement, backend: str) -> float:
@@ -445,13 +454,10 @@ def chart_section(result: PathResult) -> list[str]:
 def plot_chart(result: PathResult, file) -> None:
     """Three panels against delta: relative error per chart voter (natives solid, mapped dashed), true error over the
     chart tolerance, cond(Dpsi) and cond(M_p) with the limit; the points the gate leaves out shaded."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plots.pyplot()
     ms = [m for m in result.measurements if m.chart is not None]
     xs = [m.point.x for m in ms]
-    fig, (err, tol, cond) = plt.subplots(3, 1, figsize=(6.4, 7.6), sharex=True, constrained_layout=True)
+    fig, (err, tol, cond) = plt.subplots(3, 1, figsize=(plots.WIDTH_IN, 8.0), sharex=True, layout="constrained")
     for v in chart_voters(result):
         native = "@" in v
         points = [(m.point.x, max(m.chart.worst(v), FLOOR)) for m in ms if v in m.chart.voters]
@@ -474,10 +480,8 @@ def plot_chart(result: PathResult, file) -> None:
     err.set(title="Ball pendulum in the zyx chart, pitch -> pi/2", ylabel="relative error of pdd")
     tol.set(ylabel="true error / chart tolerance")
     cond.set(ylabel="condition number", xlabel=result.path.parameter)
-    err.legend(fontsize=6, ncol=3)
-    cond.legend(fontsize=7)
-    fig.savefig(file, dpi=90)
-    plt.close(fig)
+    _legends_outside(err, tol, cond)
+    plots.save(fig, file)
 
 
 __all__ = ["chart_conclusions", "chart_table", "conclusions", "plot", "plot_chart", "point_table", "render",

@@ -34,6 +34,7 @@ from hypothesis import assume
 from hypothesis import strategies as st
 
 from cases import constraints as decl
+from cases import loads as load_decl
 from cases.model import JOINT_DOF, Body, Model, TaskPoint, build_model
 from crosscheck import backends as backend_registry
 from crosscheck import charts as chart_catalog
@@ -52,6 +53,13 @@ MASS_DECADES = (-2.0, 2.0)
 GYRATION_RANGE = (0.05, 0.5)
 GRAVITY_RANGE = 20.0
 RADIUS_RANGE = (0.1, 1.0)
+#: External loads (``cases.loads``) of drawn models: force and couple entries (N, N m), spring anchors (m), stiffness
+#: decades (N/m) and rest lengths (m).
+FORCE_RANGE = 20.0
+COUPLE_RANGE = 5.0
+ANCHOR_RANGE = 1.5
+STIFFNESS_DECADES = (-1.0, 2.0)
+REST_RANGE = (0.0, 0.5)
 #: Drawn lengths below this (1 micrometre) are drawn as 0. Physically they are below any modelling precision, and
 #: numerically a lever arm that small next to metre-scale placements is decided by rounding: a constraint point
 #: 1e-38 m off a joint axis has a Jacobian row of 1e-38 in body-frame kinematics and exactly 0 in world-frame
@@ -327,8 +335,26 @@ def _constraints(draw, model: Model, required: bool, pfaffian: bool = False) -> 
 
 
 @st.composite
+def _load(draw, model: Model, name: str):
+    """One external load on a drawn body at a drawn offset: a force or a wrench in the world or the body frame, or a
+    spring to a drawn world anchor (stiffness log-uniform over :data:`STIFFNESS_DECADES`, rest length 0 or drawn)."""
+    body = model.bodies[draw(st.integers(0, len(model.bodies) - 1))].name
+    offset = draw(vectors(OFFSET_RANGE))
+    kind = draw(st.sampled_from(["force", "wrench", "spring"]))
+    if kind == "spring":
+        rest = draw(st.one_of(st.just(0.0), _floats(*REST_RANGE)))
+        stiffness = 10.0 ** draw(_floats(*STIFFNESS_DECADES))
+        return load_decl.PointSpring(name, body, offset, draw(vectors(ANCHOR_RANGE)), stiffness, rest)
+    frame = draw(st.sampled_from(load_decl.FRAMES))
+    force = draw(vectors(FORCE_RANGE))
+    if kind == "wrench":
+        return load_decl.ExternalWrench(name, body, offset, force, draw(vectors(COUPLE_RANGE)), frame)
+    return load_decl.ExternalForce(name, body, offset, force, frame)
+
+
+@st.composite
 def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodies: int = 1,
-           name: str = "drawn", group: bool = False, pfaffian: bool = False) -> Model:
+           name: str = "drawn", group: bool = False, loads: bool | None = False, pfaffian: bool = False) -> Model:
     """Random valid models: kinematic trees of ``min_bodies`` to ``max_bodies`` bodies.
 
     Each body hangs from the previous one, an earlier one or the world, by a revolute or prismatic joint about an
@@ -345,6 +371,9 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     configuration satisfies them, with fewer rows than joints; ``states`` then finds admissible states.
     ``pfaffian``: the declarations may also be Pfaffian (knife edges, point velocities, rolling contacts; mixed with
     the holonomic ones), which leave the configuration free and restrict the velocities.
+
+    ``loads``: external loads (``cases.loads``, :func:`_load`): False none, True one or two, None either (drawn
+    last, so the rest of a model is drawn as without them).
     """
     if constraints and max_bodies < 2:
         raise ValueError("models(constraints=True) needs max_bodies >= 2 (a constraint leaves fewer rows than joints)")
@@ -357,7 +386,10 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     task = draw(_task_point(base))
     wanted = draw(st.booleans()) if constraints is None else constraints
     declared = draw(_constraints(base, constraints is True, pfaffian)) if wanted and n >= 2 else []
-    return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared)
+    loaded = draw(st.booleans()) if loads is None else loads
+    applied = [draw(_load(base, f"load{i}")) for i in range(draw(st.integers(1, 2)))] if loaded else []
+    return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared,
+                       loads=applied)
 
 
 #: A drawn state whose rolling disk is flatter than this (the sine of its axle against the ground normal) is rejected:
@@ -368,12 +400,13 @@ MIN_CONTACT_SINE = 1e-3
 @st.composite
 def states(draw, model: Model, index: int = 0) -> sampling.State:
     """Admissible states of ``model`` over ``crosscheck.sampling``'s ranges (positions one turn or +-0.5 m, rates,
-    inputs). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
+    inputs), a joint with limits (``Body.limits``: a model from a file; :func:`models` draws none) within them as the
+    gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
     (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
     manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, or leaves a rolling disk flatter than
     :data:`MIN_CONTACT_SINE`, is rejected (``hypothesis.assume``).
     Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
-    drawn = draw(configurations(model))
+    drawn = sampling.within_limits(model, draw(configurations(model)))
     qd = np.array(draw(st.tuples(*[_values(-sampling.RATE_RANGE, sampling.RATE_RANGE)] * model.n)), dtype=float)
     u = np.array(draw(st.tuples(*[_values(-sampling.INPUT_RANGE, sampling.INPUT_RANGE)] * model.m)), dtype=float)
     q = drawn

@@ -32,6 +32,12 @@ products of lengths: their scale is ``L^2 (n + 1) + max|Jc| (1 + |q|_1)`` with L
 ``|qd|_1`` per time derivative, and times ``1 / s^2`` for a rolling contact whose axle makes the angle with sine s with
 the ground normal (its contact direction is a unit vector divided by s).
 
+External loads (``cases.loads``; ``external_force`` = ``tau_ext``, ``power_ext``). ``tau_ext = sum J_p^T f + J_w^T m``
+sums, per coordinate, the loads' forces times world lever arms (at most the reach R plus the point's offset) and their
+couples (:func:`external_terms`); those terms join the right-hand side of the acceleration bound like gravity's, the
+joint loads' scale (the forces over lever arms up to R), and the scales of ``tau_ext`` itself (the terms' sum plus the
+voters' ``|tau_ext|_1``) and of its power (times ``|qd|``).
+
 Joint loads (``joint_wrenches``, ``joint_wrenches_drift``: body-frame force and moment per joint, article 6.1.5)
 are sums over a subtree of masses times accelerations, weights and the point forces of the multipliers, with
 moments over lever arms no longer than the model's reach R (its length scale plus the travel of its prismatic
@@ -75,6 +81,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.constraints import JointCoupling, PointOnCircle, RollingContact
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
@@ -109,6 +116,8 @@ TOLERANCES: dict[str, tuple[str, float]] = {
     "constraint_velocity": ("constraint_velocity", 100.0),
     "constraint_jacobian": ("constraint_kinematics", 100.0),
     "constraint_bias": ("constraint_rate", 100.0),
+    "external_force": ("external_force", 100.0),
+    "power_ext": ("external_power", 100.0),
 }
 
 #: The quantities of a constrained model only (article 5), in report order.
@@ -116,8 +125,11 @@ CONSTRAINED_QUANTITIES = ("lam", "lam_drift", "constraint_force", "constraint_fo
                           "power_constr_per_coord", "admissibility_drift", "admissibility_total", "constraint_value",
                           "constraint_velocity", "constraint_jacobian", "constraint_bias")
 
+#: The quantities of a model with external loads only (``cases.loads``): ``tau_ext`` and its power.
+LOADED_QUANTITIES = ("external_force", "power_ext")
+
 #: The quantities the gate compares on every model, in report order.
-QUANTITIES = tuple(q for q in TOLERANCES if q not in CONSTRAINED_QUANTITIES)
+QUANTITIES = tuple(q for q in TOLERANCES if q not in CONSTRAINED_QUANTITIES and q not in LOADED_QUANTITIES)
 
 #: Quantities with a value known exactly, which joins the vote as the voter ``exact``.
 EXACT = {"additivity": 0.0, "drift_parts": 0.0, "power_constr": 0.0, "admissibility_drift": 0.0, "admissibility_total": 0.0,
@@ -125,8 +137,10 @@ EXACT = {"additivity": 0.0, "drift_parts": 0.0, "power_constr": 0.0, "admissibil
 
 
 def quantities(model) -> tuple[str, ...]:
-    """The quantities compared on ``model``: the constrained ones join when it has constraints."""
-    return QUANTITIES + (CONSTRAINED_QUANTITIES if model is not None and model.constraints else ())
+    """The quantities compared on ``model``: the constrained ones join when it has constraints, the loaded ones when it
+    has external loads."""
+    return (QUANTITIES + (CONSTRAINED_QUANTITIES if model is not None and model.constraints else ())
+            + (LOADED_QUANTITIES if model is not None and model.loads else ()))
 
 
 #: condition name (``Split.conditions``) -> limit. Above it the formalism reporting the condition number is in
@@ -198,6 +212,8 @@ class Scales:
     lam_rounding: float = 0.0
     accel: np.ndarray | None = None
     energy_terms: float | None = None
+    external: float = 0.0
+    external_power: float = 0.0
 
     def of(self, kind: str):
         """The scale of ``kind`` (:data:`TOLERANCES`): a float, or for ``acceleration`` with the componentwise bound
@@ -241,6 +257,8 @@ _SCALE_OF = {
     "constraint_kinematics": lambda s: s.kinematics,
     "constraint_velocity": lambda s: s.kinematics * s.rate,
     "constraint_rate": lambda s: s.kinematics * s.rate**2,
+    "external_force": lambda s: s.external,
+    "external_power": lambda s: s.external_power,
 }
 
 
@@ -355,9 +373,26 @@ def _load_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict[str, 
         # gives lam = 5.6 with lam_scale = 5e10, a circle row near tangency lam = -6e7 with Jc = 2.5e-8 (fuzz findings)
         lam_error = _median([s.lam_scale + rounding[id(s)] for s in constrained])
         out[kind] = (lever * (_median([float(np.abs(s.quantity(acceleration)).sum()) for s in splits]) + rate_sq)
-                     + (1.0 + R) * (constants.weight + constants.gain * (cond_S * _median(multipliers) + lam_error))
+                     + (1.0 + R) * (constants.weight + constants.gain * (cond_S * _median(multipliers) + lam_error)
+                                    + _external_size(model, R))
                      + _median([float(np.abs(s.quantity(load)).max()) for s in splits]))
     return out
+
+
+def _external_size(model, R: float) -> float:
+    """The external loads' forces and couples summed (:func:`size_bound`), 0 without loads: the joint
+    loads carry them, their moments over lever arms up to the reach R."""
+    return float(sum(sum(size_bound(load, R)) for load in model.loads))
+
+
+def size_bound(load, reach: float) -> tuple[float, float]:
+    """``(force, moment)``: bounds on the sizes of an external load's force and couple (``cases.loads``) for a model
+    whose points lie within ``reach`` of the world origin, without kinematics: a spring's force is at most ``k (reach +
+    |anchor| + L0)``."""
+    if isinstance(load, PointSpring):
+        return load.stiffness * (reach + float(np.linalg.norm(load.anchor)) + load.rest_length), 0.0
+    moment = float(np.linalg.norm(load.moment)) if isinstance(load, ExternalWrench) else 0.0
+    return float(np.linalg.norm(load.force)), moment
 
 
 def _task_condition(split) -> float:
@@ -470,7 +505,26 @@ def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
     Mterm = (rho * geo.mass) @ lever.T + (lever * geo.mass) @ rho.T + spin @ geo.moves.T
     f = (rho @ (geo.mass * (2.0 * angular * speed + float(np.linalg.norm(model.gravity)))) + spin @ angular**2
          + np.where(geo.revolute, geo.moves @ (geo.mass * speed**2), 0.0))
+    if model.loads:
+        f = f + external_terms(model, q)
     return Mterm, f
+
+
+def external_terms(model, q) -> np.ndarray:
+    """The sizes of the terms each entry of ``tau_ext = sum J_p^T f + J_w^T m`` sums (``cases.loads``), eps aside, per
+    velocity coordinate j: for each load on a body that column j moves, ``(R + |offset|) |f| + |m|`` where j turns
+    (a world lever, at most the model's reach R plus the point's offset, times the force, and the couple) and ``|f|``
+    where it slides; ``|f|`` and ``|m|`` the declarations' bounds (:func:`size_bound`: a spring's force at
+    most ``k (R + |anchor| + L0)``). Zeros for a model without loads."""
+    geo = _constants(model, _Geometry)
+    R = reach(model, q)
+    out = np.zeros(model.nv)
+    for load in model.loads:
+        k = model.body_index(load.body)
+        force, moment = size_bound(load, R)
+        lever = R + float(np.linalg.norm(load.offset))
+        out += geo.moves[:, k] * np.where(geo.revolute, lever * force + moment, force)
+    return out
 
 
 def acceleration_bound(model, q, qd, accelerations, forces=None) -> np.ndarray:
@@ -528,8 +582,21 @@ def scales(splits, model=None, q=None, qd=None, joint_chart: bool = True, u=None
     power = _median([float(np.abs(s.power_ctrl_per_coord).sum()) for s in splits])
     if model is not None and u is not None:
         power = max(power, power_scale(model, qd, u))
+    if model is not None and model.loads:
+        task.update(_external_scales(model, splits, q, qd))
     return Scales(cond_M=_median([s.cond_M for s in splits]), accel_scale=_median([s.accel_scale for s in splits]),
                   power_scale=power, energy=_median(energies), **task)
+
+
+def _external_scales(model, splits, q, qd) -> dict[str, float]:
+    """``external`` (the size of the terms summed in ``tau_ext``, :func:`external_terms`, 1-norm, and the median size of
+    the voters' ``|tau_ext|_1``) and ``external_power`` (those terms times ``|qd|``: ``tau_ext . qd`` sums them)."""
+    terms = external_terms(model, q)
+    supplied = [float(np.abs(s.external_force).sum()) for s in splits
+                if s.external_force is not None and not isinstance(s.external_force, Unsupported)]
+    size = float(terms.sum()) + _median(supplied)
+    return {"external": size, "external_power": float(terms @ np.abs(np.asarray(qd, dtype=float))) + size * float(
+        np.abs(np.asarray(qd, dtype=float)).sum())}
 
 
 def power_scale(model, qd, u) -> float:

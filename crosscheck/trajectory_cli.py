@@ -1,5 +1,6 @@
 """``crosscheck trajectory``: forward ZTCF trajectories of one case per backend (crosscheck/trajectory.py), or the
-report (``--report [DIR]``: reports/trajectories.md and its charts, crosscheck/trajectory_report.py).
+report (``--report [DIR]``: DIR/trajectories.md and its charts, crosscheck/trajectory_report.py; DIR defaults to the
+output directory, ``crosscheck-out``; ``crosscheck reports`` writes the committed one in reports/).
 
 Exit codes: 0 every backend inside the envelope, 1 a backend outside it (named), 2 bad input (one line).
 """
@@ -15,9 +16,11 @@ import numpy as np
 OUTPUT_INTERVAL = 0.05
 
 
-def add_parser(sub, parser_class) -> None:
+def add_parser(sub, parser_class, out: str, add_workers_option) -> None:
+    """The ``trajectory`` subcommand on ``sub``; ``out`` the default ``--report`` directory, ``add_workers_option``
+    the command line's ``--workers`` (one meaning in every command)."""
     tr = sub.add_parser("trajectory", help="forward ZTCF trajectories per backend against a 50-digit reference "
-                        "(--report: reports/trajectories.md)")
+                        f"(--report: {out}/trajectories.md)")
     tr.add_argument("--case", help="a built-in case (crosscheck cases), revolute and prismatic joints only")
     tr.add_argument("--q", help="start configuration, comma-separated (default 0.3 per joint, projected onto the "
                     "constraints)")
@@ -29,8 +32,9 @@ def add_parser(sub, parser_class) -> None:
                     help="backend to integrate (repeatable; default the five formalisms and pinocchio)")
     tr.add_argument("--project", default="none", help="none | project | baumgarte (constrained cases)")
     tr.add_argument("--json", action="store_true", help="print the table as JSON")
-    tr.add_argument("--report", nargs="?", const="reports", metavar="DIR",
-                    help="regenerate DIR/trajectories.md and its charts (default DIR: reports)")
+    tr.add_argument("--report", nargs="?", const=out, metavar="DIR",
+                    help=f"write DIR/trajectories.md and its charts (default DIR: {out})")
+    add_workers_option(tr, "job of --report")
     tr.set_defaults(run=cmd_trajectory)
 
 
@@ -72,10 +76,17 @@ def cmd_trajectory(args) -> int:
 
         from crosscheck import trajectory_report
 
-        path = trajectory_report.write(Path(args.report))
+        from dataclasses import replace
+
+        from crosscheck.cli import workers
+
+        settings = replace(trajectory_report.Settings(), workers=workers(args.workers, math.inf))
+        path = trajectory_report.write(Path(args.report), settings)
         print(f"wrote {path}")
         return 0
     try:
+        if args.workers is not None:
+            raise ValueError("--workers applies to --report (one trajectory run is evaluated in this process)")
         if not args.case:
             raise ValueError("--case NAME is required (or --report)")
         if args.case not in cases.names():

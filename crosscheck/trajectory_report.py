@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -51,7 +51,7 @@ class Settings:
     energy_horizon: float = 200.0
     energy_q0: tuple = (0.8, 0.4)
     map_backend: str = "pinocchio"
-    workers: int = 2
+    workers: int = 2                       # 0: every job in this process; N >= 1: N worker processes
 
 
 def quick() -> Settings:
@@ -253,12 +253,36 @@ def _start_state(case: str, params: tuple):
     return q, v
 
 
-def compute(s: Settings):
-    start = time.perf_counter()
+class _InProcess:
+    """The executor of ``workers`` 0: each job runs in this process when it is submitted."""
+
+    def __enter__(self) -> "_InProcess":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return False
+
+    def submit(self, fn, *args) -> Future:
+        future = Future()
+        try:
+            future.set_result(fn(*args))
+        except Exception as exc:  # the job's error, raised where its result is asked for, as from a worker
+            future.set_exception(exc)
+        return future
+
+
+def _executor(workers: int):
+    """``workers`` 0: this process (:class:`_InProcess`); N >= 1: N forked worker processes."""
     import multiprocessing
 
-    ctx = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(max_workers=s.workers, mp_context=ctx) as pool:
+    if workers == 0:
+        return _InProcess()
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"))
+
+
+def compute(s: Settings):
+    start = time.perf_counter()
+    with _executor(s.workers) as pool:
         maps_a = [pool.submit(_job, "rk4_stable", (r, s.map_q0, (0.0, 0.0), s.periods, s.map_backend))
                   for r in s.ratios]
         fb_case, fb_params = s.constrained[0]
@@ -509,5 +533,5 @@ def _markdown(dp: Family, constrained, maps, s: Settings, seconds: float) -> lis
         L.append(f"| {integrator} | {dE[-1]:.2e} | {np.max(np.abs(dE)):.2e} |")
     L += ["", "RK4 is not symplectic: its energy error drifts secularly; the Gauss–Legendre scheme's stays bounded "
           "(oscillates) over the horizon.", "",
-          f"Runtime: {seconds[0]:.0f} s wall, {seconds[1]:.0f} s CPU (all processes; {s.workers} workers)."]
+          f"Runtime: {seconds[0]:.0f} s wall, {seconds[1]:.0f} s CPU (all processes; {s.workers or 'no'} worker processes)."]
     return L

@@ -28,6 +28,12 @@ Derivation (symbolic, from the model data and the chart alone), in coordinates `
      ``sum_jk d^2 phi/dp_j dp_k pd_j pd_k`` (eq. 13), by the same chain rule and time derivative. In a chart this is
      ``phi(psi(p))``, so its Jacobian is ``Jc Dpsi`` without forming either, and its multipliers are the joint
      chart's.
+  5. External loads (``cases.loads``; article 2.3, eq. 12) by virtual work, from the same staged poses: a force ``f``
+     at the point ``x = p_i + R_i offset`` contributes ``Q_j = f . dx/dp_j``, a couple ``m`` (world) ``m . vee(dR_i/dp_j
+     R_i^T)`` (body-frame vectors turned by ``R_i``), and a spring its potential ``V_s = 1/2 k (|x - a| - L0)^2`` as
+     ``-dV_s/dp_j`` (:func:`_external_forces`). Velocity-independent, ``tau_ext = Q`` joins ``g``: the derivation's ``g``
+     is ``dV/dp - Q`` (so the drift, its part at rest and the linearization carry it), and ``Q`` itself is a further
+     output (``Qext``), reported as ``external_force``.
 In a chart these are the chart's own M_p, C_p pd and g_p (different entries, article 6.4.6), never the joint
 ones mapped; the accelerations they give are the chart's ``pdd``, equal to the joint ones mapped by
 ``qdd = Dpsi pdd + (d/dt Dpsi) pd`` (9.1), which is what the tests check.
@@ -209,6 +215,7 @@ import scipy.linalg
 import symengine as sp
 
 from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity, RollingContact
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, cache_dir, chart_vectors, check_batch, check_state, state_space,
@@ -773,6 +780,33 @@ class Derivation(NamedTuple):
     staged: _Staged
     configuration: tuple = ()
     local: tuple = ()
+    Qext: tuple = ()
+
+
+def _external_forces(model: Model, st: _Staged, poses) -> list:
+    """``Q`` (n expressions): the generalized force of the model's external loads by virtual work (module docstring,
+    step 5), each entry named."""
+    n = model.n
+    Q = [ZERO] * n
+    for load in model.loads:
+        R, _ = poses[model.body_index(load.body)]
+        x = _point(model, st, poses, load.body, load.offset)
+        if isinstance(load, PointSpring):
+            d = x - _matrix(load.anchor)
+            squared = st.name((d.T * d)[0])
+            V = (HALF * _exact(load.stiffness) * (st.name(sp.sqrt(squared)) - _exact(load.rest_length)) ** 2
+                 if load.rest_length else HALF * _exact(load.stiffness) * squared)
+            Q = [Q[j] - st.diff(V, j) for j in range(n)]
+            continue
+        world = (lambda v: _matrix(v)) if load.frame == "world" else (lambda v, R=R: R * _matrix(v))
+        f = world(load.force)
+        Q = [Q[j] + (f.T * x.applyfunc(lambda e, j=j: st.diff(e, j)))[0] for j in range(n)]
+        if isinstance(load, ExternalWrench):
+            m = world(load.moment)
+            for j in range(n):
+                S = R.applyfunc(lambda e, j=j: st.diff(e, j)) * R.T         # [dR/dp_j R^T]x: the turn rate per p_j
+                Q[j] = Q[j] + m[0] * S[2, 1] + m[1] * S[0, 2] + m[2] * S[1, 0]
+    return [st.name(e) for e in Q]
 
 
 def _velocity_product(st: _Staged, T: sp.Expr, momentum: sp.Expr, i: int) -> sp.Expr:
@@ -823,8 +857,11 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
             M[i, j] = M[j, i] = st.diff(momenta[i], n + j) if n + j in depends else ZERO
     Cqd = sp.DenseMatrix([_velocity_product(st, T, momenta[i], i) for i in range(n)])
     g = sp.DenseMatrix([st.diff(V, i) for i in range(n)])
+    Qext = _external_forces(model, st, poses) if model.loads else []
+    if Qext:                                              # velocity-independent: with gravity (module doc, step 5)
+        g = sp.DenseMatrix([g[i] - Qext[i] for i in range(n)])
     return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses), x, xd, list(st.joint), st,
-                      tuple(configuration), tuple(local))
+                      tuple(configuration), tuple(local), tuple(Qext))
 
 
 def derive(model: Model, chart: Chart | None = None):
@@ -1018,8 +1055,9 @@ class _Program(NamedTuple):
 
 
 #: The outputs of the generated code, in order: M's upper triangle row by row, C pd, g, the kinetic energy T, then
-#: the constraint terms phi, Jc (row by row) and Jcdot pd (empty without constraints).
-OUTPUTS = ("M_upper", "Cqd", "g", "T", "phi", "Jc", "bias")
+#: the constraint terms phi, Jc (row by row) and Jcdot pd (empty without constraints), then the external loads'
+#: ``Q`` (empty without loads; ``g`` is then ``dV/dp - Q``).
+OUTPUTS = ("M_upper", "Cqd", "g", "T", "phi", "Jc", "bias", "Qext")
 
 
 def _program(model: Model, chart: Chart | None, order: int) -> _Program:
@@ -1029,6 +1067,8 @@ def _program(model: Model, chart: Chart | None, order: int) -> _Program:
     n = model.n
     outputs = {"M_upper": [d.M[i, j] for i in range(n) for j in range(i, n)], "Cqd": list(d.Cqd), "g": list(d.g),
                "T": [d.T], "phi": d.phi, "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
+    if d.Qext:                       # only with loads: a model without them keeps its code as it was
+        outputs["Qext"] = list(d.Qext)
     definitions = d.staged.needed([e for v in outputs.values() for e in v])
     if d.local:
         definitions, outputs = _at_origin(definitions, outputs, d.local)
@@ -1418,9 +1458,10 @@ def _ref(model: Model, chart: Chart | None) -> _ChartRef | None:
 
 
 def _output_size(model: Model) -> int:
-    """The number of outputs of the generated code (:data:`OUTPUTS`): M's upper triangle, C pd, g, T, phi, Jc, bias."""
+    """The number of outputs of the generated code (:data:`OUTPUTS`): M's upper triangle, C pd, g, T, phi, Jc, bias,
+    and Q with external loads."""
     n, k = model.n, model.k
-    return n * (n + 1) // 2 + 2 * n + 1 + k * (n + 2)
+    return n * (n + 1) // 2 + 2 * n + 1 + k * (n + 2) + (n if model.loads else 0)
 
 
 class _Evaluator(NamedTuple):
@@ -1467,9 +1508,9 @@ def _native(model: Model, chart: Chart | None) -> _Evaluator:
 
 
 def _flat(outputs) -> list:
-    """The generated Python's ``(M_upper, Cqd, g, T, phi, Jc, bias)`` as one list in that order."""
-    M_upper, Cqd, g, T, phi, Jc, bias = outputs
-    return [*M_upper, *Cqd, *g, T, *phi, *Jc, *bias]
+    """The generated Python's ``(M_upper, Cqd, g, T, phi, Jc, bias[, Qext])`` as one list in that order."""
+    M_upper, Cqd, g, T, *rows = outputs
+    return [*M_upper, *Cqd, *g, T, *(e for row in rows for e in row)]
 
 
 def _rows(values, size: int) -> np.ndarray:
@@ -1577,8 +1618,9 @@ class Terms(NamedTuple):
 
     M: np.ndarray      # mass matrix (n x n)
     Cqd: np.ndarray    # velocity-product vector C pd
-    g: np.ndarray      # dV/dp
+    g: np.ndarray      # dV/dp (minus Qext with external loads)
     T: float           # kinetic energy at the state (J)
+    Qext: np.ndarray | None = None   # the external loads' generalized force, None without loads
 
 
 class ConstraintTerms(NamedTuple):
@@ -1602,8 +1644,9 @@ def _unpack(model: Model, out: np.ndarray) -> tuple[Terms, ConstraintTerms]:
     """The outputs of :data:`OUTPUTS` of one state (``out`` of one dimension) or of a stack of states (rows) as
     :class:`Terms` and :class:`ConstraintTerms` (with a leading axis for a stack)."""
     n, k, lead = model.n, model.k, out.shape[:-1]
-    upper, Cqd, g, T, phi, Jc, bias = np.split(out, np.cumsum([n * (n + 1) // 2, n, n, 1, k, k * n]), axis=-1)
-    return (Terms(upper[..., _symmetric(n)].reshape(lead + (n, n)), Cqd, g, T[..., 0] if lead else float(T[0])),
+    upper, Cqd, g, T, phi, Jc, bias, Qext = np.split(out, np.cumsum([n * (n + 1) // 2, n, n, 1, k, k * n, k]), axis=-1)
+    return (Terms(upper[..., _symmetric(n)].reshape(lead + (n, n)), Cqd, g, T[..., 0] if lead else float(T[0]),
+                  Qext if model.loads else None),
             ConstraintTerms(phi, Jc.reshape(lead + (k, n)), bias))
 
 
@@ -1631,7 +1674,7 @@ def terms(model: Model, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.n
     """Numeric ``M(q)``, ``C(q, qd) qd`` and ``g(q)`` of eq. (2) from the compiled derivation. With spherical or
     free joints (q of nq entries, qd = v of nv) these are the local exponential chart's at ``xi = 0`` (module
     docstring, "Group joints"): M in v-space, ``C qd = rnea(q, v, 0) - g`` and ``g = rnea(q, 0, 0)``."""
-    M, Cqd, g, _ = evaluate_terms(model, q, qd)
+    M, Cqd, g, *_ = evaluate_terms(model, q, qd)
     return M, Cqd, g
 
 
@@ -1750,17 +1793,29 @@ def _power(force: np.ndarray, rate: np.ndarray) -> tuple[float, np.ndarray]:
     return math.fsum(per), per
 
 
-def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None) -> Split:
+def _external_fields(Qext: np.ndarray | None, xd: np.ndarray) -> dict:
+    """``external_force`` (the derivation's Q) and its power ``Q . xd``; none without loads."""
+    return {} if Qext is None else {"external_force": Qext, "power_ext": _power(Qext, xd)[0]}
+
+
+def _applied(tau: np.ndarray, Qext: np.ndarray | None) -> np.ndarray:
+    """The applied generalized forces' sizes for the acceleration scale: ``|tau| + |Q|``."""
+    return tau if Qext is None else np.abs(tau) + np.abs(Qext)
+
+
+def _solve(model: Model, M, Cqd, g, tau, x, xd, T, chart: str | None = None, Qext: np.ndarray | None = None) -> Split:
     """The split of eq. (9) from the terms: drift ``-M^-1 (C xd + g)`` (eq. 10), ctrl ``M^-1 tau``, total
-    ``M^-1 (tau - C xd - g)`` (:func:`_free`); the power ``tau . xd`` and the conditioning of M."""
+    ``M^-1 (tau - C xd - g)`` (:func:`_free`); the power ``tau . xd`` and the conditioning of M. With external loads
+    ``g`` is ``dV/dp - Qext``."""
     U = _upper_factor(model, M, x, chart)
     drift, ctrl, total = _free(U, Cqd + g, tau)
     zvcf, drift_velocity = _free_parts(U, Cqd, g)
-    cond_M, _, accel_scale = _conditioning(model, M, Cqd, g, tau, xd)
+    cond_M, _, accel_scale = _conditioning(model, M, Cqd, g, _applied(tau, Qext), xd)
     power, per = _power(tau, xd)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=power,
                  power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
-                 accel_scale=accel_scale, kinetic_energy=T, zvcf=zvcf, drift_velocity=drift_velocity)
+                 accel_scale=accel_scale, kinetic_energy=T, zvcf=zvcf, drift_velocity=drift_velocity,
+                 **_external_fields(Qext, xd))
 
 
 class _Scaled(NamedTuple):
@@ -1915,13 +1970,13 @@ def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau
     :func:`_scaled` (a stack of one); the constraint force ``Jc^T lam`` (and at the drift), its power
     ``(Jc^T lam) . xd`` (5.5), ``Jc xd``, and the conditioning of :func:`_constraint_conditioning`, whose
     ``force_scale`` the acceleration scale includes."""
-    M, Cqd, g, T = dynamics
+    M, Cqd, g, T, Qext = dynamics
     ((_, stacked),) = _scaled(model, _upper_factor(model, M, x, chart)[None], cons.Jc[None])
     sc = _Scaled(*(a[0] for a in stacked))
     h = Cqd + g
     total, drift, ctrl, lam, lam_drift = _constrained(sc, h, tau, cons.bias)
     zvcf, drift_velocity = _constrained_parts(sc, Cqd, g, cons.bias)
-    cond_M, inverse_norm, accel_scale = _conditioning(model, M, Cqd, g, tau, xd)
+    cond_M, inverse_norm, accel_scale = _conditioning(model, M, Cqd, g, _applied(tau, Qext), xd)
     cc = _constraint_conditioning(model, sc, cons, np.stack([tau - h, -h], axis=-1), accel_scale, inverse_norm)
     power, per = _power(tau, xd)
     force, force_drift = cons.Jc.T @ lam, cons.Jc.T @ lam_drift
@@ -1932,7 +1987,7 @@ def _solve_constrained(model: Model, dynamics: Terms, cons: ConstraintTerms, tau
                  kinetic_energy=T, constraint_value=cons.phi, constraint_jacobian=cons.Jc,
                  constraint_bias=cons.bias, constraint_velocity=cons.Jc @ xd, constraint_force=force,
                  constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,
-                 zvcf=zvcf, drift_velocity=drift_velocity)
+                 zvcf=zvcf, drift_velocity=drift_velocity, **_external_fields(Qext, xd))
 
 
 def split(model: Model, q, qd, u):
@@ -1942,8 +1997,8 @@ def split(model: Model, q, qd, u):
     q, qd, u = check_state(model, q, qd, u)
     if model.constraints:
         return _solve_constrained(model, *evaluate(model, q, qd), model.input_map @ u, q, qd)
-    M, Cqd, g, T = evaluate_terms(model, q, qd)
-    return _solve(model, M, Cqd, g, model.input_map @ u, q, qd, T)
+    M, Cqd, g, T, Qext = evaluate_terms(model, q, qd)
+    return _solve(model, M, Cqd, g, model.input_map @ u, q, qd, T, Qext=Qext)
 
 
 def split_chart(model: Model, chart: Chart, p, pd, tau_p):
@@ -1970,16 +2025,16 @@ def split_chart(model: Model, chart: Chart, p, pd, tau_p):
         (tau_p,) = chart_vectors(model, tau_p=tau_p)
         if model.constraints:
             return _solve_constrained(model, *evaluate(model, q, w, chart), tau_p, q, w, chart=chart.name)
-        M, Cqd, g, T = evaluate_terms(model, q, w, chart)
-        return _solve(model, M, Cqd, g, tau_p, q, w, T, chart=chart.name)
+        M, Cqd, g, T, Qext = evaluate_terms(model, q, w, chart)
+        return _solve(model, M, Cqd, g, tau_p, q, w, T, chart=chart.name, Qext=Qext)
     if chart_key(model, chart) == JOINT_CHART and model.group_joints:
         raise ModelNotSupported(_NO_CHARTS.format(nq=model.nq, reason="no chart given: the joint chart (q of nq "
                                                   "entries, v of nv) is split's"))
     p, pd, tau_p = chart_vectors(model, p=p, pd=pd, tau_p=tau_p)
     if model.constraints:
         return _solve_constrained(model, *evaluate(model, p, pd, chart), tau_p, p, pd, chart=chart.name)
-    M, Cqd, g, T = evaluate_terms(model, p, pd, chart)
-    return _solve(model, M, Cqd, g, tau_p, p, pd, T, chart=chart.name)
+    M, Cqd, g, T, Qext = evaluate_terms(model, p, pd, chart)
+    return _solve(model, M, Cqd, g, tau_p, p, pd, T, chart=chart.name, Qext=Qext)
 
 
 #: States per block of :func:`split_batch`, at most; the batched code holds one array per local (some 4,000 for a
@@ -1993,7 +2048,7 @@ BATCH_ENTRIES = 2 ** 25
 def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, ...]:
     """``(drift, ctrl, total, lam, lam_drift)`` of a block of states (module docstring: the same derivation and
     solves as :func:`split`, every state at once; the constrained states grouped by the rank of S)."""
-    (M, Cqd, g, _), cons = evaluate_batch(model, Q, QD)
+    (M, Cqd, g, *_), cons = evaluate_batch(model, Q, QD)
     U, h = _upper_factor(model, M, Q), Cqd + g
     if not model.constraints:
         return (*_free(U, h, tau), None, None)
@@ -2156,7 +2211,7 @@ def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None
     ``M^-1 inputs`` unconstrained). ``dtau`` is the local chart's (:func:`_chart_force`) in the joint chart (None), 0
     in a chart ``q = psi(p)``, whose force ``tau_p`` is its own coordinate's."""
     n = model.n
-    (M, Cqd, g, _), cons = evaluate(model, x, xd, chart)
+    (M, Cqd, g, *_), cons = evaluate(model, x, xd, chart)
     U = _upper_factor(model, M, x, None if chart is None else chart.name)
     dtau = _chart_force(model, tau) if chart is None else np.zeros((n, n))
     if model.constraints:

@@ -38,6 +38,15 @@ Because nothing is transformed from another chart, :func:`split_chart` is a genu
 ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``. Kinetic energy, power and the task acceleration (physical) are the same
 in every chart.
 
+External loads (``cases.loads``; article 2.3, eq. 12) as a covector by virtual power, in the same Function: the
+power of the non-conservative loads along the rates, ``P(p, pd) = sum f . (dx/dp pd) + m . w`` (``x`` the load's
+point ``o_b + R_b offset``, ``w`` the body's world angular velocity ``R_b vee(R_b^T R_b')``; body-frame vectors turned
+by ``R_b``), is linear in pd and ``tau_ext = dP/dpd``; a spring is a potential of its own, ``V_s = 1/2 k (|x - a| -
+L0)^2``, and contributes ``-dV_s/dp`` (kept apart from V, so the energy ``T + V`` stays the gravitational one and the
+harness counts the spring's power as external). In any chart this is the chart's covector (``Dpsi^T tau_ext``). It
+joins the potential's differential, ``dV/dp - tau_ext``, wherever that enters (the drift at rest ``grad V`` raised by
+the metric, the linearization's residual).
+
 Task drift (eq. 23): for ``model.task_point()`` with directions ``D``, ``x(p) = D (o_b + R_b offset)``; the classical
 acceleration at the drift is ``J drift + Jdot pd`` with ``J = dx/dp`` and ``Jdot pd = jtimes(jtimes(x, p, pd), p, pd)``.
 
@@ -254,6 +263,7 @@ import scipy.linalg
 
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, StateError, cache_dir, check_batch, chart_vectors, check_state,
@@ -956,7 +966,7 @@ class _Compiled:
     chart's origin (module docstring, "Spherical and free joints")."""
 
     def __init__(self, n: int, k: int, kc: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX,
-                 point: ca.SX | None = None, origin: ca.SX | None = None):
+                 point: ca.SX | None = None, origin: ca.SX | None = None, external: bool = False):
         self.n, self.k, self.p, self.pd, self.T, self.V = n, k, p, pd, T, V
         # a model with group joints: the Functions take the configuration ``point`` (nq) and evaluate every
         # derivative in p at the group chart's origin ``p = origin(point)`` (module docstring); otherwise point = p
@@ -977,6 +987,8 @@ class _Compiled:
         self.phi_slice = slice(at, at + kc)
         self.Jc_index = at + kc + np.arange(kc * n).reshape(n, kc).T
         self.Jc_bias_slice = slice(at + kc + kc * n, at + 2 * kc + kc * n)
+        at = self.Jc_bias_slice.stop      # then tau_ext (n) for a model with external loads
+        self.ext_slice = slice(at, at + n) if external else None
         self.kc, self.out = kc, self._at_origin(out)   # the Function's expression, of (point, pd)
         self.evaluate = _Evaluator("geometric", self.point, pd, self.out)
         self._energy: _Evaluator | None = None
@@ -1000,7 +1012,8 @@ class _Compiled:
         Cqd = ca.mtimes(Mdot, self.pd) - 0.5 * ca.mtimes(dM_upper.T, pairs)
         at = self.phi_slice.stop
         Jc = ca.reshape(flat[at:at + kc * n], kc, n)
-        return M, Cqd, flat[self.dV_slice], Jc, flat[self.Jc_bias_slice]
+        dV = flat[self.dV_slice] if self.ext_slice is None else flat[self.dV_slice] - flat[self.ext_slice]
+        return M, Cqd, dV, Jc, flat[self.Jc_bias_slice]
 
     @property
     def linearization(self) -> _Evaluator:
@@ -1058,6 +1071,7 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
         R, o = _frames(model, q)
     T, V, M = ca.SX(0), ca.SX(0), ca.SX.zeros(n, n)
     gravity = ca.DM(model.gravity)
+    spins = []                                        # body-frame angular velocities, for the external loads' power
     for i, body in enumerate(model.bodies):
         c = o[i] + ca.mtimes(R[i], ca.DM(body.com))
         # c' and R' are jtimes(., p, pd) = (d./dp) pd, written as the Jacobian times pd so that pd enters linearly
@@ -1067,6 +1081,7 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
         R_dot = ca.reshape(ca.mtimes(ca.jacobian(ca.vec(R[i]), p), pd), 3, 3)
         W = ca.mtimes(R[i].T, R_dot)  # skew: hat(w) of the body-frame angular velocity
         w = ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+        spins.append(w)
         T += 0.5 * body.mass * ca.dot(c_dot, c_dot)
         M += body.mass * ca.mtimes(Jc.T, Jc)
         if np.any(body.inertia):
@@ -1090,8 +1105,35 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
         Jc = ca.jacobian(phi, p)
         Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
     out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd, phi, ca.vec(Jc), Jc_bias)
+    if model.loads:                  # appended: a model without loads keeps its Function as it was
+        out = ca.vertcat(out, _external_covector(model, R, o, p, pd, spins))
     return _Compiled(n=n, k=x.shape[0], kc=phi.shape[0], p=p, pd=pd, T=T, V=V, out=out, point=point,
-                     origin=None if point is None else _chart_origin(model, point))
+                     origin=None if point is None else _chart_origin(model, point), external=bool(model.loads))
+
+
+def _external_covector(model: Model, R: list, o: list, p: ca.SX, pd: ca.SX, spins: list) -> ca.SX:
+    """``tau_ext`` (n) of the model's external loads in the chart p (module docstring, "External loads"): ``dP/dpd``
+    of the loads' virtual power ``P = sum f . xdot + m . w`` (``xdot = (dx/dp) pd``, ``w = R_b w_body``), minus
+    ``dV_s/dp`` of the springs' potential ``1/2 k (|x - anchor| - L0)^2``."""
+    power, springs = ca.SX(0), ca.SX(0)
+    for load in model.loads:
+        b = model.body_index(load.body)
+        x = _point(model, R, o, load.body, load.offset)
+        if isinstance(load, PointSpring):
+            d = x - ca.DM(load.anchor)
+            stretch = ca.sqrt(ca.dot(d, d)) - load.rest_length if load.rest_length else None
+            springs += 0.5 * load.stiffness * (stretch * stretch if load.rest_length else ca.dot(d, d))
+            continue
+        power += ca.dot(_in_world(load, R[b], load.force), ca.jtimes(x, p, pd))
+        if isinstance(load, ExternalWrench):
+            power += ca.dot(_in_world(load, R[b], load.moment), ca.mtimes(R[b], spins[b]))
+    return ca.gradient(power, pd) - ca.gradient(springs, p)
+
+
+def _in_world(load, R: ca.SX, v) -> ca.SX:
+    """A load's vector ``v`` (its force or couple) in the world: as given for ``frame = "world"``, ``R v`` for
+    ``"body"`` (R the body's orientation, world <- body)."""
+    return ca.DM(v) if load.frame == "world" else ca.mtimes(R, ca.DM(v))
 
 
 _LOCK = threading.Lock()
@@ -1137,14 +1179,30 @@ class _Point:
     phi: np.ndarray      # (k,) constraint values; empty when unconstrained
     Jc: np.ndarray       # (k, n) dphi/dp
     Jc_bias: np.ndarray  # (k,) Jcdot pd
+    tau_ext: np.ndarray | None = None  # (n,) the external loads' covector; dV is then dV/dp - tau_ext
 
 
 def _evaluate(model: Model, chart, p: np.ndarray, pd: np.ndarray) -> _Point:
     c = _compiled(model, chart)
     flat = c.evaluate(p, pd)
-    return _Point(M=flat[c.M_index], dM=flat[c.dM_index], dV=flat[c.dV_slice], T=float(flat[c.T_index]),
+    tau_ext = None if c.ext_slice is None else flat[c.ext_slice]
+    return _Point(M=flat[c.M_index], dM=flat[c.dM_index],
+                  dV=flat[c.dV_slice] if tau_ext is None else flat[c.dV_slice] - tau_ext, T=float(flat[c.T_index]),
                   J=flat[c.J_index], Jdot_pd=flat[c.Jdot_slice], phi=flat[c.phi_slice], Jc=flat[c.Jc_index],
-                  Jc_bias=flat[c.Jc_bias_slice])
+                  Jc_bias=flat[c.Jc_bias_slice], tau_ext=tau_ext)
+
+
+def _external_fields(pt: _Point, pd: np.ndarray) -> dict:
+    """``external_force`` (the covector ``tau_ext``) and ``power_ext`` (paired with pd) at a point; none without
+    loads."""
+    if pt.tau_ext is None:
+        return {}
+    return {"external_force": pt.tau_ext, "power_ext": _pairing(pt.tau_ext, pd)[0]}
+
+
+def _applied(tau: np.ndarray, pt: _Point) -> np.ndarray:
+    """The sizes of the applied covectors, ``|tau| + |tau_ext|``, for the acceleration scale."""
+    return tau if pt.tau_ext is None else np.abs(tau) + np.abs(pt.tau_ext)
 
 
 def _chart_name(chart) -> str:
@@ -1227,14 +1285,15 @@ def _split_at(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.ndarray, ta
     Cqd = (first @ pd) @ pd                                  # M Gamma(pd, pd): the chart's C qd (eq. 7)
     drift = -gamma_pdpd - grad_V                             # eq. (25)
     total = forced - gamma_pdpd                              # eq. (24) solved on its own, not drift + ctrl
-    cond_M, _, accel_scale = _conditioning(model, factor, Cqd, pt.dV, tau, pd)
+    cond_M, _, accel_scale = _conditioning(model, factor, Cqd, pt.dV, _applied(tau, pt), pd)
     power, per = _pairing(tau, pd)
     Lambda, task_cond = _task_inertia(model, pt, factor)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=power,
                  power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
                  accel_scale=accel_scale, extras={"chart": _chart_name(chart)}, task_drift=pt.J @ drift + pt.Jdot_pd,
                  conditions={"task_inertia": task_cond}, kinetic_energy=pt.T, task_inertia=Lambda,
-                 zvcf=-grad_V, drift_velocity=-gamma_pdpd)     # the drift's parts (4.5-4.6), each its own term
+                 zvcf=-grad_V, drift_velocity=-gamma_pdpd,     # the drift's parts (4.5-4.6), each its own term
+                 **_external_fields(pt, pd))
 
 
 def _task_inertia(model: Model, pt: _Point, factor) -> tuple[np.ndarray, float]:
@@ -1415,7 +1474,7 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
         np.column_stack([-pt.Jc_bias, -pt.Jc_bias, no_bias, no_bias, -pt.Jc_bias])).T
     lam = dist.solve_transposed(pt.M @ total - f)            # eq. (12): M pdd + h = tau + Jc^T lam
     lam_drift = dist.solve_transposed(pt.M @ drift - f0)     # eq. (14)
-    cond_M, inverse_norm, accel_scale = _conditioning(model, metric_factor, Cqd, pt.dV, tau, pd)
+    cond_M, inverse_norm, accel_scale = _conditioning(model, metric_factor, Cqd, pt.dV, _applied(tau, pt), pd)
     inconsistency = _inconsistency(model, pt, metric_factor, X, E[:, ~independent], np.column_stack([f, f0]),
                                    accel_scale)
     cc = _constraint_conditioning(model, pt, w, independent, inconsistency, accel_scale, inverse_norm)
@@ -1431,7 +1490,7 @@ def _constrained_split(model: Model, chart, pt: _Point, p: np.ndarray, pd: np.nd
                  kinetic_energy=pt.T, task_inertia=Lambda, constraint_value=pt.phi, constraint_jacobian=pt.Jc,
                  constraint_bias=pt.Jc_bias, constraint_velocity=pt.Jc @ pd, constraint_force=reaction,
                  constraint_force_drift=reaction_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,
-                 zvcf=zvcf, drift_velocity=drift_velocity)
+                 zvcf=zvcf, drift_velocity=drift_velocity, **_external_fields(pt, pd))
 
 
 def _projected(dist: _Distribution, factor, M: np.ndarray, forces: np.ndarray, biases: np.ndarray) -> np.ndarray:
@@ -1765,6 +1824,8 @@ def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -
     c = _compiled(model, None)
     flat = c.evaluate.batch(P, PD)
     M, dV = flat[:, c.M_index], flat[:, c.dV_slice]
+    if c.ext_slice is not None:
+        dV = dV - flat[:, c.ext_slice]                                       # dV/dp - tau_ext
     L = _stack_cholesky(M, lambda j: _metric_factor(model, None, M[j], P[j]))
     Cqd = _first_kind_contracted(c, flat, PD)                                # M Gamma(pd, pd) (eq. 7)
     if model.constraints:

@@ -5,6 +5,9 @@ The split is article eq. (9): ``qdd = qdd_drift + qdd_ctrl`` with ``qdd_drift`` 
 (eq. 10, u = 0) and ``qdd_ctrl`` the control contribution, computed directly (``M^-1 B u``), never as
 ``total - drift``.
 
+External loads (article 2.3, eq. 12, 14; ``cases.loads``): ``M qdd + h = B u + tau_ext``, each backend mapping the
+model's declarations to ``tau_ext`` with its own kinematics. ``tau_ext`` enters the drift, ``drift = M^-1 (tau_ext -
+h)``, and, being velocity-independent, the drift's part at rest: ``zvcf = M^-1 (tau_ext - g)``; ctrl is unchanged.
 With constraints (article 5.2-5.4) ``M qdd + h = B u + Jc^T lam`` and ``Jc qdd + Jcdot qd = 0`` (eq. 12, 13): total
 and lam solve the KKT system, drift and lam_drift solve it with u = 0 (eq. 14), and ctrl is ``B_c B u`` with the
 constraint-consistent input map ``B_c = M^-1 [I - Jc^T (Jc M^-1 Jc^T)^-1 Jc M^-1]`` (eq. 17), computed directly.
@@ -107,9 +110,15 @@ class Split:
                          invariant under a change of chart or of world frame. UNSUPPORTED from a formalism without
                          body-level forces.
     joint_wrenches_drift the same at ``qdd = drift`` with ``lam_drift`` (the passive loads of the ZTCF, article 6.1.4).
+                         The external loads (``cases.loads``) are applied to their bodies in both.
+    external_force       ``tau_ext`` (n,), the generalized force of the model's external loads (eq. 12; ``cases.loads``:
+                         ``J_p^T f + J_w^T m`` summed over them), from this formalism's own kinematics; in a chart a
+                         covector (``Dpsi^T tau_ext``). None for a model without loads.
+    power_ext            ``tau_ext . qd`` (W), the external loads' power (beside ``power_ctrl``); None without loads.
     zvcf                 the zero-velocity counterfactual (article 4.5-4.6): the drift at the same ``q`` with ``qd = 0``,
                          gravity's part of the drift, ``-M^-1 g`` (with constraints the KKT solve with ``f = -g`` and
-                         ``Jcdot qd = 0``), computed directly; UNSUPPORTED when a formalism does not report it.
+                         ``Jcdot qd = 0``), computed directly; UNSUPPORTED when a formalism does not report it. With
+                         external loads (all velocity-independent) ``M^-1 (tau_ext - g)``: the drift at rest.
     drift_velocity       the velocity-product part of the drift, ``-M^-1 C(q, qd) qd`` (with constraints the KKT solve
                          with ``f = -C qd`` and the bias ``Jcdot qd``), computed directly, not as ``drift - zvcf``:
                          ``zvcf + drift_velocity = drift`` up to rounding, because the KKT system is linear in
@@ -167,6 +176,8 @@ class Split:
     constraint_force_drift: np.ndarray | None = None
     constraint_rank: int | None = None
     lam_scale: float = 0.0
+    external_force: np.ndarray | None | Unsupported = None
+    power_ext: float | None | Unsupported = None
 
     def __post_init__(self):
         """Validate and freeze: every array field becomes a read-only float array of the shape the contract gives it
@@ -181,7 +192,7 @@ class Split:
                   "lam": (k,), "lam_drift": (k,),
                   "power_constr_per_coord": (n,), "constraint_value": (k,), "constraint_jacobian": (k, n),
                   "constraint_bias": (k,), "constraint_velocity": (k,), "constraint_force": (n,),
-                  "constraint_force_drift": (n,), "zvcf": (n,), "drift_velocity": (n,)}
+                  "constraint_force_drift": (n,), "zvcf": (n,), "drift_velocity": (n,), "external_force": (n,)}
         for name, shape in shapes.items():
             value = getattr(self, name)
             if value is None or isinstance(value, Unsupported):
@@ -208,7 +219,7 @@ class Split:
                 object.__setattr__(self, name, arr)
         for name in ("power_ctrl", "cond_M", "accel_scale", "lam_scale"):
             object.__setattr__(self, name, float(getattr(self, name)))
-        for name in ("power_constr", "kinetic_energy"):
+        for name in ("power_constr", "kinetic_energy", "power_ext"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, Unsupported):
                 object.__setattr__(self, name, float(value))

@@ -36,6 +36,14 @@ velocity ``S_v v_i``): ``(I, 0)`` for a ball, ``([0 I], [I 0])`` for a free join
 A joint-coordinate chart ``q = psi(p)`` does not apply to a model with such joints, and the backend has no
 ``split_chart``.
 
+External loads (``cases.loads``; article 6.1: "apply external/contact loads at each body") are body loads of the
+backward pass, like gravity: each declaration becomes the force and the moment about the body origin it applies,
+in body frame ``i`` (:func:`_external_loads`: a world vector ``x`` is ``W_i^T x`` there; a wrench's couple joins
+``offset x f``; a spring's force ``-k (|d| - L0) d / |d|`` from the point's world position ``o_i + W_i offset``). The
+backward pass at ``qdd = 0`` with them applied is ``h - tau_ext`` (and at rest ``g - tau_ext``), so the drift and its
+part at rest include them (eq. 14); the joint reactions carry them; ``tau_ext`` itself, reported, is the backward
+pass of the loads alone (no motion, no gravity), negated.
+
 The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``. The drift's parts
 (4.5-4.6) are solved directly on the same factor: the zero-velocity counterfactual ``zvcf = -M^-1 g`` and
 ``drift_velocity = -M^-1 C qd`` (``g`` the backward pass at rest, ``C qd`` the pass at ``qdd = 0`` without gravity), so
@@ -45,7 +53,8 @@ Linearization (4.8, eq. 11; :func:`linearize`): the passes differentiated in for
 directional derivatives of its placement, velocities, accelerations and loads along all ``2 nv`` state directions at
 once (a trailing axis). A q direction ``q_i (+) e`` turns body ``i``'s frame by ``S_w e`` and moves its origin by
 ``S_v e`` (the joint's own motion, in its frame), so ``dP_i = P_i [S_w e]x``; the whole body turns by ``Th_i =
-P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame and the loop forces. With
+P_i^T Th_parent + th_i`` (``dW_i = W_i [Th_i]x``), which rotates gravity in the body frame, the loop forces and the
+external loads' world vectors (a spring's force also follows its point: :func:`_external_tangents`). With
 ``qdd = vdot`` held fixed the backward pass gives ``dID/dx``, and ``dvdot/dx = -M^-1 dID/dx``, ``dvdot/du = M^-1 B``
 (the KKT system differentiated with constraints, below).
 
@@ -90,6 +99,7 @@ import numpy as np
 
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
                                   check_batch, check_state, joint_vectors, state_space)
@@ -324,10 +334,54 @@ def _body_load(model: Model, i: int, W: np.ndarray, w, wd, a, gravity: bool):  #
     return F, n
 
 
+def _external_loads(model: Model, kin) -> np.ndarray | None:
+    """The model's external loads (``cases.loads``) as body loads: (bodies, 6, *B), row ``i`` = ``[force, moment about
+    the body origin]`` in body frame ``i`` summed over the loads on body ``i`` (module docstring); None without loads.
+    A world-frame vector ``x`` is ``W_i^T x`` in the body; a spring's force is formed in the world from the point
+    ``o_i + W_i offset``."""
+    if not model.loads:
+        return None
+    W = kin[2]
+    batch = W[0].shape[2:]
+    origins = _origins(model, kin) if any(isinstance(x, PointSpring) for x in model.loads) else None
+    rows = np.zeros((len(model.bodies), 6) + batch)
+    for load in model.loads:
+        i = model.body_index(load.body)
+        to_body = W[i].swapaxes(0, 1)
+        offset = _column(load.offset, batch)
+        moment = 0.0
+        if isinstance(load, PointSpring):
+            d = origins[i] + _mv(W[i], offset) - _column(load.anchor, batch)
+            length = np.sqrt((d * d).sum(axis=0))
+            stretch = 1.0 if load.rest_length == 0.0 else 1.0 - load.rest_length / length
+            f = _mv(to_body, -load.stiffness * stretch * d)
+        else:
+            world = load.frame == "world"
+            f = _mv(to_body, _column(load.force, batch)) if world else _column(load.force, batch)
+            if isinstance(load, ExternalWrench):
+                moment = _mv(to_body, _column(load.moment, batch)) if world else _column(load.moment, batch)
+        rows[i, :3] += f
+        rows[i, 3:] += _moment_about_origin(offset, f, moment)
+    return rows
+
+
+def _moment_about_origin(offset, f, couple):
+    """The moment about the body origin of a force ``f`` at the body point ``offset`` and a couple: ``couple + offset x
+    f`` (body frame)."""
+    return couple + _cross(offset, f)
+
+
+def _external_torques(model: Model, kin, external: np.ndarray) -> np.ndarray:
+    """``tau_ext`` (nv, *B): the backward pass of the external body loads alone (no motion, no gravity) is the load
+    the joints must apply to hold them, ``-tau_ext``."""
+    zero = np.zeros((len(model.bodies), 3) + external.shape[2:])
+    return -_joint_torques(model, *_backward(model, kin, (zero, zero, zero), False, external))
+
+
 def _backward(model: Model, kin, motion, gravity: bool, external: np.ndarray | None = None):
     """Backward pass, tip to base: the joint loads ``f, n`` (n x 3 x *B each), the force and the moment about body
     ``i``'s origin that the parent exerts on body ``i``, in body frame ``i``. Eq. (18) and (19) solved for the
-    inboard load; ``external`` (n x 6, rows ``[force, moment about the origin]`` in body frame ``i``; one state) are
+    inboard load; ``external`` (n x 6 (x *B), rows ``[force, moment about the origin]`` in body frame ``i``) are
     further loads applied to the bodies."""
     P, r, W = kin
     w, wd, a = motion
@@ -830,10 +884,11 @@ def _constraint_scales(model: Model, L: np.ndarray, Jc: np.ndarray, bias: np.nda
 
 def _dynamics(model: Model, q: np.ndarray, qd: np.ndarray):
     """The recursion's terms at ``(q, qd)`` (shapes (n, *B)): placements, unit motions, the forward pass at
-    ``qdd = 0``, ``h = C qd + g`` (the RNEA at ``qdd = 0``, (n, *B)) and ``M`` (n, n, *B)."""
+    ``qdd = 0``, ``h = C qd + g - tau_ext`` (the RNEA at ``qdd = 0`` with the external loads applied, (n, *B); ``h``
+    itself without loads) and ``M`` (n, n, *B)."""
     kin = _placements(model, q)
     units, bias_motion = _unit_motions(model, kin), _forward(model, kin, qd, np.zeros_like(qd))
-    h = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=True))
+    h = _joint_torques(model, *_backward(model, kin, bias_motion, True, _external_loads(model, kin)))
     return kin, units, bias_motion, h, _mass_matrix(model, kin, units)
 
 
@@ -877,18 +932,23 @@ def split(model: Model, q, qd, u) -> Split:
     kin, units, bias_motion, h, M = _dynamics(model, q, qd)
     zero = np.zeros(model.nv)
     c_qd = _joint_torques(model, *_backward(model, kin, bias_motion, gravity=False))
-    g = _joint_torques(model, *_recursion(model, kin, zero, zero, gravity=True))
+    external = _external_loads(model, kin)
+    g = _joint_torques(model, *_backward(model, kin, _forward(model, kin, zero, zero), True, external))  # g - tau_ext
     L = _cholesky(model, M[..., None], q[:, None])
     tau_ctrl = model.input_map @ u
-    mass = _mass_scales(model, L[..., 0], c_qd, g, tau_ctrl, qd)
+    tau_ext = None if external is None else _external_torques(model, kin, external)
+    mass = _mass_scales(model, L[..., 0], c_qd, g, tau_ctrl if tau_ext is None else np.abs(tau_ctrl) + np.abs(tau_ext),
+                        qd)
     power = tau_ctrl * qd
     common = dict(power_ctrl=float(power.sum()), power_ctrl_per_coord=power, cond_M=mass.cond,
-                  kinetic_energy=0.5 * qd @ M @ qd)
+                  kinetic_energy=0.5 * qd @ M @ qd, external_force=tau_ext,
+                  power_ext=None if tau_ext is None else float(tau_ext @ qd))
     if model.constraints:
-        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common, (g, c_qd))
+        return _constrained_split(model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass, common, (g, c_qd),
+                                  external)
     drift, ctrl, total, zvcf, drift_velocity = _cho_solve(
         L, np.column_stack([-h, tau_ctrl, tau_ctrl - h, -g, -c_qd])[..., None])[..., 0].T
-    extras, drift_motion = _extras(model, kin, qd, total, drift)
+    extras, drift_motion = _extras(model, kin, qd, total, drift, external, external)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
                  power_constr_per_coord=None, accel_scale=mass.accel_scale, extras=extras,
                  task_drift=_task_acceleration(model, kin, drift_motion), zvcf=zvcf, drift_velocity=drift_velocity,
@@ -896,12 +956,13 @@ def split(model: Model, q, qd, u) -> Split:
 
 
 def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_ctrl, mass: _MassScales,  # noqa: N803
-                       common: dict, parts: tuple) -> Split:
+                       common: dict, parts: tuple, external: np.ndarray | None = None) -> Split:
     """Eq. (12)-(17) by the range-space method (a batch of one), the reactions with the loop forces applied, and the
     constraint's own quantities (article 5.5): ``Jc^T lam`` and its power ``(Jc^T lam)_i qd_i``, ``Jc qd`` and the
     conditioning of S; ``accel_scale`` adds what the constraint force can produce. The drift's parts (4.5-4.6) are
     the same solve with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias ``Jcdot qd``
-    (``drift_velocity``); ``parts = (g, C qd)``."""
+    (``drift_velocity``); ``parts = (g, C qd)``, ``h`` and ``g`` with the external loads applied (``- tau_ext``), whose body
+    loads ``external`` the reactions carry too."""
     rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
     schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
     (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
@@ -909,8 +970,9 @@ def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_c
     g, c_qd = parts
     zvcf = replace(schur, bias=np.zeros_like(schur.bias)).solve(-g[:, None])[0][:, 0]
     drift_velocity = schur.solve(-c_qd[:, None])[0][:, 0]
-    extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam),
-                                   _constraint_loads(model, kin, rows, lam_drift))
+    applied = 0.0 if external is None else external
+    extras, drift_motion = _extras(model, kin, qd, total, drift, _constraint_loads(model, kin, rows, lam) + applied,
+                                   _constraint_loads(model, kin, rows, lam_drift) + applied)
     cs = _constraint_scales(model, L[..., 0], Jc, bias, (tau_ctrl - h, -h), mass)
     force = Jc.T @ lam
     power = force * qd
@@ -1061,12 +1123,13 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
     return _Tangents(th, dr, Th, o, do, (w, wd, a), V, dw, dwd, da, dV)
 
 
-def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.ndarray, np.ndarray]:
+def _backward_tangents(model: Model, kin, t: _Tangents, loads=None, couples=None) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
     (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
-    ``loads`` (body -> ``[(offset, f, df, doffset)]``: a force ``f`` at the body point ``offset``, its moment about the
-    origin ``offset x f``, body frame; ``doffset`` the offset's tangent where the point moves over the body, else None)
-    are the multipliers' point forces (:func:`_constraint_tangents`)."""
+    ``loads`` (body -> ``[(offset, f, df)]`` or ``[(offset, f, df, doffset)]``: a force ``f`` at the body point
+    ``offset``, its moment about the origin ``offset x f``, body frame; ``doffset`` the offset's tangent where the
+    point moves over the body, a rolling contact) are the multipliers' point forces (:func:`_constraint_tangents`) and
+    the external loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples (:func:`_external_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)
@@ -1082,11 +1145,14 @@ def _backward_tangents(model: Model, kin, t: _Tangents, loads=None) -> tuple[np.
         dN = (_cross(c, dF) + inertia @ t.dwd[i] + _cross(t.dw[i], inertia @ w[i])
               + _cross(w[i], inertia @ t.dw[i]))
         f[i], n[i], df[i], dn[i] = f[i] + F, n[i] + N, df[i] + dF, dn[i] + dN
-        for offset, fe, dfe, doffset in (loads or {}).get(i, ()):
+        for offset, fe, dfe, *moving in (loads or {}).get(i, ()):
+            doffset = moving[0] if moving else None
             f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
             df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
             if doffset is not None:                  # a point that moves over the body (a rolling contact)
                 dn[i] = dn[i] - _cross(doffset, fe[:, None])
+        for me, dme in (couples or {}).get(i, ()):
+            n[i], dn[i] = n[i] - me, dn[i] - dme
         p = model.parent_index[i]
         if p >= 0:
             fp, dfp = P[i] @ f[i], P[i] @ (df[i] + _cross(t.th[i], f[i]))
@@ -1269,6 +1335,40 @@ def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
     return np.concatenate(rows), loads
 
 
+def _external_tangents(model: Model, kin, t: _Tangents) -> tuple[dict, dict]:
+    """The external loads (``cases.loads``) with their tangents along the directions of ``t``, for
+    :func:`_backward_tangents`: forces body -> ``[(offset, f, df)]`` and couples body -> ``[(m, dm)]``, body frame. A
+    world vector ``x`` is ``W^T x`` there, whose tangent is ``(W^T x) x Th`` (the body turns under it); a body-frame
+    vector is constant; a spring's world force ``F = -k (1 - L0 / |d|) d`` (``d = p - anchor``) changes with the
+    point, ``dF = -k [(1 - L0 / |d|) dd + L0 (d . dd) d / |d|^3]`` with ``dd = dp`` (:func:`_point_tangent`)."""
+    forces, couples = {}, {}
+    W = kin[2]
+    for load in model.loads:
+        i = model.body_index(load.body)
+        offset = np.asarray(load.offset, dtype=float)
+        if isinstance(load, PointSpring):
+            x = _point_tangent(kin, t, i, offset)
+            d, dd = x.p - load.anchor, x.dp
+            length = float(np.sqrt(d @ d))
+            if load.rest_length:
+                F = -load.stiffness * (1.0 - load.rest_length / length) * d
+                dF = -load.stiffness * ((1.0 - load.rest_length / length) * dd
+                                        + load.rest_length * np.outer(d, d @ dd) / length**3)
+            else:
+                F, dF = -load.stiffness * d, -load.stiffness * dd
+            f = W[i].T @ F
+            forces.setdefault(i, []).append((offset, f, _cross(f, t.Th[i]) + W[i].T @ dF))
+            continue
+        world = load.frame == "world"
+        f = W[i].T @ load.force if world else np.asarray(load.force, dtype=float)
+        df = _cross(f, t.Th[i]) if world else np.zeros_like(t.Th[i])
+        forces.setdefault(i, []).append((offset, f, df))
+        if isinstance(load, ExternalWrench):
+            m = W[i].T @ load.moment if world else np.asarray(load.moment, dtype=float)
+            couples.setdefault(i, []).append((m, _cross(m, t.Th[i]) if world else np.zeros_like(t.Th[i])))
+    return forces, couples
+
+
 def linearize(model: Model, q, qd, u) -> Linearization:
     """A and B of eq. (11) (:class:`Linearization`, the tangent-space convention on Lie groups) from the recursion's
     own derivatives: the forward and backward passes differentiated in forward mode along all ``2 nv`` state
@@ -1289,12 +1389,15 @@ def linearize(model: Model, q, qd, u) -> Linearization:
         vdot, lam = (x[:, 0] for x in schur.solve((tau - h)[:, None]))
         t = _forward_tangents(model, kin, qd, vdot)
         dc, loads = _constraint_tangents(model, kin, t, lam)
-        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads))
+        applied, couples = _external_tangents(model, kin, t)
+        for body, entries in applied.items():
+            loads.setdefault(body, []).extend(entries)
+        dG = _joint_torques(model, *_backward_tangents(model, kin, t, loads, couples))
         dvdot, dvdot_du = replace(schur, bias=dc).solve(-dG)[0], schur.input_map(model.input_map)
     else:
         vdot = _cho_solve(L, (tau - h)[:, None, None])[:, 0, 0]
         t = _forward_tangents(model, kin, qd, vdot)
-        dID = _joint_torques(model, *_backward_tangents(model, kin, t))
+        dID = _joint_torques(model, *_backward_tangents(model, kin, t, *_external_tangents(model, kin, t)))
         dvdot, dvdot_du = -_cho_solve(L, dID[..., None])[..., 0], _cho_solve(L, model.input_map[..., None])[..., 0]
     return state_space(model, qd, dvdot[:, :model.nv], dvdot[:, model.nv:], dvdot_du, vdot)
 

@@ -62,6 +62,12 @@ Joint-space terms by projection (Kane's form), from the COM Jacobians ``J_v,i`` 
     C qd = sum_i m_i J_v,i^T (Jdot_v,i qd) + J_w,i^T (I_i Jdot_w,i qd + w_i x I_i w_i)
     g    = -sum_i m_i J_v,i^T gravity
 
+External loads (``cases.loads``; article 2.3, eq. 12) by virtual work through the same point Jacobians:
+``tau_ext = sum J_v(p)^T f + J_w^T m`` (:func:`_external_force`; ``f``, ``m`` in the world: a body-frame vector is
+``R_i x``, a spring's force ``-k (|d| - L0) d / |d|`` from the point's world position). Being velocity-independent it
+joins gravity, ``g - tau_ext``, wherever g enters below (the task-space ``p`` of eq. 22 included), so the drift, its
+part at rest and the recomposition carry it; the linearization differentiates it with the rest (dual numbers).
+
 Task space (eq. 22) for ``x_task = D p``: ``J = D J_v(p)``, ``A = J M^-1 J^T = Lambda^-1``,
 ``mu = Lambda (J M^-1 C qd - Jdot qd)``, ``p = Lambda J M^-1 g``, ``J_bar = M^-1 J^T Lambda`` (the dynamically
 consistent inverse), ``N = 1 - J_bar J``, ``F_ctrl = J_bar^T B u``. Eq. (22) solved for the task acceleration:
@@ -148,6 +154,7 @@ import numpy as np
 
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
                                   check_batch, check_state, state_space, with_block_form)
@@ -566,6 +573,55 @@ def _terms(model: Model, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.nd
     return 0.5 * (M + _t(M)), Cqd, g
 
 
+def _sqrt(x):
+    """``sqrt(x)`` of an array or a dual number (``d sqrt(x) = dx / (2 sqrt(x))``)."""
+    if not isinstance(x, _Dual):
+        return np.sqrt(x)
+    root = np.sqrt(x.val)
+    return _Dual(root, x.tan / (2.0 * root))
+
+
+def _reciprocal(x):
+    """``1 / x`` of an array or a dual number (``d (1/x) = -dx / x^2``)."""
+    if not isinstance(x, _Dual):
+        return 1.0 / x
+    return _Dual(1.0 / x.val, -x.tan / (x.val * x.val))
+
+
+def _spring_force(load, p):
+    """The world force ``-k (|d| - L0) d / |d|`` of a :class:`~cases.loads.PointSpring` at its point ``p`` (..., 3)
+    (an array or a dual number), ``d = p - anchor``; ``-k d`` when ``L0 = 0``."""
+    d = p - np.asarray(load.anchor, dtype=float)
+    if not load.rest_length:
+        return -load.stiffness * d
+    length = _sqrt(_linear(lambda x: x.sum(axis=-1, keepdims=True), d * d))
+    return -load.stiffness * (d - load.rest_length * (d * _reciprocal(length)))
+
+
+def _external_force(model: Model, kin: Kinematics):
+    """``tau_ext = sum J_v(p)^T f + J_w^T m`` (..., n) over the model's external loads (module docstring), from the
+    geometric Jacobians of each load's point (:func:`point_jacobian`), with ``f`` and ``m`` in the world; None without
+    loads. Arrays or dual numbers alike (:func:`linearize`)."""
+    if not model.loads:
+        return None
+    total = 0.0
+    for load in model.loads:
+        i = np.array([model.body_index(load.body)])
+        R = kin.R[..., i, :, :]
+        p = kin.o[..., i, :] + _mv(R, np.asarray(load.offset, dtype=float))
+        Jv, Jw = point_jacobian(kin, i, p)
+        if isinstance(load, PointSpring):
+            f = _spring_force(load, p)
+        else:
+            f = np.asarray(load.force, dtype=float)
+            f = f if load.frame == "world" else _mv(R, f)
+        total = total + _mv(_t(Jv), f)[..., 0, :]
+        if isinstance(load, ExternalWrench):
+            m = np.asarray(load.moment, dtype=float)
+            total = total + _mv(_t(Jw), m if load.frame == "world" else _mv(R, m))[..., 0, :]
+    return total
+
+
 def joint_space_terms(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(M, C qd, g)`` of eq. (2), projected through the COM Jacobians (Kane's form, module docstring)."""
     q, qd, _ = check_state(model, q, qd, np.zeros(model.m))
@@ -909,7 +965,8 @@ def _inverse_mass_matrix(model: Model, M: np.ndarray, q: np.ndarray) -> np.ndarr
 class _Solution:
     """One state or a batch solved: the joint-space terms and the inverse mass matrix, the reported task space (None
     when not asked for), the accelerations (drift, ctrl, total, zvcf, drift_velocity) of :func:`_recompose`, the
-    constraint space (None without constraints)."""
+    constraint space (None without constraints), ``tau_ext`` (None without external loads; ``g`` is then ``g -
+    tau_ext``)."""
 
     M: np.ndarray
     Minv: np.ndarray
@@ -919,6 +976,7 @@ class _Solution:
     task: TaskSpace | None
     accelerations: tuple[np.ndarray, ...]
     constraint: ConstraintSpace | None
+    tau_ext: np.ndarray | None = None
 
 
 def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: str | None,
@@ -928,6 +986,9 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     or a batch (a leading axis on each). ``report``: also rotate the task space back to the task coordinates."""
     kin = _kinematics(model, q, qd)
     M, Cqd, g = _terms(model, kin)
+    tau_ext = _external_force(model, kin)
+    if tau_ext is not None:
+        g = g - tau_ext                                   # velocity-independent: with gravity (module docstring)
     Minv, tau_ctrl = _inverse_mass_matrix(model, M, q), _vm(u, model.input_map.T)
     J, Jdot_qd = _task_kinematics(model, kin, point)
 
@@ -941,7 +1002,7 @@ def _solve(model: Model, q: np.ndarray, qd: np.ndarray, u: np.ndarray, point: st
     if model.constraints:
         constraint = _constraint_space(model, kin, q, Minv, accelerations)
         task, accelerations = through_task_space(constraint.forces)
-    return _Solution(M, Minv, Cqd, g, tau_ctrl, task, accelerations, constraint)
+    return _Solution(M, Minv, Cqd, g, tau_ctrl, task, accelerations, constraint, tau_ext)
 
 
 def task_space(model: Model, q, qd, u, point: str | None = None) -> TaskSpace:
@@ -962,7 +1023,7 @@ def _mass_conditioning(model: Model, s: _Solution, qd: np.ndarray) -> tuple[floa
     norm, inverse_norm = float(np.linalg.eigvalsh(s.M)[-1]), float(np.linalg.eigvalsh(s.Minv)[-1])
     m_total = sum(b.mass for b in model.bodies)
     H = (np.abs(s.Cqd).sum() + np.abs(s.g).sum() + np.abs(s.tau_ctrl).sum() + norm * float(qd @ qd)
-         + np.abs(model.gravity).sum() * np.sqrt(m_total * norm))
+         + np.abs(model.gravity).sum() * np.sqrt(m_total * norm) + (0.0 if s.tau_ext is None else np.abs(s.tau_ext).sum()))
     return norm * inverse_norm, inverse_norm, float(H) * inverse_norm
 
 
@@ -1031,6 +1092,8 @@ def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.n
                 conditions={"task": s.task.cond,
                             "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
                 kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
+    if s.tau_ext is not None:
+        free.update(external_force=s.tau_ext, power_ext=float(s.tau_ext @ qd))
     c = s.constraint
     if c is None:
         return Split(lam=None, lam_drift=None, power_constr=None, power_constr_per_coord=None, accel_scale=accel_scale,
@@ -1158,7 +1221,8 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     q_dual = _Dual(q, np.vstack([_configuration_tangents(model, q), np.zeros((nv, model.nq))]))
     kin = _kinematics(model, q_dual, _Dual(qd, np.vstack([np.zeros((nv, nv)), np.eye(nv)])))
     M, Cqd, g = _terms(model, kin)
-    h = Cqd + g
+    tau_ext = _external_force(model, kin)
+    h = Cqd + g if tau_ext is None else Cqd + g - tau_ext
     Minv = _inverse_mass_matrix(model, M.val, q)
     Jc = Lambda = rows = None
     vdot = Minv @ (model.input_map @ u - h.val)

@@ -114,6 +114,19 @@ def _free_body(draw) -> dict:
     return {"m": draw(MASS), "I1": I1, "I2": I2, "I3": I3, "g": draw(st.one_of(st.just(0.0), GRAVITY))}
 
 
+def _spring(draw) -> dict:
+    """A tip spring anchored outside the tip's reach (at least 0.2 m beyond l1 + l2, so the spring never passes
+    through its anchor, where its direction is undefined), and a body-frame wrench on link 2."""
+    l1, l2, at = draw(LENGTH), draw(LENGTH), draw(ANGLE)
+    distance = l1 + l2 + draw(_floats(0.2, 2.0))
+    return {"m1": draw(MASS), "m2": draw(MASS), "l1": l1, "l2": l2, "g": draw(GRAVITY),
+            "k": draw(_floats(0.1, 100.0)), "rest": draw(_floats(0.0, 1.0, testing.MIN_LENGTH)),
+            "ax": distance * np.sin(at), "ay": -distance * np.cos(at), "bfx": draw(FORCE), "bfy": draw(FORCE),
+            "couple": draw(_floats(-5.0, 5.0, testing.MIN_VALUE))}
+
+
+FORCE = _floats(-20.0, 20.0, testing.MIN_VALUE)
+
 #: Drawn typed parameters per case (within each factory's domain; see the module doc of crosscheck.closed_forms).
 PARAMETERS = {
     "double_pendulum": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "g": GRAVITY,
@@ -141,6 +154,9 @@ PARAMETERS = {
     "geared_pendulums": st.fixed_dictionaries({"m1": MASS, "l1": LENGTH, "m2": MASS, "l2": LENGTH,
                                                "ratio": st.one_of(_floats(-3.0, -0.3), _floats(0.3, 3.0)),
                                                "offset": ANGLE, "spacing": _floats(0.5, 3.0), "g": GRAVITY}),
+    "double_pendulum_tip_force": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH,
+                                                        "g": GRAVITY, "fx": FORCE, "fy": FORCE}),
+    "double_pendulum_spring": st.composite(_spring)(),
 }
 
 

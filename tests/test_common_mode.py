@@ -12,7 +12,8 @@ def test_the_catalog_has_at_least_ten_faults_over_every_shared_area():
     names = common_mode.names()
     assert len(names) >= 10 and len(set(names)) == len(names)
     assert {f.area for f in common_mode.CATALOG} >= {"URDF conversion", "case factories", "constraint declarations",
-                                                    "sampling", "charts", "frames", "comparison", "tolerance"}
+                                                    "sampling", "charts", "frames", "comparison", "tolerance",
+                                                    "load declarations", "conservation"}
     for fault in common_mode.CATALOG:
         for target in fault.targets:
             faults.resolve(fault.name, target)                   # every target exists
@@ -28,7 +29,8 @@ GUARDS = {"the reference built from the file": ("#", "outlier pinocchio"),
           "the frame checks": ("#", "frame"),
           "the exact values": ("#", "outlier exact"),
           "the conditions audit": ("#", "conditions"),
-          "the Pinocchio reference's own kinematic rows": ("#", "linearization: kinematic rows")}
+          "the Pinocchio reference's own kinematic rows": ("#", "linearization: kinematic rows"),
+          "the energy-rate conservation checks": ("#", "conservation: energy rate")}
 
 
 @pytest.mark.parametrize("fault", common_mode.CATALOG, ids=common_mode.names())

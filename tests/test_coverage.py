@@ -58,8 +58,8 @@ def test_the_span_is_the_promised_one_not_the_samplers(monkeypatch):
 def test_a_degenerate_sample_fails_the_case(monkeypatch):
     real = sampling.sample_states
 
-    def still(model, count, seed, case):
-        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in real(model, count, seed, case)]
+    def still(model, count, seed, case, **options):
+        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in real(model, count, seed, case, **options)]
 
     monkeypatch.setattr("crosscheck.gate.sample_states", still)
     outcome = run_case(CaseSpec("double_pendulum"), [], 4, 0, checks=Checks(charts=False, frames=0,

@@ -204,3 +204,23 @@ def test_resuming_after_ctrl_c_while_shrinking_gives_the_uninterrupted_findings(
     assert resumed.findings == whole.findings
     assert records(resumed) == records(whole)
     assert stable(resumed) == stable(whole)
+
+
+def test_the_report_and_the_summary_account_for_every_example_and_group_the_findings(fault_run):
+    """Each chunk of the FAULT campaign stops generating at its first failure: the report and the summary say how many
+    of the 6 examples asked were generated, and put every one not generated down to a chunk that ended at its failure;
+    the findings are grouped by signature."""
+    result = fault_run
+    got = fuzz.account(fuzz.load_campaign(result.out), result.chunks)
+    generated = sum(r["examples"] for r in result.chunks)
+    short = [r for r in result.chunks if r["examples"] < r["planned"]]
+    assert (got.asked, got.generated) == (6, generated) and short and all(r["findings"] for r in short)
+    assert got.missing == ((fuzz.FAILED, len(short), 6 - generated),)
+    report = (result.out / "report.md").read_text()
+    assert f"| examples | {generated} of 6 asked generated; not generated: {6 - generated} in chunks that ended at " \
+           "their first failure" in report
+    assert "## Findings by signature" in report
+    lines = fuzz.summary(result).splitlines()
+    assert lines[0].startswith(f"2 chunks, examples: {got.text()}; ")
+    (signature, members), *_ = fuzz.group(result.findings)
+    assert lines[1].startswith(f"  {len(members)} x failing {signature[0]}; outlier euler_lagrange; 2 revolute: ")

@@ -4,7 +4,7 @@ and shares no numerics with the others.
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is
 read with ``ast`` (never imported, so nothing it would import is loaded) and every import is checked against an
 allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, the model language
-(``cases.model``, ``cases.constraints``), and a formalism's own sub-modules when it is a package. A new
+(``cases.model``, ``cases.constraints``, ``cases.loads``: declarations each backend maps itself), and a formalism's own sub-modules when it is a package. A new
 dependency must be added here, with a reason. From ``formalisms.interface`` a formalism may use only the names in
 :data:`INTERFACE` (types, constants, validators, exceptions: imported, or read as attributes of the module), and
 ``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for plugins) and ``block_form`` (the
@@ -32,7 +32,7 @@ SHARED = {"formalisms/__init__.py", "formalisms/interface.py"}
 # third-party libraries a formalism may use: numerics and symbolics only
 THIRD_PARTY = {"numpy", "scipy", "sympy", "symengine", "casadi"}
 # project modules a formalism may use: the model types and the shared interface
-PROJECT = {"formalisms.interface", "cases.model", "cases.constraints"}
+PROJECT = {"formalisms.interface", "cases.model", "cases.constraints", "cases.loads"}
 # what a formalism may take from formalisms.interface: types, constants, validators and exceptions, nothing numeric
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",

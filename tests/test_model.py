@@ -128,8 +128,12 @@ def test_digest_is_stable_and_tracks_the_physics():
 
 
 def test_task_directions_default_to_all_three_and_are_validated():
-    m = build_model("ok", _good_bodies())
+    m = build_model("ok", _good_bodies(), task_points=[TaskPoint("tip", "b", (0.1, 0.0, 0.0))])
     np.testing.assert_array_equal(m.task_point().directions, np.eye(3))
+    # left out, the default task point gets the directions it moves in: this chain moves in the x-y plane (a z axis
+    # and a prismatic joint along the x axis of the rotating body), so a third row would be singular everywhere
+    default = build_model("ok", _good_bodies()).task_point()
+    np.testing.assert_array_equal(default.directions, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     planar = build_model("ok", _good_bodies(),
                          task_points=[TaskPoint("tip", "b", (0.0, 0.0, 0.0), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))])
     assert planar.task_point().directions.shape == (2, 3)

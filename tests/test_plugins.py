@@ -22,6 +22,7 @@ import pytest
 import cases
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
+from crosscheck import report as gate_report
 from crosscheck.compare import NOT_COMPARED
 from crosscheck.gate import CaseSpec, Checks, run_gate
 from formalisms.interface import Unsupported
@@ -70,7 +71,7 @@ def plugin_path(monkeypatch, tmp_path):
 def _gate(tmp_path, *args):
     report = tmp_path / "gate.md"
     code = cli.main(["gate", *args, "--report", str(report)])
-    return code, report.read_text() if report.exists() else ""
+    return code, gate_report.read(report) if report.exists() else ""
 
 
 def _cells(line: str) -> list[str]:
@@ -188,7 +189,8 @@ def test_moved_scene_and_two_link_chain_are_supported():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ("closed_form_pendulum", "a plugin is given as MODULE:OBJECT (e.g. mypkg.dynamics:BACKEND), got "
+    ("closed_form_pendulum", "a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
+                             "examples/mujoco_plugin.py:MUJOCO), got "
                              "'closed_form_pendulum'"),
     ("no_such_module_abc:X", "plugin 'no_such_module_abc:X': module 'no_such_module_abc' not found"),
     ("raises_on_import:X", "plugin 'raises_on_import:X': importing module 'raises_on_import' failed: "

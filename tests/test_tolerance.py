@@ -119,14 +119,16 @@ def test_the_acceleration_tolerance_covers_every_backends_true_error(data):
 @pytest.mark.parametrize("case", ["spatial_arm", "panda"])
 def test_3d_cases_see_a_relative_1e_10_error_in_m_c_qd_and_g(case):
     """Issue 15: on the 3-D cases a relative 1e-10 error in one backend's M, C qd or g exceeds the drift or total
-    tolerance at some of the default gate's first 20 states (made from the exact relations between the answers, as
-    the self-test canaries are)."""
+    tolerance at some of the default gate's first 40 states (made from the exact relations between the answers, as
+    the self-test canaries are). 40 states: the error in C qd shows at only 16 of the Panda's first 99 states (within
+    its joint limits; 23 of 99 on spatial_arm), so 40 miss it with probability 0.84^40 < 1e-3 (20 with 3 %: the
+    Panda's first 20 within its limits do; tests/test_sensitivity.py, STATES)."""
     from crosscheck import selftest
     from crosscheck.sampling import sample_states
 
     model = cases.load(case)
     caught = dict.fromkeys(("mass matrix", "velocity products", "gravity"), 0)
-    for state in sample_states(model, 20, 0, case)[1:]:
+    for state in sample_states(model, 40, 0, case)[1:]:
         outcome = evaluate(model, state, ALL)
         for kind in caught:
             canary = selftest.Canary(case, state.index, "newton_euler", kind, 1e-10)

@@ -117,13 +117,17 @@ def _kinetic_energy(G: dynamics.Inertias, twists_body: np.ndarray) -> float:  # 
 
 
 def _extras(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, total: np.ndarray, drift: np.ndarray,  # noqa: N803
-            constraint_wrenches: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+            constraint_wrenches: tuple[np.ndarray, np.ndarray] | None = None,
+            loads: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The twists, accelerations and wrenches listed in the module docstring; ``constraint_wrenches`` (space frame,
-    at the total and at the drift) are applied to the bodies in the wrench recursion and reported."""
+    at the total and at the drift) and the external loads' body wrenches ``loads`` (:func:`dynamics.external_wrenches`)
+    are applied to the bodies in the wrench recursion, the former also reported."""
     V_s = kinematics.twists(kin, qd)
     external = None
     if constraint_wrenches is not None:                       # F_b = Ad_{T_i}^T F_s
         external = lie.wrench_to_body(kin.poses, np.stack(constraint_wrenches))
+    if loads is not None:
+        external = loads if external is None else external + loads
     F = dynamics.wrenches(kin, G, qd, np.stack([total, drift]), np.ones((2,) + (1,) * (np.ndim(qd) - 1)), external)
     extras = {
         "poses": kin.poses,
@@ -181,6 +185,25 @@ def _power(model: Model, u: np.ndarray, qd: np.ndarray) -> dict:
     return {"power_ctrl": float(u @ (model.input_map.T @ qd)), "power_ctrl_per_coord": (model.input_map @ u) * qd}
 
 
+def _external(kin: Kinematics, forces: tuple) -> tuple[np.ndarray | None, np.ndarray | None, tuple]:
+    """The external loads (``cases.loads``): their body wrenches, ``tau_ext`` through the body Jacobians
+    (:func:`dynamics.external_forces`) and ``forces = (h, C qd, g)`` with ``tau_ext`` taken off ``h`` and ``g`` (it is
+    velocity-independent: the drift at rest carries it, eq. 14); ``(None, None, forces)`` without loads."""
+    W = dynamics.external_wrenches(kin.model, kin)
+    if W is None:
+        return None, None, forces
+    tau_ext = dynamics.external_forces(kin, W)
+    h, c_qd, g = forces
+    return W, tau_ext, (h - tau_ext, c_qd, g - tau_ext)
+
+
+def _external_fields(tau_ext: np.ndarray | None, qd: np.ndarray) -> dict:
+    """``external_force`` and ``power_ext = tau_ext . qd`` of one state (None without loads)."""
+    if tau_ext is None:
+        return {}
+    return {"external_force": tau_ext, "power_ext": float(tau_ext @ qd)}
+
+
 def _factor(model: Model, M: np.ndarray, Q: np.ndarray, first: int | None = None) -> Cholesky:  # noqa: N803
     """The Cholesky factors of a stack of mass matrices (N, n, n) at the configurations ``Q`` (N, nq); a ValueError
     naming the model, the first state whose M is not positive definite (``first``: the stack's offset in a batch; None
@@ -200,15 +223,18 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
     extras and the task quantities of the whole block in one pass of the same functions (a leading state axis, every
     state summed as alone: ``B u`` and ``D a`` are products state by state), then each state's conditioning."""
     kin, G = kinematics.forward_kinematics(model, Q), dynamics.Inertias.of(model)
-    M, h, c_qd, g = dynamics.terms(kin, G, QD)
+    M, *forces = dynamics.terms(kin, G, QD)
+    loads, tau_ext, (h, c_qd, g) = _external(kin, tuple(forces))
     factor, tau_ctrl = _factor(model, M, Q, first), (model.input_map @ U[..., None])[..., 0]
     drift, ctrl, total = _unconstrained(factor, h, tau_ctrl)
     parts = _drift_parts(factor, g, c_qd)
-    extras, task_drift, J = _extras(kin, G, QD, total, drift), _task_drift(kin, QD, drift), _task_jacobian(kin)
+    extras, task_drift, J = (_extras(kin, G, QD, total, drift, loads=loads), _task_drift(kin, QD, drift),
+                             _task_jacobian(kin))
     wrenches = (_joint_wrenches(kin, extras["wrenches_body"]), _joint_wrenches(kin, extras["wrenches_body_drift"]))
     out = []
     for i, (qd, u) in enumerate(zip(QD, U)):
-        mass = conditioning.of_mass(model, M[i], c_qd[i], g[i], tau_ctrl[i], qd)
+        applied = tau_ctrl[i] if tau_ext is None else np.abs(tau_ctrl[i]) + np.abs(tau_ext[i])
+        mass = conditioning.of_mass(model, M[i], c_qd[i], g[i], applied, qd)
         Lambda, task_cond = conditioning.task_inertia(model, J[i], factor.state(i))
         own = {key: value[i] for key, value in extras.items()}
         out.append(Split(drift=drift[i], ctrl=ctrl[i], total=total[i], lam=None, lam_drift=None, power_constr=None,
@@ -216,7 +242,8 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
                          conditions={"task_inertia": task_cond}, extras=own, task_drift=task_drift[i],
                          kinetic_energy=_kinetic_energy(G, own["twists_body"]), joint_wrenches=wrenches[0][i],
                          joint_wrenches_drift=wrenches[1][i], cond_M=mass.cond, task_inertia=Lambda,
-                         **{key: value[i] for key, value in parts.items()}, **_power(model, u, qd)))
+                         **{key: value[i] for key, value in parts.items()}, **_power(model, u, qd),
+                         **_external_fields(None if tau_ext is None else tau_ext[i], qd)))
     return out
 
 
@@ -244,28 +271,32 @@ def split(model: Model, q, qd, u) -> Split:
     """
     q, qd, u = check_state(model, q, qd, u)
     kin, G = kinematics.forward_kinematics(model, q), dynamics.Inertias.of(model)
-    M, h, c_qd, g = dynamics.terms(kin, G, qd)
+    M, *forces = dynamics.terms(kin, G, qd)
+    loads, tau_ext, (h, c_qd, g) = _external(kin, tuple(forces))
     factor = _factor(model, M[None], q[None])
     tau_ctrl = model.input_map @ u
-    mass = conditioning.of_mass(model, M, c_qd, g, tau_ctrl, qd)
+    mass = conditioning.of_mass(model, M, c_qd, g, tau_ctrl if tau_ext is None else np.abs(tau_ctrl) + np.abs(tau_ext),
+                                qd)
     Lambda, task_cond = _task_inertia(kin, factor)
-    common = dict(cond_M=mass.cond, task_inertia=Lambda, **_power(model, u, qd))
+    common = dict(cond_M=mass.cond, task_inertia=Lambda, **_power(model, u, qd), **_external_fields(tau_ext, qd))
     if model.constraints:
         return _constrained_split(kin, G, qd, factor, (h, c_qd, g), tau_ctrl, mass, common,
-                                  {"task_inertia": task_cond})
+                                  {"task_inertia": task_cond}, loads)
     drift, ctrl, total = (x[0] for x in _unconstrained(factor, h[None], tau_ctrl[None]))
     common.update({key: value[0] for key, value in _drift_parts(factor, g[None], c_qd[None]).items()})
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_constr=None,
                  power_constr_per_coord=None, accel_scale=mass.accel_scale, conditions={"task_inertia": task_cond},
-                 **_reported(kin, G, qd, drift, _extras(kin, G, qd, total, drift)), **common)
+                 **_reported(kin, G, qd, drift, _extras(kin, G, qd, total, drift, loads=loads)), **common)
 
 
 def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Cholesky, forces, tau_ctrl,  # noqa: N803
-                       mass: conditioning.MassConditioning, common: dict, conditions: dict) -> Split:
+                       mass: conditioning.MassConditioning, common: dict, conditions: dict,
+                       loads: np.ndarray | None = None) -> Split:
     """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state) with ``forces = (h, C qd, g)``,
     the drift's parts, the constraint wrenches of both multipliers, and the constraint's own quantities (article
     5.5): ``Jc^T lam`` and its power, ``Jc qd`` and the conditioning of ``S`` (``accel_scale`` adds what the
-    constraint force can produce)."""
+    constraint force can produce). ``h`` and ``g`` carry ``-tau_ext``; ``loads``, the external body wrenches, are applied
+    in the wrench recursion of the extras."""
     model = kin.model
     h, c_qd, g = forces
     rows = constraints.terms(kin, kin.q, qd)
@@ -274,7 +305,7 @@ def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Choles
     drift, ctrl, total, lam, lam_drift = (x[0] for x in _constrained(gauss, h[None], tau_ctrl[None]))
     parts = _constrained_drift_parts(gauss, g[None], c_qd[None])
     common = {**common, **{key: value[0] for key, value in parts.items()}}
-    extras = _extras(kin, G, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)))
+    extras = _extras(kin, G, qd, total, drift, (rows.wrenches(lam), rows.wrenches(lam_drift)), loads)
     cc = conditioning.of_constraints(model, factor, gauss.A[0], Jc, bias, (tau_ctrl - h, -h), mass)
     force = Jc.T @ lam
     return Split(drift=drift, ctrl=ctrl, total=total, lam=lam, lam_drift=lam_drift,
@@ -296,7 +327,10 @@ def _split_block(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.ndarray, fir
     kin = kinematics.forward_kinematics(model, Q)
     G = dynamics.Inertias.of(model)
     M = dynamics.mass_matrix_of(kin, G)
+    loads = dynamics.external_wrenches(model, kin)
     h = dynamics.generalized_forces(kin, dynamics.wrenches(kin, G, QD, None, 1.0))
+    if loads is not None:
+        h = h - dynamics.external_forces(kin, loads)
     factor, tau_ctrl = _factor(model, M, Q, first), U @ model.input_map.T
     if not model.constraints:
         return (*_unconstrained(factor, h, tau_ctrl), None, None)

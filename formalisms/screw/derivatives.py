@@ -21,7 +21,10 @@ and the backward ones, with ``eta_i = J_b,i dq`` (the body twist of the configur
     dF_i = G_i dVdot_i - ad_{dV_i}^T G_i V_i - ad_{V_i}^T G_i dV_i - ad_{eta_i}^T W_g,i
            + sum_children X_c^T (dF_c - ad_{xi_c}^T F_c),        d tau_j = E_j^T dF_owner(j).
 
-That is ``d ID(q, v, a)`` at ``a`` fixed, with ``ID = M a + h`` (eq. 2, 27).
+That is ``d ID(q, v, a)`` at ``a`` fixed, with ``ID = M a + h`` (eq. 2, 27). External loads (``cases.loads``) enter
+the recursion as ``-W_ext,i`` (``ID = M a + h - tau_ext``) and their body wrenches move with the body: a world
+vector's body components by ``x_b x omega_i`` (``omega_i`` the angular part of ``eta_i``), a spring's world force with
+its point, ``dp = R_i (eta_v + eta_w x offset)`` (:func:`_external_tangents`); a body-frame vector is constant.
 
 Constraint kinematics (:mod:`~formalisms.screw.constraints`, space frame). The space columns move as ``dS_k =
 [sigma_owner(k), S_k]`` with ``sigma_i = J_s,i dq`` (the space twist of the configuration tangent), points as ``dp =
@@ -50,6 +53,7 @@ import numpy as np
 
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import Linearization, check_state, state_space
 from formalisms.screw import constraints, dynamics, kinematics, lie
@@ -106,18 +110,54 @@ def _weight_tangents(kin: Kinematics, G: dynamics.Inertias, eta: np.ndarray) -> 
     return lie.join(lie.cross(G.first_moment, dg), G.mass[:, None] * dg)
 
 
+def _external_tangents(kin: Kinematics, eta: np.ndarray) -> np.ndarray:
+    """``dW_ext,i`` (D, nb, 6): the external loads' body wrenches ``(offset x f_b + m_b, f_b)``
+    (:func:`dynamics.external_wrenches`) when ``dT_i = T_i [eta_i]`` (module docstring)."""
+    model = kin.model
+    out = np.zeros(eta.shape)
+    for load in model.loads:
+        i = model.body_index(load.body)
+        R, o = kin.poses[i, :3, :3], kin.poses[i, :3, 3]
+        offset, omega = np.asarray(load.offset, dtype=float), eta[:, i, :3]
+        dcouple = 0.0
+        if isinstance(load, PointSpring):
+            d = o + R @ offset - load.anchor
+            dd = (eta[:, i, 3:] + lie.cross(omega, offset)) @ R.T                     # dp, (D, 3)
+            length = float(np.sqrt(d @ d))
+            if load.rest_length:
+                scale = 1.0 - load.rest_length / length
+                F = -load.stiffness * scale * d
+                dF = -load.stiffness * (scale * dd + load.rest_length * np.outer(dd @ d, d) / length**3)
+            else:
+                F, dF = -load.stiffness * d, -load.stiffness * dd
+            f = R.T @ F
+            df = lie.cross(f, omega) + dF @ R                                          # R^T dF, row by row
+        elif load.frame == "world":
+            f = R.T @ load.force
+            df = lie.cross(f, omega)
+            if isinstance(load, ExternalWrench):
+                dcouple = lie.cross(R.T @ load.moment, omega)
+        else:
+            df = np.zeros((len(eta), 3))
+        out[:, i] += lie.join(lie.cross(offset, df) + dcouple, df)
+    return out
+
+
 def inverse_dynamics_tangents(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, qdd: np.ndarray,  # noqa: N803
                               d: Directions) -> np.ndarray:
-    """``d ID`` (D, nv): the derivative of ``ID(q, qd, qdd) = M qdd + h`` (eq. 2 by the wrench balance of eq. 27, with
-    gravity) along each direction of ``d`` at ``qdd`` fixed (module docstring), at one state."""
+    """``d ID`` (D, nv): the derivative of ``ID(q, qd, qdd) = M qdd + h - tau_ext`` (eq. 2 by the wrench balance of eq.
+    27, with gravity and the external loads) along each direction of ``d`` at ``qdd`` fixed (module docstring), at one
+    state."""
     model = kin.model
     V, Vdot = kinematics.body_motion(kin, qd, qdd)
     xi = kinematics.joint_twists(kin, d.dq)
     dV, dVdot = _motion_tangents(kin, qd, qdd, d, V, Vdot, xi)
-    F = dynamics.wrenches(kin, G, qd, qdd, 1.0)
+    F = dynamics.wrenches(kin, G, qd, qdd, 1.0, dynamics.external_wrenches(model, kin))
     GV = G.apply(V)
-    dF = (G.apply(dVdot) - lie.coad(dV, GV) - lie.coad(V, G.apply(dV))
-          - _weight_tangents(kin, G, kinematics.body_twists(kin, d.dq)))
+    eta = kinematics.body_twists(kin, d.dq)
+    dF = (G.apply(dVdot) - lie.coad(dV, GV) - lie.coad(V, G.apply(dV)) - _weight_tangents(kin, G, eta))
+    if model.loads:
+        dF = dF - _external_tangents(kin, eta)
     moved = lie.coad(xi, F)                                    # ad_{xi_c}^T F_c: the child's wrench as its frame turns
     for i in reversed(model.topological_order):
         p = model.parent_index[i]
@@ -305,6 +345,9 @@ def linearize(model: Model, q, qd, u) -> Linearization:
     q, qd, u = check_state(model, q, qd, u)
     kin, G = kinematics.forward_kinematics(model, q), dynamics.Inertias.of(model)
     M, h, _, _ = dynamics.terms(kin, G, qd)
+    external = dynamics.external_wrenches(model, kin)
+    if external is not None:                                     # h - tau_ext: the loads act with gravity
+        h = h - dynamics.external_forces(kin, external)
     factor = Cholesky.of(M[None])
     if not factor.positive.all():
         raise ValueError(f"model '{model.name}': the mass matrix is not positive definite at q = {q.tolist()} "

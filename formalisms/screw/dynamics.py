@@ -27,6 +27,12 @@ with the ``ad`` term); the backward pass is unchanged, and the joint's generaliz
 ``(f, m)``, all of ``F_i``, in the order ``(linear, angular)`` of its velocity block. So a free root's ``F_i`` is the
 input's wrench on it (zero when unactuated), and ``M``'s block of a free body is ``E^T G E``, ``G`` reordered.
 
+External loads (``cases.loads``, article 2.3, 6.2.5): each declaration is a body wrench ``W_ext,i = (offset x f +
+m, f)`` in body frame ``i`` about its origin (:func:`external_wrenches`: a world vector is ``R_i^T x`` there, a
+spring's force formed from the point ``p_i + R_i offset``); they enter eq. (27) as ``W_ext`` and their generalized
+force is ``tau_ext = sum_i J_b,i^T W_ext,i`` through the body Jacobians (:func:`external_forces`), the dual of the
+body twists ``V_b,i = J_b,i qd``: no pass over the tree.
+
 Sign convention: the article writes eq. (27) as ``I Vdot + ad*_V (I V) + W_g = W_ctrl + ...`` with the coadjoint
 ``ad*_V = -ad_V^T`` (Featherstone's ``V x*``) and ``W_g`` the gravity load moved to the left side (``-W_gravity``);
 with the transpose ``ad_V^T`` it reads ``G Vdot - ad_V^T (G V) - W_gravity``, as here.
@@ -38,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import joint_vectors
 from formalisms.screw import kinematics, lie
@@ -95,6 +102,46 @@ def gravity_wrenches(model: Model, kin: Kinematics) -> np.ndarray:
     mass = np.array([b.mass for b in model.bodies])[:, None]
     g = lie.rotate_back(kin.poses[..., :3, :3], np.asarray(model.gravity, dtype=float))
     return lie.join(lie.cross(mass * np.array([b.com for b in model.bodies]), g), mass * g)
+
+
+def external_wrenches(model: Model, kin: Kinematics) -> np.ndarray | None:
+    """The external loads as body wrenches ``(moment about body i's origin, force)`` in body frame ``i``, summed per
+    body (..., nb, 6) (module docstring); None without loads."""
+    if not model.loads:
+        return None
+    R, origin = kin.poses[..., :3, :3], kin.poses[..., :3, 3]
+    W = np.zeros(kin.q.shape[:-1] + (len(model.bodies), 6))
+    for load in model.loads:
+        i = model.body_index(load.body)
+        offset = np.asarray(load.offset, dtype=float)
+        couple = np.zeros(3)
+        if isinstance(load, PointSpring):
+            d = origin[..., i, :] + lie.rotate(R[..., i, :, :], offset) - load.anchor
+            length = np.sqrt(lie.dot(d, d))[..., None]
+            scale = -load.stiffness * ((1.0 - load.rest_length / length) if load.rest_length else 1.0)
+            f = lie.rotate_back(R[..., i, :, :], scale * d)
+        elif load.frame == "world":
+            f = lie.rotate_back(R[..., i, :, :], np.asarray(load.force, dtype=float))
+            if isinstance(load, ExternalWrench):
+                couple = lie.rotate_back(R[..., i, :, :], np.asarray(load.moment, dtype=float))
+        else:
+            f = np.broadcast_to(np.asarray(load.force, dtype=float), W.shape[:-2] + (3,))
+            if isinstance(load, ExternalWrench):
+                couple = np.asarray(load.moment, dtype=float)
+        W[..., i, :] += about_origin(np.broadcast_to(offset, f.shape), f, couple)
+    return W
+
+
+def about_origin(offset: np.ndarray, f: np.ndarray, couple) -> np.ndarray:
+    """The body wrench ``(offset x f + couple, f)`` about the body origin of a force ``f`` at the body point ``offset``
+    and a couple (body frame, stacks)."""
+    return lie.join(lie.cross(offset, f) + couple, f)
+
+
+def external_forces(kin: Kinematics, W: np.ndarray) -> np.ndarray:  # noqa: N803
+    """``tau_ext = sum_i J_b,i^T W_i`` (..., nv) for body wrenches ``W`` (..., nb, 6): the power ``W_i . V_b,i`` of each
+    body's wrench on its body twist, per joint rate."""
+    return (kin.body_columns @ W[..., :, :, None])[..., 0].sum(axis=-2)
 
 
 def _wrench_to_parent(Ad_child_parent: np.ndarray, F_child: np.ndarray) -> np.ndarray:  # noqa: N803

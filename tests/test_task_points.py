@@ -1,0 +1,150 @@
+"""Task points: the default avoids joint axes and moves in its task directions, ``--task-point`` sets one, bad input
+is refused with what is valid, and the gate report says which point was used and why a backend broke down.
+
+Expected values are by hand: a planar two-link chain of unit links about the world y axis, hanging along -z."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from cases import Body, TaskPoint, build_model, task
+from cases.urdf import from_urdf
+from crosscheck import cli
+from crosscheck import report as gate_report
+
+URDF = """<?xml version="1.0"?>
+<robot name="double_pendulum_continuous">
+  <link name="base"/>
+  <link name="link1"><inertial><origin xyz="0 0 -0.5"/><mass value="1"/>
+    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.001"/></inertial></link>
+  <link name="link2"><inertial><origin xyz="0 0 -0.5"/><mass value="1"/>
+    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.001"/></inertial></link>
+  <joint name="j1" type="continuous"><parent link="base"/><child link="link1"/><axis xyz="0 1 0"/></joint>
+  <joint name="j2" type="continuous"><parent link="link1"/><child link="link2"/><origin xyz="0 0 -1"/>
+    <axis xyz="0 1 0"/></joint>
+</robot>
+"""
+
+
+@pytest.fixture
+def urdf_path(tmp_path):
+    path = tmp_path / "double_pendulum_continuous.urdf"
+    path.write_text(URDF)
+    return path
+
+
+def _chain(com2=(0.0, 0.0, -0.5)) -> list[Body]:
+    inertia = np.diag([0.01, 0.01, 0.001])
+    return [Body("link1", None, "revolute", (0.0, 1.0, 0.0), 1.0, com=(0.0, 0.0, -0.5), inertia=inertia),
+            Body("link2", "link1", "revolute", (0.0, 1.0, 0.0), 1.0, com=com2, inertia=inertia,
+                 translation=(0.0, 0.0, -1.0))]
+
+
+def test_point_jacobian_of_a_planar_two_link_chain_is_the_closed_form():
+    # tip at p = (-sin t1 - sin(t1 + t2), 0, -cos t1 - cos(t1 + t2)) for rotations about +y of the -z hanging links
+    model = build_model("chain", _chain(), task_points=[TaskPoint("tip", "link2", (0.0, 0.0, -1.0))])
+    t1, t2 = 0.4, -1.1
+    J = task.point_jacobian(model, [t1, t2], "link2", [0.0, 0.0, -1.0])
+    c1, c12 = np.cos(t1), np.cos(t1 + t2)
+    s1, s12 = np.sin(t1), np.sin(t1 + t2)
+    expected = np.array([[-c1 - c12, -c12], [0.0, 0.0], [s1 + s12, s12]])
+    np.testing.assert_allclose(J, expected, atol=1e-14)
+
+
+def test_a_point_on_a_joint_axis_is_found_and_the_default_moves_off_it():
+    on_axis = build_model("chain", _chain(com2=(0.0, 0.3, 0.0)))  # the leaf's COM on its own joint's axis
+    assert task.axes_through(on_axis, "link2", [0.0, 0.3, 0.0]) == ["the axis of joint 'link2'"]
+    tp = on_axis.task_point()
+    assert tp.name == "tip" and task.axes_through(on_axis, tp.body, tp.offset) == []
+    assert "passed over: the centre of mass of the last body 'link2' (on the axis of joint 'link2')" in tp.choice
+    np.testing.assert_array_equal(tp.directions, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # the x-z plane it moves in
+    assert task.rank_deficiency(on_axis, [0.4, -1.1]) is None
+
+
+def test_the_urdf_default_is_not_on_the_leaf_joint_axis(urdf_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = from_urdf(urdf_path)
+    tp = model.task_point()
+    assert (tp.name, tp.body) == ("link2:com", "link2")
+    np.testing.assert_allclose(tp.offset, [0.0, 0.0, -0.5])
+    np.testing.assert_array_equal(tp.directions, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    assert "passed over: the URDF leaf link 'link2' (its origin) (on the axis of joint 'link2')" in tp.choice
+    assert [t.name for t in model.task_points] == ["link2:com", "link2"]
+
+
+def test_with_task_point_sets_validates_and_explains(urdf_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = from_urdf(urdf_path)
+    moved = task.with_task_point(model, "link2", [0.1, 0.0, -1.0])
+    tp = moved.task_point()
+    assert tp.body == "link2" and tp.choice == "given: body 'link2', offset [0.1, 0.0, -1.0]"
+    assert moved.digest() != model.digest()
+    # one joint moves a point of link1: a circle, one direction at a time in a plane of two
+    assert task.with_task_point(model, "link1", [0.1, 0.0, -1.0]).task_point().choice.endswith(
+        "(its task Jacobian is rank-deficient everywhere)")
+    on_axis = task.with_task_point(model, "link2", [0.0, 0.0, 0.0])
+    assert "it lies on the axis of joint 'link2'" in on_axis.task_point().choice
+    assert task.rank_deficiency(on_axis, [0.4, -1.1]) == (
+        "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")
+    with pytest.raises(task.TaskPointError, match="has no body 'hand'; bodies: link1, link2"):
+        task.with_task_point(model, "hand")
+    assert task.parse("link2") == ("link2", None)
+    with pytest.raises(task.TaskPointError, match="three finite numbers"):
+        task.parse("link2:1,2")
+    with pytest.raises(task.TaskPointError, match="not three numbers"):
+        task.parse("link2:1,x,2")
+
+
+def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, tmp_path, capsys):
+    report = tmp_path / "gate.md"
+    base = ["gate", "--model", str(urdf_path), "--samples", "2", "--report", str(report), "--quiet", "--workers",
+            "0", "--no-self-test", "--frames", "0", "--no-charts", "--no-conservation", "--no-linearization"]
+    assert cli.main(base + ["--task-point", "hand"]) == 2
+    assert "has no body 'hand'; bodies: link1, link2" in capsys.readouterr().err
+    assert cli.main(base + ["--task-point", "link2:0,0,0"]) == 0
+    assert ("note double_pendulum_continuous: a task condition was in BREAKDOWN at 2 of 2 states"
+            in capsys.readouterr().err)
+    text = report.read_text()                       # the summary: the point, why it broke down, the picture
+    assert "- double_pendulum_continuous: task point `task_point:link2` on body `link2` at [0, 0, 0] m" in text
+    assert ("a task condition was in BREAKDOWN at 2 of 2 states (worst inf); at state #1: task Jacobian rank 1 < 2: "
+            "the point lies on the axis of joint 'link2'") in text     # state #0 is the home configuration
+    picture = "gate_double_pendulum_continuous_state1.png"       # the mechanism there, next to the report
+    assert f"- double_pendulum_continuous: ![double_pendulum_continuous]({picture})" in text
+    assert (tmp_path / picture).read_bytes()[:4] == b"\x89PNG"
+    assert "--task-point link2:0,0,0" in gate_report.read(report)     # the reproduce commands (details) carry it
+
+
+def test_every_built_in_task_point_has_a_full_rank_task_jacobian():
+    # only Panda's tool centre point lies on a joint axis (the flange's, joint 7's), and its other six joints still
+    # move it in every direction: its task-space inertia exists, so it stays the default
+    import cases
+
+    on_axis = {}
+    for name in cases.names():
+        model = cases.load(name)
+        tp = model.task_point()
+        assert task.full_rank(model, tp.body, tp.offset, tp.directions), name
+        axes = task.axes_through(model, tp.body, tp.offset)
+        if axes:
+            on_axis[name] = axes
+    assert on_axis == {"panda": ["the axis of joint 'panda_link7'"]}
+
+
+def test_a_given_task_point_leaves_the_closed_forms_task_quantities_out():
+    from crosscheck.gate import CaseSpec
+    from formalisms.interface import UNSUPPORTED
+
+    given = CaseSpec("double_pendulum", task_point="link2:0.1,-0.5,0")
+    model = given.build()
+    assert model.task_point().body == "link2" and given.cli_args().endswith("--task-point link2:0.1,-0.5,0")
+    state = (np.array([0.3, -0.7]), np.array([1.0, 0.5]), np.array([0.2, -0.1]))
+    split, plain = given.closed_form().split(model, *state), CaseSpec("double_pendulum").closed_form().split(
+        CaseSpec("double_pendulum").build(), *state)
+    assert split.task_drift is UNSUPPORTED and split.task_inertia is UNSUPPORTED
+    assert "task_inertia" not in split.conditions
+    np.testing.assert_array_equal(split.total, plain.total)
