@@ -335,6 +335,19 @@ def _point_offset_unrotated(point):
     return lambda model, R, o, body, offset: point(model, [casadi.DM.eye(3)] * len(R), o, body, offset)
 
 
+def _knife_edge_world_fixed(rates):
+    """The geometric backend's knife edge with its body-frame direction used as a world direction (not turned by R)."""
+    def faulty(model, c, R, o, p, pd):
+        if type(c).__name__ != "KnifeEdge":
+            return rates(model, c, R, o, p, pd)
+        import casadi
+
+        from formalisms import geometric
+
+        return casadi.dot(casadi.DM(c.direction), casadi.jtimes(geometric._point(model, R, o, c.body, c.offset), p, pd))
+    return faulty
+
+
 def _task_bias_dropped_geometric(evaluate):
     def faulty(model, chart, p, pd):
         point = evaluate(model, chart, p, pd)
@@ -364,6 +377,10 @@ GEOMETRIC = [
           "A body point (the task point, a constrained point) is placed at o_b + offset, its offset not rotated "
           "with the body.",
           "formalisms.geometric:_point", _point_offset_unrotated, derived=True),
+    Fault("geo-knife-edge-direction-world-fixed", GEO,
+          "A knife edge's direction, fixed in the body, is used as a world direction (not turned by the body's "
+          "rotation): the Pfaffian row (R d) . v becomes d . v.",
+          "formalisms.geometric:_pfaffian_rates", _knife_edge_world_fixed, derived=True),
     Fault("geo-task-bias-dropped", GEO,
           "The task drift misses Jdot pd (taken as J pdd_drift).",
           "formalisms.geometric:_evaluate", _task_bias_dropped_geometric),
