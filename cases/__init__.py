@@ -4,7 +4,9 @@
     >>> cases.names()
     ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'rotor', 'inclined_slider',
      'spherical_pendulum', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum',
-     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums']
+     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums', 'free_body', 'ball_pendulum',
+     'ball_double_pendulum', 'satellite_arm', 'solo12', 'solo12_standing', 'knife_edge', 'rolling_disk',
+     'differential_drive']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
@@ -13,9 +15,11 @@ package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do,
 
 from __future__ import annotations
 
-from cases import constrained, floating  # noqa: F401 (register the constrained and the Lie-group cases)
+from cases import constrained, floating, nonholonomic  # noqa: F401 (register the constrained, Lie-group and
+#                                                            nonholonomic cases)
 from cases.factories import REGISTRY, CaseError, CaseInfo
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalForce, ExternalWrench, PointSpring
 from cases.model import Body, Model, ModelError, TaskPoint, build_model
 from cases.urdf import UrdfError, from_urdf
@@ -106,7 +110,8 @@ def parameters(name: str, **params) -> dict:
     return {**info.parameters, **kwargs}
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "Model", "ModelError", "PointOnCircle", "PointOnLine",
-           "PointsCoincide", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "from_file",
+__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
+           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model",
+           "catalog", "constrained", "from_file",
            "from_urdf", "load",
            "names", "parameters"]

@@ -220,6 +220,19 @@ class Model:
         """Number of constraint rows (``phi(q)`` in R^k); 0 for an unconstrained model."""
         return sum(c.size for c in self.constraints)
 
+    @functools.cached_property
+    def pfaffian_rows(self) -> np.ndarray:
+        """A read-only boolean mask over the k constraint rows: True for the rows of Pfaffian declarations
+        (``A(q) qd = 0``, no ``phi``: ``cases.constraints.PFAFFIAN_TYPES``), False for holonomic ones."""
+        mask = np.array([not c.holonomic for c in self.constraints for _ in range(c.size)], dtype=bool)
+        mask.setflags(write=False)
+        return mask
+
+    @property
+    def holonomic_rows(self) -> np.ndarray:
+        """The complement of :attr:`pfaffian_rows`: the rows with a position-level ``phi(q) = 0``."""
+        return ~self.pfaffian_rows
+
     @property
     def m(self) -> int:
         """Number of inputs (columns of the input map B)."""

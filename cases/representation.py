@@ -9,8 +9,9 @@ total and lam (to rounding); only the work the model lets a backend skip differs
 With the joint frame ``J' = J R_i`` and axis ``R_i^T a``, the body frame becomes ``B' = B R_i`` for any q (a rotation
 about ``R_i^T a`` seen in ``J R_i`` is the rotation about ``a`` in ``J``); a child's placement, expressed in ``B'``,
 is ``(R_p^T rotation R_i, R_p^T translation)``; body-fixed points (COM, task points, constrained points) turn by
-``R_i^T``, inertias by ``R_i^T I R_i``, and so do the external loads' offsets and body-frame vectors. World-fixed data
-(gravity, circle centres, lines, task directions, world-frame loads, spring anchors) stay.
+``R_i^T`` (a knife edge's direction, a rolling disk's centre and axle too), inertias by ``R_i^T I R_i``, and so do
+the external loads' offsets and body-frame vectors. World-fixed data (gravity, circle centres, lines, task directions,
+a rolling contact's ground plane, world-frame loads, spring anchors) stay.
 
 A body on a spherical or free joint keeps its frame (``R_i = I``): its coordinates are its orientation (and position)
 in the joint frame and its velocities are body-frame components (``cases.model``), so turning the frame would change
@@ -36,8 +37,12 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
 
 def _turn_constraint(c, turn: dict):
     """A constraint declaration with its body-fixed offsets turned into the new body frames."""
-    if isinstance(c, (decl.PointOnCircle, decl.PointOnLine)):
+    if isinstance(c, (decl.PointOnCircle, decl.PointOnLine, decl.PointVelocity)):
         return dataclasses.replace(c, offset=turn[c.body].T @ c.offset)
+    if isinstance(c, decl.KnifeEdge):            # its direction is body-fixed too
+        return dataclasses.replace(c, offset=turn[c.body].T @ c.offset, direction=turn[c.body].T @ c.direction)
+    if isinstance(c, decl.RollingContact):       # centre and axle are body-fixed; the ground plane is world data
+        return dataclasses.replace(c, center=turn[c.body].T @ c.center, axis=turn[c.body].T @ c.axis)
     if isinstance(c, decl.PointsCoincide):
         offset_b = c.offset_b if c.body_b is None else turn[c.body_b].T @ c.offset_b
         return dataclasses.replace(c, offset_a=turn[c.body_a].T @ c.offset_a, offset_b=offset_b)

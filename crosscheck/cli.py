@@ -834,7 +834,7 @@ def cmd_fuzz(args) -> int:
                           loads=fuzz.CONSTRAINT_CHOICES[args.loads],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation,
-                          linearization=not args.no_linearization, **bound)
+                          linearization=not args.no_linearization, pfaffian=args.pfaffian, **bound)
         result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
     except fuzz.FuzzError as exc:
         raise UsageError(str(exc)) from None
@@ -1130,6 +1130,8 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
     fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
                     help="constrained models (default sometimes)")
+    fz.add_argument("--pfaffian", action="store_true",
+                    help="the drawn constraints may also be Pfaffian: knife edges, point velocities, rolling contacts")
     fz.add_argument("--loads", choices=["never", "sometimes", "always"], default="sometimes",
                     help="models with external loads: forces, wrenches, springs (default sometimes)")
     fz.add_argument("--joints", choices=["all", "scalar"], default="all",

@@ -35,6 +35,8 @@ double_pendulum_rail           eqs. (4)-(8) with the tip on a straight rail, a `
 geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` row (:func:`gear_terms`,
                                :func:`gear_constraint`)
 free_body                      Newton's and Euler's equations in the body frame (:func:`free_body_terms`)
+knife_edge                     the Chaplygin sleigh: Newton and Euler along and across the runner, a ``KnifeEdge``
+                               (Pfaffian) row (:func:`sleigh_terms`, :func:`sleigh_motion`)
 double_pendulum_tip_force      eqs. (4)-(9) with ``tau_ext = J^T f`` of a world force at the tip (:func:`tip_force`)
 double_pendulum_spring         eqs. (4)-(9) with a tip spring and a body-frame wrench on link 2 (:func:`tip_spring`)
 =============================  =====================================================================================
@@ -1099,6 +1101,59 @@ def _free_body(p, q, qd, u) -> Split:
     return _assemble(t, qd, drift, ctrl, total, _task(J, bias, drift, (Lambda, cond)))
 
 
+def sleigh_terms(q, qd, m, a, I):  # noqa: E741, N803
+    """The Chaplygin sleigh (``cases.knife_edge``) by hand: q = (x, y, theta), P = (x, y) the runner's contact, the
+    COM at ``P + a e1`` with ``e1 = (c, s)``, ``e2 = (-s, c)``. ``T = m/2 |Pdot + a thd e2|^2 + I/2 thd^2`` gives
+    ``M = [[m, 0, -m a s], [0, m, m a c], [-m a s, m a c, I + m a^2]]`` and ``C qd = -m a thd^2 (c, s, 0)`` (the theta
+    row cancels: ``Mdot qd`` and ``dT/dtheta`` are both ``-m a thd (c xd + s yd)``); g = 0 (gravity along -z). The
+    knife edge: ``A = e2^T`` on (x, y), ``Adot qd = -thd (c xd + s yd)``."""
+    s, c = np.sin(q[2]), np.cos(q[2])
+    M = np.array([[m, 0.0, -m * a * s], [0.0, m, m * a * c], [-m * a * s, m * a * c, I + m * a * a]])
+    Cqd = -m * a * qd[2] ** 2 * np.array([c, s, 0.0])
+    return M, Cqd, np.array([[-s, c, 0.0]]), np.array([-qd[2] * (c * qd[0] + s * qd[1])])
+
+
+def sleigh_motion(q, qd, force, m, a, I):  # noqa: E741, N803
+    """The sleigh's accelerations and the blade's multiplier by hand, at an admissible state (``xd = c v``, ``yd = s
+    v``) under the generalized force ``force = (Fx, Fy, tau)`` (B u, or 0 for the drift). With the forward speed ``v =
+    c xd + s yd``, ``w = thd``, ``F_along = c Fx + s Fy`` and ``F_lat = -s Fx + c Fy`` (at P), Newton along e1 and e2
+    and Euler about the COM (the COM accelerates by ``(vdot - a w^2) e1 + (v w + a wdot) e2``; ``lam e2`` acts at P,
+    ``a`` behind the COM):
+
+        m (vdot - a w^2) = F_along,   m (v w + a wdot) = F_lat + lam,   I wdot = tau - a (F_lat + lam)
+
+    so ``wdot = (tau - m a v w) / (I + m a^2)``, ``vdot = a w^2 + F_along / m``, ``lam = m (v w + a wdot) - F_lat``,
+    and ``xdd = c vdot - s v w``, ``ydd = s vdot + c v w``. Returns (qdd, lam)."""
+    s, c = np.sin(q[2]), np.cos(q[2])
+    v, w = c * qd[0] + s * qd[1], qd[2]
+    along, lateral = c * force[0] + s * force[1], -s * force[0] + c * force[1]
+    wdot = (force[2] - m * a * v * w) / (I + m * a * a)
+    vdot = a * w * w + along / m
+    return np.array([c * vdot - s * v * w, s * vdot + c * v * w, wdot]), m * (v * w + a * wdot) - lateral
+
+
+def _sleigh_rule(p) -> Rule:
+    """The sleigh: its COM ``a`` from the origin, inertia diag(I/2, I/2, I) of trace 2 I; the carriages massless."""
+    return Rule.of((p["m"], abs(p["a"]), 2.0 * p["I"]))
+
+
+def _knife_edge(p, q, qd, u) -> Split:
+    """:func:`sleigh_terms` and :func:`sleigh_motion` (total with ``B u = u``, drift with 0; ctrl = B_c u, eq. 17, by
+    :func:`constrained_input_map`); the task point ``com`` at ``P + a e1``: ``J = [[1, 0, -a s], [0, 1, a c]]``,
+    ``Jdot qd = -a thd^2 e1``."""
+    m, a, I = p["m"], p["a"], p["I"]  # noqa: E741
+    M, Cqd, Jc, bias = sleigh_terms(q, qd, m, a, I)
+    t = _Terms(M, np.linalg.inv(M), Cqd, np.zeros(3), u, m, abs(p["g"]))
+    total, lam = sleigh_motion(q, qd, u, m, a, I)
+    drift, lam_drift = sleigh_motion(q, qd, np.zeros(3), m, a, I)
+    s, c = np.sin(q[2]), np.cos(q[2])
+    J = np.array([[1.0, 0.0, -a * s], [0.0, 1.0, a * c]])
+    task_bias = -a * qd[2] ** 2 * np.array([c, s])
+    return _assemble(t, qd, drift, constrained_input_map(M, Jc) @ u, total,
+                     _task(J, task_bias, drift, task_inertia(J, t.Minv)),
+                     _Kkt(np.zeros(1), Jc, bias, np.array([lam]), np.array([lam_drift]), _sleigh_rule(p)))
+
+
 # ------------------------------------------------------------------------------------------------- the voter
 
 UNCONSTRAINED = ("drift", "ctrl", "total", "additivity", "power_ctrl", "task_drift", "kinetic_energy", "task_inertia")
@@ -1153,6 +1208,8 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
                                        _double_pendulum_rule),
     "free_body": ClosedForm("Newton's and Euler's equations of a free rigid body in its own frame, by hand",
                             lambda p: (6, 6, 0), _free_body),
+    "knife_edge": ClosedForm("the Chaplygin sleigh by hand: Newton and Euler along and across the runner, the knife "
+                             "edge's Pfaffian row, eqs. (12)-(17)", lambda p: (3, 3, 1), _knife_edge, _sleigh_rule),
     "geared_pendulums": ClosedForm("two uniform rods by hand coupled by a JointCoupling gear, eqs. (12)-(17)",
                                    lambda p: (2, 2, 1), _geared_pendulums, _gear_rule),
     "double_pendulum_tip_force": ClosedForm("article section 3, eqs. (4)-(9), with tau_ext = J^T f of the tip force "

@@ -203,6 +203,23 @@ _coupling_reversed = _declaration_changed(
     "JointCoupling", lambda c: dataclasses.replace(c, coefficients=np.asarray(c.coefficients)[::-1]))
 
 
+def _pfaffian_as_holonomic(project_velocity):
+    """``sampling.project_velocity`` with the Pfaffian rows treated as holonomic: taken to hold once q is projected,
+    so qd is projected onto the null space of the holonomic rows only."""
+    def faulty(model, q, qd):
+        if not model.pfaffian_rows.any():
+            return project_velocity(model, q, qd)
+        from crosscheck.reference import constraint_kinematics
+
+        Jc = constraint_kinematics(model, q, np.zeros(model.nv))[1][model.holonomic_rows]
+        if not len(Jc):
+            return np.asarray(qd, dtype=float)
+        _, sigma, Vt = np.linalg.svd(Jc)
+        N = Vt[int(np.sum(sigma > 1e-13 * sigma.max())):].T
+        return N @ (N.T @ np.asarray(qd, dtype=float))
+    return faulty
+
+
 def _about_z(quat: np.ndarray) -> np.ndarray:
     """A quaternion's rotation about z alone: its x and y components dropped, renormalized."""
     kept = np.array([0.0, 0.0, quat[2], quat[3]])
@@ -253,6 +270,11 @@ CATALOG: list[SharedFault] = [
                 "Constrained states are not projected onto the constraint manifold (q and qd used as drawn).",
                 ("crosscheck.sampling:admissible",), lambda f: lambda model, q, qd, rng: (q, qd),
                 "the self-test canaries (their states are sampled) or the exact values (phi, Jc qd)"),
+    SharedFault("sampling-pfaffian-row-as-holonomic", "sampling",
+                "The sampler treats Pfaffian rows as holonomic: it takes them to hold once the configuration is "
+                "projected, and projects qd onto the null space of the holonomic rows only (A qd != 0).",
+                ("crosscheck.sampling:project_velocity",), _pfaffian_as_holonomic,
+                "the exact values (A qd = 0) and the power audit (lam . A qd = 0)"),
     SharedFault("sampling-orientations-about-z-only", "sampling",
                 "The sampler's orientations of spherical and free joints are rotations about z only (the x and y "
                 "components of a drawn quaternion dropped), not uniform on SO(3).",

@@ -117,6 +117,19 @@ def _without_bias(rows):
     return faulty
 
 
+def _cross3(a, b):
+    """``a x b`` of 3-vectors (component-first, as the Newton–Euler backend's arrays)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _pfaffian_bias_dropped(terms):
+    """The screw backend's constraint terms with ``Adot qd`` zeroed on the Pfaffian rows (``A qdd = 0``)."""
+    def faulty(kin, q, qd):
+        t = terms(kin, q, qd)
+        return dataclasses.replace(t, bias=np.where(kin.model.pfaffian_rows, 0.0, t.bias))
+    return faulty
+
+
 def _loads_with_transposed_rotation(loads):
     return lambda model, kin, rows, lam: loads(model, (kin[0], kin[1], [W.T for W in kin[2]]), rows, lam)
 
@@ -163,6 +176,11 @@ NEWTON_EULER = [
           "formalisms.newton_euler:_extras",
           lambda f: lambda model, kin, qd, total, drift, loads=None, loads_drift=None: f(
               model, kin, qd, drift, drift, loads, loads_drift)),
+    Fault("ne-rolling-contact-body-fixed", NE,
+          "The rolling contact point is taken as fixed in the disk in Adot qd (udot = w x u): the bias is T times "
+          "the classical acceleration of a body-fixed point, not of the point that follows the contact.",
+          "formalisms.newton_euler:_contact_rate",
+          lambda f: lambda w, a, n, u, length: _cross3(w, u)),
     Fault("ne-constraint-force-wrong-frame", NE,
           "The constraint forces are rotated into the body frames with W instead of W^T before the backward pass "
           "(the joint reactions carry them in the wrong frame).",
@@ -207,6 +225,10 @@ def _moment_not_shifted(about_origin):
 
 
 SCREW = [
+    Fault("screw-pfaffian-bias-dropped", SCREW,
+          "Adot qd is dropped for the Pfaffian rows (A qdd = 0 instead of -Adot qd: a knife edge's or a rolling "
+          "contact's rows differentiated as if A were constant).",
+          "formalisms.screw.constraints:terms", _pfaffian_bias_dropped),
     Fault("screw-coadjoint-dropped", SCREW,
           "The wrench balance (27) misses the coadjoint term ad_V^T (G V) (gyroscopic and velocity-product "
           "wrenches).",
@@ -313,6 +335,19 @@ def _point_offset_unrotated(point):
     return lambda model, R, o, body, offset: point(model, [casadi.DM.eye(3)] * len(R), o, body, offset)
 
 
+def _knife_edge_world_fixed(rates):
+    """The geometric backend's knife edge with its body-frame direction used as a world direction (not turned by R)."""
+    def faulty(model, c, R, o, p, pd):
+        if type(c).__name__ != "KnifeEdge":
+            return rates(model, c, R, o, p, pd)
+        import casadi
+
+        from formalisms import geometric
+
+        return casadi.dot(casadi.DM(c.direction), casadi.jtimes(geometric._point(model, R, o, c.body, c.offset), p, pd))
+    return faulty
+
+
 def _task_bias_dropped_geometric(evaluate):
     def faulty(model, chart, p, pd):
         point = evaluate(model, chart, p, pd)
@@ -342,6 +377,10 @@ GEOMETRIC = [
           "A body point (the task point, a constrained point) is placed at o_b + offset, its offset not rotated "
           "with the body.",
           "formalisms.geometric:_point", _point_offset_unrotated, derived=True),
+    Fault("geo-knife-edge-direction-world-fixed", GEO,
+          "A knife edge's direction, fixed in the body, is used as a world direction (not turned by the body's "
+          "rotation): the Pfaffian row (R d) . v becomes d . v.",
+          "formalisms.geometric:_pfaffian_rates", _knife_edge_world_fixed, derived=True),
     Fault("geo-task-bias-dropped", GEO,
           "The task drift misses Jdot pd (taken as J pdd_drift).",
           "formalisms.geometric:_evaluate", _task_bias_dropped_geometric),

@@ -95,7 +95,8 @@ def move_load(load, frame: Frame):
 
 
 def move_constraint(c, frame: Frame):
-    """A constraint declaration on the moved scene: world points by g, world direction rows by ``D R^T``."""
+    """A constraint declaration on the moved scene: world points by g, world direction rows (a PointVelocity's
+    directions, a RollingContact's ground plane) by ``D R^T``."""
     R, t = frame.rotation, frame.translation
     if isinstance(c, cases.PointOnCircle):
         return dataclasses.replace(c, center=R @ c.center + t, plane=c.plane @ R.T)
@@ -104,7 +105,11 @@ def move_constraint(c, frame: Frame):
         return dataclasses.replace(c, offset_b=ground, directions=c.directions @ R.T)
     if isinstance(c, cases.PointOnLine):
         return dataclasses.replace(c, origin=R @ c.origin + t, normals=c.normals @ R.T)
-    return c                                   # a joint coupling involves no world data
+    if isinstance(c, cases.PointVelocity):
+        return dataclasses.replace(c, directions=c.directions @ R.T)
+    if isinstance(c, cases.RollingContact):    # the ground plane's tangents turn; its centre and axis are body data
+        return dataclasses.replace(c, plane=c.plane @ R.T)
+    return c                                   # a joint coupling or a knife edge (body-fixed) involves no world data
 
 
 def twist_map(frame: Frame) -> np.ndarray:

@@ -119,8 +119,10 @@ class FuzzConfig:
     ``chunk_examples``), else ``minutes`` does; ``workers`` 0 runs in this process (tests, debugging).
     ``backends`` are names (``crosscheck.backends``), ``plugins`` the specs that load the plugin ones.
     ``group_joints``: the drawn trees may have spherical joints, and free joints on bodies hung from the world
-    (``crosscheck.testing.models(group=True)``). ``loads``: the drawn models carry external loads (``cases.loads``):
-    False never, True always, None sometimes (``crosscheck.testing.models(loads=...)``). ``charts``,
+    (``crosscheck.testing.models(group=True)``); ``pfaffian``: the drawn constraints may be knife edges, point
+    velocities and rolling contacts too (``testing.models(pfaffian=True)``). ``loads``: the drawn models carry external
+    loads (``cases.loads``): False never, True always, None sometimes (``crosscheck.testing.models(loads=...)``).
+    ``charts``,
     ``frames`` and ``conservation`` turn the gate's checks on or off (the chart and frame are drawn either way)."""
 
     seed: int = 0
@@ -142,13 +144,17 @@ class FuzzConfig:
     frames: bool = True
     conservation: bool = True
     linearization: bool = True
+    pfaffian: bool = False
 
     def checks(self) -> dict:
         return {"charts": self.charts, "frames": self.frames, "conservation": self.conservation,
                 "linearization": self.linearization}
 
     def identity(self) -> dict:
-        return {key: _jsonable(getattr(self, key)) for key in IDENTITY}
+        """The fields that make a campaign what it is; ``pfaffian`` only when set (so a campaign without Pfaffian rows
+        keeps the identity it had before they existed)."""
+        ident = {key: _jsonable(getattr(self, key)) for key in IDENTITY}
+        return {**ident, "pfaffian": True} if self.pfaffian else ident
 
 
 def config(**kwargs) -> FuzzConfig:
@@ -446,8 +452,8 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
     @given(st.data())
     def backends_agree(data):
         _INTERRUPTS.poll()
-        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints, loads=cfg.loads),
-                          label="model")
+        model = data.draw(testing.models(cfg.max_bodies, cfg.constraints, group=cfg.group_joints, loads=cfg.loads,
+                                         pfaffian=cfg.pfaffian), label="model")
         count = data.draw(st.integers(1, cfg.max_states), label="number of states")
         states = [data.draw(testing.states(model, i), label=f"state {i}") for i in range(count)]
         chart_spec = data.draw(testing.chart_specs(model), label="chart (name, seed)")

@@ -15,6 +15,8 @@ Pinocchio, and is written from the model's definition (``cases.model``) in a cla
   ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_c``;
 * each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point
   Jacobians and the points' classical accelerations at ``qdd = 0`` (the rows, signs and scaling of every backend);
+  a Pfaffian declaration's ``A`` and ``Adot qd`` (``phi`` 0) likewise, a rolling contact's from the material point at
+  the contact plus the sliding of the contact over the disk (:func:`_pfaffian_rows`);
 * the external loads (``cases.loads``) as world wrenches about the world origin (``x x f + m`` with ``x`` the load's
   point, body-frame vectors turned by R, a spring's force ``-k (|d| - L0) d / |d|``) subtracted from each body's own
   in the Newton–Euler pass: ``h`` is then ``C qd + g - tau_ext`` (so :func:`bias_forces` of a loaded model includes
@@ -70,7 +72,7 @@ import mpmath
 import numpy as np
 from mpmath import mpf
 
-from cases.constraints import JointCoupling, PointOnLine, PointsCoincide
+from cases.constraints import JointCoupling, KnifeEdge, PointOnLine, PointsCoincide, PointVelocity, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model
 from crosscheck.conditioning import redundant_below
@@ -189,6 +191,12 @@ def _constraint_data(model: Model, c) -> tuple:
         return ("coincide", (model.body_index(c.body_a), _vec(c.offset_a)), (b, _vec(c.offset_b)), _mat(c.directions))
     if isinstance(c, PointOnLine):
         return ("line", (model.body_index(c.body), _vec(c.offset)), _vec(c.origin), _mat(c.normals))
+    if isinstance(c, PointVelocity):
+        return ("velocity", (model.body_index(c.body), _vec(c.offset)), _mat(c.directions))
+    if isinstance(c, KnifeEdge):
+        return ("knife", (model.body_index(c.body), _vec(c.offset)), _vec(c.direction))
+    if isinstance(c, RollingContact):
+        return ("rolling", (model.body_index(c.body), _vec(c.center)), _vec(c.axis), mpf(c.radius), _mat(c.plane))
     return ("circle", (model.body_index(c.body), _vec(c.offset)), _vec(c.center), mpf(c.radius),
             _mat(c.plane))
 
@@ -462,6 +470,8 @@ def _rows(data: _Data, kin: _Kin, q, decl):
         xb, _, Jb, ab = _point(data, kin, n, *b)
         dJ = [[s - t for s, t in zip(ra, rb)] for ra, rb in zip(Ja, Jb)]
         return _project(D, _sub(xa, xb)), _project_jacobian(D, dJ), _project(D, _sub(aa, ab))
+    if kind in PFAFFIAN_KINDS:
+        return _pfaffian_rows(data, kin, decl)
     x, vel, J, acc = _point(data, kin, n, *decl[1])
     if kind == "line":
         _, _, origin, N = decl
@@ -472,6 +482,40 @@ def _rows(data: _Data, kin: _Kin, q, decl):
     row = [2 * (d[0] * PJ[0][k] + d[1] * PJ[1][k]) for k in range(n)]
     return ([d[0] ** 2 + d[1] ** 2 - radius ** 2], [row],
             [2 * (Pv[0] ** 2 + Pv[1] ** 2) + 2 * (d[0] * Pa[0] + d[1] * Pa[1])])
+
+
+#: The declaration kinds of :func:`_constraint_data` that are Pfaffian (velocity rows, phi reported 0).
+PFAFFIAN_KINDS = ("velocity", "knife", "rolling")
+
+
+def _pfaffian_rows(data: _Data, kin: _Kin, decl):
+    """phi (0), A and Adot qd of a Pfaffian declaration (``cases.constraints``) from :func:`_point`: a point's
+    ``D J``, ``D acc``; a knife edge's ``e = R d`` with ``(w x e) . vel + e . acc``; a rolling contact's material point
+    at ``p_c = c - r u`` (its body-frame offset ``center + R^T e``, ``e = -r u``) with ``Adot qd = T (acc + w x (edot -
+    w x e))``, ``edot = -r udot``, ``udot = (I - u u^T) rawdot / |raw|``, ``raw = n - (n.a) a``, ``adot = w x a``."""
+    n = len(kin.S)
+    kind, (body, offset) = decl[0], decl[1]
+    if kind == "velocity":
+        _, J, acc = _point(data, kin, n, body, offset)[1:]
+        return [mpf(0)] * len(decl[2]), _project_jacobian(decl[2], J), _project(decl[2], acc)
+    R, w = kin.R[body], kin.w[body]
+    if kind == "knife":
+        _, vel, J, acc = _point(data, kin, n, body, offset)
+        e = _matvec(R, decl[2])
+        return [mpf(0)], [_project_jacobian((e,), J)[0]], [_dot(_cross(w, e), vel) + _dot(e, acc)]
+    _, _, axis, radius, T = decl
+    normal = _cross(T[0], T[1])
+    a = _matvec(R, axis)
+    raw = _sub(normal, _scale(_dot(normal, a), a))
+    length = mpmath.sqrt(_dot(raw, raw))
+    u = _scale(1 / length, raw)
+    e = _scale(-radius, u)
+    a_dot = _cross(w, a)
+    raw_dot = _sub(_scale(-_dot(normal, a_dot), a), _scale(_dot(normal, a), a_dot))
+    e_dot = _scale(-radius / length, _sub(raw_dot, _scale(_dot(u, raw_dot), u)))
+    _, _, J, acc = _point(data, kin, n, body, _add(offset, _matvec(_transpose(R), e)))
+    slide = _cross(w, _sub(e_dot, _cross(w, e)))
+    return [mpf(0), mpf(0)], _project_jacobian(T, J), _project(T, _add(acc, slide))
 
 
 def _constraint_terms(data: _Data, kin: _Kin, q):

@@ -48,7 +48,9 @@ own (no numerics from ``formalisms.interface``), with the definitions every back
 * the task inertia ``(J M^-1 J^T)^-1`` and ``conditions["task_inertia"]`` likewise from the SVD of ``L^-1 J^T``.
 
 Constraints: :func:`constraint_kinematics` forms ``phi``, ``Jc`` and ``Jcdot qd`` of the declarations
-(``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations, and
+(``cases.constraints``) from Pinocchio's frame placements, frame Jacobians and classical frame accelerations (a
+Pfaffian declaration's ``A`` and ``Adot qd``, ``phi`` 0, from the joint Jacobian, velocity and classical acceleration
+of its body: :func:`_pfaffian_rows`), and
 the constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynamics(q, v, tau, J, gamma)``) for
 total / lam and drift / lam_drift. At a degenerate state (S singular up to ``CONSTRAINT_RCOND``) Pinocchio's
 Cholesky-based KKT solve has no answer: the reference gives it the independent combinations of the rows (S's
@@ -88,7 +90,8 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
@@ -583,6 +586,21 @@ def constraint_kinematics(model: Model, q, qd) -> tuple[np.ndarray, np.ndarray, 
     return phi, Jc, bias
 
 
+def contact_sines(model: Model, q) -> np.ndarray:
+    """For each RollingContact of the model (in order), ``|n x a|``: the sine of the angle between the disk's axle
+    ``a = R axis`` and the ground's normal n at ``q``, from Pinocchio's placements of the model of our data (0 where
+    the disk lies flat and has no contact point; the harness's tolerance scales grow as it shrinks)."""
+    contacts = [con for con in model.constraints if isinstance(con, RollingContact)]
+    if not contacts:
+        return np.zeros(0)
+    c = _from_data(model)
+    data = c.model.createData()
+    pin.framesForwardKinematics(c.model, data, c.configuration(np.asarray(q, dtype=float)))
+    return np.array([np.linalg.norm(np.cross(np.cross(con.plane[0], con.plane[1]),
+                                             np.array(data.oMi[c.joint_of[con.body]].rotation) @ con.axis))
+                     for con in contacts])
+
+
 def _point_kinematics(c: _Compiled, data, body, offset, n: int):
     """World position, linear Jacobian (3 x n, Pinocchio order) and classical acceleration at qdd = 0 of a
     body point; a world point (body None) is fixed. Needs forwardKinematics(q, v, 0) and computeJointJacobians."""
@@ -595,9 +613,68 @@ def _point_kinematics(c: _Compiled, data, body, offset, n: int):
     return pos, J, acc
 
 
+class _Material(NamedTuple):
+    """A body's joint placement (``R``, origin ``o``), angular velocity ``w`` (world), and the linear Jacobian ``J``
+    (3 x n, Pinocchio order) and classical acceleration ``a`` at qdd = 0 of its material point at world ``p``."""
+
+    R: np.ndarray
+    o: np.ndarray
+    w: np.ndarray
+    J: np.ndarray
+    a: np.ndarray
+
+
+def _material_point(c: _Compiled, data, body: str, at, n: int) -> _Material:
+    """:class:`_Material` of ``body`` at the world point ``at(R, o)`` from Pinocchio's joint Jacobian and the joint's
+    velocity and classical acceleration (LOCAL_WORLD_ALIGNED): ``J = J_v - [r]x J_w``, ``a = a_o + wd x r + w x (w x
+    r)`` with ``r = p - o``. Needs forwardKinematics(q, v, 0) and computeJointJacobians."""
+    jid = c.joint_of[body]
+    R, o = np.array(data.oMi[jid].rotation), np.array(data.oMi[jid].translation)
+    J6 = np.array(pin.getJointJacobian(c.model, data, jid, pin.LOCAL_WORLD_ALIGNED)).reshape(6, n)
+    velocity = pin.getVelocity(c.model, data, jid, pin.LOCAL_WORLD_ALIGNED)
+    w = np.array(velocity.angular)
+    a_o = np.array(pin.getClassicalAcceleration(c.model, data, jid, pin.LOCAL_WORLD_ALIGNED).linear)
+    wd = np.array(pin.getAcceleration(c.model, data, jid, pin.LOCAL_WORLD_ALIGNED).angular)
+    r = at(R, o) - o
+    return _Material(R, o, w, J6[:3] - np.cross(r, J6[3:].T).T, a_o + np.cross(wd, r) + np.cross(w, np.cross(w, r)))
+
+
+def _contact(con: RollingContact, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A rolling contact's ``u`` (unit, in the disk plane, away from the ground), ``|n - (n.a) a|`` and the axis
+    ``a = R axis`` (``cases.constraints``)."""
+    n, a = np.cross(con.plane[0], con.plane[1]), R @ con.axis
+    raw = n - (n @ a) * a
+    return raw / np.linalg.norm(raw), np.linalg.norm(raw), a
+
+
+def _pfaffian_rows(model: Model, c: _Compiled, data, con, v_p: np.ndarray):
+    """phi (0), A (Pinocchio order) and Adot qd of a Pfaffian declaration (``cases.constraints``), from
+    :func:`_material_point`: a knife edge's ``e = R d`` turns with ``w``; a rolling contact's material point at the
+    contact ``p_c = c - r u`` has ``A = T J`` and ``Adot qd = T (a + w x (edot - w x e))``, ``e = -r u``, ``edot = -r
+    udot`` (the contact slides over the disk)."""
+    n = model.n
+    if isinstance(con, PointVelocity):
+        x = _material_point(c, data, con.body, lambda R, o: o + R @ con.offset, n)
+        return np.zeros(con.size), con.directions @ x.J, con.directions @ x.a
+    if isinstance(con, KnifeEdge):
+        x = _material_point(c, data, con.body, lambda R, o: o + R @ con.offset, n)
+        e = x.R @ con.direction
+        return np.zeros(1), (e @ x.J)[None, :], np.array([np.cross(x.w, e) @ (x.J @ v_p) + e @ x.a])
+    x = _material_point(c, data, con.body,
+                        lambda R, o: o + R @ con.center - con.radius * _contact(con, R)[0], n)
+    u, length, a = _contact(con, x.R)
+    n_ground = np.cross(con.plane[0], con.plane[1])
+    a_dot = np.cross(x.w, a)
+    raw_dot = -(n_ground @ a_dot) * a - (n_ground @ a) * a_dot
+    e, e_dot = -con.radius * u, -con.radius * (raw_dot - (u @ raw_dot) * u) / length
+    return np.zeros(2), con.plane @ x.J, con.plane @ (x.a + np.cross(x.w, e_dot - np.cross(x.w, e)))
+
+
 def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray):
     """phi, Jc (Pinocchio order) and Jcdot qd of one declaration (the formulas of ``cases.constraints``)."""
     n = model.n
+    if not con.holonomic:
+        return _pfaffian_rows(model, c, data, con, v_p)
     if isinstance(con, JointCoupling):
         phi = _coupling_row(model, con, "q_index") @ q - con.offset
         return np.array([phi]), _coupling_row(model, con)[c.order][None, :], np.zeros(1)
@@ -732,6 +809,14 @@ def _point_forces(c: _Compiled, data, con, part: np.ndarray) -> list:
     if isinstance(con, PointOnCircle):
         p = np.array(data.oMf[c.points[(con.body, tuple(con.offset))]].translation)
         return [(con.body, con.offset, 2.0 * con.plane.T @ (con.plane @ (p - con.center)) * part[0])]
+    if isinstance(con, PointVelocity):
+        return [(con.body, con.offset, con.directions.T @ part)]
+    if isinstance(con, KnifeEdge):
+        R = np.array(data.oMi[c.joint_of[con.body]].rotation)
+        return [(con.body, con.offset, (R @ con.direction) * part[0])]
+    if isinstance(con, RollingContact):   # at the contact point, its offset in the body (joint) frame
+        R = np.array(data.oMi[c.joint_of[con.body]].rotation)
+        return [(con.body, con.center - con.radius * (R.T @ _contact(con, R)[0]), con.plane.T @ part)]
     return []
 
 
@@ -1039,5 +1124,5 @@ REFERENCE = Formalism(
     linearize=linearize,
 )
 
-__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "joint_map", "mass_matrix",
+__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "contact_sines", "joint_map", "mass_matrix",
            "provenance", "split", "split_batch", "task_jacobian", "to_pinocchio"]

@@ -321,7 +321,7 @@ def _drift_parts_section(result: GateResult) -> list[str]:
                      if not isinstance(s.zvcf, Unsupported) and not isinstance(s.drift_velocity, Unsupported)]
             if parts:
                 gravity, velocity = np.median(np.array(parts), axis=0)
-                ratios.append(velocity / max(gravity, np.finfo(float).tiny))
+                ratios.append(np.inf if gravity == 0.0 else velocity / gravity)   # no gravity in the motion: a level plane
         if ratios:
             ratios = np.array(ratios)
             rows.append(f"| {case.spec.name} | {len(ratios)} | {int((ratios < 1).sum())} | {int((ratios >= 1).sum())} "

@@ -1,7 +1,8 @@
 """Seeded random states for the gate: same seed and case, same states, on every machine.
 
 A constrained model's states are admissible (DESIGN.md; article 5.1): q is projected onto the constraint manifold
-``phi(q) = 0`` by Gauss–Newton and qd onto the tangent space ``Jc qd = 0``, both with the Pinocchio reference's
+``phi(q) = 0`` of the holonomic rows by Gauss–Newton (Pfaffian rows ``A(q) qd = 0`` leave q free) and qd onto the
+null space of every row, ``Jc qd = 0`` and ``A qd = 0``, both with the Pinocchio reference's
 constraint kinematics (``crosscheck.reference.constraint_kinematics``), so admissibility is decided outside the five
 formalisms under test.
 """
@@ -123,11 +124,20 @@ def project_configuration(model: Model, q) -> np.ndarray:
     """``q`` moved onto ``phi(q) = 0`` by Gauss–Newton with minimum-norm steps in velocity space (``Jc`` is
     ``dphi`` along the velocities; a step moves q by ``cases.configuration.integrate``, on the group for spherical
     and free joints), halved until |phi| shrinks, iterated down to rounding; :class:`ProjectionError` saying how far it
-    got when it ends above ``PHI_TOL``."""
-    from crosscheck.reference import constraint_kinematics
+    got when it ends above ``PHI_TOL``. Only the holonomic rows take part (``Model.holonomic_rows``): a Pfaffian row
+    ``A(q) qd = 0`` has no ``phi`` and leaves every configuration admissible."""
+    from crosscheck.reference import constraint_kinematics as rows
 
     q = np.array(q, dtype=float)
+    holonomic = model.holonomic_rows
+    if not holonomic.any():       # Pfaffian rows only: they do not restrict the configuration
+        return q
     zero, tol = np.zeros(model.nv), PHI_TOL * model.length_scale ** 2
+
+    def constraint_kinematics(model, q, qd):
+        phi, Jc, bias = rows(model, q, qd)
+        return phi[holonomic], Jc[holonomic], bias[holonomic]
+
     phi, Jc, _ = constraint_kinematics(model, q, zero)
     for _ in range(NEWTON_STEPS):
         step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
@@ -149,13 +159,18 @@ def project_configuration(model: Model, q) -> np.ndarray:
 
 
 def project_velocity(model: Model, q, qd) -> np.ndarray:
-    """``qd`` projected onto the tangent space ``Jc qd = 0``: ``N N^T qd`` with N an orthonormal basis of null(Jc)
+    """``qd`` projected onto the tangent space ``Jc qd = 0`` (every row: holonomic ``Jc`` and Pfaffian ``A``): ``N N^T qd`` with N an orthonormal basis of null(Jc)
     (Jc's right singular vectors beyond its rank; singular values above ``VELOCITY_RCOND`` count). Built from the
     kept part rather than by subtracting the removed one (``(I - Jc^+ Jc) qd``), the residual ``Jc qd`` is rounding
     of the result, not of the removed part, which can dwarf a small remaining qd."""
     from crosscheck.reference import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
+    if not np.all(np.isfinite(Jc)):
+        bad = int(np.argwhere(~np.isfinite(Jc))[0][0])
+        raise ProjectionError(f"model '{model.name}': constraint row {bad} is not finite at q = {np.asarray(q).tolist()} "
+                              "(a rolling disk lying flat on its ground plane has no contact point); no velocity "
+                              "can be made admissible there")
     _, sigma, Vt = np.linalg.svd(Jc)
     rank = int(np.sum(sigma > VELOCITY_RCOND * sigma.max())) if sigma.size and sigma.max() > 0.0 else 0
     N = Vt[rank:].T

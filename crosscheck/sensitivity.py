@@ -40,7 +40,9 @@ FAMILIES = {"planar": ("double_pendulum", "n_link_pendulum", "acrobot"),
             "constrained": ("double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
                             "double_pendulum_absolute_loop", "double_pendulum_rail", "geared_pendulums"),
             "Lie groups": ("free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm", "solo12",
-                           "solo12_standing")}
+                           "solo12_standing"),
+            "external loads": ("double_pendulum_tip_force", "double_pendulum_spring"),
+            "nonholonomic": ("knife_edge", "rolling_disk", "differential_drive")}
 #: The cases issue 15 names for its 3-D claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
 CLAIMED = ("spatial_arm", "panda")
 CLAIM = 1e-10

@@ -265,16 +265,22 @@ def _point(poses, i: int, offset: np.ndarray) -> np.ndarray:
 
 
 @st.composite
-def _constraint(draw, model: Model, q0: np.ndarray, poses, budget: int, name: str):
-    """One declaration that holds at ``q0`` (where the bodies have ``poses``), with at most ``budget`` rows."""
+def _constraint(draw, model: Model, q0: np.ndarray, poses, budget: int, name: str, pfaffian: bool = False):
+    """One declaration that holds at ``q0`` (where the bodies have ``poses``), with at most ``budget`` rows; with
+    ``pfaffian`` also velocity-only declarations (a knife edge, a point velocity, a rolling contact), which hold at
+    every configuration."""
     scalar = [j for j, b in enumerate(model.bodies) if b.joint in ("revolute", "prismatic")]
     kinds = (["JointCoupling"] if scalar else []) + ["PointsCoincide", "PointOnCircle", "PointOnLine"]
+    if pfaffian:
+        kinds += ["KnifeEdge", "PointVelocity"] + (["RollingContact"] if budget >= 2 else [])
     kind = draw(st.sampled_from(kinds))
     names = [b.name for b in model.bodies]
     a = draw(st.integers(0, len(model.bodies) - 1))
     offset = draw(vectors(OFFSET_RANGE))
     p = _point(poses, a, offset)
     frame = draw(rotations())
+    if kind in ("KnifeEdge", "PointVelocity", "RollingContact"):
+        return _pfaffian_declaration(draw, kind, name, names[a], offset, frame, budget)
     if kind == "JointCoupling":   # couples joint values: revolute and prismatic joints only
         a = a if a in scalar else scalar[a % len(scalar)]       # no extra draw: scalar-only models draw as before
         others = [j for j in scalar if j != a]
@@ -298,8 +304,23 @@ def _constraint(draw, model: Model, q0: np.ndarray, poses, budget: int, name: st
     return decl.PointOnLine(name, names[a], offset, p, frame[:rows])
 
 
+def _pfaffian_declaration(draw, kind: str, name: str, body: str, offset: np.ndarray, frame: np.ndarray, budget: int):
+    """A Pfaffian declaration on ``body`` (``cases.constraints``): a knife edge at ``offset`` across a drawn body
+    direction, a point velocity along 1 to 3 drawn world directions, or a disk of drawn radius centred at ``offset``
+    with a drawn axle rolling on a drawn plane (its axle never along the plane's normal: the third row of ``frame``
+    is the normal, the axle mixes the first and the normal)."""
+    if kind == "KnifeEdge":
+        return decl.KnifeEdge(name, body, offset, frame[0])
+    if kind == "PointVelocity":
+        return decl.PointVelocity(name, body, offset, frame[:draw(st.integers(1, min(3, budget)))])
+    tilt = draw(_values(-1.2, 1.2))
+    axle = np.cos(tilt) * frame[0] + np.sin(tilt) * frame[2]
+    return decl.RollingContact(name, body, offset, axle / np.linalg.norm(axle), draw(_floats(*RADIUS_RANGE)),
+                               frame[:2])
+
+
 @st.composite
-def _constraints(draw, model: Model, required: bool) -> list:
+def _constraints(draw, model: Model, required: bool, pfaffian: bool = False) -> list:
     """Declarations that hold at a drawn reference configuration q0 (placed with Pinocchio's forward kinematics
     there: the circle, line or pin through the point's position at q0), with fewer rows than joints."""
     q0 = draw(configurations(model))
@@ -307,7 +328,7 @@ def _constraints(draw, model: Model, required: bool) -> list:
     out: list = []
     budget = model.n - 1
     while budget > 0 and (draw(st.booleans()) or (required and not out)):
-        c = draw(_constraint(model, q0, poses, budget, f"c{len(out)}"))
+        c = draw(_constraint(model, q0, poses, budget, f"c{len(out)}", pfaffian))
         out.append(c)
         budget -= c.size
     return out
@@ -333,7 +354,7 @@ def _load(draw, model: Model, name: str):
 
 @st.composite
 def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodies: int = 1,
-           name: str = "drawn", group: bool = False, loads: bool | None = False) -> Model:
+           name: str = "drawn", group: bool = False, loads: bool | None = False, pfaffian: bool = False) -> Model:
     """Random valid models: kinematic trees of ``min_bodies`` to ``max_bodies`` bodies.
 
     Each body hangs from the previous one, an earlier one or the world, by a revolute or prismatic joint about an
@@ -348,6 +369,8 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     ``constraints``: False none, True at least one, None either. Declarations (joint couplings, points coinciding
     with another body's point or pinned to the world, points on circles and lines) are placed so that a drawn
     configuration satisfies them, with fewer rows than joints; ``states`` then finds admissible states.
+    ``pfaffian``: the declarations may also be Pfaffian (knife edges, point velocities, rolling contacts; mixed with
+    the holonomic ones), which leave the configuration free and restrict the velocities.
 
     ``loads``: external loads (``cases.loads``, :func:`_load`): False none, True one or two, None either (drawn
     last, so the rest of a model is drawn as without them).
@@ -362,11 +385,16 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     base = build_model(name, bodies, gravity=gravity, input_map=input_map)
     task = draw(_task_point(base))
     wanted = draw(st.booleans()) if constraints is None else constraints
-    declared = draw(_constraints(base, constraints is True)) if wanted and n >= 2 else []
+    declared = draw(_constraints(base, constraints is True, pfaffian)) if wanted and n >= 2 else []
     loaded = draw(st.booleans()) if loads is None else loads
     applied = [draw(_load(base, f"load{i}")) for i in range(draw(st.integers(1, 2)))] if loaded else []
     return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared,
                        loads=applied)
+
+
+#: A drawn state whose rolling disk is flatter than this (the sine of its axle against the ground normal) is rejected:
+#: a disk lying flat has no contact point, and near it the rows are ill-conditioned by ``1 / sine^2``.
+MIN_CONTACT_SINE = 1e-3
 
 
 @st.composite
@@ -375,7 +403,8 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
     inputs), a joint with limits (``Body.limits``: a model from a file; :func:`models` draws none) within them as the
     gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
     (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
-    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, is rejected (``hypothesis.assume``).
+    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, or leaves a rolling disk flatter than
+    :data:`MIN_CONTACT_SINE`, is rejected (``hypothesis.assume``).
     Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
     drawn = sampling.within_limits(model, draw(configurations(model)))
     qd = np.array(draw(st.tuples(*[_values(-sampling.RATE_RANGE, sampling.RATE_RANGE)] * model.n)), dtype=float)
@@ -387,6 +416,7 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
         except sampling.ProjectionError:
             assume(False)
         assume(np.abs(q - drawn).max() <= MAX_PROJECTION_STEP)
+        assume(not len(reference.contact_sines(model, q)) or reference.contact_sines(model, q).min() > MIN_CONTACT_SINE)
         qd = sampling.project_velocity(model, q, qd)
     return sampling.State(index, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist()))
 

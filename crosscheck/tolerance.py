@@ -29,7 +29,8 @@ already carries S's amplification (``||S^+||``, over the directions kept above `
 acceleration scale adds what the constraint force can produce, ``||M^-1|| ||Jc|| lam_scale``. ``Jc^T lam`` and its
 power add ``||Jc^T||`` and ``|qd|_1``. The constraint kinematics (``phi``, ``Jc``, ``Jcdot qd``, ``Jc qd``) are sums of
 products of lengths: their scale is ``L^2 (n + 1) + max|Jc| (1 + |q|_1)`` with L the model's length scale, times
-``|qd|_1`` per time derivative.
+``|qd|_1`` per time derivative, and times ``1 / s^2`` for a rolling contact whose axle makes the angle with sine s with
+the ground normal (its contact direction is a unit vector divided by s).
 
 External loads (``cases.loads``; ``external_force`` = ``tau_ext``, ``power_ext``). ``tau_ext = sum J_p^T f + J_w^T m``
 sums, per coordinate, the loads' forces times world lever arms (at most the reach R plus the point's offset) and their
@@ -79,7 +80,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle
+from cases.constraints import JointCoupling, PointOnCircle, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
@@ -707,9 +708,26 @@ def _constraint_scales(model, splits, q, qd, rounding: dict[int, float]) -> dict
     return {"cond_S": _median([s.conditions.get("constraint_kept", 1.0) for s in splits]),
             "lam_scale": _median([s.lam_scale for s in splits]),
             "jc": _median([float(np.abs(s.constraint_jacobian).sum(axis=0).max()) for s in splits]),
-            "kinematics": length**2 * (model.n + 1) + jc_max * (1.0 + float(np.abs(q).sum())),
+            "kinematics": (length**2 * (model.n + 1) + jc_max * (1.0 + float(np.abs(q).sum())))
+            * _contact_gain(model, q),
             "rate": float(np.abs(qd).sum()),
             "lam_rounding": _median([rounding[id(s)] for s in splits])}
+
+
+#: The least sine of a rolling disk's axle against the ground normal the contact gain uses (a flat disk has none).
+MIN_CONTACT_SINE = 1e-8
+
+
+def _contact_gain(model, q) -> float:
+    """``1 / s^2`` with s the smallest ``|n x a|`` of the model's rolling contacts at q (``reference.contact_sines``);
+    1 without one. The contact direction ``u = (n - (n.a) a) / s`` rounds at ``eps / s`` and its rate ``udot``, which
+    enters ``Adot qd``, at ``eps / s^2`` (a leaning disk nearly flat: lean 1.587 rad, s = 0.016, put the backends'
+    rolling biases 0.3 tolerances apart with the plain kinematics scale)."""
+    if not any(isinstance(c, RollingContact) for c in model.constraints):
+        return 1.0
+    from crosscheck.reference import contact_sines
+
+    return 1.0 / max(float(contact_sines(model, q).min()), MIN_CONTACT_SINE) ** 2
 
 
 def _lam_rounding(model, split) -> float:

@@ -214,7 +214,7 @@ import numpy as np
 import scipy.linalg
 import symengine as sp
 
-from cases.constraints import PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Linearization, ModelNotSupported,
@@ -579,10 +579,11 @@ def _point(model: Model, st: _Staged, poses, body: str, offset) -> sp.DenseMatri
     return (p + R * _matrix(offset)).applyfunc(st.name)
 
 
-def _constraint_rows(model: Model, st: _Staged, poses) -> list:
-    """``phi(p)``, the rows of every declaration in order, exactly as :mod:`cases.constraints` fixes them."""
+def _constraint_rows(model: Model, st: _Staged, poses, declarations=None) -> list:
+    """``phi(p)``, the rows of every (holonomic) declaration in order (``declarations``, default the model's), exactly
+    as :mod:`cases.constraints` fixes them."""
     rows: list = []
-    for c in model.constraints:
+    for c in (model.constraints if declarations is None else declarations):
         if isinstance(c, PointOnCircle):
             d = _matrix(c.plane) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.center))
             rows.append((d.T * d)[0] - _exact(c.radius**2))
@@ -598,13 +599,49 @@ def _constraint_rows(model: Model, st: _Staged, poses) -> list:
     return rows
 
 
+def _angular_velocity(st: _Staged, R: sp.DenseMatrix) -> sp.DenseMatrix:
+    """The world angular velocity ``w`` of a body of world rotation ``R``: ``[w]x = Rdot R^T`` (staged ``dt``)."""
+    W = R.applyfunc(st.dt) * R.T
+    return sp.DenseMatrix([st.name(W[2, 1]), st.name(W[0, 2]), st.name(W[1, 0])])
+
+
+def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
+    """The velocity rows ``A(p) pd`` of a Pfaffian declaration exactly as :mod:`cases.constraints` fixes them, from the
+    staged time derivatives of this backend's own poses: a point's velocity ``dt(p)``, a body's angular velocity from
+    ``Rdot R^T``. For a rolling contact the material point at the contact ``p_c = c - r u`` moves with ``dt(c) + w x
+    (p_c - c)``; ``Jc`` and ``Jcdot pd`` then follow by differentiating the rows (:func:`_constraints`)."""
+    R, _ = poses[model.body_index(c.body)]
+    if isinstance(c, PointVelocity):
+        return list(_matrix(c.directions) * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))
+    if isinstance(c, KnifeEdge):
+        e = R * _matrix(c.direction)
+        return [(e.T * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))[0]]
+    # RollingContact
+    n = _matrix(np.cross(c.plane[0], c.plane[1]))
+    a = (R * _matrix(c.axis)).applyfunc(st.name)
+    raw = (n - (n.T * a)[0] * a).applyfunc(st.name)
+    length = st.name(sp.sqrt((raw.T * raw)[0]))
+    e = (raw * (-_exact(c.radius) / length)).applyfunc(st.name)
+    w = _angular_velocity(st, R)
+    velocity = _point(model, st, poses, c.body, c.center).applyfunc(st.dt) + _skew(w) * e
+    return list(_matrix(c.plane) * velocity)
+
+
 def _constraints(model: Model, st: _Staged, poses) -> tuple[list, list, list]:
     """``phi``, ``Jc = dphi/dp`` (rows) and ``Jcdot pd = d^2 phi / dt^2`` at ``pdd = 0`` (eqs. 13, 16; module
-    docstring, step 4), the last as the staged second time derivative of each row (:meth:`_Staged.dt`)."""
+    docstring, step 4), the last as the staged second time derivative of each row (:meth:`_Staged.dt`). A Pfaffian
+    declaration's rows are velocity rows ``a = A(p) pd`` (:func:`_pfaffian_rows`): ``phi = 0``, ``A = da/dpd`` and
+    ``Adot pd = dt(a)`` (the rates held: ``pdd = 0``)."""
     n = model.n
-    phi = [st.name(e) for e in _constraint_rows(model, st, poses)]
-    Jc = [[st.name(st.diff(e, j)) for j in range(n)] for e in phi]
-    bias = [st.dt(st.dt(e)) for e in phi]
+    phi_rows = iter([st.name(e) for e in _constraint_rows(model, st, poses,
+                                                          [c for c in model.constraints if c.holonomic])])
+    rows = []                     # (phi, None) for a holonomic row, (0, a) for a Pfaffian one, in model order
+    for c in model.constraints:
+        rows += ([(next(phi_rows), None) for _ in range(c.size)] if c.holonomic
+                 else [(ZERO, st.name(a)) for a in _pfaffian_rows(model, st, poses, c)])
+    phi = [e for e, _ in rows]
+    Jc = [[st.name(st.diff(e, j) if a is None else st.diff(a, n + j)) for j in range(n)] for e, a in rows]
+    bias = [st.dt(st.dt(e)) if a is None else st.dt(a) for e, a in rows]
     return phi, Jc, bias
 
 

@@ -261,7 +261,8 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported,
@@ -636,6 +637,47 @@ def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
         return ca.sum1(ca.vertcat(*terms)) - c.offset
     raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {type(c).__name__}, which the geometric "
                      "backend does not know")
+
+
+def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX) -> ca.SX:
+    """The velocity rows ``A(p) pd`` of a Pfaffian declaration, exactly as :mod:`cases.constraints` fixes them: a
+    point's velocity ``jtimes(x, p, pd)``, the body's world angular velocity from ``Rdot R^T``; for a rolling contact
+    the material point at the contact ``p_c = c - r u`` moves with ``cdot + w x (p_c - c)``."""
+    b = model.body_index(c.body)
+    if isinstance(c, PointVelocity):
+        return ca.mtimes(ca.DM(c.directions), ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
+    if isinstance(c, KnifeEdge):
+        e = ca.mtimes(R[b], ca.DM(c.direction))
+        return ca.dot(e, ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
+    if isinstance(c, RollingContact):
+        n = ca.DM(np.cross(c.plane[0], c.plane[1]))
+        a = ca.mtimes(R[b], ca.DM(c.axis))
+        raw = n - ca.dot(n, a) * a
+        e = -c.radius * raw / ca.norm_2(raw)
+        W = ca.mtimes(ca.reshape(ca.jtimes(ca.vec(R[b]), p, pd), 3, 3), R[b].T)   # hat(w), world frame
+        w = ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+        velocity = ca.jtimes(_point(model, R, o, c.body, c.center), p, pd) + ca.cross(w, e)
+        return ca.mtimes(ca.DM(c.plane), velocity)
+    raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {type(c).__name__}, which the geometric "
+                     "backend does not know")
+
+
+def _rate_rows(model: Model, q: list, R: list, o: list, p: ca.SX, pd: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """``phi``, ``Jc`` and ``Jcdot pd`` of a model with Pfaffian rows: every row as a rate ``a(p, pd)`` (a holonomic
+    row's ``jtimes(phi, p, pd)``, a Pfaffian row's :func:`_pfaffian_rates`), ``Jc = da/dpd`` and ``Jcdot pd = (da/dp)
+    pd``; ``phi`` is the holonomic rows' function and 0 on the Pfaffian rows."""
+    values, rates = [], []
+    for c in model.constraints:
+        if c.holonomic:
+            value = _constraint_rows(model, c, q, R, o)
+            values.append(value)
+            rates.append(ca.jtimes(value, p, pd))
+        else:
+            rate = _pfaffian_rates(model, c, R, o, p, pd)
+            values.append(ca.SX.zeros(rate.shape[0], 1))
+            rates.append(rate)
+    a = ca.vertcat(*rates)
+    return ca.vertcat(*values), ca.jacobian(a, pd), ca.mtimes(ca.jacobian(a, p), pd)
 
 
 def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
@@ -1056,9 +1098,12 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     x = ca.mtimes(ca.DM(tp.directions), _point(model, R, o, tp.body, tp.offset))
     J = ca.jacobian(x, p)
     Jdot_pd = ca.jtimes(ca.jtimes(x, p, pd), p, pd)
-    phi = _constraint_function(model, q, R, o) if model.constraints else ca.SX(0, 1)
-    Jc = ca.jacobian(phi, p)
-    Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
+    if model.pfaffian_rows.any():
+        phi, Jc, Jc_bias = _rate_rows(model, q, R, o, p, pd)
+    else:
+        phi = _constraint_function(model, q, R, o) if model.constraints else ca.SX(0, 1)
+        Jc = ca.jacobian(phi, p)
+        Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
     out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd, phi, ca.vec(Jc), Jc_bias)
     if model.loads:                  # appended: a model without loads keeps its Function as it was
         out = ca.vertcat(out, _external_covector(model, R, o, p, pd, spins))

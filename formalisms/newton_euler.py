@@ -97,7 +97,8 @@ from typing import Callable
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
@@ -602,19 +603,102 @@ def _coupling(model: Model, c, point, q, qd) -> _Rows:
                  np.zeros((1,) + batch))
 
 
+# Pfaffian rows (``cases.constraints``: ``A(q) qd = 0``, no phi; reported phi = 0): ``A`` and ``Adot qd`` from the
+# recursion's point kinematics and the body's angular velocity ``w = W w_body`` of the forward pass at ``qdd = 0``,
+# its angular Jacobian ``W wd`` of the unit motions and its bias angular acceleration ``W wd`` at ``qdd = 0``.
+
+@dataclass(frozen=True)
+class _Spin:
+    """A body's world rotation ``W`` (3, 3, *B), angular velocity ``w`` (3, *B), angular Jacobian ``Jw`` (3, n, *B)
+    and bias angular acceleration ``wd`` (``Jw_dot qd``, 3, *B), all world frame."""
+
+    W: np.ndarray
+    w: np.ndarray
+    Jw: np.ndarray
+    wd: np.ndarray
+
+
+def _spin(model: Model, kin, units, bias_motion, body: str) -> _Spin:
+    """The angular kinematics of ``body`` (:class:`_Spin`) from the unit motions and the forward pass at qdd = 0."""
+    i, W = model.body_index(body), kin[2][model.body_index(body)]
+    batch = kin[1][0].shape[1:]
+    Jw = np.zeros((3, model.nv) + batch)
+    Jw[:, _paths(model)[i]] = _mv(_over_motions(W, 2), units[0][i])
+    return _Spin(W, _mv(W, bias_motion[0][i]), Jw, _mv(W, bias_motion[1][i]))
+
+
+def _zero_phi(rows: int, batch: tuple) -> np.ndarray:
+    """The reported ``phi`` of Pfaffian rows: 0 (they have no position-level function)."""
+    return np.zeros((rows,) + batch)
+
+
+def _point_velocity(model: Model, c, point, spin, q, qd) -> _Rows:
+    """PointVelocity: ``A = D J``, ``Adot qd = D a`` (D world-fixed); the force ``D^T lam`` at the point."""
+    x = point(c.body, c.offset)
+    D = c.directions
+    return _Rows(_zero_phi(len(D), x.p.shape[1:]), _cmv(D, x.J), _cmv(D, x.a), ((x.body, x.offset, D.T),))
+
+
+def _knife_edge(model: Model, c, point, spin, q, qd) -> _Rows:
+    """KnifeEdge: ``e = W d`` turns with the body, so ``A = e^T J``, ``Adot qd = (w x e) . v + e . a`` with ``v = J
+    qd`` the point's velocity; the force ``e lam`` at the point (one state)."""
+    x, s = point(c.body, c.offset), spin(c.body)
+    e = _mv(s.W, c.direction)
+    v = (x.J * qd[None]).sum(axis=1)
+    bias = _dot(_cross(s.w, e), v) + _dot(e, x.a)
+    return _Rows(_zero_phi(1, x.p.shape[1:]), _dot(e[:, None], x.J)[None], bias[None],
+                 ((x.body, x.offset, e[:, None]),))
+
+
+def _contact_rate(w: np.ndarray, a: np.ndarray, n: np.ndarray, u: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """``udot`` of the contact direction ``u = (n - (n.a) a) / length`` as the axle turns (``adot = w x a``): ``(I - u
+    u^T) (-(n.adot) a - (n.a) adot) / length``. It follows the ground, not the disk: ``w x u`` would be the rate of a
+    body-fixed direction."""
+    a_dot = _cross(w, a)
+    raw_dot = -_dot(n, a_dot) * a - _dot(n, a) * a_dot
+    return (raw_dot - _dot(u, raw_dot) * u) / length
+
+
+def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
+    """RollingContact: with ``a = W axis``, ``u = (n - (n.a) a) / |.|``, the contact ``p_c = c - r u`` and ``e = p_c
+    - c``, the material point at the contact moves with ``v_c + w x e``: ``A = T (J_c + Jw x e)`` (column by
+    column). Its time derivative at ``qdd = 0`` is ``T (a_c + wd x e + w x edot)`` with ``edot = -r udot``, ``udot =
+    (I - u u^T) wdot / |.|``, ``wdot = -(n.adot) a - (n.a) adot``, ``adot = w x a``: the contact point slides over
+    the disk, so it is not the body-fixed point's ``w x (w x e)``. The force ``T^T lam`` at the contact (one
+    state: its body-frame offset ``W^T (p_c - o)``)."""
+    x, s = point(c.body, c.center), spin(c.body)
+    batch = x.p.shape[1:]
+    n, T, r = _column(np.cross(c.plane[0], c.plane[1]), batch), c.plane, c.radius
+    a = _mv(s.W, c.axis)
+    w_raw = n - _dot(n, a) * a
+    length = np.sqrt(_dot(w_raw, w_raw))
+    u = w_raw / length
+    e = -r * u
+    J = x.J + _cross(s.Jw, e[:, None])
+    acc = x.a + _cross(s.wd, e) + _cross(s.w, -r * _contact_rate(s.w, a, n, u, length))
+    loads = () if batch else ((x.body, c.center + s.W.T @ e, T.T),)     # p_c - o = W center + e
+    return _Rows(_zero_phi(2, batch), _cmv(T, J), _cmv(T, acc), loads)
+
+
 #: The rows of each declaration of ``cases.constraints``, by its type.
 _DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+#: The Pfaffian declarations' rows (they also read the body's angular kinematics).
+_PFAFFIAN = {PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def _constraint_rows(model: Model, kin, units, bias_motion, q: np.ndarray, qd: np.ndarray) -> list[_Rows]:
     """The rows of every declaration, in model order."""
     point = _point_kinematics(model, kin, units, bias_motion)
+    spin = (lambda body: _spin(model, kin, units, bias_motion, body))  # noqa: E731
     rows = []
     for c in model.constraints:
+        if type(c) in _PFAFFIAN:
+            rows.append(_PFAFFIAN[type(c)](model, c, point, spin, q, qd))
+            continue
         if type(c) not in _DECLARATIONS:
             raise TypeError(f"model '{model.name}': the Newton–Euler backend does not know the constraint "
                             f"declaration {c!r} of type {type(c).__name__}; "
-                            f"known: {[t.__name__ for t in _DECLARATIONS]}")
+                            f"known: {[t.__name__ for t in (*_DECLARATIONS, *_PFAFFIAN)]}")
         rows.append(_DECLARATIONS[type(c)](model, c, point, q, qd))
     return rows
 
@@ -1042,9 +1126,10 @@ def _forward_tangents(model: Model, kin, qd: np.ndarray, qdd: np.ndarray) -> _Ta
 def _backward_tangents(model: Model, kin, t: _Tangents, loads=None, couples=None) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (bodies, 3, D) of :func:`_backward` (gravity applied) along the directions of ``t``: eq. (18),
     (19) and the transfer to the parent differentiated, with ``d(W^T g) = (W^T g) x Th`` and ``dP x = P (th x x)``.
-    ``loads`` (body -> ``[(offset, f, df)]``: a force ``f`` at the body point ``offset``, its moment about the origin
-    ``offset x f``, body frame) are the multipliers' point forces (:func:`_constraint_tangents`) and the external
-    loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples (:func:`_external_tangents`)."""
+    ``loads`` (body -> ``[(offset, f, df)]`` or ``[(offset, f, df, doffset)]``: a force ``f`` at the body point
+    ``offset``, its moment about the origin ``offset x f``, body frame; ``doffset`` the offset's tangent where the
+    point moves over the body, a rolling contact) are the multipliers' point forces (:func:`_constraint_tangents`) and
+    the external loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples (:func:`_external_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)
@@ -1060,9 +1145,12 @@ def _backward_tangents(model: Model, kin, t: _Tangents, loads=None, couples=None
         dN = (_cross(c, dF) + inertia @ t.dwd[i] + _cross(t.dw[i], inertia @ w[i])
               + _cross(w[i], inertia @ t.dw[i]))
         f[i], n[i], df[i], dn[i] = f[i] + F, n[i] + N, df[i] + dF, dn[i] + dN
-        for offset, fe, dfe in (loads or {}).get(i, ()):
+        for offset, fe, dfe, *moving in (loads or {}).get(i, ()):
+            doffset = moving[0] if moving else None
             f[i], n[i] = f[i] - fe, n[i] - _cross(offset, fe)
             df[i], dn[i] = df[i] - dfe, dn[i] - _cross(offset, dfe)
+            if doffset is not None:                  # a point that moves over the body (a rolling contact)
+                dn[i] = dn[i] - _cross(doffset, fe[:, None])
         for me, dme in (couples or {}).get(i, ()):
             n[i], dn[i] = n[i] - me, dn[i] - dme
         p = model.parent_index[i]
@@ -1138,21 +1226,111 @@ _TANGENTS = {PointOnCircle: _circle_tangent, PointsCoincide: _coincide_tangent, 
              JointCoupling: _coupling_tangent}
 
 
+@dataclass(frozen=True)
+class _SpinTangent:
+    """A body's world rotation ``W``, its tangent ``Th`` (``dW = W [Th]x``), and its world angular velocity ``w`` and
+    angular acceleration ``wd`` at ``(qd, qdd)`` with their tangents (3, D): ``d(W y) = W (Th x y + dy)``."""
+
+    W: np.ndarray
+    Th: np.ndarray
+    w: np.ndarray
+    dw: np.ndarray
+    wd: np.ndarray
+    dwd: np.ndarray
+
+
+def _spin_tangent(kin, t: _Tangents, body: int) -> _SpinTangent:
+    """:class:`_SpinTangent` of ``body`` from the forward pass's tangents."""
+    W, Th, w, wd = kin[2][body], t.Th[body], t.motion[0][body], t.motion[1][body]
+    return _SpinTangent(W, Th, W @ w, W @ (_cross(Th, w) + t.dw[body]), W @ wd, W @ (_cross(Th, wd) + t.dwd[body]))
+
+
+@dataclass(frozen=True)
+class _MovingPoint:
+    """A load's point whose body-frame ``offset`` changes with the state (a rolling contact): ``doffset`` (3, D)."""
+
+    body: int
+    offset: np.ndarray
+    doffset: np.ndarray
+
+
+def _along(x: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """``x . dy`` (D,) of a vector (3,) and a tangent (3, D)."""
+    return x @ dy
+
+
+def _point_velocity_tangent(model: Model, c, point, spin):
+    """:func:`_point_velocity` differentiated: ``dc = D dacc``; the force ``D^T lam`` is constant."""
+    x = point(c.body, c.offset)
+    D = c.directions
+    return D @ x.dacc, ((x, D.T, np.zeros(D.T.shape + x.dp.shape[1:])),)
+
+
+def _knife_edge_tangent(model: Model, c, point, spin):
+    """:func:`_knife_edge` differentiated: ``c = (w x e) . pv + e . acc`` with ``e = W d`` (``de = W (Th x d)``), so
+    ``dc = (dw x e + w x de) . pv + (w x e) . dpv + de . acc + e . dacc``; the force ``e lam`` turns: ``de lam``."""
+    x, s = point(c.body, c.offset), spin(model.body_index(c.body))
+    e, de = s.W @ c.direction, s.W @ _cross(s.Th, c.direction)
+    we = _cross(s.w, e)
+    dwe = _cross(s.dw, e[:, None]) + _cross(s.w[:, None], de)
+    dc = (dwe * x.pv[:, None]).sum(axis=0) + _along(we, x.dpv) + _along(x.acc, de) + _along(e, x.dacc)
+    return dc[None], ((x, e[:, None], de[:, None, :]),)
+
+
+def _rolling_tangent(model: Model, c, point, spin):
+    """:func:`_rolling` differentiated: ``c = T (a_c + wd x e + w x edot)`` at the ``qdd`` of the tangents, with the
+    contact terms of :func:`_contact_rate` differentiated by the chain rule (``a = W axis``, ``raw = n - (n.a) a``,
+    ``u = raw / |raw|``, ``e = -r u``, ``adot = w x a``, ``edot = -r (I - u u^T) rawdot / |raw|``); the force ``T^T
+    lam`` is constant, its point (the contact, ``center + W^T e`` in the body) moves: ``d(W^T e) = W^T de - Th x W^T
+    e``."""
+    i = model.body_index(c.body)
+    x, s = point(c.body, c.center), spin(i)
+    n, r, col = np.cross(c.plane[0], c.plane[1]), c.radius, (lambda v: v[:, None])  # noqa: E731
+    a, da = s.W @ c.axis, s.W @ _cross(s.Th, c.axis)
+    raw, draw = n - (n @ a) * a, -col(a) * (n @ da) - (n @ a) * da
+    length = float(np.sqrt(raw @ raw))
+    u = raw / length
+    dlength = u @ draw
+    du = (draw - col(u) * (u @ draw)) / length
+    a_dot = _cross(s.w, a)
+    da_dot = _cross(s.dw, col(a)) + _cross(col(s.w), da)
+    raw_dot = -(n @ a_dot) * a - (n @ a) * a_dot
+    draw_dot = -col(a) * (n @ da_dot) - col(a_dot) * (n @ da) - (n @ a_dot) * da - (n @ a) * da_dot
+    u_dot = (raw_dot - u * (u @ raw_dot)) / length
+    du_dot = ((draw_dot - du * (u @ raw_dot) - col(u) * (raw_dot @ du + u @ draw_dot)) / length
+              - col(u_dot) * dlength / length)
+    e, de, e_dot, de_dot = -r * u, -r * du, -r * u_dot, -r * du_dot
+    dc = c.plane @ (x.dacc + _cross(s.dwd, col(e)) + _cross(col(s.wd), de) + _cross(s.dw, col(e_dot))
+                    + _cross(col(s.w), de_dot))
+    local = s.W.T @ e
+    contact = _MovingPoint(i, c.center + local, s.W.T @ de - _cross(s.Th, col(local)))
+    return dc, ((contact, c.plane.T, np.zeros(c.plane.T.shape + x.dp.shape[1:])),)
+
+
+#: The Pfaffian declarations' derivatives (they also read the body's angular kinematics and its tangents).
+_PFAFFIAN_TANGENTS = {PointVelocity: _point_velocity_tangent, KnifeEdge: _knife_edge_tangent,
+                      RollingContact: _rolling_tangent}
+
+
 def _constraint_tangents(model: Model, kin, t: _Tangents, lam: np.ndarray):
     """``dc`` (k, D), the tangents of ``Jc qdd + Jcdot qd`` at the ``qdd`` of ``t`` (every declaration's rows
-    differentiated, :data:`_TANGENTS`), and the multipliers' point forces as body loads with their tangents:
-    body -> ``[(offset, f, df)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th + W^T dF lam``."""
+    differentiated, :data:`_TANGENTS`, :data:`_PFAFFIAN_TANGENTS`), and the multipliers' point forces as body loads
+    with their tangents: body -> ``[(offset, f, df, doffset)]``, ``f = W^T F lam`` in the body frame, ``df = f x Th +
+    W^T dF lam``, ``doffset`` the tangent of a moving point's offset (None for a body-fixed point)."""
     point = (lambda name, offset: _point_tangent(kin, t, None if name is None else model.body_index(name), offset))
+    spin = (lambda body: _spin_tangent(kin, t, body))  # noqa: E731
     rows, loads, start = [], {}, 0
     for c in model.constraints:
-        dc, forces = _TANGENTS[type(c)](model, c, point)
+        dc, forces = (_PFAFFIAN_TANGENTS[type(c)](model, c, point, spin) if type(c) in _PFAFFIAN_TANGENTS
+                      else _TANGENTS[type(c)](model, c, point))
         part, start = lam[start:start + len(dc)], start + len(dc)
         for x, F, dF in forces:
             if x.body is not None:
                 W = kin[2][x.body]
                 f = W.T @ (F @ part)
                 loads.setdefault(x.body, []).append(
-                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part)))
+                    (x.offset, f, _cross(f, t.Th[x.body]) + W.T @ np.einsum("rjd,j->rd", dF, part),
+                     getattr(x, "doffset", None)))
         rows.append(dc)
     return np.concatenate(rows), loads
 

@@ -152,7 +152,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, Split, SplitBatch,
@@ -785,8 +786,75 @@ def _coupling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarr
     return _vm(q, position[:, None]) - c.offset, np.broadcast_to(row, batch + (1, model.n)), np.zeros(batch + (1,))
 
 
+def _row_sum(x):
+    """``sum`` over the last axis, kept (of an array or a dual number)."""
+    return _linear(lambda v: np.sum(v, axis=-1, keepdims=True), x)
+
+
+def _reciprocal(x):
+    """``1 / x`` elementwise of an array or a dual number (tangent ``-dx / x^2``)."""
+    return _Dual(1.0 / x.val, -x.tan / x.val**2) if isinstance(x, _Dual) else 1.0 / x
+
+
+def _root(x):
+    """``sqrt(x)`` elementwise of an array or a dual number (tangent ``dx / (2 sqrt(x))``)."""
+    if not isinstance(x, _Dual):
+        return np.sqrt(x)
+    val = np.sqrt(x.val)
+    return _Dual(val, x.tan / (2.0 * val))
+
+
+def _pfaffian_point(model: Model, kin: Kinematics, body: str, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J_v`` (..., 3, n) and the classical bias (..., 3) of the material point of ``body`` at world ``p`` (..., 3)."""
+    i = np.array([model.body_index(body)])
+    p = p[..., None, :]
+    Jv = _linear_columns(kin.z, kin.column_origin, kin.revolute, kin.moves[i], p)
+    return Jv[..., 0, :, :], point_bias(kin, i, p, point_velocity(kin, i, p))[..., 0, :]
+
+
+def _point_velocity(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PointVelocity (Pfaffian, phi reported 0): ``A = D J_v``, ``Adot qd = D Jdot_v qd``."""
+    _, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    D = c.directions
+    return np.zeros(q.shape[:-1] + (len(D),)), D @ Jv, _vm(bias, D.T)
+
+
+def _knife_edge(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KnifeEdge (Pfaffian, phi 0): ``e = R d``, ``A = e^T J_v``, ``Adot qd = (w x e) . (J_v qd) + e . Jdot_v qd``."""
+    i = model.body_index(c.body)
+    _, Jv, bias = _point_kinematics(model, kin, c.body, c.offset)
+    e = _mv(kin.R[..., i, :, :], c.direction)
+    pdot = _mv(Jv, kin.qd)
+    rate = _row_sum(_cross(kin.w[..., i, :], e) * pdot + e * bias)
+    return np.zeros(q.shape[:-1] + (1,)), e[..., None, :] @ Jv, rate
+
+
+def _rolling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RollingContact (Pfaffian, phi 0): the contact ``p_c = c - r u`` (``cases.constraints``), ``e = p_c - c``;
+    ``A = T J_v(p_c)`` (the material point there) and ``Adot qd = T (a_c + w_bias x e + w x edot)`` from the centre's
+    classical bias ``a_c``, the body's ``Jdot_w qd`` and ``edot = -r udot`` (``udot`` from ``adot = w x a``): the
+    contact point slides over the disk."""
+    i = model.body_index(c.body)
+    center, _, a_center = _point_kinematics(model, kin, c.body, c.center)
+    w = kin.w[..., i, :]
+    a = _mv(kin.R[..., i, :, :], c.axis)
+    n = np.cross(c.plane[0], c.plane[1])
+    dot = (lambda x, y: _row_sum(x * y))  # noqa: E731
+    raw = n - dot(n, a) * a
+    inverse_length = _reciprocal(_root(dot(raw, raw)))
+    u = raw * inverse_length
+    e = -c.radius * u
+    a_dot = _cross(w, a)
+    raw_dot = -dot(n, a_dot) * a - dot(n, a) * a_dot
+    e_dot = -c.radius * ((raw_dot - dot(u, raw_dot) * u) * inverse_length)
+    Jv, _ = _pfaffian_point(model, kin, c.body, center + e)
+    rate = a_center + _cross(kin.w_bias[..., i, :], e) + _cross(w, e_dot)
+    return np.zeros(q.shape[:-1] + (2,)), c.plane @ Jv, _vm(rate, c.plane.T)
+
+
 #: The rows of each declaration of ``cases.constraints``, by its type.
-_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling,
+                 PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def _constraint_rows(model: Model, kin: Kinematics, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -51,7 +51,8 @@ from typing import Callable
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.model import Model
 from formalisms.interface import CONSTRAINT_RCOND
 from formalisms.screw import kinematics, lie
@@ -182,8 +183,69 @@ def _coupling(kin: Kinematics, c, point, q, qd):
             build)
 
 
+# Pfaffian rows (``A(q) qd = 0``, reported phi = 0). A body-fixed point at world position ``p`` has ``dp/dq`` from
+# :func:`kinematics.point_jacobian` and classical bias acceleration ``vd + wd x p + w x pdot`` from the body's space
+# twist ``V = (w, v)`` and bias acceleration; a world direction fixed in the body, ``e = R d``, has ``edot = w x e``.
+
+def _pfaffian_point(kin: Kinematics, qd: np.ndarray, body: str, p: np.ndarray) -> tuple:
+    """``(J, a, w)``: the Jacobian (..., 3, n) and classical bias acceleration (..., 3) of the material point of
+    ``body`` at world position ``p`` (..., 3), and the body's angular velocity ``w`` (..., 3)."""
+    i = kin.model.body_index(body)
+    V, A = kinematics.twists(kin, qd)[..., i, :], kinematics.bias_accelerations(kin, qd)[..., i, :]
+    return kinematics.point_jacobian(kin, i, p), kinematics.classical_acceleration(V, A, p), V[..., :3]
+
+
+def _zero_phi(batch: tuple, rows: int) -> np.ndarray:
+    """The reported ``phi`` of Pfaffian rows: 0 (no position-level function)."""
+    return np.zeros(batch + (rows,))
+
+
+def _point_velocity(kin: Kinematics, c, point, q, qd):
+    """PointVelocity: ``A = D J``, ``Adot qd = D a``; the force ``D^T`` at the point."""
+    x = point(c.body, c.offset)
+    D = c.directions
+    return (_zero_phi(q.shape[:-1], len(D)), _rows_of(D, x.J), x.a @ D.T,
+            _force_wrenches(len(kin.model.bodies), [(x, D.T)]))
+
+
+def _knife_edge(kin: Kinematics, c, point, q, qd):
+    """KnifeEdge: ``e = R d``, ``A = e^T J``, ``Adot qd = (w x e) . pdot + e . a``; the force ``e`` at the point."""
+    i = kin.model.body_index(c.body)
+    x = point(c.body, c.offset)
+    e = lie.rotate(kin.poses[..., i, :3, :3], c.direction)
+    _, _, w = _pfaffian_point(kin, qd, c.body, x.p)
+    pdot = np.einsum("...an,...n->...a", x.J, qd)
+    bias = np.sum(lie.cross(w, e) * pdot + e * x.a, axis=-1, keepdims=True)
+    return (_zero_phi(q.shape[:-1], 1), np.einsum("...a,...an->...n", e, x.J)[..., None, :], bias,
+            _force_wrenches(len(kin.model.bodies), [(x, e.reshape(3, 1) if e.ndim == 1 else e[..., None])]))
+
+
+def _rolling(kin: Kinematics, c, point, q, qd):
+    """RollingContact: the material point at the contact ``p_c = c - r u`` (``cases.constraints``) as a body-fixed
+    point of the space twist, ``A = T dp/dq`` and the body-fixed point's classical acceleration ``a_P``; the contact
+    slides over the disk, so ``Adot qd = T (a_P + w x (edot - w x e))`` with ``e = p_c - c = -r u``, ``edot = -r udot``
+    (``udot`` from ``adot = w x a``, ``a = R axis``). The force ``T^T`` at the contact."""
+    i = kin.model.body_index(c.body)
+    R = kin.poses[..., i, :3, :3]
+    center, a = point(c.body, c.center).p, lie.rotate(R, c.axis)
+    n = np.cross(c.plane[0], c.plane[1])
+    raw = n - np.sum(n * a, axis=-1, keepdims=True) * a
+    length = np.linalg.norm(raw, axis=-1, keepdims=True)
+    u = raw / length
+    e = -c.radius * u
+    J, acc, w = _pfaffian_point(kin, qd, c.body, center + e)
+    a_dot = lie.cross(w, a)
+    raw_dot = -np.sum(n * a_dot, axis=-1, keepdims=True) * a - np.sum(n * a, axis=-1, keepdims=True) * a_dot
+    u_dot = (raw_dot - np.sum(u * raw_dot, axis=-1, keepdims=True) * u) / length
+    slide = lie.cross(w, -c.radius * u_dot - lie.cross(w, e))
+    contact = _Point(i, center + e, J, acc)
+    return (_zero_phi(q.shape[:-1], 2), _rows_of(c.plane, J), (acc + slide) @ c.plane.T,
+            _force_wrenches(len(kin.model.bodies), [(contact, c.plane.T)]))
+
+
 #: The rows of each declaration of ``cases.constraints``, by its type.
-_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling,
+                 PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def terms(kin: Kinematics, q: np.ndarray, qd: np.ndarray) -> ConstraintTerms:

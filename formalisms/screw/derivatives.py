@@ -30,7 +30,9 @@ Constraint kinematics (:mod:`~formalisms.screw.constraints`, space frame). The s
 [sigma_owner(k), S_k]`` with ``sigma_i = J_s,i dq`` (the space twist of the configuration tangent), points as ``dp =
 J_p dq``; the space twists and bias accelerations ``V_s,i = sum_k S_k v_k``, ``Jdot_s,i v = sum_k [V_s,owner(k), S_k
 v_k]`` follow by the product rule, and the classical acceleration ``a_p = vd + wd x p + w x pdot`` likewise. The rows
-of each declaration are differentiated from these (``d phi``, ``d Jc``, ``d (Jcdot v)``).
+of each declaration are differentiated from these (``d phi``, ``d Jc``, ``d (Jcdot v)``); a Pfaffian row's ``dA`` and
+``d (Adot v)`` likewise, with a body-fixed direction turning by ``sigma_i x e`` (the angular part) and a rolling
+contact's point moving over the disk (its ``dp`` the centre's plus that of ``e = -r u``).
 
 Forward dynamics (eq. 2, 12-13). Unconstrained: ``dvdot/dx = -M^-1 dID/dx`` at ``a = vdot``, ``dvdot/du = M^-1 B``
 on the Cholesky factor of ``M``. Constrained: the KKT system differentiated, ``M dvdot = -dID + dJc^T lam + Jc^T
@@ -49,7 +51,8 @@ from typing import Callable
 
 import numpy as np
 
-from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
+from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
+                               RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import Linearization, check_state, state_space
@@ -193,15 +196,11 @@ def _point_tangents(kin: Kinematics, qd: np.ndarray, d: Directions) -> Callable[
     base = constraints._point_kinematics(kin, qd)
     D = len(d.dq)
 
-    def point(body: str | None, offset: np.ndarray) -> _PointTangent:
-        x = base(body, offset)
-        if body is None:
-            zero = np.zeros((D, 3))
-            return _PointTangent(x, np.zeros(3), zero, np.zeros((D, 3, model.nv)), zero, zero)
+    def at(x: constraints._Point, dp: np.ndarray) -> _PointTangent:
+        """The tangents of the material point of body ``x.body`` at world ``x.p``, the point moving by ``dp``."""
         i, p = x.body, x.p
         support = kin.screws.support[i][:, None]
         S, dS = columns * support, dcolumns * support
-        dp = d.dq @ x.J.T
         dJ = np.swapaxes(dS[..., 3:] + lie.cross(dS[..., :3], p) + lie.cross(S[:, :3], dp[:, None, :]), -1, -2)
         w, v, wd = Vs[i, :3], Vs[i, 3:], A[i, :3]
         dw, dv, dwd, dvd = dVs[:, i, :3], dVs[:, i, 3:], dA[:, i, :3], dA[:, i, 3:]
@@ -210,7 +209,83 @@ def _point_tangents(kin: Kinematics, qd: np.ndarray, d: Directions) -> Callable[
         da = dvd + lie.cross(dwd, p) + lie.cross(wd, dp) + lie.cross(dw, pdot) + lie.cross(w, dpdot)
         return _PointTangent(x, pdot, dp, dJ, dpdot, da)
 
+    def point(body: str | None, offset: np.ndarray) -> _PointTangent:
+        x = base(body, offset)
+        if body is None:
+            zero = np.zeros((D, 3))
+            return _PointTangent(x, np.zeros(3), zero, np.zeros((D, 3, model.nv)), zero, zero)
+        return at(x, d.dq @ x.J.T)
+
+    def moving(body: str, p: np.ndarray, dp: np.ndarray) -> _PointTangent:
+        """A point of ``body`` at world ``p`` that moves over the body, by ``dp`` (D, 3) along the directions."""
+        i = model.body_index(body)
+        J = kinematics.point_jacobian(kin, i, p)
+        return at(constraints._Point(i, p, J, kinematics.classical_acceleration(Vs[i], A[i], p)), dp)
+
+    def spin(body: str) -> _Spin:
+        i = model.body_index(body)
+        return _Spin(kin.poses[i, :3, :3], Vs[i, :3], dVs[:, i, :3], sigma[:, i, :3])
+
+    point.moving, point.spin = moving, spin
     return point
+
+
+@dataclass(frozen=True)
+class _Spin:
+    """A body's world rotation ``R``, angular velocity ``w`` and its tangents ``dw`` (D, 3), and the rotation of its
+    frame ``sigma_w`` (D, 3) along the directions (the angular part of ``J_s,i dq``: ``dR = [sigma_w] R``)."""
+
+    R: np.ndarray
+    w: np.ndarray
+    dw: np.ndarray
+    sigma_w: np.ndarray
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``x . y`` over the last axis, broadcasting (a vector (3,) with tangents (D, 3): (D,))."""
+    return np.sum(x * y, axis=-1)
+
+
+def _point_velocity(c, point, D: int, nv: int):
+    t = point(c.body, c.offset)
+    return np.einsum("ra,Dan->Drn", c.directions, t.dJ), t.da @ c.directions.T
+
+
+def _knife_edge(c, point, D: int, nv: int):
+    """``A = e^T J``, ``Adot qd = (w x e) . pdot + e . a`` with ``e = R d`` turning by ``de = sigma_w x e``."""
+    t, s = point(c.body, c.offset), point.spin(c.body)
+    e = s.R @ c.direction
+    de = lie.cross(s.sigma_w, e)
+    dJc = de @ t.x.J + np.einsum("a,Dan->Dn", e, t.dJ)
+    we = lie.cross(s.w, e)
+    dbias = (_dot(lie.cross(s.dw, e) + lie.cross(s.w, de), t.pdot) + t.dpdot @ we + de @ t.x.a + t.da @ e)
+    return dJc[:, None, :], dbias[:, None]
+
+
+def _rolling(c, point, D: int, nv: int):
+    """The rolling rows of ``constraints._rolling`` differentiated: the contact ``p_c = center + e`` moves by ``d center
+    + de`` (the material point there: :func:`_point_tangents`' ``moving``), ``A = T J(p_c)`` and ``Adot qd = T (a(p_c)
+    + w x (edot - w x e))``, with ``a = R axis`` turning by ``sigma_w x a`` and the contact terms by the chain rule."""
+    s, center = point.spin(c.body), point(c.body, c.center)
+    n, r = np.cross(c.plane[0], c.plane[1]), c.radius
+    a = s.R @ c.axis
+    da = lie.cross(s.sigma_w, a)
+    raw, draw = n - (n @ a) * a, -(da @ n)[:, None] * a - (n @ a) * da
+    length = float(np.sqrt(raw @ raw))
+    u = raw / length
+    du = (draw - (draw @ u)[:, None] * u) / length
+    a_dot = lie.cross(s.w, a)
+    da_dot = lie.cross(s.dw, a) + lie.cross(s.w, da)
+    raw_dot = -(n @ a_dot) * a - (n @ a) * a_dot
+    draw_dot = -(da_dot @ n)[:, None] * a - (n @ a_dot) * da - (da @ n)[:, None] * a_dot - (n @ a) * da_dot
+    u_dot = (raw_dot - (u @ raw_dot) * u) / length
+    du_dot = ((draw_dot - (du @ raw_dot)[:, None] * u - (u @ raw_dot) * du - (draw_dot @ u)[:, None] * u) / length
+              - (draw @ u)[:, None] * u_dot / length)
+    e, de, e_dot, de_dot = -r * u, -r * du, -r * u_dot, -r * du_dot
+    t = point.moving(c.body, center.x.p + e, center.dp + de)
+    dslide = (lie.cross(s.dw, e_dot - lie.cross(s.w, e))                 # d of w x (edot - w x e)
+              + lie.cross(s.w, de_dot - lie.cross(s.dw, e) - lie.cross(s.w, de)))
+    return np.einsum("ra,Dan->Drn", c.plane, t.dJ), (t.da + dslide) @ c.plane.T
 
 
 def _circle(c, point, D: int, nv: int):
@@ -239,7 +314,8 @@ def _coupling(c, point, D: int, nv: int):
 
 
 #: The rows' tangents of each declaration of ``cases.constraints`` (``constraints.terms``' rows), by its type.
-_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling}
+_DECLARATIONS = {PointOnCircle: _circle, PointsCoincide: _coincide, PointOnLine: _line, JointCoupling: _coupling,
+                 PointVelocity: _point_velocity, KnifeEdge: _knife_edge, RollingContact: _rolling}
 
 
 def constraint_tangents(kin: Kinematics, qd: np.ndarray, d: Directions) -> tuple[np.ndarray, np.ndarray]:
