@@ -25,7 +25,7 @@ from crosscheck import charts, sampling
 from formalisms import euler_lagrange as el
 
 EPS = np.finfo(float).eps
-LABELS = ("M", "Cqd", "g", "T", "phi", "Jc", "bias")
+LABELS = ("M", "Cqd", "g", "T", "phi", "Jc", "bias", "Qext")
 
 
 @pytest.fixture(autouse=True)
@@ -42,7 +42,8 @@ def scratch_cache(tmp_path, monkeypatch):
 def assert_agree(compiled, interpreted, what: str) -> None:
     """Each quantity of one state (:class:`el.Terms`, :class:`el.ConstraintTerms`) within 100 eps cond(M) of its own
     size (its largest entry)."""
-    a, b = [[np.asarray(v, dtype=float) for v in (*terms, *cons)] for terms, cons in (compiled, interpreted)]
+    a, b = [[np.asarray(v, dtype=float) for v in (*terms[:4], *cons, *([] if terms.Qext is None else [terms.Qext]))]
+            for terms, cons in (compiled, interpreted)]
     cond = np.linalg.cond(a[0])
     for label, x, y in zip(LABELS, a, b):
         if x.size:

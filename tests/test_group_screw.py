@@ -23,6 +23,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import cases
+import cases.constraints
+from cases.model import build_model
 from crosscheck import fault_catalog, frames, reference, testing
 from crosscheck.faults import injected
 from crosscheck.sampling import sample_states
@@ -309,9 +311,24 @@ def test_the_reference_comparison_catches_each_screw_fault_on_the_group_cases(fa
     the faults patch (``lie.coad``, ``dynamics._wrench_to_parent``, ``spatial_inertias``, ``gravity_wrenches``,
     ``kinematics.classical_acceleration``, ``point_jacobian``) are the ones the group paths call, and the comparison
     is tight enough to see them."""
-    models = [cases.load(case) for case in GROUP_CASES]
+    models = [cases.load(case) for case in GROUP_CASES] + _with_loads_and_a_knife_edge()
+    names = [m.name for m in models]
     samples = [sample_states(m, 3, 29, m.name)[1:] for m in models]
     assert not any(_caught(m, s) for m, s in zip(models, samples))
     with injected(fault):
-        caught = [case for case, m, s in zip(GROUP_CASES, models, samples) if _caught(m, s)]
-    assert caught, f"{fault.name} is not caught on {GROUP_CASES}"
+        caught = [name for name, m, s in zip(names, models, samples) if _caught(m, s)]
+    assert caught, f"{fault.name} is not caught on {names}"
+
+
+def _with_loads_and_a_knife_edge() -> list:
+    """satellite_arm (a free base and an arm) once with a world-frame wrench at an offset point of its elbow and a
+    body-frame force on its base, once with a knife edge on its elbow (on the base alone its row would be constant in
+    the base's body-frame velocity, Adot qd = 0): the external-load and Pfaffian paths of the
+    group code, which the catalog's load and Pfaffian faults patch."""
+    base = cases.load("satellite_arm")
+    loads = [cases.ExternalWrench("gust", "elbow", (0.1, -0.2, 0.05), (0.3, 0.5, -0.2), (0.4, 0.2, -0.1), "world"),
+             cases.ExternalForce("thrust", "base", (0.2, 0.1, 0.0), (0.5, 1.0, 0.3), "body")]
+    edge = [cases.constraints.KnifeEdge("runner", "elbow", (0.2, 0.0, -0.1), (0.0, 1.0, 0.0))]
+    return [build_model(f"satellite_arm_{what}", base.bodies, base.gravity, base.input_map, base.task_points,
+                        tuple(base.constraints) + tuple(extra), loads=load)
+            for what, extra, load in (("loaded", (), loads), ("knife_edge", edge, ()))]

@@ -234,7 +234,7 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
     out = []
     for i, (qd, u) in enumerate(zip(QD, U)):
         applied = tau_ctrl[i] if tau_ext is None else np.abs(tau_ctrl[i]) + np.abs(tau_ext[i])
-        mass = conditioning.of_mass(model, M[i], c_qd[i], g[i], applied, qd)
+        mass = conditioning.of_mass(model, M[i], c_qd[i], forces[2][i], applied, qd)   # gravity's g: tau_ext is in applied
         Lambda, task_cond = conditioning.task_inertia(model, J[i], factor.state(i))
         own = {key: value[i] for key, value in extras.items()}
         out.append(Split(drift=drift[i], ctrl=ctrl[i], total=total[i], lam=None, lam_drift=None, power_constr=None,
@@ -275,8 +275,8 @@ def split(model: Model, q, qd, u) -> Split:
     loads, tau_ext, (h, c_qd, g) = _external(kin, tuple(forces))
     factor = _factor(model, M[None], q[None])
     tau_ctrl = model.input_map @ u
-    mass = conditioning.of_mass(model, M, c_qd, g, tau_ctrl if tau_ext is None else np.abs(tau_ctrl) + np.abs(tau_ext),
-                                qd)
+    mass = conditioning.of_mass(model, M, c_qd, forces[2], tau_ctrl if tau_ext is None  # gravity's g: tau_ext is
+                                else np.abs(tau_ctrl) + np.abs(tau_ext), qd)           # counted in the applied forces
     Lambda, task_cond = _task_inertia(kin, factor)
     common = dict(cond_M=mass.cond, task_inertia=Lambda, **_power(model, u, qd), **_external_fields(tau_ext, qd))
     if model.constraints:
