@@ -144,7 +144,7 @@ def quantities(model) -> tuple[str, ...]:
 
 #: condition name (``Split.conditions``) -> limit. Above it the formalism reporting the condition number is in
 #: BREAKDOWN at that state: its method is ill-conditioned there, which is reported, not counted as a bug.
-#: Calibrated by measurement (docs/tolerances.md, "Breakdown"): on paths into the task singularities of the planar chains
+#: Calibrated by measurement (docs/tolerances.md, Breakdown): on paths into the task singularities of the planar chains
 #: and the Panda, the largest error/tolerance of unflagged operational-space states is 0.064 at 1e3, 0.24 at
 #: 1e4 and 4.5 at 1e6 (the recomposition's floor grows like eps |Jdot qd| sqrt(cond)).
 BREAKDOWN_LIMITS: dict[str, float] = {
