@@ -252,3 +252,14 @@ def test_every_docs_page_is_linked_from_the_readme():
 def test_docs_cite_no_path_outside_the_repository():
     for page in PAGES:
         assert "../shared" not in page.read_text(), page.name
+
+
+def test_readme_plugin_excerpt_is_the_example_file():
+    """The README shows the heart of ``examples/my_dynamics.py`` (elisions as ``...``): every line it shows is there."""
+    readme = (ROOT / "README.md").read_text()
+    (excerpt,) = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    source = (ROOT / "examples" / "my_dynamics.py").read_text().splitlines()
+    shown = [line for line in excerpt.splitlines() if line.strip() and line.strip() != "..."]
+    assert len(shown) > 10
+    missing = [line for line in shown if line.rstrip() not in source]
+    assert not missing, f"README lines not in examples/my_dynamics.py: {missing}"
