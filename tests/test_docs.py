@@ -56,7 +56,7 @@ PARSE_ONLY = [
     ("crosscheck gate --model path/to", "a placeholder path the reader supplies"),
     ("crosscheck gate --model robot.urdf", "a placeholder path the reader supplies"),
     ("crosscheck gate", "all built-in cases (2 minutes on 2 cores), or Panda or a 12-link chain, 100-500 states"),
-    ("crosscheck faults", "the whole catalog took 1010 s (docs/faults.md); named faults hunt through the gate's states"),
+    ("crosscheck faults", "the whole catalog took 1010 s (docs/faults.md); a named fault hunts the gate's states"),
     ("crosscheck fuzz", "a campaign: minutes to hours"),
     ("crosscheck replay", "needs a finding of a campaign (ID)"),
     ("crosscheck merge", "needs the directories of a sharded campaign"),
