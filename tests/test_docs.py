@@ -66,10 +66,6 @@ PARSE_ONLY = [
     ("crosscheck trajectory", "a 50-digit reference trajectory: 20 s for a 2 s horizon, more for --report"),
 ]
 
-#: Inline code spans name commands in prose, often as fragments (``crosscheck eval --chart NAME``): each of their
-#: options must exist in that subcommand's parser.
-
-
 def _strip_comments(text: str) -> str:
     """The page without HTML comments (notes for maintainers, not commands)."""
     return re.sub(r"<!--.*?-->", "", text, flags=re.S)
@@ -93,7 +89,7 @@ def _code_lines(text: str):
         if line.startswith("    ") and not line.lstrip().startswith(("-", "*", "|")) and prev_blank:
             yield line.strip()
             continue
-        prev_blank = not line.strip() or (prev_blank and line.startswith("    "))
+        prev_blank = not line.strip()
 
 
 def _yaml_runs(block: list[str]):
@@ -153,6 +149,8 @@ def strict_parser() -> argparse.ArgumentParser:
 
 @pytest.mark.parametrize("span", sorted(SPANS))
 def test_every_command_named_in_prose_has_those_options(span):
+    """Inline code spans name commands in prose, often as fragments (``crosscheck eval --chart NAME``): each option
+    they name must exist in that subcommand's parser."""
     words = span.split()
     if len(words) == 1 or words[1].startswith("-"):
         assert all(w in build_parser()._option_string_actions for w in words[1:]), f"{SPANS[span]}: `{span}`"
