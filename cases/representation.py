@@ -1,4 +1,4 @@
-"""The same scene, modelled with general 3-D body frames (issue 7, "model no more than a scene needs").
+"""The same scene, modelled with general 3-D body frames (docs/performance.md, "Model no more than a scene needs").
 
 The case factories build the smallest model of a scene: planar chains with joint axes along z, point masses where
 the article uses them, placements along one axis. :func:`general_3d` rebuilds a model with every body frame turned

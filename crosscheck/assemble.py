@@ -1,7 +1,7 @@
 """Assembling a :class:`~formalisms.interface.Split` for a plugin backend: the scales and conditions a backend must
 report, computed from its own M, C qd, g (and Jc, Jcdot qd) by the harness's definitions.
 
-A user's backend (README, "Bring your own backend") usually has M, C qd and g and solves for the accelerations; what
+A user's backend (docs/plugins.md) usually has M, C qd and g and solves for the accelerations; what
 it does not want to write is the bookkeeping the harness reads: the control power, ``cond(M)`` and ``accel_scale``
 (:func:`crosscheck.conditioning.normwise_scales`), and with constraints ``Jc^T lam``, the constraint power, ``Jc qd``
 and the conditioning of ``S = Jc M^-1 Jc^T`` (:func:`crosscheck.conditioning.constraint_conditions`). These helpers

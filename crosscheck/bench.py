@@ -1,4 +1,4 @@
-"""Speed against accuracy (issue 7): ``crosscheck bench`` measures every backend on a fixed set of scenes.
+"""Speed against accuracy: ``crosscheck bench`` measures every backend on a fixed set of scenes.
 
 For each scene (double pendulum, planar chains of n links, Panda, a constrained four-bar) and backend (the five
 formalisms, the Pinocchio reference, plugins):
@@ -68,7 +68,7 @@ class Plan:
     error_states: int
     timing_states: int
     batch: int                   # N for every scene but the target scene
-    target_batch: int            # N on the target scene (issue: panda at N = 10,000)
+    target_batch: int            # N on the target scene (the target: panda at N = 10,000)
     min_time: float              # seconds each timing loop runs at least
     prep: tuple[str, ...]        # scene labels whose preparation is measured in fresh processes
     representation: tuple[Scene, ...]

@@ -187,7 +187,7 @@ def render(res: Results, target: str = "panda", interrupted: str = "") -> str:
         "",
         "## Targets",
         "",
-        "The issue's targets. A batched split returns drift, ctrl and total: three solves per state (one factorization "
+        "The targets. A batched split returns drift, ctrl and total: three solves per state (one factorization "
         "and three right-hand sides, or three recursions), where `aba` is one. Pinocchio's own batched split (three "
         "`abaInParallel` passes, row `pinocchio`) shows what that costs with compiled code.",
         "",

@@ -1,4 +1,4 @@
-"""Closed forms of the built-in cases, and the gate's voter ``closed_form`` (issue 15, item 2).
+"""Closed forms of the built-in cases, and the gate's voter ``closed_form``.
 
 The five formalisms and the Pinocchio reference all read the same :class:`~cases.model.Model`: a bug in a case
 factory or in the model language (an inertia rotated the wrong way, a length read from the wrong parameter) moves all

@@ -38,7 +38,7 @@ from crosscheck import tolerance as policy
 from crosscheck.compare import Comparison, compare
 
 EPS = float(np.finfo(float).eps)
-#: The backends' rule for redundant and degenerate rows (README, "Breakdown"), stated again by the harness: the same
+#: The backends' rule for redundant and degenerate rows (docs/tolerances.md), stated again by the harness: the same
 #: numbers as ``formalisms.interface.CONSTRAINT_RCOND`` and ``DEGENERATE_ROW`` (a test holds them equal), written
 #: here so that a threshold changed there, which every backend would follow, is audited against the documented rule
 #: and not against itself.

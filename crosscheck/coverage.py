@@ -26,7 +26,7 @@ import numpy as np
 from cases.model import Model
 from crosscheck import sampling
 
-#: The span the gate promises to sample (README, "The command line"): one turn of a revolute joint, a metre of a
+#: The span the gate promises to sample (docs/faults.md, coverage): one turn of a revolute joint, a metre of a
 #: prismatic one. Written here, not read from ``crosscheck.sampling``, so that a sampler drawing from a narrower range
 #: is measured against the promise, not against itself.
 REVOLUTE_SPAN = 2.0 * np.pi

@@ -1,5 +1,5 @@
 """The linearization checks (article 4.8, eq. 11): every backend's A and B at a state, compared with each other and
-with an external reference, with a tolerance derived like the others (README, "Tolerances").
+with an external reference, with a tolerance derived like the others (docs/tolerances.md).
 
 ``xdot ~ f(x_t) + A (x - x_t) + B u`` with ``x = (q, v)`` in the tangent convention of
 :class:`formalisms.interface.Linearization`. The kinematic rows ``[A_qq, I]`` and ``[0]`` are the convention's
@@ -23,7 +23,7 @@ forces summed, :class:`formalisms.interface.Split`; ``unit_j`` = 1 for an angle,
 translation: a force's derivative per metre is its size over the lever), ``accel_scale / max(|v|_2, sqrt(accel_scale /
 L))`` for ``dv_j`` (the velocity-product accelerations are quadratic in v, so their derivative is at most twice their
 size over |v|, bounded at rest by the model's own rate) and ``||M^-1|| |B e_j|`` for ``du_j`` (eq. 17's two terms
-can cancel). FACTOR is data (:data:`FACTOR`), measured like the others' (README, "Tolerances").
+can cancel). FACTOR is data (:data:`FACTOR`), measured like the others' (docs/tolerances.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A high-precision reference: the exact split of a model's float data, in mpmath (issue 7).
+"""A high-precision reference: the exact split of a model's float data, in mpmath.
 
 :func:`split` computes drift, ctrl, total (eq. 9, 10; eq. 12-17 with constraints) and the multipliers lam,
 lam_drift with mpmath at ``digits`` significant digits (default :data:`DIGITS` = 50), so that every backend's true
@@ -59,7 +59,7 @@ the rigid rotation of the normalized quaternion is the exact meaning taken here.
 float backends that follow it differ from this reference by about ``| |quat| - 1 |`` (1e-16 for a quaternion
 normalized in float).
 
-Cost: O(n^2) multiprecision operations per state plus Cholesky (n^3 / 6), n = nv; see the report of issue 7 for
+Cost: O(n^2) multiprecision operations per state plus Cholesky (n^3 / 6), n = nv; see ``reports/speed_accuracy.md`` for
 timings (Solo12, nv 18: about 12 ms per split, 75 ms with its 12 contact rows, on gmpy).
 """
 

@@ -1,5 +1,5 @@
 """How small an error the default gate catches: per backend and term, the smallest relative error in its ``M``,
-``C qd`` or ``g`` that makes a state of the gate fail, per case family (issue 15: on the 3-D cases as sharp as on the
+``C qd`` or ``g`` that makes a state of the gate fail, per case family (the claim: on the 3-D cases as sharp as on the
 planar ones).
 
 A term fault scales one term where each backend forms it, before its solve, by ``1 + size``
@@ -43,7 +43,7 @@ FAMILIES = {"planar": ("double_pendulum", "n_link_pendulum", "acrobot"),
                            "solo12_standing"),
             "external loads": ("double_pendulum_tip_force", "double_pendulum_spring"),
             "nonholonomic": ("knife_edge", "rolling_disk", "differential_drive")}
-#: The cases issue 15 names for its 3-D claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
+#: The 3-D cases of the claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
 CLAIMED = ("spatial_arm", "panda")
 CLAIM = 1e-10
 
@@ -256,7 +256,7 @@ def render(table: Table) -> list[str]:
              f"Each backend's M, C qd or g scaled by 1 + e where it forms it (`crosscheck.sensitivity`); e is the "
              f"smallest that fails a state of the gate (every comparison and check), measured on the first "
              f"{table.states} states of each case (the default gate evaluates 100, so it catches at least this). "
-             f"Issue 15's claim: {CLAIM:.0e} on the 3-D cases {', '.join(CLAIMED)}.", "",
+             f"The claim: {CLAIM:.0e} on the 3-D cases {', '.join(CLAIMED)}.", "",
              "| backend | term | " + " | ".join(FAMILIES) + " | " + " | ".join(CLAIMED) + " | claim |",
              "|---|---|" + "---|" * (len(FAMILIES) + len(CLAIMED) + 1)]
     for backend in backends:

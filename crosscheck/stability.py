@@ -1,4 +1,4 @@
-"""Stability maps (issue 7, item 3): true errors and condition numbers along paths into trouble.
+"""Stability maps: true errors and condition numbers along paths into trouble.
 
 Each path (:func:`paths`) walks one model or family of models towards a place where some method degrades: the
 double pendulum's task singularity theta2 -> 0 (article 6.3.4), the parallelogram four-bar's change point (5.6),

@@ -63,11 +63,11 @@ REST_RANGE = (0.0, 0.5)
 #: Drawn lengths below this (1 micrometre) are drawn as 0. Physically they are below any modelling precision, and
 #: numerically a lever arm that small next to metre-scale placements is decided by rounding: a constraint point
 #: 1e-38 m off a joint axis has a Jacobian row of 1e-38 in body-frame kinematics and exactly 0 in world-frame
-#: kinematics, so the backends disagree on whether the constraint exists (see the fuzzing notes in the README).
+#: kinematics, so the backends disagree on whether the constraint exists (see docs/campaigns.md).
 MIN_LENGTH = 1e-6
 #: Drawn direction components and state entries (angles, rates, inputs) below this in magnitude are drawn as 0:
 #: below any sensor, actuator or machining resolution, they only probe floating-point underflow (a 1-row task
-#: Jacobian of 1e-135 at q = 2e-135 rad overflows the operational-space backend's task inertia; see the README).
+#: Jacobian of 1e-135 at q = 2e-135 rad overflows the operational-space backend's task inertia; see docs/campaigns.md).
 MIN_VALUE = 1e-9
 #: A projected state whose q moved more than this from the draw (in some coordinate) is rejected: Gauss–Newton left
 #: the draw's neighbourhood (a revolute angle of -7.8e6 rad was seen), and the state is a far-off copy of one near it.

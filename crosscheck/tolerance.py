@@ -68,7 +68,7 @@ state, an inadmissible sampled state.
 
 The scales are the median over the backends' own reports, so one backend misreporting its conditioning
 cannot loosen the tolerance for the others. The factors below are data: each is a safety margin over the
-largest error/scale ratio measured on correct backends (README, "Tolerances"), kept far below the O(1)
+largest error/scale ratio measured on correct backends (docs/tolerances.md), kept far below the O(1)
 relative errors a modelling bug produces.
 """
 
@@ -145,7 +145,7 @@ def quantities(model) -> tuple[str, ...]:
 
 #: condition name (``Split.conditions``) -> limit. Above it the formalism reporting the condition number is in
 #: BREAKDOWN at that state: its method is ill-conditioned there, which is reported, not counted as a bug.
-#: Calibrated by measurement (README, "Breakdown"): on paths into the task singularities of the planar chains
+#: Calibrated by measurement (docs/tolerances.md, Breakdown): on paths into the task singularities of the planar chains
 #: and the Panda, the largest error/tolerance of unflagged operational-space states is 0.064 at 1e3, 0.24 at
 #: 1e4 and 4.5 at 1e6 (the recomposition's floor grows like eps |Jdot qd| sqrt(cond)).
 BREAKDOWN_LIMITS: dict[str, float] = {

@@ -1,4 +1,4 @@
-"""Forward ZTCF trajectories (article 4.5, 4.6, 10.3; issue 19 items 4, 5).
+"""Forward ZTCF trajectories (article 4.5, 4.6, 10.3).
 
 A pointwise ZTCF sample (eq. 10) is the drift at one instant; a forward ZTCF trajectory integrates the drift (u = 0,
 or a given input schedule ``u(t)``) from a state. Here every backend's dynamics is integrated through the SAME

@@ -1,4 +1,4 @@
-"""The trajectory report: ``reports/trajectories.md`` and its charts (issue 19, items 4 and 5).
+"""The trajectory report: ``reports/trajectories.md`` and its charts.
 
 One command regenerates everything: ``crosscheck trajectory --report [DIR]``. The work is a list of independent
 jobs (each backend's run per integrator, the reference and its verification and Lyapunov runs, the stability-map

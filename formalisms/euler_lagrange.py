@@ -1404,7 +1404,7 @@ def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int,
 
 #: CPU seconds of a cold derivation per (body, coordinate its pose depends on) pair: 21 ms in tiago's joint chart (48
 #: joints, 461 pairs, 9.8 s), 27 ms in its banded affine chart (682 pairs, 18.4 s), 30 ms in spatial_arm's dense one,
-#: 7-12 ms on planar chains of point masses (measured on the 2-core machine of the README, CPU time).
+#: 7-12 ms on planar chains of point masses (measured on the 2-core machine of docs/performance.md, CPU time).
 SECONDS_PER_PAIR = 0.03
 
 

@@ -1,4 +1,4 @@
-"""The files that run a campaign on many machines (README, "Campaigns on many machines"): the GitHub Actions workflow
+"""The files that run a campaign on many machines (docs/campaigns.md, "on many machines"): the GitHub Actions workflow
 ``.github/workflows/fuzz-campaign.yml`` and the Slurm job scripts ``examples/slurm/fuzz.sh`` (the array of shards)
 and ``examples/slurm/merge.sh``.
 

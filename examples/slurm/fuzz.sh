@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A crosscheck fuzzing campaign on a Slurm cluster: one shard per task of this job array; examples/slurm/merge.sh,
-# submitted to start after the whole array, combines the shards (README, "Campaigns on many machines").
+# submitted to start after the whole array, combines the shards (docs/campaigns.md, "Campaigns on many machines").
 #
 # Once, on a login node, from the repository root (a Python 3.11 or newer: `module load python` on many clusters):
 #     python3 -m venv .venv && . .venv/bin/activate && pip install -e .
