@@ -25,12 +25,15 @@ def round_trip(model):
 
 def gear_model():
     """A three-link pendulum with its first joints geared 2:1 and its tip on a vertical line: the two declarations
-    no built-in case uses (JointCoupling, PointOnLine)."""
+    no built-in case uses (JointCoupling, PointOnLine), and a point of the last link with no vertical velocity (the
+    Pfaffian PointVelocity, which no built-in case uses either)."""
     base = cases.load("n_link_pendulum", n=3)
     return cases.build_model("geared", base.bodies, gravity=base.gravity, task_points=base.task_points,
                              constraints=[cases.JointCoupling("gear", ("link1", "link2"), (2.0, -1.0), 0.25),
                                           cases.PointOnLine("slot", "link3", [0.0, -1.0, 0.0], [0.3, 0.0, 0.0],
-                                                            [[1.0, 0.0, 0.0]])])
+                                                            [[1.0, 0.0, 0.0]]),
+                                          cases.constraints.PointVelocity("brake", "link3", [0.0, -0.5, 0.0],
+                                                                          [[0.0, 1.0, 0.0]])])
 
 
 @pytest.mark.parametrize("name", cases.names())
@@ -111,8 +114,8 @@ def test_constrained_drawn_states_are_admissible(data):
 def test_constraints_of_every_type_are_drawn():
     drawn = []
 
-    @settings(max_examples=40, database=None, deadline=None)
-    @given(testing.models(max_bodies=3, constraints=True))
+    @settings(max_examples=100, database=None, deadline=None)
+    @given(testing.models(max_bodies=3, constraints=True, pfaffian=True))
     def collect(model):
         drawn.append(model)
 
