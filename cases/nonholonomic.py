@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from cases.constraints import XY_PLANE, KnifeEdge, RollingContact
-from cases.factories import _positive, register
+from cases.factories import _positive, _require, register
+from cases.loads import ExternalWrench
 from cases.model import Body, Model, TaskPoint, build_model
 
 _X, _Y, _Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
@@ -73,7 +74,7 @@ def rolling_disk(m: float = 1.0, r: float = 0.5, g: float = 9.81) -> Model:
 
 @register
 def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1, track: float = 0.4,
-                       com_ahead: float = 0.1, g: float = 9.81) -> Model:
+                       com_ahead: float = 0.1, g: float = 9.81, payload: float = 2.0, drag: float = 3.0) -> Model:
     """A differential-drive robot: a chassis on the ground plane and two wheels of radius r on a common axle, each
     rolling without slipping (two ``RollingContact`` declarations, four rows).
 
@@ -83,8 +84,16 @@ def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1
     two wheel torques. Both wheels forbid the same sideways motion of the axle, so the four rows have rank 3: the
     lateral multipliers are the minimum-norm split of the one lateral force (the rank rule of
     ``formalisms.interface``), two degrees of freedom remain (drive and turn).
+
+    The payload (an external load, ``cases.loads``): a crate of ``payload`` kg on a tray behind and left of the axle,
+    not part of the chassis' inertia, pressing with its weight and dragging with ``drag`` N backward and 0.4 ``drag``
+    to the right (chassis frame), with a 0.1 ``drag`` N m yaw couple: an ``ExternalWrench`` in the body frame at
+    ``(-0.15, 0.05, 2 r)``. Its vertical force does no work in these coordinates (tau_ext has none of it); the
+    horizontal ones drive the drift at rest.
     """
     _positive("differential_drive", m_body=m_body, m_wheel=m_wheel, r=r, track=track)
+    _require(payload >= 0.0 and drag >= 0.0 and np.isfinite(payload + drag),
+             f"differential_drive: payload ({payload} kg) and drag ({drag} N) must be finite and >= 0")
     half = track / 2.0
     chassis_inertia = m_body / 12.0 * np.diag([track**2 + r**2, (2 * half) ** 2 + r**2, 2 * track**2])
     bodies = _planar_carriages("chassis") + [
@@ -96,8 +105,11 @@ def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1
     B = np.zeros((5, 2))
     B[3, 0] = B[4, 1] = 1.0
     rows = [RollingContact(f"{side}_rolling", f"wheel_{side}", _ORIGIN, _Y, r, XY_PLANE) for side in ("left", "right")]
+    crate = ExternalWrench("payload", "chassis", (-0.15, 0.05, 2.0 * r), (-drag, -0.4 * drag, -payload * g),
+                           (0.0, 0.0, 0.1 * drag), "body")
     return build_model("differential_drive", bodies, gravity=(0.0, 0.0, -g), input_map=B, constraints=rows,
-                       task_points=[TaskPoint("front", "chassis", (com_ahead + 0.1, 0.0, r), XY_PLANE)])
+                       task_points=[TaskPoint("front", "chassis", (com_ahead + 0.1, 0.0, r), XY_PLANE)],
+                       loads=[crate])
 
 
 __all__ = ["differential_drive", "knife_edge", "rolling_disk"]

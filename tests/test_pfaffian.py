@@ -165,3 +165,22 @@ def test_the_tolerance_grows_as_the_rolling_disk_lies_flat():
         q = np.array([0.1, 0.2, 0.7, lean, 0.4])
         assert tolerance._contact_gain(model, q) == pytest.approx(1.0 / np.cos(lean) ** 2, rel=1e-9)
     assert tolerance._contact_gain(cases.load("knife_edge"), np.zeros(3)) == 1.0
+
+
+def test_the_differential_drives_payload_load_by_hand():
+    """The crate on the robot's tray (``cases.nonholonomic.differential_drive``): a body-frame force f_b and couple
+    m_z at r_b = (-0.15, 0.05) from the axle's midpoint. In q = (x, y, heading, wheels) by virtual work:
+    tau_ext = (R f_b (x, y), r_b x f_b + m_z, 0, 0), R the heading's rotation; the weight does no work. Every backend
+    and the reference give it, and the drift at rest is the KKT solve with it on the right-hand side."""
+    drag, heading = 3.0, 0.7
+    model = cases.load("differential_drive")
+    c, s = np.cos(heading), np.sin(heading)
+    f_b = np.array([-drag, -0.4 * drag])
+    expected = np.array([c * f_b[0] - s * f_b[1], s * f_b[0] + c * f_b[1],
+                         -0.15 * f_b[1] - 0.05 * f_b[0] + 0.1 * drag, 0.0, 0.0])
+    q = np.array([0.3, -0.2, heading, 1.1, -0.4])
+    qd = sampling.project_velocity(model, q, np.array([0.5, -0.3, 0.8, 2.0, 1.0]))
+    for backend in (*BACKENDS, reference):
+        out = backend.split(model, q, qd, np.zeros(2))
+        assert np.abs(out.external_force - expected).max() <= 1e-14 * 10, backend.__name__
+        assert out.power_ext == pytest.approx(expected @ qd, rel=1e-12, abs=1e-14)
