@@ -110,8 +110,10 @@ def test_replay_of_an_unknown_id_lists_the_valid_ones(reference_run, capsys):
 
 
 #: Seed 2's six examples include a moving mechanism of two or more bodies (seeds 0, 4 and 5 draw none in six).
+#: The linearization checks are off: a Coriolis term dropped from the dynamics is what this campaign finds and
+#: shrinks, and linearizing every backend at each shrink step cost a quarter of its time (56 s against 42 s).
 FAULT = dict(seed=2, examples=6, chunk_examples=3, max_bodies=3, max_states=2, constraints=False,
-             conservation=False)
+             conservation=False, linearization=False)
 
 
 def interrupt_when_shrinking(patch: pytest.MonkeyPatch) -> None:
