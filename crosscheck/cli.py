@@ -31,7 +31,7 @@ from cases.task import TaskPointError
 from crosscheck import backends, charts, frames, linearization, sampling
 from crosscheck import tolerance as policy
 from crosscheck import diagnosis, gate, junit, preflight, registry
-from crosscheck.gate import CaseSpec, Checks, run_gate
+from crosscheck.gate import DEFAULT_SAMPLES, CaseSpec, Checks, run_gate
 from crosscheck.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.progress import Display
 from crosscheck import report as gate_report
@@ -1033,7 +1033,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
                       "of u (default: every joint but a free base's)")
-    gate.add_argument("--samples", type=int, default=100, help="states per case (default 100)")
+    gate.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
+                      help=f"states per case (default {DEFAULT_SAMPLES})")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     gate.add_argument("--formalism", action="append", help="restrict to these backends (repeatable)")
     gate.add_argument("--report", default=DEFAULT_REPORT, metavar="PATH",
@@ -1100,7 +1101,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "catches it")
     hunt.add_argument("--fault", action="append", default=[], metavar="NAME",
                       help="run only this fault (repeatable; default: the whole catalog, see --list)")
-    hunt.add_argument("--samples", type=int, default=100, help="at most this many states per case (default 100)")
+    hunt.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
+                      help=f"at most this many states per case, as the default gate (default {DEFAULT_SAMPLES})")
     hunt.add_argument("--seed", type=_seed, default=0, help="random seed of the gate's states (default 0)")
     hunt.add_argument("--report", default=DEFAULT_FAULTS_REPORT,
                       help=f"markdown report path (default {DEFAULT_FAULTS_REPORT})")

@@ -30,7 +30,7 @@ import numpy as np
 
 from crosscheck import faults, registry, selftest
 from crosscheck import coverage as coverage_of
-from crosscheck.gate import CaseSpec, Checks
+from crosscheck.gate import DEFAULT_SAMPLES, CaseSpec, Checks
 from crosscheck.sampling import sample_states
 
 
@@ -84,7 +84,7 @@ def _first_failure(outcome) -> str:
     return ", ".join(f"{c.key} ({faults._ratio(c.ratio)}, outlier {c.outlier or '-'})" for c in found[:3])
 
 
-def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=None, samples: int = 100,
+def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=None, samples: int = DEFAULT_SAMPLES,
          seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
          progress: Callable[[str, int], None] | None = None) -> SharedHunt:
     """Everything the default gate does, under ``fault``, until something fails (module doc); ``progress(case,

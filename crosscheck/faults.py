@@ -41,7 +41,7 @@ import formalisms
 from crosscheck import backends as backend_registry
 from crosscheck import charts, linearization, registry
 from crosscheck.compare import DISAGREE, backend_of, suspect
-from crosscheck.gate import CaseSetup, CaseSpec, Checks, StateOutcome
+from crosscheck.gate import DEFAULT_SAMPLES, CaseSetup, CaseSpec, Checks, StateOutcome
 from crosscheck.sampling import State, sample_states
 from formalisms.interface import Formalism, Unsupported
 
@@ -439,7 +439,7 @@ def default_backends() -> list[Formalism]:
 
 
 def hunt(fault: Fault, specs: Sequence[CaseSpec] | None = None, backends: Sequence[Formalism] | None = None,
-         samples: int = 100, seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
+         samples: int = DEFAULT_SAMPLES, seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
          progress: Callable[[str, int], None] | None = None) -> Hunt:
     """Run the gate's states round robin under ``fault`` (module docstring) until one fails, at most ``samples``
     per case; ``specs`` and ``backends`` default to the default gate's. With ``known`` (a divergence registry, as

@@ -813,7 +813,8 @@ def _silent_lines(result: GateResult) -> list[str]:
     """Backends that took part in no comparison of a case, or were in BREAKDOWN at most of its states."""
     lines = []
     for case in result.cases:
-        silent = [name for name in result.backends if name not in case.voted()]
+        voted = case.voted()
+        silent = [name for name in result.backends if name not in voted]
         broken = [f"{name} ({sum(bool(s.breakdowns.get(name)) for s in case.states)} of {len(case.states)} states)"
                   for name in result.backends
                   if sum(bool(s.breakdowns.get(name)) for s in case.states) > len(case.states) / 2]

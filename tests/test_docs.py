@@ -55,7 +55,7 @@ PARSE_ONLY = [
     ("crosscheck gate --plugin closed_form_pendulum", "runs in examples/closed_form_plugin, where its module is found"),
     ("crosscheck gate --model path/to", "a placeholder path the reader supplies"),
     ("crosscheck gate --model robot.urdf", "a placeholder path the reader supplies"),
-    ("crosscheck gate", "all built-in cases (2 minutes on 2 cores), or Panda or a 12-link chain, 100-500 states"),
+    ("crosscheck gate", "all built-in cases (about a minute on 2 cores), or Panda or a 12-link chain, 100-500 states"),
     ("crosscheck faults", "the whole catalog took 1010 s (docs/faults.md); a named fault hunts the gate's states"),
     ("crosscheck fuzz", "a campaign: minutes to hours"),
     ("crosscheck replay", "needs a finding of a campaign (ID)"),
