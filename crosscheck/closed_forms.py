@@ -37,6 +37,9 @@ geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` r
 free_body                      Newton's and Euler's equations in the body frame (:func:`free_body_terms`)
 knife_edge                     the Chaplygin sleigh: Newton and Euler along and across the runner, a ``KnifeEdge``
                                (Pfaffian) row (:func:`sleigh_terms`, :func:`sleigh_motion`)
+rolling_disk                   the classical rolling disk (Neimark-Fufaev, Bloch 1.4): the centre's velocity and the
+                               angular velocity in the heading frame, the contact's two ``RollingContact`` rows
+                               (:func:`disk_terms`, :func:`disk_center`)
 double_pendulum_tip_force      eqs. (4)-(9) with ``tau_ext = J^T f`` of a world force at the tip (:func:`tip_force`)
 double_pendulum_spring         eqs. (4)-(9) with a tip spring and a body-frame wrench on link 2 (:func:`tip_spring`)
 =============================  =====================================================================================

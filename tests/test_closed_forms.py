@@ -152,6 +152,7 @@ PARAMETERS = {
     "free_body": st.composite(_free_body)(),
     "knife_edge": st.fixed_dictionaries({"m": MASS, "a": st.one_of(st.just(0.0), _floats(-1.5, 1.5)), "I": INERTIA,
                                          "g": GRAVITY}),
+    "rolling_disk": st.fixed_dictionaries({"m": MASS, "r": LENGTH, "g": GRAVITY}),
     "geared_pendulums": st.fixed_dictionaries({"m1": MASS, "l1": LENGTH, "m2": MASS, "l2": LENGTH,
                                                "ratio": st.one_of(_floats(-3.0, -0.3), _floats(0.3, 3.0)),
                                                "offset": ANGLE, "spacing": _floats(0.5, 3.0), "g": GRAVITY}),
