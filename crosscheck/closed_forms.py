@@ -1160,12 +1160,12 @@ def _knife_edge(p, q, qd, u) -> Split:
 
 def disk_terms(q, qd, m, r, g):
     """The rolling disk (``cases.rolling_disk``) by hand, in the classical form (Neimark and Fufaev, Dynamics of
-    Nonholonomic Systems, II.5; Bloch, Nonholonomic Mechanics, 1.4; O'Reilly 1996): q = (x, y, psi, phi, theta) the
-    contact point, yaw, lean and spin. The heading frame (e1, e2, e3) = ((c_psi, s_psi, 0), (-s_psi, c_psi, 0),
-    (0, 0, 1)); the leaned frame (e1, a, n) with the axle a = c_phi e2 + s_phi e3 and n = -s_phi e2 + c_phi e3
-    (the contact-to-centre direction). The centre is at (x, y, 0) + r n; with the contact's forward and lateral
-    rates u = c_psi xd + s_psi yd, w = -s_psi xd + c_psi yd, its velocity in the heading frame and the disk's
-    angular velocity ``psid e3 + phid e1 + thetad a`` in the leaned frame are
+    Nonholonomic Systems; Bloch, Nonholonomic Mechanics and Control, 1.4; O'Reilly, Nonlinear Dynamics 10, 1996):
+    q = (x, y, psi, phi, theta) the contact point, yaw, lean and spin. The heading frame (e1, e2, e3) = ((c_psi,
+    s_psi, 0), (-s_psi, c_psi, 0), (0, 0, 1)); the leaned frame (e1, a, n) with the axle a = c_phi e2 + s_phi e3
+    and n = -s_phi e2 + c_phi e3 (the contact-to-centre direction). The centre is at (x, y, 0) + r n; with the
+    contact's forward and lateral rates u = c_psi xd + s_psi yd, w = -s_psi xd + c_psi yd, its velocity in the
+    heading frame and the disk's angular velocity ``psid e3 + phid e1 + thetad a`` in the leaned frame are
 
         v = (u + r s_phi psid, w - r c_phi phid, -r s_phi phid) = Jv qd,
         omega = (phid, thetad + s_phi psid, c_phi psid) = Jw qd,
