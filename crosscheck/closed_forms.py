@@ -37,6 +37,9 @@ geared_pendulums               two rods coupled by a gear, a ``JointCoupling`` r
 free_body                      Newton's and Euler's equations in the body frame (:func:`free_body_terms`)
 knife_edge                     the Chaplygin sleigh: Newton and Euler along and across the runner, a ``KnifeEdge``
                                (Pfaffian) row (:func:`sleigh_terms`, :func:`sleigh_motion`)
+rolling_disk                   the classical rolling disk (Neimark-Fufaev, Bloch 1.4): the centre's velocity and the
+                               angular velocity in the heading frame, the contact's two ``RollingContact`` rows
+                               (:func:`disk_terms`, :func:`disk_center`)
 double_pendulum_tip_force      eqs. (4)-(9) with ``tau_ext = J^T f`` of a world force at the tip (:func:`tip_force`)
 double_pendulum_spring         eqs. (4)-(9) with a tip spring and a body-frame wrench on link 2 (:func:`tip_spring`)
 =============================  =====================================================================================
@@ -136,14 +139,15 @@ def task_inertia_square(J, M) -> tuple[np.ndarray, float]:
 
 
 def task_inertia(J, Minv) -> tuple[np.ndarray, float]:
-    """Eq. (22): ``Lambda = (J M^-1 J^T)^-1`` and ``cond(J M^-1 J^T)`` for a k x n J (k <= 2); ``(NaN, inf)`` where
-    ``J M^-1 J^T`` is numerically singular, and always when k > n (more task directions than joints)."""
+    """Eq. (22): ``Lambda = (J M^-1 J^T)^-1`` and ``cond(J M^-1 J^T)`` for a k x n J (1 x 1 and 2 x 2 by hand, 4.7.2;
+    numpy's inverse beyond); ``(NaN, inf)`` where ``J M^-1 J^T`` is numerically singular, and always when k > n (more
+    task directions than joints)."""
     J = np.atleast_2d(J)
     A = J @ Minv @ J.T
     cond = condition(A) if J.shape[0] <= J.shape[1] else float("inf")
     if not np.isfinite(cond):
         return np.full(A.shape, np.nan), cond
-    return (1.0 / A if A.shape == (1, 1) else inv2(A)), cond
+    return (1.0 / A if A.shape == (1, 1) else inv2(A) if A.shape == (2, 2) else np.linalg.inv(A)), cond
 
 
 # --------------------------------------------------------------------- the double pendulum (article section 3)
@@ -1154,6 +1158,103 @@ def _knife_edge(p, q, qd, u) -> Split:
                      _Kkt(np.zeros(1), Jc, bias, np.array([lam]), np.array([lam_drift]), _sleigh_rule(p)))
 
 
+def disk_terms(q, qd, m, r, g):
+    """The rolling disk (``cases.rolling_disk``) by hand, in the classical form (Neimark and Fufaev, Dynamics of
+    Nonholonomic Systems; Bloch, Nonholonomic Mechanics and Control, 1.4; O'Reilly, Nonlinear Dynamics 10, 1996):
+    q = (x, y, psi, phi, theta) the contact point, yaw, lean and spin. The heading frame (e1, e2, e3) = ((c_psi,
+    s_psi, 0), (-s_psi, c_psi, 0), (0, 0, 1)); the leaned frame (e1, a, n) with the axle a = c_phi e2 + s_phi e3
+    and n = -s_phi e2 + c_phi e3 (the contact-to-centre direction). The centre is at (x, y, 0) + r n; with the
+    contact's forward and lateral rates u = c_psi xd + s_psi yd, w = -s_psi xd + c_psi yd, its velocity in the
+    heading frame and the disk's angular velocity ``psid e3 + phid e1 + thetad a`` in the leaned frame are
+
+        v = (u + r s_phi psid, w - r c_phi phid, -r s_phi phid) = Jv qd,
+        omega = (phid, thetad + s_phi psid, c_phi psid) = Jw qd,
+
+    and T = m/2 |v|^2 + 1/2 omega . I omega with I = m r^2/4 diag(1, 2, 1) (a thin disk; axisymmetric, so constant in
+    the leaned frame), V = m g r c_phi. Lagrange's equations are the Newton-Euler equations projected by the Jacobians
+    (virtual power), with the accelerations taken in the turning frames (heading frame turning at psid e3, leaned
+    frame at phid e1 + psid e3, i.e. omega less the spin):
+
+        M = m Jv^T Jv + Jw^T I Jw,   C qd = m Jv^T a_b + Jw^T (I alpha_b + omega x I omega),
+        a_b = (2 r c_phi phid psid, r s_phi (phid^2 + psid^2), -r c_phi phid^2)   (the centre, heading frame),
+        alpha_b = (-c_phi psid thetad, c_phi phid psid, phid (thetad - s_phi psid))   (leaned frame),
+        omega x I omega = m r^2/4 (thetad + s_phi psid) (-c_phi psid, 0, phid),
+        g = (0, 0, 0, -m g r s_phi, 0).
+
+    The rows (``RollingContact``: the world x and y velocity of the disk's material point at the contact, the disk's
+    lowest point ``p_c = c - r sigma n`` with ``sigma = sign(c_phi)``: for |phi| > pi/2 the chain puts the centre below
+    the ground and the lowest point is the far end of n; at c_phi = 0 the disk is flat and has none, NaN rows). With
+    ``omega x n = (thetad + s_phi psid) e1 - phid a`` and ``k = 1 - sigma`` (0 or 2),
+
+        v_P = v - r sigma omega x n = (u + k r s_phi psid - sigma r thetad) e1 + (w - k r c_phi phid) e2 + (..) e3,
+
+    for |phi| < pi/2 the contact rate less the rolling rate, ``(u - r thetad) e1 + w e2``. In world x, y (``R_psi``
+    the heading's rotation): ``A = R_psi [[c_psi, s_psi, k r s_phi, 0, -sigma r], [-s_psi, c_psi, 0, -k r c_phi, 0]]``,
+    for |phi| < pi/2 ``[[1, 0, 0, 0, -r c_psi], [0, 1, 0, 0, -r s_psi]]``: the literature's rows (``xd = r thetad
+    c_psi``, ``yd = r thetad s_psi``) as they stand, the row transform the identity with this chain's coordinates.
+    ``Adot qd = R_psi b`` with b the heading-frame rows differentiated at qdd = 0 plus ``psid e3 x``:
+    ``b = (2 k r c_phi phid psid, k r s_phi (phid^2 + psid^2) - sigma r psid thetad)``, for |phi| < pi/2
+    ``Adot qd = r psid thetad (s_psi, -c_psi)``. Returns (M, C qd, g, A, Adot qd)."""
+    psi, phi = q[2], q[3]
+    psid, phid, thetad = qd[2], qd[3], qd[4]
+    cs, ss, cp, sp = np.cos(psi), np.sin(psi), np.cos(phi), np.sin(phi)
+    Jv = np.array([[cs, ss, r * sp, 0.0, 0.0], [-ss, cs, 0.0, -r * cp, 0.0], [0.0, 0.0, 0.0, -r * sp, 0.0]])
+    Jw = np.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, sp, 0.0, 1.0], [0.0, 0.0, cp, 0.0, 0.0]])
+    inertia = m * r * r / 4.0 * np.array([1.0, 2.0, 1.0])
+    M = m * Jv.T @ Jv + Jw.T @ (inertia[:, None] * Jw)
+    omega = Jw @ qd
+    a_b = r * np.array([2.0 * cp * phid * psid, sp * (phid**2 + psid**2), -cp * phid**2])
+    alpha_b = np.array([-cp * psid * thetad, cp * phid * psid, phid * (thetad - sp * psid)])
+    gyro = m * r * r / 4.0 * omega[1] * np.array([-omega[2], 0.0, omega[0]])
+    Cqd = m * Jv.T @ a_b + Jw.T @ (inertia * alpha_b + gyro)
+    grav = np.array([0.0, 0.0, 0.0, -m * g * r * sp, 0.0])
+    sigma = np.sign(cp) if cp != 0.0 else np.nan
+    k = 1.0 - sigma
+    R = np.array([[cs, -ss], [ss, cs]])
+    A = R @ np.array([[cs, ss, k * r * sp, 0.0, -sigma * r], [-ss, cs, 0.0, -k * r * cp, 0.0]])
+    b = r * np.array([2.0 * k * cp * phid * psid, k * sp * (phid**2 + psid**2) - sigma * psid * thetad])
+    return M, Cqd, grav, A, R @ b
+
+
+def disk_center(q, qd, r):
+    """The disk's centre (``cases.rolling_disk``'s task point ``center``) in the world: ``(x, y, 0) + r n`` =
+    ``(x + r s_phi s_psi, y - r s_phi c_psi, r c_phi)`` (:func:`disk_terms`); its Jacobian is the heading frame's
+    ``R_psi Jv`` and ``Jdot qd = R_psi a_b`` (the centre's acceleration at qdd = 0, heading frame to world):
+        J = [[1, 0, r s_phi c_psi, r c_phi s_psi, 0], [0, 1, r s_phi s_psi, -r c_phi c_psi, 0],
+             [0, 0, 0, -r s_phi, 0]],
+        Jdot qd = r (2 c_phi c_psi phid psid - s_phi s_psi (phid^2 + psid^2),
+                     2 c_phi s_psi phid psid + s_phi c_psi (phid^2 + psid^2), -c_phi phid^2).
+    Returns (J (3, 5), Jdot qd (3,))."""
+    psi, phi = q[2], q[3]
+    psid, phid = qd[2], qd[3]
+    cs, ss, cp, sp = np.cos(psi), np.sin(psi), np.cos(phi), np.sin(phi)
+    J = np.array([[1.0, 0.0, r * sp * cs, r * cp * ss, 0.0], [0.0, 1.0, r * sp * ss, -r * cp * cs, 0.0],
+                  [0.0, 0.0, 0.0, -r * sp, 0.0]])
+    both = phid**2 + psid**2
+    bias = r * np.array([2.0 * cp * cs * phid * psid - sp * ss * both, 2.0 * cp * ss * phid * psid + sp * cs * both,
+                         -cp * phid**2])
+    return J, bias
+
+
+def _disk_rule(p) -> Rule:
+    """The disk: its centre r from the lean frame (translation (0, 0, r), COM at its origin), inertia
+    ``m r^2 diag(1/4, 1/2, 1/4)`` of trace ``m r^2``; the carriages, heading and lean frames massless."""
+    return Rule.of((p["m"], p["r"], p["m"] * p["r"] ** 2))
+
+
+def _rolling_disk(p, q, qd, u) -> Split:
+    """:func:`disk_terms` (B = I), eqs. (12)-(17) under the backends' rule (:func:`_constrained`; S = A M^-1 A^T has
+    full rank: A's two rows are independent everywhere), the task point ``center`` by :func:`disk_center` (eqs. 23, 22
+    with the unconstrained M, a 3 x 3 task: singular where the disk stands upright, phi = 0, since the centre's height
+    is then stationary)."""
+    m, r = p["m"], p["r"]
+    M, Cqd, grav, A, bias = disk_terms(q, qd, m, r, p["g"])
+    t = _Terms(M, np.linalg.inv(M), Cqd, grav, u, m, abs(p["g"]))
+    drift, ctrl, total, kkt = _constrained(t, np.zeros(2), A, bias, _disk_rule(p))
+    J, task_bias = disk_center(q, qd, r)
+    return _assemble(t, qd, drift, ctrl, total, _task(J, task_bias, drift, task_inertia(J, t.Minv)), kkt)
+
+
 # ------------------------------------------------------------------------------------------------- the voter
 
 UNCONSTRAINED = ("drift", "ctrl", "total", "additivity", "power_ctrl", "task_drift", "kinetic_energy", "task_inertia")
@@ -1210,6 +1311,9 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
                             lambda p: (6, 6, 0), _free_body),
     "knife_edge": ClosedForm("the Chaplygin sleigh by hand: Newton and Euler along and across the runner, the knife "
                              "edge's Pfaffian row, eqs. (12)-(17)", lambda p: (3, 3, 1), _knife_edge, _sleigh_rule),
+    "rolling_disk": ClosedForm("the rolling disk by hand (Neimark-Fufaev, Bloch 1.4): the centre's velocity and the "
+                               "angular velocity in the heading frame, the contact's two Pfaffian rows, eqs. (12)-(17)",
+                               lambda p: (5, 5, 2), _rolling_disk, _disk_rule),
     "geared_pendulums": ClosedForm("two uniform rods by hand coupled by a JointCoupling gear, eqs. (12)-(17)",
                                    lambda p: (2, 2, 1), _geared_pendulums, _gear_rule),
     "double_pendulum_tip_force": ClosedForm("article section 3, eqs. (4)-(9), with tau_ext = J^T f of the tip force "

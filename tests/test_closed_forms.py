@@ -21,6 +21,7 @@ import cases.constrained
 import cases.constraints
 import cases.factories
 import cases.model
+import cases.nonholonomic
 from crosscheck import backends, cli, closed_forms, diagnosis, frames, gate, reference, sampling, testing
 from crosscheck import tolerance as policy
 from crosscheck.compare import DISAGREE, suspect
@@ -152,6 +153,7 @@ PARAMETERS = {
     "free_body": st.composite(_free_body)(),
     "knife_edge": st.fixed_dictionaries({"m": MASS, "a": st.one_of(st.just(0.0), _floats(-1.5, 1.5)), "I": INERTIA,
                                          "g": GRAVITY}),
+    "rolling_disk": st.fixed_dictionaries({"m": MASS, "r": LENGTH, "g": GRAVITY}),
     "geared_pendulums": st.fixed_dictionaries({"m1": MASS, "l1": LENGTH, "m2": MASS, "l2": LENGTH,
                                                "ratio": st.one_of(_floats(-3.0, -0.3), _floats(0.3, 3.0)),
                                                "offset": ANGLE, "spacing": _floats(0.5, 3.0), "g": GRAVITY}),
@@ -351,6 +353,15 @@ def _coefficients_reversed(coupling):
     return dataclasses.replace(coupling, coefficients=coupling.coefficients[::-1])
 
 
+def _thin_disk_axle_on_x(mass, radius):
+    """``cases.nonholonomic._thin_disk`` with the axle's moment m r^2/2 about body x, not the axle (body y)."""
+    return np.diag([mass * radius**2 / 2.0, mass * radius**2 / 4.0, mass * radius**2 / 4.0])
+
+
+def _radius_as_diameter(contact):
+    return dataclasses.replace(contact, radius=2.0 * contact.radius)
+
+
 #: name -> (how to inject it, case, parameters): each a realistic bug in shared code that all six others share.
 FACTORY_BUGS = {
     "factory inertia R^T diag R": (lambda mp: mp.setattr(cases.factories, "_inertia", _transposed_inertia),
@@ -371,6 +382,10 @@ FACTORY_BUGS = {
                                                 "double_pendulum_rail", {}),
     "coupling coefficients stored reversed": (_validated(cases.JointCoupling, _coefficients_reversed),
                                               "geared_pendulums", {}),
+    "thin disk with the axle's moment about x": (
+        lambda mp: mp.setattr(cases.nonholonomic, "_thin_disk", _thin_disk_axle_on_x), "rolling_disk", {}),
+    "rolling contact's radius stored as the diameter": (_validated(cases.RollingContact, _radius_as_diameter),
+                                                        "rolling_disk", {"r": 0.3}),
 }
 
 

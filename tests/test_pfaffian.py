@@ -1,6 +1,7 @@
 """Pfaffian constraints A(q) qd = 0 (issue 21, item 2): the declarations, every backend's rows and solve against the
-others and the 50-digit reference, the knife edge's closed form, the rolling disk against an independent derivation
-with the literature's rolling constraint, and the sampler's handling of velocity-only rows."""
+others and the 50-digit reference, the knife edge's and the rolling disk's closed forms, the rolling disk (backends
+and closed form) against an independent derivation with the literature's rolling constraint, and the sampler's
+handling of velocity-only rows."""
 
 import json
 
@@ -63,11 +64,12 @@ def test_knife_edge_closed_form_matches_the_backends():
             np.testing.assert_allclose(getattr(cf, name), getattr(ne, name), atol=1e-12, err_msg=name)
 
 
-def _literature_rolling_disk(m, r, g, q, qd, u):
-    """The rolling disk by Lagrange-d'Alembert, derived here: the disk's kinetic energy from its centre and angular
-    velocity in (x, y, yaw, lean, spin) with x, y the contact point, and the classical rolling constraint of a disk
-    with contact-point coordinates (e.g. Bloch, Nonholonomic Mechanics, 1.4): the contact moves along the heading at
-    the rolling rate, ``xd = r spind cos(yaw)``, ``yd = r spind sin(yaw)`` (spin positive rolling forward)."""
+def _literature_rolling_disk_terms(m, r, g, q, qd):
+    """The rolling disk by Lagrange-d'Alembert, derived here with sympy: the disk's kinetic energy from its centre and
+    angular velocity in (x, y, yaw, lean, spin) with x, y the contact point, and the classical rolling constraint of a
+    disk with contact-point coordinates (e.g. Bloch, Nonholonomic Mechanics, 1.4): the contact moves along the heading
+    at the rolling rate, ``xd = r spind cos(yaw)``, ``yd = r spind sin(yaw)`` (spin positive rolling forward).
+    Returns (M, h = C qd + g, A, Adot qd) as float arrays (5 x 5, 5, 2 x 5, 2)."""
     x, y, psi, phi, th = sy.symbols("x y psi phi theta")
     coords = [x, y, psi, phi, th]
     rates = sy.symbols("xd yd psid phid thetad")
@@ -89,8 +91,14 @@ def _literature_rolling_disk(m, r, g, q, qd, u):
     bias = (A * sy.Matrix(rates)).jacobian(coords) * sy.Matrix(rates)
     evaluate = sy.lambdify([coords, rates], [M, h, A, bias], "numpy")
     M, h, A, bias = (np.array(e, dtype=float) for e in evaluate(list(q), list(qd)))
+    return M, h.ravel(), A, bias.ravel()
+
+
+def _literature_rolling_disk(m, r, g, q, qd, u):
+    """The total accelerations of :func:`_literature_rolling_disk_terms` by the KKT system (eqs. 12, 13)."""
+    M, h, A, bias = _literature_rolling_disk_terms(m, r, g, q, qd)
     kkt = np.block([[M, -A.T], [A, np.zeros((2, 2))]])
-    return np.linalg.solve(kkt, np.concatenate([u - h.ravel(), -bias.ravel()]))[:5]
+    return np.linalg.solve(kkt, np.concatenate([u - h, -bias]))[:5]
 
 
 def test_rolling_disk_matches_the_literature_rolling_constraint():
@@ -109,6 +117,53 @@ def test_rolling_disk_matches_the_literature_rolling_constraint():
     # is m times the horizontal acceleration of the centre (the task point "center", at the drift)
     drift = newton_euler.split(model, q, qd, np.zeros(5))
     np.testing.assert_allclose(drift.lam_drift, m * drift.task_drift[:2], atol=1e-12)
+
+
+def test_rolling_disk_closed_form_terms_are_the_literature_derivations():
+    """``closed_forms.disk_terms`` (by hand, the classical form) against the sympy derivation above, term by term, for
+    |lean| < pi/2 (the literature's disk stands on its contact): M, h = C qd + g, the rows and ``Adot qd``. The case's
+    rows (the world x, y velocity of the contact's material point) ARE the literature's rows there, the row transform
+    the identity, so lam means the same force in both."""
+    rng = np.random.default_rng(11)
+    for m, r, g in ((1.0, 0.5, 9.81), (1.7, 0.3, 9.81), (0.4, 1.2, 3.7)):
+        for _ in range(3):
+            q = np.concatenate([rng.uniform(-2.0, 2.0, 3), rng.uniform(-1.4, 1.4, 1), rng.uniform(-3.0, 3.0, 1)])
+            qd = rng.uniform(-2.0, 2.0, 5)          # the terms hold at any qd, admissible or not
+            M, h, A, bias = _literature_rolling_disk_terms(m, r, g, q, qd)
+            M_cf, Cqd, grav, A_cf, bias_cf = closed_forms.disk_terms(q, qd, m, r, g)
+            scale = m * (1.0 + r) ** 2 * (1.0 + qd @ qd) + m * g * r
+            np.testing.assert_allclose(M_cf, M, rtol=0, atol=1e-14 * m * (1.0 + r) ** 2)
+            np.testing.assert_allclose(Cqd + grav, h, rtol=0, atol=1e-14 * scale)
+            np.testing.assert_allclose(A_cf, A, rtol=0, atol=1e-15 * (1.0 + r))
+            np.testing.assert_allclose(bias_cf, bias, rtol=0, atol=1e-15 * r * (1.0 + qd @ qd))
+
+
+def test_rolling_disk_closed_form_matches_newton_euler():
+    """The closed form's split against Newton-Euler's at admissible states, lean drawn on (-3, 3): beyond pi/2 the
+    chain puts the centre below the ground and the case's contact, the disk's lowest point, is the chain's far point
+    (``disk_terms``' sigma = -1), where the rows are not the literature's. Near |lean| = pi/2 the disk lies almost
+    flat, its yaw and spin turn it about nearly the same axis, and cond(M) grows (to 2.5e4 at lean 1.51 here, the
+    accelerations to 3e3): both sides then round by about eps cond(M) |value| (each is within 1.4e-10 of the 50-digit
+    reference there), so the tolerance is 1e-11 plus 4 eps cond(M) |value|_max (measured: at most 0.04 of the
+    tolerance, at lean -1.45 where Newton-Euler is 3e-11 off the reference)."""
+    rng = np.random.default_rng(12)
+    checked_flipped = 0
+    for params in ({}, {"m": 1.7, "r": 0.3}):
+        model = cases.load("rolling_disk", **params)
+        voter = closed_forms.voter("rolling_disk", params)
+        for _ in range(6):
+            q = rng.uniform(-3.0, 3.0, 5)
+            qd = sampling.project_velocity(model, q, rng.uniform(-2.0, 2.0, 5))
+            u = rng.uniform(-3.0, 3.0, 5)
+            checked_flipped += np.cos(q[3]) < 0.0
+            cf, ne = voter.split(model, q, qd, u), newton_euler.split(model, q, qd, u)
+            np.testing.assert_allclose(cf.constraint_jacobian @ qd, 0.0, atol=1e-13)
+            for name in ("total", "drift", "ctrl", "lam", "lam_drift", "constraint_jacobian", "constraint_bias",
+                         "task_drift", "kinetic_energy"):
+                expected = np.asarray(getattr(ne, name), dtype=float)
+                atol = 1e-11 + 4.0 * np.finfo(float).eps * ne.cond_M * np.abs(expected).max()
+                np.testing.assert_allclose(getattr(cf, name), expected, rtol=0, atol=atol, err_msg=name)
+    assert checked_flipped >= 2
 
 
 def test_sampler_leaves_configurations_free_and_velocities_admissible():
