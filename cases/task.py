@@ -133,17 +133,23 @@ def _canonical(basis: np.ndarray) -> np.ndarray:
     return np.array([r for _, r in sorted(rows, key=lambda kr: kr[0])])
 
 
-def motion_directions(model: Model, body: str, offset, qs: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """Orthonormal world rows (r x 3, r <= 3) spanning every velocity of the point over ``qs`` (default
-    :func:`probes`): the left singular vectors of ``[J(q_1) ... J(q_K)]`` above ``ON_AXIS`` times its largest
-    singular value, rewritten from the coordinate axes (:func:`_canonical`). All three axes for a point that moves in
-    space; the plane of a planar chain; none (0 x 3) for a point that never moves."""
+def motion_directions(model: Model, body: str, offset, qs: Sequence[np.ndarray] | None = None,
+                      at_once: bool = False) -> np.ndarray:
+    """Orthonormal world rows (r x 3, r <= 3) along which the point moves over ``qs`` (default :func:`probes`): the
+    left singular vectors of ``[J(q_1) ... J(q_K)]`` above ``ON_AXIS`` times its largest singular value, rewritten
+    from the coordinate axes (:func:`_canonical`). All three axes for a point that moves in space; the plane of a
+    planar chain; none (0 x 3) for a point that never moves. ``at_once``: no more rows than the point moves in at
+    any one configuration (the leading singular directions), for a point whose velocities span more directions
+    over the configurations than at any one of them (two joints moving a point in space: a plane that turns), so
+    that its task Jacobian ``D J`` can have full row rank."""
     qs = probes(model) if qs is None else qs
-    stacked = np.hstack([point_jacobian(model, q, body, offset) for q in qs])
-    U, s, _ = np.linalg.svd(stacked)
+    jacobians = [point_jacobian(model, q, body, offset) for q in qs]
+    U, s, _ = np.linalg.svd(np.hstack(jacobians))
     if s.size == 0 or s[0] <= ON_AXIS * model.length_scale:
         return np.zeros((0, 3))
     r = int(np.sum(s > ON_AXIS * s[0]))
+    if at_once:
+        r = min(r, max(_rank(model, J) for J in jacobians))
     return np.eye(3) if r == 3 else _canonical(U[:, :r].T)
 
 
@@ -182,11 +188,13 @@ def choose(model: Model, candidates: Sequence[TaskPoint], reasons: Sequence[str]
     joint axes it lies on, :func:`axes_through`). A point on a joint axis whose other joints still move it in every
     direction (a tool centre point on a wrist's axis) is kept: its task-space inertia exists. ``reasons[k]``
     describes candidate ``k`` ("the URDF leaf link 'tool'"). Without such a point, the candidate that moves in the
-    most directions. The point is named ``name``, else as its candidate (``BODY:com``, ``BODY:offset`` for the
+    most directions. A point with no such directions, moving in fewer at once than over its configurations (two
+    joints in space), gets the directions it moves in at once (``motion_directions(at_once=True)``) when they give
+    full rank. The point is named ``name``, else as its candidate (``BODY:com``, ``BODY:offset`` for the
     points added)."""
     qs = probes(model)
     tried: list[str] = []
-    fallback = None
+    fallback, turning = None, None
     pool = [(tp, reasons[k] if k < len(reasons) else f"task point '{tp.name}'") for k, tp in enumerate(candidates)]
     for tp in candidates:
         pool += [(TaskPoint(f"{tp.body}:com" if k == 0 else f"{tp.body}:offset", tp.body, offset), how)
@@ -204,9 +212,18 @@ def choose(model: Model, candidates: Sequence[TaskPoint], reasons: Sequence[str]
         on = axes_through(model, tp.body, tp.offset, qs)
         tried.append(f"{how} (on {' and '.join(on)})" if on else f"{how} (its task Jacobian is rank-deficient "
                      "everywhere)" if len(D) else f"{how} (it does not move)")
+        once = motion_directions(model, tp.body, tp.offset, qs, at_once=True)
+        if len(once) and len(once) < len(D) and full_rank(model, tp.body, tp.offset, once, qs) and (
+                turning is None or len(once) > len(turning[0].directions)):
+            turning = TaskPoint(tp.name, tp.body, tp.offset, once), how
         if fallback is None or len(D) > len(fallback.directions):
             fallback = TaskPoint(tp.name, tp.body, tp.offset, D if len(D) else np.eye(3),
                                  choice=f"default: {how}, although every candidate is degenerate: {'; '.join(tried)}")
+    if turning is not None:
+        point, how = turning
+        return dataclasses.replace(point, choice=f"default: {how}, in the {len(point.directions)} directions it moves "
+                                                 f"in at once (its chain turns them: more over its configurations); "
+                                                 f"in all the directions they move in: {'; '.join(tried)}")
     return fallback
 
 

@@ -149,3 +149,21 @@ def test_a_given_task_point_leaves_the_closed_forms_task_quantities_out():
     assert split.task_drift is UNSUPPORTED and split.task_inertia is UNSUPPORTED
     assert "task_inertia" not in split.conditions
     np.testing.assert_array_equal(split.total, plain.total)
+
+
+def test_two_joints_in_space_get_the_two_directions_their_point_moves_in_at_once():
+    """A yaw joint and a pitch joint move the arm's point over a sphere: its velocities span space over the
+    configurations but a plane at each one, so three task directions are rank-deficient everywhere and operational
+    space would be in BREAKDOWN at every state; the default takes the two it moves in at once."""
+    inertia = np.diag([0.01, 0.01, 0.005])
+    model = build_model("yaw_pitch", [
+        Body("l1", None, "revolute", (0.0, 0.0, 1.0), 1.0, com=(0.0, 0.0, 0.2), inertia=inertia),
+        Body("l2", "l1", "revolute", (0.0, 1.0, 0.0), 0.5, com=(0.15, 0.0, 0.0), inertia=inertia,
+             translation=(0.0, 0.0, 0.4))])
+    tp = model.task_point()
+    assert len(task.motion_directions(model, tp.body, tp.offset)) == 3
+    assert tp.directions.shape == (2, 3) and "the 2 directions it moves in at once" in tp.choice
+    np.testing.assert_allclose(tp.directions @ tp.directions.T, np.eye(2), atol=1e-12)
+    ranks = [np.linalg.matrix_rank(tp.directions @ task.point_jacobian(model, q, tp.body, tp.offset))
+             for q in np.random.default_rng(3).uniform(-3.0, 3.0, (20, 2))]
+    assert ranks.count(2) >= 18, ranks
