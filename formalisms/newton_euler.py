@@ -682,16 +682,20 @@ def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
     return _Rows(_zero_phi(2, batch), _cmv(T, J), _cmv(T, acc), loads)
 
 
+def _rolling_turn(b: np.ndarray, b_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t, |b|, tdot)`` of the rolling direction ``t = b / |b|`` (``b = a x n``) turning at ``bdot = (w x a) x n``:
+    ``tdot = (bdot - t (t . bdot)) / |b|`` (one vector or a batch, components first)."""
+    size = np.sqrt(_dot(b, b))
+    t = b / size
+    return t, size, (b_dot - _dot(t, b_dot) * t) / size
+
+
 def _rolling_direction(c, x, s, a, n, e, J, acc, qd, batch) -> _Rows:
     """RollingContact with ``lateral=False``: the one row ``t . v_pc`` along the rolling direction ``t = b / |b|``,
     ``b = a x n``, which turns with the axle: ``A = t^T (J_c + Jw x e)`` and ``Adot qd = t . acc + tdot . v_pc`` with
     ``acc`` the contact's rate of :func:`_rolling`, ``v_pc = (J_c + Jw x e) qd``, ``tdot = (bdot - t (t . bdot)) /
     |b|``, ``bdot = (w x a) x n``. The force ``t lam`` at the contact (one state)."""
-    b = _cross(a, n)
-    length = np.sqrt(_dot(b, b))
-    t = b / length
-    b_dot = _cross(_cross(s.w, a), n)
-    t_dot = (b_dot - _dot(t, b_dot) * t) / length
+    t, _, t_dot = _rolling_turn(_cross(a, n), _cross(_cross(s.w, a), n))
     v = (J * qd[None]).sum(axis=1)
     bias = _dot(t, acc) + _dot(t_dot, v)
     loads = () if batch else ((x.body, c.center + s.W.T @ e, t[:, None]),)
@@ -1329,12 +1333,10 @@ def _rolling_tangent(model: Model, c, point, spin):
         acc = x.acc + _cross(s.wd, e) + _cross(s.w, e_dot)
         v, dv = x.pv + _cross(s.w, e), x.dpv + _cross(s.dw, col(e)) + _cross(col(s.w), de)
         b, db = _cross(a, n), _cross(da, col(n))
-        size = float(np.sqrt(b @ b))
-        t = b / size
+        b_dot, db_dot = _cross(a_dot, n), _cross(da_dot, col(n))
+        t, size, t_dot = _rolling_turn(b, b_dot)
         dsize = t @ db
         dt = (db - col(t) * (t @ db)) / size
-        b_dot, db_dot = _cross(a_dot, n), _cross(da_dot, col(n))
-        t_dot = (b_dot - t * (t @ b_dot)) / size
         dt_dot = ((db_dot - dt * (t @ b_dot) - col(t) * (b_dot @ dt + t @ db_dot)) / size
                   - col(t_dot) * dsize / size)
         dc = acc @ dt + t @ dacc + v @ dt_dot + t_dot @ dv
