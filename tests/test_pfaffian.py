@@ -156,6 +156,25 @@ def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
     assert seen == {"KnifeEdge", "PointVelocity", "RollingContact"}, seen
 
 
+def test_drawn_rolling_contacts_come_both_ways():
+    """``crosscheck.testing`` draws a rolling contact's ``lateral`` both ways (two rows or the rolling direction)."""
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    from crosscheck import testing
+
+    seen = set()
+
+    @settings(max_examples=20, database=None, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(st.data())
+    def drawn(data):
+        c = testing._pfaffian_declaration(data.draw, "RollingContact", "c", "disk", np.zeros(3), np.eye(3), 2)
+        assert c.size == (2 if c.lateral else 1)
+        seen.add(c.lateral)
+    drawn()
+    assert seen == {True, False}
+
+
 def test_the_tolerance_grows_as_the_rolling_disk_lies_flat():
     """The contact direction is a unit vector divided by |n x a| = |cos(lean)| for the rolling disk's chain, and its
     rate by its square: the constraint kinematics' scale carries 1 / cos(lean)^2."""
