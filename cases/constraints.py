@@ -42,6 +42,11 @@ RollingContact     ``T (v_c + w x (p_c - c))``, ``c = p(body, center)``: the    
                    (normal ``R axis``) away from the ground plane
                    (normal ``n = T_0 x T_1``): ``u = (n - (n.a) a) / |..|``,
                    ``a = R axis``
+RollingContact     ``t . (v_c + w x (p_c - c))`` with ``t = (a x n) / |a x n|``   1
+(``lateral=       the disk's rolling direction (positive spin about the axle
+False``)           rolls it along +t): no slip along t only; the contact may
+                   slide sideways (another row, e.g. a KnifeEdge on a shared
+                   axle, holds that)
 =================  ==========================================================  ====
 
 The contact point ``p_c`` moves over the disk as the disk turns, so ``Adot qd`` of a rolling row is not ``T`` times the
@@ -50,6 +55,12 @@ classical acceleration of a body-fixed point: with ``e = p_c - c = -r u``, ``d/d
 point's height (``n . p_c``) is holonomic and is left to the coordinates (or to a holonomic declaration).
 A disk whose axis is along the ground normal (``n x a = 0``) has no contact point: a RollingContact is undefined
 there (a backend reports NaN rows).
+
+The rolling-direction row (``lateral=False``) is ``t . v_pc`` with ``v_pc = v_c + w x e`` as above and a direction
+that turns with the axle: ``A = t^T J_pc`` and ``Adot qd = t . (d/dt v_pc at qdd = 0) + tdot . v_pc`` with ``b = a x
+n``, ``bdot = (w x a) x n`` and ``tdot = (bdot - t (t . bdot)) / |b|``. The first term is the two-row bias projected on
+t; the second vanishes only where the contact does not slide sideways. ``|b| = |a x n| = |n - (n.a) a|``, so the row
+is undefined where the disk lies flat, like the two-row form.
 """
 
 from __future__ import annotations
@@ -180,7 +191,13 @@ class RollingContact:
     axle the unit ``axis``, both in the body frame; ``plane`` holds the ground plane's two orthonormal tangent rows
     (world), its normal ``n = plane[0] x plane[1]`` pointing to the side the disk is on. Rows: the material point at
     the contact has no velocity along either tangent (module docstring); ``lam`` are the tangential (friction) forces
-    the ground exerts at the contact along the rows of ``plane``."""
+    the ground exerts at the contact along the rows of ``plane``.
+
+    ``lateral=False`` keeps only the rolling-direction row: the contact has no velocity along ``t = (a x n) / |a x
+    n|`` (``a = R axis`` the world axle; positive spin about the axle rolls the disk along +t), and ``lam`` is the
+    one friction force the ground exerts at the contact along t (a wheel's traction). Two wheels on one axle each
+    forbid the same sideways motion, so a differential drive declares them with ``lateral=False`` and holds the
+    axle's sideways motion once (a KnifeEdge)."""
 
     name: str
     body: str
@@ -188,12 +205,13 @@ class RollingContact:
     axis: np.ndarray
     radius: float
     plane: np.ndarray = field(default_factory=lambda: np.array(XY_PLANE))
+    lateral: bool = True
 
     holonomic: ClassVar[bool] = False
 
     @property
     def size(self) -> int:
-        return 2
+        return 2 if self.lateral else 1
 
 
 CONSTRAINT_TYPES = (PointOnCircle, PointsCoincide, PointOnLine, JointCoupling, PointVelocity, KnifeEdge,
@@ -281,7 +299,11 @@ def validate(problems: list[str], c, bodies: set[str]):
                              _unit(problems, f"{where} axis (body frame)", c.axis),
                              _number(problems, f"{where} radius", c.radius),
                              orthonormal_rows(problems, f"{where} plane rows (the ground's two tangents)", c.plane,
-                                              (2,)))
+                                              (2,)),
+                             bool(c.lateral) if isinstance(c.lateral, (bool, np.bool_)) else True)
+        if not isinstance(c.lateral, (bool, np.bool_)):
+            problems.append(f"{where} has lateral={c.lateral!r}; give True (rows along both ground tangents) or "
+                            "False (the rolling direction only)")
         if not (np.isfinite(out.radius) and out.radius > 0.0):
             problems.append(f"{where} has radius {c.radius!r}; a rolling disk needs a positive finite radius")
     else:
@@ -305,6 +327,8 @@ def digest_bytes(c) -> bytes:
     parts = [type(c).__name__.encode(), repr(c.name).encode()]
     for f in (f.name for f in dataclasses.fields(c)):
         value = getattr(c, f)
+        if f == "lateral" and value:  # the default adds nothing: a two-row contact's digest is what it was before
+            continue
         if isinstance(value, np.ndarray) or (isinstance(value, tuple) and value and not isinstance(value[0], str)):
             parts.append(np.ascontiguousarray(value, dtype="<f8").tobytes())
         elif isinstance(value, float):

@@ -75,15 +75,19 @@ def rolling_disk(m: float = 1.0, r: float = 0.5, g: float = 9.81) -> Model:
 @register
 def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1, track: float = 0.4,
                        com_ahead: float = 0.1, g: float = 9.81, payload: float = 2.0, drag: float = 3.0) -> Model:
-    """A differential-drive robot: a chassis on the ground plane and two wheels of radius r on a common axle, each
-    rolling without slipping (two ``RollingContact`` declarations, four rows).
+    """A differential-drive robot: a chassis on the ground plane and two wheels of radius r on a common axle, the
+    textbook three Pfaffian rows (Siciliano et al., Robotics, 11.2; Campion et al. 1996): each wheel rolls without
+    slipping along its rolling direction (``RollingContact(..., lateral=False)``, one row each) and the axle does not
+    slide sideways (one ``KnifeEdge`` at the axle's midpoint across the chassis' y axis). Rank 3, two degrees of
+    freedom remain (drive and turn).
 
     q = (x, y, heading, left wheel, right wheel): the position of the axle's midpoint on the ground, the chassis'
     heading (body x forward, axle along body y) and the wheels' spin angles. The chassis (a box of mass ``m_body``,
     COM ``com_ahead`` in front of the axle at height r) carries the wheels at ``(0, +-track/2, r)``. Inputs: the
-    two wheel torques. Both wheels forbid the same sideways motion of the axle, so the four rows have rank 3: the
-    lateral multipliers are the minimum-norm split of the one lateral force (the rank rule of
-    ``formalisms.interface``), two degrees of freedom remain (drive and turn).
+    two wheel torques. lam = (the left and the right wheel's traction: the ground's friction force at its contact
+    along its rolling direction, the heading; the ground's lateral force on the axle along the chassis' y axis).
+    Rows, with h the heading and s = track/2: ``cos h xd + sin h yd - s hd - r left_d = 0``, ``cos h xd + sin h yd + s
+    hd - r right_d = 0``, ``-sin h xd + cos h yd = 0``. Closed form: ``crosscheck.closed_forms``.
 
     The payload (an external load, ``cases.loads``): a crate of ``payload`` kg on a tray behind and left of the axle,
     not part of the chassis' inertia, pressing with its weight and dragging with ``drag`` N backward and 0.4 ``drag``
@@ -104,7 +108,8 @@ def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1
              translation=(0.0, -half, r))]
     B = np.zeros((5, 2))
     B[3, 0] = B[4, 1] = 1.0
-    rows = [RollingContact(f"{side}_rolling", f"wheel_{side}", _ORIGIN, _Y, r, XY_PLANE) for side in ("left", "right")]
+    rows = [RollingContact(f"{side}_rolling", f"wheel_{side}", _ORIGIN, _Y, r, XY_PLANE, lateral=False)
+            for side in ("left", "right")] + [KnifeEdge("axle", "chassis", _ORIGIN, _Y)]
     crate = ExternalWrench("payload", "chassis", (-0.15, 0.05, 2.0 * r), (-drag, -0.4 * drag, -payload * g),
                            (0.0, 0.0, 0.1 * drag), "body")
     return build_model("differential_drive", bodies, gravity=(0.0, 0.0, -g), input_map=B, constraints=rows,

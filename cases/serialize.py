@@ -8,7 +8,8 @@ rebuilt model has the same ``digest()`` and every backend gives it the same spli
 
 The dict holds the bodies (joint, axis, placement, mass, centre of mass, inertia), gravity, the input map, the task
 points, the constraint declarations of every type in :mod:`cases.constraints`, the external loads of every type in
-:mod:`cases.loads` (a field written only when there are loads) and, for a model loaded from a file,
+:mod:`cases.loads` (a field written only when there are loads; a RollingContact's ``lateral`` is written only when
+False, so an older dict reads as the two-row default) and, for a model loaded from a file,
 its ``source`` (kind, path, world placement; :class:`cases.model.ModelSource`). A dict without ``source`` (written
 before it existed, or of a model built in code) loads as a model without one. :func:`model_from_dict` rebuilds
 through :func:`cases.build_model`, so a dict edited by hand is validated like any model; a missing or mistyped field
@@ -50,6 +51,12 @@ def _plain(value):
     return value
 
 
+def _written(c, field: str) -> bool:
+    """Whether a declaration's field is written: a RollingContact's ``lateral`` only when False (the default two rows
+    are written as before the field existed, and a dict without it reads as the default)."""
+    return not (field == "lateral" and getattr(c, field) is True)
+
+
 def model_to_dict(model: Model) -> dict:
     """``model`` as a JSON-safe dict (module doc); :func:`model_from_dict` inverts it exactly. The ``source`` field
     is there only when the model has one, so the dict of a model built in code is what it was before sources."""
@@ -66,7 +73,8 @@ def model_to_dict(model: Model) -> dict:
                          "directions": _plain(tp.directions), **({"choice": tp.choice} if tp.choice else {})}
                         for tp in model.task_points],
         "constraints": [{"type": type(c).__name__, **{f.name: _plain(getattr(c, f.name))
-                                                      for f in dataclasses.fields(c)}} for c in model.constraints],
+                                                      for f in dataclasses.fields(c) if _written(c, f.name)}}
+                        for c in model.constraints],
     }
     if model.loads:                           # written only when there are loads, so older dicts read the same
         d["loads"] = [{"type": type(x).__name__, **{f.name: _plain(getattr(x, f.name)) for f in dataclasses.fields(x)}}
@@ -155,6 +163,10 @@ def _constraint(d, where: str):
                                    for i in range(len(d[f.name])))
         elif f.name == "coefficients":
             kwargs[f.name] = tuple(float(x) for x in np.atleast_1d(_numbers(d, f.name, where)))
+        elif f.name == "lateral":           # absent in files written before the field: the two-row default
+            if f.name in d and not isinstance(d[f.name], bool):
+                raise SerializeError(f"serialized model: field '{where}.lateral' is {d[f.name]!r}; give true or false")
+            kwargs[f.name] = d.get(f.name, True)
         else:
             kwargs[f.name] = _numbers(d, f.name, where)
     return cls(**kwargs)

@@ -42,6 +42,9 @@ rolling_disk                   the classical rolling disk (Neimark-Fufaev, Bloch
                                (:func:`disk_terms`, :func:`disk_center`)
 double_pendulum_tip_force      eqs. (4)-(9) with ``tau_ext = J^T f`` of a world force at the tip (:func:`tip_force`)
 double_pendulum_spring         eqs. (4)-(9) with a tip spring and a body-frame wrench on link 2 (:func:`tip_spring`)
+differential_drive             Newton-Euler of chassis and wheels in the forward speed and the turning rate, the two
+                               rolling-direction rows and the axle's row, the payload's ``tau_ext = J^T F``
+                               (:func:`drive_terms`, :func:`drive_motion`, :func:`drive_load`)
 =============================  =====================================================================================
 
 Each supplies drift, ctrl and total (eq. 9; eqs. 14, 15, 17 with constraints; ctrl ``B_c B u`` computed directly),
@@ -1253,6 +1256,101 @@ def _rolling_disk(p, q, qd, u) -> Split:
     drift, ctrl, total, kkt = _constrained(t, np.zeros(2), A, bias, _disk_rule(p))
     J, task_bias = disk_center(q, qd, r)
     return _assemble(t, qd, drift, ctrl, total, _task(J, task_bias, drift, task_inertia(J, t.Minv)), kkt)
+def drive_terms(q, qd, m_body, m_wheel, r, track, com_ahead):
+    """The differential drive (``cases.differential_drive``) by hand: q = (x, y, h, left, right), P = (x, y) the axle's
+    midpoint, ``e1 = (c, s)`` forward, ``e2 = (-s, c)`` along the axle, half track ``b = track / 2``, ``d = com_ahead``.
+    The chassis' COM moves with ``Pdot + d hd e2``, the wheels' centres with ``Pdot -+ b hd e1``; the chassis turns at
+    ``hd`` about z (its inertia ``m_body track^2 / 6`` about z), a thin wheel at ``hd z + spin_d axle`` (``m_w r^2 / 4``
+    about a diameter, ``m_w r^2 / 2`` about the axle). So ``T = m/2 |Pdot|^2 + m_body d hd (e2 . Pdot) + J/2 hd^2 +
+    I_a/2 (left_d^2 + right_d^2)`` with ``m = m_body + 2 m_w``, ``J = m_body track^2 / 6 + m_w r^2 / 2 + m_body d^2 + 2
+    m_w b^2``, ``I_a = m_w r^2 / 2``: the sleigh's M (:func:`sleigh_terms`, ``m a`` -> ``m_body d``) and ``C qd = -m_body
+    d hd^2 (c, s, 0, 0, 0)``; g = 0 (gravity along -z).
+
+    The rows (``cases.differential_drive``), each wheel's contact along its rolling direction e1 and the axle across
+    e2: ``A = [[c, s, -b, -r, 0], [c, s, b, 0, -r], [-s, c, 0, 0, 0]]``; only the heading enters A, so ``Adot qd = hd
+    (v_lat, v_lat, -v)`` with ``v = c xd + s yd``, ``v_lat = -s xd + c yd``. Returns (M, C qd, A, Adot qd)."""
+    s, c = np.sin(q[2]), np.cos(q[2])
+    b, d = track / 2.0, com_ahead
+    m, md = m_body + 2.0 * m_wheel, m_body * com_ahead
+    J = m_body * track**2 / 6.0 + m_wheel * r**2 / 2.0 + m_body * d**2 + 2.0 * m_wheel * b**2
+    M = np.zeros((5, 5))
+    M[:3, :3] = [[m, 0.0, -md * s], [0.0, m, md * c], [-md * s, md * c, J]]
+    M[3, 3] = M[4, 4] = m_wheel * r**2 / 2.0
+    Cqd = -md * qd[2] ** 2 * np.array([c, s, 0.0, 0.0, 0.0])
+    A = np.array([[c, s, -b, -r, 0.0], [c, s, b, 0.0, -r], [-s, c, 0.0, 0.0, 0.0]])
+    v, v_lat = c * qd[0] + s * qd[1], -s * qd[0] + c * qd[1]
+    return M, Cqd, A, qd[2] * np.array([v_lat, v_lat, -v])
+
+
+def drive_load(q, drag, g, payload) -> np.ndarray:
+    """``tau_ext = J^T F`` of the crate on the tray by hand (``cases.differential_drive``): the body-frame force ``f_b =
+    (-drag, -0.4 drag, -payload g)`` and couple ``(0, 0, 0.1 drag)`` at ``r_b = (-0.15, 0.05, 2 r)`` from the chassis
+    origin P. The point moves with ``Pdot + hd z x (R r_b)``, so x and y take the horizontal force ``R f_b``, the heading
+    the moment about z ``r_bx f_by - r_by f_bx + 0.1 drag``; the weight does no work (nothing moves vertically), the
+    wheels take nothing."""
+    s, c = np.sin(q[2]), np.cos(q[2])
+    fx, fy = -drag, -0.4 * drag
+    return np.array([c * fx - s * fy, s * fx + c * fy, -0.15 * fy - 0.05 * fx + 0.1 * drag, 0.0, 0.0])
+
+
+def drive_motion(q, qd, u, tau_ext, m_body, m_wheel, r, track, com_ahead):
+    """The differential drive's accelerations and multipliers by hand at an admissible state (``Pdot = v e1``, ``left_d
+    = (v - b w) / r``, ``right_d = (v + b w) / r``, ``w = hd``) under the wheel torques u and the load's ``tau_ext = (F_x,
+    F_y, tau, 0, 0)``: with ``F_along = c F_x + s F_y``, ``F_lat = -s F_x + c F_y`` and lam = (left traction, right
+    traction, axle's lateral force), the forces the ground exerts along e1 at each contact and along e2 at P.
+
+    Newton-Euler of chassis + wheels. The system's COM is ``d m_body / m`` ahead of P, so its momentum changes along
+    e1 and e2 by ``m vdot - m_body d w^2`` and ``m v w + m_body d wdot`` (``Pddot = vdot e1 + v w e2``); its angular
+    momentum about P by ``J wdot + m_body d v w`` (P moves, the COM is off it). Each wheel spins about its axle under
+    its motor and its contact's traction, whose moment about the axle is ``-r lam``: ``I_a spin_dd = u - r lam``
+    (the disk is symmetric, no gyroscopic term along the axle); the motors' reactions on the chassis are about the
+    horizontal axle and do no planar work. So::
+
+        m vdot - m_body d w^2 = F_along + lam_l + lam_r,     m v w + m_body d wdot = F_lat + lam_a,
+        J wdot + m_body d v w = tau + b (lam_r - lam_l),    I_a (vdot -+ b wdot) / r = u_l,r - r lam_l,r
+
+    and eliminating the tractions: ``(m + 2 I_a / r^2) vdot = F_along + m_body d w^2 + (u_l + u_r) / r``, ``(J + 2 b^2
+    I_a / r^2) wdot = tau - m_body d v w + b (u_r - u_l) / r``; ``lam_a = m v w + m_body d wdot - F_lat``. Then ``xdd = c
+    vdot - s v w``, ``ydd = s vdot + c v w``, ``hdd = wdot``, ``spin_dd = (vdot -+ b wdot) / r``. Returns (qdd, lam)."""
+    s, c = np.sin(q[2]), np.cos(q[2])
+    b, d = track / 2.0, com_ahead
+    m, md, Ia = m_body + 2.0 * m_wheel, m_body * com_ahead, m_wheel * r**2 / 2.0
+    J = m_body * track**2 / 6.0 + m_wheel * r**2 / 2.0 + m_body * d**2 + 2.0 * m_wheel * b**2
+    v, w = c * qd[0] + s * qd[1], qd[2]
+    along, lateral = c * tau_ext[0] + s * tau_ext[1], -s * tau_ext[0] + c * tau_ext[1]
+    vdot = (along + md * w * w + (u[0] + u[1]) / r) / (m + 2.0 * Ia / r**2)
+    wdot = (tau_ext[2] - md * v * w + b * (u[1] - u[0]) / r) / (J + 2.0 * b * b * Ia / r**2)
+    left, right = (vdot - b * wdot) / r, (vdot + b * wdot) / r
+    lam = np.array([(u[0] - Ia * left) / r, (u[1] - Ia * right) / r, m * v * w + md * wdot - lateral])
+    return np.array([c * vdot - s * v * w, s * vdot + c * v * w, wdot, left, right]), lam
+
+
+def _drive_rule(p) -> Rule:
+    """The drive: the chassis (COM at ``(com_ahead, 0, r)``, trace ``m_body (4 track^2 + 2 r^2) / 12``), two wheels at
+    ``(0, +-track/2, r)`` of trace ``m_w r^2``; the carriages massless."""
+    r, half = p["r"], p["track"] / 2.0
+    return Rule.of((p["m_body"], float(np.hypot(p["com_ahead"], r)), p["m_body"] * (4.0 * p["track"] ** 2 + 2.0 * r * r)
+                    / 12.0), *[(p["m_wheel"], float(np.hypot(half, r)), p["m_wheel"] * r * r)] * 2)
+
+
+def _differential_drive(p, q, qd, u) -> Split:
+    """:func:`drive_terms`, :func:`drive_load` and :func:`drive_motion` (total with u, drift with 0, the load in both;
+    ctrl = B_c B u, eq. 17, by :func:`constrained_input_map`); the task point ``front`` at ``P + f e1``, ``f =
+    com_ahead + 0.1``: ``J = [[1, 0, -f s, 0, 0], [0, 1, f c, 0, 0]]``, ``Jdot qd = -f hd^2 e1``."""
+    shape = (p["m_body"], p["m_wheel"], p["r"], p["track"], p["com_ahead"])
+    M, Cqd, Jc, bias = drive_terms(q, qd, *shape)
+    tau_ext = drive_load(q, p["drag"], p["g"], p["payload"])
+    B = np.zeros((5, 2))
+    B[3, 0] = B[4, 1] = 1.0
+    t = _Terms(M, np.linalg.inv(M), Cqd, -tau_ext, B @ u, p["m_body"] + 2.0 * p["m_wheel"], abs(p["g"]), tau_ext)
+    total, lam = drive_motion(q, qd, u, tau_ext, *shape)
+    drift, lam_drift = drive_motion(q, qd, np.zeros(2), tau_ext, *shape)
+    s, c = np.sin(q[2]), np.cos(q[2])
+    f = p["com_ahead"] + 0.1
+    J = np.array([[1.0, 0.0, -f * s, 0.0, 0.0], [0.0, 1.0, f * c, 0.0, 0.0]])
+    return _assemble(t, qd, drift, constrained_input_map(M, Jc) @ (B @ u), total,
+                     _task(J, -f * qd[2] ** 2 * np.array([c, s]), drift, task_inertia(J, t.Minv)),
+                     _Kkt(np.zeros(3), Jc, bias, lam, lam_drift, _drive_rule(p)))
 
 
 # ------------------------------------------------------------------------------------------------- the voter
@@ -1322,6 +1420,10 @@ CLOSED_FORMS: dict[str, ClosedForm] = {
     "double_pendulum_spring": ClosedForm("article section 3, eqs. (4)-(9), with tau_ext of the tip spring and the "
                                          "body-frame wrench by hand (eq. 12, 14)", lambda p: (2, 2, 0),
                                          _double_pendulum_spring, loaded=True),
+    "differential_drive": ClosedForm("Newton-Euler of chassis and wheels by hand in the forward speed and the turning "
+                                     "rate (the wheels' spin inertia), the rolling-direction and axle rows, tau_ext = "
+                                     "J^T F of the payload, eqs. (12)-(17)", lambda p: (5, 2, 3), _differential_drive,
+                                     _drive_rule, loaded=True),
 }
 
 

@@ -148,6 +148,16 @@ def _moment_shift_reversed(moment_about_origin):
     return lambda offset, f, couple: couple + _cross(f, offset)
 
 
+def _rolling_direction_fixed(turn):
+    """``_rolling_turn`` with ``tdot = 0``: the rolling direction as if it did not turn with the axle. At an admissible
+    state of the differential drive the contact's material point is at rest (v_pc = 0), so the split is unchanged;
+    the linearization is not (``d(tdot . v_pc)/dqd = tdot^T J_pc``, with ``tdot = hd e2``)."""
+    def faulty(b, b_dot):
+        t, size, t_dot = turn(b, b_dot)
+        return t, size, np.zeros_like(t_dot)
+    return faulty
+
+
 NEWTON_EULER = [
     Fault("ne-gyroscopic-dropped", NE,
           "Euler's equation (19) misses the gyroscopic moment w x (I w).",
@@ -181,6 +191,10 @@ NEWTON_EULER = [
           "the classical acceleration of a body-fixed point, not of the point that follows the contact.",
           "formalisms.newton_euler:_contact_rate",
           lambda f: lambda w, a, n, u, length: _cross3(w, u)),
+    Fault("ne-rolling-direction-fixed", NE,
+          "A rolling-direction row (RollingContact lateral=False) takes its direction t as fixed along the motion: "
+          "tdot = 0, so Adot qd lacks tdot . v_pc.",
+          "formalisms.newton_euler:_rolling_turn", _rolling_direction_fixed),
     Fault("ne-constraint-force-wrong-frame", NE,
           "The constraint forces are rotated into the body frames with W instead of W^T before the backward pass "
           "(the joint reactions carry them in the wrong frame).",

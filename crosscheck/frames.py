@@ -108,6 +108,7 @@ def move_constraint(c, frame: Frame):
     if isinstance(c, cases.PointVelocity):
         return dataclasses.replace(c, directions=c.directions @ R.T)
     if isinstance(c, cases.RollingContact):    # the ground plane's tangents turn; its centre and axis are body data
+        # (a lateral=False contact's direction t = (a x n) / |a x n| turns with them: its lam is frame-invariant)
         return dataclasses.replace(c, plane=c.plane @ R.T)
     return c                                   # a joint coupling or a knife edge (body-fixed) involves no world data
 

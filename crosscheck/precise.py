@@ -197,7 +197,8 @@ def _constraint_data(model: Model, c) -> tuple:
     if isinstance(c, KnifeEdge):
         return ("knife", (model.body_index(c.body), _vec(c.offset)), _vec(c.direction))
     if isinstance(c, RollingContact):
-        return ("rolling", (model.body_index(c.body), _vec(c.center)), _vec(c.axis), mpf(c.radius), _mat(c.plane))
+        return ("rolling", (model.body_index(c.body), _vec(c.center)), _vec(c.axis), mpf(c.radius), _mat(c.plane),
+                bool(c.lateral))
     return ("circle", (model.body_index(c.body), _vec(c.offset)), _vec(c.center), mpf(c.radius),
             _mat(c.plane))
 
@@ -493,7 +494,9 @@ def _pfaffian_rows(data: _Data, kin: _Kin, decl):
     """phi (0), A and Adot qd of a Pfaffian declaration (``cases.constraints``) from :func:`_point`: a point's
     ``D J``, ``D acc``; a knife edge's ``e = R d`` with ``(w x e) . vel + e . acc``; a rolling contact's material point
     at ``p_c = c - r u`` (its body-frame offset ``center + R^T e``, ``e = -r u``) with ``Adot qd = T (acc + w x (edot -
-    w x e))``, ``edot = -r udot``, ``udot = (I - u u^T) rawdot / |raw|``, ``raw = n - (n.a) a``, ``adot = w x a``."""
+    w x e))``, ``edot = -r udot``, ``udot = (I - u u^T) rawdot / |raw|``, ``raw = n - (n.a) a``, ``adot = w x a``;
+    with ``lateral=False`` the one row along ``t = b / |b|``, ``b = a x n``: ``A = t^T J``, ``Adot qd = t . (acc + w x
+    (edot - w x e)) + tdot . vel``, ``tdot = (bdot - t (t.bdot)) / |b|``, ``bdot = adot x n``."""
     n = len(kin.S)
     kind, (body, offset) = decl[0], decl[1]
     if kind == "velocity":
@@ -504,7 +507,7 @@ def _pfaffian_rows(data: _Data, kin: _Kin, decl):
         _, vel, J, acc = _point(data, kin, n, body, offset)
         e = _matvec(R, decl[2])
         return [mpf(0)], [_project_jacobian((e,), J)[0]], [_dot(_cross(w, e), vel) + _dot(e, acc)]
-    _, _, axis, radius, T = decl
+    _, _, axis, radius, T, lateral = decl
     normal = _cross(T[0], T[1])
     a = _matvec(R, axis)
     raw = _sub(normal, _scale(_dot(normal, a), a))
@@ -514,9 +517,16 @@ def _pfaffian_rows(data: _Data, kin: _Kin, decl):
     a_dot = _cross(w, a)
     raw_dot = _sub(_scale(-_dot(normal, a_dot), a), _scale(_dot(normal, a), a_dot))
     e_dot = _scale(-radius / length, _sub(raw_dot, _scale(_dot(u, raw_dot), u)))
-    _, _, J, acc = _point(data, kin, n, body, _add(offset, _matvec(_transpose(R), e)))
-    slide = _cross(w, _sub(e_dot, _cross(w, e)))
-    return [mpf(0), mpf(0)], _project_jacobian(T, J), _project(T, _add(acc, slide))
+    _, vel, J, acc = _point(data, kin, n, body, _add(offset, _matvec(_transpose(R), e)))
+    rate = _add(acc, _cross(w, _sub(e_dot, _cross(w, e))))
+    if not lateral:     # the rolling direction t = b / |b|, b = a x n, alone: t . rate + tdot . vel
+        b = _cross(a, normal)
+        size = mpmath.sqrt(_dot(b, b))
+        t = _scale(1 / size, b)
+        b_dot = _cross(a_dot, normal)
+        t_dot = _scale(1 / size, _sub(b_dot, _scale(_dot(t, b_dot), t)))
+        return [mpf(0)], [_project_jacobian((t,), J)[0]], [_dot(t, rate) + _dot(t_dot, vel)]
+    return [mpf(0), mpf(0)], _project_jacobian(T, J), _project(T, rate)
 
 
 def _constraint_terms(data: _Data, kin: _Kin, q):

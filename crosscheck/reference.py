@@ -647,11 +647,20 @@ def _contact(con: RollingContact, R: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return raw / np.linalg.norm(raw), np.linalg.norm(raw), a
 
 
+def _rolling_direction(con: RollingContact, a: np.ndarray) -> tuple[np.ndarray, float]:
+    """A rolling contact's rolling direction ``t = (a x n) / |a x n|`` and ``|a x n|`` (``cases.constraints``)."""
+    b = np.cross(a, np.cross(con.plane[0], con.plane[1]))
+    size = float(np.linalg.norm(b))
+    return b / size, size
+
+
 def _pfaffian_rows(model: Model, c: _Compiled, data, con, v_p: np.ndarray):
     """phi (0), A (Pinocchio order) and Adot qd of a Pfaffian declaration (``cases.constraints``), from
     :func:`_material_point`: a knife edge's ``e = R d`` turns with ``w``; a rolling contact's material point at the
     contact ``p_c = c - r u`` has ``A = T J`` and ``Adot qd = T (a + w x (edot - w x e))``, ``e = -r u``, ``edot = -r
-    udot`` (the contact slides over the disk)."""
+    udot`` (the contact slides over the disk); with ``lateral=False`` the one row ``t^T J`` along the rolling direction
+    ``t = (a x n) / |a x n|``, its bias ``t . (a + w x (edot - w x e)) + tdot . (J qd)``, ``tdot = (bdot - t (t.bdot))
+    / |a x n|``, ``bdot = (w x a) x n``."""
     n = model.n
     if isinstance(con, PointVelocity):
         x = _material_point(c, data, con.body, lambda R, o: o + R @ con.offset, n)
@@ -667,7 +676,13 @@ def _pfaffian_rows(model: Model, c: _Compiled, data, con, v_p: np.ndarray):
     a_dot = np.cross(x.w, a)
     raw_dot = -(n_ground @ a_dot) * a - (n_ground @ a) * a_dot
     e, e_dot = -con.radius * u, -con.radius * (raw_dot - (u @ raw_dot) * u) / length
-    return np.zeros(2), con.plane @ x.J, con.plane @ (x.a + np.cross(x.w, e_dot - np.cross(x.w, e)))
+    rate = x.a + np.cross(x.w, e_dot - np.cross(x.w, e))
+    if not con.lateral:     # the rolling direction t = b / |b|, b = a x n; tdot = (bdot - t (t.bdot)) / |b|
+        t, size = _rolling_direction(con, a)
+        b_dot = np.cross(a_dot, n_ground)
+        t_dot = (b_dot - (t @ b_dot) * t) / size
+        return np.zeros(1), (t @ x.J)[None, :], np.array([t @ rate + t_dot @ (x.J @ v_p)])
+    return np.zeros(2), con.plane @ x.J, con.plane @ rate
 
 
 def _rows(model: Model, c: _Compiled, data, con, q: np.ndarray, v_p: np.ndarray):
@@ -816,7 +831,8 @@ def _point_forces(c: _Compiled, data, con, part: np.ndarray) -> list:
         return [(con.body, con.offset, (R @ con.direction) * part[0])]
     if isinstance(con, RollingContact):   # at the contact point, its offset in the body (joint) frame
         R = np.array(data.oMi[c.joint_of[con.body]].rotation)
-        return [(con.body, con.center - con.radius * (R.T @ _contact(con, R)[0]), con.plane.T @ part)]
+        direction = con.plane.T if con.lateral else _rolling_direction(con, R @ con.axis)[0][:, None]
+        return [(con.body, con.center - con.radius * (R.T @ _contact(con, R)[0]), direction @ part)]
     return []
 
 

@@ -308,7 +308,8 @@ def _pfaffian_declaration(draw, kind: str, name: str, body: str, offset: np.ndar
     """A Pfaffian declaration on ``body`` (``cases.constraints``): a knife edge at ``offset`` across a drawn body
     direction, a point velocity along 1 to 3 drawn world directions, or a disk of drawn radius centred at ``offset``
     with a drawn axle rolling on a drawn plane (its axle never along the plane's normal: the third row of ``frame``
-    is the normal, the axle mixes the first and the normal)."""
+    is the normal, the axle mixes the first and the normal), its rows drawn both ways: along both tangents or along
+    the rolling direction only (``lateral``)."""
     if kind == "KnifeEdge":
         return decl.KnifeEdge(name, body, offset, frame[0])
     if kind == "PointVelocity":
@@ -316,7 +317,7 @@ def _pfaffian_declaration(draw, kind: str, name: str, body: str, offset: np.ndar
     tilt = draw(_values(-1.2, 1.2))
     axle = np.cos(tilt) * frame[0] + np.sin(tilt) * frame[2]
     return decl.RollingContact(name, body, offset, axle / np.linalg.norm(axle), draw(_floats(*RADIUS_RANGE)),
-                               frame[:2])
+                               frame[:2], draw(st.booleans()))
 
 
 @st.composite

@@ -722,7 +722,8 @@ def _contact_gain(model, q) -> float:
     """``1 / s^2`` with s the smallest ``|n x a|`` of the model's rolling contacts at q (``reference.contact_sines``);
     1 without one. The contact direction ``u = (n - (n.a) a) / s`` rounds at ``eps / s`` and its rate ``udot``, which
     enters ``Adot qd``, at ``eps / s^2`` (a leaning disk nearly flat: lean 1.587 rad, s = 0.016, put the backends'
-    rolling biases 0.3 tolerances apart with the plain kinematics scale)."""
+    rolling biases 0.3 tolerances apart with the plain kinematics scale). The rolling direction of a ``lateral=False``
+    contact, ``t = (a x n) / s`` (``|a x n| = s``), and its rate ``tdot`` are divided by the same s and round alike."""
     if not any(isinstance(c, RollingContact) for c in model.constraints):
         return 1.0
     from crosscheck.reference import contact_sines

@@ -609,7 +609,8 @@ def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
     """The velocity rows ``A(p) pd`` of a Pfaffian declaration exactly as :mod:`cases.constraints` fixes them, from the
     staged time derivatives of this backend's own poses: a point's velocity ``dt(p)``, a body's angular velocity from
     ``Rdot R^T``. For a rolling contact the material point at the contact ``p_c = c - r u`` moves with ``dt(c) + w x
-    (p_c - c)``; ``Jc`` and ``Jcdot pd`` then follow by differentiating the rows (:func:`_constraints`)."""
+    (p_c - c)``; with ``lateral=False`` only ``t . v`` along the rolling direction ``t = (a x n) / |a x n|``. ``Jc`` and
+    ``Jcdot pd`` then follow by differentiating the rows (:func:`_constraints`): the turning of t is in ``dt``."""
     R, _ = poses[model.body_index(c.body)]
     if isinstance(c, PointVelocity):
         return list(_matrix(c.directions) * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))
@@ -624,6 +625,10 @@ def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
     e = (raw * (-_exact(c.radius) / length)).applyfunc(st.name)
     w = _angular_velocity(st, R)
     velocity = _point(model, st, poses, c.body, c.center).applyfunc(st.dt) + _skew(w) * e
+    if not c.lateral:       # the rolling direction t = (a x n) / |a x n| only; dt turns t with the axle (tdot . v)
+        b = (_skew(a) * n).applyfunc(st.name)
+        t = (b * (ONE / st.name(sp.sqrt((b.T * b)[0])))).applyfunc(st.name)
+        return [(t.T * velocity)[0]]
     return list(_matrix(c.plane) * velocity)
 
 

@@ -642,7 +642,8 @@ def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
 def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX) -> ca.SX:
     """The velocity rows ``A(p) pd`` of a Pfaffian declaration, exactly as :mod:`cases.constraints` fixes them: a
     point's velocity ``jtimes(x, p, pd)``, the body's world angular velocity from ``Rdot R^T``; for a rolling contact
-    the material point at the contact ``p_c = c - r u`` moves with ``cdot + w x (p_c - c)``."""
+    the material point at the contact ``p_c = c - r u`` moves with ``cdot + w x (p_c - c)`` (its rows along the ground's
+    tangents T, or with ``lateral=False`` along the rolling direction ``t = (a x n) / |a x n|`` alone)."""
     b = model.body_index(c.body)
     if isinstance(c, PointVelocity):
         return ca.mtimes(ca.DM(c.directions), ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
@@ -657,6 +658,9 @@ def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX) -> c
         W = ca.mtimes(ca.reshape(ca.jtimes(ca.vec(R[b]), p, pd), 3, 3), R[b].T)   # hat(w), world frame
         w = ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
         velocity = ca.jtimes(_point(model, R, o, c.body, c.center), p, pd) + ca.cross(w, e)
+        if not c.lateral:   # the rolling direction t = (a x n) / |a x n| only; (da/dp) pd turns t with the axle
+            b = ca.cross(a, n)
+            return ca.dot(b / ca.norm_2(b), velocity)
         return ca.mtimes(ca.DM(c.plane), velocity)
     raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {type(c).__name__}, which the geometric "
                      "backend does not know")

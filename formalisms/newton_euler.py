@@ -676,8 +676,30 @@ def _rolling(model: Model, c, point, spin, q, qd) -> _Rows:
     e = -r * u
     J = x.J + _cross(s.Jw, e[:, None])
     acc = x.a + _cross(s.wd, e) + _cross(s.w, -r * _contact_rate(s.w, a, n, u, length))
+    if not c.lateral:
+        return _rolling_direction(c, x, s, a, n, e, J, acc, qd, batch)
     loads = () if batch else ((x.body, c.center + s.W.T @ e, T.T),)     # p_c - o = W center + e
     return _Rows(_zero_phi(2, batch), _cmv(T, J), _cmv(T, acc), loads)
+
+
+def _rolling_turn(b: np.ndarray, b_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t, |b|, tdot)`` of the rolling direction ``t = b / |b|`` (``b = a x n``) turning at ``bdot = (w x a) x n``:
+    ``tdot = (bdot - t (t . bdot)) / |b|`` (one vector or a batch, components first)."""
+    size = np.sqrt(_dot(b, b))
+    t = b / size
+    return t, size, (b_dot - _dot(t, b_dot) * t) / size
+
+
+def _rolling_direction(c, x, s, a, n, e, J, acc, qd, batch) -> _Rows:
+    """RollingContact with ``lateral=False``: the one row ``t . v_pc`` along the rolling direction ``t = b / |b|``,
+    ``b = a x n``, which turns with the axle: ``A = t^T (J_c + Jw x e)`` and ``Adot qd = t . acc + tdot . v_pc`` with
+    ``acc`` the contact's rate of :func:`_rolling`, ``v_pc = (J_c + Jw x e) qd``, ``tdot = (bdot - t (t . bdot)) /
+    |b|``, ``bdot = (w x a) x n``. The force ``t lam`` at the contact (one state)."""
+    t, _, t_dot = _rolling_turn(_cross(a, n), _cross(_cross(s.w, a), n))
+    v = (J * qd[None]).sum(axis=1)
+    bias = _dot(t, acc) + _dot(t_dot, v)
+    loads = () if batch else ((x.body, c.center + s.W.T @ e, t[:, None]),)
+    return _Rows(_zero_phi(1, batch), _dot(t[:, None], J)[None], bias[None], loads)
 
 
 #: The rows of each declaration of ``cases.constraints``, by its type.
@@ -1282,7 +1304,8 @@ def _rolling_tangent(model: Model, c, point, spin):
     contact terms of :func:`_contact_rate` differentiated by the chain rule (``a = W axis``, ``raw = n - (n.a) a``,
     ``u = raw / |raw|``, ``e = -r u``, ``adot = w x a``, ``edot = -r (I - u u^T) rawdot / |raw|``); the force ``T^T
     lam`` is constant, its point (the contact, ``center + W^T e`` in the body) moves: ``d(W^T e) = W^T de - Th x W^T
-    e``."""
+    e``. With ``lateral=False`` the row ``t . acc + tdot . v_pc`` (:func:`_rolling_direction`) is differentiated
+    factor by factor, and its force ``t lam`` turns with the axle: ``dt = (db - t (t . db)) / |b|``, ``db = da x n``."""
     i = model.body_index(c.body)
     x, s = point(c.body, c.center), spin(i)
     n, r, col = np.cross(c.plane[0], c.plane[1]), c.radius, (lambda v: v[:, None])  # noqa: E731
@@ -1300,11 +1323,25 @@ def _rolling_tangent(model: Model, c, point, spin):
     du_dot = ((draw_dot - du * (u @ raw_dot) - col(u) * (raw_dot @ du + u @ draw_dot)) / length
               - col(u_dot) * dlength / length)
     e, de, e_dot, de_dot = -r * u, -r * du, -r * u_dot, -r * du_dot
-    dc = c.plane @ (x.dacc + _cross(s.dwd, col(e)) + _cross(col(s.wd), de) + _cross(s.dw, col(e_dot))
-                    + _cross(col(s.w), de_dot))
+    dacc = (x.dacc + _cross(s.dwd, col(e)) + _cross(col(s.wd), de) + _cross(s.dw, col(e_dot))
+            + _cross(col(s.w), de_dot))
     local = s.W.T @ e
     contact = _MovingPoint(i, c.center + local, s.W.T @ de - _cross(s.Th, col(local)))
-    return dc, ((contact, c.plane.T, np.zeros(c.plane.T.shape + x.dp.shape[1:])),)
+    if not c.lateral:
+        # the rolling direction alone (:func:`_rolling_direction`): c = t . acc + tdot . v_pc, with b = a x n, t = b /
+        # |b|, bdot = adot x n, tdot = (bdot - t (t . bdot)) / |b|, every factor differentiated
+        acc = x.acc + _cross(s.wd, e) + _cross(s.w, e_dot)
+        v, dv = x.pv + _cross(s.w, e), x.dpv + _cross(s.dw, col(e)) + _cross(col(s.w), de)
+        b, db = _cross(a, n), _cross(da, col(n))
+        b_dot, db_dot = _cross(a_dot, n), _cross(da_dot, col(n))
+        t, size, t_dot = _rolling_turn(b, b_dot)
+        dsize = t @ db
+        dt = (db - col(t) * (t @ db)) / size
+        dt_dot = ((db_dot - dt * (t @ b_dot) - col(t) * (b_dot @ dt + t @ db_dot)) / size
+                  - col(t_dot) * dsize / size)
+        dc = acc @ dt + t @ dacc + v @ dt_dot + t_dot @ dv
+        return dc[None], ((contact, col(t), dt[:, None, :]),)
+    return c.plane @ dacc, ((contact, c.plane.T, np.zeros(c.plane.T.shape + x.dp.shape[1:])),)
 
 
 #: The Pfaffian declarations' derivatives (they also read the body's angular kinematics and its tangents).

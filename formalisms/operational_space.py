@@ -833,7 +833,9 @@ def _rolling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarra
     """RollingContact (Pfaffian, phi 0): the contact ``p_c = c - r u`` (``cases.constraints``), ``e = p_c - c``;
     ``A = T J_v(p_c)`` (the material point there) and ``Adot qd = T (a_c + w_bias x e + w x edot)`` from the centre's
     classical bias ``a_c``, the body's ``Jdot_w qd`` and ``edot = -r udot`` (``udot`` from ``adot = w x a``): the
-    contact point slides over the disk."""
+    contact point slides over the disk. With ``lateral=False`` the one row along the rolling direction ``t = b / |b|``,
+    ``b = a x n``: ``A = t^T J_v(p_c)``, ``Adot qd = t . rate + tdot . (J_v(p_c) qd)``, ``tdot = (bdot - t (t . bdot))
+    / |b|``, ``bdot = adot x n``."""
     i = model.body_index(c.body)
     center, _, a_center = _point_kinematics(model, kin, c.body, c.center)
     w = kin.w[..., i, :]
@@ -849,6 +851,14 @@ def _rolling(model: Model, kin: Kinematics, q: np.ndarray, c) -> tuple[np.ndarra
     e_dot = -c.radius * ((raw_dot - dot(u, raw_dot) * u) * inverse_length)
     Jv, _ = _pfaffian_point(model, kin, c.body, center + e)
     rate = a_center + _cross(kin.w_bias[..., i, :], e) + _cross(w, e_dot)
+    if not c.lateral:       # the rolling direction t = b / |b|, b = a x n, alone; t turns with the axle
+        b = _cross(a, n)
+        inverse_size = _reciprocal(_root(dot(b, b)))
+        t = b * inverse_size
+        b_dot = _cross(a_dot, n)
+        t_dot = (b_dot - dot(t, b_dot) * t) * inverse_size
+        pdot = _mv(Jv, kin.qd)
+        return np.zeros(q.shape[:-1] + (1,)), t[..., None, :] @ Jv, dot(t, rate) + dot(t_dot, pdot)
     return np.zeros(q.shape[:-1] + (2,)), c.plane @ Jv, _vm(rate, c.plane.T)
 
 

@@ -160,6 +160,9 @@ PARAMETERS = {
     "double_pendulum_tip_force": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH,
                                                         "g": GRAVITY, "fx": FORCE, "fy": FORCE}),
     "double_pendulum_spring": st.composite(_spring)(),
+    "differential_drive": st.fixed_dictionaries({"m_body": MASS, "m_wheel": MASS, "r": _floats(0.05, 0.5),
+                                                 "track": _floats(0.1, 1.0), "com_ahead": OFFSET, "g": GRAVITY,
+                                                 "payload": _floats(0.0, 5.0), "drag": _floats(0.0, 10.0)}),
 }
 
 

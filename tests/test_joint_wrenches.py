@@ -98,8 +98,8 @@ def test_the_three_suppliers_agree_on_every_built_in_case(case):
     model = cases.load(case)
     for state in sample_states(model, 3, 5, case)[1:]:
         outcome = evaluate(model, state, ALL)
-        # redundant rows (differential_drive: both wheels forbid the axle's one sideways motion, rank 3 of 4) leave
-        # the multipliers, so the joint loads, not unique: the rank rule puts them in BREAKDOWN, not compared
+        # redundant rows (rank below k) would leave the multipliers, so the joint loads, not unique: the rank rule
+        # puts them in BREAKDOWN, not compared (differential_drive's three rows are independent since lateral=False)
         unique = all(s.constraint_rank in (None, model.k) for s in outcome.trusted.values())
         for quantity in LOADS:
             comparison = outcome.comparisons[quantity]

@@ -1,7 +1,8 @@
-"""Pfaffian constraints A(q) qd = 0 (issue 21, item 2): the declarations, every backend's rows and solve against the
-others and the 50-digit reference, the knife edge's and the rolling disk's closed forms, the rolling disk (backends
-and closed form) against an independent derivation with the literature's rolling constraint, and the sampler's
-handling of velocity-only rows."""
+"""Pfaffian constraints A(q) qd = 0: the declarations, every backend's rows and solve against the
+others and the 50-digit reference, the closed forms of the knife edge, the rolling disk and the differential drive,
+the rolling disk (backends and closed form) against an independent derivation with the literature's rolling
+constraint, the rolling-direction row (``RollingContact(lateral=False)``) against its own symbolic derivation, and the
+sampler's handling of velocity-only rows."""
 
 import json
 
@@ -11,7 +12,7 @@ import sympy as sy
 
 import cases
 from cases.constraints import KnifeEdge, RollingContact
-from cases.serialize import model_from_dict, model_to_dict
+from cases.serialize import SerializeError, model_from_dict, model_to_dict
 from crosscheck import closed_forms, precise, reference, sampling
 from formalisms import euler_lagrange, geometric, newton_euler, operational_space, screw
 
@@ -50,8 +51,8 @@ def test_backends_and_references_agree_on_rows_accelerations_and_multipliers(cas
         np.testing.assert_allclose(s.drift, np.asarray(exact.drift, dtype=float), atol=1e-11)
         np.testing.assert_allclose(s.constraint_jacobian @ s.total + s.constraint_bias, 0.0, atol=1e-11)
         assert abs(s.power_constr) < 1e-11                  # ideal rows do no work: lam . A qd = 0
-        if case != "differential_drive":                    # its two lateral rows are one (rank 3 of 4)
-            np.testing.assert_allclose(s.lam, np.asarray(exact.lam, dtype=float), atol=1e-11)
+        assert s.constraint_rank == model.k                 # independent rows: lam is unique
+        np.testing.assert_allclose(s.lam, np.asarray(exact.lam, dtype=float), atol=1e-11)
 
 
 def test_knife_edge_closed_form_matches_the_backends():
@@ -210,6 +211,25 @@ def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
     assert seen == {"KnifeEdge", "PointVelocity", "RollingContact"}, seen
 
 
+def test_drawn_rolling_contacts_come_both_ways():
+    """``crosscheck.testing`` draws a rolling contact's ``lateral`` both ways (two rows or the rolling direction)."""
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    from crosscheck import testing
+
+    seen = set()
+
+    @settings(max_examples=20, database=None, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(st.data())
+    def drawn(data):
+        c = testing._pfaffian_declaration(data.draw, "RollingContact", "c", "disk", np.zeros(3), np.eye(3), 2)
+        assert c.size == (2 if c.lateral else 1)
+        seen.add(c.lateral)
+    drawn()
+    assert seen == {True, False}
+
+
 def test_the_tolerance_grows_as_the_rolling_disk_lies_flat():
     """The contact direction is a unit vector divided by |n x a| = |cos(lean)| for the rolling disk's chain, and its
     rate by its square: the constraint kinematics' scale carries 1 / cos(lean)^2."""
@@ -239,3 +259,153 @@ def test_the_differential_drives_payload_load_by_hand():
         out = backend.split(model, q, qd, np.zeros(2))
         assert np.abs(out.external_force - expected).max() <= 1e-14 * 10, backend.__name__
         assert out.power_ext == pytest.approx(expected @ qd, rel=1e-12, abs=1e-14)
+
+
+# ------------------------------------------------------------------ the rolling-direction row (lateral=False)
+
+
+def _leaning_disk(lateral: bool = False, m: float = 1.3, r: float = 0.4, g: float = 9.81):
+    """``cases.rolling_disk``'s chain (x, y, yaw, lean, spin; the contact point at (x, y, 0)) with its contact declared
+    ``RollingContact(..., lateral=lateral)``: with False one row, the disk may slide sideways."""
+    base = cases.load("rolling_disk", m=m, r=r, g=g)
+    contact = RollingContact("rolling", "disk", (0, 0, 0), (0, 1, 0), r, ((1, 0, 0), (0, 1, 0)), lateral=lateral)
+    return cases.build_model("leaning_disk", base.bodies, gravity=base.gravity, task_points=base.task_points,
+                             constraints=[contact])
+
+
+def _rolling_direction_row(r):
+    """The row ``t . v_pc`` of the leaning disk derived here with sympy, from the module docstring's definition and
+    the chain's geometry alone: the centre ``c = (x, y, 0) + Rz Rx (0, 0, r)``, the axle ``a = Rz Rx e_y``, ``w = yawd
+    e_z + leand (Rz e_x) + spind a``, the contact ``p_c = c - r u`` with ``u = (n - (n.a) a) / |.|``, ``n = e_z``, its
+    material point's velocity ``cdot + w x (p_c - c)`` and ``t = (a x n) / |a x n|``. Returns functions of (q, qd):
+    A = d(row)/dqd and the bias ``(d(row)/dq) qd`` (the rates held: qdd = 0)."""
+    x, y, psi, phi, th = coords = sy.symbols("x y psi phi theta", real=True)
+    rates = sy.Matrix(sy.symbols("xd yd psid phid thetad", real=True))
+    Rz = sy.Matrix([[sy.cos(psi), -sy.sin(psi), 0], [sy.sin(psi), sy.cos(psi), 0], [0, 0, 1]])
+    Rx = sy.Matrix([[1, 0, 0], [0, sy.cos(phi), -sy.sin(phi)], [0, sy.sin(phi), sy.cos(phi)]])
+    n = sy.Matrix([0, 0, 1])
+    center = sy.Matrix([x, y, 0]) + Rz * Rx * sy.Matrix([0, 0, r])
+    a = Rz * Rx * sy.Matrix([0, 1, 0])
+    w = rates[2] * n + rates[3] * (Rz * sy.Matrix([1, 0, 0])) + rates[4] * a
+    raw = n - (n.T * a)[0] * a
+    e = -r * raw / sy.sqrt((raw.T * raw)[0])
+    v_pc = center.jacobian(coords) * rates + w.cross(e)
+    b = a.cross(n)
+    row = (b.T * v_pc)[0] / sy.sqrt((b.T * b)[0])
+    A = sy.Matrix([row]).jacobian(rates)
+    bias = sy.Matrix([row]).jacobian(coords) * rates
+    return sy.lambdify([coords, list(rates)], [A, bias], "numpy")
+
+
+def test_the_rolling_direction_row_matches_its_own_derivation_where_the_disk_slides_sideways():
+    """A and Adot qd of ``lateral=False`` in every backend and both references against the sympy derivation of ``t .
+    v_pc`` (:func:`_rolling_direction_row`) on a leaning disk that slides sideways (so ``tdot . v_pc`` is not 0)."""
+    r = 0.4
+    model = _leaning_disk(r=r)
+    evaluate = _rolling_direction_row(r)
+    for seed in (11, 12, 13):
+        q, qd, u = _state(model, seed)
+        A, bias = (np.array(e, dtype=float).ravel() for e in evaluate(list(q), list(qd)))
+        lateral = -np.sin(q[2]) * qd[0] + np.cos(q[2]) * qd[1]                  # the contact's sideways rate
+        assert abs(lateral) > 0.05, lateral
+        for backend in (*BACKENDS, reference):
+            s = backend.split(model, q, qd, u)
+            np.testing.assert_allclose(s.constraint_jacobian.ravel(), A, atol=1e-13, err_msg=backend.__name__)
+            np.testing.assert_allclose(s.constraint_bias, bias, atol=1e-12, err_msg=backend.__name__)
+
+
+def test_every_backend_matches_the_50_digit_reference_on_a_leaning_disk_with_the_rolling_row_only():
+    model = _leaning_disk()
+    for seed in (21, 22):
+        q, qd, u = _state(model, seed)
+        exact = precise.split(model, q, qd, u)
+        for backend in (*BACKENDS, reference):
+            s = backend.split(model, q, qd, u)
+            assert s.constraint_rank == 1 and s.lam.shape == (1,)
+            for name in ("total", "drift", "lam", "lam_drift"):
+                np.testing.assert_allclose(getattr(s, name), exact.floats(name), atol=1e-11,
+                                           err_msg=f"{backend.__name__} {name}")
+    q, qd, u = _state(model, 23)
+    exact = precise.linearize(model, q, qd, u)
+    for backend in BACKENDS:
+        lin = backend.FORMALISM.linearize(model, q, qd, u)
+        np.testing.assert_allclose(lin.A, exact.A, atol=1e-11, err_msg=backend.__name__)
+        np.testing.assert_allclose(lin.B, exact.B, atol=1e-11, err_msg=backend.__name__)
+
+
+def test_the_rolling_row_multiplier_is_the_traction_along_t():
+    """Newton for the disk at u = 0, no slip along t: the ground's only horizontal force on the disk is ``lam t``
+    (t = the heading on this chain), so ``m (horizontal acceleration of the centre) = lam t``: nothing across t."""
+    m = 1.3
+    model = _leaning_disk(m=m)
+    q, qd, _ = _state(model, 31)
+    drift = newton_euler.split(model, q, qd, np.zeros(5))
+    heading = np.array([np.cos(q[2]), np.sin(q[2])])
+    np.testing.assert_allclose(m * drift.task_drift[:2], drift.lam_drift[0] * heading, atol=1e-12)
+
+
+def test_the_lateral_flag_is_validated_serialized_and_digested():
+    bodies = list(cases.load("rolling_disk").bodies)
+    plane = ((1, 0, 0), (0, 1, 0))
+    with pytest.raises(cases.ModelError, match=r"lateral='no'; give True .* or False"):
+        cases.build_model("bad", bodies, constraints=[RollingContact("c", "disk", (0, 0, 0), (0, 1, 0), 0.5, plane,
+                                                                     "no")])
+    one_row, two_rows = _leaning_disk(), _leaning_disk(lateral=True)
+    assert (one_row.k, two_rows.k) == (1, 2) and one_row.digest() != two_rows.digest()
+    d = model_to_dict(one_row)
+    assert d["constraints"][0]["lateral"] is False
+    again = model_from_dict(json.loads(json.dumps(d)))
+    assert again.digest() == one_row.digest() and again.constraints[0].lateral is False
+    old = model_to_dict(two_rows)                       # the default is not written: a dict from before the field
+    assert "lateral" not in old["constraints"][0]
+    assert model_from_dict(old).constraints[0].lateral is True and model_from_dict(old).k == 2
+    d["constraints"][0]["lateral"] = 0
+    with pytest.raises(SerializeError, match=r"constraints\[0\]\.lateral' is 0; give true or false"):
+        model_from_dict(d)
+
+
+def test_the_differential_drive_has_three_independent_rows_in_every_backend():
+    """Two rolling-direction rows and the axle's knife edge: rank 3 at every sampled state, S well conditioned (no
+    BREAKDOWN of "constraint"), and the rows are those of its docstring."""
+    model = cases.load("differential_drive")
+    assert model.k == 3
+    r, b = 0.1, 0.2
+    for state in sampling.sample_states(model, 6, seed=0, case="differential_drive"):
+        q, qd, u = (np.array(x) for x in (state.q, state.qd, state.u))
+        c, s = np.cos(q[2]), np.sin(q[2])
+        rows = np.array([[c, s, -b, -r, 0.0], [c, s, b, 0.0, -r], [-s, c, 0.0, 0.0, 0.0]])
+        for backend in (*BACKENDS, reference):
+            out = backend.split(model, q, qd, u)
+            assert out.constraint_rank == 3, backend.__name__
+            assert out.conditions["constraint"] < 1e3, (backend.__name__, out.conditions["constraint"])
+            np.testing.assert_allclose(out.constraint_jacobian, rows, atol=1e-15, err_msg=backend.__name__)
+
+
+def test_the_differential_drive_closed_form_matches_the_backends():
+    model = cases.load("differential_drive")
+    voter = closed_forms.voter("differential_drive")
+    for seed in (2, 3, 4, 5):
+        q, qd, _ = _state(model, seed)
+        u = np.random.default_rng(seed).uniform(-3.0, 3.0, 2)
+        cf = voter.split(model, q, qd, u)
+        for backend, extra in ((newton_euler, ("task_drift",)), (euler_lagrange, ())):   # EL has no task point
+            other = backend.split(model, q, qd, u)
+            for name in ("total", "drift", "ctrl", "lam", "lam_drift", "constraint_jacobian", "constraint_bias",
+                         "external_force", "kinetic_energy", "zvcf", "drift_velocity") + extra:
+                np.testing.assert_allclose(getattr(cf, name), getattr(other, name), atol=1e-11,
+                                           err_msg=f"{backend.__name__} {name}")
+
+
+def test_the_differential_drive_closed_form_by_hand_at_one_state():
+    """:func:`crosscheck.closed_forms.drive_motion` against numbers worked here: at rest heading 0 with equal torques
+    u the robot drives straight, ``vdot = (2 u / r + F_along) / (m + 2 I_a / r^2)``, the tractions ``(u - I_a vdot /
+    r) / r`` each, and the axle carries the load's lateral force (``lam_a = -F_lat``, nothing turns it at rest apart
+    from the load's yaw moment, which the heading row takes)."""
+    m_body, m_wheel, r, track, d = 4.0, 0.5, 0.1, 0.4, 0.1
+    Ia = m_wheel * r * r / 2.0
+    tau_ext = np.array([-3.0, -1.2, 0.0, 0.0, 0.0])          # a pure force at P, along -x and -y, no moment
+    qdd, lam = closed_forms.drive_motion(np.zeros(5), np.zeros(5), np.array([0.5, 0.5]), tau_ext, m_body, m_wheel, r,
+                                         track, d)
+    vdot = (2 * 0.5 / r - 3.0) / (m_body + 2 * m_wheel + 2 * Ia / r**2)
+    np.testing.assert_allclose(qdd, [vdot, 0.0, 0.0, vdot / r, vdot / r], atol=1e-15)
+    np.testing.assert_allclose(lam, [(0.5 - Ia * vdot / r) / r] * 2 + [1.2], atol=1e-14)

@@ -224,7 +224,9 @@ def _rolling(kin: Kinematics, c, point, q, qd):
     """RollingContact: the material point at the contact ``p_c = c - r u`` (``cases.constraints``) as a body-fixed
     point of the space twist, ``A = T dp/dq`` and the body-fixed point's classical acceleration ``a_P``; the contact
     slides over the disk, so ``Adot qd = T (a_P + w x (edot - w x e))`` with ``e = p_c - c = -r u``, ``edot = -r udot``
-    (``udot`` from ``adot = w x a``, ``a = R axis``). The force ``T^T`` at the contact."""
+    (``udot`` from ``adot = w x a``, ``a = R axis``). The force ``T^T`` at the contact. With ``lateral=False`` the one
+    row along the rolling direction ``t = (a x n) / |a x n|``: ``A = t^T dp/dq``, ``Adot qd = t . (a_P + w x (edot - w
+    x e)) + tdot . pdot`` (t turns with the axle), the force ``t`` at the contact."""
     i = kin.model.body_index(c.body)
     R = kin.poses[..., i, :3, :3]
     center, a = point(c.body, c.center).p, lie.rotate(R, c.axis)
@@ -239,6 +241,18 @@ def _rolling(kin: Kinematics, c, point, q, qd):
     u_dot = (raw_dot - np.sum(u * raw_dot, axis=-1, keepdims=True) * u) / length
     slide = lie.cross(w, -c.radius * u_dot - lie.cross(w, e))
     contact = _Point(i, center + e, J, acc)
+    if not c.lateral:
+        # the rolling direction t = b / |b|, b = a x n, alone: A = t^T J, Adot qd = t . (a_P + slide) + tdot . pdot
+        # with the material point's velocity pdot = J qd and tdot = (bdot - t (t . bdot)) / |b|, bdot = adot x n
+        b = lie.cross(a, n)
+        size = np.linalg.norm(b, axis=-1, keepdims=True)
+        t = b / size
+        b_dot = lie.cross(a_dot, n)
+        t_dot = (b_dot - np.sum(t * b_dot, axis=-1, keepdims=True) * t) / size
+        pdot = np.einsum("...an,...n->...a", J, qd)
+        bias = np.sum(t * (acc + slide) + t_dot * pdot, axis=-1, keepdims=True)
+        return (_zero_phi(q.shape[:-1], 1), np.einsum("...a,...an->...n", t, J)[..., None, :], bias,
+                _force_wrenches(len(kin.model.bodies), [(contact, t.reshape(3, 1) if t.ndim == 1 else t[..., None])]))
     return (_zero_phi(q.shape[:-1], 2), _rows_of(c.plane, J), (acc + slide) @ c.plane.T,
             _force_wrenches(len(kin.model.bodies), [(contact, c.plane.T)]))
 

@@ -265,7 +265,8 @@ def _knife_edge(c, point, D: int, nv: int):
 def _rolling(c, point, D: int, nv: int):
     """The rolling rows of ``constraints._rolling`` differentiated: the contact ``p_c = center + e`` moves by ``d center
     + de`` (the material point there: :func:`_point_tangents`' ``moving``), ``A = T J(p_c)`` and ``Adot qd = T (a(p_c)
-    + w x (edot - w x e))``, with ``a = R axis`` turning by ``sigma_w x a`` and the contact terms by the chain rule."""
+    + w x (edot - w x e))``, with ``a = R axis`` turning by ``sigma_w x a`` and the contact terms by the chain rule;
+    with ``lateral=False`` the one row along ``t = (a x n) / |a x n|``, its turning differentiated too."""
     s, center = point.spin(c.body), point(c.body, c.center)
     n, r = np.cross(c.plane[0], c.plane[1]), c.radius
     a = s.R @ c.axis
@@ -285,6 +286,22 @@ def _rolling(c, point, D: int, nv: int):
     t = point.moving(c.body, center.x.p + e, center.dp + de)
     dslide = (lie.cross(s.dw, e_dot - lie.cross(s.w, e))                 # d of w x (edot - w x e)
               + lie.cross(s.w, de_dot - lie.cross(s.dw, e) - lie.cross(s.w, de)))
+    if not c.lateral:
+        # the rolling direction (constraints._rolling): A = k^T J, Adot v = k . (a + slide) + kdot . pdot with k = b /
+        # |b|, b = a x n, bdot = adot x n, kdot = (bdot - k (k . bdot)) / |b|; k turns by dk along the directions
+        slide = lie.cross(s.w, e_dot - lie.cross(s.w, e))
+        b, db = lie.cross(a, n), lie.cross(da, n)
+        size = float(np.sqrt(b @ b))
+        k = b / size
+        dsize = db @ k
+        dk = (db - dsize[:, None] * k) / size
+        b_dot, db_dot = lie.cross(a_dot, n), lie.cross(da_dot, n)
+        k_dot = (b_dot - (k @ b_dot) * k) / size
+        dk_dot = ((db_dot - (k @ b_dot) * dk - ((dk @ b_dot) + (db_dot @ k))[:, None] * k) / size
+                  - dsize[:, None] * k_dot / size)
+        dJc = dk @ t.x.J + np.einsum("a,Dan->Dn", k, t.dJ)
+        dbias = dk @ (t.x.a + slide) + (t.da + dslide) @ k + dk_dot @ t.pdot + t.dpdot @ k_dot
+        return dJc[:, None, :], dbias[:, None]
     return np.einsum("ra,Dan->Drn", c.plane, t.dJ), (t.da + dslide) @ c.plane.T
 
 
