@@ -17,6 +17,9 @@ from cases.loads import ExternalWrench
 from cases.model import Body, Model, TaskPoint, build_model
 
 _X, _Y, _Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+#: The rolling disk's lean joint limits (rad, 80 degrees): a disk leaning further is nearly flat, its contact direction
+#: ill-defined (its tolerance grows as 1 / cos(lean)^2: 33 times at the limit).
+LEAN_LIMIT = 1.4
 _ORIGIN = (0.0, 0.0, 0.0)
 
 
@@ -60,12 +63,14 @@ def rolling_disk(m: float = 1.0, r: float = 0.5, g: float = 9.81) -> Model:
     revolute joint about its axle (body y) at height r along the leaned frame's z, so the lowest point of the disk is
     the contact point (x, y, 0) at every q (the holonomic part of rolling is in the coordinates). ``RollingContact``
     with the ground's x-y tangents: lam is the ground's friction force on the disk at the contact along x and y.
-    Inputs: the generalized forces on every coordinate (B = I). The lean is meaningful in (-pi/2, pi/2); at
-    +-pi/2 the disk lies flat and has no contact point.
+    Inputs: the generalized forces on every coordinate (B = I). The lean is meaningful in (-pi/2, pi/2): at
+    +-pi/2 the disk lies flat and has no contact point, beyond it the chain puts the centre below the ground. The
+    lean joint's limits (:data:`LEAN_LIMIT`) keep the sampled states upright enough to roll.
     """
     _positive("rolling_disk", m=m, r=r)
     bodies = _planar_carriages("contact") + [
-        Body("heading", "contact_y", "revolute", _Z, 0.0), Body("lean", "heading", "revolute", _X, 0.0),
+        Body("heading", "contact_y", "revolute", _Z, 0.0),
+        Body("lean", "heading", "revolute", _X, 0.0, limits=(-LEAN_LIMIT, LEAN_LIMIT)),
         Body("disk", "lean", "revolute", _Y, m, inertia=_thin_disk(m, r), translation=(0.0, 0.0, r))]
     rolling = RollingContact("rolling", "disk", _ORIGIN, _Y, r, XY_PLANE)
     return build_model("rolling_disk", bodies, gravity=(0.0, 0.0, -g), constraints=[rolling],
