@@ -86,9 +86,10 @@ def _first_failure(outcome) -> str:
 
 def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=None, samples: int = DEFAULT_SAMPLES,
          seed: int = 0, checks: Checks = Checks(), known: registry.Registry | None = None,
-         progress: Callable[[str, int], None] | None = None) -> SharedHunt:
+         progress: Callable[[str, int], None] | None = None, rounds: int | None = None) -> SharedHunt:
     """Everything the default gate does, under ``fault``, until something fails (module doc); ``progress(case,
-    index)`` is called before each state is evaluated."""
+    index)`` is called before each state is evaluated. ``rounds``: evaluate only the first ``rounds`` of the
+    ``samples`` states of every case (the coverage check still sees all ``samples``)."""
     specs = faults.default_specs() if specs is None else list(specs)
     backends = faults.default_backends() if backends is None else list(backends)
     start, count = time.perf_counter(), 0
@@ -108,7 +109,7 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
                                                                            case.setup.spec.name)).problems
             if problems:
                 return done(f"coverage {case.setup.spec.name}", problems[0])
-        for case, state in faults._round_robin(setups, samples):
+        for case, state in faults._round_robin(setups, min(samples, rounds or samples)):
             if progress:
                 progress(case.setup.spec.name, state.index)
             outcome = case.setup.evaluate(state, backends)

@@ -132,7 +132,7 @@ def test_the_hunt_visits_the_gates_states():
 @pytest.mark.parametrize("fault", fault_catalog.CATALOG, ids=[f.name for f in fault_catalog.CATALOG])
 def test_the_gate_catches_the_fault_and_the_patch_is_removed(fault, pristine):
     before = pristine(fault.backend)
-    found = faults.hunt(fault)
+    found = faults.caught_within(fault, PROBE_ROUNDS)
     assert found.caught, f"the default gate misses {fault.name} in {found.states} states"
     assert found.state < PROBE_ROUNDS, f"{fault.name} is caught only at state {found.state}: raise PROBE_ROUNDS"
     assert found.catches and all(not c.ratio <= 1.0 for c in found.catches)
