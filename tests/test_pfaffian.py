@@ -190,7 +190,6 @@ def test_linearizations_with_pfaffian_rows(case):
         np.testing.assert_allclose(lin.B, exact.B, atol=1e-11, err_msg=backend.__name__)
 
 
-
 def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
     from hypothesis import HealthCheck, given, settings, strategies as st
 
