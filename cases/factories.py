@@ -92,7 +92,7 @@ def _positive(case: str, **values: float) -> None:
 #: Most links ``n_link_pendulum`` builds. One state of ``crosscheck gate --samples 1 --frames 0 --no-charts`` (the
 #: symbolic Euler–Lagrange derivation dominates) took 34 s and 0.8 GB at n = 30, 74 s and 1.9 GB at n = 40, and had
 #: not finished after 15 minutes at n = 50 (2-core machine, busy with a campaign); n = 100000 ran without end. The
-#: stability maps chart chains up to 60 links (``crosscheck.stability``, Euler–Lagrange capped below that).
+#: stability maps chart chains up to 60 links (``crosscheck.campaigns.stability``, Euler–Lagrange capped below that).
 MAX_LINKS = 60
 
 
@@ -119,7 +119,7 @@ def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float
 
 
 # ------------------------------------------------------------------- external loads (cases.loads; article 2.3)
-# The double pendulum with loads at its tip, so that tau_ext = J^T f by hand (crosscheck.closed_forms). Registered
+# The double pendulum with loads at its tip, so that tau_ext = J^T f by hand (crosscheck.references.closed_forms). Registered
 # right after it: a fault in the loads is then found in the first states of a round-robin hunt.
 
 
@@ -279,7 +279,7 @@ def panda() -> Model:
 
 # ------------------------------------------------------------------------------- 3-D cases with closed forms
 # Each is built with the helpers above (``_rot``, ``_inertia``), so that a bug in them moves every backend together
-# and only the case's closed form (``crosscheck.closed_forms``, computed from the typed parameters) sees it.
+# and only the case's closed form (``crosscheck.references.closed_forms``, computed from the typed parameters) sees it.
 
 
 @register

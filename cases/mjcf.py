@@ -12,7 +12,7 @@ a body with several joints (Pinocchio makes one composite joint of them), ``<equ
 (``M qdd + h = B u``, fully actuated by default) and are not read.
 
 Joint limits do not enter the dynamics either; they bound the states the gate samples (``Body.limits``,
-``crosscheck.sampling``). A hinge or slide joint's ``range`` is read as MuJoCo reads it (:func:`_limits`): in
+``crosscheck.core.sampling``). A hinge or slide joint's ``range`` is read as MuJoCo reads it (:func:`_limits`): in
 radians or degrees as ``<compiler angle>`` says for a hinge, in metres for a slide (Pinocchio's parser, 4.1, converts
 a slide's range from degrees too), and only where the joint is limited (``limited="false"``, on the joint or its
 default class, leaves it free; so does ``<compiler autolimits="false">`` without ``limited="true"``).

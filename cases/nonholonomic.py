@@ -42,7 +42,7 @@ def knife_edge(m: float = 1.0, a: float = 0.5, I: float = 0.2, g: float = 9.81) 
     the runner (the body x axis). The centre of mass is ``a`` ahead of P on the runner, ``I`` the moment of inertia
     about it. ``KnifeEdge`` at P across the body y axis: ``-sin(theta) xd + cos(theta) yd = 0``; lam is the ground's
     lateral force on P along the body y axis. Inputs: the generalized forces on x, y, theta (B = I). Gravity is along
-    -z, normal to every motion. Closed form: ``crosscheck.closed_forms`` (forward speed v and turning rate w obey
+    -z, normal to every motion. Closed form: ``crosscheck.references.closed_forms`` (forward speed v and turning rate w obey
     ``m (vdot - a w^2) = F_along``, ``(I + m a^2) wdot = tau - m a v w``).
     """
     _positive("knife_edge", m=m, I=I)
@@ -92,7 +92,7 @@ def differential_drive(m_body: float = 4.0, m_wheel: float = 0.5, r: float = 0.1
     two wheel torques. lam = (the left and the right wheel's traction: the ground's friction force at its contact
     along its rolling direction, the heading; the ground's lateral force on the axle along the chassis' y axis).
     Rows, with h the heading and s = track/2: ``cos h xd + sin h yd - s hd - r left_d = 0``, ``cos h xd + sin h yd + s
-    hd - r right_d = 0``, ``-sin h xd + cos h yd = 0``. Closed form: ``crosscheck.closed_forms``.
+    hd - r right_d = 0``, ``-sin h xd + cos h yd = 0``. Closed form: ``crosscheck.references.closed_forms``.
 
     The payload (an external load, ``cases.loads``): a crate of ``payload`` kg on a tray behind and left of the axle,
     not part of the chassis' inertia, pressing with its weight and dragging with ``drag`` N backward and 0.4 ``drag``

@@ -34,7 +34,7 @@ last so that adding one never moves a built-in backend: with and without plugins
 in every report table, and the first backend (whose cond(M) a report prints per state) stays a built-in.
 
 Every problem with a plugin is a :class:`PluginError` naming the plugin and what to fix. A plugin that raises
-``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it (``crosscheck.gate.evaluate``).
+``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it (``crosscheck.engine.evaluation.evaluate``).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ ENTRY_POINT_GROUP = "crosscheck.formalisms"
 #: A backend name appears in reports, in ``--formalism`` and in labels such as ``name@g0`` (a moved scene).
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*\Z")
 
-#: Names the comparisons use for voters that are not backends (``crosscheck.compare``: the exact value).
+#: Names the comparisons use for voters that are not backends (``crosscheck.core.compare``: the exact value).
 RESERVED = ("exact", "independent", "closed_form")
 
 
@@ -300,7 +300,7 @@ def names() -> list[str]:
 def get(name: str) -> Formalism:
     """A formalism, the reference or a plugin by name; an unknown name lists the valid ones."""
     if name == REFERENCE_NAME:
-        from crosscheck.reference import REFERENCE
+        from crosscheck.references.reference import REFERENCE
         return REFERENCE
     if name in formalisms.names():
         return formalisms.get(name)

@@ -14,10 +14,10 @@ attribute ``needs`` (:data:`NEEDS`; default ``"model"``):
 
 The gate calls ``split`` on more scenes than the case itself, and each input describes the scene of that call:
 
-* on a **moved scene** (the frame checks, ``crosscheck.frames.move_scene``), the file's world is placed by the moved
+* on a **moved scene** (the frame checks, ``crosscheck.checks.frames.move_scene``), the file's world is placed by the moved
   placement and gravity is turned with it (``SourceScene.rotation``, ``translation``; the Pinocchio model's root
   joints and gravity moved);
-* on a **gravity-free copy** (the hints at a failing state, ``crosscheck.diagnosis.without_gravity``),
+* on a **gravity-free copy** (the hints at a failing state, ``crosscheck.reports.diagnosis.without_gravity``),
   ``SourceScene.gravity`` is False and the Pinocchio model's gravity is zero.
 
 What an input cannot describe is :class:`~formalisms.interface.ModelNotSupported` (the backend is then NOT
@@ -141,7 +141,7 @@ def pinocchio_scene(model: Model, plugin: str) -> PinocchioScene:
     scene, so a plugin that changes its copy never changes the reference's), fresh data."""
     import pinocchio as pin
 
-    from crosscheck.reference import reference_model
+    from crosscheck.references.reference import reference_model
 
     _no_loads(model, plugin, "pinocchio")
     c = reference_model(model)

@@ -13,8 +13,8 @@ Draw random mechanisms and admissible states, and check that backends agree unde
         testing.assert_backends_agree(model, state, backends=["my_backend", "pinocchio"])
 
 Strategies: :func:`models` (random kinematic trees, optionally constrained), :func:`states` (admissible
-``crosscheck.sampling.State``), :func:`charts` (``crosscheck.charts``), :func:`frames` (rigid transforms,
-``crosscheck.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`, :func:`rotations`,
+``crosscheck.core.sampling.State``), :func:`charts` (``crosscheck.checks.charts``), :func:`frames` (rigid transforms,
+``crosscheck.checks.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`, :func:`rotations`,
 :func:`inertias`). Everything a failing example shrinks toward is the simplest mechanism of its kind: fewer bodies,
 a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers.
 
@@ -37,12 +37,14 @@ from cases import constraints as decl
 from cases import loads as load_decl
 from cases.model import JOINT_DOF, Body, Model, TaskPoint, build_model
 from crosscheck import backends as backend_registry
-from crosscheck import charts as chart_catalog
-from crosscheck import frames as frame_tools
-from crosscheck import gate, reference, sampling
-from crosscheck import tolerance as policy
-from crosscheck.compare import DISAGREE, Comparison, compare
-from crosscheck.gate import StateOutcome
+from crosscheck.checks import charts as chart_catalog
+from crosscheck.checks import frames as frame_tools
+from crosscheck.engine import evaluation
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck.core import tolerance as policy
+from crosscheck.core.compare import DISAGREE, Comparison, compare
+from crosscheck.engine.outcomes import StateOutcome
 from formalisms.interface import Split
 
 #: Drawn ranges. Lengths (placements, centres of mass, task offsets) within +-1 m and +-0.5 m; masses log-uniform
@@ -217,7 +219,7 @@ def quaternions() -> st.SearchStrategy[list[float]]:
 
 
 def _joint_values(joint: str) -> st.SearchStrategy[list[float]]:
-    """One joint's block of q over ``crosscheck.sampling``'s ranges (``cases.model`` conventions)."""
+    """One joint's block of q over ``crosscheck.core.sampling``'s ranges (``cases.model`` conventions)."""
     d = sampling.DISPLACEMENT_RANGE
     if joint == "spherical":
         return quaternions()
@@ -229,7 +231,7 @@ def _joint_values(joint: str) -> st.SearchStrategy[list[float]]:
 
 
 def configurations(model: Model) -> st.SearchStrategy[np.ndarray]:
-    """Configurations over ``crosscheck.sampling``'s ranges: one turn (revolute), +-0.5 m (prismatic, a free base's
+    """Configurations over ``crosscheck.core.sampling``'s ranges: one turn (revolute), +-0.5 m (prismatic, a free base's
     position), unit quaternions (spherical and free joints)."""
     return st.tuples(*[_joint_values(b.joint) for b in model.bodies]).map(
         lambda blocks: np.array([x for block in blocks for x in block], dtype=float))
@@ -400,7 +402,7 @@ MIN_CONTACT_SINE = 1e-3
 
 @st.composite
 def states(draw, model: Model, index: int = 0) -> sampling.State:
-    """Admissible states of ``model`` over ``crosscheck.sampling``'s ranges (positions one turn or +-0.5 m, rates,
+    """Admissible states of ``model`` over ``crosscheck.core.sampling``'s ranges (positions one turn or +-0.5 m, rates,
     inputs), a joint with limits (``Body.limits``: a model from a file; :func:`models` draws none) within them as the
     gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
     (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
@@ -424,8 +426,8 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
 
 def chart_names(model: Model) -> list[str]:
     """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain; for a
-    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.charts.EulerZYX``), exp
-    (exponential coordinates about a centre drawn from the seed: ``crosscheck.charts.ExponentialCoordinates``) and the
+    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.checks.charts.EulerZYX``), exp
+    (exponential coordinates about a centre drawn from the seed: ``crosscheck.checks.charts.ExponentialCoordinates``) and the
     velocity representations world and mixed (mixed only with a free joint: ``charts.representations_sampled``)."""
     if not chart_catalog.applies(model):
         return ["identity", *chart_catalog.GROUP_CHARTS] + [c.name for c in chart_catalog.representations_sampled(model)]
@@ -434,7 +436,7 @@ def chart_names(model: Model) -> list[str]:
 
 
 def chart_specs(model: Model) -> st.SearchStrategy[tuple[str, int]]:
-    """(chart name, seed) pairs; ``crosscheck.charts.get(name, model, seed)`` makes the chart."""
+    """(chart name, seed) pairs; ``crosscheck.checks.charts.get(name, model, seed)`` makes the chart."""
     return st.tuples(st.sampled_from(chart_names(model)), st.integers(0, 2**31 - 1))
 
 
@@ -484,7 +486,7 @@ def assert_backends_agree(model: Model, state: sampling.State, backends: Sequenc
                           chart: chart_catalog.Chart | None = None, frame: frame_tools.Frame | None = None,
                           conservation: bool = True) -> StateOutcome:
     """Evaluate ``backends`` (names; default every one in ``crosscheck.backends``) at ``state`` as the gate does
-    (``crosscheck.gate.evaluate``), with the chart check in ``chart``, the frame check on the scene moved by
+    (``crosscheck.engine.evaluation.evaluate``), with the chart check in ``chart``, the frame check on the scene moved by
     ``frame`` and the conservation checks when asked (``gate.add_checks``). Returns the outcome; raises
     AssertionError listing each disagreement (quantity, error/tolerance ratio, tolerance, outlier, values) and each
     backend error.
@@ -494,9 +496,9 @@ def assert_backends_agree(model: Model, state: sampling.State, backends: Sequenc
         >>> testing.assert_backends_agree(model, state, chart=charts.get("absolute", model))
     """
     chosen = [backend_registry.get(name) for name in (backends or backend_registry.names())]
-    outcome = gate.evaluate(model, state, chosen)
+    outcome = evaluation.evaluate(model, state, chosen)
     scene = None if frame is None else (frame, frame_tools.move_scene(model, frame))
-    gate.add_checks(model, outcome, chosen, [] if chart is None else [chart], scene, conservation)
+    evaluation.add_checks(model, outcome, chosen, [] if chart is None else [chart], scene, conservation)
     if outcome.failed:
         raise AssertionError(f"backends {[b.name for b in chosen]} disagree on model '{model.name}' "
                              + describe_failure(outcome))
@@ -504,7 +506,7 @@ def assert_backends_agree(model: Model, state: sampling.State, backends: Sequenc
 
 
 def assert_split_close(a: Split, b: Split, model: Model, q, qd, names: tuple[str, str] = ("a", "b"), u=None) -> None:
-    """Compare two splits of ``model`` at ``(q, qd)`` quantity by quantity (``crosscheck.tolerance.quantities``)
+    """Compare two splits of ``model`` at ``(q, qd)`` quantity by quantity (``crosscheck.core.tolerance.quantities``)
     with the harness's tolerance policy (scales from both splits, and from the inputs ``u`` when given; quantities
     with an exact value also against it).
     The splits are compared as given (a BREAKDOWN is not looked at). Raises AssertionError naming each quantity

@@ -93,7 +93,7 @@ local exponential chart with the exponential on the LEFT (:func:`_local_motions`
   * Truncation and caches: as for the right chart (:data:`EXP_ORDER`); the cache key holds the chart's key and the
     local chart's description (:data:`GROUP_CHART_LEFT`). A representation chart of a model without group joints is
     ModelNotSupported (:func:`_representation`).
-Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g. ``crosscheck.charts.EulerZYX``,
+Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g. ``crosscheck.checks.charts.EulerZYX``,
 ZYX Euler angles per spherical or free joint). Such a chart has nv coordinates p and its ``psi`` returns the WHOLE q
 (nq entries), each quaternion a function of p that is unit for every p; the derivation is then the scalar charts'
 one, steps 0-4, with the poses of the group joints written through psi:

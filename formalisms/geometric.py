@@ -135,11 +135,11 @@ For such a model the public geometric objects (:func:`metric`, :func:`metric_der
 ``xi = 0``: ``metric`` the v-space mass matrix, ``metric_derivatives`` the chart's ``d_k M_xi`` above (with the ``ad``
 terms, not the derivative of the v-space matrix alone), ``christoffel`` its connection (``M Gamma(v, v)`` is the
 v-space velocity-product vector ``C(q, v) v``), ``energy_rate`` exact because ``pd = v`` and ``pdd = vdot`` there.
-The conservation checks (``crosscheck.conservation``) compare these with the Euler–Lagrange backend's and Pinocchio's
+The conservation checks (``crosscheck.checks.conservation``) compare these with the Euler–Lagrange backend's and Pinocchio's
 terms in the same chart (v-space). Joint couplings relate revolute and prismatic coordinates only.
 
 Charts of the group (article 6.4 "a map of the globe", 6.4.6, 9.1). A chart whose ``psi`` returns the whole q (nq
-entries) from nv coordinates p, such as the harness's ZYX Euler-angle chart (``crosscheck.charts.EulerZYX``: a
+entries) from nv coordinates p, such as the harness's ZYX Euler-angle chart (``crosscheck.checks.charts.EulerZYX``: a
 spherical block ``(yaw, pitch, roll)``, a free block ``(position, yaw, pitch, roll)``, revolute and prismatic
 coordinates as they are, each quaternion written with sines and cosines of the half angles), is evaluated natively,
 exactly as a chart of a model with revolute and prismatic joints only: ``q = psi(p)`` is substituted into the
@@ -549,7 +549,7 @@ def _chart_origin(model: Model, q: ca.SX) -> ca.SX:
 
 _NO_CHARTS = ("model '{model}' has spherical or free joints: its configuration lives on a Lie group, so a chart "
               "q = psi(p) applies only when psi returns the whole q ({nq} entries, each quaternion unit for every p, "
-              "as the zyx chart does: crosscheck.charts.EulerZYX); chart '{chart}' {reason}")
+              "as the zyx chart does: crosscheck.checks.charts.EulerZYX); chart '{chart}' {reason}")
 
 #: Chart points at which :func:`_group_chart_coordinates` checks that psi's quaternions are unit (seeded, so a
 #: chart is accepted or refused the same way every time).

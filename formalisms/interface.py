@@ -98,7 +98,7 @@ class Split:
                          frame-invariant (article 9.1); UNSUPPORTED when a formalism does not report it.
     conditions           condition numbers of the method-specific matrices this formalism inverted, by name
                          (operational space: ``"task"`` = cond(J M^-1 J^T)); the harness declares the state a
-                         BREAKDOWN of this formalism above the limits in ``crosscheck.tolerance``.
+                         BREAKDOWN of this formalism above the limits in ``crosscheck.core.tolerance``.
     extras               formalism-specific outputs by name, e.g. Newton–Euler ``joint_reactions``: the force and
                          moment the parent exerts on each body, about the body-frame origin (for a revolute
                          joint the joint origin; for a prismatic one the point on the moving side).

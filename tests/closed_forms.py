@@ -1,4 +1,4 @@
-"""The closed forms the tests use as independent references: a re-export of ``crosscheck.closed_forms``, where they
+"""The closed forms the tests use as independent references: a re-export of ``crosscheck.references.closed_forms``, where they
 are typed in once from the article (section 3: eqs. 4-9; 5.6) or derived by hand, and where the gate's voter
 ``closed_form`` uses them too. See that module for each formula's equations; the names the tests import:
 
@@ -32,7 +32,7 @@ import dataclasses
 import numpy as np
 
 import cases
-from crosscheck.closed_forms import (  # noqa: F401 (re-exported)
+from crosscheck.references.closed_forms import (  # noqa: F401 (re-exported)
     absolute_loop_state, absolute_terms, article_Cqd, article_g, article_M, cartesian_lam, cartesian_lam_mp,
     circle_state, circle_terms, constrained_input_map, disk_inertia, endpoint_jacobian, inv2, loop_to_joint,
     pendulum_terms, pendulum_terms_mp, pin_forces, tip_bias, tip_position)

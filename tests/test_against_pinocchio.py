@@ -1,4 +1,4 @@
-"""Every registered formalism against the external Pinocchio reference (``crosscheck.reference``).
+"""Every registered formalism against the external Pinocchio reference (``crosscheck.references.reference``).
 
 Parametrized over formalism x case, at Hypothesis-drawn states: q in [-pi, pi] for revolute and [-0.5, 0.5]
 for prismatic joints, qd in [-5, 5], u in [-20, 20]. drift, ctrl and total must agree within
@@ -6,8 +6,8 @@ for prismatic joints, qd in [-5, 5], u in [-20, 20]. drift, ctrl and total must 
 accelerations the summed terms could produce, taken from the reference); ``power_ctrl`` must equal ``u . (B^T qd)``
 computed here.
 ``task_drift``, where a formalism supplies it, must match Pinocchio's classical frame acceleration at zero torque
-within ``1e-10 * L (accel_scale + |qd|_1^2)`` (crosscheck.tolerance, task scale). A state where the formalism
-reports a BREAKDOWN (crosscheck.tolerance.breakdown, e.g. a singular task Jacobian) is not compared: that it is
+within ``1e-10 * L (accel_scale + |qd|_1^2)`` (crosscheck.core.tolerance, task scale). A state where the formalism
+reports a BREAKDOWN (crosscheck.core.tolerance.breakdown, e.g. a singular task Jacobian) is not compared: that it is
 flagged there instead is tested with the backend.
 A new formalism in ``formalisms.names()`` is picked up automatically.
 
@@ -26,8 +26,8 @@ from hypothesis import strategies as st
 
 import cases
 import formalisms
-from crosscheck import reference
-from crosscheck import tolerance as policy
+from crosscheck.references import reference
+from crosscheck.core import tolerance as policy
 from formalisms.interface import Unsupported
 
 CASES = {

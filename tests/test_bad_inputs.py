@@ -1,7 +1,7 @@
 """Bad input of every kind is refused at the boundary (exit 2, one line that says what is wrong and what is valid)
 before any work starts; a plugin's malformed output is that plugin's error (exit 1, named); no traceback ever.
 
-Each case here was a traceback, a wrong verdict or a silent misreading before ``crosscheck.preflight`` (issue 16).
+Each case here was a traceback, a wrong verdict or a silent misreading before ``crosscheck.guards.preflight`` (issue 16).
 """
 
 from __future__ import annotations
@@ -11,7 +11,9 @@ import pytest
 
 import cases
 from cases.model import Body, build_model
-from crosscheck import backends, cli, diagnosis, preflight
+from crosscheck import backends, cli
+from crosscheck.reports import diagnosis
+from crosscheck.guards import preflight
 
 DP = ["--case", "double_pendulum"]
 QUICK_GATE = ["gate", *DP, "--samples", "1", "--workers", "0", "--frames", "0", "--no-self-test"]

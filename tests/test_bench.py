@@ -11,7 +11,10 @@ import pytest
 
 import cases
 from cases.representation import general_3d
-from crosscheck import backends, bench, precise, reference, sampling
+from crosscheck import backends
+from crosscheck.campaigns import bench
+from crosscheck.references import precise, reference
+from crosscheck.core import sampling
 from crosscheck.cli import main
 from formalisms.interface import Formalism
 

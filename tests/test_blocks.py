@@ -1,4 +1,4 @@
-"""The harness's block path (``crosscheck.gate``): a case's states evaluated in blocks give the outcomes of one state
+"""The harness's block path (``crosscheck.engine``): a case's states evaluated in blocks give the outcomes of one state
 at a time, and a backend's block form (``formalisms.interface.with_block_form``) returns ``split``'s numbers."""
 
 from __future__ import annotations
@@ -14,10 +14,15 @@ from hypothesis import strategies as st
 import cases
 import formalisms.newton_euler as ne
 import formalisms.operational_space as ops
-from crosscheck import backends, charts, frames, fuzz, gate, testing
-from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck.report import render
-from crosscheck.sampling import sample_states
+from crosscheck import backends, testing
+from crosscheck.checks import charts, frames
+from crosscheck.campaigns import fuzz
+from crosscheck.engine import evaluation
+from crosscheck.engine import run
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
+from crosscheck.reports.gate_report import render
+from crosscheck.core.sampling import sample_states
 from formalisms.interface import Formalism, block_form, with_block_form
 
 
@@ -72,7 +77,7 @@ def test_a_block_form_gives_split_bit_for_bit(name, case):
     """Every field and extra of every state, in the case's own scene (with the gate's seeded states) and moved."""
     backend, model = backends.get(name), cases.load(case)
     states = sample_states(model, 8, 1, case)
-    for scene in (model, gate.CaseSetup.build(CaseSpec(case), 1).scenes[0][1]):
+    for scene in (model, evaluation.CaseSetup.build(CaseSpec(case), 1).scenes[0][1]):
         _check_blocks(backend, scene, states)
 
 
@@ -124,9 +129,9 @@ def test_blocks_give_the_report_of_one_state_at_a_time(specs, monkeypatch):
     """Blocks of three states (the moved scenes' states grouped by frame) against one state per block: the same
     report, a backend raising at some states of a block, a plugin without a block form and Pinocchio included."""
     chosen = [backends.get(name) for name in ("euler_lagrange", "screw", "geometric", "pinocchio")] + [RAISING, PLUGIN]
-    monkeypatch.setattr(gate, "BLOCK", 3)
+    monkeypatch.setattr(run, "BLOCK", 3)
     blocks = _report(specs, chosen)
-    monkeypatch.setattr(gate, "BLOCK", 1)
+    monkeypatch.setattr(run, "BLOCK", 1)
     assert _report(specs, chosen) == blocks
     assert "ValueError: refused q[0]" in blocks
 
@@ -145,8 +150,8 @@ def test_a_block_form_is_used_and_states_complete_in_order(monkeypatch):
 
     counted = Formalism("operational_space", "counted", with_block_form(many)(split))
     done = []
-    monkeypatch.setattr(gate, "BLOCK", 4)
-    gate.run_case(CaseSpec("acrobot"), [counted, backends.get("pinocchio")], samples=9, seed=0,
+    monkeypatch.setattr(run, "BLOCK", 4)
+    run.run_case(CaseSpec("acrobot"), [counted, backends.get("pinocchio")], samples=9, seed=0,
                   progress=lambda step: done.append((step.case, step.done)), checks=Checks(charts=False))
     assert done == sorted(done) and set(done) == {("acrobot", k) for k in range(10)}
     assert sorted(calls) == sorted([("acrobot", 4), ("acrobot", 4), ("acrobot@g0", 2), ("acrobot@g1", 2),

@@ -1,4 +1,4 @@
-"""The closed forms as the gate's voter ``closed_form`` (``crosscheck.closed_forms``, issue 15 item 2).
+"""The closed forms as the gate's voter ``closed_form`` (``crosscheck.references.closed_forms``, issue 15 item 2).
 
 Each closed form agrees with Pinocchio and with the five formalisms at drawn parameters and states (and in moved
 scenes); it is bound to its case by name and typed parameters, so a bug in a case factory or in the model language,
@@ -22,11 +22,16 @@ import cases.constraints
 import cases.factories
 import cases.model
 import cases.nonholonomic
-from crosscheck import backends, cli, closed_forms, diagnosis, frames, gate, reference, sampling, testing
-from crosscheck import tolerance as policy
-from crosscheck.compare import DISAGREE, suspect
-from crosscheck.report import read as read_report
-from crosscheck.sampling import State
+from crosscheck import backends, cli, testing
+from crosscheck.references import closed_forms, reference
+from crosscheck.reports import diagnosis
+from crosscheck.checks import frames
+from crosscheck.engine import evaluation
+from crosscheck.core import sampling
+from crosscheck.core import tolerance as policy
+from crosscheck.core.compare import DISAGREE, suspect
+from crosscheck.reports.gate_report import read as read_report
+from crosscheck.core.sampling import State
 
 ALL = [backends.get(name) for name in backends.names()]
 REFERENCE = backends.get(backends.REFERENCE_NAME)
@@ -129,7 +134,7 @@ def _spring(draw) -> dict:
 
 FORCE = _floats(-20.0, 20.0, testing.MIN_VALUE)
 
-#: Drawn typed parameters per case (within each factory's domain; see the module doc of crosscheck.closed_forms).
+#: Drawn typed parameters per case (within each factory's domain; see the module doc of crosscheck.references.closed_forms).
 PARAMETERS = {
     "double_pendulum": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "g": GRAVITY,
                                               "I1": st.one_of(st.just(0.0), INERTIA),
@@ -181,12 +186,12 @@ def test_closed_form_agrees_with_pinocchio_and_the_formalisms(case, data):
     model = cases.load(case, **params)
     state = data.draw(testing.states(model), label="state")
     voter = closed_forms.voter(case, params)
-    pair = gate.evaluate(model, state, [voter, REFERENCE])
+    pair = evaluation.evaluate(model, state, [voter, REFERENCE])
     assert not pair.failed, testing.describe_failure(pair)
     chosen = [*ALL, voter]
-    outcome = gate.evaluate(model, state, chosen)
+    outcome = evaluation.evaluate(model, state, chosen)
     frame = data.draw(testing.frames(), label="frame")
-    gate.add_checks(model, outcome, chosen, [], (frame, frames.move_scene(model, frame)), True)
+    evaluation.add_checks(model, outcome, chosen, [], (frame, frames.move_scene(model, frame)), True)
     assert not outcome.failed, testing.describe_failure(outcome)
     broken = outcome.breakdowns.get("closed_form", {})
     assert not policy.whole(broken), broken
@@ -202,7 +207,7 @@ def test_closed_form_on_the_gate_states_of_the_default_case(case):
     model = cases.load(case)
     voter = closed_forms.voter(case, {})
     for state in sampling.sample_states(model, 8, 0, case):
-        outcome = gate.evaluate(model, state, [*ALL, voter])
+        outcome = evaluation.evaluate(model, state, [*ALL, voter])
         assert not outcome.failed, testing.describe_failure(outcome)
 
 
@@ -279,7 +284,7 @@ def test_four_bar_change_point_follows_the_backends_rule(q, rates, u):
     model = cases.load("four_bar")
     qd = sampling.project_velocity(model, q, rates)
     state = State(0, q, tuple(qd), u)
-    outcome = gate.evaluate(model, state, [*ALL, closed_forms.voter("four_bar", {})])
+    outcome = evaluation.evaluate(model, state, [*ALL, closed_forms.voter("four_bar", {})])
     assert not outcome.failed, testing.describe_failure(outcome)
     closed, pinocchio = outcome.splits["closed_form"], outcome.splits[REFERENCE.name]
     assert closed.constraint_rank == pinocchio.constraint_rank == 1
@@ -401,7 +406,7 @@ def test_a_factory_bug_makes_the_closed_form_the_outlier(bug, monkeypatch):
     inject(monkeypatch)
     model = cases.load(case, **params)
     voter = closed_forms.voter(case, params)
-    outcomes = [gate.evaluate(model, state, [*ALL, voter]) for state in sampling.sample_states(model, 3, 0, case)]
+    outcomes = [evaluation.evaluate(model, state, [*ALL, voter]) for state in sampling.sample_states(model, 3, 0, case)]
     disagreements = [c for o in outcomes for c in o.comparisons.values() if c.verdict == DISAGREE]
     assert {c.quantity for c in disagreements} >= {"drift", "total"}, bug
     assert all(c.outlier == "closed_form" and suspect(c) == "closed_form" for c in disagreements), bug
@@ -415,7 +420,7 @@ def test_without_the_bug_the_same_states_agree():
         model = cases.load(case, **params)
         voter = closed_forms.voter(case, params)
         for state in sampling.sample_states(model, 3, 0, case):
-            assert not gate.evaluate(model, state, [*ALL, voter]).failed
+            assert not evaluation.evaluate(model, state, [*ALL, voter]).failed
 
 
 # ------------------------------------------------------------------------------------------------ mismatches
@@ -445,7 +450,7 @@ def test_a_mismatch_fails_the_gate_as_an_error_of_the_voter():
     """In the gate a mismatch is the voter's error at the state: the state fails, it is not NOT COMPARED."""
     model = cases.load("double_pendulum_circle")
     state = sampling.sample_states(model, 2, 0, "double_pendulum_circle")[1]
-    outcome = gate.evaluate(model, state, [*ALL, closed_forms.voter("double_pendulum", {})])
+    outcome = evaluation.evaluate(model, state, [*ALL, closed_forms.voter("double_pendulum", {})])
     assert outcome.failed and outcome.errors["closed_form"].startswith("ClosedFormMismatch: ")
     assert "constraint rows k is 1, the closed form's is 0" in outcome.errors["closed_form"]
 

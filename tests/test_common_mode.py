@@ -1,11 +1,12 @@
-"""Common-mode faults (crosscheck.common_mode): bugs in code every backend shares are caught by the gate itself,
+"""Common-mode faults (crosscheck.faults.common_mode): bugs in code every backend shares are caught by the gate itself,
 each by the guard outside the vote that exists for it, and the patches are fully removed afterwards."""
 
 from __future__ import annotations
 
 import pytest
 
-from crosscheck import common_mode, faults
+from crosscheck.faults import common_mode
+from crosscheck.faults import injection
 
 #: The rounds of states (state i of every case) the cheap first search evaluates: every shared fault is caught within
 #: them by the default gate (reports/faults.md, "Common-mode faults": state #0 or #1 of some case, or before any state).
@@ -20,7 +21,7 @@ def test_the_catalog_has_at_least_ten_faults_over_every_shared_area():
                                                     "load declarations", "conservation"}
     for fault in common_mode.CATALOG:
         for target in fault.targets:
-            faults.resolve(fault.name, target)                   # every target exists
+            injection.resolve(fault.name, target)                   # every target exists
         assert fault.bug.endswith(".") and fault.guard
 
 
@@ -39,15 +40,15 @@ GUARDS = {"the reference built from the file": ("#", "outlier pinocchio"),
 
 @pytest.mark.parametrize("fault", common_mode.CATALOG, ids=common_mode.names())
 def test_the_gate_catches_the_shared_fault_by_its_guard(fault):
-    before = [faults.resolve(fault.name, target)[2] for target in fault.targets]
+    before = [injection.resolve(fault.name, target)[2] for target in fault.targets]
     expected = [catch for guard, catch in GUARDS.items() if guard in fault.guard]
 
     def by_its_guard(found) -> bool:
         return found.caught and any(by in found.by and mark in found.detail for by, mark in expected)
     # first without the linearizations (cheap; a catch there is the default gate's at the same state, a check only
     # adding failures), in the states the default gate reaches first; then everything the default gate does
-    found = common_mode.hunt(fault, checks=faults.WITHOUT_LINEARIZATION, rounds=PROBE_ROUNDS)
+    found = common_mode.hunt(fault, checks=injection.WITHOUT_LINEARIZATION, rounds=PROBE_ROUNDS)
     found = found if by_its_guard(found) else common_mode.hunt(fault)
     assert found.caught, f"the gate misses {fault.name}: {found.detail}"
     assert expected and by_its_guard(found), (fault.guard, found.by, found.detail)
-    assert [faults.resolve(fault.name, target)[2] for target in fault.targets] == before   # restored
+    assert [injection.resolve(fault.name, target)[2] for target in fault.targets] == before   # restored

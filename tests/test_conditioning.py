@@ -1,4 +1,4 @@
-"""BREAKDOWN is a claim, and claims are checked (crosscheck.conditioning): the harness's own conditions agree with every
+"""BREAKDOWN is a claim, and claims are checked (crosscheck.guards.conditioning): the harness's own conditions agree with every
 backend's on every kind of state, and a backend that escapes the vote by claiming BREAKDOWN fails the gate."""
 
 from __future__ import annotations
@@ -9,11 +9,14 @@ import pytest
 import cases
 import formalisms.interface as interface
 import formalisms.operational_space as osc
-from crosscheck import backends, conditioning
-from crosscheck import tolerance as policy
-from crosscheck.compare import DISAGREE, suspect
-from crosscheck.gate import CaseSpec, Checks, evaluate, run_gate
-from crosscheck.sampling import State, sample_states
+from crosscheck import backends
+from crosscheck.guards import conditioning
+from crosscheck.core import tolerance as policy
+from crosscheck.core.compare import DISAGREE, suspect
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.evaluation import evaluate
+from crosscheck.engine.run import run_gate
+from crosscheck.core.sampling import State, sample_states
 
 ALL = [backends.get(name) for name in backends.builtin_names()]
 QUICK = Checks(charts=False, frames=0, conservation=False, self_test=False)

@@ -11,7 +11,7 @@ and the Pinocchio reference (``crosscheck.backends``), against references writte
   cartesian pendulum's bob also on a rail (no freedom left): at rest, multipliers by hand.
 * ``double_pendulum_absolute_loop`` at the image of a joint state: eqs. (6)-(8) with the links' inertias and the
   joint model ``double_pendulum(I1=.., I2=..)``, and the pin multipliers are the pin forces of Newton's second law.
-* Eqs. (12)-(17) as identities at sampled admissible states of every constrained case (``crosscheck.sampling``):
+* Eqs. (12)-(17) as identities at sampled admissible states of every constrained case (``crosscheck.core.sampling``):
   ``drift + ctrl = total``, both on ``H_t`` (eq. 16), ``ctrl = B_c B u`` and eq. (15) with M from the reference,
   ``Jc^T lam``, zero constraint power (5.5).
 * Redundant rows: a duplicated circle (the same motion and ``Jc^T lam``, half the multiplier each, rank 1), and the
@@ -22,7 +22,7 @@ Bounds are the tightest of the former per-backend tests (``test_constrained_<bac
 here). A few of those held only at their hand-picked states: the circle's and the absolute loop's keep those states
 with those bounds (``former``), and states drawn from a seeded generator get the bounds that the worst of some
 thousands of drawn states per backend needs, with a margin (``drawn``). Pinocchio regularizes its KKT solve where
-``S`` is singular (``crosscheck.reference``: damping ``1e-12 |S|``), which moves its answer by ~1e-12 relative: at
+``S`` is singular (``crosscheck.references.reference``: damping ``1e-12 |S|``), which moves its answer by ~1e-12 relative: at
 redundant states it is held to ``DAMPED_RTOL`` (its former test: 1e-9 absolute). The operational-space backend's
 default four-bar task point is singular at the change point (a task BREAKDOWN, tested in its own file): there it
 tracks the coupler's midpoint along y only. Like the gate's tests, these use the shared Euler–Lagrange disk cache
@@ -43,9 +43,11 @@ from cases import JointCoupling, PointOnLine, TaskPoint, build_model
 from closed_forms import (absolute_loop_state, cartesian_lam, circle_state, circle_terms, constrained_input_map,
                           disk_inertia, endpoint_jacobian, kkt_solve, loop_to_joint, min_norm_solve, pendulum_terms,
                           pin_forces, tip_bias)
-from crosscheck import backends, reference, sampling
-from crosscheck import tolerance as policy
-from crosscheck.conditioning import normwise_scales
+from crosscheck import backends
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck.core import tolerance as policy
+from crosscheck.guards.conditioning import normwise_scales
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
 BACKENDS = backends.names()
@@ -372,7 +374,7 @@ def test_absolute_loop_is_the_joint_coordinate_pendulum(name):
 
 @functools.lru_cache(maxsize=None)
 def sampled(case):
-    """Three admissible states (``crosscheck.sampling``) with M from the reference (Pinocchio's CRBA)."""
+    """Three admissible states (``crosscheck.core.sampling``) with M from the reference (Pinocchio's CRBA)."""
     model = model_of(case)
     return [(np.array(x.q), np.array(x.qd), np.array(x.u), reference.split(model, x.q, x.qd, x.u).extras["M"])
             for x in sampling.sample_states(model, 3, 5, case)]

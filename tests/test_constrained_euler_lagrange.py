@@ -7,7 +7,7 @@ are in ``test_constrained_backends.py``.
 * The four-bar just off its change point against a range-space solve with the backend's own M and the pseudo-inverse
   of S cut at ``CONSTRAINT_RCOND`` (rank 1 below it, rank 2 just above).
 * ``split_chart`` in the nonlinear and an affine chart against the joint-chart split mapped by the harness's maps
-  (``crosscheck.charts``): the same multipliers, ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``, ``Jc_p = Jc Dpsi``.
+  (``crosscheck.checks.charts``): the same multipliers, ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``, ``Jc_p = Jc Dpsi``.
 
 All tests derive into a scratch cache (fixture ``fresh_derivation_cache``), so they test the current code.
 """
@@ -22,7 +22,7 @@ import pytest
 import cases
 from cases import JointCoupling, PointOnLine
 from closed_forms import circle_state, min_norm_solve
-from crosscheck import charts
+from crosscheck.checks import charts
 from formalisms import euler_lagrange as el
 from formalisms.interface import CONSTRAINT_RCOND
 

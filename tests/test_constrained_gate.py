@@ -13,12 +13,15 @@ import cases
 import formalisms.euler_lagrange as el
 import formalisms.operational_space as osc
 from cases import Body, PointOnLine, PointsCoincide, build_model
-from crosscheck import backends, sampling
-from crosscheck.compare import AGREE, DISAGREE
-from crosscheck.gate import CaseSpec, Checks, evaluate, run_case, run_gate
-from crosscheck.report import render
-from crosscheck.sampling import State
-from crosscheck.tolerance import CONSTRAINED_QUANTITIES
+from crosscheck import backends
+from crosscheck.core import sampling
+from crosscheck.core.compare import AGREE, DISAGREE
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.evaluation import evaluate
+from crosscheck.engine.run import run_case, run_gate
+from crosscheck.reports.gate_report import render
+from crosscheck.core.sampling import State
+from crosscheck.core.tolerance import CONSTRAINED_QUANTITIES
 
 CONSTRAINED = ["double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
                "double_pendulum_absolute_loop"]
@@ -209,7 +212,7 @@ def test_chart_accelerations_near_a_tangent_circle_row_carry_the_multipliers_rou
     chart-native backends (their own phi(psi(p))) once differed from the mapped joint answers at 3.6 times the
     tolerance."""
     from cases import PointOnCircle
-    from crosscheck import charts, invariance
+    from crosscheck.checks import charts, invariance
 
     model = build_model("tangent_slider", [
         Body("b0", None, "prismatic", (1, 0, 0), 1.0, rotation=[[0, 0, 1], [0, 1, 0], [-1, 0, 0]],

@@ -5,7 +5,7 @@ point) are in ``test_constrained_backends.py``.
 
 References written independently of the backend:
 * ``phi`` of every constrained case written out by hand, its complex-step derivative and second difference;
-* the chart maps of ``crosscheck.charts`` (multipliers are chart-invariant, accelerations map by
+* the chart maps of ``crosscheck.checks.charts`` (multipliers are chart-invariant, accelerations map by
   ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``, forces as covectors);
 * ``ctrl`` computed directly (a broken total leaves it unchanged), the drift field, the cost of a split.
 """
@@ -18,7 +18,7 @@ import pytest
 
 import cases
 from closed_forms import circle_state
-from crosscheck import charts
+from crosscheck.checks import charts
 from formalisms import geometric as geo
 
 CIRCLE = cases.load("double_pendulum_circle")
@@ -116,7 +116,7 @@ def test_constraint_kinematics_match_the_hand_written_phi(name):
 
 @pytest.mark.parametrize("name", CONSTRAINED)
 def test_split_chart_in_a_nonlinear_chart(name):
-    """phi(psi(p)) is the same function, so in the nonlinear chart (crosscheck.charts) lam and lam_drift are the
+    """phi(psi(p)) is the same function, so in the nonlinear chart (crosscheck.checks.charts) lam and lam_drift are the
     joint chart's, ``Jc_p = Jc Dpsi``, the constraint force is the covector ``Dpsi^T Jc^T lam``, and the
     accelerations map by ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)`` (ctrl without the rate term)."""
     model, rng = cases.load(name), np.random.default_rng(3)

@@ -11,7 +11,9 @@ import pytest
 
 import cases
 from cases import Body, JointCoupling, ModelError, PointOnCircle, PointOnLine, PointsCoincide, build_model
-from crosscheck import frames, reference, sampling
+from crosscheck.checks import frames
+from crosscheck.references import reference
+from crosscheck.core import sampling
 from crosscheck.cli import main
 
 Z = (0.0, 0.0, 1.0)

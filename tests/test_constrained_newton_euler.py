@@ -24,7 +24,7 @@ import scipy.linalg
 import cases
 from cases.model import Body, build_model
 from closed_forms import absolute_loop_state, circle_state
-from crosscheck.sampling import sample_states
+from crosscheck.core.sampling import sample_states
 from formalisms import newton_euler as ne
 
 CONSTRAINED_CASES = ("double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",

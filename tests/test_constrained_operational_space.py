@@ -22,7 +22,7 @@ from cases.constraints import JointCoupling, PointOnLine
 from cases.model import build_model
 from closed_forms import (circle_state, circle_terms, constrained_input_map, endpoint_jacobian, inv2, kkt_solve,
                           pendulum_terms, tip_bias)
-from crosscheck import tolerance as policy
+from crosscheck.core import tolerance as policy
 from formalisms import operational_space as op
 
 TOL = 1e-12

@@ -23,8 +23,8 @@ import pytest
 import cases
 from cases.model import Body, build_model
 from closed_forms import absolute_loop_state, circle_state
-from crosscheck import frames
-from crosscheck.sampling import sample_states
+from crosscheck.checks import frames
+from crosscheck.core.sampling import sample_states
 from formalisms import newton_euler as ne
 from formalisms import screw
 from formalisms.screw import kinematics

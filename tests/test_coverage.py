@@ -1,4 +1,4 @@
-"""Sampling coverage (crosscheck.coverage): the ranges a case's states span, and a degenerate sample fails the gate."""
+"""Sampling coverage (crosscheck.guards.coverage): the ranges a case's states span, and a degenerate sample fails the gate."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import coverage, sampling
-from crosscheck.gate import CaseSpec, Checks, run_case
+from crosscheck.guards import coverage
+from crosscheck.core import sampling
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_case
 
 
 def _states(model, count=20, seed=0, name="x"):
@@ -61,7 +63,7 @@ def test_a_degenerate_sample_fails_the_case(monkeypatch):
     def still(model, count, seed, case, **options):
         return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in real(model, count, seed, case, **options)]
 
-    monkeypatch.setattr("crosscheck.gate.sample_states", still)
+    monkeypatch.setattr("crosscheck.engine.run.sample_states", still)
     outcome = run_case(CaseSpec("double_pendulum"), [], 4, 0, checks=Checks(charts=False, frames=0,
                                                                             conservation=False))
     assert outcome.failed and outcome.coverage.degenerate

@@ -8,7 +8,7 @@ the joint chart. The references here are independent of that derivation:
 * the double pendulum in absolute angles against the closed forms written in absolute angles (``absolute_terms``,
   from the Lagrangian in phi) and against the relative-angle closed form mapped by ``phi_dd = (t1_dd, t1_dd + t2_dd)``;
 * random affine and the nonlinear chart against the joint-chart split mapped by the harness's analytic chart maps
-  (``crosscheck.charts``: ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``, ``tau_p = Dpsi^T B u``), plus the covariance of
+  (``crosscheck.checks.charts``: ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``, ``tau_p = Dpsi^T B u``), plus the covariance of
   the metric and of the gravity covector (``M_p = Dpsi^T M Dpsi``, ``g_p = Dpsi^T g``) and the invariance of the
   kinetic energy and of the control power;
 * the caches: one entry per (model, chart), never one chart's code for another.
@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 import cases
 from closed_forms import absolute_terms, inv2, pendulum_terms
-from crosscheck import charts
+from crosscheck.checks import charts
 from formalisms import euler_lagrange as el
 from formalisms.interface import StateError
 

@@ -21,7 +21,8 @@ import pytest
 import symengine
 
 import cases
-from crosscheck import charts, sampling
+from crosscheck.checks import charts
+from crosscheck.core import sampling
 from formalisms import euler_lagrange as el
 
 EPS = np.finfo(float).eps

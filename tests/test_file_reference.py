@@ -25,10 +25,15 @@ import cases.urdf
 from cases import build_model, from_urdf
 from cases.model import Body, ModelError, ModelSource
 from cases.serialize import SerializeError, model_from_dict, model_to_dict
-from crosscheck import diagnosis, frames, gate, reference
+from crosscheck.reports import diagnosis
+from crosscheck.checks import frames
+from crosscheck.engine import evaluation
+from crosscheck.engine import run
+from crosscheck.engine import specs
+from crosscheck.references import reference
 from crosscheck.backends import get, names
-from crosscheck.compare import DISAGREE, suspect
-from crosscheck.sampling import sample_states
+from crosscheck.core.compare import DISAGREE, suspect
+from crosscheck.core.sampling import sample_states
 
 PANDA_LINKS = [f"panda_link{i}" for i in range(1, 8)] + ["panda_leftfinger", "panda_rightfinger"]
 PANDA_JOINTS = [f"panda_joint{i}" for i in range(1, 8)] + ["panda_finger_joint1", "panda_finger_joint2"]
@@ -396,7 +401,7 @@ def _assert_reference_is_the_outlier(model, count: int):
     backends = [get(n) for n in names()]
     worst = 0.0
     for s in sample_states(model, count, 0, model.name):
-        outcome = gate.evaluate(model, s, backends)
+        outcome = evaluation.evaluate(model, s, backends)
         failing = [c for c in outcome.comparisons.values() if c.verdict == DISAGREE]
         assert failing, f"state {s.index}: the conversion bug was not caught"
         assert {suspect(c) for c in failing} == {"pinocchio"}, [(c.quantity, c.outlier) for c in failing]
@@ -425,8 +430,8 @@ def test_conversion_bug_makes_the_reference_the_outlier_on_a_branched_urdf(bug, 
 def test_gate_on_a_clean_loaded_urdf_passes_with_moved_scenes(branched_path):
     """The whole gate (charts, two moved scenes whose reference is built from the file, conservation) on the
     branched URDF: no disagreement, so the file-built reference is consistent with itself in every scene."""
-    spec = gate.CaseSpec("branched", path=branched_path)
-    result = gate.run_gate([spec], [get(n) for n in names()], samples=4, seed=1)
+    spec = specs.CaseSpec("branched", path=branched_path)
+    result = run.run_gate([spec], [get(n) for n in names()], samples=4, seed=1)
     assert result.passed, [(s.index, s.errors, {k: c.worst_ratio for k, c in {**s.comparisons, **s.checks}.items()
                                                  if c.verdict == DISAGREE}) for s in result.cases[0].states]
     assert result.cases[0].model.source.path == branched_path

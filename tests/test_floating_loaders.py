@@ -15,8 +15,11 @@ from cases import configuration
 from cases.model import Body, ModelError, build_model
 from cases.mjcf import from_mjcf
 from cases.urdf import BaseNotice, from_urdf
-from crosscheck import cli, closed_forms, conservation, reference, sampling
-from crosscheck.compare import AGREE, DISAGREE
+from crosscheck import cli
+from crosscheck.references import closed_forms, reference
+from crosscheck.checks import conservation
+from crosscheck.core import sampling
+from crosscheck.core.compare import AGREE, DISAGREE
 from formalisms.interface import StateError, check_state
 
 ROBOTS = "cmeel.prefix/share/example-robot-data/robots"

@@ -12,7 +12,8 @@ import pinocchio as pin
 import pytest
 
 import cases
-from crosscheck import backends, sampling
+from crosscheck import backends
+from crosscheck.core import sampling
 
 #: The held-out set: this many trees from this seed.
 TREES, SEED = 6, 170017

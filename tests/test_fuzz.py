@@ -1,4 +1,4 @@
-"""Fuzzing campaigns (crosscheck.fuzz and the fuzz / replay / merge commands): reproducible, shardable, interruptible,
+"""Fuzzing campaigns (crosscheck.campaigns.fuzz and the fuzz / replay / merge commands): reproducible, shardable, interruptible,
 and able to find, shrink, save and replay an injected fault."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from cases.serialize import model_from_dict
-from crosscheck import cli, fuzz
+from crosscheck import cli
+from crosscheck.campaigns import fuzz
 
 #: A small campaign: two chunks of three examples, models of at most two bodies, two states each.
 SMALL = dict(seed=0, examples=6, chunk_examples=3, max_bodies=2, max_states=2, workers=0)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from crosscheck import fuzz
+from crosscheck.campaigns import fuzz
 
 
 def _chunk(k: int, examples: int, planned: int = 10, findings=(), interrupted: bool = False) -> dict:

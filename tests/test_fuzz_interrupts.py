@@ -1,4 +1,4 @@
-"""Fuzzing campaigns lose nothing on any interruption (``crosscheck.fuzz`` module doc, "Interruptions and crashes").
+"""Fuzzing campaigns lose nothing on any interruption (``crosscheck.campaigns.fuzz`` module doc, "Interruptions and crashes").
 
 SIGINT or SIGTERM to the campaign's process alone, SIGKILL of it or of a worker, sent while chunks are shrinking a
 failure, then the same command again, give the findings (same IDs, same files) and the report of an uninterrupted run.
@@ -28,7 +28,8 @@ from pathlib import Path
 
 import pytest
 
-from crosscheck import cli, fuzz
+from crosscheck import cli
+from crosscheck.campaigns import fuzz
 
 PLUGIN = '''
 import dataclasses

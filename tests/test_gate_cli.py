@@ -12,13 +12,15 @@ import pytest
 import cases
 import formalisms.newton_euler as ne
 from closed_forms import pendulum_terms
-from crosscheck import backends, cli, gate
-from crosscheck.compare import DISAGREE, suspect
-from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck import report as gate_report
-from crosscheck.report import render
-from crosscheck.sampling import sample_states
-from crosscheck.tolerance import BREAKDOWN_LIMITS
+from crosscheck import backends, cli
+from crosscheck.engine import pool
+from crosscheck.core.compare import DISAGREE, suspect
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
+from crosscheck.reports import gate_report
+from crosscheck.reports.gate_report import render
+from crosscheck.core.sampling import sample_states
+from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from formalisms import euler_lagrange
 from formalisms.interface import Formalism
 
@@ -49,8 +51,8 @@ def test_workers_give_the_same_report_with_the_cases_in_order(tmp_path, monkeypa
     """Cases in two spawned processes (the larger model, n_link_pendulum, starts first): the report of one process,
     timings apart, cases in the order given. ``--workers`` means what it means in every command: 0 runs in this
     process, N in N worker processes (``tests/test_outputs.py``)."""
-    pooled, real = [], gate._in_pool
-    monkeypatch.setattr(gate, "_in_pool", lambda *args: pooled.append(args[6]) or real(*args))
+    pooled, real = [], pool.in_pool
+    monkeypatch.setattr(pool, "in_pool", lambda *args: pooled.append(args[7]) or real(*args))
     args = ("--case", "double_pendulum", "--case", "n_link_pendulum", "--samples", "4", "--seed", "2")
     code, alone = _gate(tmp_path, *args, "--workers", "0")
     assert code == 0 and not pooled
@@ -63,8 +65,8 @@ def test_workers_give_the_same_report_with_the_cases_in_order(tmp_path, monkeypa
 
 def test_backends_another_process_cannot_take_run_in_this_one(monkeypatch):
     """A backend that cannot be pickled (a lambda) keeps every case in this process, whatever ``workers`` says."""
-    pooled, real = [], gate._in_pool
-    monkeypatch.setattr(gate, "_in_pool", lambda *args: pooled.append(args[0]) or real(*args))
+    pooled, real = [], pool.in_pool
+    monkeypatch.setattr(pool, "in_pool", lambda *args: pooled.append(args[1]) or real(*args))
     local = Formalism("newton_euler", "a lambda", lambda model, q, qd, u: ne.split(model, q, qd, u))
     chosen = [backends.get("euler_lagrange"), local, backends.get("pinocchio")]
     result = run_gate([CaseSpec("acrobot"), CaseSpec("double_pendulum")], chosen, samples=2, seed=0, workers=2)

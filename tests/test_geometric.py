@@ -5,7 +5,7 @@ References written independently of the backend:
   written directly in absolute angles, 6.4.6);
 * textbook Christoffel symbols and curvature of the flat plane in polar coordinates, the unit sphere and the
   hyperbolic half-plane;
-* the harness's analytic chart maps (``crosscheck.charts``: ``qd = Dpsi pd``, ``tau_p = Dpsi^T tau``,
+* the harness's analytic chart maps (``crosscheck.checks.charts``: ``qd = Dpsi pd``, ``tau_p = Dpsi^T tau``,
   ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``) for chart invariance;
 * classical identities: symmetry of the connection in its lower indices, ``Mdot - 2C`` skew-symmetric, energy
   balance ``dE/dt = tau . qd`` (section 9), central differences of the metric.
@@ -24,7 +24,7 @@ import cases
 import formalisms
 from closed_forms import absolute_terms, article_M, endpoint_jacobian, inv2, pendulum_terms
 from scenes import panda_arm
-from crosscheck import charts
+from crosscheck.checks import charts
 from formalisms import geometric as geo
 from formalisms.interface import StateError
 

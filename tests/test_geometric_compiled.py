@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import charts, cli, sampling
+from crosscheck.checks import charts
+from crosscheck import cli
+from crosscheck.core import sampling
 from formalisms import geometric as geo
 
 #: Rounding allowed between the compiled and the interpreted answer, in units of ``cond(M)`` times the scale.

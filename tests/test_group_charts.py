@@ -1,5 +1,5 @@
-"""The charts of spherical and free joints: ZYX Euler angles (``crosscheck.charts.EulerZYX``) and exponential
-coordinates about a seeded centre (``crosscheck.charts.ExponentialCoordinates``). The harness's own maps between
+"""The charts of spherical and free joints: ZYX Euler angles (``crosscheck.checks.charts.EulerZYX``) and exponential
+coordinates about a seeded centre (``crosscheck.checks.charts.ExponentialCoordinates``). The harness's own maps between
 each chart and the group, checked against the group operations (``cases.configuration``) by finite differences;
 zyx's gimbal lock; exp's series branch near ``p = 0`` against the closed forms (and an independent high-precision
 evaluation), its limit at ``p = 0``, its domain (``|p| <= pi``, ``cond(J_r) <= pi/2``) and its seeded centre."""
@@ -13,7 +13,9 @@ import pytest
 
 import cases
 from cases import configuration
-from crosscheck import charts, invariance, reference, sampling
+from crosscheck.checks import charts, invariance
+from crosscheck.references import reference
+from crosscheck.core import sampling
 
 GROUP_CASES = ("free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm")
 GROUP_CHARTS = ("zyx", "exp")
@@ -95,7 +97,7 @@ def test_the_state_carried_into_the_chart_rounds_the_power():
     import json
     from pathlib import Path
 
-    from crosscheck import fuzz
+    from crosscheck.campaigns import fuzz
 
     finding = json.loads((Path(__file__).parent / "findings" / "charts" / "3a211f395087.json").read_text())
     outcome = fuzz.replay(finding)

@@ -18,7 +18,7 @@
   order 1 does not).
 * The chart is part of the disk-cache key; charts ``q = psi(p)`` of scalar coordinates are refused
   (ModelNotSupported); derivation time.
-* The zyx chart (``crosscheck.charts.EulerZYX``, issue 17): ``split_chart`` derived in Euler angles through
+* The zyx chart (``crosscheck.checks.charts.EulerZYX``, issue 17): ``split_chart`` derived in Euler angles through
   ``R(quat(psi(p)))`` against the reference mapped into the chart with the harness's Dpsi (cases, constrained
   variants, solo12_standing, random trees), the gate's own chart check (with solo12), M_p in closed form, its
   cache entry, charts that are not charts of the group refused, and cold derivation time in the chart.
@@ -40,8 +40,11 @@ from hypothesis import strategies as st
 import cases
 from cases import PointOnCircle, PointsCoincide, build_model
 from cases import configuration as geometry  # the harness's group operations (the backend has its own)
-from crosscheck import charts, reference, sampling, testing
-from crosscheck import tolerance as policy
+from crosscheck.checks import charts
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck import testing
+from crosscheck.core import tolerance as policy
 from formalisms import euler_lagrange as el
 from formalisms.interface import ModelNotSupported, Unsupported
 
@@ -91,7 +94,7 @@ def _relative_scale(value: float, condition: float = 1.0) -> float:
 
 
 def assert_agrees_with_reference(model, q, qd, u, evaluated=None) -> dict[str, float]:
-    """The backend's split against ``crosscheck.reference.split`` on every field it reports, each within ``RTOL``
+    """The backend's split against ``crosscheck.references.reference.split`` on every field it reports, each within ``RTOL``
     of its scale: accelerations of ``accel_scale``; powers of ``|B u| . |qd|``; T of itself; ``cond_M``,
     ``accel_scale``, the conditions and ``lam_scale`` relatively; multipliers of ``lam_scale``; constraint forces of
     ``||Jc|| lam_scale``; phi, Jc of the length scale L; ``Jc qd`` of ``L |qd|``; ``Jcdot qd`` of ``L |qd|^2``.
@@ -428,13 +431,13 @@ CHART_COND = 1e3
 
 
 def chart_arguments(model, chart, q, qd, u):
-    """``(p, pd, tau_p)`` of a joint state, as the gate's chart check forms them (``crosscheck.invariance``)."""
+    """``(p, pd, tau_p)`` of a joint state, as the gate's chart check forms them (``crosscheck.checks.invariance``)."""
     p = chart.p_of(q)
     return p, charts.velocity_to_chart(chart, p, qd), charts.force_to_chart(chart, p, model.input_map @ u)
 
 
 def assert_chart_agrees_with_reference(model, q, qd, u, chart_name="zyx") -> dict[str, float] | None:
-    """``el.split_chart`` in the zyx chart against ``crosscheck.reference.split`` mapped into the chart with the
+    """``el.split_chart`` in the zyx chart against ``crosscheck.references.reference.split`` mapped into the chart with the
     harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the ctrl without
     the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
     conditions), covariant ones mapped (``Jc_p = Jc Dpsi``, ``Jcdot_p pd = Jcdot v + Jc (d/dt Dpsi) pd``,
@@ -517,7 +520,7 @@ def test_zyx_chart_agrees_with_the_reference_mapped_into_the_chart(name, chart_n
 @pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12",))
 def test_zyx_chart_check_of_the_gate(name, chart_name, tmp_path, monkeypatch):
-    """The gate's own chart check (``crosscheck.invariance.chart_checks`` through ``testing.assert_backends_agree``):
+    """The gate's own chart check (``crosscheck.checks.invariance.chart_checks`` through ``testing.assert_backends_agree``):
     the backend's native answers in the zyx chart, and in the exp chart (exponential coordinates about the centre
     drawn for the case), against Pinocchio's joint-chart split mapped into it, on every quantity the gate compares
     there (the checks exist: the backend is not left out of the chart), from a cold derivation (an empty cache; its

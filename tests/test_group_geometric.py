@@ -6,7 +6,7 @@ polynomial of degree 2 (``formalisms.geometric.EXP_ORDER``), every derivative ta
 
 * the four Lie-group cases and three constrained variants built here (a ball-jointed double pendulum whose hand runs
   on a ring, a satellite whose gripper is docked to a world point, a free body on a rail) at sampled states against
-  the Pinocchio reference (``crosscheck.reference.split``), field by field, to ``RTOL`` of the field's scale, and
+  the Pinocchio reference (``crosscheck.references.reference.split``), field by field, to ``RTOL`` of the field's scale, and
   through the gate's own comparison and conservation checks (``crosscheck.testing.assert_backends_agree``);
 * a Hypothesis property over random trees with spherical and free joints (``crosscheck.testing.models(group=True)``),
   unconstrained or constrained;
@@ -18,7 +18,7 @@ polynomial of degree 2 (``formalisms.geometric.EXP_ORDER``), every derivative ta
 * the public helpers (``metric``, ``metric_derivatives``, ``christoffel``, ``energy_rate``) on a group model: M and
   ``C qd`` against the reference, ``dM`` against finite differences of the reference's M along ``q (+) h e_k``, the
   energy rate; no joint-coordinate charts (ModelNotSupported); a quaternion that is not unit is a StateError;
-* the ZYX Euler-angle chart (``crosscheck.charts.EulerZYX``, psi returns the whole q), evaluated natively by
+* the ZYX Euler-angle chart (``crosscheck.checks.charts.EulerZYX``, psi returns the whole q), evaluated natively by
   ``split_chart`` and the helpers' ``chart=``: every field against the reference mapped into the chart (``pdd`` by
   ``Dpsi^-1 (vdot - (d/dt Dpsi) pd)``, covectors by ``Dpsi^T``, ``dphi/dp = Jc Dpsi``, invariants equal), the gate's
   chart check (cases, constrained variants, solo12_standing, random trees), ``M_p = Dpsi^T M Dpsi`` and the chart's
@@ -41,7 +41,10 @@ from hypothesis import strategies as st
 import cases
 from cases import PointOnCircle, PointOnLine, PointsCoincide, build_model
 from cases.configuration import integrate
-from crosscheck import charts, reference, sampling, testing
+from crosscheck.checks import charts
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck import testing
 from formalisms import geometric
 from formalisms.interface import ModelNotSupported, StateError, Unsupported
 
@@ -383,7 +386,7 @@ def test_a_chart_truncated_too_early_is_caught(monkeypatch):
 
 # ---------------------------------------------------------------------------------- the Euler-angle chart (zyx)
 #
-# split_chart and the public helpers in ``crosscheck.charts.EulerZYX``: q = psi(p) (the whole q, quaternions from the
+# split_chart and the public helpers in ``crosscheck.checks.charts.EulerZYX``: q = psi(p) (the whole q, quaternions from the
 # half angles) substituted into the backend's kinematics, everything derived in p by casadi. The references below
 # are the Pinocchio split in v-space mapped into the chart with the harness's Dpsi (test side only; the backend never
 # reads it): pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd), M_p = Dpsi^T M Dpsi, covectors by Dpsi^T.
@@ -470,7 +473,7 @@ def test_split_chart_in_euler_angles_agrees_with_the_mapped_reference(name, char
 @pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", CASES + CONSTRAINED + ("solo12_standing",))
 def test_the_gate_chart_check_in_euler_angles(name, chart_name):
-    """The gate's chart check (``crosscheck.invariance.chart_checks`` through ``assert_backends_agree(chart=...)``):
+    """The gate's chart check (``crosscheck.checks.invariance.chart_checks`` through ``assert_backends_agree(chart=...)``):
     this backend's split_chart against every joint-chart answer mapped into the chart, with the gate's tolerances; in
     Euler angles (zyx) and in exponential coordinates about the centre drawn for the case (exp)."""
     model = cases.load(name) if name == "solo12_standing" else model_of(name)

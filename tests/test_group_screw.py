@@ -6,13 +6,13 @@ unit twists, and the recursions are the screw ones (``formalisms.screw.kinematic
 
 * the quaternion's rotation against the polynomial ``I + 2 w [u] + 2 [u]^2`` of ``cases.model``, and the poses
   against the model's composition ``X_parent (rotation, translation) motion(q_i)``, both written in this file;
-* Pinocchio (``crosscheck.reference.split``: JointModelSpherical / JointModelFreeFlyer) on every field of the split,
+* Pinocchio (``crosscheck.references.reference.split``: JointModelSpherical / JointModelFreeFlyer) on every field of the split,
   on the four group cases and on random trees with spherical and free joints, constrained or not, to ``RTOL`` of each
   field's scale (:func:`scales`), and through the gate's comparison (``testing.assert_backends_agree``);
 * ``split_batch`` rows against ``split``;
 * Euler's equations of the torque-free body, ``I_c wd + w x I_c w = 0`` and a COM that does not accelerate (or falls
   with gravity), in closed form;
-* the screw faults of ``crosscheck.fault_catalog`` still reach the group-joint code paths.
+* the screw faults of ``crosscheck.faults.backend_catalog`` still reach the group-joint code paths.
 """
 
 from __future__ import annotations
@@ -25,10 +25,13 @@ from hypothesis import strategies as st
 import cases
 import cases.constraints
 from cases.model import build_model
-from crosscheck import fault_catalog, frames, reference, testing
-from crosscheck.faults import injected
-from crosscheck.sampling import sample_states
-from crosscheck.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE
+from crosscheck.faults import backend_catalog
+from crosscheck.checks import frames
+from crosscheck.references import reference
+from crosscheck import testing
+from crosscheck.faults.injection import injected
+from crosscheck.core.sampling import sample_states
+from crosscheck.core.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE
 from formalisms import screw
 from formalisms.screw import kinematics, lie
 
@@ -305,7 +308,7 @@ def _caught(model, states) -> bool:
     return False
 
 
-@pytest.mark.parametrize("fault", fault_catalog.SCREW, ids=lambda f: f.name)
+@pytest.mark.parametrize("fault", backend_catalog.SCREW, ids=lambda f: f.name)
 def test_the_reference_comparison_catches_each_screw_fault_on_the_group_cases(fault):
     """Every screw fault of the catalog, injected, makes the comparison above fail on some group case: the functions
     the faults patch (``lie.coad``, ``dynamics._wrench_to_parent``, ``spatial_inertias``, ``gravity_wrenches``,

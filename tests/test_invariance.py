@@ -8,10 +8,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import cases
-from crosscheck import backends, charts, frames
-from crosscheck.compare import DISAGREE
-from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck.report import render
+from crosscheck import backends
+from crosscheck.checks import charts, frames
+from crosscheck.core.compare import DISAGREE
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
+from crosscheck.reports.gate_report import render
 
 PANDA = cases.load("panda")
 DP = cases.load("double_pendulum")
@@ -178,9 +180,9 @@ def test_fault_a_christoffel_symbol_with_the_wrong_sign_breaks_the_skew_identity
 def test_a_task_point_on_the_joint_axes_is_compared_on_the_moved_scene_with_the_frames_lever():
     """A fuzz finding: the task point on two coaxial joints' axis accelerates at exactly 0 (task lever 0, tolerance
     0), but on the scene moved by t = (0, 1, 0) the screw backend's world-frame kinematics round on |t| (2.5e-16)."""
-    from crosscheck import invariance
-    from crosscheck.gate import evaluate
-    from crosscheck.sampling import State
+    from crosscheck.checks import invariance
+    from crosscheck.engine.evaluation import evaluate
+    from crosscheck.core.sampling import State
 
     inertia = np.diag([0.25, 0.25, 0.025])
     model = cases.build_model("on_axis", [cases.Body("b0", None, "revolute", (0, 0, 1), 1.0, inertia=inertia),
@@ -231,9 +233,9 @@ def test_a_task_jacobian_short_in_every_direction_is_an_operational_space_breakd
     eps L / |J| relative, is 2.3 and 280 times the componentwise drift tolerance (it once inflated the energy-rate
     tolerance instead). The backend reports how short its task Jacobian is (``task_jacobian``, 2e5 and 5e6 here):
     a BREAKDOWN, and nothing else fails; the energy rate holds for the voters."""
-    from crosscheck import conservation
-    from crosscheck.gate import evaluate
-    from crosscheck.sampling import State
+    from crosscheck.checks import conservation
+    from crosscheck.engine.evaluation import evaluate
+    from crosscheck.core.sampling import State
 
     model, q, qd = example()
     state = State(0, q, qd, (0.0, 0.0, 0.0))
@@ -248,9 +250,9 @@ def test_a_task_jacobian_short_in_every_direction_is_an_operational_space_breakd
 def test_the_skew_symmetry_check_has_a_floor_where_mdot_cancels_to_zero():
     """A fuzz finding: a body on a perpendicular axis, q = (2, 0), qd = (1, 0): Mdot = 0 exactly, and the geometric
     backend's N + N^T = 1e-16 (rounding of terms of size ||M|| |qd|) failed a tolerance of 8e-30."""
-    from crosscheck import conservation
-    from crosscheck.gate import evaluate
-    from crosscheck.sampling import State
+    from crosscheck.checks import conservation
+    from crosscheck.engine.evaluation import evaluate
+    from crosscheck.core.sampling import State
 
     inertia = np.diag([0.25, 0.25, 0.025])
     model = cases.build_model("perpendicular", [

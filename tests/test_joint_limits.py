@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 import cases
 from cases.model import Body, ModelError, build_model
 from cases.serialize import model_from_dict, model_to_dict
-from crosscheck import cli, sampling
+from crosscheck import cli
+from crosscheck.core import sampling
 
 Z = (0.0, 0.0, 1.0)
 
@@ -85,7 +86,7 @@ def test_the_gate_report_says_how_the_states_were_drawn(tmp_path):
 def test_coverage_measures_a_limited_joint_against_its_limits():
     """A joint drawn within narrow limits (the Panda's fingers: 4 cm) is not a sliver of its promised range, and a
     sample that stays in a sliver of the limits still is."""
-    from crosscheck import coverage
+    from crosscheck.guards import coverage
 
     model = _arm(limits=((-0.5, 0.25), (0.0, 0.04)))
     assert not coverage.measure(model, sampling.sample_states(model, 30, 0, "arm")).degenerate

@@ -15,11 +15,14 @@ import cases
 from cases.constraints import JointCoupling
 from closed_forms import (article_Cqd, article_g, article_M, endpoint_jacobian, heaviest_body_heavier, inv2, tip_bias,
                           tip_position)
-from crosscheck import backends, fault_catalog, tolerance
-from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, compare
-from crosscheck.faults import default_specs, injected
-from crosscheck.gate import CaseSetup, CaseSpec, evaluate
-from crosscheck.sampling import State, sample_states
+from crosscheck import backends
+from crosscheck.faults import backend_catalog
+from crosscheck.core import tolerance
+from crosscheck.core.compare import AGREE, DISAGREE, NOT_COMPARED, compare
+from crosscheck.faults.injection import default_specs, injected
+from crosscheck.engine.evaluation import CaseSetup, evaluate
+from crosscheck.engine.specs import CaseSpec
+from crosscheck.core.sampling import State, sample_states
 from formalisms.interface import UNSUPPORTED
 
 LOADS = ("joint_wrenches", "joint_wrenches_drift")
@@ -165,7 +168,7 @@ def test_loads_are_frame_checked_and_not_chart_checked():
 def test_loads_at_the_drift_acceleration_are_caught_and_newton_euler_named():
     model = cases.load("double_pendulum")
     state = State(0, (0.4, 1.1), (1.0, -2.0), (3.0, 1.0))
-    with injected(fault_catalog.get("ne-reactions-at-drift-acceleration")):
+    with injected(backend_catalog.get("ne-reactions-at-drift-acceleration")):
         outcome = evaluate(model, state, ALL)
     comparison = outcome.comparisons["joint_wrenches"]
     assert comparison.verdict == DISAGREE and comparison.outlier == "newton_euler"
@@ -190,7 +193,7 @@ def test_a_one_in_a_million_mass_error_exceeds_the_load_tolerance(case):
 
 
 def test_the_load_scale_is_the_sum_of_the_magnitudes_times_cond_m():
-    """Scales.load (module doc of crosscheck.tolerance) by hand for the double pendulum: reach 4 (1 + the elbow
+    """Scales.load (module doc of crosscheck.core.tolerance) by hand for the double pendulum: reach 4 (1 + the elbow
     placement 1 + two COM offsets 1), m_total = 2, no inertia; lever 2 * 16."""
     model = cases.load("double_pendulum")
     q, qd, u = np.array([0.4, 1.1]), np.array([1.0, -2.0]), np.array([3.0, 1.0])
@@ -210,7 +213,7 @@ def test_loads_near_a_vacuous_constraint_row_carry_the_multipliers_rounding():
     lam_scale = 5e10). lam rounds at eps cond(M) lam_scale, not at eps |lam|: the loads (and the screw wrenches' frame
     law) on the scene moved by t = (0, 0, 1) once disagreed with the unmoved ones at 1.3 and 2.6 times the tolerance."""
     from cases import Body, PointOnCircle
-    from crosscheck import frames, invariance
+    from crosscheck.checks import frames, invariance
 
     model = cases.build_model("nearly_vacuous_circle", [
         Body("b0", None, "revolute", (0, 0, 1), 28.973065541411664, inertia=np.diag([7.2432664, 3.4678422, 7.2432664])),
@@ -232,7 +235,7 @@ def test_loads_near_a_tangent_circle_row_carry_the_rounding_of_its_short_row():
     difference of O(1) coordinates, lam = -6e7). lam inherits Jc's relative rounding eps / 2.5e-8, and so do the
     loads: on the scene moved by t = (0, 1, 0) they once disagreed with the unmoved ones at 22 times the tolerance."""
     from cases import Body, PointOnCircle
-    from crosscheck import frames, invariance
+    from crosscheck.checks import frames, invariance
 
     model = cases.build_model("tangent_circle", [
         Body("b0", None, "prismatic", (0, 1, 0), 1.0),

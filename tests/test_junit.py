@@ -1,4 +1,4 @@
-"""JUnit XML reports (``crosscheck.junit``, ``crosscheck gate --junit``): well-formed, one testsuite per case, one
+"""JUnit XML reports (``crosscheck.reports.junit``, ``crosscheck gate --junit``): well-formed, one testsuite per case, one
 testcase per quantity and per check family, failures with the failing states, KNOWN passed with its reason,
 BREAKDOWN listed, NOT COMPARED skipped."""
 
@@ -11,10 +11,13 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from crosscheck import backends, cli, diagnosis, junit, registry
-from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck.report import check_family
-from crosscheck.tolerance import quantities
+from crosscheck import backends, cli
+from crosscheck.reports import diagnosis, junit
+from crosscheck.engine import divergences
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
+from crosscheck.reports.gate_report import check_family
+from crosscheck.core.tolerance import quantities
 from formalisms.interface import Formalism
 
 ALL = [backends.get(name) for name in backends.names()]
@@ -80,7 +83,7 @@ def test_known_passes_with_its_reason_and_breakdown_is_listed(tmp_path, dropped_
     reason = "test: velocity products dropped"
     text = "".join(f'[[divergence]]\nbackend = "euler_lagrange"\ncase = "*"\nquantity = "{q}"\nreason = "{reason}"\n'
                    for q in ("drift", "total", "drift_velocity"))
-    registry.apply(registry.parse(text), result)
+    divergences.apply(divergences.parse(text), result)
     suite = _parsed(result, tmp_path).find("testsuite")
     drift = _cases(suite)["drift"]
     assert drift.find("failure") is None and drift.find("system-out").text == f"KNOWN at 2 comparison(s): {reason}"
@@ -111,7 +114,7 @@ def test_not_compared_is_skipped_and_backend_errors_are_errors(tmp_path):
 
 def test_a_degenerate_sample_a_missed_canary_and_an_absent_backend_fail_on_the_dashboard(tmp_path, monkeypatch):
     """Every reason the gate fails shows as a failing testcase, not only a DISAGREE."""
-    from crosscheck import coverage, selftest
+    from crosscheck.guards import coverage, selftest
 
     result = run_gate([CaseSpec("acrobot")], ALL, 3, 0, checks=QUICK)
     result.cases[0].coverage = dataclasses.replace(result.cases[0].coverage, problems=("every joint rate is 0",))

@@ -8,7 +8,7 @@ import pytest
 
 import cases
 from cases.configuration import integrate, random_configuration
-from crosscheck import reference
+from crosscheck.references import reference
 from formalisms.interface import Linearization, tangent_kinematics
 
 
@@ -81,7 +81,7 @@ def test_the_reference_derivatives_match_central_differences(name):
 def test_the_50_digit_reference_agrees_with_pinocchio(name):
     """Two references by different methods (Pinocchio's analytical derivatives, central differences of the exact
     dynamics at 50 digits) agree to Pinocchio's rounding."""
-    from crosscheck import precise
+    from crosscheck.references import precise
     model = cases.load(name)
     rng = np.random.default_rng(2)
     q, v, u = random_configuration(model, rng, 1.0, 0.3), rng.normal(size=model.nv), rng.normal(size=model.m)
@@ -92,8 +92,8 @@ def test_the_50_digit_reference_agrees_with_pinocchio(name):
 
 def test_the_50_digit_reference_differentiates_the_kkt_solution():
     """On a constrained model (four-bar) the 50-digit A matches central differences of Pinocchio's KKT solve."""
-    from crosscheck import precise
-    from crosscheck.sampling import sample_states
+    from crosscheck.references import precise
+    from crosscheck.core.sampling import sample_states
     model = cases.load("four_bar")
     state = sample_states(model, 2, 0, "four_bar")[1]
     q, v, u = (np.array(x) for x in (state.q, state.qd, state.u))
@@ -108,7 +108,7 @@ def test_equilibrium_eigenvalues_closed_form_against_pinocchio():
     Pinocchio's A has those eigenvalues; inverted, they are real."""
     import dataclasses
 
-    from crosscheck import equilibria
+    from crosscheck.checks import equilibria
     params = equilibria.case_params("double_pendulum")
     hanging, inverted = equilibria.of_case("double_pendulum")
     omega = np.sqrt(9.81 * np.array([2 - np.sqrt(2), 2 + np.sqrt(2)]))
@@ -145,9 +145,9 @@ def test_the_linearization_check_catches_a_wrong_block(block):
     dvdot/du, dvdot/dv transposed (two correct voters, Pinocchio twice under two names, outvote it)."""
     import dataclasses
 
-    from crosscheck import linearization
-    from crosscheck import tolerance as policy
-    from crosscheck.sampling import sample_states
+    from crosscheck.checks import linearization
+    from crosscheck.core import tolerance as policy
+    from crosscheck.core.sampling import sample_states
     model = cases.load("spatial_arm")
     state = sample_states(model, 2, 0, "spatial_arm")[1]
     good = dataclasses.replace(reference.REFERENCE, name="copy")
@@ -187,7 +187,8 @@ def test_eval_linearize_refuses_a_chart(capsys):
 def test_the_parallelogram_four_bar_at_rest_oscillates_at_its_closed_form():
     """The four-bar (1-2-1-2) at rest, q = (0, pi/2, 0): omega^2 = 6 g / (5 a) from its one degree of freedom, the
     50-digit reference's A has +-i omega and four eigenvalues at 0 (the constraint rows' d^2 phi/dt^2 = 0)."""
-    from crosscheck import equilibria, precise
+    from crosscheck.checks import equilibria
+    from crosscheck.references import precise
     (rest,) = equilibria.of_case("four_bar", equilibria.case_params("four_bar"))
     model = cases.load("four_bar")
     A = precise.linearize(model, rest.q(model), np.zeros(3), np.zeros(model.m)).A

@@ -2,7 +2,7 @@
 (``Split.zvcf``, ``Split.drift_velocity``), against references outside the backend:
 
 * unconstrained models (revolute, spherical, free joints, drawn models) against Pinocchio's analytical ABA
-  derivatives (``crosscheck.reference.linearize``, same tangent convention), 1e-8 relative per block;
+  derivatives (``crosscheck.references.reference.linearize``, same tangent convention), 1e-8 relative per block;
 * constrained models (four-bar, slider-crank, drawn models) against central differences (Richardson-extrapolated, here
   in the test only) of the reference's KKT solve along ``integrate``, 1e-7 relative;
 * the drift's parts against ``-M^-1 g`` and ``-M^-1 C qd`` from the reference's M, C qd and g, adding up to the drift;
@@ -26,7 +26,9 @@ import cases
 import formalisms
 import formalisms.euler_lagrange as el
 from cases.configuration import integrate, random_configuration
-from crosscheck import charts, reference, sampling
+from crosscheck.checks import charts
+from crosscheck.references import reference
+from crosscheck.core import sampling
 from crosscheck.testing import models, states
 from formalisms.interface import Linearization, StateError
 

@@ -3,13 +3,13 @@ parts (``Split.zvcf``, ``Split.drift_velocity``; article 4.5-4.6).
 
 References, none of them computed by the geometric backend:
 
-* unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.reference.linearize``, same tangent
+* unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.reference.linearize``, same tangent
   convention on Lie groups), on the named cases and on random models (``crosscheck.testing``);
 * constrained models: central differences (in this test only) of the reference's KKT solution
-  (``crosscheck.reference.split(...).total``) along ``integrate`` and in v and u; the panda (a joint coupling, so Jc
+  (``crosscheck.references.reference.split(...).total``) along ``integrate`` and in v and u; the panda (a joint coupling, so Jc
   is constant) exactly, from Pinocchio's RNEA derivatives projected onto the constraint distribution;
 * charts: at an equilibrium (v = 0, drift = 0) the chart's linearization is the joint one conjugated by
-  ``T = blockdiag(Dpsi, Dpsi)`` (the harness's chart maps, ``crosscheck.charts``), with the same eigenvalues;
+  ``T = blockdiag(Dpsi, Dpsi)`` (the harness's chart maps, ``crosscheck.checks.charts``), with the same eigenvalues;
 * the drift's parts: they add up to the drift, and zvcf is the reference's drift at ``qd = 0``
   (``-M^-1 g`` from Pinocchio's CRBA and gravity on an unconstrained model).
 """
@@ -23,7 +23,10 @@ from hypothesis import strategies as st
 
 import cases
 from cases.configuration import integrate, neutral, random_configuration
-from crosscheck import charts, reference, sampling, testing
+from crosscheck.checks import charts
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck import testing
 from formalisms import geometric as geo
 from formalisms.interface import Linearization, ModelNotSupported, StateError
 

@@ -1,9 +1,9 @@
 """Newton–Euler's linearization (``newton_euler.linearize``, article 4.8, eq. 11) and the drift's parts
 (``Split.zvcf``, ``drift_velocity``), against references outside the backend.
 
-Unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.reference.linearize``, same tangent-space
+Unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.reference.linearize``, same tangent-space
 convention on Lie groups). Constrained ones: central differences of the exact KKT split of the harness's
-high-precision reference (``crosscheck.precise``, 50 digits, h = 1e-20: the derivative to double precision; a float
+high-precision reference (``crosscheck.references.precise``, 50 digits, h = 1e-20: the derivative to double precision; a float
 difference of ``reference.split`` at h = 1e-6 has 1e-8 of rounding, and at h = 1e-4 steps across the rank changes of
 degenerate rows that random models have within 1e-4); with group joints (solo12 standing) float differences of the
 reference along ``integrate`` (:func:`_group_differences`). The bar is the issue's: every block of A and B within 1e-8
@@ -22,7 +22,9 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from cases.configuration import integrate, random_configuration
-from crosscheck import precise, reference, sampling, testing
+from crosscheck.references import precise, reference
+from crosscheck.core import sampling
+from crosscheck import testing
 from formalisms import newton_euler as ne
 from formalisms.interface import StateError
 
@@ -62,7 +64,7 @@ def _assert_agrees_with_pinocchio(model, q, v, u):
 
 
 def _differences(model, q, v, u, digits: int = 50, h: str = "1e-20"):
-    """``d total / d(q, v, u)`` of the exact KKT split (``crosscheck.precise``, ``digits`` significant digits) by
+    """``d total / d(q, v, u)`` of the exact KKT split (``crosscheck.references.precise``, ``digits`` significant digits) by
     central differences at ``h``: truncation ``h^2``, rounding ``10^-digits / h``, so the derivative of the float data
     to double precision (a test's tool). Revolute and prismatic joints only, where ``q (+) dq = q + dq``."""
     assert not model.group_joints
@@ -157,7 +159,7 @@ def test_agrees_with_the_exact_reference_on_random_trees(data):
     """Random trees against the 50-digit reference: on ill-conditioned ones Pinocchio's ABA derivatives are the less
     accurate side (a free body carrying a 100 kg point mass, cond M 2e5: Pinocchio 1.5e-8 from the exact dvdot/dq,
     every backend 2e-12 to 3e-10)."""
-    from crosscheck import precise
+    from crosscheck.references import precise
     model = data.draw(testing.models(max_bodies=4, group=True))
     state = data.draw(testing.states(model))
     q, v, u = (np.array(x) for x in (state.q, state.qd, state.u))

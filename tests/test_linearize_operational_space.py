@@ -1,8 +1,8 @@
 """The operational-space backend's linearization (article 4.8, eq. 11: forward-mode tangents through its own
 kinematics, Kane projection and constraint rows, the KKT system differentiated) and its drift's parts (4.5-4.6:
 ``zvcf``, ``drift_velocity``), held against references outside the backend: Pinocchio's ABA derivatives
-(``crosscheck.reference.linearize``) on unconstrained models; on constrained ones, central differences of the
-60-digit KKT solution (``crosscheck.precise``), whose truncation (h^2 = 1e-40) and rounding (1e-60 / h) are far
+(``crosscheck.references.reference.linearize``) on unconstrained models; on constrained ones, central differences of the
+60-digit KKT solution (``crosscheck.references.precise``), whose truncation (h^2 = 1e-40) and rounding (1e-60 / h) are far
 below double precision, so the differences are exact to double."""
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ import formalisms
 from cases.configuration import quaternion_product, random_configuration, rotation
 from cases.constraints import PointsCoincide
 from cases.model import build_model
-from crosscheck import precise, reference, sampling, testing
+from crosscheck.references import precise, reference
+from crosscheck.core import sampling
+from crosscheck import testing
 from formalisms import operational_space
 from formalisms.interface import StateError, tangent_kinematics
 
@@ -29,7 +31,7 @@ RTOL = 1e-8
 
 def _state(model, seed):
     """A random state (``random_configuration``, rates and inputs N(0, 1)); a constrained model's projected onto its
-    manifold and tangent space (``crosscheck.sampling``), the states the harness evaluates."""
+    manifold and tangent space (``crosscheck.core.sampling``), the states the harness evaluates."""
     rng = np.random.default_rng(seed)
     q, v, u = random_configuration(model, rng, 1.0, 0.3), rng.normal(size=model.nv), rng.normal(size=model.m)
     if model.constraints:

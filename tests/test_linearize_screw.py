@@ -2,9 +2,9 @@
 (article 4.5-4.6: ``zvcf``, ``drift_velocity``), against references outside the backend:
 
 * unconstrained models (named and drawn, with spherical and free joints): Pinocchio's ABA derivatives
-  (``crosscheck.reference.linearize``, same right-perturbation convention), to 1e-9 relative per block;
+  (``crosscheck.references.reference.linearize``, same right-perturbation convention), to 1e-9 relative per block;
 * constrained models (panda's finger mimic, the four-bar, the slider-crank, circles, closed loops, drawn ones): central
-  differences of the reference's KKT solution (``crosscheck.reference.split(...).total``) along
+  differences of the reference's KKT solution (``crosscheck.references.reference.split(...).total``) along
   ``cases.configuration.integrate``, Richardson-extrapolated in q (truncation far below the tolerance); in v and u the
   accelerations are exactly quadratic and linear, so one central difference of unit step is exact up to rounding;
 * the drift's parts add up to the drift, ``zvcf`` is ``-M^-1 g`` and ``drift_velocity`` ``-M^-1 C qd`` from the
@@ -23,8 +23,9 @@ from hypothesis import strategies as st
 import cases
 from cases.configuration import integrate, random_configuration
 from cases.model import build_model
-from crosscheck import reference, testing
-from crosscheck.sampling import sample_states
+from crosscheck.references import reference
+from crosscheck import testing
+from crosscheck.core.sampling import sample_states
 from formalisms import screw
 from formalisms.interface import Linearization, StateError
 

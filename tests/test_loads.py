@@ -10,7 +10,7 @@ import cases
 from cases import loads as load_decl
 from cases.model import ModelError, build_model
 from cases.serialize import model_from_dict, model_to_dict
-from crosscheck import frames
+from crosscheck.checks import frames
 
 
 def _pendulum(loads):
@@ -81,9 +81,11 @@ def test_the_spring_potential():
 # ------------------------------------------------------------------------------------------ the backends
 
 from cases import configuration  # noqa: E402
-from crosscheck import gate, precise, reference, testing  # noqa: E402
-from crosscheck.faults import default_backends  # noqa: E402
-from crosscheck.sampling import sample_states  # noqa: E402
+from crosscheck.engine import evaluation
+from crosscheck.references import precise, reference
+from crosscheck import testing
+from crosscheck.faults.injection import default_backends  # noqa: E402
+from crosscheck.core.sampling import sample_states  # noqa: E402
 
 
 def _loaded(name: str) -> cases.Model:
@@ -144,15 +146,15 @@ def test_every_backend_maps_every_load_and_the_gate_agrees(name):
     """All five backends and Pinocchio, with every kind of load on a 3-D arm, a ball chain and a closed loop: the gate's
     comparisons (tau_ext, its power, the drift and its part at rest, the joint loads ...) agree at each state, and so
     do the frame checks in a moved scene (world loads moved with it) and the energy balance with P_ext."""
-    from crosscheck import frames as frame_tools
+    from crosscheck.checks import frames as frame_tools
 
     model = _loaded(name)
     backends = default_backends()
     frame = frame_tools.sampled(0, name, 1)[0]
     scene = (frame, frame_tools.move_scene(model, frame))
     for state in sample_states(model, 2, 1, name):
-        outcome = gate.evaluate(model, state, backends)
-        gate.add_checks(model, outcome, backends, [], scene, True)
+        outcome = evaluation.evaluate(model, state, backends)
+        evaluation.add_checks(model, outcome, backends, [], scene, True)
         assert not outcome.errors and not outcome.failed, testing.describe_failure(outcome)
         assert "frame: external_force" in outcome.checks and "conservation: energy rate at drift" in outcome.checks
         assert {"external_force", "power_ext"} <= set(outcome.comparisons)
@@ -163,7 +165,7 @@ def test_every_backend_maps_every_load_and_the_gate_agrees(name):
 
 def test_the_drift_at_rest_carries_the_loads_and_the_50_digit_reference_agrees():
     """zvcf is the drift at qd = 0 (the loads are velocity-independent: eq. 14 at rest), and the drift of the exact
-    reference (crosscheck.precise) equals Pinocchio's with the loads."""
+    reference (crosscheck.references.precise) equals Pinocchio's with the loads."""
     model = _loaded("spatial_arm")
     state = sample_states(model, 1, 2, "x")[0]
     at_rest = reference.split(model, state.q, np.zeros(model.nv), np.zeros(model.m))
@@ -180,7 +182,8 @@ def test_every_linearization_differentiates_the_loads(name):
     """A and B of eq. (11) with every kind of load (world vectors turning in the body frames, a spring following its
     point): each backend's exact derivative against the 50-digit central differences (the reference Pinocchio's fext
     derivatives cannot give for world-frame loads), with the gate's tolerance."""
-    from crosscheck import linearization, tolerance
+    from crosscheck.checks import linearization
+    from crosscheck.core import tolerance
 
     model = _loaded(name)
     state = sample_states(model, 1, 3, name)[0]
@@ -234,11 +237,13 @@ def test_block_forms_and_batches_carry_the_loads(name):
 def test_a_wrong_load_mapping_is_named_and_hinted():
     """A backend whose tau_ext is wrong (its moment about the body origin with the lever crossed the wrong way round)
     is the outlier on external_force, and the hint points at the loads' mapping."""
-    from crosscheck import diagnosis, fault_catalog, faults
+    from crosscheck.reports import diagnosis
+    from crosscheck.faults import backend_catalog
+    from crosscheck.faults import injection
 
     model = cases.load("double_pendulum_tip_force")
     backends = default_backends()
-    with faults.injected(fault_catalog.get("ne-external-moment-shift-sign")):
-        outcome = gate.evaluate(model, sample_states(model, 1, 0, "double_pendulum_tip_force")[0], backends)
+    with injection.injected(backend_catalog.get("ne-external-moment-shift-sign")):
+        outcome = evaluation.evaluate(model, sample_states(model, 1, 0, "double_pendulum_tip_force")[0], backends)
         assert outcome.comparisons["external_force"].outlier == "newton_euler"
         assert "external loads' mapping" in diagnosis.hint(model, outcome, backends)

@@ -19,9 +19,12 @@ from scipy.spatial.transform import Rotation
 import cases
 from closed_forms import endpoint_jacobian, pendulum_terms
 from scenes import panda_arm
-from crosscheck import backends, reference, report
-from crosscheck import tolerance as policy
-from crosscheck.gate import CaseSpec, run_gate
+from crosscheck import backends
+from crosscheck.references import reference
+from crosscheck.reports import gate_report
+from crosscheck.core import tolerance as policy
+from crosscheck.engine.specs import CaseSpec
+from crosscheck.engine.run import run_gate
 from formalisms import operational_space as op
 from formalisms.interface import StateError
 
@@ -264,7 +267,7 @@ def test_redundant_null_space_is_a_dynamically_consistent_projector(case, params
 
 # ----------------------------------------------------------------------------------------------------------
 # Breakdown before error: along paths into singularities, every state whose error exceeds the harness tolerance
-# is flagged, and the unflagged ones are well inside it (the limit is read from crosscheck.tolerance, not fixed here)
+# is flagged, and the unflagged ones are well inside it (the limit is read from crosscheck.core.tolerance, not fixed here)
 # ----------------------------------------------------------------------------------------------------------
 
 def singular_paths():
@@ -346,7 +349,7 @@ def test_spatial_bias_fails_the_gate_and_is_named(spatial_bias):
     assert all(c["drift"].outlier == "operational_space" for c in comps)
     assert all(c["ctrl"].verdict == "agree" for c in comps)
     assert all(c["task_drift"].outlier == "operational_space" for c in comps)
-    assert "outlier **operational_space**" in report.render(result, "cmd")
+    assert "outlier **operational_space**" in gate_report.render(result, "cmd")
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from crosscheck import cli, fuzz, trajectory_cli
-from crosscheck import report as gate_report
+from crosscheck import cli
+from crosscheck.campaigns import fuzz
+from crosscheck.cli import trajectory_cli
+from crosscheck.reports import gate_report
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -178,15 +180,15 @@ def test_gate_workers_1_is_one_worker_process(monkeypatch, tmp_path):
     """``gate --workers 1`` on one case runs it in a pool of one process (as ``fuzz --workers 1`` runs its chunks in
     one), ``--workers 0`` and the default for one case in this process. The pool is replaced by a recorder that
     runs the cases here, so the test spawns nothing."""
-    from crosscheck import gate
+    from crosscheck.engine import pool
 
     pools = []
 
-    def pool(specs, backends, samples, seed, tell, checks, count, outcomes):
+    def recorder(run_case, specs, backends, samples, seed, tell, checks, count, outcomes):
         pools.append(count)
-        outcomes.extend(gate.run_case(spec, backends, samples, seed, tell, checks) for spec in specs)
+        outcomes.extend(run_case(spec, backends, samples, seed, tell, checks) for spec in specs)
 
-    monkeypatch.setattr(gate, "_in_pool", pool)
+    monkeypatch.setattr(pool, "in_pool", recorder)
     argv = ["gate", "--case", "acrobot", "--samples", "1", "--frames", "0", "--no-charts", "--no-conservation",
             "--no-linearization", "--no-self-test", "--formalism", "newton_euler", "--formalism", "pinocchio",
             "--report", str(tmp_path / "gate.md")]

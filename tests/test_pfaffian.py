@@ -13,7 +13,8 @@ import sympy as sy
 import cases
 from cases.constraints import KnifeEdge, RollingContact
 from cases.serialize import SerializeError, model_from_dict, model_to_dict
-from crosscheck import closed_forms, precise, reference, sampling
+from crosscheck.references import closed_forms, precise, reference
+from crosscheck.core import sampling
 from formalisms import euler_lagrange, geometric, newton_euler, operational_space, screw
 
 BACKENDS = (euler_lagrange, newton_euler, screw, operational_space, geometric)
@@ -232,7 +233,7 @@ def test_drawn_rolling_contacts_come_both_ways():
 def test_the_tolerance_grows_as_the_rolling_disk_lies_flat():
     """The contact direction is a unit vector divided by |n x a| = |cos(lean)| for the rolling disk's chain, and its
     rate by its square: the constraint kinematics' scale carries 1 / cos(lean)^2."""
-    from crosscheck import tolerance
+    from crosscheck.core import tolerance
 
     model = cases.load("rolling_disk")
     for lean in (0.3, 1.55, -1.5703):
@@ -396,7 +397,7 @@ def test_the_differential_drive_closed_form_matches_the_backends():
 
 
 def test_the_differential_drive_closed_form_by_hand_at_one_state():
-    """:func:`crosscheck.closed_forms.drive_motion` against numbers worked here: at rest heading 0 with equal torques
+    """:func:`crosscheck.references.closed_forms.drive_motion` against numbers worked here: at rest heading 0 with equal torques
     u the robot drives straight, ``vdot = (2 u / r + F_along) / (m + 2 I_a / r^2)``, the tractions ``(u - I_a vdot /
     r) / r`` each, and the axle carries the load's lateral force (``lam_a = -F_lat``, nothing turns it at rest apart
     from the load's yaw moment, which the heading row takes)."""

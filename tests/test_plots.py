@@ -7,8 +7,10 @@ import numpy as np
 
 import cases
 from cases import Body, TaskPoint, build_model
-from crosscheck import bench, bench_report, gate, plots, stability, stability_report
-from crosscheck.sampling import State
+from crosscheck.campaigns import bench, stability
+from crosscheck.reports import bench_report, plots, stability_report
+from crosscheck.engine import specs
+from crosscheck.core.sampling import State
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -49,7 +51,7 @@ def test_bench_charts_render_again_from_the_saved_json(tmp_path):
 
 
 def test_stability_chart_renders_a_small_path(tmp_path):
-    spec = gate.CaseSpec("double_pendulum")
+    spec = specs.CaseSpec("double_pendulum")
     backends = ("newton_euler", "operational_space")
     points = tuple(stability.Point(x, spec, State(i, (0.5, x), (0.0, 0.0), (0.0, 0.0)), backends)
                    for i, x in enumerate((1.0, 1e-3, 1e-6)))

@@ -16,10 +16,14 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import backends, cli, diagnosis, frames, fuzz
+from crosscheck import backends, cli
+from crosscheck.reports import diagnosis
+from crosscheck.checks import frames
+from crosscheck.campaigns import fuzz
 from crosscheck.assemble import Sizes, unconstrained_split
-from crosscheck.compare import NOT_COMPARED, suspect
-from crosscheck.gate import CaseSpec, Checks, run_gate
+from crosscheck.core.compare import NOT_COMPARED, suspect
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
 from crosscheck.needs import PinocchioScene, SourceScene
 
 #: A state of the chain (revolute, continuous, prismatic): q, qd, u.

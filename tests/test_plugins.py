@@ -22,9 +22,10 @@ import pytest
 import cases
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
-from crosscheck import report as gate_report
-from crosscheck.compare import NOT_COMPARED
-from crosscheck.gate import CaseSpec, Checks, run_gate
+from crosscheck.reports import gate_report
+from crosscheck.core.compare import NOT_COMPARED
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
 from formalisms.interface import Unsupported
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The high-precision reference (crosscheck.precise): exact against closed forms, consistent with Pinocchio to
+"""The high-precision reference (crosscheck.references.precise): exact against closed forms, consistent with Pinocchio to
 double precision on every built-in case and on random trees, and converged in the working precision."""
 
 from __future__ import annotations
@@ -11,8 +11,10 @@ from hypothesis import strategies as st
 
 import cases
 from closed_forms import cartesian_lam_mp, pendulum_terms_mp
-from crosscheck import precise, reference, sampling, testing
-from crosscheck import tolerance as policy
+from crosscheck.references import precise, reference
+from crosscheck.core import sampling
+from crosscheck import testing
+from crosscheck.core import tolerance as policy
 from formalisms.interface import StateError
 
 QUANTITIES = ("drift", "ctrl", "total")
@@ -123,7 +125,7 @@ def test_agrees_with_pinocchio_on_built_in_cases(case):
 @given(st.data())
 def test_agrees_with_pinocchio_on_random_trees(data):
     """On random mechanisms (constraints sometimes) Pinocchio's error against the exact answer is within the
-    harness's own tolerance for it (crosscheck.tolerance)."""
+    harness's own tolerance for it (crosscheck.core.tolerance)."""
     model = data.draw(testing.models(max_bodies=4, constraints=None))
     state = data.draw(testing.states(model))
 

@@ -1,4 +1,4 @@
-"""Progress and Ctrl-C (``crosscheck.progress``, ``crosscheck.gate.Interrupted``): the display is a live bar on a
+"""Progress and Ctrl-C (``crosscheck.engine.progress``, ``crosscheck.engine.run.Interrupted``): the display is a live bar on a
 terminal only, plain notes elsewhere, nothing with ``--quiet``; Ctrl-C ends gate, faults and bench with exit code 130,
 one line on stderr, no traceback, and a partial report that says so and never says PASS, also when the gate's cases
 run in worker processes and the signal reaches the whole process group.
@@ -18,11 +18,15 @@ from rich.console import Console
 
 import formalisms.newton_euler as ne
 import crosscheck
-from crosscheck import backends, bench, cli, faults, gate
-from crosscheck import report as gate_report
-from crosscheck.faults import Hunt
-from crosscheck.gate import CaseSpec, Checks
-from crosscheck.progress import Display
+from crosscheck import backends, cli
+from crosscheck.campaigns import bench
+from crosscheck.faults import injection
+from crosscheck.engine import run
+from crosscheck.engine import phases
+from crosscheck.reports import gate_report
+from crosscheck.faults.injection import Hunt
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.progress import Display
 from formalisms.interface import Formalism
 
 #: A gate as small as it gets: no charts, frames, conservation or self-test.
@@ -76,9 +80,9 @@ def interrupt_at(monkeypatch):
         def interrupting(display):
             inner = real(display)
 
-            def progress(step: gate.Step) -> None:
+            def progress(step: phases.Step) -> None:
                 inner(step)
-                if (step.case, step.phase, step.done) == (case, gate.EVALUATING, k):
+                if (step.case, step.phase, step.done) == (case, phases.EVALUATING, k):
                     raise KeyboardInterrupt
 
             return progress
@@ -115,8 +119,8 @@ def test_ctrl_c_in_a_backend_gives_the_partial_result_which_never_passes():
         return ne.split(model, q, qd, u)
 
     chosen = [backends.get("pinocchio"), Formalism("newton_euler", "interrupted at its third call", split)]
-    with pytest.raises(gate.Interrupted) as stop:
-        gate.run_gate([CaseSpec("acrobot")], chosen, 5, 0, checks=Checks(charts=False, frames=0))
+    with pytest.raises(run.Interrupted) as stop:
+        run.run_gate([CaseSpec("acrobot")], chosen, 5, 0, checks=Checks(charts=False, frames=0))
     result = stop.value.result
     assert result.interrupted == "after 1/5 states of case 'acrobot'" and not result.passed
     assert [len(c.states) for c in result.cases] == [1] and result.self_test is None
@@ -126,12 +130,12 @@ def test_ctrl_c_in_a_backend_gives_the_partial_result_which_never_passes():
 def test_the_gate_tells_each_step_and_the_first_call_of_each_backend():
     steps = []
     chosen = [backends.get("pinocchio"), backends.get("newton_euler")]
-    gate.run_gate([CaseSpec("acrobot")], chosen, 2, 0, steps.append, Checks(charts=False, frames=0,
+    run.run_gate([CaseSpec("acrobot")], chosen, 2, 0, steps.append, Checks(charts=False, frames=0,
                                                                            closed_forms=False))
     assert [s.text for s in steps] == [
-        f"acrobot: {gate.SETTING_UP}", "acrobot: evaluating state 1/2", "acrobot: preparing pinocchio",
+        f"acrobot: {phases.SETTING_UP}", "acrobot: evaluating state 1/2", "acrobot: preparing pinocchio",
         "acrobot: evaluating state 1/2", "acrobot: preparing newton_euler", "acrobot: evaluating state 1/2",
-        "acrobot: evaluating state 2/2", "acrobot: 2 states evaluated", gate.SELF_TEST]
+        "acrobot: evaluating state 2/2", "acrobot: 2 states evaluated", phases.SELF_TEST]
 
 
 def test_ctrl_c_in_faults_keeps_the_faults_hunted(tmp_path, capsys, monkeypatch):
@@ -143,7 +147,7 @@ def test_ctrl_c_in_faults_keeps_the_faults_hunted(tmp_path, capsys, monkeypatch)
             raise KeyboardInterrupt
         return Hunt(fault, False, 3, 0.1)
 
-    monkeypatch.setattr(faults, "hunt", hunt)
+    monkeypatch.setattr(injection, "hunt", hunt)
     report = tmp_path / "faults.md"
     code = cli.main(["faults", "--fault", "geo-task-bias-dropped", "--fault", "osc-task-bias-dropped", "--quiet",
                      "--workers", "0", "--report", str(report)])

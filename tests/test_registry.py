@@ -1,4 +1,4 @@
-"""The divergence registry (``crosscheck.registry``, ``divergences.toml``): validation with specific errors, KNOWN
+"""The divergence registry (``crosscheck.engine.divergences``, ``divergences.toml``): validation with specific errors, KNOWN
 verdicts that do not fail the gate, unmatched disagreements that do, stale entries, and the command line."""
 
 from __future__ import annotations
@@ -7,11 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from crosscheck import backends, cli, registry
-from crosscheck.compare import DISAGREE, KNOWN
-from crosscheck.gate import CaseSpec, Checks, evaluate, run_gate
-from crosscheck.report import render
-from crosscheck.sampling import sample_states
+from crosscheck import backends, cli
+from crosscheck.engine import divergences
+from crosscheck.core.compare import DISAGREE, KNOWN
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.evaluation import evaluate
+from crosscheck.engine.run import run_gate
+from crosscheck.reports.gate_report import render
+from crosscheck.core.sampling import sample_states
 
 ROOT = Path(__file__).resolve().parents[1]
 ALL = [backends.get(name) for name in backends.names()]
@@ -28,7 +31,7 @@ def _entry(backend="euler_lagrange", case="double_pendulum", quantity="drift", r
 
 
 def test_the_checked_in_registry_is_valid_and_lists_no_invented_divergence():
-    loaded = registry.load(ROOT / "divergences.toml")
+    loaded = divergences.load(ROOT / "divergences.toml")
     assert loaded.entries == ()
     assert "[[divergence]]" in (ROOT / "divergences.toml").read_text()      # the header documents the format
 
@@ -36,7 +39,7 @@ def test_the_checked_in_registry_is_valid_and_lists_no_invented_divergence():
 def test_entries_are_read_with_their_fields():
     text = _entry() + "\n" + _entry(backend="screw", case="n_link_*", quantity="frame law: screw *",
                                      extra="max_ratio = 50\n")
-    entries = registry.parse(text, "test.toml").entries
+    entries = divergences.parse(text, "test.toml").entries
     assert [(e.backend, e.case, e.quantity, e.number) for e in entries] == [
         ("euler_lagrange", "double_pendulum", "drift", 1), ("screw", "n_link_*", "frame law: screw *", 2)]
     assert entries[0].max_ratio is None and entries[1].max_ratio == 50.0 and entries[0].reason == REASON
@@ -58,15 +61,15 @@ def test_entries_are_read_with_their_fields():
     ('divergence = "drift"\n', "'divergence' must be an array of tables"),
 ])
 def test_a_bad_registry_is_refused_with_a_specific_error(text, fragment):
-    with pytest.raises(registry.RegistryError) as info:
-        registry.parse(text, "bad.toml")
+    with pytest.raises(divergences.RegistryError) as info:
+        divergences.parse(text, "bad.toml")
     assert str(info.value).startswith("bad.toml") and fragment in str(info.value)
 
 
 def test_quantity_globs_reach_check_keys():
     for glob in ("chart affine: ctrl", "frame: *", "frame law: newton_euler joint_reactions_world",
                  "conservation: energy rate at drift", "lam*"):
-        assert registry.parse(_entry(quantity=glob)).entries[0].quantity == glob
+        assert divergences.parse(_entry(quantity=glob)).entries[0].quantity == glob
 
 
 # ----------------------------------------------------------------------------------------------- applying
@@ -82,7 +85,7 @@ def _verdicts(result, key):
 
 def test_an_explained_divergence_is_known_and_anything_unlisted_still_fails(dropped_coriolis):
     result = _coriolis_gate()
-    applied = registry.apply(registry.parse(_entry()), result)
+    applied = divergences.apply(divergences.parse(_entry()), result)
     assert _verdicts(result, "drift").count(KNOWN) == 3 and DISAGREE not in _verdicts(result, "drift")
     assert _verdicts(result, "total").count(DISAGREE) == 3           # not listed: still fails
     assert not result.passed and applied.known == 3 and not applied.stale
@@ -92,7 +95,7 @@ def test_an_explained_divergence_is_known_and_anything_unlisted_still_fails(drop
 
 def test_a_fully_explained_run_passes_and_the_report_says_why(dropped_coriolis):
     result = _coriolis_gate()
-    applied = registry.apply(registry.parse(_entry(quantity="drift") + _entry(quantity="total")
+    applied = divergences.apply(divergences.parse(_entry(quantity="drift") + _entry(quantity="total")
                                             + _entry(quantity="drift_velocity")), result)
     assert result.passed and applied.known == 9                   # drift, total and drift's velocity part, 3 states
     report = render(result, "test", applied)
@@ -105,7 +108,7 @@ def test_a_fully_explained_run_passes_and_the_report_says_why(dropped_coriolis):
 def test_an_entry_for_another_backend_or_a_larger_error_explains_nothing_and_is_stale(dropped_coriolis):
     text = _entry(backend="newton_euler") + _entry(quantity="total", extra="max_ratio = 1000\n")
     result = _coriolis_gate()
-    applied = registry.apply(registry.parse(text, "reg.toml"), result)
+    applied = divergences.apply(divergences.parse(text, "reg.toml"), result)
     assert applied.known == 0 and not result.passed
     assert [e.number for e in applied.stale] == [1, 2]
     report = render(result, "test", applied)
@@ -114,7 +117,7 @@ def test_an_entry_for_another_backend_or_a_larger_error_explains_nothing_and_is_
 
 def test_an_entry_outside_the_run_is_not_exercised_rather_than_stale():
     result = run_gate([CaseSpec("acrobot")], ALL, 2, 0, checks=QUICK)
-    applied = registry.apply(registry.parse(_entry(case="panda")), result)
+    applied = divergences.apply(divergences.parse(_entry(case="panda")), result)
     assert not applied.stale and [e.number for e in applied.unexercised] == [1]
     assert "- not exercised: entry 1" in render(result, "test", applied)
 
@@ -126,17 +129,17 @@ def test_two_voters_without_a_vote_are_explained_by_either_backend(dropped_corio
     for backend in ("euler_lagrange", "pinocchio"):
         outcome = evaluate(model, state, chosen)
         assert outcome.comparisons["drift"].outlier is None and outcome.failed
-        usage = registry.apply_to_state(registry.parse(_entry(backend=backend, quantity="*")),
+        usage = divergences.apply_to_state(divergences.parse(_entry(backend=backend, quantity="*")),
                                         ("double_pendulum",), outcome)
         assert usage.matched[1] == 3 and not outcome.failed          # drift, total and the drift's velocity part
 
 
 def test_apply_to_state_turns_checks_known_too(monkeypatch):
-    from crosscheck import frames
+    from crosscheck.checks import frames
     monkeypatch.setattr(frames, "wrench_map", frames.twist_map)
     result = run_gate([CaseSpec("spatial_arm")], ALL, 2, 0, checks=Checks(charts=False, conservation=False))
     text = _entry(backend="screw", case="spatial_*", quantity="frame law: screw wrenches_space")
-    applied = registry.apply(registry.parse(text), result)
+    applied = divergences.apply(divergences.parse(text), result)
     checks = [c for s in result.cases[0].states for k, c in s.checks.items() if k.startswith("frame law: screw ")]
     assert applied.known == sum(c.verdict == KNOWN for c in checks) >= 1
     assert not result.passed                                      # the Newton–Euler reactions are not listed
@@ -165,7 +168,7 @@ def test_the_gate_reads_a_registry_and_warns_about_stale_entries(tmp_path, dropp
 def test_the_gate_uses_divergences_toml_in_the_current_directory(tmp_path, dropped_coriolis, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert _gate(tmp_path) == 1
-    (tmp_path / registry.DEFAULT_PATH).write_text(_entry(quantity="drift") + _entry(quantity="total")
+    (tmp_path / divergences.DEFAULT_PATH).write_text(_entry(quantity="drift") + _entry(quantity="total")
                                                   + _entry(quantity="drift_velocity"))
     assert _gate(tmp_path) == 0
     assert "divergence registry: `divergences.toml`, 3 entries; 9 comparison(s) KNOWN" in \

@@ -5,7 +5,11 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import bench, charts, gate, scale
+from crosscheck.campaigns import bench, scale
+from crosscheck.checks import charts
+from crosscheck.engine import evaluation
+from crosscheck.engine import run
+from crosscheck.engine import specs
 from formalisms import euler_lagrange as el
 
 
@@ -46,11 +50,11 @@ def test_the_estimate_is_zero_once_the_derivation_is_cached(tmp_path, monkeypatc
 
 def test_the_gate_announces_a_long_preparation_before_the_case(tmp_path, monkeypatch):
     monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
-    monkeypatch.setattr(gate, "PREPARATION_NOTICE_S", 0.5)
-    spec = gate.CaseSpec("n_link_pendulum", (("n", "14"),))
-    with pytest.warns(gate.PreparationNotice, match=r"euler_lagrange: preparing case 'n_link_pendulum' \(14 coordinates\)"
+    monkeypatch.setattr(run, "PREPARATION_NOTICE_S", 0.5)
+    spec = specs.CaseSpec("n_link_pendulum", (("n", "14"),))
+    with pytest.warns(run.PreparationNotice, match=r"euler_lagrange: preparing case 'n_link_pendulum' \(14 coordinates\)"
                       r" in the joint chart, 3 chart\(s\) and 2 moved scene\(s\) takes about \d+ s"):
-        gate.announce_preparation(gate.CaseSetup.build(spec, 0), [el.FORMALISM])
+        run.announce_preparation(evaluation.CaseSetup.build(spec, 0), [el.FORMALISM])
 
 
 def test_a_measured_child_reports_its_status_time_and_memory(tmp_path):

@@ -3,7 +3,7 @@
 References written independently here: closed-form SE(3) exponentials, finite differences of the poses along
 trajectories, the double-pendulum closed forms (article eqs. 4 and 21 here, eqs. 5-8 from closed_forms.py), a direct
 composition of the model's placements and joint motions (scipy's matrix exponential), the 50-digit reference
-(``crosscheck.precise``) for the rounding of M and h, and, across formalisms, Newton–Euler's joint reactions and
+(``crosscheck.references.precise``) for the rounding of M and h, and, across formalisms, Newton–Euler's joint reactions and
 conditioning.
 """
 
@@ -21,9 +21,13 @@ import cases
 import formalisms
 from closed_forms import endpoint_jacobian, pendulum_terms
 from scenes import panda_arm
-from crosscheck import backends, frames, precise, report
-from crosscheck.gate import CaseSpec, run_gate
-from crosscheck.sampling import sample_states
+from crosscheck import backends
+from crosscheck.checks import frames
+from crosscheck.references import precise
+from crosscheck.reports import gate_report
+from crosscheck.engine.specs import CaseSpec
+from crosscheck.engine.run import run_gate
+from crosscheck.core.sampling import sample_states
 from formalisms import newton_euler as ne
 from formalisms import screw
 from formalisms.interface import StateError
@@ -465,4 +469,4 @@ def test_wrench_mapped_like_a_twist_fails_the_gate_and_names_screw(monkeypatch):
     assert not result.passed
     outliers = {c.outlier for s in result.cases[0].states for c in s.comparisons.values()}
     assert "screw" in outliers
-    assert "outlier **screw**" in report.render(result, "cmd")
+    assert "outlier **screw**" in gate_report.render(result, "cmd")

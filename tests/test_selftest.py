@@ -1,4 +1,4 @@
-"""Self-test canaries (crosscheck.selftest): every canary is caught and named at a calibrated ratio, and the harness
+"""Self-test canaries (crosscheck.guards.selftest): every canary is caught and named at a calibrated ratio, and the harness
 faults they exist for (a loosened tolerance, a signed difference, NaN as agreement, a broken vote) make them fail."""
 
 from __future__ import annotations
@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crosscheck import compare, selftest, tolerance
+from crosscheck.core import compare, tolerance
+from crosscheck.guards import selftest
 
 
 @pytest.fixture(scope="module")

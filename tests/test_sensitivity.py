@@ -1,4 +1,4 @@
-"""The sensitivity table (crosscheck.sensitivity): issue 15's claim, a relative 1e-10 error in any backend's M, C qd
+"""The sensitivity table (crosscheck.faults.sensitivity): issue 15's claim, a relative 1e-10 error in any backend's M, C qd
 or g is caught by the default gate on the 3-D cases, measured with each backend's own term hooks."""
 
 from __future__ import annotations
@@ -6,13 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crosscheck import backends, faults, sensitivity
-from crosscheck.sampling import sample_states
+from crosscheck import backends
+from crosscheck.faults import injection
+from crosscheck.faults import sensitivity
+from crosscheck.core.sampling import sample_states
 
 
 #: The default gate's first states measured per term, as many as make a miss unlikely. A relative 1e-10 error shows
 #: at a fraction p of the default gate's states (seed 0, the Panda within its joint limits; measured over the first 99
-#: with the canaries of ``crosscheck.selftest``): in M at 99 of 99 on both claimed cases, in g at 53 (panda) and 63
+#: with the canaries of ``crosscheck.guards.selftest``): in M at 99 of 99 on both claimed cases, in g at 53 (panda) and 63
 #: (spatial_arm), in C qd only at 16 and 23 (the drift's tolerance carries the size of the ctrl accelerations, 10 to 50
 #: times the drift's on the Panda). The first N states all miss it with probability (1 - p)^N; below 1e-3 takes 10
 #: states for M and g, 40 for C qd. (Twenty were too few for C qd: drawn over a full turn of every joint the Panda's
@@ -45,7 +47,7 @@ def test_a_term_hook_changes_its_backends_answer_by_the_size_of_the_term(backend
     formalism, reference = backends.get(backend), backends.get("pinocchio").split(model, state.q, state.qd, state.u)
     before = formalism.split(model, state.q, state.qd, state.u).drift
     target, hook = sensitivity.TERM_HOOKS[backend]
-    with faults.patched("test", target, hook("g", 1e-8)):
+    with injection.patched("test", target, hook("g", 1e-8)):
         faulty = formalism.split(model, state.q, state.qd, state.u).drift
     expected = -1e-8 * np.linalg.solve(reference.extras["M"], reference.extras["g"])
     np.testing.assert_allclose(faulty - before, expected, rtol=1e-5, atol=1e-20)

@@ -18,7 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cases
-from crosscheck import backends, sampling, testing
+from crosscheck import backends, testing
+from crosscheck.core import sampling
 from formalisms.interface import StateError
 
 BATCHED = [name for name in backends.names() if backends.get(name).split_batch is not None]

@@ -1,4 +1,4 @@
-"""Stability maps (``crosscheck.stability``): the quick paths, the tolerance policy against the exact split, the
+"""Stability maps (``crosscheck.campaigns.stability``): the quick paths, the tolerance policy against the exact split, the
 BREAKDOWN of the operational-space backend at the task singularity, and an injected wrong answer."""
 
 from __future__ import annotations
@@ -8,7 +8,10 @@ import math
 
 import pytest
 
-from crosscheck import backends, charts, gate, stability
+from crosscheck import backends
+from crosscheck.checks import charts
+from crosscheck.engine import evaluation
+from crosscheck.campaigns import stability
 from crosscheck.cli import build_parser, cmd_stability
 
 
@@ -67,7 +70,7 @@ def test_an_injected_error_is_recorded_above_tolerance_and_caught():
     formalisms = [dataclasses.replace(honest, split=wrong) if b.name == honest.name else b
                   for b in map(backends.get, backends.names())]
     point = stability.theta2_path(3, backends.names()).points[0]
-    m = stability.measure(point, gate.CaseSetup.build(point.spec, stability.SEED, point.checks), formalisms)
+    m = stability.measure(point, evaluation.CaseSetup.build(point.spec, stability.SEED, point.checks), formalisms)
     assert 0.5e-6 < m.errors["newton_euler"]["drift"] < 2e-6
     assert m.ratios["newton_euler"]["drift"] > 1.0
     assert all(r <= 1.0 for b, q, r in _voting(m) if b != "newton_euler")
@@ -127,8 +130,8 @@ def test_exact_chart_split_agrees_with_the_float_map_at_a_benign_pitch():
     import cases
     import numpy as np
 
-    from crosscheck import precise
-    from crosscheck.invariance import _mapped
+    from crosscheck.references import precise
+    from crosscheck.checks.invariance import _mapped
 
     model = cases.load("ball_pendulum")
     chart = charts.get("zyx", model)

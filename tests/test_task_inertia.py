@@ -13,11 +13,15 @@ from hypothesis import strategies as st
 
 import cases
 from closed_forms import article_M, endpoint_jacobian, heaviest_body_heavier
-from crosscheck import backends, charts, fault_catalog, frames, tolerance
-from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, compare
-from crosscheck.faults import default_specs, injected
-from crosscheck.gate import CaseSetup, CaseSpec, evaluate
-from crosscheck.sampling import State, sample_states
+from crosscheck import backends
+from crosscheck.checks import charts, frames
+from crosscheck.faults import backend_catalog
+from crosscheck.core import tolerance
+from crosscheck.core.compare import AGREE, DISAGREE, NOT_COMPARED, compare
+from crosscheck.faults.injection import default_specs, injected
+from crosscheck.engine.evaluation import CaseSetup, evaluate
+from crosscheck.engine.specs import CaseSpec
+from crosscheck.core.sampling import State, sample_states
 from formalisms import geometric
 from formalisms.interface import UNSUPPORTED
 
@@ -117,7 +121,7 @@ def test_at_a_task_singularity_it_is_left_out_not_failed():
 @pytest.mark.parametrize("theta2", [1e-2, 1e-3, 3e-4, np.pi - 1e-3])
 def test_near_a_singularity_the_tolerance_grows_with_cond_a_and_the_rest_agree(theta2):
     """cond(A) from 1e4 to 1e8: the operational-space backend is in BREAKDOWN, the other three still compare Lambda,
-    with a tolerance of 100 eps cond(M) |Lambda| (cond(A) + L sqrt(|Lambda| ||M^-1||)) (crosscheck.tolerance), and
+    with a tolerance of 100 eps cond(M) |Lambda| (cond(A) + L sqrt(|Lambda| ||M^-1||)) (crosscheck.core.tolerance), and
     agree; the cond(A) term dominates."""
     model = cases.load("double_pendulum")
     outcome = evaluate(model, State(0, (0.4, theta2), (1.0, -2.0), (3.0, 1.0)), ALL)
@@ -141,7 +145,7 @@ def test_near_a_singularity_the_tolerance_grows_with_cond_a_and_the_rest_agree(t
 def test_an_uninverted_lambda_is_caught_and_the_operational_space_backend_named():
     model = cases.load("spatial_arm")
     state = sample_states(model, 2, 0, "spatial_arm")[1]
-    with injected(fault_catalog.get("osc-lambda-reported-uninverted")):
+    with injected(backend_catalog.get("osc-lambda-reported-uninverted")):
         outcome = evaluate(model, state, ALL)
     comparison = outcome.comparisons["task_inertia"]
     assert comparison.verdict == DISAGREE and comparison.outlier == "operational_space"

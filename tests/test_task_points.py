@@ -13,7 +13,7 @@ import pytest
 from cases import Body, TaskPoint, build_model, task
 from cases.urdf import from_urdf
 from crosscheck import cli
-from crosscheck import report as gate_report
+from crosscheck.reports import gate_report
 
 URDF = """<?xml version="1.0"?>
 <robot name="double_pendulum_continuous">
@@ -137,7 +137,7 @@ def test_every_built_in_task_point_has_a_full_rank_task_jacobian():
 
 
 def test_a_given_task_point_leaves_the_closed_forms_task_quantities_out():
-    from crosscheck.gate import CaseSpec
+    from crosscheck.engine.specs import CaseSpec
     from formalisms.interface import UNSUPPORTED
 
     given = CaseSpec("double_pendulum", task_point="link2:0.1,-0.5,0")

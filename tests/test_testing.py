@@ -12,8 +12,11 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from cases.serialize import SerializeError, model_from_dict, model_to_dict
-from crosscheck import charts, cli, frames, reference, sampling, testing
-from crosscheck.sampling import State
+from crosscheck.checks import charts, frames
+from crosscheck import cli, testing
+from crosscheck.references import reference
+from crosscheck.core import sampling
+from crosscheck.core.sampling import State
 
 NEWTON_EULER = formalisms.get("newton_euler")
 QUIET = settings(max_examples=15, database=None, deadline=None)

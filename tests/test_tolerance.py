@@ -1,4 +1,4 @@
-"""The tolerance scales (crosscheck.conditioning.normwise_scales, crosscheck.tolerance.acceleration_bound) and the
+"""The tolerance scales (crosscheck.guards.conditioning.normwise_scales, crosscheck.core.tolerance.acceleration_bound) and the
 policy built on them: tight, but no false alarms where summed terms cancel or vectors are tiny."""
 
 from __future__ import annotations
@@ -12,11 +12,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cases
-from crosscheck import backends, tolerance
-from crosscheck.compare import AGREE, DISAGREE, NOT_COMPARED, compare
-from crosscheck.conditioning import normwise_scales
-from crosscheck.gate import evaluate
-from crosscheck.sampling import State
+from crosscheck import backends
+from crosscheck.core import tolerance
+from crosscheck.core.compare import AGREE, DISAGREE, NOT_COMPARED, compare
+from crosscheck.guards.conditioning import normwise_scales
+from crosscheck.engine.evaluation import evaluate
+from crosscheck.core.sampling import State
 from formalisms.interface import Unsupported
 
 ALL = [backends.get(n) for n in backends.names()]
@@ -86,7 +87,7 @@ def test_acceleration_bound_of_a_single_pendulum_in_closed_form():
 def test_acceleration_bound_grows_with_the_distance_from_the_world_origin():
     """World-frame kinematics round on world positions: a scene moved 10 m away gets a larger bound for the same
     motion (the moved scene's frame checks rely on it)."""
-    from crosscheck import frames
+    from crosscheck.checks import frames
 
     model = cases.load("spatial_arm")
     far = frames.move_scene(model, frames.Frame("far", np.eye(3), np.array([10.0, 0.0, 0.0])))
@@ -101,7 +102,8 @@ def test_the_acceleration_tolerance_covers_every_backends_true_error(data):
     total are within half the tolerance of the exact answer (the 50-digit reference), entry by entry."""
     import mpmath
 
-    from crosscheck import precise, testing
+    from crosscheck.references import precise
+    from crosscheck import testing
 
     model = data.draw(testing.models(max_bodies=4, constraints=False))
     state = data.draw(testing.states(model))
@@ -123,8 +125,8 @@ def test_3d_cases_see_a_relative_1e_10_error_in_m_c_qd_and_g(case):
     the self-test canaries are). 40 states: the error in C qd shows at only 16 of the Panda's first 99 states (within
     its joint limits; 23 of 99 on spatial_arm), so 40 miss it with probability 0.84^40 < 1e-3 (20 with 3 %: the
     Panda's first 20 within its limits do; tests/test_sensitivity.py, STATES)."""
-    from crosscheck import selftest
-    from crosscheck.sampling import sample_states
+    from crosscheck.guards import selftest
+    from crosscheck.core.sampling import sample_states
 
     model = cases.load(case)
     caught = dict.fromkeys(("mass matrix", "velocity products", "gravity"), 0)
@@ -178,7 +180,7 @@ def test_the_componentwise_constraint_bound_covers_its_campaign_findings(path):
     their structural zeros in a moved scene (a row 8.7e-4 long, lam 1e4: 3e-12 against 1.2e-12), an orthogonal
     factorization's normwise backward error (a 100 kg base beside 1 g links: 4e-9 against 5e-10), the free
     accelerations a range-space solve forms and cancels (1.5e-10 against 1.2e-10). They pass now."""
-    from crosscheck import fuzz
+    from crosscheck.campaigns import fuzz
 
     finding = json.loads(path.read_text())
     outcome = fuzz.replay(finding)

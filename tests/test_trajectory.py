@@ -11,8 +11,8 @@ import pytest
 
 import cases
 from crosscheck import cli
-from crosscheck import trajectory as T
-from crosscheck import trajectory_report as R
+from crosscheck.campaigns import trajectory as T
+from crosscheck.reports import trajectory_report as R
 
 
 def _oscillator(q, v, t):

@@ -11,8 +11,9 @@ import pytest
 
 import cases
 from cases.model import ModelError
-from crosscheck import cli, reference
-from crosscheck.gate import CaseSpec
+from crosscheck import cli
+from crosscheck.references import reference
+from crosscheck.engine.specs import CaseSpec
 
 #: revolute j_a, continuous j_b (unaligned axis), prismatic j_c, and a fixed joint to a tool link.
 CHAIN = "\n".join([

@@ -19,8 +19,9 @@ import pytest
 
 import cases
 from cases import JointCoupling, ModelError, UrdfError, build_model, from_urdf
-from crosscheck import cli, reference
-from crosscheck import report as gate_report
+from crosscheck import cli
+from crosscheck.references import reference
+from crosscheck.reports import gate_report
 
 LIMIT = '<limit lower="-3" upper="3" effort="10" velocity="5"/>'
 

@@ -1,4 +1,4 @@
-"""The base-velocity representations ``world`` and ``mixed`` (``crosscheck.charts.VelocityRepresentation``): the
+"""The base-velocity representations ``world`` and ``mixed`` (``crosscheck.checks.charts.VelocityRepresentation``): the
 harness's map ``v = T(q) w`` and its rate ``Tdot w`` against the group operations (``cases.configuration``) by finite
 differences, the native evaluations of Euler–Lagrange and geometric against Pinocchio, and the gate's chart check."""
 
@@ -9,7 +9,8 @@ import pytest
 
 import cases
 from cases import configuration
-from crosscheck import charts, sampling
+from crosscheck.checks import charts
+from crosscheck.core import sampling
 
 CASES = ("free_body", "satellite_arm", "ball_pendulum", "solo12")
 H = 1e-6
@@ -128,7 +129,7 @@ def test_native_answers_are_pinocchios_aba_in_the_representation(case, name):
     ``tau = R n``). Drift with u = 0, total with the input."""
     import pinocchio as pin
 
-    from crosscheck import reference
+    from crosscheck.references import reference
     model = cases.load(case)
     pm = reference.to_pinocchio(model)
     data = pm.createData()
@@ -162,9 +163,9 @@ def test_native_answers_are_pinocchios_aba_in_the_representation(case, name):
 @pytest.mark.parametrize("name", charts.REPRESENTATIONS)
 def test_native_answers_match_the_reference_on_trees(case, name):
     """On trees with a floating base or ball joints and revolute joints, the native ``wdot`` equals the Pinocchio
-    reference's ``vdot`` (``crosscheck.reference``, our coordinate order) carried by the chart's map
+    reference's ``vdot`` (``crosscheck.references.reference``, our coordinate order) carried by the chart's map
     ``wdot = T^-1 (vdot - Tdot w)``, checked by ``T`` and ``Tdot w`` of the finite-difference tests above."""
-    from crosscheck import reference
+    from crosscheck.references import reference
     model = cases.load(case)
     chart = charts.get(name, model)
     for s in _states(model, case, 2):
@@ -194,7 +195,8 @@ def test_a_representation_is_refused_without_group_joints():
 def test_the_chart_check_passes_with_every_native_backend_voting(case):
     """``invariance.chart_checks`` in world (and mixed, with a free joint) on the group cases: every comparison agrees,
     and both native backends vote on the accelerations (a harness-side map alone would check nothing)."""
-    from crosscheck import backends, invariance
+    from crosscheck import backends
+    from crosscheck.checks import invariance
     model = cases.load(case)
     chosen = [backends.get(n) for n in backends.names()]
     for chart in charts.representations_sampled(model):

@@ -1,5 +1,5 @@
 """Verdicts that explain: severity bands, the vote and the suspects, and hints from the shape of the error
-(``crosscheck.compare``, ``crosscheck.diagnosis``), each hint checked against an injected fault of known kind."""
+(``crosscheck.core.compare``, ``crosscheck.reports.diagnosis``), each hint checked against an injected fault of known kind."""
 
 from __future__ import annotations
 
@@ -9,10 +9,13 @@ import pytest
 import cases
 import formalisms.newton_euler as ne
 import formalisms.operational_space as osc
-from crosscheck import backends, charts, diagnosis
-from crosscheck.compare import AGREE, DISAGREE, SEVERITY, compare, severity, suspect, suspects, vote
-from crosscheck.gate import CaseSpec, Checks, run_gate
-from crosscheck.report import render
+from crosscheck import backends
+from crosscheck.checks import charts
+from crosscheck.reports import diagnosis
+from crosscheck.core.compare import AGREE, DISAGREE, SEVERITY, compare, severity, suspect, suspects, vote
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.run import run_gate
+from crosscheck.reports.gate_report import render
 from formalisms.interface import Formalism
 
 ALL = [backends.get(name) for name in backends.names()]
@@ -216,8 +219,8 @@ def test_an_overflowed_answer_fails_the_conservation_checks_instead_of_crashing_
     """A trusted split with inf accelerations (the operational-space backend on a task Jacobian of size 1e-135 was
     one) must give a failing comparison; the energy rate of a non-finite acceleration is not computable."""
     import dataclasses
-    from crosscheck import conservation
-    from crosscheck.sampling import State
+    from crosscheck.checks import conservation
+    from crosscheck.core.sampling import State
 
     model = cases.load("double_pendulum")
     state = State(0, (0.3, 0.2), (1.0, -1.0), (0.5, 0.5))

@@ -1,0 +1,112 @@
+"""What a gate run found: one state's outcome (every backend's split, the comparisons, the checks, the backends in
+BREAKDOWN), one case's (its states, timings, coverage) and the run's (:class:`GateResult`: passed or not)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cases
+from cases.model import Model
+from crosscheck.checks import frames
+from crosscheck.core import tolerance as tolerance_policy
+from crosscheck.core.compare import DISAGREE, Comparison, backend_of, worst_of
+from crosscheck.core.sampling import State
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.guards import coverage as coverage_of
+from formalisms.interface import Split
+
+
+@dataclass
+class StateOutcome:
+    """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
+    -> value above its limit; left out of the comparisons) and one comparison per quantity; ``hint``, for a failing
+    state, what the shape of the error suggests (``crosscheck.reports.diagnosis``); ``scales``, the tolerance scales of the
+    trusted splits (None when no split is trusted)."""
+
+    state: State
+    splits: dict[str, Split]
+    errors: dict[str, str]
+    comparisons: dict[str, Comparison]
+    breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
+    checks: dict[str, Comparison] = field(default_factory=dict)
+    hint: str = ""
+    scales: tolerance_policy.Scales | None = None
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.errors) or any(c.verdict == DISAGREE for c in self.comparisons.values()) or any(
+            c.verdict == DISAGREE for c in self.checks.values())
+
+    @property
+    def trusted(self) -> dict[str, Split]:
+        """The splits of the backends not wholly in BREAKDOWN (a narrower breakdown, e.g. non-unique multipliers,
+        leaves out only its quantities: ``tolerance.BREAKDOWN_SCOPE``)."""
+        return {name: split for name, split in self.splits.items()
+                if not tolerance_policy.whole(self.breakdowns.get(name, {}))}
+
+    def voters(self, quantity: str) -> dict[str, Split]:
+        """The trusted splits that vote on ``quantity``."""
+        return {name: split for name, split in self.trusted.items()
+                if quantity not in tolerance_policy.left_out(self.breakdowns.get(name, {}))}
+
+    @property
+    def worst_ratio(self) -> float:
+        return worst_of(c.worst_ratio for c in self.comparisons.values())
+
+
+@dataclass
+class CaseOutcome:
+    """One case's states and timings (first call includes one-off preparation such as symbolic derivation)."""
+
+    spec: CaseSpec
+    model: Model
+    states: list[StateOutcome]
+    first_call_s: dict[str, float] = field(default_factory=dict)
+    per_state_s: dict[str, float] = field(default_factory=dict)
+    charts: tuple[str, ...] = ()
+    frames: tuple[frames.Frame, ...] = ()
+    coverage: coverage_of.Coverage | None = None
+    closed_form: str = ""
+
+    @property
+    def failed(self) -> bool:
+        return any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
+
+    def voted(self) -> set[str]:
+        """The backends that took part in at least one comparison or check of this case."""
+        pairs: set[tuple[str, str]] = set()
+        for s in self.states:
+            for c in (*s.comparisons.values(), *s.checks.values()):
+                pairs.update(c.pairs)
+        return {backend_of(name) for pair in pairs for name in pair}
+
+
+@dataclass
+class GateResult:
+    """A gate run. ``required`` are the backends named on the command line without ``--optional``: each must take
+    part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
+    ``self_test`` the canaries' outcome (``crosscheck.guards.selftest``), None when skipped; ``interrupted``, for a run
+    ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise."""
+
+    seed: int
+    samples: int
+    backends: tuple[str, ...]
+    cases: list[CaseOutcome]
+    checks: Checks = Checks()
+    required: tuple[str, ...] = ()
+    self_test: object = None
+    interrupted: str = ""
+
+    @property
+    def absent(self) -> tuple[str, ...]:
+        """The required backends that took part in no comparison of any case."""
+        if not self.required:
+            return ()
+        voted = set().union(*(case.voted() for case in self.cases)) if self.cases else set()
+        return tuple(name for name in self.required if name not in voted)
+
+    @property
+    def passed(self) -> bool:
+        """Whether the run finished and nothing failed (an interrupted run never passes)."""
+        return (not self.interrupted and not any(c.failed for c in self.cases) and not self.absent
+                and (self.self_test is None or self.self_test.passed))

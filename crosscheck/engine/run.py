@@ -1,0 +1,177 @@
+"""None"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Callable, Iterator, Sequence
+
+from crosscheck.core.sampling import State, sample_states
+from crosscheck.engine.evaluation import CaseSetup
+from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
+from crosscheck.engine import pool
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine.phases import Clock, DONE, EVALUATING, SELF_TEST, SETTING_UP, Step, _ignore
+from crosscheck.guards import coverage as coverage_of
+from formalisms.interface import Formalism, ModelNotSupported
+
+
+#: States a case evaluates as one block after its first state (:func:`run_case`): enough that a backend's block form
+#: spreads numpy's per-call cost over many states, few enough that the splits of a block take little memory.
+BLOCK = 50
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_gate`: ``result`` is the partial run, every state evaluated until then, with
+    ``result.interrupted`` saying where it stopped."""
+
+    def __init__(self, result: GateResult):
+        super().__init__(f"gate interrupted {result.interrupted}")
+        self.result = result
+
+
+class _CaseInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_case`: ``case`` holds the states evaluated until then."""
+
+    def __init__(self, case: CaseOutcome):
+        super().__init__(f"case {case.spec.name} interrupted")
+        self.case = case
+
+
+def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+    """The case's ``samples`` seeded states, each evaluated (:meth:`CaseSetup.evaluate`); ``progress`` is told
+    every :class:`Step`. Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
+    tell = progress or _ignore
+    tell(Step(spec.name, 0, samples, SETTING_UP))
+    setup = CaseSetup.build(spec, seed, checks)
+    announce_preparation(setup, backends)
+    states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
+    outcomes: list[StateOutcome] = []
+
+    def at(phase: str) -> None:
+        tell(Step(spec.name, len(outcomes), len(states), phase))
+
+    clock = Clock(preparing=lambda name: at(EVALUATING if name is None else f"preparing {name}"))
+    try:
+        at(EVALUATING)
+        for block in _blocks(states):
+            for outcome in setup.evaluate_block(block, backends, clock):
+                outcomes.append(outcome)
+                if len(outcomes) < len(states):
+                    at(EVALUATING)
+    except KeyboardInterrupt:
+        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
+    at(DONE)
+    return _case_outcome(setup, outcomes, clock, coverage_of.measure(setup.model, states), checks)
+
+
+#: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
+PREPARATION_NOTICE_S = 20.0
+
+
+class PreparationNotice(UserWarning):
+    """A backend's one-off preparation of a case (a symbolic derivation, a compilation) will take long: shown before it
+    starts, with the estimate and the ways around it."""
+
+
+def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
+    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart, each sampled chart
+    and each moved scene (a moved model is another model to prepare); 0 for a backend without an estimate."""
+    if backend.preparation is None:
+        return 0.0
+    model = setup.model
+    try:
+        return (backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
+                + sum(backend.preparation(moved, None) for _, moved in setup.scenes))
+    except ModelNotSupported:
+        return 0.0
+
+
+def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> None:
+    """Warn (:class:`PreparationNotice`) before a case whose preparation by some backend is estimated above
+    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it."""
+    for backend in backends:
+        seconds = preparation_seconds(setup, backend)
+        if seconds > PREPARATION_NOTICE_S:
+            warnings.warn(PreparationNotice(
+                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart, "
+                f"{len(setup.charts)} chart(s) and {len(setup.scenes)} moved scene(s) takes about {seconds:.0f} s of "
+                "CPU before its first answers (once: then cached on disk); --no-charts and --frames 0 leave out "
+                "the charts and the moved scenes, --formalism (naming the others) leaves it out"), stacklevel=2)
+
+
+def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
+                  coverage: coverage_of.Coverage | None, checks: Checks) -> CaseOutcome:
+    """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case)."""
+    return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
+                       tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
+                       _closed_form_coverage(setup.spec, checks))
+
+
+def _blocks(states: Sequence[State]) -> Iterator[Sequence[State]]:
+    """The first state alone (the report's first call, which includes the backends' one-off preparation), then blocks
+    of :data:`BLOCK` states."""
+    if states:
+        yield states[:1]
+    for start in range(1, len(states), BLOCK):
+        yield states[start:start + BLOCK]
+
+
+def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
+    """What the case's closed form covers, in words, for the report ("" when closed forms are off)."""
+    if not checks.closed_forms:
+        return ""
+    if spec.path is not None:
+        return "none (a model file; its reference is built from the file)"
+    from crosscheck.references import closed_forms
+
+    given = " (not the task quantities: --task-point given)" if spec.task_point is not None else ""
+    return closed_forms.coverage(spec.name, dict(spec.params)) + given
+
+
+def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
+             workers: int = 0, required: Sequence[str] = ()) -> GateResult:
+    """Run the gate over the cases; the result passes when no state shows a disagreement or an error, no case's
+    sample is degenerate (``crosscheck.guards.coverage``), every ``required`` backend took part in some comparison and the
+    self-test canaries are caught (``crosscheck.guards.selftest``, unless ``checks.self_test`` is off).
+
+    ``workers`` 0 runs the cases in this process; N >= 1 in N spawned processes (:func:`crosscheck.engine.pool.in_pool`), at most one per
+    case (``crosscheck.cli.workers``: the one meaning of ``--workers``); the outcomes are the same as in this
+    process and come back in case order, so the report is too (its timings apart). Backends that cannot be sent to
+    another process (not picklable: a lambda, a local function) keep the run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end
+    of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
+    tell = progress or _ignore
+    count = min(workers, len(specs))
+    pooled = count >= 1 and pool.picklable(backends)
+    outcomes: list[CaseOutcome] = []
+    result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
+    try:
+        if pooled:
+            pool.in_pool(run_case, specs, backends, samples, seed, tell, checks, count, outcomes)
+        else:
+            for spec in specs:
+                outcomes.append(run_case(spec, backends, samples, seed, tell, checks))
+        if checks.self_test:
+            from crosscheck.guards import selftest
+
+            tell(Step("", 0, 0, SELF_TEST))
+            result.self_test = selftest.run()
+    except KeyboardInterrupt as exc:
+        result.interrupted = _where(exc, specs, samples, outcomes, pooled)
+        raise Interrupted(result) from None
+    return result
+
+
+def _where(exc: KeyboardInterrupt, specs: Sequence[CaseSpec], samples: int, outcomes: list[CaseOutcome],
+           pooled: bool) -> str:
+    """Where a run stopped, in words; a case interrupted part way joins ``outcomes`` with the states it evaluated."""
+    if isinstance(exc, _CaseInterrupted):
+        outcomes.append(exc.case)
+        return f"after {len(exc.case.states)}/{samples} states of case '{exc.case.spec.name}'"
+    if len(outcomes) == len(specs):
+        return "during the self-test (every case evaluated)"
+    if pooled:
+        return (f"after {len(outcomes)}/{len(specs)} cases (run in worker processes: the cases in flight are not "
+                "in the report)")
+    return f"after 0/{samples} states of case '{specs[len(outcomes)].name}' (setting it up)"

@@ -1,0 +1,372 @@
+"""Common-mode faults: realistic bugs in code every backend shares, which the vote cannot see (DESIGN.md, "Shared code
+that cannot be avoided ... is guarded by something outside the vote").
+
+A bug in the model language, a URDF conversion, a case factory, a constraint declaration, the sampler, the charts,
+the frames, the comparison or the tolerance moves all voters together: they agree on the wrong answer, or the check
+that should have failed cannot. The gate guards each of these places with something outside the vote: the reference
+built from the model file (``crosscheck.references.reference``), the closed forms bound to a case's parameters
+(``crosscheck.references.closed_forms``), the exact values (``H_t``, phi, constraint power), the chart and frame invariance
+checks, the conditions audit (``crosscheck.guards.conditioning``), the sampling coverage (``crosscheck.guards.coverage``) and the
+self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such bugs, each with the guard expected to catch
+it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug, cheapest first (the self-test, building the
+cases, their coverage, then the states round robin, as ``crosscheck.faults.injection.hunt`` does), and says what caught it.
+``tests/test_common_mode.py`` checks that every entry is caught, and by its guard.
+
+A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at several
+targets (a constant imported by every backend is one bug at every import); a fault in code a cached derivation reads
+runs on fresh derivation caches, discarded afterwards (:data:`DERIVATION_INPUTS`), so that it cannot outlive the
+hunt.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from crosscheck.faults import injection
+from crosscheck.engine import divergences
+from crosscheck.guards import selftest
+from crosscheck.guards import coverage as coverage_of
+from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
+from crosscheck.core.sampling import sample_states
+
+
+@dataclass(frozen=True)
+class SharedFault:
+    """A named bug in shared code (``area``), injected by replacing each of ``targets`` (``"module:attribute"``) by
+    ``replace(original)``; ``guard`` names what is expected to catch it."""
+
+    name: str
+    area: str
+    bug: str
+    targets: tuple[str, ...]
+    replace: Callable[[Any], Any] = field(repr=False, compare=False)
+    guard: str = ""
+
+
+#: Shared modules whose code the backends' cached derivations read without it entering the cache keys (a chart's
+#: ``psi`` is keyed by the chart's definition, not by the code that evaluates it): a fault there runs on fresh caches.
+#: Elsewhere a shared fault either changes the model, and so the digest every cache is keyed by, or no derivation.
+DERIVATION_INPUTS = ("crosscheck.checks.charts",)
+
+
+@contextmanager
+def injected(fault: SharedFault) -> Iterator[None]:
+    """Within the block every target is replaced (and, for a fault in :data:`DERIVATION_INPUTS`, both derivation
+    caches are fresh); all restored on exit."""
+    with ExitStack() as stack:
+        if any(target.startswith(DERIVATION_INPUTS) for target in fault.targets):
+            stack.enter_context(injection._fresh_euler_lagrange())
+            stack.enter_context(injection._fresh_geometric())
+        for target in fault.targets:
+            stack.enter_context(injection.patched(fault.name, target, fault.replace))
+        yield
+
+
+@dataclass(frozen=True)
+class SharedHunt:
+    """A shared fault against the gate: ``caught``, ``by`` (what failed: the self-test, the model build, a case's
+    coverage or a state's comparisons and checks), ``detail`` (the first failure in words), ``states`` evaluated."""
+
+    fault: SharedFault
+    caught: bool
+    by: str
+    detail: str
+    states: int
+    seconds: float
+
+
+def _first_failure(outcome) -> str:
+    found = injection.catches(outcome)
+    return ", ".join(f"{c.key} ({injection._ratio(c.ratio)}, outlier {c.outlier or '-'})" for c in found[:3])
+
+
+def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=None, samples: int = DEFAULT_SAMPLES,
+         seed: int = 0, checks: Checks = Checks(), known: divergences.Registry | None = None,
+         progress: Callable[[str, int], None] | None = None, rounds: int | None = None) -> SharedHunt:
+    """Everything the default gate does, under ``fault``, until something fails (module doc); ``progress(case,
+    index)`` is called before each state is evaluated. ``rounds``: evaluate only the first ``rounds`` of the
+    ``samples`` states of every case (the coverage check still sees all ``samples``)."""
+    specs = injection.default_specs() if specs is None else list(specs)
+    backends = injection.default_backends() if backends is None else list(backends)
+    start, count = time.perf_counter(), 0
+
+    def done(by: str, detail: str) -> SharedHunt:
+        return SharedHunt(fault, bool(by), by, detail, count, time.perf_counter() - start)
+
+    with injected(fault):
+        if checks.self_test and not (test := selftest.run()).passed:
+            return done("self-test", test.failures()[0])
+        try:
+            setups = [injection._Case(spec, seed, checks) for spec in specs]
+        except Exception as exc:  # the gate refuses bad input: it does not pass
+            return done("model build", f"{type(exc).__name__}: {exc}")
+        for case in setups:
+            problems = coverage_of.measure(case.setup.model, sample_states(case.setup.model, samples, seed,
+                                                                           case.setup.spec.name)).problems
+            if problems:
+                return done(f"coverage {case.setup.spec.name}", problems[0])
+        for case, state in injection._round_robin(setups, min(samples, rounds or samples)):
+            if progress:
+                progress(case.setup.spec.name, state.index)
+            outcome = case.setup.evaluate(state, backends)
+            if known is not None:
+                divergences.apply_to_state(known, (case.setup.spec.name, case.setup.model.name), outcome)
+            count += 1
+            if outcome.failed:
+                return done(f"{case.setup.spec.name} #{state.index}", _first_failure(outcome))
+    return done("", "not caught")
+
+
+def line(h: SharedHunt) -> str:
+    """One line per fault for the terminal."""
+    if not h.caught:
+        return f"MISSED {h.fault.name} (shared: {h.fault.area}): not caught in {h.states} states"
+    return f"caught {h.fault.name} (shared: {h.fault.area}): by {h.by} after {h.states} states: {h.detail}"
+
+
+def render(hunts: Sequence[SharedHunt]) -> str:
+    """The report's section on the common-mode faults (empty when none was hunted)."""
+    if not hunts:
+        return ""
+    caught = sum(h.caught for h in hunts)
+    lines = ["", "## Common-mode faults in shared code", "",
+             f"Caught {caught}/{len(hunts)} by `crosscheck gate` itself (the self-test, the model build, the sampling "
+             "coverage, then the states round robin). The vote cannot see these: each is caught by the guard outside "
+             "it.", "",
+             "| fault | shared code | caught | by | states | first failure | guard | bug |",
+             "|---|---|---|---|---|---|---|---|"]
+    for h in hunts:
+        detail = injection._cell(h.detail if len(h.detail) < 160 else h.detail[:157] + "...")
+        lines.append(f"| `{h.fault.name}` | {h.fault.area} | {'yes' if h.caught else '**NO**'} | {h.by or '-'} | "
+                     f"{h.states} | {detail} | {h.fault.guard} | {injection._cell(h.fault.bug)} |")
+    return "\n".join(lines) + "\n\n"
+
+
+# ------------------------------------------------------------------------------------------------ the catalog
+
+
+def _body_with(change):
+    """A replacement for a loader's ``Body`` constructor that alters its keyword arguments."""
+    def replace(body):
+        return lambda *args, **kw: body(*args, **change(kw))
+    return replace
+
+
+def _transposed_rotation(kw):
+    return {**kw, "rotation": np.asarray(kw["rotation"]).T}
+
+
+def _inertia_about_origin(kw):
+    c = np.asarray(kw["com"], dtype=float)
+    return {**kw, "inertia": np.asarray(kw["inertia"]) + kw["mass"] * (c @ c * np.eye(3) - np.outer(c, c))}
+
+
+def _rates_never_sampled(sample):
+    def faulty(model, count, seed, case, **options):
+        return [dataclasses.replace(s, qd=(0.0,) * model.n) for s in sample(model, count, seed, case, **options)]
+    return faulty
+
+
+def _signed_pairwise(pairwise):
+    def faulty(vectors):
+        size = max(v.size for v in vectors)
+        V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
+        i, j = np.triu_indices(len(vectors), 1)
+        return V[i] - V[j]
+    return faulty
+
+
+def _rod_inertia_about_end(rod):
+    def faulty(name, parent, mass, length, *args):
+        body = rod(name, parent, mass, length, *args)
+        return dataclasses.replace(body, inertia=4.0 * np.asarray(body.inertia))
+    return faulty
+
+
+def _declaration_changed(kind_name: str, change):
+    """A replacement for ``cases.constraints.validate`` that alters the validated declarations of one kind."""
+    def replace(validate):
+        def faulty(problems, c, bodies):
+            out = validate(problems, c, bodies)
+            return change(out) if type(out).__name__ == kind_name else out
+        return faulty
+    return replace
+
+
+_circle_radius_squared = _declaration_changed("PointOnCircle", lambda c: dataclasses.replace(c, radius=c.radius**2))
+_line_normal_swapped = _declaration_changed(
+    "PointOnLine", lambda c: dataclasses.replace(c, normals=np.asarray(c.normals)[:, [1, 0, 2]]))
+_coupling_reversed = _declaration_changed(
+    "JointCoupling", lambda c: dataclasses.replace(c, coefficients=np.asarray(c.coefficients)[::-1]))
+
+
+def _pfaffian_as_holonomic(project_velocity):
+    """``sampling.project_velocity`` with the Pfaffian rows treated as holonomic: taken to hold once q is projected,
+    so qd is projected onto the null space of the holonomic rows only."""
+    def faulty(model, q, qd):
+        if not model.pfaffian_rows.any():
+            return project_velocity(model, q, qd)
+        from crosscheck.references.reference import constraint_kinematics
+
+        Jc = constraint_kinematics(model, q, np.zeros(model.nv))[1][model.holonomic_rows]
+        if not len(Jc):
+            return np.asarray(qd, dtype=float)
+        _, sigma, Vt = np.linalg.svd(Jc)
+        N = Vt[int(np.sum(sigma > 1e-13 * sigma.max())):].T
+        return N @ (N.T @ np.asarray(qd, dtype=float))
+    return faulty
+
+
+def _about_z(quat: np.ndarray) -> np.ndarray:
+    """A quaternion's rotation about z alone: its x and y components dropped, renormalized."""
+    kept = np.array([0.0, 0.0, quat[2], quat[3]])
+    return kept / np.linalg.norm(kept)
+
+
+def _scaled(factor: float):
+    return lambda f: lambda *args, **kw: factor * f(*args, **kw)
+
+
+def _world_loads_validated_as_body(validate):
+    """``cases.loads.validate`` returning a world-frame force or wrench as a body-frame one."""
+    def faulty(problems, load, bodies):
+        out = validate(problems, load, bodies)
+        return dataclasses.replace(out, frame="body") if out is not None and getattr(out, "frame", "") == "world" else out
+    return faulty
+
+
+CATALOG: list[SharedFault] = [
+    SharedFault("urdf-joint-rotation-transposed", "URDF conversion",
+                "The URDF loader stores each joint placement's rotation transposed (parent <- child read as child "
+                "<- parent).",
+                ("cases.urdf:Body",), _body_with(_transposed_rotation), "the reference built from the file"),
+    SharedFault("urdf-inertia-about-joint-origin", "URDF conversion",
+                "The URDF loader takes the link inertia about the joint origin for the inertia about the COM (the "
+                "parallel-axis term m [c]^T [c] added twice).",
+                ("cases.urdf:Body",), _body_with(_inertia_about_origin), "the reference built from the file"),
+    SharedFault("factory-inertia-transposed-rotation", "case factories",
+                "The case factories rotate a principal inertia as R^T diag(I) R instead of R diag(I) R^T.",
+                ("cases.factories:_inertia",), lambda f: lambda principal, rotation: f(principal,
+                                                                                     np.asarray(rotation).T),
+                "the closed forms (rotor)"),
+    SharedFault("factory-rod-inertia-about-its-end", "case factories",
+                "The constrained cases' uniform rods get the inertia m l^2 / 3 (about an end) for m l^2 / 12 (about "
+                "the COM).",
+                ("cases.constrained:_rod",), _rod_inertia_about_end, "the closed forms (four_bar, slider_crank)"),
+    SharedFault("sampling-rates-never-sampled", "sampling",
+                "The sampler leaves every joint rate at 0 (qd drawn but never stored).",
+                ("crosscheck.core.sampling:sample_states", "crosscheck.engine.run:sample_states",
+                 "crosscheck.faults.injection:sample_states", "crosscheck.faults.common_mode:sample_states"), _rates_never_sampled,
+                "the self-test canaries (their states are sampled) or the sampling coverage"),
+    SharedFault("sampling-angles-in-a-sliver", "sampling",
+                "The sampler draws joint angles from +-1e-4 rad instead of one turn (degrees taken for radians "
+                "twice).",
+                ("crosscheck.core.sampling:ANGLE_RANGE",), lambda value: 1e-4,
+                "the self-test canaries (their states are sampled) or the sampling coverage"),
+    SharedFault("sampling-projection-skipped", "sampling",
+                "Constrained states are not projected onto the constraint manifold (q and qd used as drawn).",
+                ("crosscheck.core.sampling:admissible",), lambda f: lambda model, q, qd, rng: (q, qd),
+                "the self-test canaries (their states are sampled) or the exact values (phi, Jc qd)"),
+    SharedFault("sampling-pfaffian-row-as-holonomic", "sampling",
+                "The sampler treats Pfaffian rows as holonomic: it takes them to hold once the configuration is "
+                "projected, and projects qd onto the null space of the holonomic rows only (A qd != 0).",
+                ("crosscheck.core.sampling:project_velocity",), _pfaffian_as_holonomic,
+                "the exact values (A qd = 0) and the power audit (lam . A qd = 0)"),
+    SharedFault("sampling-orientations-about-z-only", "sampling",
+                "The sampler's orientations of spherical and free joints are rotations about z only (the x and y "
+                "components of a drawn quaternion dropped), not uniform on SO(3).",
+                ("cases.configuration:random_quaternion",), lambda f: lambda rng: _about_z(f(rng)),
+                "the sampling coverage"),
+    SharedFault("factory-floating-com-negated", "case factories",
+                "The Lie-group case factories place each body's centre of mass at -c in the body frame.",
+                ("cases.floating:Body",), _body_with(lambda kw: {**kw, "com": -np.asarray(kw["com"], dtype=float)}),
+                "the closed forms (free_body)"),
+    SharedFault("charts-rate-term-dropped", "charts",
+                "Joint accelerations are mapped into a chart by Dpsi^-1 qdd alone, without the (d/dt Dpsi) pd term.",
+                ("crosscheck.checks.charts:acceleration_to_chart",),
+                lambda f: lambda chart, p, pd, qdd, with_rate=True: f(chart, p, pd, qdd, with_rate=False),
+                "the chart checks"),
+    SharedFault("charts-mixed-rate-term-dropped", "charts",
+                "The mixed base-velocity representation loses its rate term: Tdot w = (-w_b x v_b, 0) is taken as 0, "
+                "so joint accelerations are mapped into mixed by T^-1 vdot alone.",
+                ("crosscheck.checks.charts:VelocityRepresentation.jacobian_rate",),
+                lambda f: lambda self, p, pd: np.zeros(len(pd)) if self.representation == "mixed" else f(self, p, pd),
+                "the chart checks (Euler-Lagrange and geometric evaluate mixed natively)"),
+    SharedFault("frames-gravity-not-rotated", "frames",
+                "A moved scene keeps gravity as it was instead of rotating it with the scene.",
+                ("crosscheck.checks.frames:rotate_gravity",), lambda f: lambda frame, gravity: np.asarray(gravity),
+                "the frame checks"),
+    SharedFault("compare-signed-difference", "comparison",
+                "The comparison takes the signed difference a - b of each pair instead of |a - b|.",
+                ("crosscheck.core.compare:_pairwise",), _signed_pairwise, "the self-test canaries"),
+    SharedFault("compare-nan-agrees", "comparison",
+                "A NaN difference counts as agreement (NaN replaced by 0 before the tolerance test).",
+                ("crosscheck.core.compare:_ratios",), lambda f: lambda d, t: np.nan_to_num(f(d, t), nan=0.0),
+                "the self-test canaries"),
+    SharedFault("tolerance-factor-tenfold", "tolerance",
+                "Every tolerance factor is 1000 eps instead of 100 eps.",
+                ("crosscheck.core.tolerance:TOLERANCES",),
+                lambda table: {q: (kind, 10.0 * factor) for q, (kind, factor) in table.items()},
+                "the self-test canaries"),
+    SharedFault("tolerance-acceleration-scale-tenfold", "tolerance",
+                "The componentwise acceleration bound is ten times too large.",
+                ("crosscheck.core.tolerance:acceleration_bound",), _scaled(10.0), "the self-test canaries"),
+    SharedFault("constraint-circle-radius-squared", "constraint declarations",
+                "A point-on-circle declaration is validated into a circle of radius R^2 (phi = |d|^2 - R^4).",
+                ("cases.constraints:validate",), _circle_radius_squared,
+                "the closed forms (double_pendulum_circle, cartesian_pendulum)"),
+    SharedFault("constraint-line-normal-swapped", "constraint declarations",
+                "A point-on-line declaration is validated with its normal's x and y components swapped.",
+                ("cases.constraints:validate",), _line_normal_swapped, "the closed forms (double_pendulum_rail)"),
+    SharedFault("constraint-coupling-coefficients-reversed", "constraint declarations",
+                "A joint coupling is validated with its coefficients in reverse order (the gear ratio applied to the "
+                "wrong joint).",
+                ("cases.constraints:validate",), _coupling_reversed,
+                "the closed forms (geared_pendulums) and the frame checks (the Panda's finger mimic: a moved scene is "
+                "validated again, reversed twice, and its multiplier changes sign)"),
+    SharedFault("interface-redundancy-threshold-too-high", "interface constants",
+                "The relative eigenvalue below which a constraint direction counts as redundant is 1e-2, not 1e-10 "
+                "(every backend imports it).",
+                ("formalisms.interface:CONSTRAINT_RCOND", "formalisms.euler_lagrange:CONSTRAINT_RCOND",
+                 "formalisms.newton_euler:CONSTRAINT_RCOND", "formalisms.screw.constraints:CONSTRAINT_RCOND",
+                 "formalisms.screw.conditioning:CONSTRAINT_RCOND",
+                 "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
+                 "crosscheck.references.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
+                "the closed forms, the conditions audit and the exact H_t residual"),
+    SharedFault("loads-world-force-validated-as-body", "load declarations",
+                "An external force or wrench declared in the world frame is validated into a body-frame one (its "
+                "vector then turns with the body).",
+                ("cases.loads:validate",), _world_loads_validated_as_body,
+                "the closed forms (double_pendulum_tip_force)"),
+    SharedFault("frames-loads-not-moved", "frames",
+                "A moved scene keeps the external loads' world data (force directions, spring anchors) as they were "
+                "instead of moving them with the scene.",
+                ("crosscheck.checks.frames:move_load",), lambda f: lambda load, frame: load, "the frame checks"),
+    SharedFault("conservation-external-power-dropped", "conservation",
+                "The energy balance leaves the external loads' power out: dE/dt is checked against P_ctrl alone "
+                "(against 0 under the drift), as if only gravity and the inputs acted.",
+                ("crosscheck.checks.conservation:_external_power",), lambda f: lambda model, split: 0.0,
+                "the energy-rate conservation checks"),
+    SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
+                "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
+                "on the left) instead of dv - ad_v dq, on ball and free joints.",
+                ("formalisms.interface:tangent_kinematics",), lambda f: lambda model, v: -f(model, v),
+                "the Pinocchio reference's own kinematic rows (linearization check)"),
+]
+
+
+def names() -> list[str]:
+    return [f.name for f in CATALOG]
+
+
+def get(name: str) -> SharedFault:
+    for fault in CATALOG:
+        if fault.name == name:
+            return fault
+    raise injection.FaultError(f"unknown common-mode fault '{name}'; valid: {', '.join(names())}")
