@@ -18,7 +18,7 @@ Pinocchio stores as ``(cos q, sin q)``, is one angle ``q`` here):
 * mass, com, inertia about the COM: ``model.inertias[j]`` (joint frame = our body frame);
 * gravity: ``model.gravity.linear``;
 * source: ``ModelSource("urdf", <absolute path>)`` with the identity placement, so the external reference
-  (``crosscheck.references.reference``) builds its own model from the file and never from this conversion.
+  (``crosscheck.references.pinocchio.build``) builds its own model from the file and never from this conversion.
 
 The base. A URDF tree hangs from one root link. With ``base="fixed"`` the root link is welded to the world (its
 mass does not move and is left out, Pinocchio's reading of the file); with ``base="free"`` the loader adds a free
@@ -47,7 +47,7 @@ own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
 ``JointCoupling("mimic:A", (body of A, body of J), (1, -m), o)`` (``cases.constraints``), in Pinocchio's joint
 order of ``A``. The mimic joint keeps its column of the identity input map. Pinocchio is asked to ignore the tags
 (``mimic=False``), so the tags are read from the XML here, and the reference reads them from the file again and
-checks the declaration (``crosscheck.references.reference``). Panda: 9 coordinates, ``panda_finger_joint2`` mimics
+checks the declaration (``crosscheck.references.pinocchio.reference``). Panda: 9 coordinates, ``panda_finger_joint2`` mimics
 ``panda_finger_joint1``, one constraint row. Refused (:class:`~cases.model.ModelError`, naming the joint): a mimic of
 a joint that does not exist, of itself, of a fixed joint or of a joint that is itself a mimic (a chain), a mimic on
 a fixed joint, a multiplier that is 0, not a number or not finite, an offset that is not a finite number.
@@ -467,7 +467,7 @@ def _base(path: Path, robot: ET.Element, base: str | None, problems: list[str]) 
 
 def read_file(pin, kind: str, path: str, root: str = "fixed"):
     """The Pinocchio model of a file as the loaders read it: ``buildModelFromUrdf`` (with a ``JointModelFreeFlyer``
-    root joint for ``root="free"``) or ``buildModelFromMJCF``. The reference (``crosscheck.references.reference``) reads the
+    root joint for ``root="free"``) or ``buildModelFromMJCF``. The reference (``crosscheck.references.pinocchio.reference``) reads the
     file with this call too, so both see the same joints."""
     if kind == "mjcf":
         return pin.buildModelFromMJCF(path)

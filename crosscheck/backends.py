@@ -300,7 +300,7 @@ def names() -> list[str]:
 def get(name: str) -> Formalism:
     """A formalism, the reference or a plugin by name; an unknown name lists the valid ones."""
     if name == REFERENCE_NAME:
-        from crosscheck.references.reference import REFERENCE
+        from crosscheck.references.pinocchio.reference import REFERENCE
         return REFERENCE
     if name in formalisms.names():
         return formalisms.get(name)

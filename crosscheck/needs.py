@@ -141,7 +141,7 @@ def pinocchio_scene(model: Model, plugin: str) -> PinocchioScene:
     scene, so a plugin that changes its copy never changes the reference's), fresh data."""
     import pinocchio as pin
 
-    from crosscheck.references.reference import reference_model
+    from crosscheck.references.pinocchio.build import reference_model
 
     _no_loads(model, plugin, "pinocchio")
     c = reference_model(model)

@@ -40,7 +40,8 @@ from crosscheck import backends as backend_registry
 from crosscheck.checks import charts as chart_catalog
 from crosscheck.checks import frames as frame_tools
 from crosscheck.engine import evaluation
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import build
+from crosscheck.references.pinocchio import kinematics
 from crosscheck.core import sampling
 from crosscheck.core import tolerance as policy
 from crosscheck.core.compare import DISAGREE, Comparison, compare
@@ -240,7 +241,7 @@ def configurations(model: Model) -> st.SearchStrategy[np.ndarray]:
 def body_poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
     """World (rotation, origin) of every body frame at ``q``, from Pinocchio's forward kinematics (the reference,
     outside the backends under test)."""
-    pm = reference.to_pinocchio(model)
+    pm = build.to_pinocchio(model)
     data = pm.createData()
     ids = [pm.getJointId(b.name) for b in model.bodies]
     q_pin = np.zeros(pm.nq)
@@ -419,7 +420,7 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
         except sampling.ProjectionError:
             assume(False)
         assume(np.abs(q - drawn).max() <= MAX_PROJECTION_STEP)
-        assume(not len(reference.contact_sines(model, q)) or reference.contact_sines(model, q).min() > MIN_CONTACT_SINE)
+        assume(not len(kinematics.contact_sines(model, q)) or kinematics.contact_sines(model, q).min() > MIN_CONTACT_SINE)
         qd = sampling.project_velocity(model, q, qd)
     return sampling.State(index, tuple(q.tolist()), tuple(qd.tolist()), tuple(u.tolist()))
 

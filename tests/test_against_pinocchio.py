@@ -1,4 +1,4 @@
-"""Every registered formalism against the external Pinocchio reference (``crosscheck.references.reference``).
+"""Every registered formalism against the external Pinocchio reference (``crosscheck.references.pinocchio.reference``).
 
 Parametrized over formalism x case, at Hypothesis-drawn states: q in [-pi, pi] for revolute and [-0.5, 0.5]
 for prismatic joints, qd in [-5, 5], u in [-20, 20]. drift, ctrl and total must agree within
@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 import cases
 import formalisms
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import tolerance as policy
 from formalisms.interface import Unsupported
 

@@ -13,7 +13,8 @@ import cases
 from cases.representation import general_3d
 from crosscheck import backends
 from crosscheck.campaigns import bench
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.cli import main
 from formalisms.interface import Formalism

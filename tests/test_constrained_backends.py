@@ -22,7 +22,7 @@ Bounds are the tightest of the former per-backend tests (``test_constrained_<bac
 here). A few of those held only at their hand-picked states: the circle's and the absolute loop's keep those states
 with those bounds (``former``), and states drawn from a seeded generator get the bounds that the worst of some
 thousands of drawn states per backend needs, with a margin (``drawn``). Pinocchio regularizes its KKT solve where
-``S`` is singular (``crosscheck.references.reference``: damping ``1e-12 |S|``), which moves its answer by ~1e-12 relative: at
+``S`` is singular (``crosscheck.references.pinocchio.reference``: damping ``1e-12 |S|``), which moves its answer by ~1e-12 relative: at
 redundant states it is held to ``DAMPED_RTOL`` (its former test: 1e-9 absolute). The operational-space backend's
 default four-bar task point is singular at the change point (a task BREAKDOWN, tested in its own file): there it
 tracks the coupler's midpoint along y only. Like the gate's tests, these use the shared Euler–Lagrange disk cache
@@ -44,7 +44,7 @@ from closed_forms import (absolute_loop_state, cartesian_lam, circle_state, circ
                           disk_inertia, endpoint_jacobian, kkt_solve, loop_to_joint, min_norm_solve, pendulum_terms,
                           pin_forces, tip_bias)
 from crosscheck import backends
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.core import tolerance as policy
 from crosscheck.guards.conditioning import normwise_scales

@@ -12,7 +12,8 @@ import pytest
 import cases
 from cases import Body, JointCoupling, ModelError, PointOnCircle, PointOnLine, PointsCoincide, build_model
 from crosscheck.checks import frames
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.cli import main
 
@@ -71,7 +72,7 @@ def test_an_unreachable_circle_is_refused_by_the_case():
 def test_sampled_states_are_admissible_by_pinocchio_kinematics(case):
     model = cases.load(case)
     for state in sampling.sample_states(model, 20, 3, case):
-        phi, Jc, _ = reference.constraint_kinematics(model, state.q, state.qd)
+        phi, Jc, _ = kinematics.constraint_kinematics(model, state.q, state.qd)
         assert np.abs(phi).max() < 1e-13 * model.length_scale ** 2
         assert np.abs(Jc @ np.array(state.qd)).max() < 1e-13 * (1 + np.abs(state.qd).sum())
         assert np.abs(state.qd).max() > 0.0            # the tangent projection keeps a real velocity
@@ -116,7 +117,7 @@ def test_a_projected_velocity_satisfies_the_constraints_to_rounding_of_itself_ho
     of that part (eps |qd_projected|), not of the part removed (a residual once 1e12 times the tolerance)."""
     model = cases.load("double_pendulum_circle")
     q = sampling.project_configuration(model, np.array([0.3, 1.2]))
-    _, Jc, _ = reference.constraint_kinematics(model, q, np.zeros(2))
+    _, Jc, _ = kinematics.constraint_kinematics(model, q, np.zeros(2))
     tangent = np.linalg.svd(Jc)[2][-1]
     for tiny in (1e-3, 1e-9, 1e-15, 0.0):
         qd = sampling.project_velocity(model, q, 7.0 * Jc[0] + tiny * tangent)

@@ -30,7 +30,9 @@ from crosscheck.checks import frames
 from crosscheck.engine import evaluation
 from crosscheck.engine import run
 from crosscheck.engine import specs
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import build
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.backends import get, names
 from crosscheck.core.compare import DISAGREE, suspect
 from crosscheck.core.sampling import sample_states
@@ -174,8 +176,8 @@ def test_loader_sets_the_source_outside_the_digest(chain_path):
     assert model.source.is_identity
     np.testing.assert_array_equal(model.source.rotation, np.eye(3))
     assert _rebuilt(model, source=None).digest() == model.digest()       # provenance, not physics
-    assert reference.joint_map(_rebuilt(model, source=None)) is None
-    assert reference.provenance(_rebuilt(model, source=None)) is None
+    assert build.joint_map(_rebuilt(model, source=None)) is None
+    assert build.provenance(_rebuilt(model, source=None)) is None
 
 
 def test_bad_source_is_a_model_error(chain_path):
@@ -197,7 +199,7 @@ def test_move_scene_composes_the_source_placement(chain_path):
     np.testing.assert_allclose(twice.source.translation, g2.rotation @ g1.translation + g2.translation, atol=1e-15)
     assert not twice.source.is_identity and twice.source.path == chain_path
     assert frames.move_scene(cases.load("double_pendulum"), g1).source is None
-    assert "placed by the scene's rigid transform" in reference.provenance(once)
+    assert "placed by the scene's rigid transform" in build.provenance(once)
 
 
 def test_serialize_round_trips_the_source_and_reads_old_dicts(chain_path):
@@ -247,8 +249,8 @@ def test_our_coordinate_order_is_mapped_by_name(branched_path):
     model = from_urdf(branched_path)
     perm = [4, 0, 5, 2, 1, 3]
     listed = _rebuilt(model, bodies=[model.bodies[i] for i in perm], name="listed")
-    assert [r.coordinate for r in reference.joint_map(listed)] == list(range(6))
-    assert [r.body for r in reference.joint_map(listed)] == [model.bodies[i].name for i in perm]
+    assert [r.coordinate for r in build.joint_map(listed)] == list(range(6))
+    assert [r.body for r in build.joint_map(listed)] == [model.bodies[i].name for i in perm]
     for s in sample_states(model, 3, 4, "branched"):
         q, qd, u = (np.array(x) for x in (s.q, s.qd, s.u))
         a, b = reference.split(model, q, qd, u), reference.split(listed, q[perm], qd[perm], u[perm])
@@ -258,7 +260,7 @@ def test_our_coordinate_order_is_mapped_by_name(branched_path):
 
 def _circle_and_coupling(model):
     """A point of 'forearm' on a circle through its position at q0 and a coupling of the two prismatic joints."""
-    pm = reference.to_pinocchio(model)                                  # joints named after our bodies
+    pm = build.to_pinocchio(model)                                  # joints named after our bodies
     data = pm.createData()
     pin.forwardKinematics(pm, data, np.full(model.n, 0.2))              # q0: every coordinate 0.2
     offset = np.array([0.1, 0.05, 0.0])
@@ -284,18 +286,18 @@ def test_constraints_on_a_loaded_model_use_frames_of_the_file(branched_path):
 
 def test_joint_map_on_panda(panda_path):
     model = cases.load("panda")
-    rows = reference.joint_map(model)
+    rows = build.joint_map(model)
     assert len(rows) == 9
     assert [r.coordinate for r in rows] == list(range(9))
     assert [r.body for r in rows] == PANDA_LINKS and [r.joint for r in rows] == PANDA_JOINTS
     assert [(r.idx_q, r.idx_v, r.nq, r.sign) for r in rows] == [(i, i, 1, 1) for i in range(9)]
-    assert reference.provenance(model) == f"built from the file {panda_path} (9 joints mapped by link name, sign +1)"
+    assert build.provenance(model) == f"built from the file {panda_path} (9 joints mapped by link name, sign +1)"
 
 
 def test_joint_map_of_a_continuous_joint_is_cos_sin(branched_path):
     model = from_urdf(branched_path)
     np.testing.assert_allclose(model.bodies[model.body_index("rotor")].axis, [0.0, 0.6, 0.8], atol=1e-15)
-    rows = {r.body: r for r in reference.joint_map(model)}
+    rows = {r.body: r for r in build.joint_map(model)}
     assert rows["rotor"].joint == "j_spin" and rows["rotor"].nq == 2 and rows["rotor"].sign == 1
     assert sum(r.nq for r in rows.values()) == 7 and sorted(r.idx_v for r in rows.values()) == list(range(6))
     q = np.linspace(-2.0, 4.0, 6)                                      # the rotor angle beyond pi maps too
@@ -322,14 +324,14 @@ def test_a_link_not_in_the_file_is_named(chain_path):
 def test_a_welded_link_is_not_a_joint_coordinate(chain_path):
     model = _renamed(from_urdf(chain_path), "a", "a_fixed")
     with pytest.raises(ValueError, match="welded by the fixed joint 'j_fix'.*the link it moves directly"):
-        reference.joint_map(model)
+        build.joint_map(model)
 
 
 def test_a_joint_without_a_coordinate_is_named(chain_path):
     model = from_urdf(chain_path)
     short = build_model("short", model.bodies[:2], gravity=model.gravity, source=model.source)
     with pytest.raises(ValueError, match=r"URDF joint\(s\) \['j_c'\] move no body"):
-        reference.joint_map(short)
+        build.joint_map(short)
 
 
 def test_a_joint_with_more_than_one_velocity_is_named(chain_path, tmp_path):
@@ -337,7 +339,7 @@ def test_a_joint_with_more_than_one_velocity_is_named(chain_path, tmp_path):
     planar = _write(tmp_path, CHAIN.replace('name="j_b" type="continuous"', 'name="j_b" type="planar"'), "planar")
     moved_to = _rebuilt(model, source=ModelSource("urdf", planar))
     with pytest.raises(ValueError, match="joint 'j_b' of .* is a JointModelPlanar with nq 4, nv 3") as info:
-        reference.joint_map(moved_to)
+        build.joint_map(moved_to)
     assert planar in str(info.value) and "body 'b'" in str(info.value)
 
 
@@ -353,7 +355,7 @@ def test_harness_kinematics_use_our_data(chain_path, monkeypatch):
     model = from_urdf(chain_path)
     q = np.array([0.3, -0.5, 0.1])
     M_data = reference.split(_rebuilt(model, source=None), q, np.zeros(3), np.zeros(3)).extras["M"]
-    np.testing.assert_array_equal(reference.mass_matrix(model, q), M_data)
+    np.testing.assert_array_equal(kinematics.mass_matrix(model, q), M_data)
     assert np.abs(reference.split(model, q, np.zeros(3), np.zeros(3)).extras["M"] - M_data).max() > 1e-3
 
 
@@ -390,7 +392,7 @@ def _converted_with(monkeypatch, bug, path: str, name: str | None = None):
     monkeypatch.undo()
     assert model.digest() != clean.digest() and model.source == clean.source
     q = np.linspace(-1.0, 1.0, model.n)
-    M, M_clean = (reference.mass_matrix(m, q) for m in (model, clean))
+    M, M_clean = (kinematics.mass_matrix(m, q) for m in (model, clean))
     assert np.abs(M - M_clean).max() > 1e-3 * np.abs(M_clean).max()
     return model
 

@@ -14,7 +14,7 @@ import pytest
 import cases
 from cases import configuration
 from crosscheck.checks import charts, invariance
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 
 GROUP_CASES = ("free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm")

@@ -41,7 +41,8 @@ import cases
 from cases import PointOnCircle, PointsCoincide, build_model
 from cases import configuration as geometry  # the harness's group operations (the backend has its own)
 from crosscheck.checks import charts
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from crosscheck.core import tolerance as policy
@@ -94,7 +95,7 @@ def _relative_scale(value: float, condition: float = 1.0) -> float:
 
 
 def assert_agrees_with_reference(model, q, qd, u, evaluated=None) -> dict[str, float]:
-    """The backend's split against ``crosscheck.references.reference.split`` on every field it reports, each within ``RTOL``
+    """The backend's split against ``crosscheck.references.pinocchio.reference.split`` on every field it reports, each within ``RTOL``
     of its scale: accelerations of ``accel_scale``; powers of ``|B u| . |qd|``; T of itself; ``cond_M``,
     ``accel_scale``, the conditions and ``lam_scale`` relatively; multipliers of ``lam_scale``; constraint forces of
     ``||Jc|| lam_scale``; phi, Jc of the length scale L; ``Jc qd`` of ``L |qd|``; ``Jcdot qd`` of ``L |qd|^2``.
@@ -290,8 +291,8 @@ def test_terms_are_the_reference_terms_in_velocity_space(name):
     model = model_of(name)
     for q, qd, _ in states_of(model):
         M, Cqd, g = el.terms(model, q, qd)
-        M_ref = reference.mass_matrix(model, q)
-        Cqd_ref, g_ref = reference.bias_forces(model, q, qd)
+        M_ref = kinematics.mass_matrix(model, q)
+        Cqd_ref, g_ref = kinematics.bias_forces(model, q, qd)
         size = np.linalg.norm(M_ref, 2)
         np.testing.assert_allclose(M, M_ref, rtol=0, atol=1e-13 * size)
         np.testing.assert_allclose(Cqd, Cqd_ref, rtol=0, atol=1e-12 * size * (1.0 + float(qd @ qd)))
@@ -437,7 +438,7 @@ def chart_arguments(model, chart, q, qd, u):
 
 
 def assert_chart_agrees_with_reference(model, q, qd, u, chart_name="zyx") -> dict[str, float] | None:
-    """``el.split_chart`` in the zyx chart against ``crosscheck.references.reference.split`` mapped into the chart with the
+    """``el.split_chart`` in the zyx chart against ``crosscheck.references.pinocchio.reference.split`` mapped into the chart with the
     harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the ctrl without
     the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
     conditions), covariant ones mapped (``Jc_p = Jc Dpsi``, ``Jcdot_p pd = Jcdot v + Jc (d/dt Dpsi) pd``,
@@ -477,7 +478,7 @@ def assert_chart_agrees_with_reference(model, q, qd, u, chart_name="zyx") -> dic
                 float(np.abs(tau_p).sum() * rounding))
     check("power_ctrl", got.power_ctrl, ref.power_ctrl, power)
     check("power_ctrl_per_coord", got.power_ctrl_per_coord, tau_p * pd, power)
-    M_p = D.T @ reference.mass_matrix(model, q) @ D
+    M_p = D.T @ kinematics.mass_matrix(model, q) @ D
     cond = float(np.linalg.cond(M_p))
     check("cond_M", got.cond_M, cond, _relative_scale(cond, cond))
     for name in ("task_drift", "task_inertia"):

@@ -6,7 +6,7 @@ polynomial of degree 2 (``formalisms.geometric.EXP_ORDER``), every derivative ta
 
 * the four Lie-group cases and three constrained variants built here (a ball-jointed double pendulum whose hand runs
   on a ring, a satellite whose gripper is docked to a world point, a free body on a rail) at sampled states against
-  the Pinocchio reference (``crosscheck.references.reference.split``), field by field, to ``RTOL`` of the field's scale, and
+  the Pinocchio reference (``crosscheck.references.pinocchio.reference.split``), field by field, to ``RTOL`` of the field's scale, and
   through the gate's own comparison and conservation checks (``crosscheck.testing.assert_backends_agree``);
 * a Hypothesis property over random trees with spherical and free joints (``crosscheck.testing.models(group=True)``),
   unconstrained or constrained;
@@ -42,7 +42,7 @@ import cases
 from cases import PointOnCircle, PointOnLine, PointsCoincide, build_model
 from cases.configuration import integrate
 from crosscheck.checks import charts
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from formalisms import geometric

@@ -5,7 +5,7 @@ body angular velocity / body twist as velocities (Pinocchio's conventions, ``cas
 
 * the four Lie-group cases (``free_body``, ``ball_pendulum``, ``ball_double_pendulum``, ``satellite_arm``) and two
   constrained variants (a ball-jointed limb with its hand pinned to the world; the satellite's gripper on a circle
-  and its shoulder geared to its elbow) at sampled states against Pinocchio (``crosscheck.references.reference``) field by
+  and its shoulder geared to its elbow) at sampled states against Pinocchio (``crosscheck.references.pinocchio.reference``) field by
   field, each to 1e-9 of the field's scale, and through the harness's own comparison (``assert_backends_agree``);
 * a Hypothesis property over random trees with revolute, prismatic, spherical and free joints, maybe constrained;
 * ``split_batch`` rows equal ``split``;
@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 import cases
 from cases.constraints import JointCoupling, PointOnCircle, PointsCoincide
 from cases.model import build_model
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck import testing
 from crosscheck.core.sampling import sample_states
 from formalisms import newton_euler as ne

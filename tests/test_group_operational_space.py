@@ -3,7 +3,7 @@
 
 References written independently of the backend:
 
-* the Pinocchio reference (``crosscheck.references.reference.split``, ``JointModelSpherical`` / ``JointModelFreeFlyer``) on every
+* the Pinocchio reference (``crosscheck.references.pinocchio.reference.split``, ``JointModelSpherical`` / ``JointModelFreeFlyer``) on every
   field the backend reports, each within ``REL`` of a scale of that field (:func:`field_errors`), on the four group
   cases at sampled states, on hand-built constrained group models (a free base with a coupled arm whose gripper runs
   on a line; a ball-jointed limb with its hand pinned) and on Hypothesis-drawn trees with spherical and free joints
@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 import cases
 from cases import JointCoupling, PointOnLine, PointsCoincide, TaskPoint, build_model
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from crosscheck.core import tolerance as policy

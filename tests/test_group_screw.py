@@ -6,7 +6,7 @@ unit twists, and the recursions are the screw ones (``formalisms.screw.kinematic
 
 * the quaternion's rotation against the polynomial ``I + 2 w [u] + 2 [u]^2`` of ``cases.model``, and the poses
   against the model's composition ``X_parent (rotation, translation) motion(q_i)``, both written in this file;
-* Pinocchio (``crosscheck.references.reference.split``: JointModelSpherical / JointModelFreeFlyer) on every field of the split,
+* Pinocchio (``crosscheck.references.pinocchio.reference.split``: JointModelSpherical / JointModelFreeFlyer) on every field of the split,
   on the four group cases and on random trees with spherical and free joints, constrained or not, to ``RTOL`` of each
   field's scale (:func:`scales`), and through the gate's comparison (``testing.assert_backends_agree``);
 * ``split_batch`` rows against ``split``;
@@ -27,7 +27,7 @@ import cases.constraints
 from cases.model import build_model
 from crosscheck.faults import backend_catalog
 from crosscheck.checks import frames
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck import testing
 from crosscheck.faults.injection import injected
 from crosscheck.core.sampling import sample_states

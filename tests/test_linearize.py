@@ -8,7 +8,7 @@ import pytest
 
 import cases
 from cases.configuration import integrate, random_configuration
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from formalisms.interface import Linearization, tangent_kinematics
 
 

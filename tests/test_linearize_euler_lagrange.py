@@ -2,7 +2,7 @@
 (``Split.zvcf``, ``Split.drift_velocity``), against references outside the backend:
 
 * unconstrained models (revolute, spherical, free joints, drawn models) against Pinocchio's analytical ABA
-  derivatives (``crosscheck.references.reference.linearize``, same tangent convention), 1e-8 relative per block;
+  derivatives (``crosscheck.references.pinocchio.reference.linearize``, same tangent convention), 1e-8 relative per block;
 * constrained models (four-bar, slider-crank, drawn models) against central differences (Richardson-extrapolated, here
   in the test only) of the reference's KKT solve along ``integrate``, 1e-7 relative;
 * the drift's parts against ``-M^-1 g`` and ``-M^-1 C qd`` from the reference's M, C qd and g, adding up to the drift;
@@ -27,7 +27,8 @@ import formalisms
 import formalisms.euler_lagrange as el
 from cases.configuration import integrate, random_configuration
 from crosscheck.checks import charts
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.testing import models, states
 from formalisms.interface import Linearization, StateError
@@ -95,7 +96,7 @@ def _rank_is_locally_constant(model, q, h=1e-6) -> bool:
     """The rank of the reference's Jc is the same at q and along every ``integrate`` step of the differences: where a
     row degenerates at q only, vdot has no derivative (the contract's "while the rank is locally constant")."""
     def rank(q):
-        sigma = np.linalg.svd(reference.constraint_kinematics(model, q, np.zeros(model.nv))[1], compute_uv=False)
+        sigma = np.linalg.svd(kinematics.constraint_kinematics(model, q, np.zeros(model.nv))[1], compute_uv=False)
         return int(np.sum(sigma > 1e-6 * model.length_scale))
     at = rank(q)
     return all(rank(integrate(model, q, s * e)) == at for e in np.eye(model.nv) for s in (h, -h))
@@ -209,8 +210,8 @@ def test_drift_parts_are_the_references_gravity_and_velocity_parts(name):
     model = cases.load(name)
     q, v, u = _state(model, 6)
     s = EL.split(model, q, v, u)
-    M = reference.mass_matrix(model, q)
-    Cqd, g = reference.bias_forces(model, q, v)
+    M = kinematics.mass_matrix(model, q)
+    Cqd, g = kinematics.bias_forces(model, q, v)
     np.testing.assert_allclose(s.zvcf, -np.linalg.solve(M, g), rtol=0, atol=1e-10 * np.abs(s.zvcf).max())
     np.testing.assert_allclose(s.drift_velocity, -np.linalg.solve(M, Cqd), rtol=0,
                                atol=1e-10 * np.abs(s.drift_velocity).max())
@@ -257,7 +258,7 @@ def test_linearize_chart_in_an_affine_chart_is_the_references_mapped(name):
     ref, n = reference.linearize(model, q, qd, u), model.n
     Ainv = np.linalg.inv(A)
     want_A = np.block([[np.zeros((n, n)), np.eye(n)], [Ainv @ ref.A[n:, :n] @ A, Ainv @ ref.A[n:, n:] @ A]])
-    want_B = np.vstack([np.zeros((n, n)), Ainv @ np.linalg.inv(reference.mass_matrix(model, q)) @ Ainv.T])
+    want_B = np.vstack([np.zeros((n, n)), Ainv @ np.linalg.inv(kinematics.mass_matrix(model, q)) @ Ainv.T])
     lin = EL.linearize_chart(model, chart, p, pd, tau_p)
     assert lin.A.shape == (2 * n, 2 * n) and lin.B.shape == (2 * n, n)
     assert _relative(lin.A[n:, :n], want_A[n:, :n], 1e-300) <= 1e-8

@@ -3,10 +3,10 @@ parts (``Split.zvcf``, ``Split.drift_velocity``; article 4.5-4.6).
 
 References, none of them computed by the geometric backend:
 
-* unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.reference.linearize``, same tangent
+* unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.pinocchio.reference.linearize``, same tangent
   convention on Lie groups), on the named cases and on random models (``crosscheck.testing``);
 * constrained models: central differences (in this test only) of the reference's KKT solution
-  (``crosscheck.references.reference.split(...).total``) along ``integrate`` and in v and u; the panda (a joint coupling, so Jc
+  (``crosscheck.references.pinocchio.reference.split(...).total``) along ``integrate`` and in v and u; the panda (a joint coupling, so Jc
   is constant) exactly, from Pinocchio's RNEA derivatives projected onto the constraint distribution;
 * charts: at an equilibrium (v = 0, drift = 0) the chart's linearization is the joint one conjugated by
   ``T = blockdiag(Dpsi, Dpsi)`` (the harness's chart maps, ``crosscheck.checks.charts``), with the same eigenvalues;
@@ -24,7 +24,9 @@ from hypothesis import strategies as st
 import cases
 from cases.configuration import integrate, neutral, random_configuration
 from crosscheck.checks import charts
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import build
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from formalisms import geometric as geo
@@ -114,12 +116,12 @@ def test_panda_with_its_finger_mimic_matches_pinocchio_rnea_derivatives():
     s = sampling.sample_states(model, 4, 0, "panda")[3]
     q, v, u = (np.array(x) for x in (s.q, s.qd, s.u))
     ref = reference.split(model, q, v, u)
-    c = reference._reference(model)
+    c = build.reference_model(model)
     data = c.model.createData()
     pin.computeRNEADerivatives(c.model, data, c.configuration(q), v[c.order], ref.total[c.order])
-    dtau_dq, dtau_dv = (reference._ours_matrix(c.order, np.array(d)) for d in (data.dtau_dq, data.dtau_dv))
+    dtau_dq, dtau_dv = (build.ours_matrix(c.order, np.array(d)) for d in (data.dtau_dq, data.dtau_dv))
     Z = null_space(ref.constraint_jacobian)
-    P = Z @ np.linalg.solve(Z.T @ reference.mass_matrix(model, q) @ Z, Z.T)
+    P = Z @ np.linalg.solve(Z.T @ kinematics.mass_matrix(model, q) @ Z, Z.T)
     lin = geo.linearize(model, q, v, u)
     nv = model.nv
     want = Linearization(A=np.vstack([lin.A[:nv], np.hstack([-P @ dtau_dq, -P @ dtau_dv])]),
@@ -169,7 +171,7 @@ def test_chart_linearization_at_an_equilibrium_is_the_joint_one_conjugated(name,
     T = np.kron(np.eye(2), D)
     want_A = np.linalg.solve(T, A_q @ T)
     want_B = np.vstack([np.zeros((model.nv, model.nv)),
-                        np.linalg.solve(D, np.linalg.solve(reference.mass_matrix(model, q), np.linalg.inv(D).T))])
+                        np.linalg.solve(D, np.linalg.solve(kinematics.mass_matrix(model, q), np.linalg.inv(D).T))])
     assert np.abs(lin_p.A - want_A).max() <= 1e-10 * np.abs(want_A).max()
     assert np.abs(lin_p.B - want_B).max() <= 1e-10 * np.abs(want_B).max()
     np.testing.assert_array_equal(lin_p.A[:model.nv], np.hstack([np.zeros((model.nv, model.nv)), np.eye(model.nv)]))
@@ -245,8 +247,8 @@ def test_the_drift_parts_add_up_and_match_the_reference(name):
         np.testing.assert_allclose(split.zvcf, at_rest, rtol=0, atol=1e-10 * scale)
         np.testing.assert_allclose(split.drift_velocity, drift - at_rest, rtol=0, atol=1e-10 * scale)
         if not model.constraints:
-            _, g = reference.bias_forces(model, q, v)
-            np.testing.assert_allclose(split.zvcf, -np.linalg.solve(reference.mass_matrix(model, q), g), rtol=0,
+            _, g = kinematics.bias_forces(model, q, v)
+            np.testing.assert_allclose(split.zvcf, -np.linalg.solve(kinematics.mass_matrix(model, q), g), rtol=0,
                                        atol=1e-10 * scale)
 
 

@@ -1,7 +1,7 @@
 """Newton–Euler's linearization (``newton_euler.linearize``, article 4.8, eq. 11) and the drift's parts
 (``Split.zvcf``, ``drift_velocity``), against references outside the backend.
 
-Unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.reference.linearize``, same tangent-space
+Unconstrained models: Pinocchio's analytical ABA derivatives (``crosscheck.references.pinocchio.reference.linearize``, same tangent-space
 convention on Lie groups). Constrained ones: central differences of the exact KKT split of the harness's
 high-precision reference (``crosscheck.references.precise``, 50 digits, h = 1e-20: the derivative to double precision; a float
 difference of ``reference.split`` at h = 1e-6 has 1e-8 of rounding, and at h = 1e-4 steps across the rank changes of
@@ -22,7 +22,9 @@ from hypothesis import strategies as st
 import cases
 import formalisms
 from cases.configuration import integrate, random_configuration
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from formalisms import newton_euler as ne
@@ -46,7 +48,7 @@ def _errors(model, lin, want: dict, q, v, u) -> dict:
     an input on a locked joint, is exactly 0 on one side and rounding on the other), plus the rounding of the solves
     the accelerations come from: ``100 eps cond(M) cond_kept(S)`` of that largest entry (cond S reaches 1e4 on random
     constrained models, where a block that is zero in exact arithmetic is 1e-11 here)."""
-    free_input = np.linalg.solve(reference.mass_matrix(model, q), model.input_map)
+    free_input = np.linalg.solve(kinematics.mass_matrix(model, q), model.input_map)
     whole = max([np.abs(block).max(initial=0.0) for block in want.values()] + [np.abs(free_input).max(initial=0.0)])
     ref = reference.split(model, q, v, u)
     rounding = 100 * np.finfo(float).eps * ref.cond_M * ref.conditions.get("constraint_kept", 1.0) * whole
@@ -200,8 +202,8 @@ def test_drift_parts_against_the_reference_mass_matrix_and_bias_forces(name):
     model = cases.load(name)
     q, v, u = _random_state(model, 7)
     split = ne.split(model, q, v, u)
-    M = reference.mass_matrix(model, q)
-    c_qd, g = reference.bias_forces(model, q, v)
+    M = kinematics.mass_matrix(model, q)
+    c_qd, g = kinematics.bias_forces(model, q, v)
     for got, force in ((split.zvcf, g), (split.drift_velocity, c_qd)):
         want = -np.linalg.solve(M, force)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-10 * np.abs(want).max() + 1e-12)

@@ -1,7 +1,7 @@
 """The operational-space backend's linearization (article 4.8, eq. 11: forward-mode tangents through its own
 kinematics, Kane projection and constraint rows, the KKT system differentiated) and its drift's parts (4.5-4.6:
 ``zvcf``, ``drift_velocity``), held against references outside the backend: Pinocchio's ABA derivatives
-(``crosscheck.references.reference.linearize``) on unconstrained models; on constrained ones, central differences of the
+(``crosscheck.references.pinocchio.reference.linearize``) on unconstrained models; on constrained ones, central differences of the
 60-digit KKT solution (``crosscheck.references.precise``), whose truncation (h^2 = 1e-40) and rounding (1e-60 / h) are far
 below double precision, so the differences are exact to double."""
 
@@ -19,7 +19,9 @@ import formalisms
 from cases.configuration import quaternion_product, random_configuration, rotation
 from cases.constraints import PointsCoincide
 from cases.model import build_model
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from formalisms import operational_space
@@ -176,8 +178,8 @@ def test_drift_parts_match_the_reference_joint_space_terms(name):
     model = cases.load(name)
     q, v, u = _state(model, 4)
     s = operational_space.split(model, q, v, u)
-    M = reference.mass_matrix(model, q)
-    Cqd, g = reference.bias_forces(model, q, v)
+    M = kinematics.mass_matrix(model, q)
+    Cqd, g = kinematics.bias_forces(model, q, v)
     zvcf, velocity = -np.linalg.solve(M, g), -np.linalg.solve(M, Cqd)
     scale = np.abs(s.drift).max()
     np.testing.assert_allclose(s.zvcf, zvcf, rtol=0, atol=1e-11 * max(np.abs(zvcf).max(), scale))

@@ -2,9 +2,9 @@
 (article 4.5-4.6: ``zvcf``, ``drift_velocity``), against references outside the backend:
 
 * unconstrained models (named and drawn, with spherical and free joints): Pinocchio's ABA derivatives
-  (``crosscheck.references.reference.linearize``, same right-perturbation convention), to 1e-9 relative per block;
+  (``crosscheck.references.pinocchio.reference.linearize``, same right-perturbation convention), to 1e-9 relative per block;
 * constrained models (panda's finger mimic, the four-bar, the slider-crank, circles, closed loops, drawn ones): central
-  differences of the reference's KKT solution (``crosscheck.references.reference.split(...).total``) along
+  differences of the reference's KKT solution (``crosscheck.references.pinocchio.reference.split(...).total``) along
   ``cases.configuration.integrate``, Richardson-extrapolated in q (truncation far below the tolerance); in v and u the
   accelerations are exactly quadratic and linear, so one central difference of unit step is exact up to rounding;
 * the drift's parts add up to the drift, ``zvcf`` is ``-M^-1 g`` and ``drift_velocity`` ``-M^-1 C qd`` from the
@@ -23,7 +23,8 @@ from hypothesis import strategies as st
 import cases
 from cases.configuration import integrate, random_configuration
 from cases.model import build_model
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck import testing
 from crosscheck.core.sampling import sample_states
 from formalisms import screw
@@ -60,7 +61,7 @@ def assert_matches_differences(lin: Linearization, model, q, v, u, rel: float = 
     derivatives and the unconstrained input response ``M^-1 B`` from the reference's M: a block that vanishes in exact
     arithmetic, ``B_c B`` with every input locked by the constraints, is their rounding)."""
     coarse, fine = differences(model, q, v, u), differences(model, q, v, u, h=5e-3)
-    free_response = np.linalg.solve(reference.mass_matrix(model, q), model.input_map)
+    free_response = np.linalg.solve(kinematics.mass_matrix(model, q), model.input_map)
     summed = np.abs(lin.vdot).max() + np.abs(coarse).max() + np.abs(free_response).max(initial=0.0)
     assert_blocks(lin, coarse, model.nv, rel, noise=10 * np.abs(coarse - fine).max() + 1e-12 * summed)
 
@@ -184,7 +185,7 @@ def test_the_drift_parts_add_up_and_match_the_reference(name):
             drift = reference.split(model, q, v, u).drift       # the difference is good to eps |drift| only
             assert np.abs(s.drift_velocity - (drift - at_rest)).max() <= 1e-11 * np.abs(drift).max()
         else:
-            M = reference.mass_matrix(model, q)
-            c_qd, g = reference.bias_forces(model, q, v)
+            M = kinematics.mass_matrix(model, q)
+            c_qd, g = kinematics.bias_forces(model, q, v)
             assert relative(s.zvcf, np.linalg.solve(M, -g)) <= 1e-12
             assert relative(s.drift_velocity, np.linalg.solve(M, -c_qd)) <= 1e-12

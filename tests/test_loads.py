@@ -82,7 +82,8 @@ def test_the_spring_potential():
 
 from cases import configuration  # noqa: E402
 from crosscheck.engine import evaluation
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import reference
 from crosscheck import testing
 from crosscheck.faults.injection import default_backends  # noqa: E402
 from crosscheck.core.sampling import sample_states  # noqa: E402

@@ -20,7 +20,7 @@ import cases
 from closed_forms import endpoint_jacobian, pendulum_terms
 from scenes import panda_arm
 from crosscheck import backends
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import reference
 from crosscheck.reports import gate_report
 from crosscheck.core import tolerance as policy
 from crosscheck.engine.specs import CaseSpec

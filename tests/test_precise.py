@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 import cases
 from closed_forms import cartesian_lam_mp, pendulum_terms_mp
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck import testing
 from crosscheck.core import tolerance as policy

@@ -14,7 +14,8 @@ import formalisms
 from cases.serialize import SerializeError, model_from_dict, model_to_dict
 from crosscheck.checks import charts, frames
 from crosscheck import cli, testing
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.core.sampling import State
 
@@ -108,7 +109,7 @@ def test_constrained_drawn_states_are_admissible(data):
     model = data.draw(testing.models(max_bodies=4, constraints=True))
     assert 1 <= model.k < model.n
     state = data.draw(testing.states(model))
-    phi, Jc, _ = reference.constraint_kinematics(model, state.q, state.qd)
+    phi, Jc, _ = kinematics.constraint_kinematics(model, state.q, state.qd)
     scale = model.length_scale ** 2
     assert np.abs(phi).max() <= sampling.PHI_TOL * scale
     assert np.abs(Jc @ np.array(state.qd)).max() <= cli.ADMISSIBLE * scale * (1.0 + np.abs(state.qd).sum())

@@ -17,7 +17,8 @@ import pytest
 
 import cases
 from cases import Body, ModelError, UrdfError, build_model, from_urdf
-from crosscheck.references.reference import REFERENCE, split, to_pinocchio
+from crosscheck.references.pinocchio.reference import REFERENCE, split
+from crosscheck.references.pinocchio.build import to_pinocchio
 from closed_forms import inv2, pendulum_terms
 
 PANDA_LINKS = [f"panda_link{i}" for i in range(1, 8)] + ["panda_leftfinger", "panda_rightfinger"]

@@ -12,7 +12,7 @@ import pytest
 import cases
 from cases.model import ModelError
 from crosscheck import cli
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import kinematics
 from crosscheck.engine.specs import CaseSpec
 
 #: revolute j_a, continuous j_b (unaligned axis), prismatic j_c, and a fixed joint to a tool link.
@@ -67,7 +67,7 @@ def test_ctrl_of_every_backend_uses_the_input_map(path, capsys):
                      "--qd=1,-2,0.3", "--u=2,-3", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     model = cases.from_urdf(path, base="fixed")
-    want = np.linalg.solve(reference.mass_matrix(model, q), [-3.0, 0.0, 2.0])
+    want = np.linalg.solve(kinematics.mass_matrix(model, q), [-3.0, 0.0, 2.0])
     assert len(data["formalisms"]) >= 6
     for name, values in data["formalisms"].items():
         np.testing.assert_allclose(values["ctrl"], want, rtol=1e-9, atol=1e-12, err_msg=name)

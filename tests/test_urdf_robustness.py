@@ -20,7 +20,8 @@ import pytest
 import cases
 from cases import JointCoupling, ModelError, UrdfError, build_model, from_urdf
 from crosscheck import cli
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import build
+from crosscheck.references.pinocchio import reference
 from crosscheck.reports import gate_report
 
 LIMIT = '<limit lower="-3" upper="3" effort="10" velocity="5"/>'
@@ -127,14 +128,14 @@ def test_the_reference_checks_the_mimic_couplings_against_the_file(tmp_path, dec
     model = build_model(loaded.name, loaded.bodies, loaded.gravity, task_points=loaded.task_points,
                         constraints=declared, source=loaded.source)
     with pytest.raises(ValueError, match=message):
-        reference.joint_map(model)
+        build.joint_map(model)
 
 
 def test_the_reference_accepts_a_scaled_coupling_row(tmp_path):
     loaded = from_urdf(_write(tmp_path, MIMIC))
     model = build_model(loaded.name, loaded.bodies, loaded.gravity, task_points=loaded.task_points,
                         constraints=[JointCoupling("mimic:j3", ("a", "c"), (-4.0, -2.0), -0.6)], source=loaded.source)
-    assert len(reference.joint_map(model)) == 3
+    assert len(build.joint_map(model)) == 3
 
 
 @pytest.mark.parametrize("mimic, reason", [

@@ -129,9 +129,10 @@ def test_native_answers_are_pinocchios_aba_in_the_representation(case, name):
     ``tau = R n``). Drift with u = 0, total with the input."""
     import pinocchio as pin
 
-    from crosscheck.references import reference
+    from crosscheck.references.pinocchio import build
+    from crosscheck.references.pinocchio import reference
     model = cases.load(case)
-    pm = reference.to_pinocchio(model)
+    pm = build.to_pinocchio(model)
     data = pm.createData()
     assert (pm.nq, pm.nv) == (model.nq, model.nv)          # one joint: the same coordinates
     chart = charts.get(name, model)
@@ -163,9 +164,10 @@ def test_native_answers_are_pinocchios_aba_in_the_representation(case, name):
 @pytest.mark.parametrize("name", charts.REPRESENTATIONS)
 def test_native_answers_match_the_reference_on_trees(case, name):
     """On trees with a floating base or ball joints and revolute joints, the native ``wdot`` equals the Pinocchio
-    reference's ``vdot`` (``crosscheck.references.reference``, our coordinate order) carried by the chart's map
+    reference's ``vdot`` (``crosscheck.references.pinocchio.reference``, our coordinate order) carried by the chart's map
     ``wdot = T^-1 (vdot - Tdot w)``, checked by ``T`` and ``Tdot w`` of the finite-difference tests above."""
-    from crosscheck.references import reference
+    from crosscheck.references.pinocchio import build
+    from crosscheck.references.pinocchio import reference
     model = cases.load(case)
     chart = charts.get(name, model)
     for s in _states(model, case, 2):

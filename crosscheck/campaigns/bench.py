@@ -36,7 +36,8 @@ import cases
 from cases.model import Model
 from cases.representation import general_3d
 from crosscheck import backends
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import build
 from crosscheck.engine import progress
 from crosscheck.core import sampling
 from crosscheck.core import tolerance as policy
@@ -185,7 +186,7 @@ def states(model: Model, count: int, case: str) -> tuple[np.ndarray, np.ndarray,
 
 def aba_per_call(model: Model, Q: np.ndarray, QD: np.ndarray, min_time: float) -> float:
     """Seconds per ``pinocchio.aba`` call from Python on the model (the speed anchor; constraints ignored)."""
-    pm = reference.to_pinocchio(model)
+    pm = build.to_pinocchio(model)
     data = pm.createData()
     tau = np.ones(model.n)
     return per_call(lambda q, v: pin.aba(pm, data, q, v, tau), list(zip(Q, QD)), min_time)

@@ -111,7 +111,7 @@ def _split_functions(backend):
     """(split, split_batch or None) of a backend name, or of an object with ``split`` (a wrapped backend)."""
     if isinstance(backend, str):
         if backend == PINOCCHIO:
-            from crosscheck.references import reference as mod
+            from crosscheck.references.pinocchio import reference as mod
         else:
             import formalisms
             mod = formalisms.get(backend)
@@ -150,7 +150,7 @@ class Dynamics:
 
 
 def baumgarte_term(model: Model, q, v, alpha: float) -> np.ndarray:
-    from crosscheck.references.reference import constraint_kinematics, mass_matrix
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics, mass_matrix
 
     phi, Jc, _ = constraint_kinematics(model, q, v)
     Minv = np.linalg.inv(mass_matrix(model, q))
@@ -348,7 +348,7 @@ def mp_energy(model: Model, q, v):
 def energy(model: Model, q, v) -> float:
     """Total energy in float (harness: Pinocchio's M, the model's poses)."""
     from cases import configuration
-    from crosscheck.references.reference import mass_matrix
+    from crosscheck.references.pinocchio.kinematics import mass_matrix
 
     q, v = np.asarray(q, float), np.asarray(v, float)
     T = 0.5 * v @ mass_matrix(model, q) @ v
@@ -560,7 +560,7 @@ def perturbation_direction(model: Model, q0, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     d = rng.standard_normal(2 * model.n)
     if model.constraints:
-        from crosscheck.references.reference import constraint_kinematics
+        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
         _, Jc, _ = constraint_kinematics(model, q0, np.zeros(model.n))
         _, s, Vt = np.linalg.svd(Jc)
@@ -684,7 +684,7 @@ def constraint_drift(model: Model, run: Run) -> np.ndarray:
     """max(|phi|_inf, |Jc v|_inf) along the run (0 for an unconstrained model)."""
     if not model.constraints:
         return np.zeros(len(run.t))
-    from crosscheck.references.reference import constraint_kinematics
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     out = []
     for q, v in zip(run.q, run.v):

@@ -25,7 +25,7 @@ of mass, ``P`` the linear momentum and ``L_G`` the angular momentum about c (wor
   whole ``dL_O/dt = (c - O) x m g``; on a prismatic joint along ``a``: ``d/dt a . P = m a . g``.
 
 Each backend's drift is put through one momentum bookkeeping, the harness's ``dh_G/dt = A_G qdd + b`` (Pinocchio's
-centroidal map on the model's data, ``crosscheck.references.reference.centroidal_momentum_map``), and the exact rates vote
+centroidal map on the model's data, ``crosscheck.references.pinocchio.kinematics.centroidal_momentum_map``), and the exact rates vote
 with them. A drift the comparison accepts moves the rate by up to ``|A_G|`` times its tolerance, and the rate's own
 rounding is eps times the terms it sums; the tolerance is their sum.
 """
@@ -160,7 +160,7 @@ def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
                     at: policy.Scales | None = None) -> dict[str, Comparison]:
     """The momentum law of the model's roots under each backend's drift (module doc, "Momentum"); empty when no
     law applies."""
-    from crosscheck.references.reference import centroidal_momentum_map
+    from crosscheck.references.pinocchio.kinematics import centroidal_momentum_map
 
     q, qd = np.array(state.q), np.array(state.qd)
     A, b, c = centroidal_momentum_map(model, q, qd)

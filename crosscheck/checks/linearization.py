@@ -6,7 +6,7 @@ with an external reference, with a tolerance derived like the others (docs/toler
 (``tangent_kinematics``, shared by the backends; the Pinocchio reference forms them with its own Lie algebra, so the
 comparison of the ``kinematic rows`` checks that shared code too), and the checks compare the three dynamic blocks
 ``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du`` (each backend's own exact derivative) and ``vdot`` itself. The references are Pinocchio's analytical ABA derivatives
-(``crosscheck.references.reference.linearize``) on an unconstrained model and the 50-digit central differences of the exact
+(``crosscheck.references.pinocchio.reference.linearize``) on an unconstrained model and the 50-digit central differences of the exact
 KKT solution (``crosscheck.references.precise.linearize``, voter ``exact``) on a constrained one, and on a model with external
 loads Pinocchio declines (world-frame forces and springs turn in its joint frames, which its fext derivatives hold
 fixed).
@@ -33,7 +33,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from cases.model import Model
-from crosscheck.references import precise, reference
+from crosscheck.references import precise
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import tolerance as policy
 from crosscheck.core.compare import Comparison, compare
 from crosscheck.core.sampling import State

@@ -421,7 +421,7 @@ def _constraint_rows(model) -> list[str]:
 def _admissible(model, chart, p, pd, project: bool) -> tuple[np.ndarray, np.ndarray]:
     """(p, pd) when the state satisfies the constraints (article 5.1: phi(q) = 0 and Jc qd = 0); with ``project``
     the state moved onto the manifold and its tangent space; otherwise a UsageError saying how far off it is."""
-    from crosscheck.references.reference import constraint_kinematics
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     q, qd = chart.q_of(p), chart.jacobian(p) @ pd
     phi, Jc, _ = constraint_kinematics(model, q, qd)

@@ -3,7 +3,7 @@
 A constrained model's states are admissible (DESIGN.md; article 5.1): q is projected onto the constraint manifold
 ``phi(q) = 0`` of the holonomic rows by Gauss–Newton (Pfaffian rows ``A(q) qd = 0`` leave q free) and qd onto the
 null space of every row, ``Jc qd = 0`` and ``A qd = 0``, both with the Pinocchio reference's
-constraint kinematics (``crosscheck.references.reference.constraint_kinematics``), so admissibility is decided outside the five
+constraint kinematics (``crosscheck.references.pinocchio.kinematics.constraint_kinematics``), so admissibility is decided outside the five
 formalisms under test.
 """
 
@@ -126,7 +126,7 @@ def project_configuration(model: Model, q) -> np.ndarray:
     and free joints), halved until |phi| shrinks, iterated down to rounding; :class:`ProjectionError` saying how far it
     got when it ends above ``PHI_TOL``. Only the holonomic rows take part (``Model.holonomic_rows``): a Pfaffian row
     ``A(q) qd = 0`` has no ``phi`` and leaves every configuration admissible."""
-    from crosscheck.references.reference import constraint_kinematics as rows
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics as rows
 
     q = np.array(q, dtype=float)
     holonomic = model.holonomic_rows
@@ -163,7 +163,7 @@ def project_velocity(model: Model, q, qd) -> np.ndarray:
     (Jc's right singular vectors beyond its rank; singular values above ``VELOCITY_RCOND`` count). Built from the
     kept part rather than by subtracting the removed one (``(I - Jc^+ Jc) qd``), the residual ``Jc qd`` is rounding
     of the result, not of the removed part, which can dwarf a small remaining qd."""
-    from crosscheck.references.reference import constraint_kinematics
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
     if not np.all(np.isfinite(Jc)):

@@ -407,7 +407,7 @@ def _task_condition(split) -> float:
 
 @dataclass(frozen=True)
 class _Mass:
-    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.references.reference.mass_matrix``): ``M^-1``, ``|M^-1|``
+    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.references.pinocchio.kinematics.mass_matrix``): ``M^-1``, ``|M^-1|``
     entrywise, ``||M||_2``, ``||M^-1||_2`` and ``sqrt(diag M)``."""
 
     inverse: np.ndarray
@@ -428,7 +428,7 @@ def _mass(model, q) -> _Mass:
     if entry is None or entry[0]() is not model or entry[1] != key:
         import scipy.linalg
 
-        from crosscheck.references.reference import mass_matrix
+        from crosscheck.references.pinocchio.kinematics import mass_matrix
         M = mass_matrix(model, q)
         inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
         eigenvalues = np.linalg.eigvalsh(M)
@@ -726,7 +726,7 @@ def _contact_gain(model, q) -> float:
     contact, ``t = (a x n) / s`` (``|a x n| = s``), and its rate ``tdot`` are divided by the same s and round alike."""
     if not any(isinstance(c, RollingContact) for c in model.constraints):
         return 1.0
-    from crosscheck.references.reference import contact_sines
+    from crosscheck.references.pinocchio.kinematics import contact_sines
 
     return 1.0 / max(float(contact_sines(model, q).min()), MIN_CONTACT_SINE) ** 2
 

@@ -4,7 +4,7 @@ that cannot be avoided ... is guarded by something outside the vote").
 A bug in the model language, a URDF conversion, a case factory, a constraint declaration, the sampler, the charts,
 the frames, the comparison or the tolerance moves all voters together: they agree on the wrong answer, or the check
 that should have failed cannot. The gate guards each of these places with something outside the vote: the reference
-built from the model file (``crosscheck.references.reference``), the closed forms bound to a case's parameters
+built from the model file (``crosscheck.references.pinocchio.reference``), the closed forms bound to a case's parameters
 (``crosscheck.references.closed_forms``), the exact values (``H_t``, phi, constraint power), the chart and frame invariance
 checks, the conditions audit (``crosscheck.guards.conditioning``), the sampling coverage (``crosscheck.guards.coverage``) and the
 self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such bugs, each with the guard expected to catch
@@ -212,7 +212,7 @@ def _pfaffian_as_holonomic(project_velocity):
     def faulty(model, q, qd):
         if not model.pfaffian_rows.any():
             return project_velocity(model, q, qd)
-        from crosscheck.references.reference import constraint_kinematics
+        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
         Jc = constraint_kinematics(model, q, np.zeros(model.nv))[1][model.holonomic_rows]
         if not len(Jc):
@@ -337,7 +337,7 @@ CATALOG: list[SharedFault] = [
                  "formalisms.newton_euler:CONSTRAINT_RCOND", "formalisms.screw.constraints:CONSTRAINT_RCOND",
                  "formalisms.screw.conditioning:CONSTRAINT_RCOND",
                  "formalisms.operational_space:CONSTRAINT_RCOND", "formalisms.geometric:CONSTRAINT_RCOND",
-                 "crosscheck.references.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
+                 "crosscheck.references.pinocchio.reference:CONSTRAINT_RCOND"), lambda value: 1e-2,
                 "the closed forms, the conditions audit and the exact H_t residual"),
     SharedFault("loads-world-force-validated-as-body", "load declarations",
                 "An external force or wrench declared in the world frame is validated into a body-frame one (its "

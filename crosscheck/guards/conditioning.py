@@ -4,7 +4,7 @@ A backend that reports its method ill-conditioned at a state (``Split.conditions
 .BREAKDOWN_LIMITS``) leaves the vote there. A backend could escape every comparison that way: an operational-space
 backend whose inverse mass matrix is garbage reports cond(task) = inf everywhere, is BREAKDOWN at every state, and
 the gate would say PASS. So the harness computes every condition the backends report from Pinocchio's M, ``C qd``,
-``g``, task Jacobian and constraint kinematics (``crosscheck.references.reference``), with its own code (:func:`independent`),
+``g``, task Jacobian and constraint kinematics (``crosscheck.references.pinocchio.reference``), with its own code (:func:`independent`),
 and :func:`audit` compares each backend's report with it:
 
 * ``conditions: <name>`` (a check, voted like any comparison, the independent value voting as ``independent``):
@@ -147,7 +147,7 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
     """Every condition a backend may report at the state, from Pinocchio's M, ``C qd``, ``g``, task Jacobian and
     constraint kinematics, by this module's own code (module doc), ``"M"``: cond(M), and the relative rounding of the
     rows the conditions are made of (:func:`_short`), ``"rows task"`` and ``"rows constraint"``."""
-    from crosscheck.references.reference import bias_forces, mass_matrix, task_jacobian
+    from crosscheck.references.pinocchio.kinematics import bias_forces, mass_matrix, task_jacobian
 
     q, qd, u = (np.asarray(x, dtype=float) for x in (q, qd, u))
     M = mass_matrix(model, q)
@@ -158,7 +158,7 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
     out = {"M": float(eig[-1] / eig[0]), "task": task, "task_inertia": task, "task_jacobian": short,
            "rows task": _short(model, J), "rows constraint": 1.0}
     if model.constraints:
-        from crosscheck.references.reference import constraint_kinematics
+        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
         Cqd, g = bias_forces(model, q, qd)
         tau = model.input_map @ u

@@ -67,7 +67,7 @@ def _ranges(rows: np.ndarray, width: int) -> np.ndarray:
 def _ranks(model: Model, Q: np.ndarray) -> tuple[int, int] | None:
     if not model.constraints or not len(Q):
         return None
-    from crosscheck.references.reference import constraint_kinematics
+    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     ranks = [int(np.linalg.matrix_rank(constraint_kinematics(model, q, np.zeros(model.nv))[1])) for q in Q]
     return min(ranks), max(ranks)

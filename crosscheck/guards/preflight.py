@@ -106,7 +106,7 @@ def _probe_configurations(model: Model) -> list[np.ndarray]:
 
 def _singular_everywhere(model: Model) -> str | None:
     """None when M is regular at some probe configuration; else what is wrong, with the null direction."""
-    from crosscheck.references.reference import mass_matrix
+    from crosscheck.references.pinocchio.kinematics import mass_matrix
 
     worst = None
     for q in _probe_configurations(model):

@@ -20,7 +20,8 @@ import numpy as np
 from cases import task
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.references import reference
+from crosscheck.references.pinocchio import build
+from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
 from crosscheck.core.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects,
                                 vote)
@@ -425,7 +426,7 @@ def _voters_section(result: GateResult) -> list[str]:
                              "(it checks little here)")
         if case.closed_form:
             lines.append(f"- {case.spec.name}: closed form: {case.closed_form}")
-        built = reference.provenance(case.model) if reference.REFERENCE.name in result.backends else None
+        built = build.provenance(case.model) if reference.REFERENCE.name in result.backends else None
         if built:
             lines.append(f"- {case.spec.name}: the reference (pinocchio) is {built}")
     return (["Voters:", ""] + lines + [""]) if lines else []

@@ -6,7 +6,7 @@ or below the panels, :func:`legend_right`, :func:`legend_below`); each backend k
 
 :func:`stick_points` and :func:`stick_figure`: the mechanism at a configuration, as a 3-D stick figure of its joint
 origins and link segments from the reference's forward kinematics (Pinocchio on the model's data,
-``crosscheck.references.reference.to_pinocchio``), with the task point.
+``crosscheck.references.pinocchio.build.to_pinocchio``), with the task point.
 """
 
 from __future__ import annotations
@@ -70,12 +70,12 @@ def save(fig, path: Path) -> Path:
 # ---------------------------------------------------------------------------------------------- stick figure
 
 def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarray, np.ndarray]:
-    """The mechanism at ``q`` from the reference's forward kinematics (``crosscheck.references.reference.body_origins``): joint
+    """The mechanism at ``q`` from the reference's forward kinematics (``crosscheck.references.pinocchio.kinematics.body_origins``): joint
     origins (bodies x 3, world frame, in body order), segments as (parent row, child row) pairs (-1: the world
     origin), the leaf bodies' centres of mass (where their links end; leaves x 3) and the task point."""
-    from crosscheck.references import reference
+    from crosscheck.references.pinocchio import kinematics
 
-    origins, coms, task = reference.body_origins(model, q)
+    origins, coms, task = kinematics.body_origins(model, q)
     leaves = [i for i in range(len(model.bodies)) if i not in model.parent_index]
     return origins, [(model.parent_index[i], i) for i in range(len(model.bodies))], coms[leaves], task
 

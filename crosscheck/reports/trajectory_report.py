@@ -91,7 +91,7 @@ def _job(kind: str, args: tuple):
 def fastest_frequency(model, q) -> float:
     """``omega_max = sqrt(max |eig(d drift / dq)|)`` at ``(q, v = 0)``: the fastest small-oscillation frequency, from
     central differences (step 1e-6) of the Pinocchio reference's drift."""
-    from crosscheck.references import reference
+    from crosscheck.references.pinocchio import reference
 
     h, n = 1e-6, model.n
     J = np.empty((n, n))
