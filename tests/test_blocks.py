@@ -16,7 +16,7 @@ import formalisms.newton_euler as ne
 import formalisms.operational_space as ops
 from crosscheck import backends, testing
 from crosscheck.checks import charts, frames
-from crosscheck.campaigns import fuzz
+from crosscheck.campaigns.fuzz import chunk
 from crosscheck.engine import evaluation
 from crosscheck.engine import run
 from crosscheck.engine.specs import CaseSpec, Checks
@@ -171,7 +171,7 @@ def test_the_fuzzers_block_gives_the_outcomes_of_one_state_at_a_time():
     chart, frame = charts.get("affine", model, 4), frames.sampled(4, "four_bar", 1)[0]
     chosen = [backends.get("euler_lagrange"), backends.get("pinocchio"), RAISING, PLUGIN]
     every = {"charts": True, "frames": True, "conservation": True}
-    block = list(fuzz.evaluate_block(model, states, chart, frame, chosen, every))
-    alone = [fuzz.evaluate(model, state, chart, frame, chosen, every) for state in states]
+    block = list(chunk.evaluate_block(model, states, chart, frame, chosen, every))
+    alone = [chunk.evaluate(model, state, chart, frame, chosen, every) for state in states]
     assert [_seen(o) for o in block] == [_seen(o) for o in alone]
     assert any("operational_space" in o.errors for o in block)

@@ -4,7 +4,7 @@ and ``examples/slurm/merge.sh``.
 
 Their own shell scripts run here, as written, for two shards of one example each and then their merge; the merged
 report must be that of the unsharded run with the same seed (``tests/test_fuzz.py`` proves the same of
-``fuzz.merge`` itself). ``crosscheck`` is this checkout's command line, put on PATH as the workflow's install step
+``crosscheck.campaigns.fuzz.runs.merge`` itself). ``crosscheck`` is this checkout's command line, put on PATH as the workflow's install step
 and the Slurm scripts' virtual environment put it. The shards run in-process (WORKERS=0; worker processes give the
 same chunks, ``test_fuzz.py``), and OPTIONS keeps the drawn models small. The workflow is read without a YAML
 library (none is a dependency): its steps are written ``- name: NAME`` followed by ``env:``, ``with:`` and

@@ -12,7 +12,11 @@ import pytest
 
 from cases.serialize import model_from_dict
 from crosscheck import cli
-from crosscheck.campaigns import fuzz
+from crosscheck.campaigns.fuzz import runs
+from crosscheck.campaigns.fuzz import chunk
+from crosscheck.campaigns.fuzz import settings
+from crosscheck.campaigns.fuzz import storage
+from crosscheck.reports import fuzz_report
 
 #: A small campaign: two chunks of three examples, models of at most two bodies, two states each.
 SMALL = dict(seed=0, examples=6, chunk_examples=3, max_bodies=2, max_states=2, workers=0)
@@ -21,16 +25,16 @@ SMALL = dict(seed=0, examples=6, chunk_examples=3, max_bodies=2, max_states=2, w
 TIMING = re.compile(r"^\| (compute time|wall time|throughput) \|.*$", re.M)
 
 
-def campaign(out: Path, **kwargs) -> fuzz.CampaignResult:
-    return fuzz.run_campaign(fuzz.config(**{**SMALL, "out": str(out), **kwargs}))
+def campaign(out: Path, **kwargs) -> storage.CampaignResult:
+    return runs.run_campaign(settings.config(**{**SMALL, "out": str(out), **kwargs}))
 
 
-def stable(result: fuzz.CampaignResult) -> str:
+def stable(result: storage.CampaignResult) -> str:
     """The report without its timing rows and with the campaign directory replaced."""
     return TIMING.sub("", (result.out / "report.md").read_text()).replace(str(result.out), "DIR")
 
 
-def records(result: fuzz.CampaignResult) -> list[dict]:
+def records(result: storage.CampaignResult) -> list[dict]:
     return [{k: v for k, v in r.items() if k != "seconds"} for r in result.chunks]
 
 
@@ -60,7 +64,7 @@ def test_same_seed_same_findings_and_report(reference_run, tmp_path):
 def test_shards_merged_equal_the_unsharded_run(reference_run, tmp_path):
     shards = [campaign(tmp_path / f"shard{i}", shard=(i, 2)) for i in range(2)]
     assert [[r["chunk"] for r in s.chunks] for s in shards] == [[0], [1]]
-    merged = fuzz.merge([s.out for s in shards], tmp_path / "merged")
+    merged = runs.merge([s.out for s in shards], tmp_path / "merged")
     assert [f["id"] for f in merged.findings] == [f["id"] for f in reference_run.findings]
     assert records(merged) == records(reference_run)
     strip = lambda text: re.sub(r"\(shards run: [^)]*\)", "", text)  # noqa: E731
@@ -119,18 +123,18 @@ FAULT = dict(seed=2, examples=6, chunk_examples=3, max_bodies=3, max_states=2, c
 
 def interrupt_when_shrinking(patch: pytest.MonkeyPatch) -> None:
     """Ctrl-C at the first example after a failure: Hypothesis has started shrinking it."""
-    original = fuzz._Recorder.example
+    original = chunk._Recorder.example
 
     def interrupted(self, model):
         if self.last_failure is not None:
             raise KeyboardInterrupt
         original(self, model)
 
-    patch.setattr(fuzz._Recorder, "example", interrupted)
+    patch.setattr(chunk._Recorder, "example", interrupted)
 
 
 @pytest.fixture(scope="module")
-def fault_run(drop_coriolis, tmp_path_factory) -> fuzz.CampaignResult:
+def fault_run(drop_coriolis, tmp_path_factory) -> storage.CampaignResult:
     """The FAULT campaign on Euler–Lagrange without its Coriolis term (the longest campaign here: its failure is
     shrunk), run once for the tests that read it."""
     with pytest.MonkeyPatch.context() as patch:
@@ -139,7 +143,7 @@ def fault_run(drop_coriolis, tmp_path_factory) -> fuzz.CampaignResult:
 
 
 @pytest.fixture(scope="module")
-def interrupted_fault_run(drop_coriolis, tmp_path_factory) -> fuzz.CampaignResult:
+def interrupted_fault_run(drop_coriolis, tmp_path_factory) -> storage.CampaignResult:
     """The FAULT campaign interrupted (Ctrl-C) as it starts shrinking its failure."""
     with pytest.MonkeyPatch.context() as patch:
         drop_coriolis(patch)
@@ -182,13 +186,13 @@ def test_ctrl_c_while_shrinking_keeps_the_failure_in_hand(interrupted_fault_run)
 
 
 def test_ctrl_c_after_a_finding_is_saved_leaves_it_on_disk(dropped_coriolis, monkeypatch, tmp_path):
-    save = fuzz.save_finding
+    save = storage.save_finding
 
     def save_then_interrupt(out, finding):
         save(out, finding)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(fuzz, "save_finding", save_then_interrupt)
+    monkeypatch.setattr(chunk, "save_finding", save_then_interrupt)
     result = campaign(tmp_path / "int2", **{**FAULT, "shrink_calls": 0})   # saved as soon as it fails
     assert result.interrupted and len(result.findings) == 1
     assert (result.out / "findings" / f"{result.findings[0]['id']}.json").exists()
@@ -214,16 +218,16 @@ def test_the_report_and_the_summary_account_for_every_example_and_group_the_find
     of the 6 examples asked were generated, and put every one not generated down to a chunk that ended at its failure;
     the findings are grouped by signature."""
     result = fault_run
-    got = fuzz.account(fuzz.load_campaign(result.out), result.chunks)
+    got = fuzz_report.account(storage.load_campaign(result.out), result.chunks)
     generated = sum(r["examples"] for r in result.chunks)
     short = [r for r in result.chunks if r["examples"] < r["planned"]]
     assert (got.asked, got.generated) == (6, generated) and short and all(r["findings"] for r in short)
-    assert got.missing == ((fuzz.FAILED, len(short), 6 - generated),)
+    assert got.missing == ((fuzz_report.FAILED, len(short), 6 - generated),)
     report = (result.out / "report.md").read_text()
     assert f"| examples | {generated} of 6 asked generated; not generated: {6 - generated} in chunks that ended at " \
            "their first failure" in report
     assert "## Findings by signature" in report
-    lines = fuzz.summary(result).splitlines()
+    lines = fuzz_report.summary(result).splitlines()
     assert lines[0].startswith(f"2 chunks, examples: {got.text()}; ")
-    (signature, members), *_ = fuzz.group(result.findings)
+    (signature, members), *_ = fuzz_report.group(result.findings)
     assert lines[1].startswith(f"  {len(members)} x failing {signature[0]}; outlier euler_lagrange; 2 revolute: ")

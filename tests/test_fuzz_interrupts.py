@@ -29,7 +29,10 @@ from pathlib import Path
 import pytest
 
 from crosscheck import cli
-from crosscheck.campaigns import fuzz
+from crosscheck.campaigns.fuzz import runs
+from crosscheck.campaigns.fuzz import interrupts
+from crosscheck.campaigns.fuzz import settings
+from crosscheck.campaigns.fuzz import storage
 
 PLUGIN = '''
 import dataclasses
@@ -103,7 +106,7 @@ def findings(out: Path) -> dict[str, dict]:
 
 
 def records(out: Path) -> list[dict]:
-    return [{k: v for k, v in r.items() if k != "seconds"} for r in fuzz.load_chunks(out)]
+    return [{k: v for k, v in r.items() if k != "seconds"} for r in storage.load_chunks(out)]
 
 
 def report(out: Path) -> str:
@@ -152,7 +155,7 @@ def test_a_signal_mid_shrink_then_resume_gives_the_uninterrupted_findings(signam
         assert proc.returncode == 130, proc.stderr
         assert "(interrupted)" in proc.stdout
         assert "Traceback" not in proc.stderr and proc.stderr.splitlines()[-1].startswith("crosscheck: interrupted ")
-        interrupted = [r for r in fuzz.load_chunks(out) if r["interrupted"]]
+        interrupted = [r for r in storage.load_chunks(out) if r["interrupted"]]
         held = {i for r in interrupted for i in r["findings"]}
         assert held and held <= set(findings(out)), "the failure being shrunk was lost"
         assert all(i in (out / "report.md").read_text() for i in held)
@@ -175,8 +178,8 @@ def test_a_signal_mid_shrink_then_resume_gives_the_uninterrupted_findings(signam
 TINY = dict(seed=0, examples=2, chunk_examples=1, max_bodies=1, max_states=1, workers=0)
 
 
-def tiny(out: Path) -> fuzz.CampaignResult:
-    return fuzz.run_campaign(fuzz.config(**TINY, out=str(out)))
+def tiny(out: Path) -> storage.CampaignResult:
+    return runs.run_campaign(settings.config(**TINY, out=str(out)))
 
 
 def test_a_torn_last_log_line_is_skipped_and_dropped_at_the_next_append(tmp_path):
@@ -184,7 +187,7 @@ def test_a_torn_last_log_line_is_skipped_and_dropped_at_the_next_append(tmp_path
     log = tmp_path / "whole" / "chunks.jsonl"
     lines = log.read_text().splitlines(keepends=True)
     log.write_text(lines[0] + lines[1][:len(lines[1]) // 2])     # a crash while chunk 1 was logged
-    assert [r["chunk"] for r in fuzz.load_chunks(log.parent)] == [0]
+    assert [r["chunk"] for r in storage.load_chunks(log.parent)] == [0]
     resumed = tiny(tmp_path / "whole")                            # chunk 1 runs again
     assert [json.loads(line)["chunk"] for line in log.read_text().splitlines()] == [0, 1]
     assert [{k: v for k, v in r.items() if k != "seconds"} for r in resumed.chunks] \
@@ -204,7 +207,7 @@ def test_a_corrupt_line_inside_the_log_is_an_error_naming_it(tmp_path):
     log = tmp_path / "c" / "chunks.jsonl"
     lines = log.read_text().splitlines(keepends=True)
     log.write_text(lines[0][:20] + "\n" + lines[1])
-    with pytest.raises(fuzz.FuzzError, match=rf"{re.escape(str(log))} line 1 is not a chunk record"):
+    with pytest.raises(settings.FuzzError, match=rf"{re.escape(str(log))} line 1 is not a chunk record"):
         tiny(tmp_path / "c")
 
 
@@ -226,7 +229,7 @@ def test_a_corrupt_finding_file_is_an_error_naming_it(tmp_path, capsys):
     bad = tmp_path / "c" / "findings" / "0123456789ab.json"
     bad.parent.mkdir(exist_ok=True)
     bad.write_text('{"id": "0123456789ab"')
-    with pytest.raises(fuzz.FuzzError, match=rf"{re.escape(str(bad))} is not a finding file"):
+    with pytest.raises(settings.FuzzError, match=rf"{re.escape(str(bad))} is not a finding file"):
         tiny(tmp_path / "c")
     assert cli.main(["replay", "0123", "--dir", str(tmp_path / "c")]) == 2
     assert f"{bad} is not a finding file" in capsys.readouterr().err
@@ -239,8 +242,8 @@ def test_one_run_at_a_time_in_a_campaign_directory(tmp_path):
         fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
         other.write("4242\n")
         other.flush()
-        for attempt in (lambda: tiny(out), lambda: fuzz.merge([out], out)):
-            with pytest.raises(fuzz.FuzzError, match=rf"campaign directory {re.escape(str(out))} is in use by "
+        for attempt in (lambda: tiny(out), lambda: runs.merge([out], out)):
+            with pytest.raises(settings.FuzzError, match=rf"campaign directory {re.escape(str(out))} is in use by "
                                                      r"another run \(pid 4242\); wait for it or give another --out"):
                 attempt()
     assert len(tiny(out).chunks) == 2
@@ -250,7 +253,7 @@ def test_files_follow_the_umask(tmp_path):
     before = os.umask(0o027)
     try:
         result = tiny(tmp_path / "c")
-        fuzz.save_finding(result.out, {"id": "0123456789ab", "campaign": {"chunk": 0}})
+        storage.save_finding(result.out, {"id": "0123456789ab", "campaign": {"chunk": 0}})
     finally:
         os.umask(before)
     for name in ("campaign.json", "chunks.jsonl", "report.md", ".lock", "findings/0123456789ab.json"):
@@ -277,10 +280,10 @@ def test_an_interrupt_that_lands_where_it_cannot_raise_is_not_reported(monkeypat
     example stops the chunk); any other unraisable exception is still reported."""
     reported = []
     monkeypatch.setattr(sys, "unraisablehook", reported.append)
-    monkeypatch.setattr(fuzz._INTERRUPTS, "requested", True)
+    monkeypatch.setattr(interrupts.INTERRUPTS, "requested", True)
     interrupt = types.SimpleNamespace(exc_type=KeyboardInterrupt)
     other = types.SimpleNamespace(exc_type=ValueError)
-    with fuzz._INTERRUPTS.during("test"):
+    with interrupts.INTERRUPTS.during("test"):
         sys.unraisablehook(interrupt)
         sys.unraisablehook(other)
     assert reported == [other]

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from crosscheck import cli
-from crosscheck.campaigns import fuzz
+from crosscheck.campaigns.fuzz import settings
 from crosscheck.cli import trajectory_cli
 from crosscheck.reports import gate_report
 
@@ -54,7 +54,7 @@ def test_no_default_output_is_under_reports():
                              "stability --out", "trajectory --report"}
     for option, default in defaults.items():
         assert Path(default).parts[0] == cli.OUTPUT_DIR and cli.REPORTS_DIR not in Path(default).parts, option
-    assert fuzz.DEFAULT_DIR == cli.DEFAULT_FUZZ_DIR == _option(_subcommands()["replay"], "dir").default
+    assert settings.DEFAULT_DIR == cli.DEFAULT_FUZZ_DIR == _option(_subcommands()["replay"], "dir").default
     assert f"{cli.OUTPUT_DIR}/" in (ROOT / ".gitignore").read_text().splitlines()
 
 

@@ -19,7 +19,9 @@ import cases
 from crosscheck import backends, cli
 from crosscheck.reports import diagnosis
 from crosscheck.checks import frames
-from crosscheck.campaigns import fuzz
+from crosscheck.campaigns.fuzz import runs
+from crosscheck.campaigns.fuzz import settings
+from crosscheck.reports import fuzz_report
 from crosscheck.assemble import Sizes, unconstrained_split
 from crosscheck.core.compare import NOT_COMPARED, suspect
 from crosscheck.engine.specs import CaseSpec, Checks
@@ -238,13 +240,13 @@ def test_a_plugin_finding_prints_a_replay_command_that_runs_as_printed(tmp_path,
     spec = f"{tmp_path / 'viscous_plugin.py'}:BACKEND"
     out = tmp_path / "campaign"
     backends.load_plugin(spec)
-    cfg = fuzz.config(seed=0, examples=4, workers=0, out=str(out), backends=("pinocchio", "newton_euler", "viscous"),
+    cfg = settings.config(seed=0, examples=4, workers=0, out=str(out), backends=("pinocchio", "newton_euler", "viscous"),
                       plugins=backends.plugin_specs(), constraints=False, group_joints=False, max_bodies=2,
                       max_states=1, shrink_calls=0, charts=False, frames=False, conservation=False,
                       linearization=False)
-    result = fuzz.run_campaign(cfg, quiet=True)
+    result = runs.run_campaign(cfg, quiet=True)
     assert result.findings
-    printed = fuzz.summary(result)
+    printed = fuzz_report.summary(result)
     command = next(line.strip() for line in printed.splitlines() if line.strip().startswith("crosscheck replay"))
     assert command.endswith(f"--plugin {spec}") and f"`{command}`" in (out / "report.md").read_text()
     backends.reset()

@@ -180,9 +180,9 @@ def test_the_componentwise_constraint_bound_covers_its_campaign_findings(path):
     their structural zeros in a moved scene (a row 8.7e-4 long, lam 1e4: 3e-12 against 1.2e-12), an orthogonal
     factorization's normwise backward error (a 100 kg base beside 1 g links: 4e-9 against 5e-10), the free
     accelerations a range-space solve forms and cancels (1.5e-10 against 1.2e-10). They pass now."""
-    from crosscheck.campaigns import fuzz
+    from crosscheck.campaigns.fuzz import replay
 
     finding = json.loads(path.read_text())
-    outcome = fuzz.replay(finding)
+    outcome = replay.replay(finding)
     assert not outcome.failed, [(k, c.worst_ratio) for k, c in {**outcome.comparisons, **outcome.checks}.items()
                                 if c.verdict != "agree"]

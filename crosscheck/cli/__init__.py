@@ -52,7 +52,7 @@ OUTPUT_DIR = "crosscheck-out"
 #: The committed reports, written only by ``crosscheck reports`` (:data:`REPORTS`).
 REPORTS_DIR = "reports"
 DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
-#: ``fuzz --out`` and ``replay --dir`` (``crosscheck.campaigns.fuzz.DEFAULT_DIR`` for the Python API).
+#: ``fuzz --out`` and ``replay --dir`` (``crosscheck.campaigns.fuzz.settings.DEFAULT_DIR`` for the Python API).
 DEFAULT_FUZZ_DIR = f"{OUTPUT_DIR}/fuzz"
 #: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED = 130
@@ -820,17 +820,23 @@ def _shard(text: str) -> tuple[int, int]:
 
 def _fuzz_chunks(args) -> float:
     """The chunks this shard of the campaign runs (the units its ``--workers`` share out); inf for ``--minutes``."""
-    from crosscheck.campaigns import fuzz
+    from crosscheck.campaigns.fuzz import runs
+    from crosscheck.campaigns.fuzz import replay
+    from crosscheck.campaigns.fuzz import settings
+    from crosscheck.reports import fuzz_report
 
     if args.minutes is not None:
         return float("inf")
     index, count = _shard(args.shard)
-    chunks = math.ceil((args.examples or fuzz.DEFAULT_EXAMPLES) / max(args.chunk_examples or fuzz.CHUNK_EXAMPLES, 1))
-    return len(range(index, chunks, count)) if count else 0   # a bad shard or count: fuzz.config says what is wrong
+    chunks = math.ceil((args.examples or settings.DEFAULT_EXAMPLES) / max(args.chunk_examples or settings.CHUNK_EXAMPLES, 1))
+    return len(range(index, chunks, count)) if count else 0   # a bad shard or count: settings.config says what is wrong
 
 
 def cmd_fuzz(args) -> int:
-    from crosscheck.campaigns import fuzz
+    from crosscheck.campaigns.fuzz import runs
+    from crosscheck.campaigns.fuzz import replay
+    from crosscheck.campaigns.fuzz import settings
+    from crosscheck.reports import fuzz_report
 
     if args.examples is not None and args.minutes is not None:
         raise UsageError("give either --examples or --minutes, not both")
@@ -838,23 +844,23 @@ def cmd_fuzz(args) -> int:
         raise UsageError(f"--minutes takes a positive, finite number of minutes, got {args.minutes}")
     bound = {"examples": args.examples, "minutes": args.minutes}
     if args.examples is None and args.minutes is None:
-        bound["examples"] = fuzz.DEFAULT_EXAMPLES
+        bound["examples"] = settings.DEFAULT_EXAMPLES
     if args.chunk_examples is not None:
         bound["chunk_examples"] = args.chunk_examples
     try:
-        cfg = fuzz.config(seed=args.seed, workers=workers(args.workers, _fuzz_chunks(args)), shard=_shard(args.shard),
+        cfg = settings.config(seed=args.seed, workers=workers(args.workers, _fuzz_chunks(args)), shard=_shard(args.shard),
                           out=args.out,
                           backends=tuple(args.formalism or ()), plugins=backends.plugin_specs(),
                           max_bodies=args.max_bodies, max_states=args.max_states,
-                          constraints=fuzz.CONSTRAINT_CHOICES[args.constraints],
-                          loads=fuzz.CONSTRAINT_CHOICES[args.loads],
+                          constraints=settings.CONSTRAINT_CHOICES[args.constraints],
+                          loads=settings.CONSTRAINT_CHOICES[args.loads],
                           group_joints=args.joints == "all", charts=not args.no_charts,
                           frames=not args.no_frames, conservation=not args.no_conservation,
                           linearization=not args.no_linearization, pfaffian=args.pfaffian, **bound)
-        result = fuzz.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
-    except fuzz.FuzzError as exc:
+        result = runs.run_campaign(cfg, "crosscheck " + " ".join(shlex.quote(a) for a in args.argv), args.quiet)
+    except settings.FuzzError as exc:
         raise UsageError(str(exc)) from None
-    print(fuzz.summary(result))
+    print(fuzz_report.summary(result))
     if result.interrupted:
         return _interrupted("(the chunks in flight saved what they held); report written to "
                             f"{result.out / 'report.md'}; the same command again resumes the campaign")
@@ -862,19 +868,22 @@ def cmd_fuzz(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from crosscheck.campaigns import fuzz
+    from crosscheck.campaigns.fuzz import runs
+    from crosscheck.campaigns.fuzz import replay
+    from crosscheck.campaigns.fuzz import settings
+    from crosscheck.reports import fuzz_report
     from crosscheck.testing import describe_failure
 
     try:
-        finding = fuzz.find(Path(args.dir), args.id)
-    except fuzz.FuzzError as exc:
+        finding = replay.find(Path(args.dir), args.id)
+    except settings.FuzzError as exc:
         raise UsageError(str(exc)) from None
     missing = [name for name in (args.formalism or finding["backends"]) if name not in backends.names()]
     if missing:
-        command = fuzz.replay_command(finding["id"], Path(args.dir), fuzz.campaign_plugins(Path(args.dir)))
+        command = fuzz_report.replay_command(finding["id"], Path(args.dir), fuzz_report.campaign_plugins(Path(args.dir)))
         raise UsageError(f"finding {finding['id']} was evaluated with backend(s) {', '.join(missing)}, not loaded "
                          f"here; run `{command}`")
-    outcome = fuzz.replay(finding, args.formalism)
+    outcome = replay.replay(finding, args.formalism)
     print(f"finding {finding['id']} (chunk {finding['campaign']['chunk']} of the campaign with seed "
           f"{finding['campaign']['seed']}), chart {finding['chart']['name']}, frame {finding['frame']['name']}:")
     if outcome.failed:
@@ -887,14 +896,17 @@ def cmd_replay(args) -> int:
 
 
 def cmd_merge(args) -> int:
-    from crosscheck.campaigns import fuzz
+    from crosscheck.campaigns.fuzz import runs
+    from crosscheck.campaigns.fuzz import replay
+    from crosscheck.campaigns.fuzz import settings
+    from crosscheck.reports import fuzz_report
 
     try:
-        result = fuzz.merge([Path(d) for d in args.dirs], Path(args.out),
+        result = runs.merge([Path(d) for d in args.dirs], Path(args.out),
                             "crosscheck " + " ".join(shlex.quote(a) for a in args.argv))
-    except fuzz.FuzzError as exc:
+    except settings.FuzzError as exc:
         raise UsageError(str(exc)) from None
-    print(fuzz.summary(result))
+    print(fuzz_report.summary(result))
     return 1 if result.findings else 0
 
 
