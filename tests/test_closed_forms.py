@@ -24,6 +24,9 @@ import cases.model
 import cases.nonholonomic
 from crosscheck import backends, cli, testing
 from crosscheck.references import closed_forms
+from crosscheck.references.closed_forms import constrained
+from crosscheck.references.closed_forms import pendulums
+from crosscheck.references.closed_forms import spatial
 from crosscheck.references.pinocchio import kinematics
 from crosscheck.reports import diagnosis
 from crosscheck.checks import frames
@@ -108,7 +111,7 @@ def _rail(draw) -> dict:
     circles): its distance from the shoulder 10-90 % of the way across, its point o anywhere along it."""
     l1, l2, incline = draw(LENGTH), draw(LENGTH), draw(ANGLE)
     distance = abs(l1 - l2) + 2.0 * min(l1, l2) * draw(_floats(0.1, 0.9))
-    normal, along = closed_forms.rail_normal(incline), np.array([np.cos(incline), np.sin(incline)])
+    normal, along = constrained.rail_normal(incline), np.array([np.cos(incline), np.sin(incline)])
     x0, y0 = draw(st.sampled_from((1.0, -1.0))) * distance * normal + draw(_floats(-1.0, 1.0)) * along
     return {"m1": draw(MASS), "m2": draw(MASS), "l1": l1, "l2": l2, "g": draw(GRAVITY), "x0": float(x0),
             "y0": float(y0), "incline": incline}
@@ -230,7 +233,7 @@ def test_double_pendulum_is_the_article_sanity_check():
     and total solves eq. (2) with eqs. (6)-(8) by a dense solve."""
     q, qd, u = np.array([np.pi / 4, np.pi / 6]), np.array([2.0, -1.0]), np.array([5.0, -2.0])
     split = closed_forms.voter("double_pendulum", {}).split(cases.load("double_pendulum"), q, qd, u)
-    M, Cqd, g = closed_forms.pendulum_terms(q, qd)  # noqa: N806
+    M, Cqd, g = pendulums.pendulum_terms(q, qd)  # noqa: N806
     assert np.allclose(split.total, np.linalg.solve(M, u - Cqd - g), rtol=1e-14, atol=0)
     assert np.allclose(split.drift + split.ctrl, split.total, rtol=1e-14, atol=0)
 
@@ -254,7 +257,7 @@ def test_n_link_with_two_links_is_the_article_double_pendulum():
 def test_one_rod_is_the_pendulum_about_its_end(m, l, phi, g):  # noqa: E741
     """The rod as three point masses (``rod_chain_terms``) has the textbook moment m l^2/3 about its end and its
     weight at mid-length: M = m l^2/3, C qd = 0, g = m g l/2 sin phi."""
-    M, Cqd, grav = closed_forms.rod_chain_terms([phi], [2.0], [m], [l], g)  # noqa: N806
+    M, Cqd, grav = pendulums.rod_chain_terms([phi], [2.0], [m], [l], g)  # noqa: N806
     assert np.allclose(M, [[m * l * l / 3.0]], rtol=1e-14, atol=0)
     assert np.allclose(Cqd, 0.0, rtol=0, atol=1e-14 * m * l * l) and np.allclose(grav, [0.5 * m * g * l * np.sin(phi)],
                                                                                 rtol=1e-14, atol=1e-300)
@@ -510,7 +513,7 @@ def test_pinocchio_agrees_with_the_rotor_closed_form_mass_matrix():
     """M of the rotor by hand against Pinocchio's CRBA, at several parameter sets (the gate compares accelerations)."""
     for params in ({}, {"tilt": 1.2, "spin": -2.0, "cx": -0.4}, {"tilt": 0.0, "Ia": 0.09, "Ib": 0.02, "Ic": 0.1}):
         typed = cases.parameters("rotor", **params)
-        M = closed_forms.rotor_terms([0.3], [0.0], *(typed[k] for k in ("m", "cx", "cy", "cz", "Ia", "Ib", "Ic", "spin",
+        M = spatial.rotor_terms([0.3], [0.0], *(typed[k] for k in ("m", "cx", "cy", "cz", "Ia", "Ib", "Ic", "spin",
                                                                       "tilt", "azimuth", "g")))[0]  # noqa: N806
         assert np.allclose(M, kinematics.mass_matrix(cases.load("rotor", **params), [0.3]), rtol=1e-14, atol=0)
 

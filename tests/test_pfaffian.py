@@ -13,7 +13,9 @@ import sympy as sy
 import cases
 from cases.constraints import KnifeEdge, RollingContact
 from cases.serialize import SerializeError, model_from_dict, model_to_dict
-from crosscheck.references import closed_forms, precise
+from crosscheck.references import closed_forms
+from crosscheck.references.closed_forms import nonholonomic
+from crosscheck.references import precise
 from crosscheck.references.pinocchio import kinematics
 from crosscheck.references.pinocchio import reference
 from crosscheck.core import sampling
@@ -134,7 +136,7 @@ def test_rolling_disk_closed_form_terms_are_the_literature_derivations():
             q = np.concatenate([rng.uniform(-2.0, 2.0, 3), rng.uniform(-1.4, 1.4, 1), rng.uniform(-3.0, 3.0, 1)])
             qd = rng.uniform(-2.0, 2.0, 5)          # the terms hold at any qd, admissible or not
             M, h, A, bias = _literature_rolling_disk_terms(m, r, g, q, qd)
-            M_cf, Cqd, grav, A_cf, bias_cf = closed_forms.disk_terms(q, qd, m, r, g)
+            M_cf, Cqd, grav, A_cf, bias_cf = nonholonomic.disk_terms(q, qd, m, r, g)
             scale = m * (1.0 + r) ** 2 * (1.0 + qd @ qd) + m * g * r
             np.testing.assert_allclose(M_cf, M, rtol=0, atol=1e-14 * m * (1.0 + r) ** 2)
             np.testing.assert_allclose(Cqd + grav, h, rtol=0, atol=1e-14 * scale)
@@ -200,7 +202,7 @@ def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
 
     seen = set()
 
-    @settings(max_examples=25, database=None, deadline=None, derandomize=True,
+    @settings(max_examples=50, database=None, deadline=None, derandomize=True,
               suppress_health_check=list(HealthCheck))
     @given(st.data())
     def admissible(data):
@@ -399,14 +401,14 @@ def test_the_differential_drive_closed_form_matches_the_backends():
 
 
 def test_the_differential_drive_closed_form_by_hand_at_one_state():
-    """:func:`crosscheck.references.closed_forms.drive_motion` against numbers worked here: at rest heading 0 with equal torques
+    """:func:`crosscheck.references.closed_forms.nonholonomic.drive_motion` against numbers worked here: at rest heading 0 with equal torques
     u the robot drives straight, ``vdot = (2 u / r + F_along) / (m + 2 I_a / r^2)``, the tractions ``(u - I_a vdot /
     r) / r`` each, and the axle carries the load's lateral force (``lam_a = -F_lat``, nothing turns it at rest apart
     from the load's yaw moment, which the heading row takes)."""
     m_body, m_wheel, r, track, d = 4.0, 0.5, 0.1, 0.4, 0.1
     Ia = m_wheel * r * r / 2.0
     tau_ext = np.array([-3.0, -1.2, 0.0, 0.0, 0.0])          # a pure force at P, along -x and -y, no moment
-    qdd, lam = closed_forms.drive_motion(np.zeros(5), np.zeros(5), np.array([0.5, 0.5]), tau_ext, m_body, m_wheel, r,
+    qdd, lam = nonholonomic.drive_motion(np.zeros(5), np.zeros(5), np.array([0.5, 0.5]), tau_ext, m_body, m_wheel, r,
                                          track, d)
     vdot = (2 * 0.5 / r - 3.0) / (m_body + 2 * m_wheel + 2 * Ia / r**2)
     np.testing.assert_allclose(qdd, [vdot, 0.0, 0.0, vdot / r, vdot / r], atol=1e-15)
