@@ -21,7 +21,7 @@ from crosscheck.engine import evaluation
 from crosscheck.engine import run
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from crosscheck.reports.gate_report import render
+from crosscheck.reports.gate_summary import render
 from crosscheck.core.sampling import sample_states
 from formalisms.interface import Formalism, block_form, with_block_form
 

@@ -34,7 +34,7 @@ from crosscheck.engine import evaluation
 from crosscheck.core import sampling
 from crosscheck.core import tolerance as policy
 from crosscheck.core.compare import DISAGREE, suspect
-from crosscheck.reports.gate_report import read as read_report
+from crosscheck.reports.gate_summary import read as read_report
 from crosscheck.core.sampling import State
 
 ALL = [backends.get(name) for name in backends.names()]

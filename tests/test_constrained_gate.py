@@ -19,7 +19,7 @@ from crosscheck.core.compare import AGREE, DISAGREE
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.evaluation import evaluate
 from crosscheck.engine.run import run_case, run_gate
-from crosscheck.reports.gate_report import render
+from crosscheck.reports.gate_summary import render
 from crosscheck.core.sampling import State
 from crosscheck.core.tolerance import CONSTRAINED_QUANTITIES
 

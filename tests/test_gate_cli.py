@@ -17,8 +17,8 @@ from crosscheck.engine import pool
 from crosscheck.core.compare import DISAGREE, suspect
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from crosscheck.reports import gate_report
-from crosscheck.reports.gate_report import render
+from crosscheck.reports import gate_summary
+from crosscheck.reports.gate_summary import render
 from crosscheck.core.sampling import sample_states
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from formalisms import euler_lagrange
@@ -30,7 +30,7 @@ DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"
 def _gate(tmp_path, *args):
     report = tmp_path / "gate.md"
     code = cli.main(["gate", *args, "--report", str(report)])
-    return code, gate_report.read(report) if report.exists() else ""
+    return code, gate_summary.read(report) if report.exists() else ""
 
 
 def _without_timing(report: str) -> str:

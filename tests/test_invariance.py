@@ -13,7 +13,7 @@ from crosscheck.checks import charts, frames
 from crosscheck.core.compare import DISAGREE
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from crosscheck.reports.gate_report import render
+from crosscheck.reports.gate_summary import render
 
 PANDA = cases.load("panda")
 DP = cases.load("double_pendulum")

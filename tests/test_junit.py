@@ -16,7 +16,7 @@ from crosscheck.reports import diagnosis, junit
 from crosscheck.engine import divergences
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from crosscheck.reports.gate_report import check_family
+from crosscheck.reports.gate_lines import check_family
 from crosscheck.core.tolerance import quantities
 from formalisms.interface import Formalism
 

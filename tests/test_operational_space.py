@@ -21,7 +21,7 @@ from closed_forms import endpoint_jacobian, pendulum_terms
 from scenes import panda_arm
 from crosscheck import backends
 from crosscheck.references.pinocchio import reference
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 from crosscheck.core import tolerance as policy
 from crosscheck.engine.specs import CaseSpec
 from crosscheck.engine.run import run_gate
@@ -349,7 +349,7 @@ def test_spatial_bias_fails_the_gate_and_is_named(spatial_bias):
     assert all(c["drift"].outlier == "operational_space" for c in comps)
     assert all(c["ctrl"].verdict == "agree" for c in comps)
     assert all(c["task_drift"].outlier == "operational_space" for c in comps)
-    assert "outlier **operational_space**" in gate_report.render(result, "cmd")
+    assert "outlier **operational_space**" in gate_summary.render(result, "cmd")
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import pytest
 from crosscheck import cli
 from crosscheck.campaigns.fuzz import settings
 from crosscheck.cli import trajectory_cli
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,13 +117,13 @@ def _gate_files(tmp_path, *args) -> tuple[int, str, str]:
     report = tmp_path / "gate.md"
     code = cli.main(["gate", "--case", "double_pendulum", "--case", "acrobot", "--samples", "3", "--frames", "0",
                      "--no-self-test", "--workers", "0", *args, "--report", str(report)])
-    return code, report.read_text(), gate_report.details_path(report).read_text()
+    return code, report.read_text(), gate_summary.details_path(report).read_text()
 
 
 def test_a_passing_gate_report_is_short_and_its_details_sit_next_to_it(tmp_path):
     """The summary: the verdict, what was run and checked, one line per case; everything else in the details."""
-    assert gate_report.details_path(tmp_path / "gate.md") == tmp_path / "gate-details.md"
-    assert gate_report.details_path("/tmp/panda.md") == Path("/tmp/panda-details.md")
+    assert gate_summary.details_path(tmp_path / "gate.md") == tmp_path / "gate-details.md"
+    assert gate_summary.details_path("/tmp/panda.md") == Path("/tmp/panda-details.md")
     code, summary, details = _gate_files(tmp_path)
     assert code == 0
     lines = summary.splitlines()

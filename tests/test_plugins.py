@@ -22,7 +22,7 @@ import pytest
 import cases
 from closed_forms import pendulum_terms
 from crosscheck import backends, cli
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 from crosscheck.core.compare import NOT_COMPARED
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
@@ -72,7 +72,7 @@ def plugin_path(monkeypatch, tmp_path):
 def _gate(tmp_path, *args):
     report = tmp_path / "gate.md"
     code = cli.main(["gate", *args, "--report", str(report)])
-    return code, gate_report.read(report) if report.exists() else ""
+    return code, gate_summary.read(report) if report.exists() else ""
 
 
 def _cells(line: str) -> list[str]:

@@ -23,7 +23,7 @@ from crosscheck.campaigns import bench
 from crosscheck.faults import injection
 from crosscheck.engine import run
 from crosscheck.engine import phases
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 from crosscheck.faults.injection import Hunt
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.progress import Display
@@ -100,7 +100,7 @@ def test_ctrl_c_in_a_case_ends_with_one_line_and_a_partial_report(quiet, tmp_pat
     message = f"crosscheck: interrupted after 2/3 states of case 'acrobot'; partial report written to {path}"
     assert captured.err.splitlines() == ([] if quiet else ["  double_pendulum: 3 states evaluated"]) + [message]
     assert "Traceback" not in captured.err
-    text = gate_report.read(path)
+    text = gate_summary.read(path)
     assert "**PARTIAL REPORT: the run was interrupted after 2/3 states of case 'acrobot'.**" in text
     assert "**PARTIAL**: 0 of 5 states" in text and "PASS" not in text
     assert "| double_pendulum | 2 | total | 3 | 0 |" in text and "| acrobot | 2 | total | 2 | 0 |" in text
@@ -227,7 +227,7 @@ def test_ctrl_c_to_the_process_group_stops_the_gates_workers_without_a_traceback
     assert proc.returncode == 130 and stdout == "" and "Traceback" not in stderr, stderr
     assert stderr.splitlines() == [f"crosscheck: interrupted after 0/2 cases (run in worker processes: the cases in "
                                    f"flight are not in the report); partial report written to {report}"]
-    text = gate_report.read(report)
+    text = gate_summary.read(report)
     assert "**PARTIAL**" in text and "PASS" not in text
 
 

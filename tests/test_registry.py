@@ -13,7 +13,7 @@ from crosscheck.core.compare import DISAGREE, KNOWN
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.evaluation import evaluate
 from crosscheck.engine.run import run_gate
-from crosscheck.reports.gate_report import render
+from crosscheck.reports.gate_summary import render
 from crosscheck.core.sampling import sample_states
 
 ROOT = Path(__file__).resolve().parents[1]

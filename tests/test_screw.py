@@ -24,7 +24,7 @@ from scenes import panda_arm
 from crosscheck import backends
 from crosscheck.checks import frames
 from crosscheck.references import precise
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 from crosscheck.engine.specs import CaseSpec
 from crosscheck.engine.run import run_gate
 from crosscheck.core.sampling import sample_states
@@ -469,4 +469,4 @@ def test_wrench_mapped_like_a_twist_fails_the_gate_and_names_screw(monkeypatch):
     assert not result.passed
     outliers = {c.outlier for s in result.cases[0].states for c in s.comparisons.values()}
     assert "screw" in outliers
-    assert "outlier **screw**" in gate_report.render(result, "cmd")
+    assert "outlier **screw**" in gate_summary.render(result, "cmd")

@@ -13,7 +13,7 @@ import pytest
 from cases import Body, TaskPoint, build_model, task
 from cases.urdf import from_urdf
 from crosscheck import cli
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 
 URDF = """<?xml version="1.0"?>
 <robot name="double_pendulum_continuous">
@@ -116,7 +116,7 @@ def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, 
     picture = "gate_double_pendulum_continuous_state1.png"       # the mechanism there, next to the report
     assert f"- double_pendulum_continuous: ![double_pendulum_continuous]({picture})" in text
     assert (tmp_path / picture).read_bytes()[:4] == b"\x89PNG"
-    assert "--task-point link2:0,0,0" in gate_report.read(report)     # the reproduce commands (details) carry it
+    assert "--task-point link2:0,0,0" in gate_summary.read(report)     # the reproduce commands (details) carry it
 
 
 def test_every_built_in_task_point_has_a_full_rank_task_jacobian():

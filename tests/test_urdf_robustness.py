@@ -22,7 +22,7 @@ from cases import JointCoupling, ModelError, UrdfError, build_model, from_urdf
 from crosscheck import cli
 from crosscheck.references.pinocchio import build
 from crosscheck.references.pinocchio import reference
-from crosscheck.reports import gate_report
+from crosscheck.reports import gate_summary
 
 LIMIT = '<limit lower="-3" upper="3" effort="10" velocity="5"/>'
 
@@ -67,7 +67,7 @@ MIMIC = _chain(_joint("j1", "base", "a"), _joint("j2", "a", "b", kind="prismatic
 def _gate(path: str, tmp_path, samples: int) -> tuple[int, str]:
     rc = cli.main(["gate", "--model", path, "--samples", str(samples), "--workers", "0",
                    "--report", str(tmp_path / "report.md")])
-    return rc, gate_report.read(tmp_path / "report.md") if rc in (0, 1) else ""
+    return rc, gate_summary.read(tmp_path / "report.md") if rc in (0, 1) else ""
 
 
 # ---------------------------------------------------------------------------------------------------- mimic

@@ -15,7 +15,7 @@ from crosscheck.reports import diagnosis
 from crosscheck.core.compare import AGREE, DISAGREE, SEVERITY, compare, severity, suspect, suspects, vote
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from crosscheck.reports.gate_report import render
+from crosscheck.reports.gate_summary import render
 from formalisms.interface import Formalism
 
 ALL = [backends.get(name) for name in backends.names()]

@@ -42,8 +42,8 @@ from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
 from crosscheck.engine.run import run_gate
 from crosscheck.core.compare import DISAGREE, KNOWN, worst_of
 from crosscheck.engine.progress import Display
-from crosscheck.reports import gate_report
-from crosscheck.reports.gate_report import task_point_lines
+from crosscheck.reports import gate_summary
+from crosscheck.reports.gate_lines import task_point_lines
 from formalisms import UnknownFormalism
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, StateError
 
@@ -246,7 +246,7 @@ def cmd_gate(args) -> int:
     known = _registry(args)
     placeholder = "# crosscheck gate\n\nThe run writing this report has not finished (interrupted or failed).\n"
     report = preflight.claim_output(args.report, "report", placeholder)
-    preflight.claim_output(gate_report.details_path(report), "report (its details file)", placeholder)
+    preflight.claim_output(gate_summary.details_path(report), "report (its details file)", placeholder)
     if args.junit:
         preflight.claim_output(args.junit, "junit", "")
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
@@ -261,10 +261,10 @@ def cmd_gate(args) -> int:
     applied = divergences.apply(known, result) if known else None
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
-        gate_report.write(result, command, report, applied)
+        gate_summary.write(result, command, report, applied)
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    _, details = gate_report.write(result, command, report, applied, gate_report.mechanism_figures(result, report))
+    _, details = gate_summary.write(result, command, report, applied, gate_summary.mechanism_figures(result, report))
     if args.junit:
         junit.write(result, args.junit)
     for entry in applied.stale if applied else ():

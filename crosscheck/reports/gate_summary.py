@@ -1,0 +1,248 @@
+"""Markdown report of a gate run, in two parts. The summary (:func:`summary`, the file ``--report`` names) is
+short: the verdict, a failing run's disagreements with their severity, vote, hint and reproduce command (and any
+other failure), what was run, the worst ratio, what was checked and skipped and why (with the task point of a case
+whose task condition broke down at most states), the pictures of the mechanism, one line per case. The details
+(``crosscheck.reports.gate_details``, next to it as ``NAME-details.md``): the tolerance policy, counts per verdict, suspects, voters, the
+task points, the per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns,
+the invariance and conservation checks, the constraint power audit, the drift's parts, the worst state per case and
+the timing.
+
+Same seed, same report byte for byte, apart from the timing section at the end of the details.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from crosscheck.core.compare import KNOWN, NOT_COMPARED
+from crosscheck.core.tolerance import BREAKDOWN_LIMITS
+from crosscheck.engine.divergences import Applied
+from crosscheck.engine.outcomes import GateResult
+from crosscheck.reports.gate_details import breakdowns_of, limits_line, details
+from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, counted, failed_states, ratio_of, registry_line, self_test_line, state_detail, task_broken_states, typical_state, verdict_text, where_worst, task_point_lines)
+
+
+#: At most this many pictures of the mechanism per report.
+MAX_FIGURES = 3
+
+
+def mechanism_figures(result: GateResult, report: Path) -> dict[str, str]:
+    """Stick figures of the mechanism (``crosscheck.reports.plots.stick_figure``) written next to ``report`` where they help:
+    for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN at
+    most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
+    from crosscheck.reports import plots
+
+    chosen = []
+    for case in result.cases:
+        failed = [s for s in case.states if s.failed]
+        broken = task_broken_states(case)
+        if failed:
+            chosen.append((case, max(failed, key=lambda s: s.worst_ratio), "worst failing state"))
+        elif len(broken) > len(case.states) / 2:
+            chosen.append((case, typical_state(broken), "task condition in BREAKDOWN"))
+    out = {}
+    for case, state, why in chosen[:MAX_FIGURES]:
+        name = f"{report.stem}_{case.spec.name}_state{state.state.index}.png"
+        plots.stick_figure(case.model, np.array(state.state.q), report.parent / name,
+                           f"{case.spec.name}, state #{state.state.index} ({why})")
+        out[case.spec.name] = name
+    return out
+
+
+def figure_lines(figures: dict[str, str]) -> list[str]:
+    """The report's links to the pictures :func:`mechanism_figures` wrote."""
+    if not figures:
+        return []
+    return ["Pictures of the mechanism (joint origins, links, task point; from the reference's forward kinematics):",
+            ""] + [f"- {case}: ![{case}]({name})" for case, name in figures.items()] + [""]
+
+
+def details_path(path: str | Path) -> Path:
+    """Where the details of the report at ``path`` go: next to it, ``gate.md`` -> ``gate-details.md``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}-details{path.suffix or '.md'}")
+
+
+def write(result: GateResult, command: str, path: str | Path, applied: Applied | None = None,
+          figures: dict[str, str] | None = None) -> tuple[Path, Path]:
+    """Write the short report to ``path`` (:func:`summary`, linking ``figures``: :func:`mechanism_figures`) and
+    everything else next to it (:func:`details`, at :func:`details_path`); the two paths."""
+    path, more = Path(path), details_path(path)
+    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures))
+    more.write_text(details(result, command, applied, summary_link=path.name))
+    return path, more
+
+
+def read(path: str | Path) -> str:
+    """The whole report :func:`write` left at ``path``: the summary, then the details (when there are any)."""
+    path, more = Path(path), details_path(path)
+    return path.read_text() + ("\n" + more.read_text() if more.exists() else "")
+
+
+def render(result: GateResult, command: str, applied: Applied | None = None,
+           figures: dict[str, str] | None = None) -> str:
+    """The whole report as one markdown text: the summary (:func:`summary`), then the details (:func:`details`);
+    ``command`` is the gate command that produced it, ``applied`` the divergence registry as applied to ``result``
+    (``crosscheck.engine.divergences.apply``), if any, ``figures`` the pictures of the mechanism to link
+    (:func:`mechanism_figures`). The command line writes the two parts to two files (:func:`write`)."""
+    return summary(result, command, applied, figures=figures) + "\n" + details(result, command, applied)
+
+
+def _headline(result: GateResult) -> list[str]:
+    """The title, the PARTIAL warning of an interrupted run, and the verdict line with the counts."""
+    n_states = sum(len(c.states) for c in result.cases)
+    broken = sum(bool(s.breakdowns) for c in result.cases for s in c.states)
+    known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in all_comparisons(s))
+    partial = [f"**PARTIAL REPORT: the run was interrupted {result.interrupted}.** It holds only the states "
+               "evaluated until then and gives no verdict (a disagreement below is still one).", ""]
+    return ["# crosscheck gate report", "", *(partial if result.interrupted else []),
+            f"**{verdict_text(result)}**: {len(failed_states(result))} of {n_states} states disagree or fail "
+            f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
+            f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
+            f"{broken} state(s) with a backend in BREAKDOWN.", ""]
+
+
+def _worst_line(result: GateResult) -> str:
+    """The largest error/tolerance of the run over every comparison and check, and where it was."""
+    found = [(case, state, key, comp) for case in result.cases for state in case.states
+             for key, comp in {**state.comparisons, **state.checks}.items() if comp.verdict != NOT_COMPARED]
+    if not found:
+        return "- worst error/tolerance: - (nothing compared)"
+    case, state, key, comp = max(found, key=lambda f: ratio_of(f[3]))
+    return (f"- worst error/tolerance: {comp.worst_ratio:.3g} ({case.spec.name}, {key}, state "
+            f"#{state.state.index}; below 1 agrees)")
+
+
+def _run_lines(result: GateResult, command: str, applied: Applied | None) -> list[str]:
+    """What was run: the command, seed and sample size, the joint limits the states keep, the self-test and the
+    divergence registry."""
+    return [f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
+            *limits_line(result), self_test_line(result), registry_line(applied)]
+
+
+def _failures_section(result: GateResult) -> list[str]:
+    """What failed the run, first: the failing states with their reproduce commands, degenerate samples, required
+    backends that compared nothing, missed canaries."""
+    failed = failed_states(result)
+    lines = []
+    if failed:
+        lines += ["## Disagreements", ""]
+        for case, state in failed[:MAX_LISTED_FAILURES]:
+            lines += state_detail(case, state, f"{case.spec.name}, state #{state.state.index}", result.seed,
+                                   full=False)
+        if len(failed) > MAX_LISTED_FAILURES:
+            lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
+    other = [f"- **{case.spec.name}: degenerate sample**: {p}" for case in result.cases
+             for p in (case.coverage.problems if case.coverage else ())]
+    other += [f"- **FAIL: {name} took part in no comparison** (named on the command line; it declined every case or "
+              f"was in BREAKDOWN everywhere). Name it with `--optional {name}` if that is expected."
+              for name in result.absent]
+    other += [f"- **self-test: {line}**" for line in (result.self_test.failures() if result.self_test else ())]
+    if other:
+        lines += ["## Other failures", ""] + other + [""]
+    return lines
+
+
+def _case_table(result: GateResult) -> list[str]:
+    """One line per case: states, failing, KNOWN, BREAKDOWN states, the worst comparison and the worst check."""
+    rows = []
+    for case in result.cases:
+        worst = [(s, k, c) for s in case.states for k, c in s.comparisons.items() if c.verdict != NOT_COMPARED]
+        checks = [(s, k, c) for s in case.states for k, c in s.checks.items() if c.verdict != NOT_COMPARED]
+        known = sum(c.verdict == KNOWN for s in case.states for c in all_comparisons(s))
+        broken = sum(bool(s.breakdowns) for s in case.states)
+        rows.append(f"| {case.spec.name} | {case.model.n} | {len(case.states)} | "
+                    f"{sum(s.failed for s in case.states)} | {known} | {broken} | "
+                    f"{where_worst(worst)} | {where_worst(checks)} | "
+                    f"{'**degenerate**' if case.coverage and case.coverage.degenerate else 'ok'} |")
+    return ["## Cases", "",
+            "| case | n | states | failing | KNOWN | BREAKDOWN states | worst quantity (error/tolerance, state) | "
+            "worst check | sample |", "|---|---|---|---|---|---|---|---|---|"] + rows + [""]
+
+
+def _checked_lines(result: GateResult) -> list[str]:
+    """What the run checked besides the backends' comparison, and what it left out and why (an option, or a case
+    where a check does not apply)."""
+    c = result.checks
+    on = {"chart invariance": (c.charts, "--no-charts"), "frame changes": (c.frames, "--frames 0"),
+          "energy and Christoffel conservation": (c.conservation, "--no-conservation"),
+          "linearizations A, B (eq. 11)": (c.linearization, "--no-linearization"),
+          "the article's closed forms as a voter": (c.closed_forms, "--no-closed-forms"),
+          "self-test canaries": (c.self_test, "--no-self-test")}
+    shown = {"frame changes": f"{c.frames} frame change(s) per case"}
+    lines = ["- checked: every quantity every backend supplies, "
+             + ", ".join(shown.get(k, k) for k, (v, _) in on.items() if v)]
+    off = [f"{k} ({flag})" for k, (v, flag) in on.items() if not v]
+    if off:
+        lines.append("- skipped by option: " + ", ".join(off))
+    if c.charts:
+        none = [case.spec.name for case in result.cases if not case.charts]
+        if none:
+            lines.append(f"- no chart applies (spherical or free joints: quaternion coordinates): {', '.join(none)}")
+    if c.closed_forms:
+        none = [case.spec.name for case in result.cases if case.closed_form.startswith("none")]
+        if none:
+            lines.append(f"- no closed form: {', '.join(none)}")
+    lines += _not_supplied_lines(result) + _breakdown_lines(result) + _silent_lines(result)
+    return lines
+
+
+def _breakdown_lines(result: GateResult) -> list[str]:
+    """Per backend and condition, the cases and states where it was in BREAKDOWN (left out of the comparisons)."""
+    found: dict[tuple[str, str], dict[str, int]] = {}
+    for case, _, backend, name, _ in breakdowns_of(result):
+        per_case = found.setdefault((backend, name), {})
+        per_case[case.spec.name] = per_case.get(case.spec.name, 0) + 1
+    parts = [f"{backend} cond {name} > {BREAKDOWN_LIMITS[name]:.3g} (" + ", ".join(
+        f"{case} {counted(n, 'state', 'states')}" for case, n in per_case.items()) + ")"
+        for (backend, name), per_case in found.items()]
+    return ["- in BREAKDOWN, so left out of the comparisons there (ill-conditioned method, not a failure): "
+            + "; ".join(parts)] if parts else []
+
+
+def _not_supplied_lines(result: GateResult) -> list[str]:
+    """Per quantity, the backends that do not supply it (NOT COMPARED for them, declared unsupported)."""
+    missing: dict[str, set[str]] = {}
+    for case in result.cases:
+        for state in case.states:
+            for quantity, comp in state.comparisons.items():
+                missing.setdefault(quantity, set()).update(comp.not_compared)
+    parts = [f"{q}: {', '.join(sorted(names))}" for q, names in missing.items() if names]
+    return ["- not supplied (declared unsupported, so not compared for that backend): " + "; ".join(parts)] if parts \
+        else []
+
+
+def _silent_lines(result: GateResult) -> list[str]:
+    """Backends that took part in no comparison of a case, or were in BREAKDOWN at most of its states."""
+    lines = []
+    for case in result.cases:
+        voted = case.voted()
+        silent = [name for name in result.backends if name not in voted]
+        broken = [f"{name} ({sum(bool(s.breakdowns.get(name)) for s in case.states)} of {len(case.states)} states)"
+                  for name in result.backends
+                  if sum(bool(s.breakdowns.get(name)) for s in case.states) > len(case.states) / 2]
+        if silent:
+            lines.append(f"- {case.spec.name}: took part in no comparison: {', '.join(silent)}")
+        if broken:
+            lines.append(f"- {case.spec.name}: in BREAKDOWN at most states (checks little here): {', '.join(broken)}")
+    return lines
+
+
+def summary(result: GateResult, command: str, applied: Applied | None = None, details_link: str | None = None,
+            figures: dict[str, str] | None = None) -> str:
+    """The report's first part, short: the verdict, a failing run's failures with their reproduce commands, what
+    was run, one line per case, the worst ratio, what was checked and skipped, the task point of each case where a
+    task condition was in BREAKDOWN at most states and why, the pictures of the mechanism (``figures``);
+    ``details_link`` the file holding :func:`details` (None: they follow in the same text)."""
+    where = f"[{details_link}]({details_link})" if details_link else "below"
+    lines = _headline(result) + _failures_section(result)
+    lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
+    lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
+    lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
+              "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, "
+              "the drift's parts, worst state per case, timing, tolerance policy", ""]
+    lines += figure_lines(figures or {})
+    lines += _case_table(result)
+    return "\n".join(lines) + "\n"
