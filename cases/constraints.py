@@ -1,4 +1,4 @@
-"""Constraint declarations in model terms (article 5.1; DESIGN.md, constraints).
+"""Constraint declarations in model terms (article 5.1; docs/design.md, constraints).
 
 A declaration says what is constrained, in the words of the scene (a point of a body on a circle, two points
 that coincide, a point on a line, a gear between two joints). It does not say how to compute ``phi``: every

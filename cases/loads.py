@@ -1,4 +1,4 @@
-"""External load declarations in model terms (article 2.3, 5.1-5.5 eq. 12-17, 6.1; DESIGN.md, conventions).
+"""External load declarations in model terms (article 2.3, 5.1-5.5 eq. 12-17, 6.1; docs/design.md, conventions).
 
 The equation of motion carries the external load ``tau_ext`` (eq. 12): ``M qdd + h = B u + Jc^T lam + tau_ext``.
 A declaration says what acts on which body, in the words of the scene; it does not say how to compute

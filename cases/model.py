@@ -1,4 +1,4 @@
-"""The model language: an immutable kinematic tree of rigid bodies (DESIGN.md, "The data flow").
+"""The model language: an immutable kinematic tree of rigid bodies (docs/design.md, "The data flow").
 
 A model is plain data. Every backend reads the same fields and derives its own kinematics from them.
 
@@ -32,7 +32,7 @@ Frames and conventions
   bodies' joint blocks in the order the bodies are given: body ``i``'s are ``q[q_index[i] : q_index[i] + nq_i]``
   and ``v[v_index[i] : v_index[i] + nv_i]``. With revolute and prismatic joints only, ``nq = nv = n`` and body
   ``i`` owns coordinate ``i``. ``topological_order`` lists the bodies parents-first for the recursions.
-* ``input_map`` is ``B`` of ``M vdot + h = B u`` (nv x m, DESIGN.md conventions; default identity).
+* ``input_map`` is ``B`` of ``M vdot + h = B u`` (nv x m, docs/design.md conventions; default identity).
 * Gravity is a vector in the world frame (m/s^2); the potential is ``V = -sum m_i gravity . p_com_i``.
 * A body may be massless (mass 0, zero inertia): a carriage that only adds a joint, as in a free planar body built
   from two prismatic joints and a revolute one. Every joint must still move some mass.

@@ -1,8 +1,11 @@
-"""The harness: everything that is not physics (DESIGN.md).
+"""The harness: everything that is not physics (docs/design.md, "Architecture").
 
-Sampling (``sampling``), the tolerance policy (``tolerance``), comparison and verdicts (``compare``),
-the equivalence gate (``gate``), markdown reports (``report``) and the command line (``cli``).
-The Pinocchio reference lives in ``reference``, apart from the formalisms it checks.
+By concern: ``core`` (the ruler: sampling, tolerance, comparison), ``checks`` (charts, frames, invariance,
+conservation, linearization, equilibria), ``guards`` (the conditioning audit, coverage, preflight, the self-test
+canaries), ``references`` (Pinocchio built from the model file, the 50-digit reference, the closed forms),
+``engine`` (the gate's run), ``faults``, ``campaigns``, ``reports`` and ``cli``. The public import paths a user or a
+plugin takes are ``crosscheck.gate``, ``crosscheck.backends``, ``crosscheck.needs``, ``crosscheck.assemble`` and
+``crosscheck.testing`` (docs/layout.md).
 """
 
 import os

@@ -51,8 +51,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-import formalisms
 from crosscheck.needs import NEEDS, given
+from crosscheck.references.pinocchio.reference import REFERENCE
+import formalisms
 from formalisms.interface import Formalism, Split, Unsupported
 
 REFERENCE_NAME = "pinocchio"
@@ -300,7 +301,6 @@ def names() -> list[str]:
 def get(name: str) -> Formalism:
     """A formalism, the reference or a plugin by name; an unknown name lists the valid ones."""
     if name == REFERENCE_NAME:
-        from crosscheck.references.pinocchio.reference import REFERENCE
         return REFERENCE
     if name in formalisms.names():
         return formalisms.get(name)

@@ -33,6 +33,7 @@ from typing import Callable
 import numpy as np
 
 from cases.model import Model
+from crosscheck.references.pinocchio.build import reference_model
 from formalisms.interface import ModelNotSupported
 
 #: The inputs a plugin may declare (module docstring); the first is the default.
@@ -140,8 +141,6 @@ def pinocchio_scene(model: Model, plugin: str) -> PinocchioScene:
     """The :class:`PinocchioScene` of ``model``: a copy of the reference's Pinocchio model (cached per plugin and
     scene, so a plugin that changes its copy never changes the reference's), fresh data."""
     import pinocchio as pin
-
-    from crosscheck.references.pinocchio.build import reference_model
 
     _no_loads(model, plugin, "pinocchio")
     c = reference_model(model)

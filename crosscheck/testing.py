@@ -33,19 +33,15 @@ import pinocchio as pin
 from hypothesis import assume
 from hypothesis import strategies as st
 
-from cases import constraints as decl
-from cases import loads as load_decl
-from cases.model import JOINT_DOF, Body, Model, TaskPoint, build_model
+from cases import constraints as decl, loads as load_decl
+from cases.model import JOINT_DOF, Body, build_model, Model, TaskPoint
 from crosscheck import backends as backend_registry
-from crosscheck.checks import charts as chart_catalog
-from crosscheck.checks import frames as frame_tools
+from crosscheck.checks import charts as chart_catalog, frames as frame_tools
+from crosscheck.core import sampling, tolerance as policy
+from crosscheck.core.compare import DISAGREE, compare, Comparison
 from crosscheck.engine import evaluation
-from crosscheck.references.pinocchio import build
-from crosscheck.references.pinocchio import kinematics
-from crosscheck.core import sampling
-from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import DISAGREE, Comparison, compare
 from crosscheck.engine.outcomes import StateOutcome
+from crosscheck.references.pinocchio import build, kinematics
 from formalisms.interface import Split
 
 #: Drawn ranges. Lengths (placements, centres of mass, task offsets) within +-1 m and +-0.5 m; masses log-uniform

@@ -1,5 +1,5 @@
 """Euler–Lagrange formalism (article 4.7.1): the dynamics from the energies, derived symbolically, in the joint
-coordinates or in any chart ``q = psi(p)`` (article 6.4.6, 9.1; DESIGN.md, charts).
+coordinates or in any chart ``q = psi(p)`` (article 6.4.6, 9.1; docs/design.md, charts).
 
 Derivation (symbolic, from the model data and the chart alone), in coordinates ``p`` with rates ``pd``:
   0. The joint coordinates as functions of the chart's: ``q_k = psi_k(p)``, each a named intermediate, so the
@@ -74,7 +74,7 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     ``tests/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
   * Caches. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`).
 Velocity representations (:func:`split_chart` with a chart whose ``representation`` is ``"world"`` or ``"mixed"``;
-DESIGN.md "Configuration on Lie groups", article 6.2, 6.4). The configuration stays q and the velocity is w with
+docs/design.md "Configuration on Lie groups", article 6.2, 6.4). The configuration stays q and the velocity is w with
 ``v = T(q) w``; everything is in each joint's REFERENCE frame (the frame its q is measured in: the parent's frame moved
 by the body's fixed placement; the world for a floating base at the identity placement). World: a free joint's w is
 its spatial twist ``V_s = (pdot - omega_s x p, omega_s)``, a spherical joint's ``omega_s = R w_b``; mixed: a free

@@ -161,7 +161,7 @@ chart (one whose psi fails on nv coordinates, such as the group's identity chart
 of entries, or quaternions that are not unit at seeded test points), and ``chart=None`` in :func:`split_chart` (the
 group chart itself: :func:`split`), raise ModelNotSupported with the reason.
 
-Velocity representations (DESIGN.md "Configuration on Lie groups"; a chart whose ``representation`` is ``"world"``
+Velocity representations (docs/design.md "Configuration on Lie groups"; a chart whose ``representation`` is ``"world"``
 or ``"mixed"``, read duck-typed). The configuration stays q and the velocity is w with ``v = T(q) w``, in each joint's
 REFERENCE frame (the frame its q is measured in: the parent's frame moved by the body's fixed placement; the world for
 a floating base at the identity placement): world, a free joint's spatial twist ``(pdot - omega_s x p, omega_s)`` and

@@ -1,4 +1,4 @@
-"""The one interface every formalism implements (DESIGN.md, "The data flow").
+"""The one interface every formalism implements (docs/design.md, "The data flow").
 
 A formalism is a pure function ``split(model, q, qd, u) -> Split`` of an immutable model and a state.
 The split is article eq. (9): ``qdd = qdd_drift + qdd_ctrl`` with ``qdd_drift`` the pointwise ZTCF sample
@@ -17,7 +17,7 @@ below ``CONSTRAINT_RCOND`` times its largest eigenvalue as redundant and returns
 
 This module holds only what every backend must agree on to be compared at all: types (:class:`Split`,
 :class:`SplitBatch`, :class:`Formalism`, :class:`Chart`), constants (the rule for redundant and degenerate rows),
-validators of the state vectors and exceptions (DESIGN.md, "Independence is the product"). Every number a backend
+validators of the state vectors and exceptions (docs/design.md, "Independence is the product"). Every number a backend
 reports, its power, constraint forces, factorization, rank decision, conditioning and task inertia, it computes
 itself, its own way; ``tests/test_independence.py`` holds the formalisms to the names listed in :data:`__all__`.
 The definitions those numbers follow are written out in :class:`Split`'s fields below.
@@ -89,7 +89,7 @@ class Split:
     accel_scale          the size of the accelerations the summed terms could produce (see
                          ``||M^-1||_2 H``, H = ``|C qd|_1 + |g|_1 + |B u|_1 + ||M|| |qd|^2 + |gravity|_1
                          sqrt(m_total ||M||)``: the forces summed, with configuration-robust magnitudes of the terms
-                         that can cancel); the harness scales tolerances by it (DESIGN.md, tolerances). With
+                         that can cancel); the harness scales tolerances by it (docs/design.md, tolerances). With
                          constraints it adds ``force_scale = ||M^-1|| ||Jc|| lam_scale``.
     task_drift           classical acceleration (second time derivative of position, not spatial) of the model's
                          default task point ``model.task_point()`` at the drift, in its task coordinates
@@ -258,7 +258,7 @@ class Split:
 
 
 class Chart(Protocol):
-    """A coordinate chart ``q = psi(p)`` of the configuration manifold (article 6.4.6, 9.1; DESIGN.md, charts).
+    """A coordinate chart ``q = psi(p)`` of the configuration manifold (article 6.4.6, 9.1; docs/design.md, charts).
 
     ``psi`` is written once against the scalar operations every symbolic library shares, so a formalism
     evaluates it in its own language (numbers, casadi, SymEngine) and differentiates it itself: it takes the

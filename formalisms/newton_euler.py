@@ -58,7 +58,7 @@ external loads' world vectors (a spring's force also follows its point: :func:`_
 ``qdd = vdot`` held fixed the backward pass gives ``dID/dx``, and ``dvdot/dx = -M^-1 dID/dx``, ``dvdot/du = M^-1 B``
 (the KKT system differentiated with constraints, below).
 
-Constraints (article 5; DESIGN.md, constraints). ``phi``, ``Jc`` and ``Jcdot qd`` come from the recursion's own
+Constraints (article 5; docs/design.md, constraints). ``phi``, ``Jc`` and ``Jcdot qd`` come from the recursion's own
 point kinematics: the world position of a body point from the placements; column ``j`` of its Jacobian is the
 point's classical acceleration from the forward pass at ``qd = 0``, ``qdd = e_j`` (the velocity of the point at
 ``qd = e_j``: with no velocity there is no bias), i.e. the very passes that build the columns of ``M``; and
@@ -816,7 +816,7 @@ class _RangeSpace:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Conditioning and scales, this backend's own (DESIGN.md, "Independence is the product"): from the singular values
+# Conditioning and scales, this backend's own (docs/design.md, "Independence is the product"): from the singular values
 # of its Cholesky factor L of M and of L^-1 Jc^T (one state)
 # ----------------------------------------------------------------------------------------------------------
 

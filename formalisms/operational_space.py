@@ -8,7 +8,7 @@ revolute, the origin ``o_j`` (a rotation about the axis leaves the body origin o
     linear column j:   z_j x (p - o_j)  (revolute)   or   z_j  (prismatic)
     angular column j:  z_j              (revolute)   or   0
 
-and the CLASSICAL bias ``Jdot qd`` (the point's acceleration at ``qdd = 0``, DESIGN.md) is the sum of the
+and the CLASSICAL bias ``Jdot qd`` (the point's acceleration at ``qdd = 0``, docs/design.md) is the sum of the
 analytic column derivatives times ``qd_j``: with ``zdot_j = w_j x z_j`` (the axis is fixed in body ``j`` and, for
 a revolute joint, in its parent too), a revolute column changes by ``zdot_j x (p - o_j) + z_j x (pdot - odot_j)``
 and a prismatic one by ``zdot_j``. Velocities are Jacobian sums as well: ``w_i = sum_j z_j qd_j`` over the

@@ -32,9 +32,13 @@ import dataclasses
 import numpy as np
 
 import cases
-from crosscheck.references.closed_forms.constrained import (absolute_loop_state, cartesian_lam, cartesian_lam_mp, circle_state, circle_terms, constrained_input_map, loop_to_joint, pin_forces)
-from crosscheck.references.closed_forms.pendulums import (absolute_terms, article_Cqd, article_g, article_M, disk_inertia, endpoint_jacobian, pendulum_terms, pendulum_terms_mp, tip_bias, tip_position)
-from crosscheck.references.closed_forms.algebra import inv2
+from crosscheck.references.closed_forms.algebra import inv2  # noqa: F401 (re-exported)
+from crosscheck.references.closed_forms.constrained import (  # noqa: F401 (re-exported)
+    absolute_loop_state, cartesian_lam, cartesian_lam_mp, circle_state, circle_terms, constrained_input_map,
+    loop_to_joint, pin_forces)
+from crosscheck.references.closed_forms.pendulums import (  # noqa: F401 (re-exported)
+    absolute_terms, article_Cqd, article_g, article_M, disk_inertia, endpoint_jacobian, pendulum_terms,
+    pendulum_terms_mp, tip_bias, tip_position)
 
 
 def kkt_solve(M, Jc, f, bias):

@@ -1,4 +1,4 @@
-"""The Euler–Lagrange backend re-derived in a chart ``q = psi(p)`` (article 6.4.6, 9.1; DESIGN.md, charts).
+"""The Euler–Lagrange backend re-derived in a chart ``q = psi(p)`` (article 6.4.6, 9.1; docs/design.md, charts).
 
 ``split_chart`` derives M_p, C_p pd and g_p from the Lagrangian with q = psi(p) substituted; nothing is mapped from
 the joint chart. The references here are independent of that derivation:

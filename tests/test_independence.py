@@ -1,4 +1,4 @@
-"""Independence is the product (DESIGN.md): a formalism never imports Pinocchio, the harness, or another formalism,
+"""Independence is the product (docs/design.md): a formalism never imports Pinocchio, the harness, or another formalism,
 and shares no numerics with the others.
 
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is

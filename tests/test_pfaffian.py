@@ -196,23 +196,25 @@ def test_linearizations_with_pfaffian_rows(case):
 
 
 def test_fuzzed_models_carry_pfaffian_rows_and_their_states_are_admissible():
-    from hypothesis import HealthCheck, given, settings, strategies as st
+    """Each Pfaffian kind is among the fuzzer's models (searched for, not counted in a fixed sample, whose make-up moves
+    with Hypothesis's seed), and the states drawn for such a model satisfy its rows."""
+    from hypothesis import HealthCheck, Phase, find, given, settings
 
     from crosscheck import testing
 
-    seen = set()
+    search = settings(max_examples=500, database=None, deadline=None, phases=[Phase.generate],
+                      suppress_health_check=list(HealthCheck))
+    for kind in ("KnifeEdge", "PointVelocity", "RollingContact"):
+        model = find(testing.models(3, True, pfaffian=True),
+                     lambda m, kind=kind: any(type(c).__name__ == kind for c in m.constraints), settings=search)
 
-    @settings(max_examples=50, database=None, deadline=None, derandomize=True,
-              suppress_health_check=list(HealthCheck))
-    @given(st.data())
-    def admissible(data):
-        model = data.draw(testing.models(3, True, pfaffian=True))
-        seen.update(type(c).__name__ for c in model.constraints if not c.holonomic)
-        s = data.draw(testing.states(model))
-        Jc = kinematics.constraint_kinematics(model, np.array(s.q), np.zeros(model.nv))[1]
-        assert np.abs(Jc @ np.array(s.qd)).max() <= 1e-12 * (1.0 + np.abs(s.qd).max())
-    admissible()
-    assert seen == {"KnifeEdge", "PointVelocity", "RollingContact"}, seen
+        @settings(max_examples=10, database=None, deadline=None, derandomize=True,
+                  suppress_health_check=list(HealthCheck))
+        @given(testing.states(model))
+        def admissible(s):
+            Jc = kinematics.constraint_kinematics(model, np.array(s.q), np.zeros(model.nv))[1]
+            assert np.abs(Jc @ np.array(s.qd)).max() <= 1e-12 * (1.0 + np.abs(s.qd).max())
+        admissible()
 
 
 def test_drawn_rolling_contacts_come_both_ways():

@@ -12,6 +12,7 @@ from crosscheck import backends
 from crosscheck.checks import charts
 from crosscheck.engine import evaluation
 from crosscheck.campaigns import stability
+from crosscheck.reports import stability_report
 from crosscheck.cli import build_parser, cmd_stability
 
 
@@ -79,7 +80,7 @@ def test_an_injected_error_is_recorded_above_tolerance_and_caught():
 
 
 def test_report_and_charts_are_written(results, tmp_path):
-    report = stability.write(list(results.values()), tmp_path, quick=True, seconds=1.0)
+    report = stability_report.write(list(results.values()), tmp_path, quick=True, seconds=1.0)
     text = report.read_text()
     for name in results:
         assert f"## {name}" in text and f"(stability_{name}.png)" in text
@@ -131,7 +132,7 @@ def test_exact_chart_split_agrees_with_the_float_map_at_a_benign_pitch():
     import numpy as np
 
     from crosscheck.references import precise
-    from crosscheck.checks.invariance import _mapped
+    from crosscheck.checks.invariance import mapped
 
     model = cases.load("ball_pendulum")
     chart = charts.get("zyx", model)
@@ -143,7 +144,7 @@ def test_exact_chart_split_agrees_with_the_float_map_at_a_benign_pitch():
     pd = charts.velocity_to_chart(chart, p, qd)
     split = backends.get("newton_euler").split(model, q, qd, u)
     for quantity in stability.CHART_QUANTITIES:
-        assert precise.relative_error(_mapped(chart, p, pd, split, quantity), getattr(exact, quantity)) < 1e-12
+        assert precise.relative_error(mapped(chart, p, pd, split, quantity), getattr(exact, quantity)) < 1e-12
     tau_p = charts.force_to_chart(chart, p, model.input_map @ np.array(u))
     native = backends.get("geometric").split_chart(model, chart, p, pd, tau_p)
     at = precise.chart_split_at(model, chart, p, pd, tau_p)

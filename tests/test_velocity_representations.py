@@ -130,7 +130,6 @@ def test_native_answers_are_pinocchios_aba_in_the_representation(case, name):
     import pinocchio as pin
 
     from crosscheck.references.pinocchio import build
-    from crosscheck.references.pinocchio import reference
     model = cases.load(case)
     pm = build.to_pinocchio(model)
     data = pm.createData()

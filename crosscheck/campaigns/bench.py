@@ -36,11 +36,10 @@ import cases
 from cases.model import Model
 from cases.representation import general_3d
 from crosscheck import backends
+from crosscheck.core import sampling, tolerance as policy
+from crosscheck.engine import progress
 from crosscheck.references import precise
 from crosscheck.references.pinocchio import build
-from crosscheck.engine import progress
-from crosscheck.core import sampling
-from crosscheck.core import tolerance as policy
 from formalisms.interface import split_batch_by_loop
 
 SEED = 7

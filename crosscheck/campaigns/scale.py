@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+from cases.factories import robot_data_path
 from crosscheck.campaigns import bench
 from crosscheck.engine import progress
 
@@ -94,8 +95,6 @@ def measured(what: str, arguments: Sequence[str], cache: str) -> Run:
 
 
 def robot_path(relative: str) -> str:
-    from cases.factories import robot_data_path
-
     return str(robot_data_path(f"{_ROBOT_DATA}/{relative}", relative.split("/")[-1]))
 
 

@@ -22,21 +22,19 @@ from __future__ import annotations
 
 import dataclasses
 import statistics
-import time
 from dataclasses import dataclass
-from pathlib import Path as FilePath
 from typing import Sequence
 
 import numpy as np
 
 from crosscheck import backends as backend_registry
-from crosscheck.engine import evaluation
-from crosscheck.engine import outcomes
-from crosscheck.engine import specs
-from crosscheck.references import precise
+from crosscheck.checks import charts, invariance
+from crosscheck.checks.invariance import mapped
 from crosscheck.core import tolerance
 from crosscheck.core.compare import DISAGREE, backend_of
-from crosscheck.core.sampling import State, project_configuration, project_velocity
+from crosscheck.core.sampling import project_configuration, project_velocity, State
+from crosscheck.engine import evaluation, outcomes, specs
+from crosscheck.references import precise
 from formalisms.interface import Formalism, Unsupported
 
 #: The quantities measured against the exact split (lam on constrained models only).
@@ -162,7 +160,6 @@ def gimbal_state(delta: float) -> tuple[tuple, tuple, tuple]:
     """The ball pendulum at zyx angles (yaw, pi/2 - delta, roll) with chart rates pd: q = psi(p) and qd = Dpsi pd
     rounded to floats (the joint-chart state the gate is given), u fixed."""
     import cases
-    from crosscheck.checks import charts
 
     chart = charts.get("zyx", cases.load("ball_pendulum"))
     p = np.array([GIMBAL_YAW, np.pi / 2 - delta, GIMBAL_ROLL])
@@ -174,7 +171,7 @@ def gimbal_path(xs: Sequence[float], names: Sequence[str]) -> Path:
     note = ("The joint chart (quaternion, body angular velocity) is benign all along; the trouble is the zyx chart. "
             "The chart table below measures the chart's accelerations pdd: natively (Euler–Lagrange and geometric "
             "`split_chart`, `@zyx`) and every joint-chart answer mapped as the gate maps it "
-            "(`invariance._mapped`), against the exact split carried into the chart in mpmath "
+            "(`invariance.mapped`), against the exact split carried into the chart in mpmath "
             "(`precise.chart_split`).")
     return Path("gimbal", "Gimbal lock: ball pendulum in zyx Euler angles, pitch -> pi/2",
                 "delta = pi/2 - pitch (rad)", (),
@@ -359,8 +356,6 @@ def measure_chart(point: Point, setup: evaluation.CaseSetup, formalisms: Sequenc
     """The chart part of :func:`measure`: the gate's chart check at the state re-run with a record of what it used
     (``invariance.chart_checks``, deterministic: the same comparisons as in ``outcome``), and past the limit the same
     check with the limit lifted, for the tolerance and verdict it would have had."""
-    from crosscheck.checks import charts, invariance
-    from crosscheck.checks.invariance import _mapped
 
     model, state = setup.model, point.state
     chart = next((c for c in setup.charts if c.name == point.chart), None) or charts.get(point.chart, model)
@@ -394,7 +389,7 @@ def measure_chart(point: Point, setup: evaluation.CaseSetup, formalisms: Sequenc
             for name, split in outcome.splits.items():
                 if name in point.backends:
                     done: dict = {}
-                    values[name] = {q: _mapped(chart, p, pd, split, q, done) for q in CHART_QUANTITIES}
+                    values[name] = {q: mapped(chart, p, pd, split, q, done) for q in CHART_QUANTITIES}
         for label, qs in values.items():
             errors[label] = {q: precise.relative_error(v, getattr(exact, q)) for q, v in qs.items()}
             ratios[label] = {q: (_abs_ratio(v, exact.floats(q), tolerances[q]) if q in tolerances else float("nan"))
@@ -450,26 +445,3 @@ def run_path(path: Path, progress=None) -> PathResult:
         if progress:
             progress(path.name, len(out), len(path.points))
     return PathResult(path, tuple(out))
-
-
-def write_report(out_dir, quick: bool, progress=None) -> FilePath:
-    """Run every path (``quick``: a few points each) and write ``stability.md`` and its ``stability_<path>.png``
-    charts into ``out_dir``; returns the markdown's path."""
-    start = time.perf_counter()
-    results = [run_path(path, progress) for path in paths(quick, backend_registry.names())]
-    return write(results, out_dir, quick, time.perf_counter() - start)
-
-
-def write(results: Sequence[PathResult], out_dir, quick: bool, seconds: float) -> FilePath:
-    """Write the report of measured ``results`` (``stability.md`` and one chart per path) into ``out_dir``."""
-    from crosscheck.reports import stability_report
-
-    out_dir = FilePath(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for result in results:
-        stability_report.plot(result, out_dir / f"stability_{result.path.name}.png")
-        if stability_report.has_chart(result):
-            stability_report.plot_chart(result, out_dir / f"stability_{result.path.name}_chart.png")
-    report = out_dir / "stability.md"
-    report.write_text(stability_report.render(list(results), quick, seconds))
-    return report

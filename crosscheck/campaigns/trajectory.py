@@ -73,7 +73,12 @@ import mpmath
 import numpy as np
 from mpmath import mpf
 
+from cases import configuration
 from cases.model import GROUP_JOINTS, Model
+from crosscheck.core.sampling import project_configuration, project_velocity
+from crosscheck.core.tolerance import acceleration_bound
+from crosscheck.references import precise as P
+from crosscheck.references.pinocchio.kinematics import constraint_kinematics, mass_matrix
 
 EPS = float(np.finfo(float).eps)
 INTEGRATORS = ("rk4", "gauss", "adaptive")
@@ -150,8 +155,6 @@ class Dynamics:
 
 
 def baumgarte_term(model: Model, q, v, alpha: float) -> np.ndarray:
-    from crosscheck.references.pinocchio.kinematics import constraint_kinematics, mass_matrix
-
     phi, Jc, _ = constraint_kinematics(model, q, v)
     Minv = np.linalg.inv(mass_matrix(model, q))
     X = Minv @ Jc.T
@@ -187,7 +190,6 @@ class Run:
 def _post(model: Model, project: str):
     if project != "project" or not model.constraints:
         return None
-    from crosscheck.core.sampling import project_configuration, project_velocity
 
     def post(q, v):
         q = project_configuration(model, q)
@@ -321,8 +323,6 @@ def simulate(model: Model, backend, q0, v0, horizon: float, dt: float, integrato
 
 def _mp_acceleration(model: Model, q, v, tau):
     """The exact acceleration (eq. 12-13 with u; the drift for tau = 0) at mpf q, v inside ``workdps``."""
-    from crosscheck.references import precise as P
-
     data, kin, M, h = P._terms(model, q, v)
     L = P._cholesky(model, M, q)
     force = [t - x for t, x in zip(tau, h)]
@@ -334,8 +334,6 @@ def _mp_acceleration(model: Model, q, v, tau):
 
 def mp_energy(model: Model, q, v):
     """Total energy ``1/2 v^T M v - sum m_i gravity . p_com_i`` at mpf q, v inside ``workdps``."""
-    from crosscheck.references import precise as P
-
     data, kin, M, _ = P._terms(model, q, v)
     T = sum(v[i] * mpmath.fdot(M[i], v) for i in range(len(v))) / 2
     V = mpf(0)
@@ -347,9 +345,6 @@ def mp_energy(model: Model, q, v):
 
 def energy(model: Model, q, v) -> float:
     """Total energy in float (harness: Pinocchio's M, the model's poses)."""
-    from cases import configuration
-    from crosscheck.references.pinocchio.kinematics import mass_matrix
-
     q, v = np.asarray(q, float), np.asarray(v, float)
     T = 0.5 * v @ mass_matrix(model, q) @ v
     V = 0.0
@@ -400,8 +395,6 @@ class _PendulumField:
 
 class _MpField:
     def __init__(self, model: Model, schedule):
-        from crosscheck.references import precise as P
-
         self.model, self.schedule, self.n = model, schedule, model.n
         self.B = P._prepare(model, mpmath.mp.prec).B
         self.evals = 0
@@ -560,8 +553,6 @@ def perturbation_direction(model: Model, q0, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     d = rng.standard_normal(2 * model.n)
     if model.constraints:
-        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
-
         _, Jc, _ = constraint_kinematics(model, q0, np.zeros(model.n))
         _, s, Vt = np.linalg.svd(Jc)
         N = Vt[int(np.sum(s > 1e-10 * s.max())):].T
@@ -600,8 +591,6 @@ def growth_summary(t: np.ndarray, G: np.ndarray, window: float = WINDOW) -> Lyap
 
 def rounding_rate(model: Model, ref: Reference, dt: float, integrator: str, samples: int = 25) -> float:
     """``sigma`` of the module doc: a pair's perturbation injected per unit time."""
-    from crosscheck.core.tolerance import acceleration_bound
-
     n = model.n
     idx = np.unique(np.linspace(0, len(ref.t) - 1, min(samples, len(ref.t))).astype(int))
     bound = 0.0
@@ -684,7 +673,6 @@ def constraint_drift(model: Model, run: Run) -> np.ndarray:
     """max(|phi|_inf, |Jc v|_inf) along the run (0 for an unconstrained model)."""
     if not model.constraints:
         return np.zeros(len(run.t))
-    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     out = []
     for q, v in zip(run.q, run.v):

@@ -1,5 +1,5 @@
 """Coordinate charts ``q = psi(p)`` and the maps that carry a state and its answers into them (article 6.4.6,
-9.1; DESIGN.md, charts).
+9.1; docs/design.md, charts).
 
 A chart is a named diffeomorphism with its Jacobian ``Dpsi`` and the term ``(d/dt Dpsi) pd``. Under it
 
@@ -558,7 +558,7 @@ REPRESENTATIONS = ("world", "mixed")
 
 @dataclass(frozen=True)
 class VelocityRepresentation(Chart):
-    """A chart of the velocities only (DESIGN.md, "Configuration on Lie groups": world and mixed base velocity). The
+    """A chart of the velocities only (docs/design.md, "Configuration on Lie groups": world and mixed base velocity). The
     configuration stays q (``p = q``, nq entries, quaternions included: :meth:`p_of` and :meth:`q_of` are the
     identity) and the velocity is w with ``v = T(q) w``; the chart maps of this module hold with ``Dpsi := T``:
     ``vdot = T wdot + Tdot w`` (:meth:`jacobian_rate` is ``Tdot w``) and ``tau_w = T^T tau_v``.

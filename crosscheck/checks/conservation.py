@@ -38,8 +38,9 @@ import numpy as np
 
 from cases.model import Model
 from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import Comparison, compare
+from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
+from crosscheck.references.pinocchio.kinematics import centroidal_momentum_map
 from formalisms import euler_lagrange, geometric
 from formalisms.interface import Split
 
@@ -160,8 +161,6 @@ def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
                     at: policy.Scales | None = None) -> dict[str, Comparison]:
     """The momentum law of the model's roots under each backend's drift (module doc, "Momentum"); empty when no
     law applies."""
-    from crosscheck.references.pinocchio.kinematics import centroidal_momentum_map
-
     q, qd = np.array(state.q), np.array(state.qd)
     A, b, c = centroidal_momentum_map(model, q, qd)
     rows = _momentum_rows(model, c)

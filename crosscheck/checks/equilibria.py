@@ -38,10 +38,10 @@ import scipy.linalg
 import cases
 from cases.model import Model
 from crosscheck.checks import linearization
-from crosscheck.references import precise
 from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import Comparison, compare
+from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
+from crosscheck.references import precise
 from formalisms.interface import Formalism, Linearization, ModelNotSupported
 
 

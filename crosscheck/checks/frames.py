@@ -1,4 +1,4 @@
-"""Frame changes (article 7.4; DESIGN.md, frames): the whole scene moved by a rigid transform g.
+"""Frame changes (article 7.4; docs/design.md, frames): the whole scene moved by a rigid transform g.
 
 Moving the scene by ``g = (R, t)`` (world points ``x -> R x + t``) changes nothing physical: the root bodies'
 placements become ``g * placement``, gravity rotates with the scene (``R gravity``), and the task directions

@@ -1,4 +1,4 @@
-"""Chart and frame invariance checks at one state (article 6.4.6, 7.4, 9.1; DESIGN.md, charts and frames).
+"""Chart and frame invariance checks at one state (article 6.4.6, 7.4, 9.1; docs/design.md, charts and frames).
 
 Each check is a :class:`~crosscheck.core.compare.Comparison` keyed ``"<family> <name>: <quantity>"``, so the gate,
 the outlier vote and the report treat it like any cross-backend comparison.
@@ -29,7 +29,7 @@ import numpy as np
 from cases.model import Model
 from crosscheck.checks import charts, frames
 from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import Comparison, compare
+from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
 from formalisms.interface import Formalism, Split, Unsupported
 
@@ -80,7 +80,7 @@ FRAME_LAWS: dict[str, str | None] = {
 }
 
 
-def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict | None = None):
+def mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict | None = None):
     """A joint-chart answer expressed in the chart; ``done`` keeps the maps already made for this split (the
     additivity is the mapped drift plus the mapped ctrl minus the mapped total, each mapped once)."""
     done = {} if done is None else done
@@ -91,8 +91,8 @@ def _mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict 
     elif quantity == "ctrl":
         value = charts.acceleration_to_chart(chart, p, pd, split.ctrl, with_rate=False)
     elif quantity == "additivity":
-        value = (_mapped(chart, p, pd, split, "drift", done) + _mapped(chart, p, pd, split, "ctrl", done)
-                 - _mapped(chart, p, pd, split, "total", done))
+        value = (mapped(chart, p, pd, split, "drift", done) + mapped(chart, p, pd, split, "ctrl", done)
+                 - mapped(chart, p, pd, split, "total", done))
     elif quantity in ("constraint_force", "constraint_force_drift", "external_force"):
         value = charts.force_to_chart(chart, p, split.quantity(quantity))
     else:
@@ -183,7 +183,7 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     for quantity in _invariant(model):
         if all(isinstance(split.quantity(quantity), Unsupported) for split in native.values()):
             continue                        # no answer from the chart itself: nothing the joint chart has not
-        values = {name: _mapped(at_p, p, pd, split, quantity, done[name]) for name, split in joint.items()
+        values = {name: mapped(at_p, p, pd, split, quantity, done[name]) for name, split in joint.items()
                   if quantity not in left_out[name]}
         values.update({name: split.quantity(quantity) for name, split in native.items()
                        if quantity not in left_out[name]})

@@ -33,11 +33,11 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from cases.model import Model
+from crosscheck.core import tolerance as policy
+from crosscheck.core.compare import compare, Comparison
+from crosscheck.core.sampling import State
 from crosscheck.references import precise
 from crosscheck.references.pinocchio import reference
-from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import Comparison, compare
-from crosscheck.core.sampling import State
 from formalisms.interface import UNSUPPORTED, Formalism, Linearization, ModelNotSupported
 
 #: Safety factor of the linearization tolerance (module doc), as the others' (100 eps times the scale).

@@ -913,12 +913,12 @@ def cmd_merge(args) -> int:
 def cmd_stability(args) -> int:
     """``crosscheck stability``: true errors, condition numbers and the gate's verdicts along paths into trouble
     (``crosscheck.campaigns.stability``), written to DIR/stability.md and its charts. Exit 0: it measures."""
-    from crosscheck.campaigns import stability
+    from crosscheck.reports import stability_report
 
     preflight.claim_directory(args.out, "out")
-    report = stability.write_report(Path(args.out), quick=args.quick,
-                                    progress=lambda path, i, n: print(f"{path}: {i}/{n}", file=sys.stderr,
-                                                                      flush=True))
+    report = stability_report.write_report(Path(args.out), quick=args.quick,
+                                           progress=lambda path, i, n: print(f"{path}: {i}/{n}", file=sys.stderr,
+                                                                             flush=True))
     print(f"stability: {report}")
     return 0
 
@@ -969,6 +969,7 @@ def _bench_scale(args) -> int:
 def _stability_maps(out: str, quick: bool, display: Display) -> Path:
     """The stability maps (``crosscheck.campaigns.stability``), a step on ``display`` per point; the report's path."""
     from crosscheck.campaigns import stability
+    from crosscheck.reports import stability_report
 
     display.stage("stability points", sum(len(p.points) for p in stability.paths(quick, backends.names())))
 
@@ -976,7 +977,7 @@ def _stability_maps(out: str, quick: bool, display: Display) -> Path:
         display.advance()
         display.doing(f"stability: {path} {done}/{count}")
 
-    return stability.write_report(Path(out), quick=quick, progress=measured)
+    return stability_report.write_report(Path(out), quick=quick, progress=measured)
 
 
 #: The committed reports (in :data:`REPORTS_DIR`) and the command that writes each there: ``crosscheck reports``

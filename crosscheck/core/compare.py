@@ -1,4 +1,4 @@
-"""Comparison of one quantity across backends at one state, and the verdict (DESIGN.md, verdicts).
+"""Comparison of one quantity across backends at one state, and the verdict (docs/design.md, verdicts).
 
 A DISAGREE carries its severity (how many tolerances the worst pair is apart, :data:`SEVERITY`) and the vote:
 the outlier when three or more voters allow one, or why none is named (:func:`vote`). A DISAGREE that the

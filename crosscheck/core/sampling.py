@@ -1,6 +1,6 @@
 """Seeded random states for the gate: same seed and case, same states, on every machine.
 
-A constrained model's states are admissible (DESIGN.md; article 5.1): q is projected onto the constraint manifold
+A constrained model's states are admissible (docs/design.md; article 5.1): q is projected onto the constraint manifold
 ``phi(q) = 0`` of the holonomic rows by Gauss–Newton (Pfaffian rows ``A(q) qd = 0`` leave q free) and qd onto the
 null space of every row, ``Jc qd = 0`` and ``A qd = 0``, both with the Pinocchio reference's
 constraint kinematics (``crosscheck.references.pinocchio.kinematics.constraint_kinematics``), so admissibility is decided outside the five
@@ -16,6 +16,7 @@ import numpy as np
 
 from cases import configuration
 from cases.model import Model
+from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 #: Sampling ranges: revolute angles (rad), prismatic displacements (m), joint rates (rad/s or m/s), inputs.
 ANGLE_RANGE = np.pi
@@ -126,25 +127,23 @@ def project_configuration(model: Model, q) -> np.ndarray:
     and free joints), halved until |phi| shrinks, iterated down to rounding; :class:`ProjectionError` saying how far it
     got when it ends above ``PHI_TOL``. Only the holonomic rows take part (``Model.holonomic_rows``): a Pfaffian row
     ``A(q) qd = 0`` has no ``phi`` and leaves every configuration admissible."""
-    from crosscheck.references.pinocchio.kinematics import constraint_kinematics as rows
-
     q = np.array(q, dtype=float)
     holonomic = model.holonomic_rows
     if not holonomic.any():       # Pfaffian rows only: they do not restrict the configuration
         return q
     zero, tol = np.zeros(model.nv), PHI_TOL * model.length_scale ** 2
 
-    def constraint_kinematics(model, q, qd):
-        phi, Jc, bias = rows(model, q, qd)
+    def holonomic_kinematics(model, q, qd):
+        phi, Jc, bias = constraint_kinematics(model, q, qd)
         return phi[holonomic], Jc[holonomic], bias[holonomic]
 
-    phi, Jc, _ = constraint_kinematics(model, q, zero)
+    phi, Jc, _ = holonomic_kinematics(model, q, zero)
     for _ in range(NEWTON_STEPS):
         step, t = -np.linalg.pinv(Jc, rcond=1e-10) @ phi, 1.0
         while t > 1e-6:
             trial = configuration.integrate(model, q, t * step)
             if trial.tobytes() != q.tobytes():   # a step lost to rounding leaves q, and so phi, as they are
-                phi_new, Jc_new, _ = constraint_kinematics(model, trial, zero)
+                phi_new, Jc_new, _ = holonomic_kinematics(model, trial, zero)
                 if np.abs(phi_new).max() < np.abs(phi).max():
                     break
             t *= 0.5
@@ -163,8 +162,6 @@ def project_velocity(model: Model, q, qd) -> np.ndarray:
     (Jc's right singular vectors beyond its rank; singular values above ``VELOCITY_RCOND`` count). Built from the
     kept part rather than by subtracting the removed one (``(I - Jc^+ Jc) qd``), the residual ``Jc qd`` is rounding
     of the result, not of the removed part, which can dwarf a small remaining qd."""
-    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
-
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
     if not np.all(np.isfinite(Jc)):
         bad = int(np.argwhere(~np.isfinite(Jc))[0][0])

@@ -83,6 +83,7 @@ import numpy as np
 from cases.constraints import JointCoupling, PointOnCircle, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF
+from crosscheck.references.pinocchio.kinematics import contact_sines, mass_matrix
 from formalisms.interface import CONSTRAINT_RCOND, Unsupported
 
 EPS = float(np.finfo(float).eps)
@@ -428,7 +429,6 @@ def _mass(model, q) -> _Mass:
     if entry is None or entry[0]() is not model or entry[1] != key:
         import scipy.linalg
 
-        from crosscheck.references.pinocchio.kinematics import mass_matrix
         M = mass_matrix(model, q)
         inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), np.eye(len(M)))
         eigenvalues = np.linalg.eigvalsh(M)
@@ -726,7 +726,6 @@ def _contact_gain(model, q) -> float:
     contact, ``t = (a x n) / s`` (``|a x n| = s``), and its rate ``tdot`` are divided by the same s and round alike."""
     if not any(isinstance(c, RollingContact) for c in model.constraints):
         return 1.0
-    from crosscheck.references.pinocchio.kinematics import contact_sines
 
     return 1.0 / max(float(contact_sines(model, q).min()), MIN_CONTACT_SINE) ** 2
 

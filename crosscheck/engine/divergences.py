@@ -1,4 +1,4 @@
-"""The divergence registry: known, explained divergences, checked in as ``divergences.toml`` (DESIGN.md, verdicts).
+"""The divergence registry: known, explained divergences, checked in as ``divergences.toml`` (docs/design.md, verdicts).
 
 Each entry names a backend, a glob on the case (or model) name, a glob on the quantity or check key (``drift``,
 ``chart affine: ctrl``, ``frame law: screw wrenches_space``, ``conservation: ...``), the reason (required) and
@@ -32,10 +32,10 @@ from typing import Iterable, Sequence
 
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED, Comparison, backend_of
-from crosscheck.engine.outcomes import GateResult, StateOutcome
 from crosscheck.checks.invariance import CONSTRAINED_INVARIANT, FRAME_LAWS, INVARIANT
+from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED, backend_of, Comparison
 from crosscheck.core.tolerance import TOLERANCES
+from crosscheck.engine.outcomes import GateResult, StateOutcome
 
 DEFAULT_PATH = "divergences.toml"
 REQUIRED = ("backend", "case", "quantity", "reason")

@@ -15,16 +15,15 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from cases.model import Model
-from crosscheck.checks import charts as chart_catalog
-from crosscheck.checks import conservation, equilibria, frames, invariance, linearization
+from crosscheck.checks import charts as chart_catalog, conservation, equilibria, frames, invariance, linearization
 from crosscheck.core import tolerance as tolerance_policy
 from crosscheck.core.compare import compare
 from crosscheck.core.sampling import State
 from crosscheck.engine.outcomes import StateOutcome
-from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.phases import Clock
+from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import conditioning
-from formalisms.interface import UNSUPPORTED, Formalism, ModelNotSupported, Split, block_form
+from formalisms.interface import UNSUPPORTED, block_form, Formalism, ModelNotSupported, Split
 
 
 def run_backends(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cases
 from cases.model import Model
 from crosscheck.checks import frames
 from crosscheck.core import tolerance as tolerance_policy
-from crosscheck.core.compare import DISAGREE, Comparison, backend_of, worst_of
+from crosscheck.core.compare import DISAGREE, backend_of, Comparison, worst_of
 from crosscheck.core.sampling import State
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import coverage as coverage_of

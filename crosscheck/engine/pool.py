@@ -9,8 +9,8 @@ from typing import Callable, Sequence
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.engine import workers as worker_processes
 from crosscheck.engine.outcomes import CaseOutcome
-from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.phases import DONE, IN_WORKER, Step
+from crosscheck.engine.specs import CaseSpec, Checks
 from formalisms.interface import Formalism
 
 

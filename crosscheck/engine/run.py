@@ -1,17 +1,27 @@
-"""None"""
+"""The gate's run: each case set up (its model, charts, moved scenes and closed form), its seeded states evaluated in
+blocks (``crosscheck.engine.evaluation``), the self-test canaries after the cases (``crosscheck.guards.selftest``), and
+the result (``crosscheck.engine.outcomes.GateResult``).
+
+``run_gate(..., workers=W)`` runs the cases in W spawned processes (``crosscheck.engine.pool``) with the same
+outcomes, in case order. ``run_gate(..., progress=...)`` tells a progress display where the run is
+(``crosscheck.engine.phases.Step``: the case, the states evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends
+the run with :class:`Interrupted`, which carries the partial result: every state evaluated until then, marked as
+interrupted, never passing.
+"""
 
 from __future__ import annotations
 
 import warnings
 from typing import Callable, Iterator, Sequence
 
-from crosscheck.core.sampling import State, sample_states
+from crosscheck.core.sampling import sample_states, State
+from crosscheck.engine import pool
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
-from crosscheck.engine import pool
+from crosscheck.engine.phases import DONE, EVALUATING, SELF_TEST, SETTING_UP, _ignore, Clock, Step
 from crosscheck.engine.specs import CaseSpec, Checks
-from crosscheck.engine.phases import Clock, DONE, EVALUATING, SELF_TEST, SETTING_UP, Step, _ignore
-from crosscheck.guards import coverage as coverage_of
+from crosscheck.guards import coverage as coverage_of, selftest
+from crosscheck.references import closed_forms
 from formalisms.interface import Formalism, ModelNotSupported
 
 
@@ -123,7 +133,6 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
         return ""
     if spec.path is not None:
         return "none (a model file; its reference is built from the file)"
-    from crosscheck.references import closed_forms
 
     given = " (not the task quantities: --task-point given)" if spec.task_point is not None else ""
     return closed_forms.coverage(spec.name, dict(spec.params)) + given
@@ -153,8 +162,6 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
             for spec in specs:
                 outcomes.append(run_case(spec, backends, samples, seed, tell, checks))
         if checks.self_test:
-            from crosscheck.guards import selftest
-
             tell(Step("", 0, 0, SELF_TEST))
             result.self_test = selftest.run()
     except KeyboardInterrupt as exc:

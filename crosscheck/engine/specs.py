@@ -11,7 +11,7 @@ from typing import Callable
 import cases
 from cases import task as task_points
 from cases.model import Model
-from crosscheck.checks import conservation, frames, linearization
+from crosscheck.references import closed_forms
 from formalisms.interface import UNSUPPORTED, Split
 
 
@@ -65,7 +65,6 @@ class CaseSpec:
         everything but the task quantities, which its equations have for the case's own task point."""
         if self.path is not None:
             return None
-        from crosscheck.references import closed_forms
 
         voter = closed_forms.voter(self.name, dict(self.params))
         if voter is None or self.task_point is None:

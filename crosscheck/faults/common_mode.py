@@ -1,4 +1,4 @@
-"""Common-mode faults: realistic bugs in code every backend shares, which the vote cannot see (DESIGN.md, "Shared code
+"""Common-mode faults: realistic bugs in code every backend shares, which the vote cannot see (docs/design.md, "Shared code
 that cannot be avoided ... is guarded by something outside the vote").
 
 A bug in the model language, a URDF conversion, a case factory, a constraint declaration, the sampler, the charts,
@@ -28,12 +28,12 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from crosscheck.faults import injection
-from crosscheck.engine import divergences
-from crosscheck.guards import selftest
-from crosscheck.guards import coverage as coverage_of
-from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
 from crosscheck.core.sampling import sample_states
+from crosscheck.engine import divergences
+from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
+from crosscheck.faults import injection
+from crosscheck.guards import coverage as coverage_of, selftest
+from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 
 @dataclass(frozen=True)
@@ -212,7 +212,6 @@ def _pfaffian_as_holonomic(project_velocity):
     def faulty(model, q, qd):
         if not model.pfaffian_rows.any():
             return project_velocity(model, q, qd)
-        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
         Jc = constraint_kinematics(model, q, np.zeros(model.nv))[1][model.holonomic_rows]
         if not len(Jc):

@@ -1,4 +1,4 @@
-"""Injected faults: how strong the gate is, measured (DESIGN.md, "a check that cannot fail is a defect").
+"""Injected faults: how strong the gate is, measured (docs/design.md, "a check that cannot fail is a defect").
 
 A :class:`Fault` is a realistic bug in one backend's own computation (a dropped Coriolis term, a transposed
 rotation, a multiplier with the wrong sign, ...), injected by replacing one module attribute, a function or a
@@ -37,15 +37,15 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 import cases
-import formalisms
 from crosscheck import backends as backend_registry
 from crosscheck.checks import charts, linearization
-from crosscheck.engine import divergences
 from crosscheck.core.compare import DISAGREE, backend_of, suspect
-from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
+from crosscheck.core.sampling import sample_states, State
+from crosscheck.engine import divergences
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.outcomes import StateOutcome
-from crosscheck.core.sampling import State, sample_states
+from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
+import formalisms
 from formalisms.interface import Formalism, Unsupported
 
 _KEBAB = re.compile(r"^[a-z0-9]+(-[a-z0-9]+)+$")

@@ -25,11 +25,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from crosscheck.faults import injection
-from crosscheck.engine.evaluation import CaseSetup
-from crosscheck.engine.specs import CaseSpec, Checks
-from crosscheck.engine.outcomes import StateOutcome
 from crosscheck.core.sampling import sample_states
+from crosscheck.engine.evaluation import CaseSetup
+from crosscheck.engine.outcomes import StateOutcome
+from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.faults import injection
 from formalisms.interface import Formalism
 
 TERMS = ("M", "C qd", "g")

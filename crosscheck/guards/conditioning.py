@@ -35,7 +35,8 @@ import scipy.linalg
 
 from cases.model import Model
 from crosscheck.core import tolerance as policy
-from crosscheck.core.compare import Comparison, compare
+from crosscheck.core.compare import compare, Comparison
+from crosscheck.references.pinocchio.kinematics import bias_forces, constraint_kinematics, mass_matrix, task_jacobian
 
 EPS = float(np.finfo(float).eps)
 #: The backends' rule for redundant and degenerate rows (docs/tolerances.md), stated again by the harness: the same
@@ -147,8 +148,6 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
     """Every condition a backend may report at the state, from Pinocchio's M, ``C qd``, ``g``, task Jacobian and
     constraint kinematics, by this module's own code (module doc), ``"M"``: cond(M), and the relative rounding of the
     rows the conditions are made of (:func:`_short`), ``"rows task"`` and ``"rows constraint"``."""
-    from crosscheck.references.pinocchio.kinematics import bias_forces, mass_matrix, task_jacobian
-
     q, qd, u = (np.asarray(x, dtype=float) for x in (q, qd, u))
     M = mass_matrix(model, q)
     factor = scipy.linalg.cho_factor(M)
@@ -158,8 +157,6 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
     out = {"M": float(eig[-1] / eig[0]), "task": task, "task_inertia": task, "task_jacobian": short,
            "rows task": _short(model, J), "rows constraint": 1.0}
     if model.constraints:
-        from crosscheck.references.pinocchio.kinematics import constraint_kinematics
-
         Cqd, g = bias_forces(model, q, qd)
         tau = model.input_map @ u
         _, Jc, bias = constraint_kinematics(model, q, qd)

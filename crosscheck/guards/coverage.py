@@ -25,6 +25,7 @@ import numpy as np
 
 from cases.model import Model
 from crosscheck.core import sampling
+from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 #: The span the gate promises to sample (docs/faults.md, coverage): one turn of a revolute joint, a metre of a
 #: prismatic one. Written here, not read from ``crosscheck.core.sampling``, so that a sampler drawing from a narrower range
@@ -67,7 +68,6 @@ def _ranges(rows: np.ndarray, width: int) -> np.ndarray:
 def _ranks(model: Model, Q: np.ndarray) -> tuple[int, int] | None:
     if not model.constraints or not len(Q):
         return None
-    from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
     ranks = [int(np.linalg.matrix_rank(constraint_kinematics(model, q, np.zeros(model.nv))[1])) for q in Q]
     return min(ranks), max(ranks)

@@ -33,6 +33,7 @@ import numpy as np
 
 from cases import configuration
 from cases.model import Model
+from crosscheck.references.pinocchio.kinematics import mass_matrix
 
 EPS = float(np.finfo(float).eps)
 
@@ -106,8 +107,6 @@ def _probe_configurations(model: Model) -> list[np.ndarray]:
 
 def _singular_everywhere(model: Model) -> str | None:
     """None when M is regular at some probe configuration; else what is wrong, with the null direction."""
-    from crosscheck.references.pinocchio.kinematics import mass_matrix
-
     worst = None
     for q in _probe_configurations(model):
         M = mass_matrix(model, q)

@@ -1,4 +1,4 @@
-"""Self-test canaries: every gate run proves it can still see small errors (DESIGN.md, "a check that cannot fail").
+"""Self-test canaries: every gate run proves it can still see small errors (docs/design.md, "a check that cannot fail").
 
 The code every backend shares (the model language, sampling, tolerances, the comparison, the vote) is outside the
 vote: a tolerance loosened tenfold, a comparison that takes a signed difference or lets NaN agree, a vote that names
@@ -30,8 +30,13 @@ from typing import Sequence
 
 import numpy as np
 
+from crosscheck import backends as registry
 from crosscheck.core import tolerance as policy
 from crosscheck.core.compare import DISAGREE, suspect
+from crosscheck.core.sampling import sample_states
+from crosscheck.engine.evaluation import CaseSetup, compare_all
+from crosscheck.engine.outcomes import StateOutcome
+from crosscheck.engine.specs import CaseSpec, Checks
 
 #: The seed of the canaries' states (fixed: the canaries are calibrated on these states, whatever the run's seed).
 SEED = 0
@@ -153,9 +158,6 @@ def inject(canary: Canary, split, reference):
 def _judge(canary: Canary, model, outcome) -> CanaryResult:
     """Compare again at ``outcome``'s state (clean, :func:`_clean`) with the canary's backend faulty, as the gate
     compares."""
-    from crosscheck.engine.outcomes import StateOutcome
-    from crosscheck.engine.evaluation import compare_all
-
     if canary.backend not in outcome.splits:
         return CanaryResult(canary, False, False, 0.0, "-", f"{canary.backend} disagrees at this state without a fault")
     splits = dict(outcome.splits)
@@ -175,9 +177,6 @@ def _judge(canary: Canary, model, outcome) -> CanaryResult:
 def _clean(model, outcome):
     """``outcome`` without the backends that disagree at it without any fault (each named by the vote), compared
     again; None when the state disagrees and no single backend explains it."""
-    from crosscheck.engine.outcomes import StateOutcome
-    from crosscheck.engine.evaluation import compare_all
-
     failing = [c for c in outcome.comparisons.values() if c.verdict == DISAGREE]
     if not failing:
         return outcome
@@ -194,11 +193,6 @@ def run(canaries: Sequence[Canary] = CANARIES, backends=None) -> SelfTest:
     """Evaluate each canary's state once with every backend (the default gate's backends and the case's closed form,
     without charts, frames or conservation), leave out any backend that disagrees there without a fault
     (:func:`_clean`), and judge each canary there."""
-    from crosscheck import backends as registry
-    from crosscheck.engine.evaluation import CaseSetup
-    from crosscheck.engine.specs import CaseSpec, Checks
-    from crosscheck.core.sampling import sample_states
-
     chosen = [registry.get(name) for name in registry.builtin_names()] if backends is None else list(backends)
     results, evaluated, unusable = [], {}, []
     for canary in canaries:

@@ -76,8 +76,9 @@ from mpmath import mpf
 from cases.constraints import JointCoupling, KnifeEdge, PointOnLine, PointsCoincide, PointVelocity, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model
+from crosscheck.checks.charts import EulerZYX
 from crosscheck.guards.conditioning import redundant_below
-from formalisms.interface import Linearization, check_state, state_space
+from formalisms.interface import check_state, Linearization, state_space
 
 #: Default working precision (significant decimal digits).
 DIGITS = 50
@@ -757,8 +758,6 @@ def _zyx_terms(chart, p, pd) -> tuple[list, list]:
 
 
 def _check_chart(chart) -> None:
-    from crosscheck.checks.charts import EulerZYX
-
     if not isinstance(chart, EulerZYX):
         raise ValueError(f"precise chart splits are written for the zyx chart (charts.EulerZYX), got {chart!r}")
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from crosscheck.reports import plots
 from crosscheck.campaigns.bench import Results
+from crosscheck.reports import plots
 
 #: Relative errors below this are drawn at it on log axes (an exact answer has error 0).
 ERROR_FLOOR = 1e-18

@@ -35,8 +35,8 @@ import cases
 from cases.model import Model
 from crosscheck.backends import REFERENCE_NAME
 from crosscheck.core.compare import DISAGREE, Comparison, suspect
-from crosscheck.engine.outcomes import GateResult, StateOutcome
 from crosscheck.core.tolerance import CONSTRAINED_QUANTITIES
+from crosscheck.engine.outcomes import GateResult, StateOutcome
 from formalisms.interface import Formalism, Split, Unsupported
 
 #: An error "vanishes" in a variant when it falls below the tolerance or this fraction of the error at the state.

@@ -11,9 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-from crosscheck.campaigns.fuzz.chunk import finding_id
 from crosscheck.campaigns.fuzz.settings import CHUNK_EXAMPLES
-from crosscheck.campaigns.fuzz.storage import CampaignResult, write_atomic, load_campaign, load_chunks, load_findings
+from crosscheck.campaigns.fuzz.storage import CampaignResult, load_campaign, load_chunks, load_findings, write_atomic
 
 
 # ------------------------------------------------------------------------------------------------ report

@@ -12,9 +12,10 @@ from crosscheck.core.compare import AGREE, DISAGREE, KNOWN, NOT_COMPARED, suspec
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS, quantities
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
-from crosscheck.references.pinocchio import build
-from crosscheck.references.pinocchio import reference
-from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, VERDICTS, all_comparisons, check_groups, condition_text, no_chart, policy_lines, ratio_of, scope_text, severity_of, state_detail, vec_text, verdict_text, reproduce_command, task_point_lines)
+from crosscheck.references.pinocchio import build, reference
+from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, VERDICTS, all_comparisons, check_groups, condition_text,
+                                           no_chart, policy_lines, ratio_of, reproduce_command, scope_text, severity_of,
+                                           state_detail, task_point_lines, vec_text, verdict_text)
 from formalisms.interface import Unsupported
 
 

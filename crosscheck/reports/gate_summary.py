@@ -20,8 +20,10 @@ from crosscheck.core.compare import KNOWN, NOT_COMPARED
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import GateResult
-from crosscheck.reports.gate_details import breakdowns_of, limits_line, details
-from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, counted, failed_states, ratio_of, registry_line, self_test_line, state_detail, task_broken_states, typical_state, verdict_text, where_worst, task_point_lines)
+from crosscheck.reports.gate_details import breakdowns_of, details, limits_line
+from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, counted, failed_states, ratio_of,
+                                           registry_line, self_test_line, state_detail, task_broken_states,
+                                           task_point_lines, typical_state, verdict_text, where_worst)
 
 
 #: At most this many pictures of the mechanism per report.

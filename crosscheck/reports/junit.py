@@ -17,9 +17,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED, Comparison, vote
+from crosscheck.core.tolerance import quantities
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.reports.gate_lines import check_family, check_reproduce_command, reproduce_command
-from crosscheck.core.tolerance import quantities
 
 #: Failing states listed per testcase, as in the markdown report (the count is always complete).
 MAX_LISTED = 20

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from crosscheck.references.pinocchio import kinematics
 
 #: Width of a figure that fills a printed page's text width (inches), and of a one-column figure.
 WIDTH_IN = 9.0
@@ -73,8 +74,6 @@ def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarra
     """The mechanism at ``q`` from the reference's forward kinematics (``crosscheck.references.pinocchio.kinematics.body_origins``): joint
     origins (bodies x 3, world frame, in body order), segments as (parent row, child row) pairs (-1: the world
     origin), the leaf bodies' centres of mass (where their links end; leaves x 3) and the task point."""
-    from crosscheck.references.pinocchio import kinematics
-
     origins, coms, task = kinematics.body_origins(model, q)
     leaves = [i for i in range(len(model.bodies)) if i not in model.parent_index]
     return origins, [(model.parent_index[i], i) for i in range(len(model.bodies))], coms[leaves], task

@@ -1,4 +1,5 @@
-"""The stability report: ``stability.md`` (tables and conclusions from the numbers) and one PNG chart per path.
+"""The stability report: ``stability.md`` (tables and conclusions from the numbers) and one PNG chart per path;
+:func:`write_report` measures the paths (``crosscheck.campaigns.stability``) and writes both.
 
 Everything here is computed from :class:`crosscheck.campaigns.stability.PathResult` values, so the same run gives the same
 report byte for byte, apart from the total runtime on its last line.
@@ -6,10 +7,16 @@ report byte for byte, apart from the total runtime on its last line.
 
 from __future__ import annotations
 
-from crosscheck.reports import plots
+import time
+from pathlib import Path
+from typing import Sequence
+
+from crosscheck import backends
+from crosscheck.campaigns import stability
+from crosscheck.campaigns.stability import Measurement, PathResult
 from crosscheck.checks.charts import GIMBAL_LIMIT as GIMBAL
 from crosscheck.core.compare import DISAGREE
-from crosscheck.campaigns.stability import Measurement, PathResult
+from crosscheck.reports import plots
 
 #: Short backend labels for the tables (a plugin keeps its name).
 SHORT = {"euler_lagrange": "EL", "newton_euler": "NE", "screw": "screw", "operational_space": "OS",
@@ -443,7 +450,7 @@ def chart_section(result: PathResult) -> list[str]:
             "at the state carried into the chart in mpmath (`precise.chart_split`). `@zyx`: evaluated natively "
             "(`split_chart`) at the chart point the gate computes, with its own error in parentheses (against the "
             "exact answer for those float inputs, `precise.chart_split_at`); `(mapped)`: the joint-chart answer "
-            "carried by `invariance._mapped`. `state map`: how far the harness's rounding of the state into the "
+            "carried by `invariance.mapped`. `state map`: how far the harness's rounding of the state into the "
             "chart moves the exact answer. `true err / chart tol`: against the gate's chart comparison tolerance "
             "(`would be`: past the limit, the tolerance it would use with the limit lifted). `raised`: an exception "
             "(the Cholesky of the singular M_p).", "",
@@ -486,3 +493,24 @@ def plot_chart(result: PathResult, file) -> None:
 
 __all__ = ["chart_conclusions", "chart_table", "conclusions", "plot", "plot_chart", "point_table", "render",
            "summary_table"]
+
+
+def write_report(out_dir, quick: bool, progress=None) -> Path:
+    """Run every path (``quick``: a few points each) and write ``stability.md`` and its ``stability_<path>.png``
+    charts into ``out_dir``; returns the markdown's path."""
+    start = time.perf_counter()
+    results = [stability.run_path(path, progress) for path in stability.paths(quick, backends.names())]
+    return write(results, out_dir, quick, time.perf_counter() - start)
+
+
+def write(results: Sequence[PathResult], out_dir, quick: bool, seconds: float) -> Path:
+    """Write the report of measured ``results`` (``stability.md`` and one chart per path) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for result in results:
+        plot(result, out_dir / f"stability_{result.path.name}.png")
+        if has_chart(result):
+            plot_chart(result, out_dir / f"stability_{result.path.name}_chart.png")
+    report = out_dir / "stability.md"
+    report.write_text(render(list(results), quick, seconds))
+    return report

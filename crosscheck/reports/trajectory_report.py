@@ -18,6 +18,8 @@ import numpy as np
 
 import cases
 from crosscheck.campaigns import trajectory as T
+from crosscheck.core.sampling import project_configuration, project_velocity
+from crosscheck.references.pinocchio import reference
 
 SHORT = {"euler_lagrange": "EL", "newton_euler": "NE", "screw": "screw", "operational_space": "OS",
          "geometric": "geom", "pinocchio": "pin"}
@@ -91,8 +93,6 @@ def _job(kind: str, args: tuple):
 def fastest_frequency(model, q) -> float:
     """``omega_max = sqrt(max |eig(d drift / dq)|)`` at ``(q, v = 0)``: the fastest small-oscillation frequency, from
     central differences (step 1e-6) of the Pinocchio reference's drift."""
-    from crosscheck.references.pinocchio import reference
-
     h, n = 1e-6, model.n
     J = np.empty((n, n))
     for k in range(n):
@@ -245,8 +245,6 @@ def _job2(kind, args):
 def _start_state(case: str, params: tuple):
     """An admissible start of a constrained case: its home configuration projected, a unit rate on the first joint
     projected onto the tangent space."""
-    from crosscheck.core.sampling import project_configuration, project_velocity
-
     model = _model(case, params)
     q = project_configuration(model, np.full(model.n, 0.3))
     v = project_velocity(model, q, np.eye(model.n)[0] * 2.0)

@@ -22,12 +22,11 @@ from cases.model import Model
 from cases.serialize import model_to_dict
 from crosscheck import backends, testing
 from crosscheck.campaigns.fuzz.interrupts import INTERRUPTS
-from crosscheck.campaigns.fuzz.settings import FuzzConfig, chunk_seed, chunk_size
+from crosscheck.campaigns.fuzz.settings import chunk_seed, chunk_size, FuzzConfig
 from crosscheck.campaigns.fuzz.storage import save_finding
 from crosscheck.checks import charts, frames
 from crosscheck.core.sampling import State
 from crosscheck.engine import evaluation
-from crosscheck.engine import progress
 from crosscheck.engine.outcomes import StateOutcome
 
 

@@ -21,10 +21,12 @@ from typing import Iterable, Iterator, Sequence
 from crosscheck import backends
 from crosscheck.campaigns.fuzz.chunk import run_chunk
 from crosscheck.campaigns.fuzz.interrupts import INTERRUPTS, signals_handled, watch
-from crosscheck.campaigns.fuzz.settings import (CHUNKS_PER_PROCESS, FuzzConfig, FuzzError, INTERRUPT_GRACE, LOST_AFTER, POLL, chunk_size, planned_chunks)
-from crosscheck.campaigns.fuzz.storage import (CampaignResult, append_chunk, final_records, locked, prepare, prune, record_run, write_atomic, load_campaign, load_chunks, load_findings, save_finding)
-from crosscheck.engine import progress
-from crosscheck.engine import workers as worker_processes
+from crosscheck.campaigns.fuzz.settings import (CHUNKS_PER_PROCESS, INTERRUPT_GRACE, LOST_AFTER, POLL, chunk_size,
+                                                FuzzConfig, FuzzError, planned_chunks)
+from crosscheck.campaigns.fuzz.storage import (append_chunk, CampaignResult, final_records, load_campaign, load_chunks,
+                                               load_findings, locked, prepare, prune, record_run, save_finding,
+                                               write_atomic)
+from crosscheck.engine import progress, workers as worker_processes
 from crosscheck.reports.fuzz_report import write_report
 
 

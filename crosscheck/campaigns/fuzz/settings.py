@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Iterator
 
 from crosscheck import backends
-from crosscheck.checks import charts, frames
 
 
 DEFAULT_DIR = "crosscheck-out/fuzz"

@@ -72,9 +72,17 @@ from typing import Callable, Mapping
 import numpy as np
 
 import cases
-from crosscheck.references.closed_forms.by_case import (absolute_loop_rule, acrobot, cartesian_pendulum, cartesian_rule, differential_drive, disk_rule, double_pendulum, double_pendulum_absolute_loop, double_pendulum_circle, double_pendulum_rail, double_pendulum_rule, double_pendulum_spring, double_pendulum_tip_force, drive_rule, four_bar, four_bar_rule, free_body, gear_rule, geared_pendulums, inclined_slider, knife_edge, n_link_pendulum, rolling_disk, rotor, sleigh_rule, slider_crank, slider_crank_rule, spherical_pendulum)
+from crosscheck.references.closed_forms.by_case import (absolute_loop_rule, acrobot, cartesian_pendulum, cartesian_rule,
+                                                        differential_drive, disk_rule, double_pendulum,
+                                                        double_pendulum_absolute_loop, double_pendulum_circle,
+                                                        double_pendulum_rail, double_pendulum_rule,
+                                                        double_pendulum_spring, double_pendulum_tip_force, drive_rule,
+                                                        four_bar, four_bar_rule, free_body, gear_rule, geared_pendulums,
+                                                        inclined_slider, knife_edge, n_link_pendulum, rolling_disk,
+                                                        rotor, sleigh_rule, slider_crank, slider_crank_rule,
+                                                        spherical_pendulum)
 from crosscheck.references.closed_forms.constrained import Rule
-from formalisms.interface import Formalism, Split, check_state
+from formalisms.interface import check_state, Formalism, Split
 
 
 class ClosedFormMismatch(ValueError):

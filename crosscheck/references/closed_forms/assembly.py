@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crosscheck.references.closed_forms.algebra import eigenvalues
-from crosscheck.references.closed_forms.constrained import Rule, constrained_input_map
+from crosscheck.references.closed_forms.constrained import constrained_input_map, Rule
 from formalisms.interface import Split
 
 

@@ -6,10 +6,17 @@ from __future__ import annotations
 import numpy as np
 
 from crosscheck.references.closed_forms.algebra import condition, inv2, task_inertia, task_inertia_square
-from crosscheck.references.closed_forms.assembly import Kkt, Terms, assemble, constrained_solution, task_terms
-from crosscheck.references.closed_forms.constrained import (Rule, cartesian_lam, circle_terms, constrained_input_map, four_bar_loop, four_bar_terms, gear_constraint, gear_terms, joint_to_loop, link_point, loop_constraint, loop_terms, loop_to_joint, one_row_kkt, pin_forces, rail_terms, rod_body, slider_crank_terms, wrist_pin)
-from crosscheck.references.closed_forms.nonholonomic import (disk_center, disk_terms, drive_load, drive_motion, drive_terms, sleigh_motion, sleigh_terms)
-from crosscheck.references.closed_forms.pendulums import (acrobot_terms, chain_terms, chain_tip, disk_inertia, endpoint_jacobian, pendulum_terms, relative_to_absolute, tip_bias, tip_force, tip_spring, to_joint)
+from crosscheck.references.closed_forms.assembly import assemble, constrained_solution, Kkt, task_terms, Terms
+from crosscheck.references.closed_forms.constrained import (cartesian_lam, circle_terms, constrained_input_map,
+                                                            four_bar_loop, four_bar_terms, gear_constraint, gear_terms,
+                                                            joint_to_loop, link_point, loop_constraint, loop_terms,
+                                                            loop_to_joint, one_row_kkt, pin_forces, rail_terms,
+                                                            rod_body, Rule, slider_crank_terms, wrist_pin)
+from crosscheck.references.closed_forms.nonholonomic import (disk_center, disk_terms, drive_load, drive_motion,
+                                                             drive_terms, sleigh_motion, sleigh_terms)
+from crosscheck.references.closed_forms.pendulums import (acrobot_terms, chain_terms, chain_tip, disk_inertia,
+                                                          endpoint_jacobian, pendulum_terms, relative_to_absolute,
+                                                          tip_bias, tip_force, tip_spring, to_joint)
 from crosscheck.references.closed_forms.spatial import free_body_terms, rotor_terms, slider_terms, spherical_terms
 from formalisms.interface import Split
 

@@ -9,7 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from crosscheck.references.closed_forms.algebra import eigenvalues, inv2
-from crosscheck.references.closed_forms.pendulums import (CHAIN_AND_ONE, mp, chain_position, chain_tip, endpoint_jacobian, rod_chain_terms, stack_terms, tip_bias, tip_position, to_joint)
+from crosscheck.references.closed_forms.pendulums import (CHAIN_AND_ONE, chain_position, chain_tip, endpoint_jacobian,
+                                                          mp, rod_chain_terms, stack_terms, tip_bias, tip_position,
+                                                          to_joint)
 from formalisms.interface import CONSTRAINT_RCOND, DEGENERATE_ROW
 
 

@@ -44,6 +44,7 @@ import pinocchio as pin
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
+from cases.urdf import read_file
 from formalisms.interface import DEGENERATE_ROW
 
 
@@ -223,8 +224,6 @@ def _read_file(source: ModelSource) -> pin.Model:
     the source's root is "free", or ``buildModelFromMJCF``) placed in the model's world by the source's ``g = (R,
     t)``: root joint placements and the frames on the universe ``g * X``, gravity ``R g_file`` (zero for a source
     without gravity, ``ModelSource.without_gravity``)."""
-    from cases.urdf import read_file
-
     try:
         pm = read_file(pin, source.kind, source.path, source.root)
     except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files

@@ -55,9 +55,11 @@ import scipy.linalg
 from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity, RollingContact
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
-from crosscheck.references.pinocchio.build import (Compiled, LOCK, ours, ours_matrix, reference_model, reference_key, symmetric)
+from crosscheck.references.pinocchio.build import (LOCK, Compiled, ours, ours_matrix, reference_key, reference_model,
+                                                   symmetric)
 from crosscheck.references.pinocchio.kinematics import constraint_terms, contact, rolling_direction, task_rows
-from formalisms.interface import (CONSTRAINT_RCOND, Formalism, Linearization, Split, SplitBatch, check_batch, check_state, split_batch_by_loop, ModelNotSupported)
+from formalisms.interface import (CONSTRAINT_RCOND, check_batch, check_state, Formalism, Linearization,
+                                  ModelNotSupported, Split, split_batch_by_loop, SplitBatch)
 
 
 # ------------------------------------------------------------------------------------ the reference's numerics
@@ -128,7 +130,7 @@ def _task_inertia(model: Model, c: Compiled, data, L: np.ndarray) -> dict:
 
 
 def _input_power(model: Model, u: np.ndarray, qd: np.ndarray) -> tuple[float, np.ndarray]:
-    """``P_ctrl = u . (B^T qd)`` and per coordinate ``(B u)_i qd_i`` (DESIGN.md, power)."""
+    """``P_ctrl = u . (B^T qd)`` and per coordinate ``(B u)_i qd_i`` (docs/design.md, power)."""
     return float(u @ (model.input_map.T @ qd)), (model.input_map @ u) * qd
 
 
@@ -475,5 +477,4 @@ REFERENCE = Formalism(
     linearize=linearize,
 )
 
-__all__ = ["REFERENCE", "JointMapRow", "bias_forces", "constraint_kinematics", "contact_sines", "joint_map", "mass_matrix",
-           "provenance", "split", "split_batch", "task_jacobian", "to_pinocchio"]
+__all__ = ["REFERENCE", "linearize", "split", "split_batch"]
