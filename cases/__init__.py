@@ -21,7 +21,8 @@ from cases.factories import REGISTRY, CaseError, CaseInfo
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
 from cases.loads import ExternalForce, ExternalWrench, PointSpring
-from cases.model import Body, Model, ModelError, TaskPoint, build_model
+from cases.model import Body, Model, ModelError, TaskPoint
+from cases.build import build_model
 from cases.urdf import UrdfError, from_urdf
 
 

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from cases.build import build_model
 from cases.constraints import XY_PLANE, JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.factories import _PLANE, _Z, _positive, _require, double_pendulum, planar_disk, register
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.model import Body, Model, TaskPoint
 
 _X, _Y = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
 _ORIGIN = (0.0, 0.0, 0.0)

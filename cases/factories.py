@@ -17,8 +17,9 @@ from typing import Callable
 
 import numpy as np
 
+from cases.build import build_model
 from cases.loads import ExternalForce, ExternalWrench, PointSpring
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.model import Body, Model, TaskPoint
 
 
 class CaseError(ValueError):

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from cases.factories import _PLANE, _inertia, _positive, _require, _rot, register
+from cases.build import build_model
 from cases.constraints import PointsCoincide
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.factories import _PLANE, _inertia, _positive, _require, _rot, register
+from cases.model import Body, Model, TaskPoint
 
 _ZERO = (0.0, 0.0, 0.0)
 

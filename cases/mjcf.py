@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from cases.model import Model, ModelError, ModelSource
-from cases.urdf import UrdfError, _fd2_captured, convert, read_file
+from cases.urdf import _fd2_captured, convert, read_file, UrdfError
 
 
 class MjcfError(UrdfError):

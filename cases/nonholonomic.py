@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from cases.build import build_model
 from cases.constraints import XY_PLANE, KnifeEdge, RollingContact
 from cases.factories import _positive, _require, register
 from cases.loads import ExternalWrench
-from cases.model import Body, Model, TaskPoint, build_model
+from cases.model import Body, Model, TaskPoint
 
 _X, _Y, _Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
 #: The rolling disk's lean joint limits (rad, 80 degrees): a disk leaning further is nearly flat, its contact direction

@@ -25,7 +25,8 @@ import dataclasses
 import numpy as np
 
 from cases import constraints as decl
-from cases.model import Model, build_model
+from cases.build import build_model
+from cases.model import Model
 
 
 def _rotation(rng: np.random.Generator) -> np.ndarray:

@@ -22,9 +22,9 @@ import dataclasses
 
 import numpy as np
 
-from cases import constraints as constraint_decl
-from cases import loads as load_decl
-from cases.model import Body, Model, ModelSource, TaskPoint, build_model
+from cases import constraints as constraint_decl, loads as load_decl
+from cases.build import build_model
+from cases.model import Body, Model, ModelSource, TaskPoint
 
 FORMAT = "crosscheck.model"
 VERSION = 1

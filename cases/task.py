@@ -1,4 +1,4 @@
-"""Task points: where a model's task point can move, the default choice, and setting one (article 6.3).
+"""Task points: where a model's task point can move and the default choice (article 6.3).
 
 The operational-space quantities of a task point ``x_task = D p`` (eq. 22, 23) need a task Jacobian
 ``J = D dp/dv`` of full row rank: ``Lambda = (J M^-1 J^T)^-1`` exists only then. Two things make ``J`` rank-deficient
@@ -16,9 +16,8 @@ explaining task points; no formalism imports it, each computes its task Jacobian
 * :func:`axes_through`: the joints whose axis (or centre) the point lies on at every probed configuration.
 * :func:`motion_directions`: orthonormal world rows spanning the point's velocities over the probed configurations.
 * :func:`choose`: the first candidate point that lies on no axis, with the directions it moves in.
-* :func:`default_task_point`: the default of :func:`cases.model.build_model`: the last body's COM, else an offset.
-* :func:`with_task_point` and :func:`parse`: a model with a task point given as ``BODY[:x,y,z]`` (CLI
-  ``--task-point``).
+* :func:`default_task_point`: the default of :func:`cases.build.build_model`: the last body's COM, else an offset.
+* a model with a task point given as ``BODY[:x,y,z]`` (CLI ``--task-point``): ``cases.build.with_task_point``.
 * :func:`rank_deficiency`: why a model's task Jacobian is rank-deficient at ``q``, in words, or None.
 """
 
@@ -31,7 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from cases import configuration
-from cases.model import Model, ModelError, TaskPoint, build_model
+from cases.model import Model, TaskPoint
 
 #: A column of ``dp/dv`` shorter than this times the model's length scale is zero (the point is on that axis): far
 #: above rounding (1e-16 L) and far below any lever of physical size.
@@ -43,11 +42,6 @@ _SEED = 20
 #: Offsets tried, in this order, after the declared candidates: the body's COM and its origin moved along each body
 #: axis by this fraction of the model's length scale.
 OFFSET_FRACTION = 0.1
-
-
-class TaskPointError(ValueError):
-    """A task point given by the user (``--task-point``, :func:`with_task_point`) is not valid: the message says what
-    is wrong and what is valid."""
 
 
 def _chain(model: Model, body: int) -> list[int]:
@@ -233,60 +227,6 @@ def default_task_point(model: Model) -> TaskPoint:
     last = model.bodies[-1]
     return choose(model, [TaskPoint("tip", last.name, np.array(last.com))],
                   [f"the centre of mass of the last body '{last.name}'"], name="tip")
-
-
-def parse(text: str) -> tuple[str, np.ndarray | None]:
-    """``BODY`` or ``BODY:x,y,z`` (the CLI's ``--task-point``) as (body, offset or None); a ValueError saying what is
-    wrong for anything else (:class:`TaskPointError`)."""
-    body, sep, rest = text.partition(":")
-    if not body:
-        raise TaskPointError(f"--task-point takes BODY or BODY:x,y,z (an offset in the body's frame, in m), got "
-                             f"'{text}'")
-    if not sep:
-        return body, None
-    parts = rest.split(",")
-    try:
-        offset = np.array([float(p) for p in parts])
-    except ValueError:
-        raise TaskPointError(f"--task-point '{text}': the offset '{rest}' is not three numbers x,y,z (in m, in the "
-                             "body's frame)") from None
-    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise TaskPointError(f"--task-point '{text}': the offset needs three finite numbers x,y,z (in m, in the "
-                             f"body's frame), got {len(parts)} entr{'y' if len(parts) == 1 else 'ies'}")
-    return body, offset
-
-
-def with_task_point(model: Model, body: str, offset=None, directions=None) -> Model:
-    """``model`` with its default task point replaced by a point of ``body``: at ``offset`` (body frame, m) when
-    given, else at the body's COM (or an offset point of the body if the COM lies on a joint axis: :func:`choose`).
-    ``directions`` (orthonormal world rows) default to the directions the point moves in. The model's other task
-    points follow. An unknown body is a :class:`TaskPointError` listing the bodies; a point on a joint axis is
-    accepted (it is asked for) but its ``choice`` says so."""
-    names = [b.name for b in model.bodies]
-    if body not in names:
-        raise TaskPointError(f"--task-point: model '{model.name}' has no body '{body}'; bodies: {', '.join(names)}")
-    if offset is None:
-        tp = choose(model, [TaskPoint(f"task_point:{body}", body, np.array(model.bodies[names.index(body)].com))],
-                    [f"the centre of mass of body '{body}' (given: --task-point {body})"], name=f"task_point:{body}")
-        tp = dataclasses.replace(tp, choice=tp.choice.replace("default: ", "given body; ", 1))
-    else:
-        offset = np.asarray(offset, dtype=float)
-        D = motion_directions(model, body, offset) if directions is None else np.asarray(directions, dtype=float)
-        on = axes_through(model, body, offset)
-        warning = "" if len(D) and full_rank(model, body, offset, D) else (
-            f" (it lies on {' and '.join(on)}: its task Jacobian is rank-deficient everywhere)" if on else
-            " (its task Jacobian is rank-deficient everywhere)")
-        tp = TaskPoint(f"task_point:{body}", body, offset, D if len(D) else np.eye(3),
-                       choice=f"given: body '{body}', offset {offset.tolist()}{warning}")
-    if directions is not None:
-        tp = dataclasses.replace(tp, directions=np.asarray(directions, dtype=float))
-    others = [t for t in model.task_points if t.name != tp.name]
-    try:
-        return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
-                           task_points=[tp, *others], constraints=model.constraints, source=model.source,
-                           loads=model.loads)
-    except ModelError as exc:
-        raise TaskPointError(f"--task-point {body}: {'; '.join(exc.problems)}") from None
 
 
 def rank_deficiency(model: Model, q) -> str | None:

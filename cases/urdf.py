@@ -75,8 +75,9 @@ from typing import NamedTuple
 import numpy as np
 
 from cases import task
+from cases.build import build_model
 from cases.constraints import JointCoupling
-from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoint, build_model
+from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoint
 
 
 class UrdfError(ValueError):

@@ -34,7 +34,8 @@ from hypothesis import assume
 from hypothesis import strategies as st
 
 from cases import constraints as decl, loads as load_decl
-from cases.model import JOINT_DOF, Body, build_model, Model, TaskPoint
+from cases.model import JOINT_DOF, Body, Model, TaskPoint
+from cases.build import build_model
 from crosscheck import backends as backend_registry
 from crosscheck.checks import charts as chart_catalog, frames as frame_tools
 from crosscheck.core import sampling, tolerance as policy

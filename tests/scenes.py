@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import cases
-from cases.model import build_model
+from cases.build import build_model
 
 
 def panda_arm():

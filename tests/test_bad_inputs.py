@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import cases
-from cases.model import Body, build_model
+from cases.model import Body
+from cases.build import build_model
 from crosscheck import backends, cli
 from crosscheck.reports import diagnosis
 from crosscheck.guards import preflight

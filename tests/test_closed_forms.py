@@ -20,7 +20,7 @@ import cases
 import cases.constrained
 import cases.constraints
 import cases.factories
-import cases.model
+import cases.build
 import cases.nonholonomic
 from crosscheck import backends, cli, testing
 from crosscheck.references import closed_forms
@@ -329,8 +329,8 @@ def _l2_read_from_l1(monkeypatch):
 
 
 def _placement_rotation_dropped(monkeypatch):
-    validate = cases.model._validate_body
-    monkeypatch.setattr(cases.model, "_validate_body", lambda problems, body: None if (b := validate(
+    validate = cases.build._validate_body
+    monkeypatch.setattr(cases.build, "_validate_body", lambda problems, body: None if (b := validate(
         problems, body)) is None else dataclasses.replace(b, rotation=np.eye(3)))
 
 

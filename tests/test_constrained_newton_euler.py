@@ -22,7 +22,8 @@ import pytest
 import scipy.linalg
 
 import cases
-from cases.model import Body, build_model
+from cases.model import Body
+from cases.build import build_model
 from closed_forms import absolute_loop_state, circle_state
 from crosscheck.core.sampling import sample_states
 from formalisms import newton_euler as ne

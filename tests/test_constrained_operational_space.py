@@ -19,7 +19,7 @@ import pytest
 
 import cases
 from cases.constraints import JointCoupling, PointOnLine
-from cases.model import build_model
+from cases.build import build_model
 from closed_forms import (circle_state, circle_terms, constrained_input_map, endpoint_jacobian, inv2, kkt_solve,
                           pendulum_terms, tip_bias)
 from crosscheck.core import tolerance as policy

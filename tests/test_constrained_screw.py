@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 
 import cases
-from cases.model import Body, build_model
+from cases.model import Body
+from cases.build import build_model
 from closed_forms import absolute_loop_state, circle_state
 from crosscheck.checks import frames
 from crosscheck.core.sampling import sample_states

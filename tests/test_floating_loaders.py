@@ -12,7 +12,8 @@ import pytest
 
 import cases
 from cases import configuration
-from cases.model import Body, ModelError, build_model
+from cases.model import Body, ModelError
+from cases.build import build_model
 from cases.mjcf import from_mjcf
 from cases.urdf import BaseNotice, from_urdf
 from crosscheck import cli

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 import cases
 from cases.constraints import JointCoupling, PointOnCircle, PointsCoincide
-from cases.model import build_model
+from cases.build import build_model
 from crosscheck.references.pinocchio import reference
 from crosscheck import testing
 from crosscheck.core.sampling import sample_states

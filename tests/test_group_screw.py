@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 import cases
 import cases.constraints
-from cases.model import build_model
+from cases.build import build_model
 from crosscheck.faults import backend_catalog
 from crosscheck.checks import frames
 from crosscheck.references.pinocchio import reference

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cases
-from cases.model import Body, ModelError, build_model
+from cases.model import Body, ModelError
+from cases.build import build_model
 from cases.serialize import model_from_dict, model_to_dict
 from crosscheck import cli
 from crosscheck.core import sampling

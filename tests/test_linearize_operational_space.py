@@ -18,7 +18,7 @@ import cases
 import formalisms
 from cases.configuration import quaternion_product, random_configuration, rotation
 from cases.constraints import PointsCoincide
-from cases.model import build_model
+from cases.build import build_model
 from crosscheck.references import precise
 from crosscheck.references.pinocchio import kinematics
 from crosscheck.references.pinocchio import reference

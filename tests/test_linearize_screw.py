@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 import cases
 from cases.configuration import integrate, random_configuration
-from cases.model import build_model
+from cases.build import build_model
 from crosscheck.references.pinocchio import kinematics
 from crosscheck.references.pinocchio import reference
 from crosscheck import testing

@@ -8,7 +8,8 @@ import pytest
 
 import cases
 from cases import loads as load_decl
-from cases.model import ModelError, build_model
+from cases.model import ModelError
+from cases.build import build_model
 from cases.serialize import model_from_dict, model_to_dict
 from crosscheck.checks import frames
 

@@ -14,7 +14,8 @@ import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cases.model import Body, build_model
+from cases.model import Body
+from cases.build import build_model
 from closed_forms import inv2, pendulum_terms
 from formalisms import newton_euler as ne
 from formalisms.interface import StateError

@@ -10,7 +10,9 @@ import warnings
 import numpy as np
 import pytest
 
-from cases import Body, TaskPoint, build_model, task
+from cases import Body, TaskPoint, build_model
+from cases import build
+from cases import task
 from cases.urdf import from_urdf
 from crosscheck import cli
 from crosscheck.reports import gate_summary
@@ -80,24 +82,24 @@ def test_with_task_point_sets_validates_and_explains(urdf_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model = from_urdf(urdf_path)
-    moved = task.with_task_point(model, "link2", [0.1, 0.0, -1.0])
+    moved = build.with_task_point(model, "link2", [0.1, 0.0, -1.0])
     tp = moved.task_point()
     assert tp.body == "link2" and tp.choice == "given: body 'link2', offset [0.1, 0.0, -1.0]"
     assert moved.digest() != model.digest()
     # one joint moves a point of link1: a circle, one direction at a time in a plane of two
-    assert task.with_task_point(model, "link1", [0.1, 0.0, -1.0]).task_point().choice.endswith(
+    assert build.with_task_point(model, "link1", [0.1, 0.0, -1.0]).task_point().choice.endswith(
         "(its task Jacobian is rank-deficient everywhere)")
-    on_axis = task.with_task_point(model, "link2", [0.0, 0.0, 0.0])
+    on_axis = build.with_task_point(model, "link2", [0.0, 0.0, 0.0])
     assert "it lies on the axis of joint 'link2'" in on_axis.task_point().choice
     assert task.rank_deficiency(on_axis, [0.4, -1.1]) == (
         "task Jacobian rank 1 < 2: the point lies on the axis of joint 'link2'")
-    with pytest.raises(task.TaskPointError, match="has no body 'hand'; bodies: link1, link2"):
-        task.with_task_point(model, "hand")
-    assert task.parse("link2") == ("link2", None)
-    with pytest.raises(task.TaskPointError, match="three finite numbers"):
-        task.parse("link2:1,2")
-    with pytest.raises(task.TaskPointError, match="not three numbers"):
-        task.parse("link2:1,x,2")
+    with pytest.raises(build.TaskPointError, match="has no body 'hand'; bodies: link1, link2"):
+        build.with_task_point(model, "hand")
+    assert build.parse("link2") == ("link2", None)
+    with pytest.raises(build.TaskPointError, match="three finite numbers"):
+        build.parse("link2:1,2")
+    with pytest.raises(build.TaskPointError, match="not three numbers"):
+        build.parse("link2:1,x,2")
 
 
 def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, tmp_path, capsys):

@@ -27,7 +27,7 @@ import cases
 import cases.urdf
 from cases import configuration
 from cases.model import ModelError
-from cases.task import TaskPointError
+from cases.build import TaskPointError
 from crosscheck import backends
 from crosscheck.checks import charts, frames, linearization
 from crosscheck.core import sampling

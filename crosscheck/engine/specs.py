@@ -9,7 +9,7 @@ from functools import partial
 from typing import Callable
 
 import cases
-from cases import task as task_points
+from cases import build
 from cases.model import Model
 from crosscheck.references import closed_forms
 from formalisms.interface import UNSUPPORTED, Split
@@ -42,7 +42,7 @@ class CaseSpec:
     """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
     URDF ``base`` ("fixed", "free", or None: the file's own) and ``actuated`` joints (None: every joint but a free
     base's; ``cases.from_file``); ``task_point``, when given, the default task point as ``BODY[:x,y,z]``
-    (``cases.task.with_task_point``; a ``cases.task.TaskPointError`` for an unknown body or bad numbers)."""
+    (``cases.build.with_task_point``; a ``cases.build.TaskPointError`` for an unknown body or bad numbers)."""
 
     name: str
     params: tuple[tuple[str, str], ...] = ()
@@ -56,7 +56,7 @@ class CaseSpec:
             model = cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated)
         else:
             model = cases.load(self.name, **dict(self.params))
-        return model if self.task_point is None else task_points.with_task_point(model, *task_points.parse(
+        return model if self.task_point is None else build.with_task_point(model, *build.parse(
             self.task_point))
 
     def closed_form(self):

@@ -1,7 +1,7 @@
 """Checks of a run's inputs before any work starts: a model the tolerance policy can judge, a state inside the range
 of double precision, output paths that can be written.
 
-A model can be well formed (``cases.model.build_model`` accepts it) and still be outside what the gate can judge:
+A model can be well formed (``cases.build.build_model`` accepts it) and still be outside what the gate can judge:
 
 * **Magnitudes.** Every mass, length (placements, COM and task offsets, constraint geometry), inertia, gravity,
   coupling ratio and state entry must lie below :data:`LIMITS`. The backends and the tolerance policy form products
