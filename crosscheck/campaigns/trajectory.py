@@ -77,8 +77,10 @@ from cases import configuration
 from cases.model import GROUP_JOINTS, Model
 from crosscheck.core.sampling import project_configuration, project_velocity
 from crosscheck.core.tolerance import acceleration_bound
-from crosscheck.references import precise as P
+from crosscheck.references import precise
 from crosscheck.references.pinocchio.kinematics import constraint_kinematics, mass_matrix
+from crosscheck.references.precise import (algebra as precise_algebra, dynamics as precise_dynamics,
+                                           kinematics as precise_kinematics)
 
 EPS = float(np.finfo(float).eps)
 INTEGRATORS = ("rk4", "gauss", "adaptive")
@@ -323,23 +325,23 @@ def simulate(model: Model, backend, q0, v0, horizon: float, dt: float, integrato
 
 def _mp_acceleration(model: Model, q, v, tau):
     """The exact acceleration (eq. 12-13 with u; the drift for tau = 0) at mpf q, v inside ``workdps``."""
-    data, kin, M, h = P._terms(model, q, v)
-    L = P._cholesky(model, M, q)
+    data, kin, M, h = precise._terms(model, q, v)
+    L = precise_algebra.cholesky(model, M, q)
     force = [t - x for t, x in zip(tau, h)]
     if not data.rows:
-        return P._cho_solve(L, force)
-    _, Jc, bias = P._constraint_terms(data, kin, q)
-    return P._RangeSpace(model, L, Jc, bias).solve(force)[0]
+        return precise_algebra.cho_solve(L, force)
+    _, Jc, bias = precise_dynamics.constraint_terms(data, kin, q)
+    return precise_algebra.RangeSpace(model, L, Jc, bias).solve(force)[0]
 
 
 def mp_energy(model: Model, q, v):
     """Total energy ``1/2 v^T M v - sum m_i gravity . p_com_i`` at mpf q, v inside ``workdps``."""
-    data, kin, M, _ = P._terms(model, q, v)
+    data, kin, M, _ = precise._terms(model, q, v)
     T = sum(v[i] * mpmath.fdot(M[i], v) for i in range(len(v))) / 2
     V = mpf(0)
     for i, b in enumerate(data.bodies):
-        com = P._add(kin.p[i], P._matvec(kin.R[i], b.com))
-        V -= b.mass * P._dot(data.gravity, com)
+        com = precise_algebra.add3(kin.p[i], precise_algebra.matvec3(kin.R[i], b.com))
+        V -= b.mass * precise_algebra.dot3(data.gravity, com)
     return T + V
 
 
@@ -396,7 +398,7 @@ class _PendulumField:
 class _MpField:
     def __init__(self, model: Model, schedule):
         self.model, self.schedule, self.n = model, schedule, model.n
-        self.B = P._prepare(model, mpmath.mp.prec).B
+        self.B = precise_kinematics.prepare(model, mpmath.mp.prec).B
         self.evals = 0
 
     def __call__(self, t, x):
