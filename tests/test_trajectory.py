@@ -1,4 +1,4 @@
-"""Forward ZTCF trajectories (crosscheck/trajectory.py): integrator orders, the 50-digit reference, the envelope
+"""Forward ZTCF trajectories (crosscheck/campaigns/trajectory.py): integrator orders, the 50-digit reference, the envelope
 judgment (it must fail on a 1e-10 drift fault and pass on correct backends), the CLI's errors and the report command."""
 
 from __future__ import annotations

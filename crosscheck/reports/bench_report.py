@@ -244,11 +244,3 @@ def write(res: Results, out_dir: Path, interrupted: str = "") -> Path:
     path = out_dir / "speed_accuracy.md"
     path.write_text(render(res, interrupted=interrupted))
     return path
-
-
-
-if __name__ == "__main__":
-    import sys
-
-    print(write_from_json(Path(sys.argv[1] if len(sys.argv) > 1 else "reports/speed_accuracy.json"),
-                          Path(sys.argv[2]) if len(sys.argv) > 2 else None))
