@@ -128,7 +128,8 @@ def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 def poses(model: Model, q) -> list[tuple[np.ndarray, np.ndarray]]:
     """World (rotation, origin) of every body frame at ``q``: ``X_body = X_parent * (rotation, translation) *
     motion(q_i)`` (``cases.model``), parents first. For scene factories that place world points (a foot's contact)
-    at a configuration; the harness's kinematics for checks are Pinocchio's (``crosscheck.references.pinocchio.kinematics``)."""
+    at a configuration; the harness's kinematics for checks are Pinocchio's
+    (``crosscheck.references.pinocchio.kinematics``)."""
     q = np.asarray(q, dtype=float)
     out: list = [None] * len(model.bodies)
     for i in model.topological_order:

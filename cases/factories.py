@@ -120,8 +120,8 @@ def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float
 
 
 # ------------------------------------------------------------------- external loads (cases.loads; article 2.3)
-# The double pendulum with loads at its tip, so that tau_ext = J^T f by hand (crosscheck.references.closed_forms). Registered
-# right after it: a fault in the loads is then found in the first states of a round-robin hunt.
+# The double pendulum with loads at its tip, so that tau_ext = J^T f by hand (crosscheck.references.closed_forms).
+# Registered right after it: a fault in the loads is then found in the first states of a round-robin hunt.
 
 
 def _loaded(name: str, base: Model, loads: list) -> Model:
@@ -146,9 +146,9 @@ def double_pendulum_spring(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2
                            bfy: float = 1.0, couple: float = 0.7) -> Model:
     """The double pendulum with its tip on a spring to the world point (ax, ay) and a body-frame wrench on link 2.
 
-    The spring (stiffness k, rest length ``rest``) pulls the tip with ``-k (|d| - rest) d / |d|``, ``d = x2 - (ax, ay)``;
-    the wrench is a force (bfx, bfy) in link 2's frame at the tip and a couple ``couple`` about z: ``tau_ext = J^T
-    (f_spring + R(t1 + t2) (bfx, bfy)) + couple (1, 1)``.
+    The spring (stiffness k, rest length ``rest``) pulls the tip with ``-k (|d| - rest) d / |d|``, ``d = x2 - (ax,
+    ay)``; the wrench is a force (bfx, bfy) in link 2's frame at the tip and a couple ``couple`` about z: ``tau_ext =
+    J^T (f_spring + R(t1 + t2) (bfx, bfy)) + couple (1, 1)``.
     """
     base = double_pendulum(m1=m1, m2=m2, l1=l1, l2=l2, g=g)
     tip = (0.0, -l2, 0.0)

@@ -90,7 +90,8 @@ class Body:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     #: ``(lower, upper)`` of a revolute (rad) or prismatic (m) joint's coordinate, as the source file declares them;
-    #: None: unlimited. Not physics (left out of the digest): the sampler draws within them (``crosscheck.core.sampling``).
+    #: None: unlimited. Not physics (left out of the digest): the sampler draws within them
+    #: (``crosscheck.core.sampling``).
     limits: tuple[float, float] | None = None
 
 
@@ -119,8 +120,8 @@ class ModelSource:
     """Where a loaded model came from: the file (``kind`` one of :data:`SOURCE_KINDS`, ``path``: the URDF loader
     stores it absolute) and the rigid transform ``(rotation, translation)`` that places the file's world frame in
     the model's world (the identity for a model fresh from the loader; a moved scene composes it:
-    ``crosscheck.checks.frames``). ``root`` says how the loader attached the file's root link: ``"fixed"`` as the file has
-    it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
+    ``crosscheck.checks.frames``). ``root`` says how the loader attached the file's root link: ``"fixed"`` as the file
+    has it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
     A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
     gravity ``g`` is ``rotation @ g``; ``gravity`` False: the scene is the file's without gravity (a gravity-free
     copy, ``crosscheck.reports.diagnosis.without_gravity``), so whatever is built from the file sets gravity to zero."""

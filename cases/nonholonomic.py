@@ -43,8 +43,8 @@ def knife_edge(m: float = 1.0, a: float = 0.5, I: float = 0.2, g: float = 9.81) 
     the runner (the body x axis). The centre of mass is ``a`` ahead of P on the runner, ``I`` the moment of inertia
     about it. ``KnifeEdge`` at P across the body y axis: ``-sin(theta) xd + cos(theta) yd = 0``; lam is the ground's
     lateral force on P along the body y axis. Inputs: the generalized forces on x, y, theta (B = I). Gravity is along
-    -z, normal to every motion. Closed form: ``crosscheck.references.closed_forms`` (forward speed v and turning rate w obey
-    ``m (vdot - a w^2) = F_along``, ``(I + m a^2) wdot = tau - m a v w``).
+    -z, normal to every motion. Closed form: ``crosscheck.references.closed_forms`` (forward speed v and turning rate w
+    obey ``m (vdot - a w^2) = F_along``, ``(I + m a^2) wdot = tau - m a v w``).
     """
     _positive("knife_edge", m=m, I=I)
     bodies = _planar_carriages("sleigh") + [

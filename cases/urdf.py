@@ -47,10 +47,10 @@ own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
 ``JointCoupling("mimic:A", (body of A, body of J), (1, -m), o)`` (``cases.constraints``), in Pinocchio's joint
 order of ``A``. The mimic joint keeps its column of the identity input map. Pinocchio is asked to ignore the tags
 (``mimic=False``), so the tags are read from the XML here, and the reference reads them from the file again and
-checks the declaration (``crosscheck.references.pinocchio.reference``). Panda: 9 coordinates, ``panda_finger_joint2`` mimics
-``panda_finger_joint1``, one constraint row. Refused (:class:`~cases.model.ModelError`, naming the joint): a mimic of
-a joint that does not exist, of itself, of a fixed joint or of a joint that is itself a mimic (a chain), a mimic on
-a fixed joint, a multiplier that is 0, not a number or not finite, an offset that is not a finite number.
+checks the declaration (``crosscheck.references.pinocchio.reference``). Panda: 9 coordinates, ``panda_finger_joint2``
+mimics ``panda_finger_joint1``, one constraint row. Refused (:class:`~cases.model.ModelError`, naming the joint): a
+mimic of a joint that does not exist, of itself, of a fixed joint or of a joint that is itself a mimic (a chain), a
+mimic on a fixed joint, a multiplier that is 0, not a number or not finite, an offset that is not a finite number.
 
 Before Pinocchio parses, the file is read here and checked to be a URDF tree: XML whose root is ``<robot>``, every
 joint attaching two distinct links that exist, no link the child of two joints, no chain of joints that closes on
@@ -468,8 +468,8 @@ def _base(path: Path, robot: ET.Element, base: str | None, problems: list[str]) 
 
 def read_file(pin, kind: str, path: str, root: str = "fixed"):
     """The Pinocchio model of a file as the loaders read it: ``buildModelFromUrdf`` (with a ``JointModelFreeFlyer``
-    root joint for ``root="free"``) or ``buildModelFromMJCF``. The reference (``crosscheck.references.pinocchio.reference``) reads the
-    file with this call too, so both see the same joints."""
+    root joint for ``root="free"``) or ``buildModelFromMJCF``. The reference
+    (``crosscheck.references.pinocchio.reference``) reads the file with this call too, so both see the same joints."""
     if kind == "mjcf":
         return pin.buildModelFromMJCF(path)
     return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if root == "free" else pin.buildModelFromUrdf(path)

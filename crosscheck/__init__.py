@@ -13,8 +13,8 @@ import signal
 import sys
 
 #: The environment variable that marks a pool's worker process: it holds the pid of the process that started the
-#: pool (``crosscheck.engine.workers``). A direct child of that process that multiprocessing spawned (its command line ends
-#: in ``--multiprocessing-fork``) ignores SIGINT from here on, before the imports that follow (seconds on a busy
+#: pool (``crosscheck.engine.workers``). A direct child of that process that multiprocessing spawned (its command line
+#: ends in ``--multiprocessing-fork``) ignores SIGINT from here on, before the imports that follow (seconds on a busy
 #: machine) could be broken into by a Ctrl-C meant for its parent. Any other child (a ``crosscheck`` command run by
 #: a process whose variable is set, as a test suite does) keeps its Ctrl-C.
 WORKER = "CROSSCHECK_WORKER"

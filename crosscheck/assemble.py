@@ -3,10 +3,10 @@ report, computed from its own M, C qd, g (and Jc, Jcdot qd) by the harness's def
 
 A user's backend (docs/plugins.md) usually has M, C qd and g and solves for the accelerations; what
 it does not want to write is the bookkeeping the harness reads: the control power, ``cond(M)`` and ``accel_scale``
-(:func:`crosscheck.guards.conditioning.normwise_scales`), and with constraints ``Jc^T lam``, the constraint power, ``Jc qd``
-and the conditioning of ``S = Jc M^-1 Jc^T`` (:func:`crosscheck.guards.conditioning.constraint_conditions`). These helpers
-add it. The five formalisms do not use them (``tests/test_independence.py``): each computes every number it reports
-itself, so that a bug here cannot move them together.
+(:func:`crosscheck.guards.conditioning.normwise_scales`), and with constraints ``Jc^T lam``, the constraint power, ``Jc
+qd`` and the conditioning of ``S = Jc M^-1 Jc^T`` (:func:`crosscheck.guards.conditioning.constraint_conditions`). These
+helpers add it. The five formalisms do not use them (``tests/test_independence.py``): each computes every number it
+reports itself, so that a bug here cannot move them together.
 """
 
 from __future__ import annotations

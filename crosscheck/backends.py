@@ -34,7 +34,8 @@ last so that adding one never moves a built-in backend: with and without plugins
 in every report table, and the first backend (whose cond(M) a report prints per state) stays a built-in.
 
 Every problem with a plugin is a :class:`PluginError` naming the plugin and what to fix. A plugin that raises
-``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it (``crosscheck.engine.evaluation.evaluate``).
+``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it
+(``crosscheck.engine.evaluation.evaluate``).
 """
 
 from __future__ import annotations

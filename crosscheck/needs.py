@@ -14,8 +14,8 @@ attribute ``needs`` (:data:`NEEDS`; default ``"model"``):
 
 The gate calls ``split`` on more scenes than the case itself, and each input describes the scene of that call:
 
-* on a **moved scene** (the frame checks, ``crosscheck.checks.frames.move_scene``), the file's world is placed by the moved
-  placement and gravity is turned with it (``SourceScene.rotation``, ``translation``; the Pinocchio model's root
+* on a **moved scene** (the frame checks, ``crosscheck.checks.frames.move_scene``), the file's world is placed by the
+moved placement and gravity is turned with it (``SourceScene.rotation``, ``translation``; the Pinocchio model's root
   joints and gravity moved);
 * on a **gravity-free copy** (the hints at a failing state, ``crosscheck.reports.diagnosis.without_gravity``),
   ``SourceScene.gravity`` is False and the Pinocchio model's gravity is zero.

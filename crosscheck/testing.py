@@ -14,9 +14,9 @@ Draw random mechanisms and admissible states, and check that backends agree unde
 
 Strategies: :func:`models` (random kinematic trees, optionally constrained), :func:`states` (admissible
 ``crosscheck.core.sampling.State``), :func:`charts` (``crosscheck.checks.charts``), :func:`frames` (rigid transforms,
-``crosscheck.checks.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`, :func:`rotations`,
-:func:`inertias`). Everything a failing example shrinks toward is the simplest mechanism of its kind: fewer bodies,
-a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers.
+``crosscheck.checks.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`,
+:func:`rotations`, :func:`inertias`). Everything a failing example shrinks toward is the simplest mechanism of its kind:
+fewer bodies, a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers.
 
 Assertions: :func:`assert_backends_agree` runs the gate's comparison at one state (and the chart, frame and
 conservation checks); :func:`assert_split_close` compares two splits with the tolerance policy. Both raise
@@ -402,9 +402,9 @@ MIN_CONTACT_SINE = 1e-3
 def states(draw, model: Model, index: int = 0) -> sampling.State:
     """Admissible states of ``model`` over ``crosscheck.core.sampling``'s ranges (positions one turn or +-0.5 m, rates,
     inputs), a joint with limits (``Body.limits``: a model from a file; :func:`models` draws none) within them as the
-    gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto ``Jc qd = 0``
-    (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto the
-    manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, or leaves a rolling disk flatter than
+    gate draws it (``sampling.within_limits``). A constrained model's q is projected onto ``phi(q) = 0`` and qd onto
+    ``Jc qd = 0`` (``sampling.project_configuration`` / ``project_velocity``); a draw the projection cannot bring onto
+    the manifold, or moves more than :data:`MAX_PROJECTION_STEP` to get there, or leaves a rolling disk flatter than
     :data:`MIN_CONTACT_SINE`, is rejected (``hypothesis.assume``).
     Entries below :data:`MIN_VALUE` in magnitude are drawn as 0."""
     drawn = sampling.within_limits(model, draw(configurations(model)))
@@ -424,9 +424,10 @@ def states(draw, model: Model, index: int = 0) -> sampling.State:
 
 def chart_names(model: Model) -> list[str]:
     """The built-in charts that apply to ``model``: identity, nonlinear, affine, and absolute for a planar chain; for a
-    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.checks.charts.EulerZYX``), exp
-    (exponential coordinates about a centre drawn from the seed: ``crosscheck.checks.charts.ExponentialCoordinates``) and the
-    velocity representations world and mixed (mixed only with a free joint: ``charts.representations_sampled``)."""
+    model with spherical or free joints identity (q itself), zyx (Euler angles: ``crosscheck.checks.charts.EulerZYX``),
+    exp (exponential coordinates about a centre drawn from the seed:
+    ``crosscheck.checks.charts.ExponentialCoordinates``) and the velocity representations world and mixed (mixed only
+    with a free joint: ``charts.representations_sampled``)."""
     if not chart_catalog.applies(model):
         return ["identity", *chart_catalog.GROUP_CHARTS] + [c.name for c in chart_catalog.representations_sampled(model)]
     return [name for name in ("identity", "nonlinear", "affine", "absolute")
@@ -484,8 +485,8 @@ def assert_backends_agree(model: Model, state: sampling.State, backends: Sequenc
                           chart: chart_catalog.Chart | None = None, frame: frame_tools.Frame | None = None,
                           conservation: bool = True) -> StateOutcome:
     """Evaluate ``backends`` (names; default every one in ``crosscheck.backends``) at ``state`` as the gate does
-    (``crosscheck.engine.evaluation.evaluate``), with the chart check in ``chart``, the frame check on the scene moved by
-    ``frame`` and the conservation checks when asked (``gate.add_checks``). Returns the outcome; raises
+    (``crosscheck.engine.evaluation.evaluate``), with the chart check in ``chart``, the frame check on the scene moved
+    by ``frame`` and the conservation checks when asked (``gate.add_checks``). Returns the outcome; raises
     AssertionError listing each disagreement (quantity, error/tolerance ratio, tolerance, outlier, values) and each
     backend error.
 

@@ -31,9 +31,9 @@ Derivation (symbolic, from the model data and the chart alone), in coordinates `
   5. External loads (``cases.loads``; article 2.3, eq. 12) by virtual work, from the same staged poses: a force ``f``
      at the point ``x = p_i + R_i offset`` contributes ``Q_j = f . dx/dp_j``, a couple ``m`` (world) ``m . vee(dR_i/dp_j
      R_i^T)`` (body-frame vectors turned by ``R_i``), and a spring its potential ``V_s = 1/2 k (|x - a| - L0)^2`` as
-     ``-dV_s/dp_j`` (:func:`_external_forces`). Velocity-independent, ``tau_ext = Q`` joins ``g``: the derivation's ``g``
-     is ``dV/dp - Q`` (so the drift, its part at rest and the linearization carry it), and ``Q`` itself is a further
-     output (``Qext``), reported as ``external_force``.
+     ``-dV_s/dp_j`` (:func:`_external_forces`). Velocity-independent, ``tau_ext = Q`` joins ``g``: the derivation's
+     ``g`` is ``dV/dp - Q`` (so the drift, its part at rest and the linearization carry it), and ``Q`` itself is a
+     further output (``Qext``), reported as ``external_force``.
 In a chart these are the chart's own M_p, C_p pd and g_p (different entries, article 6.4.6), never the joint
 ones mapped; the accelerations they give are the chart's ``pdd``, equal to the joint ones mapped by
 ``qdd = Dpsi pdd + (d/dt Dpsi) pd`` (9.1), which is what the tests check.
@@ -93,10 +93,10 @@ local exponential chart with the exponential on the LEFT (:func:`_local_motions`
   * Truncation and caches: as for the right chart (:data:`EXP_ORDER`); the cache key holds the chart's key and the
     local chart's description (:data:`GROUP_CHART_LEFT`). A representation chart of a model without group joints is
     ModelNotSupported (:func:`_representation`).
-Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g. ``crosscheck.checks.charts.EulerZYX``,
-ZYX Euler angles per spherical or free joint). Such a chart has nv coordinates p and its ``psi`` returns the WHOLE q
-(nq entries), each quaternion a function of p that is unit for every p; the derivation is then the scalar charts'
-one, steps 0-4, with the poses of the group joints written through psi:
+Group joints in a chart ``q = psi(p)`` (:func:`split_chart`; article 6.4.6, 9.1; e.g.
+``crosscheck.checks.charts.EulerZYX``, ZYX Euler angles per spherical or free joint). Such a chart has nv coordinates p
+and its ``psi`` returns the WHOLE q (nq entries), each quaternion a function of p that is unit for every p; the
+derivation is then the scalar charts' one, steps 0-4, with the poses of the group joints written through psi:
   * ``q = psi(p)`` is formed with the staged ``sin`` and ``cos`` (:meth:`_Staged.trig`: ``sin(e)``, ``cos(e)`` of a
     chart's half angle ``e`` are named symbols with seeded derivatives ``cos(e) de/dp_j``, ``-sin(e) de/dp_j``);
     a revolute or prismatic joint reads its coordinate at ``q_index`` (:attr:`_Staged.joint_index`).

@@ -135,8 +135,8 @@ For such a model the public geometric objects (:func:`metric`, :func:`metric_der
 ``xi = 0``: ``metric`` the v-space mass matrix, ``metric_derivatives`` the chart's ``d_k M_xi`` above (with the ``ad``
 terms, not the derivative of the v-space matrix alone), ``christoffel`` its connection (``M Gamma(v, v)`` is the
 v-space velocity-product vector ``C(q, v) v``), ``energy_rate`` exact because ``pd = v`` and ``pdd = vdot`` there.
-The conservation checks (``crosscheck.checks.conservation``) compare these with the Euler–Lagrange backend's and Pinocchio's
-terms in the same chart (v-space). Joint couplings relate revolute and prismatic coordinates only.
+The conservation checks (``crosscheck.checks.conservation``) compare these with the Euler–Lagrange backend's and
+Pinocchio's terms in the same chart (v-space). Joint couplings relate revolute and prismatic coordinates only.
 
 Charts of the group (article 6.4 "a map of the globe", 6.4.6, 9.1). A chart whose ``psi`` returns the whole q (nq
 entries) from nv coordinates p, such as the harness's ZYX Euler-angle chart (``crosscheck.checks.charts.EulerZYX``: a
@@ -215,15 +215,15 @@ connection, raised after contracting), batched Cholesky solves, the constrained 
 Compiled evaluation. casadi's interpreter spends most of a panda state's time on the Function (its SX virtual machine
 runs the 65k instructions at several ns each). Once a Function has evaluated :data:`COMPILE_AFTER` states in this
 process and spent as long interpreted as its compilation is estimated to take (:data:`COMPILE_SECONDS_PER_INSTRUCTION`:
-the total cost is then at most twice that of the better choice made in hindsight) it is rebuilt with common subexpressions eliminated (the panda's 40k instructions; the same numbers bit for
-bit) and compiled to C by the system compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from
-then on, one C call per state or per block of states. The C is written here from the Function's own instruction list
-(:func:`_c_source`): one statement per SX instruction on casadi's work vector, in casadi's order, with the products
-and sums never fused (``-ffp-contract=off``), so the compiled code does the interpreter's arithmetic operation for
-operation; it is cut into functions of :data:`C_PART` statements, because the compiler's time grows faster than the
-size of one function (measured at -O1 on the panda's 40k instructions: 43 s of CPU as one function, 14 s in parts of
-1000, 8 s in parts of 100 to 250; casadi's own ``Function.generate``, one function, 16 s), while the code runs as
-fast. The shared library is cached
+the total cost is then at most twice that of the better choice made in hindsight) it is rebuilt with common
+subexpressions eliminated (the panda's 40k instructions; the same numbers bit for bit) and compiled to C by the system
+compiler (``cc`` or ``gcc``, :data:`C_FLAGS`) and evaluated natively from then on, one C call per state or per block of
+states. The C is written here from the Function's own instruction list (:func:`_c_source`): one statement per SX
+instruction on casadi's work vector, in casadi's order, with the products and sums never fused (``-ffp-contract=off``),
+so the compiled code does the interpreter's arithmetic operation for operation; it is cut into functions of
+:data:`C_PART` statements, because the compiler's time grows faster than the size of one function (measured at -O1 on
+the panda's 40k instructions: 43 s of CPU as one function, 14 s in parts of 1000, 8 s in parts of 100 to 250; casadi's
+own ``Function.generate``, one function, 16 s), while the code runs as fast. The shared library is cached
 on disk (``$CROSSCHECK_CACHE/geometric``, else ``~/.cache/crosscheck/geometric``) under a digest of the C and the
 compiler command, so code derived differently (a fault injected, another chart) is never served for it, and with a
 digest of its bytes beside it: a file that does not match, or does not load, is compiled again; a cache that cannot
@@ -694,10 +694,11 @@ def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
 #: States a Function evaluates interpreted before it may be compiled to C (module docstring, "Compiled evaluation").
 COMPILE_AFTER = 1000
 #: CPU seconds of compiling a Function, per SX instruction of it as built (before :func:`_eliminated`): the panda's 65k
-#: (40k after elimination) took 8 s, tiago's (1.0M after elimination) 225 s (-O1, parts of :data:`C_PART`). A Function is compiled once the seconds it has spent
-#: interpreted reach this estimate of its compilation (and it has had :data:`COMPILE_AFTER` states): a model
-#: evaluated long enough to pay for it, and never a large model in a gate's few states, whose compilation would
-#: cost more than all its interpreted evaluations (tiago's 225 s against about 10 ms a state).
+#: (40k after elimination) took 8 s, tiago's (1.0M after elimination) 225 s (-O1, parts of :data:`C_PART`). A Function
+#: is compiled once the seconds it has spent interpreted reach this estimate of its compilation (and it has had
+#: :data:`COMPILE_AFTER` states): a model evaluated long enough to pay for it, and never a large model in a gate's few
+#: states, whose compilation would cost more than all its interpreted evaluations (tiago's 225 s against about 10 ms a
+#: state).
 COMPILE_SECONDS_PER_INSTRUCTION = 1.2e-4
 #: ``CROSSCHECK_COMPILE=0`` keeps every Function interpreted (casadi's SX virtual machine).
 COMPILE_ENV = "CROSSCHECK_COMPILE"

@@ -115,7 +115,8 @@ class Split:
                          ``J_p^T f + J_w^T m`` summed over them), from this formalism's own kinematics; in a chart a
                          covector (``Dpsi^T tau_ext``). None for a model without loads.
     power_ext            ``tau_ext . qd`` (W), the external loads' power (beside ``power_ctrl``); None without loads.
-    zvcf                 the zero-velocity counterfactual (article 4.5-4.6): the drift at the same ``q`` with ``qd = 0``,
+    zvcf                 the zero-velocity counterfactual (article 4.5-4.6): the drift at the same ``q`` with ``qd =
+    0``,
                          gravity's part of the drift, ``-M^-1 g`` (with constraints the KKT solve with ``f = -g`` and
                          ``Jcdot qd = 0``), computed directly; UNSUPPORTED when a formalism does not report it. With
                          external loads (all velocity-independent) ``M^-1 (tau_ext - g)``: the drift at rest.

@@ -983,8 +983,8 @@ def _constrained_split(model: Model, kin, units, bias_motion, q, qd, h, L, tau_c
     constraint's own quantities (article 5.5): ``Jc^T lam`` and its power ``(Jc^T lam)_i qd_i``, ``Jc qd`` and the
     conditioning of S; ``accel_scale`` adds what the constraint force can produce. The drift's parts (4.5-4.6) are
     the same solve with ``f = -g`` and no bias (``zvcf``) and with ``f = -C qd`` and the bias ``Jcdot qd``
-    (``drift_velocity``); ``parts = (g, C qd)``, ``h`` and ``g`` with the external loads applied (``- tau_ext``), whose body
-    loads ``external`` the reactions carry too."""
+    (``drift_velocity``); ``parts = (g, C qd)``, ``h`` and ``g`` with the external loads applied (``- tau_ext``), whose
+    body loads ``external`` the reactions carry too."""
     rows, Jc, bias = _constraint_terms(model, kin, units, bias_motion, q, qd)
     schur = _RangeSpace.build(model, L, Jc[..., None], bias[..., None])
     (total, lam), (drift, lam_drift) = (x[:, 0] for x in schur.solve((tau_ctrl - h)[:, None])), (
@@ -1151,7 +1151,8 @@ def _backward_tangents(model: Model, kin, t: _Tangents, loads=None, couples=None
     ``loads`` (body -> ``[(offset, f, df)]`` or ``[(offset, f, df, doffset)]``: a force ``f`` at the body point
     ``offset``, its moment about the origin ``offset x f``, body frame; ``doffset`` the offset's tangent where the
     point moves over the body, a rolling contact) are the multipliers' point forces (:func:`_constraint_tangents`) and
-    the external loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples (:func:`_external_tangents`)."""
+    the external loads' forces, ``couples`` (body -> ``[(m, dm)]``) the external couples
+    (:func:`_external_tangents`)."""
     P, r, W = kin
     w, wd, a = t.motion
     nb = len(model.bodies)

@@ -1133,9 +1133,9 @@ BLOCK_ENTRIES = 50_000
 
 
 def split_many(model: Model, Q, QD, U) -> list[Split]:
-    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit for
-    bit: the kinematics, Kane projection, task space and recomposition of :func:`_solve` with a leading batch axis on
-    blocks of states (the stacked products and LAPACK calls are the single state's, state by state), then each
+    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit
+    for bit: the kinematics, Kane projection, task space and recomposition of :func:`_solve` with a leading batch axis
+    on blocks of states (the stacked products and LAPACK calls are the single state's, state by state), then each
     state's conditioning and reported numbers by the very functions ``split`` uses."""
     Q, QD, U = check_batch(model, Q, QD, U)
     size = max(1, BLOCK_ENTRIES // model.n**2)

@@ -4,7 +4,8 @@
   humanoid (29 joints, free base) and solo12 (12 joints, free base), each from an empty cache, and on the built-in
   cases cold and warm (the same cache again);
 * **Euler–Lagrange preparation** against the number of joints: its first ``split`` minus a steady one, cold (empty
-  cache: the symbolic derivation) and cached, on planar chains of 2 to 48 links (:func:`crosscheck.campaigns.bench.preparation`);
+  cache: the symbolic derivation) and cached, on planar chains of 2 to 48 links
+  (:func:`crosscheck.campaigns.bench.preparation`);
 * **fuzz**: states per second of a campaign with every check on (``crosscheck fuzz``), as a whole process.
 
 Each run is a child process measured by the kernel (``os.wait4``, whose figures on Linux cover the child and the

@@ -3,8 +3,8 @@
 Each path (:func:`paths`) walks one model or family of models towards a place where some method degrades: the
 double pendulum's task singularity theta2 -> 0 (article 6.3.4), the parallelogram four-bar's change point (5.6),
 extreme mass ratios, long chains, large velocities. At every point every backend's split is measured against the
-exact split of :mod:`crosscheck.references.precise` (its true error in drift, ctrl, total and, with constraints, lam), next to
-the condition numbers that matter (cond M; cond(J M^-1 J^T) of the operational-space task; cond S of the
+exact split of :mod:`crosscheck.references.precise` (its true error in drift, ctrl, total and, with constraints, lam),
+next to the condition numbers that matter (cond M; cond(J M^-1 J^T) of the operational-space task; cond S of the
 constraints) and the gate's own verdict at that state: :meth:`crosscheck.engine.evaluation.CaseSetup.evaluate`, the same
 comparisons, tolerances, BREAKDOWN rule and checks as ``crosscheck gate``.
 

@@ -24,10 +24,10 @@ The reference (:func:`reference_trajectory`) integrates the exact acceleration a
 Gragg–Bulirsch–Stoer extrapolation: the modified midpoint rule with ``n = 2, 4, ..., 2K`` substeps per step,
 extrapolated in ``h^2`` (order 2K, :data:`GBS_LEVELS` = K = 8), the step size controlled so that the last
 extrapolation's correction stays below :data:`REFERENCE_TOL` ``max(1, |x|)`` (a step is rejected and retried smaller
-otherwise; steps never cross an output time). The acceleration is ``crosscheck.references.precise``'s KKT solve in mpmath, or,
-for the double pendulum, the article's eqs. (6)-(8) in mpmath (:class:`_PendulumField`, about 25 times cheaper;
-checked against the generic split to 1e-44 in the tests). Its own error is estimated by a verification run with the
-local tolerance :data:`VERIFY_TOL` = ``REFERENCE_TOL 2^-(2K+1)`` (what halving every step gives at order 2K): the
+otherwise; steps never cross an output time). The acceleration is ``crosscheck.references.precise``'s KKT solve in
+mpmath, or, for the double pendulum, the article's eqs. (6)-(8) in mpmath (:class:`_PendulumField`, about 25 times
+cheaper; checked against the generic split to 1e-44 in the tests). Its own error is estimated by a verification run with
+the local tolerance :data:`VERIFY_TOL` = ``REFERENCE_TOL 2^-(2K+1)`` (what halving every step gives at order 2K): the
 largest difference of the two runs over the horizon (:attr:`Reference.error_estimate`); the finer run is kept.
 
 Lyapunov exponent and envelope (:func:`lyapunov`, :func:`envelope`). A third reference run starts
@@ -364,10 +364,10 @@ def _mp_input(schedule, t) -> list:
 
 
 class _PendulumField:
-    """The double pendulum's exact acceleration from the article's eqs. (6)-(8) (as ``crosscheck.references.closed_forms`` types
-    them), in scalar mpmath arithmetic with the case's parameters ``m1, m2, l1, l2, g`` (point masses; the case's
-    input map is the identity, so ``tau = u``), solved by hand (2 x 2): about 25 times cheaper than the generic
-    multiprecision split, which it is checked against (tests)."""
+    """The double pendulum's exact acceleration from the article's eqs. (6)-(8) (as
+    ``crosscheck.references.closed_forms`` types them), in scalar mpmath arithmetic with the case's parameters ``m1, m2,
+    l1, l2, g`` (point masses; the case's input map is the identity, so ``tau = u``), solved by hand (2 x 2): about 25
+    times cheaper than the generic multiprecision split, which it is checked against (tests)."""
 
     def __init__(self, params: dict, schedule=None):
         self.p = {k: mpf(float(params.get(k, d))) for k, d in (("m1", 1.0), ("m2", 1.0), ("l1", 1.0), ("l2", 1.0),

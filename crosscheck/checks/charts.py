@@ -286,7 +286,8 @@ class EulerZYX(Chart):
     @staticmethod
     def rate_rows(pitch, roll, sin: Callable = math.sin, cos: Callable = math.cos) -> tuple[list, list, list]:
         """E (pd of (yaw, pitch, roll) -> body angular velocity) and its derivatives by pitch and by roll, as nested
-        lists in the number type of ``sin`` and ``cos`` (mpmath's for the exact reference, ``crosscheck.references.precise``)."""
+        lists in the number type of ``sin`` and ``cos`` (mpmath's for the exact reference,
+        ``crosscheck.references.precise``)."""
         sp, cp, sr, cr = sin(pitch), cos(pitch), sin(roll), cos(roll)
         E = [[-sp, 0.0, 1.0], [cp * sr, cr, 0.0], [cp * cr, -sr, 0.0]]
         dE_pitch = [[-cp, 0.0, 0.0], [-sp * sr, 0.0, 0.0], [-sp * cr, 0.0, 0.0]]
@@ -558,8 +559,8 @@ REPRESENTATIONS = ("world", "mixed")
 
 @dataclass(frozen=True)
 class VelocityRepresentation(Chart):
-    """A chart of the velocities only (docs/design.md, "Configuration on Lie groups": world and mixed base velocity). The
-    configuration stays q (``p = q``, nq entries, quaternions included: :meth:`p_of` and :meth:`q_of` are the
+    """A chart of the velocities only (docs/design.md, "Configuration on Lie groups": world and mixed base velocity).
+    The configuration stays q (``p = q``, nq entries, quaternions included: :meth:`p_of` and :meth:`q_of` are the
     identity) and the velocity is w with ``v = T(q) w``; the chart maps of this module hold with ``Dpsi := T``:
     ``vdot = T wdot + Tdot w`` (:meth:`jacobian_rate` is ``Tdot w``) and ``tau_w = T^T tau_v``.
 

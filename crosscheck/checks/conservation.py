@@ -25,9 +25,9 @@ of mass, ``P`` the linear momentum and ``L_G`` the angular momentum about c (wor
   whole ``dL_O/dt = (c - O) x m g``; on a prismatic joint along ``a``: ``d/dt a . P = m a . g``.
 
 Each backend's drift is put through one momentum bookkeeping, the harness's ``dh_G/dt = A_G qdd + b`` (Pinocchio's
-centroidal map on the model's data, ``crosscheck.references.pinocchio.kinematics.centroidal_momentum_map``), and the exact rates vote
-with them. A drift the comparison accepts moves the rate by up to ``|A_G|`` times its tolerance, and the rate's own
-rounding is eps times the terms it sums; the tolerance is their sum.
+centroidal map on the model's data, ``crosscheck.references.pinocchio.kinematics.centroidal_momentum_map``), and the
+exact rates vote with them. A drift the comparison accepts moves the rate by up to ``|A_G|`` times its tolerance, and
+the rate's own rounding is eps times the terms it sums; the tolerance is their sum.
 """
 
 from __future__ import annotations

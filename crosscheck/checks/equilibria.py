@@ -13,8 +13,8 @@ unstable one. M0 and K are written here from the cases' typed parameters (their 
   I_k)`` about x (k = x) and y;
 * the parallelogram four-bar at rest (``four_bar`` with crank = rocker = a, coupler = ground, uniform rods of mass m:
   crank and rocker hanging, the coupler level, q = (0, pi/2, 0)): one degree of freedom, the crank angle t, with the
-  coupler translating, ``T = 1/2 (2 m a^2 / 3 + m a^2) tdot^2`` and ``V = -2 m g a cos t``, so ``omega^2 = 6 g / (5 a)``.
-  A constrained model's A (the KKT dynamics, also off the constraint manifold) has besides ``+-i omega`` 2k
+  coupler translating, ``T = 1/2 (2 m a^2 / 3 + m a^2) tdot^2`` and ``V = -2 m g a cos t``, so ``omega^2 = 6 g / (5
+  a)``. A constrained model's A (the KKT dynamics, also off the constraint manifold) has besides ``+-i omega`` 2k
   eigenvalues at 0 (``d^2 phi / dt^2 = 0`` along every constraint row; a Jordan structure, so rounding moves them by
   about ``sqrt(eps)``): the check compares the ``2 (n - k)`` eigenvalues of the motion, largest in modulus.
 
@@ -23,8 +23,8 @@ Under a chart ``q = psi(p)`` the equilibrium is one too, and there ``A_p = T^-1 
 
 Tolerance. A simple eigenvalue moves by ``|d lambda| <= kappa ||dA||`` with ``kappa = |x| |y| / |y^H x|`` (x, y its
 right and left eigenvectors; the largest over the compared eigenvalues, median over the voters) and ``||dA||``
-bounded by the linearization check's tolerance of the ``dvdot/dq`` block (``crosscheck.checks.linearization``) summed over a
-row, so an eigenvalue is held to exactly what the compared blocks are.
+bounded by the linearization check's tolerance of the ``dvdot/dq`` block (``crosscheck.checks.linearization``) summed
+over a row, so an eigenvalue is held to exactly what the compared blocks are.
 """
 
 from __future__ import annotations

@@ -4,9 +4,9 @@ Each check is a :class:`~crosscheck.core.compare.Comparison` keyed ``"<family> <
 the outlier vote and the report treat it like any cross-backend comparison.
 
 Chart invariance. The state ``(q, qd, u)`` is expressed in the chart: ``p = psi^-1(q)``, ``pd = Dpsi^-1 qd``
-(for a model with spherical or free joints, ``Dpsi`` maps pd to the velocity v, ``crosscheck.checks.charts.EulerZYX`` and
-``crosscheck.checks.charts.ExponentialCoordinates``; a state where ``cond(Dpsi)`` exceeds ``charts.GIMBAL_LIMIT``, zyx's
-gimbal lock, has no chart check; exp's ``cond(Dpsi)`` is at most pi/2 on its domain; a base-velocity
+(for a model with spherical or free joints, ``Dpsi`` maps pd to the velocity v, ``crosscheck.checks.charts.EulerZYX``
+and ``crosscheck.checks.charts.ExponentialCoordinates``; a state where ``cond(Dpsi)`` exceeds ``charts.GIMBAL_LIMIT``,
+zyx's gimbal lock, has no chart check; exp's ``cond(Dpsi)`` is at most pi/2 on its domain; a base-velocity
 representation, ``charts.VelocityRepresentation``, has ``p = q`` and ``Dpsi = T(q)``, ``v = T w``)
 and the generalized force ``tau_p = Dpsi^T B u`` (a covector). Every backend with ``split_chart`` evaluates in p
 directly; every joint-chart answer is mapped by ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)`` (the control part,
@@ -102,9 +102,9 @@ def mapped(chart: charts.Chart, p, pd, split: Split, quantity: str, done: dict |
 
 
 class _AtPoint:
-    """``chart`` for the maps of one chart check (``crosscheck.checks.charts``, in its place): ``Dpsi`` at ``p`` and ``(d/dt
-    Dpsi) pd`` evaluated once, on first use, for the point and the rates of the check (the same objects), however many
-    answers are mapped (the maps only read them); anything else is the chart's own."""
+    """``chart`` for the maps of one chart check (``crosscheck.checks.charts``, in its place): ``Dpsi`` at ``p`` and
+    ``(d/dt Dpsi) pd`` evaluated once, on first use, for the point and the rates of the check (the same objects),
+    however many answers are mapped (the maps only read them); anything else is the chart's own."""
 
     def __init__(self, chart: charts.Chart, p: np.ndarray):
         self._chart, self._p, self._jacobian, self._rate = chart, p, None, None
@@ -143,11 +143,11 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     """Chart invariance at ``state``: the chart-capable ``backends`` evaluated in p against every trusted
     joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``. ``joint_scales``:
     ``tolerance.scales`` of ``joint`` at the state when the caller has them (computed here otherwise). ``record``,
-    when given, receives what the check used (``crosscheck.campaigns.stability`` measures it): ``p``, ``cond`` (of Dpsi),
-    and where the chart is not left out ``pd``, ``tau_p``, ``native`` (label -> split) and ``tolerances``
+    when given, receives what the check used (``crosscheck.campaigns.stability`` measures it): ``p``, ``cond`` (of
+    Dpsi), and where the chart is not left out ``pd``, ``tau_p``, ``native`` (label -> split) and ``tolerances``
     (quantity -> the tolerance compared with, per coordinate or one number). ``limit``: the cond(Dpsi) above which
-    the chart is left out (the gate's :data:`~crosscheck.checks.charts.GIMBAL_LIMIT`; the stability map asks what the check
-    would say beyond it)."""
+    the chart is left out (the gate's :data:`~crosscheck.checks.charts.GIMBAL_LIMIT`; the stability map asks what the
+    check would say beyond it)."""
     record = {} if record is None else record
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     p = chart.p_of(q)

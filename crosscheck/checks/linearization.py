@@ -5,11 +5,11 @@ with an external reference, with a tolerance derived like the others (docs/toler
 :class:`formalisms.interface.Linearization`. The kinematic rows ``[A_qq, I]`` and ``[0]`` are the convention's
 (``tangent_kinematics``, shared by the backends; the Pinocchio reference forms them with its own Lie algebra, so the
 comparison of the ``kinematic rows`` checks that shared code too), and the checks compare the three dynamic blocks
-``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du`` (each backend's own exact derivative) and ``vdot`` itself. The references are Pinocchio's analytical ABA derivatives
-(``crosscheck.references.pinocchio.reference.linearize``) on an unconstrained model and the 50-digit central differences of the exact
-KKT solution (``crosscheck.references.precise.linearize``, voter ``exact``) on a constrained one, and on a model with external
-loads Pinocchio declines (world-frame forces and springs turn in its joint frames, which its fext derivatives hold
-fixed).
+``dvdot/dq``, ``dvdot/dv`` and ``dvdot/du`` (each backend's own exact derivative) and ``vdot`` itself. The references
+are Pinocchio's analytical ABA derivatives (``crosscheck.references.pinocchio.reference.linearize``) on an unconstrained
+model and the 50-digit central differences of the exact KKT solution (``crosscheck.references.precise.linearize``, voter
+``exact``) on a constrained one, and on a model with external loads Pinocchio declines (world-frame forces and springs
+turn in its joint frames, which its fext derivatives hold fixed).
 
 Tolerance. ``dvdot/dx = -M^-1 d(M vdot + h - B u)/dx`` (with constraints the KKT matrix in place of M), so a
 column's rounding is that of the forces differentiated, times the solve's amplification, plus the solve's own

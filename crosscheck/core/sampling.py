@@ -3,8 +3,8 @@
 A constrained model's states are admissible (docs/design.md; article 5.1): q is projected onto the constraint manifold
 ``phi(q) = 0`` of the holonomic rows by Gauss–Newton (Pfaffian rows ``A(q) qd = 0`` leave q free) and qd onto the
 null space of every row, ``Jc qd = 0`` and ``A qd = 0``, both with the Pinocchio reference's
-constraint kinematics (``crosscheck.references.pinocchio.kinematics.constraint_kinematics``), so admissibility is decided outside the five
-formalisms under test.
+constraint kinematics (``crosscheck.references.pinocchio.kinematics.constraint_kinematics``), so admissibility is
+decided outside the five formalisms under test.
 """
 
 from __future__ import annotations
@@ -158,10 +158,11 @@ def project_configuration(model: Model, q) -> np.ndarray:
 
 
 def project_velocity(model: Model, q, qd) -> np.ndarray:
-    """``qd`` projected onto the tangent space ``Jc qd = 0`` (every row: holonomic ``Jc`` and Pfaffian ``A``): ``N N^T qd`` with N an orthonormal basis of null(Jc)
-    (Jc's right singular vectors beyond its rank; singular values above ``VELOCITY_RCOND`` count). Built from the
-    kept part rather than by subtracting the removed one (``(I - Jc^+ Jc) qd``), the residual ``Jc qd`` is rounding
-    of the result, not of the removed part, which can dwarf a small remaining qd."""
+    """``qd`` projected onto the tangent space ``Jc qd = 0`` (every row: holonomic ``Jc`` and Pfaffian ``A``): ``N N^T
+    qd`` with N an orthonormal basis of null(Jc) (Jc's right singular vectors beyond its rank; singular values above
+    ``VELOCITY_RCOND`` count). Built from the kept part rather than by subtracting the removed one (``(I - Jc^+ Jc)
+    qd``), the residual ``Jc qd`` is rounding of the result, not of the removed part, which can dwarf a small remaining
+    qd."""
     _, Jc, _ = constraint_kinematics(model, q, np.zeros(model.nv))
     if not np.all(np.isfinite(Jc)):
         bad = int(np.argwhere(~np.isfinite(Jc))[0][0])

@@ -408,8 +408,8 @@ def _task_condition(split) -> float:
 
 @dataclass(frozen=True)
 class _Mass:
-    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.references.pinocchio.kinematics.mass_matrix``): ``M^-1``, ``|M^-1|``
-    entrywise, ``||M||_2``, ``||M^-1||_2`` and ``sqrt(diag M)``."""
+    """The harness's view of M at one q (Pinocchio's CRBA, ``crosscheck.references.pinocchio.kinematics.mass_matrix``):
+    ``M^-1``, ``|M^-1|`` entrywise, ``||M||_2``, ``||M^-1||_2`` and ``sqrt(diag M)``."""
 
     inverse: np.ndarray
     abs_inverse: np.ndarray

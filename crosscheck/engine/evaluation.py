@@ -150,8 +150,8 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
 
 
 def add_linearization_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
-    """Add the comparisons of the backends' linearizations (``crosscheck.checks.linearization``) at ``outcome``'s state, the
-    backends that raised in ``linearize`` joining its errors; nothing when no split is trusted (no scales)."""
+    """Add the comparisons of the backends' linearizations (``crosscheck.checks.linearization``) at ``outcome``'s state,
+    the backends that raised in ``linearize`` joining its errors; nothing when no split is trusted (no scales)."""
     if outcome.scales is None:
         return
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]
@@ -211,8 +211,8 @@ class CaseSetup:
             yield outcome
 
     def _equilibria(self, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
-        """Add the checks of the case's equilibria with closed-form eigenvalues (``crosscheck.checks.equilibria``) to the
-        outcome of its first state (a built-in case only: a model file has no closed form)."""
+        """Add the checks of the case's equilibria with closed-form eigenvalues (``crosscheck.checks.equilibria``) to
+        the outcome of its first state (a built-in case only: a model file has no closed form)."""
         if self.spec.path is not None:
             return
         params = equilibria.case_params(self.spec.name, {k: float(v) for k, v in self.spec.params})

@@ -19,8 +19,8 @@ from formalisms.interface import Split
 class StateOutcome:
     """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
     -> value above its limit; left out of the comparisons) and one comparison per quantity; ``hint``, for a failing
-    state, what the shape of the error suggests (``crosscheck.reports.diagnosis``); ``scales``, the tolerance scales of the
-    trusted splits (None when no split is trusted)."""
+    state, what the shape of the error suggests (``crosscheck.reports.diagnosis``); ``scales``, the tolerance scales of
+    the trusted splits (None when no split is trusted)."""
 
     state: State
     splits: dict[str, Split]

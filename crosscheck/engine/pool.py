@@ -47,9 +47,9 @@ def _worker_case(run_case: Callable[..., CaseOutcome], spec: CaseSpec, samples: 
 def in_pool(run_case: Callable[..., CaseOutcome], specs: Sequence[CaseSpec], backends: Sequence[Formalism],
              samples: int, seed: int, tell: Callable[[Step], None], checks: Checks, workers: int,
              outcomes: list[CaseOutcome]) -> None:
-    """The cases, each run by ``run_case``, in ``workers`` spawned processes, the largest models (most coordinates) first so that no worker
-    is left with a large case at the end; their outcomes added to ``outcomes`` in case order. On Ctrl-C the
-    outcomes already in, in case order, are kept there, and the workers are stopped."""
+    """The cases, each run by ``run_case``, in ``workers`` spawned processes, the largest models (most coordinates)
+    first so that no worker is left with a large case at the end; their outcomes added to ``outcomes`` in case order. On
+    Ctrl-C the outcomes already in, in case order, are kept there, and the workers are stopped."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")

@@ -60,9 +60,10 @@ class CaseSpec:
             self.task_point))
 
     def closed_form(self):
-        """The ``closed_form`` voter bound to this built-in case and its parameters (``crosscheck.references.closed_forms``),
-        None when the case has none (a model file never has one). With a ``task_point`` given, it votes on
-        everything but the task quantities, which its equations have for the case's own task point."""
+        """The ``closed_form`` voter bound to this built-in case and its parameters
+        (``crosscheck.references.closed_forms``), None when the case has none (a model file never has one). With a
+        ``task_point`` given, it votes on everything but the task quantities, which its equations have for the case's
+        own task point."""
         if self.path is not None:
             return None
 

@@ -1,20 +1,21 @@
-"""Common-mode faults: realistic bugs in code every backend shares, which the vote cannot see (docs/design.md, "Shared code
-that cannot be avoided ... is guarded by something outside the vote").
+"""Common-mode faults: realistic bugs in code every backend shares, which the vote cannot see (docs/design.md, "Shared
+code that cannot be avoided ... is guarded by something outside the vote").
 
 A bug in the model language, a URDF conversion, a case factory, a constraint declaration, the sampler, the charts,
 the frames, the comparison or the tolerance moves all voters together: they agree on the wrong answer, or the check
 that should have failed cannot. The gate guards each of these places with something outside the vote: the reference
 built from the model file (``crosscheck.references.pinocchio.reference``), the closed forms bound to a case's parameters
-(``crosscheck.references.closed_forms``), the exact values (``H_t``, phi, constraint power), the chart and frame invariance
-checks, the conditions audit (``crosscheck.guards.conditioning``), the sampling coverage (``crosscheck.guards.coverage``) and the
-self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such bugs, each with the guard expected to catch
-it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug, cheapest first (the self-test, building the
-cases, their coverage, then the states round robin, as ``crosscheck.faults.injection.hunt`` does), and says what caught it.
-``tests/test_common_mode.py`` checks that every entry is caught, and by its guard.
+(``crosscheck.references.closed_forms``), the exact values (``H_t``, phi, constraint power), the chart and frame
+invariance checks, the conditions audit (``crosscheck.guards.conditioning``), the sampling coverage
+(``crosscheck.guards.coverage``) and the self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such
+bugs, each with the guard expected to catch it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug,
+cheapest first (the self-test, building the cases, their coverage, then the states round robin, as
+``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/test_common_mode.py`` checks that every
+entry is caught, and by its guard.
 
-A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at several
-targets (a constant imported by every backend is one bug at every import); a fault in code a cached derivation reads
-runs on fresh derivation caches, discarded afterwards (:data:`DERIVATION_INPUTS`), so that it cannot outlive the
+A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at
+several targets (a constant imported by every backend is one bug at every import); a fault in code a cached derivation
+reads runs on fresh derivation caches, discarded afterwards (:data:`DERIVATION_INPUTS`), so that it cannot outlive the
 hunt.
 """
 

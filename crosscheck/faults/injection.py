@@ -2,8 +2,8 @@
 
 A :class:`Fault` is a realistic bug in one backend's own computation (a dropped Coriolis term, a transposed
 rotation, a multiplier with the wrong sign, ...), injected by replacing one module attribute, a function or a
-method, by a faulty version built from the original (``crosscheck.faults.backend_catalog`` holds the catalog). Sources are
-never edited: :func:`injected` patches the attribute and restores it on exit, also on error. A fault in code whose
+method, by a faulty version built from the original (``crosscheck.faults.backend_catalog`` holds the catalog). Sources
+are never edited: :func:`injected` patches the attribute and restores it on exit, also on error. A fault in code whose
 results a backend caches (``derived``: the Euler–Lagrange derivation, cached in an lru_cache and on disk under
 ``CROSSCHECK_CACHE``; the geometric backend's compiled casadi functions) runs on empty caches: a fresh temporary
 ``CROSSCHECK_CACHE`` directory, an empty lru_cache in place of the Euler–Lagrange one, the geometric one set aside.
@@ -232,7 +232,8 @@ def _flatten(prefix: str, value, out: dict[str, object]) -> None:
 def outputs(backend: Formalism, setup: CaseSetup, state: State) -> dict[str, object]:
     """Everything ``backend`` returns at ``state`` where the gate evaluates it: in the joint chart, in each of the
     case's charts (``split_chart``, when the backend has it; the state carried over as the chart checks do), on
-    the state's moved scene and, at the states the gate linearizes at, its linearization (A, B, vdot). Keys ``"<where>: <field>"``; a raising evaluation gives ``"<where>: error"``."""
+    the state's moved scene and, at the states the gate linearizes at, its linearization (A, B, vdot). Keys ``"<where>:
+    <field>"``; a raising evaluation gives ``"<where>: error"``."""
     model = setup.model
     q, qd, u = (np.array(v) for v in (state.q, state.qd, state.u))
     calls: list[tuple[str, Callable[[], object]]] = [("joint", lambda: backend.split(model, q, qd, u))]

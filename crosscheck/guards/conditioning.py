@@ -4,8 +4,8 @@ A backend that reports its method ill-conditioned at a state (``Split.conditions
 .BREAKDOWN_LIMITS``) leaves the vote there. A backend could escape every comparison that way: an operational-space
 backend whose inverse mass matrix is garbage reports cond(task) = inf everywhere, is BREAKDOWN at every state, and
 the gate would say PASS. So the harness computes every condition the backends report from Pinocchio's M, ``C qd``,
-``g``, task Jacobian and constraint kinematics (``crosscheck.references.pinocchio.reference``), with its own code (:func:`independent`),
-and :func:`audit` compares each backend's report with it:
+``g``, task Jacobian and constraint kinematics (``crosscheck.references.pinocchio.reference``), with its own code
+(:func:`independent`), and :func:`audit` compares each backend's report with it:
 
 * ``conditions: <name>`` (a check, voted like any comparison, the independent value voting as ``independent``):
   condition numbers agree when their logarithms differ by less than their rounding, ``100 eps (kappa cond(M) +
@@ -61,8 +61,8 @@ def degenerate_floor(model: Model) -> float:
 
 def redundant_below(model: Model, w_max):
     """Eigenvalues of S at or below this are redundant directions: ``CONSTRAINT_RCOND`` times the largest, never less
-    than :func:`degenerate_floor` (the harness's statement of the backends' rule, for :mod:`crosscheck.references.precise` and
-    :func:`independent`; ``w_max`` may be an array)."""
+    than :func:`degenerate_floor` (the harness's statement of the backends' rule, for
+    :mod:`crosscheck.references.precise` and :func:`independent`; ``w_max`` may be an array)."""
     return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), degenerate_floor(model))
 
 

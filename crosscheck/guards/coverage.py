@@ -10,8 +10,8 @@ harness's own constraint kinematics), and names what makes the sample degenerate
 * every input zero (at two or more states) for a model with inputs;
 * from :data:`SLIVER_STATES` states on, configurations in a sliver: an unconstrained model with a coordinate whose
   sampled range is below :data:`SLIVER` of the span the gate promises (:data:`REVOLUTE_SPAN`,
-  :data:`PRISMATIC_SPAN`, or the width of the joint limits a model declares) (uniform draws over the span leave that with
-  probability below 1e-8), a constrained one with every coordinate so (the constraints may confine some, not all).
+  :data:`PRISMATIC_SPAN`, or the width of the joint limits a model declares) (uniform draws over the span leave that
+  with probability below 1e-8), a constrained one with every coordinate so (the constraints may confine some, not all).
 
 A degenerate sample fails the gate (``crosscheck.engine``): the report says what was not sampled.
 """
@@ -28,8 +28,8 @@ from crosscheck.core import sampling
 from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 #: The span the gate promises to sample (docs/faults.md, coverage): one turn of a revolute joint, a metre of a
-#: prismatic one. Written here, not read from ``crosscheck.core.sampling``, so that a sampler drawing from a narrower range
-#: is measured against the promise, not against itself.
+#: prismatic one. Written here, not read from ``crosscheck.core.sampling``, so that a sampler drawing from a narrower
+#: range is measured against the promise, not against itself.
 REVOLUTE_SPAN = 2.0 * np.pi
 PRISMATIC_SPAN = 1.0
 #: The spans of each joint's coordinates: a quaternion's components range over [-1, 1] (span 2), a free base's

@@ -9,8 +9,9 @@ A model can be well formed (``cases.build.build_model`` accepts it) and still be
   below 1e12 (1e36 for an inertia, a mass times a length squared) they stay far below the double range (1e308), so
   nothing overflows to inf and no bound turns into NaN. From below, a non-zero mass is at least :data:`MIN_MASS`
   and a model with any length at all reaches at least :data:`MIN_REACH` (underflow; the 1 m floors of the policy).
-* **A regular mass matrix.** The gate's error bounds are first order in the rounding of M (``crosscheck.core.tolerance``):
-  they hold while ``n eps cond(M)`` is small. A model whose M is singular at every configuration (a point mass on
+* **A regular mass matrix.** The gate's error bounds are first order in the rounding of M
+(``crosscheck.core.tolerance``): they hold while ``n eps cond(M)`` is small. A model whose M is singular at every
+configuration (a point mass on
   a joint axis with no rotational inertia about it; a mass 1e-13 times the others) has no acceleration to compare:
   every backend is right to fail on it. :func:`check_model` evaluates M (the reference's CRBA on the model's own
   data) at :data:`PROBES` configurations and refuses the model when ``cond(M) >`` :func:`max_cond_m` at all of them,
@@ -43,8 +44,8 @@ LIMITS = {"mass": 1e12, "length": 1e12, "inertia": 1e36, "gravity": 1e12, "state
 #: constraint solve (``Jc M^-1 Jc^T`` ~ 1e300) loses every digit; a zero mass is a massless body, which is fine.
 MIN_MASS = 1e-12
 #: Smallest reach (largest placement or COM offset) of a model with any length at all: the gate's length floors and
-#: its frame moves are of 1 m (``Model.length_scale``, ``crosscheck.checks.frames``), so a model 1e-100 m long drowns in the
-#: rounding of its world positions (the operational-space Cholesky fails on it); 1e-6 m and 1e-9 m still pass.
+#: its frame moves are of 1 m (``Model.length_scale``, ``crosscheck.checks.frames``), so a model 1e-100 m long drowns in
+#: the rounding of its world positions (the operational-space Cholesky fails on it); 1e-6 m and 1e-9 m still pass.
 MIN_REACH = 1e-6
 #: Constraint fields that are unit directions or names, not magnitudes.
 _NOT_MAGNITUDES = {"name", "body", "body_a", "body_b", "joints", "directions", "normals", "plane"}

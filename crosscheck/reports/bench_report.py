@@ -1,7 +1,7 @@
 """The bench's markdown report and charts (``reports/speed_accuracy.md``, ``speed_accuracy.png``,
-``speed_scaling.png``) from :class:`crosscheck.campaigns.bench.Results`, as measured or as saved in ``speed_accuracy.json``
-(:func:`write_from_json`: ``python -m crosscheck.reports.bench_report reports/speed_accuracy.json`` renders them again
-without measuring)."""
+``speed_scaling.png``) from :class:`crosscheck.campaigns.bench.Results`, as measured or as saved in
+``speed_accuracy.json`` (:func:`write_from_json`: ``python -m crosscheck.reports.bench_report
+reports/speed_accuracy.json`` renders them again without measuring)."""
 
 from __future__ import annotations
 

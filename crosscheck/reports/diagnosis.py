@@ -21,7 +21,8 @@ the median of the others, or the spread of all voters when none is named. Per ar
   pass (the wrench recursion); one only in ``task_inertia`` is in J or the inverse of ``J M^-1 J^T`` (eq. 22).
   When an acceleration fails too, the loads and Lambda follow from it and the accelerations classify the error.
 - the reference alone against every formalism on a model loaded from a file (the reference read the file itself,
-  the formalisms our conversion of it: ``crosscheck.references.pinocchio.reference``) points at the conversion, not at the formalisms.
+  the formalisms our conversion of it: ``crosscheck.references.pinocchio.reference``) points at the conversion, not at
+  the formalisms.
 """
 
 from __future__ import annotations

@@ -268,8 +268,8 @@ def _breakdown_section(result: GateResult) -> list[str]:
 
 
 def _self_test_section(result: GateResult) -> list[str]:
-    """The canaries (``crosscheck.guards.selftest``): each known fault, where it was injected, whether the gate caught it
-    and named its backend, and the ratio."""
+    """The canaries (``crosscheck.guards.selftest``): each known fault, where it was injected, whether the gate caught
+    it and named its backend, and the ratio."""
     test = result.self_test
     if test is None:
         return ["## Self-test", "", "Skipped (`--no-self-test`): this run did not prove it can see small errors.", ""]

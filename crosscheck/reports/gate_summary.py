@@ -2,10 +2,10 @@
 short: the verdict, a failing run's disagreements with their severity, vote, hint and reproduce command (and any
 other failure), what was run, the worst ratio, what was checked and skipped and why (with the task point of a case
 whose task condition broke down at most states), the pictures of the mechanism, one line per case. The details
-(``crosscheck.reports.gate_details``, next to it as ``NAME-details.md``): the tolerance policy, counts per verdict, suspects, voters, the
-task points, the per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns,
-the invariance and conservation checks, the constraint power audit, the drift's parts, the worst state per case and
-the timing.
+(``crosscheck.reports.gate_details``, next to it as ``NAME-details.md``): the tolerance policy, counts per verdict,
+suspects, voters, the task points, the per-quantity table, the self-test, coverage, known divergences, stale registry
+entries, breakdowns, the invariance and conservation checks, the constraint power audit, the drift's parts, the worst
+state per case and the timing.
 
 Same seed, same report byte for byte, apart from the timing section at the end of the details.
 """
@@ -31,9 +31,9 @@ MAX_FIGURES = 3
 
 
 def mechanism_figures(result: GateResult, report: Path) -> dict[str, str]:
-    """Stick figures of the mechanism (``crosscheck.reports.plots.stick_figure``) written next to ``report`` where they help:
-    for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN at
-    most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
+    """Stick figures of the mechanism (``crosscheck.reports.plots.stick_figure``) written next to ``report`` where they
+    help: for each failing case at its worst failing state, else for each case where a task condition was in BREAKDOWN
+    at most states (the picture shows where the task point sits), at most :data:`MAX_FIGURES`; {case: file name}."""
     from crosscheck.reports import plots
 
     chosen = []

@@ -7,8 +7,8 @@ command. KNOWN comparisons (``crosscheck.engine.divergences``) pass, with the re
 testcase whose every comparison is NOT COMPARED is ``<skipped>``. Backend errors are an ``<error>`` testcase;
 states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>``. Each case also has a ``sampling
 coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``), and the run a ``self-test`` suite
-(one testcase per canary, ``crosscheck.guards.selftest``) and a ``backends`` suite (a required backend that took part in no
-comparison fails), so that every reason the gate fails shows on a dashboard.
+(one testcase per canary, ``crosscheck.guards.selftest``) and a ``backends`` suite (a required backend that took part in
+no comparison fails), so that every reason the gate fails shows on a dashboard.
 """
 
 from __future__ import annotations

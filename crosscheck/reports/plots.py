@@ -71,9 +71,10 @@ def save(fig, path: Path) -> Path:
 # ---------------------------------------------------------------------------------------------- stick figure
 
 def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarray, np.ndarray]:
-    """The mechanism at ``q`` from the reference's forward kinematics (``crosscheck.references.pinocchio.kinematics.body_origins``): joint
-    origins (bodies x 3, world frame, in body order), segments as (parent row, child row) pairs (-1: the world
-    origin), the leaf bodies' centres of mass (where their links end; leaves x 3) and the task point."""
+    """The mechanism at ``q`` from the reference's forward kinematics
+    (``crosscheck.references.pinocchio.kinematics.body_origins``): joint origins (bodies x 3, world frame, in body
+    order), segments as (parent row, child row) pairs (-1: the world origin), the leaf bodies' centres of mass (where
+    their links end; leaves x 3) and the task point."""
     origins, coms, task = kinematics.body_origins(model, q)
     leaves = [i for i in range(len(model.bodies)) if i not in model.parent_index]
     return origins, [(model.parent_index[i], i) for i in range(len(model.bodies))], coms[leaves], task
@@ -81,7 +82,8 @@ def stick_points(model, q) -> tuple[np.ndarray, list[tuple[int, int]], np.ndarra
 
 def stick_figure(model, q, path: Path, title: str = "") -> Path:
     """A 3-D stick figure of ``model`` at ``q`` (:func:`stick_points`): link segments between joint origins (from
-    the world origin for a root body not on a free joint, to the centre of mass for a leaf body), joint origins as dots, the task point
+    the world origin for a root body not on a free joint, to the centre of mass for a leaf body), joint origins as dots,
+    the task point
     as a star (dashed to its body's origin), equal axis scales."""
     plt = pyplot()
     origins, segments, ends, task = stick_points(model, q)

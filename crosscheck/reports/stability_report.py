@@ -1,8 +1,8 @@
 """The stability report: ``stability.md`` (tables and conclusions from the numbers) and one PNG chart per path;
 :func:`write_report` measures the paths (``crosscheck.campaigns.stability``) and writes both.
 
-Everything here is computed from :class:`crosscheck.campaigns.stability.PathResult` values, so the same run gives the same
-report byte for byte, apart from the total runtime on its last line.
+Everything here is computed from :class:`crosscheck.campaigns.stability.PathResult` values, so the same run gives the
+same report byte for byte, apart from the total runtime on its last line.
 """
 
 from __future__ import annotations
@@ -203,9 +203,9 @@ def summary_table(results: list[PathResult]) -> list[str]:
 
 INTRO = """\
 Error and condition numbers along paths into trouble. At every point each backend's drift, ctrl, total and (with
-constraints) lam are compared with the exact split of `crosscheck.references.precise` (mpmath, 50 digits): the **relative
-error** is `max|value - exact| / max|exact|`, the **true err / tol** the absolute error over the tolerance the gate
-uses for that quantity at that state. The verdicts are the gate's own (`gate.CaseSetup.evaluate`: the same
+constraints) lam are compared with the exact split of `crosscheck.references.precise` (mpmath, 50 digits): the
+**relative error** is `max|value - exact| / max|exact|`, the **true err / tol** the absolute error over the tolerance
+the gate uses for that quantity at that state. The verdicts are the gate's own (`gate.CaseSetup.evaluate`: the same
 comparisons, tolerances, BREAKDOWN rule and, unless a path says otherwise, the chart, frame and conservation checks).
 
 A true error above its tolerance is *flagged* when the gate has the backend in BREAKDOWN for that quantity, *caught*

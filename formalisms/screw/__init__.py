@@ -248,8 +248,8 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
 
 
 def split_many(model: Model, Q, QD, U) -> list[Split]:  # noqa: N803
-    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit for
-    bit, :data:`BLOCK` states per pass (:func:`_unconstrained_splits`). A constrained model's states go through
+    """:func:`split` of N states (rows of ``Q``, ``QD``, ``U``), each a whole :class:`Split` equal to ``split``'s bit
+    for bit, :data:`BLOCK` states per pass (:func:`_unconstrained_splits`). A constrained model's states go through
     ``split`` one by one: Gauss's principle (``np.einsum``, whose loops depend on the length of the stack) and the
     rows' products with their direction matrices round differently on a stack than on one state."""
     Q, QD, U = check_batch(model, Q, QD, U)
@@ -295,8 +295,8 @@ def _constrained_split(kin: Kinematics, G: dynamics.Inertias, qd, factor: Choles
     """Eq. (12)-(17) by Gauss's principle (:func:`_constrained`, a stack of one state) with ``forces = (h, C qd, g)``,
     the drift's parts, the constraint wrenches of both multipliers, and the constraint's own quantities (article
     5.5): ``Jc^T lam`` and its power, ``Jc qd`` and the conditioning of ``S`` (``accel_scale`` adds what the
-    constraint force can produce). ``h`` and ``g`` carry ``-tau_ext``; ``loads``, the external body wrenches, are applied
-    in the wrench recursion of the extras."""
+    constraint force can produce). ``h`` and ``g`` carry ``-tau_ext``; ``loads``, the external body wrenches, are
+    applied in the wrench recursion of the extras."""
     model = kin.model
     h, c_qd, g = forces
     rows = constraints.terms(kin, kin.q, qd)

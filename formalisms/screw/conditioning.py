@@ -1,5 +1,5 @@
-"""The screw backend's own conditioning and scales (docs/design.md, "Independence is the product"): every number it reports
-about its solves comes from its own ``M``, ``C qd``, ``g``, ``Jc``, ``Jcdot qd`` and task Jacobian, by its own
+"""The screw backend's own conditioning and scales (docs/design.md, "Independence is the product"): every number it
+reports about its solves comes from its own ``M``, ``C qd``, ``g``, ``Jc``, ``Jcdot qd`` and task Jacobian, by its own
 algorithms: the eigendecomposition of ``M`` (``scipy.linalg.eigh``), of ``S = A A^T`` with Gauss's ``A = Jc L^-T``
 (:mod:`~formalisms.screw.constraints`), and the singular values of ``J L^-T`` for the task-space inertia.
 

@@ -16,10 +16,11 @@ W processes (spawned, each loading the plugins by their specs; a worker process 
 A chunk generates fewer examples than it was given when it fails: Hypothesis stops generating at a chunk's first
 failing example and shrinks it instead, so the rest of that chunk's examples are never drawn (a campaign of 100
 examples in chunks of 10 with a failure in 8 chunks generated 56). The report and the command's summary state the
-examples generated against those asked and account for every one not generated (``crosscheck.reports.fuzz_report.account``: a chunk that ended
-at its failure, an interrupted chunk, a chunk not run yet). Findings are grouped by signature (``crosscheck.reports.fuzz_report.signature``: the
-failing checks, the outlier, the backends in error and the shrunk mechanism's joint types and constraint kinds), since
-one bug is typically found again by many chunks.
+examples generated against those asked and account for every one not generated
+(``crosscheck.reports.fuzz_report.account``: a chunk that ended at its failure, an interrupted chunk, a chunk not run
+yet). Findings are grouped by signature (``crosscheck.reports.fuzz_report.signature``: the failing checks, the outlier,
+the backends in error and the shrunk mechanism's joint types and constraint kinds), since one bug is typically found
+again by many chunks.
 
 The campaign directory holds ``campaign.json`` (the parameters; a run in a directory with the same parameters
 resumes, skipping the chunks already logged and not interrupted), ``chunks.jsonl`` (one line per chunk, appended as

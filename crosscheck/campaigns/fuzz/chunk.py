@@ -197,9 +197,9 @@ def _property(cfg: FuzzConfig, chosen, rec: _Recorder):
 def _no_local_constants():
     """Hypothesis (6.13x and later) sometimes draws a literal constant found in the source of the local modules in
     ``sys.modules``, so what a chunk drew depended on which modules the process had imported (and on its
-    ``__main__``): a spawned worker and a test process that had imported ``crosscheck.campaigns.stability`` drew different
-    examples from one seed. A campaign's draws must depend on its seed alone, so during a chunk that pool is empty,
-    and so is the cache of constants Hypothesis drew from it before (filled by any earlier property test in the
+    ``__main__``): a spawned worker and a test process that had imported ``crosscheck.campaigns.stability`` drew
+    different examples from one seed. A campaign's draws must depend on its seed alone, so during a chunk that pool is
+    empty, and so is the cache of constants Hypothesis drew from it before (filled by any earlier property test in the
     process: a test of the closed forms before the worker test drew different examples). This replaces a private
     Hypothesis function and clears a private cache (no public setting exists); without them the chunk still runs."""
     try:

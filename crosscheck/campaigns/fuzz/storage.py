@@ -1,5 +1,6 @@
 """A campaign directory (``crosscheck.campaigns.fuzz``): ``campaign.json``, the append-only ``chunks.jsonl``, the
-findings written atomically, the lock held by the one run at a time, and what a run returns (:class:`CampaignResult`)."""
+findings written atomically, the lock held by the one run at a time, and what a run returns
+(:class:`CampaignResult`)."""
 
 from __future__ import annotations
 

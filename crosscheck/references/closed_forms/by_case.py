@@ -173,8 +173,9 @@ def double_pendulum_absolute_loop(p, q, qd, u) -> Split:
 
 def four_bar(p, q, qd, u) -> Split:
     """The open tree's M, C qd, g (:func:`four_bar_terms`), the loop (:func:`four_bar_loop`), eqs. (12)-(17) under
-    the backends' rule (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`: minimum-norm multipliers at the change points), the task point
-    ``coupler_mid`` by :func:`link_point` (eqs. 23, 22 with the open tree's M)."""
+    the backends' rule (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`: minimum-norm
+    multipliers at the change points), the task point ``coupler_mid`` by :func:`link_point` (eqs. 23, 22 with the open
+    tree's M)."""
     a, b, c, m, g = p["crank"], p["coupler"], p["rocker"], p["m"], p["g"]
     M, Cqd, grav = four_bar_terms(q, qd, a, b, c, m, g)
     t = Terms(M, np.linalg.inv(M), Cqd, grav, u, 3.0 * m, abs(g))
@@ -185,7 +186,8 @@ def four_bar(p, q, qd, u) -> Split:
 
 def slider_crank(p, q, qd, u) -> Split:
     """The open tree's M, C qd, g (:func:`slider_crank_terms`), the wrist pin (:func:`wrist_pin`), eqs. (12)-(17)
-    (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`); the task is the slider's x: J = (0, 0, 1), Jdot qd = 0, Lambda = 1 / (M^-1)_33 =
+    (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`); the task is the slider's x: J = (0, 0,
+    1), Jdot qd = 0, Lambda = 1 / (M^-1)_33 =
     m_slider (M is block-diagonal), cond 1."""
     a, r, e = p["crank"], p["rod"], p["offset"]
     ms = p["m_slider"]
@@ -211,7 +213,8 @@ def double_pendulum_rail(p, q, qd, u) -> Split:
 
 def geared_pendulums(p, q, qd, u) -> Split:
     """Two rods (:func:`gear_terms`, M diagonal) coupled by the gear (:func:`gear_constraint`), eqs. (12)-(17)
-    (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`: with ``S = 1 / M11 + ratio^2 / M22`` the gear's torque is ``lam = (ratio (M^-1 f)_2 -
+    (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`: with ``S = 1 / M11 + ratio^2 / M22`` the
+    gear's torque is ``lam = (ratio (M^-1 f)_2 -
     (M^-1 f)_1) / S``); the task is the pinion rod's end along x: ``J = (l1 cos q1, 0)``, ``Jdot qd = -l1 sin q1
     q1d^2`` (:func:`chain_tip` of one link)."""
     m1, l1, m2, l2 = p["m1"], p["l1"], p["m2"], p["l2"]
@@ -289,7 +292,8 @@ def disk_rule(p) -> Rule:
 
 
 def rolling_disk(p, q, qd, u) -> Split:
-    """:func:`disk_terms` (B = I), eqs. (12)-(17) under the backends' rule (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`; S = A M^-1 A^T has
+    """:func:`disk_terms` (B = I), eqs. (12)-(17) under the backends' rule
+    (:func:`~crosscheck.references.closed_forms.assembly.constrained_solution`; S = A M^-1 A^T has
     full rank: A's two rows are independent everywhere), the task point ``center`` by :func:`disk_center` (eqs. 23, 22
     with the unconstrained M, a 3 x 3 task: singular where the disk stands upright, phi = 0, since the centre's height
     is then stationary)."""

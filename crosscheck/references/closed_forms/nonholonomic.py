@@ -120,8 +120,8 @@ def drive_terms(q, qd, m_body, m_wheel, r, track, com_ahead):
     ``hd`` about z (its inertia ``m_body track^2 / 6`` about z), a thin wheel at ``hd z + spin_d axle`` (``m_w r^2 / 4``
     about a diameter, ``m_w r^2 / 2`` about the axle). So ``T = m/2 |Pdot|^2 + m_body d hd (e2 . Pdot) + J/2 hd^2 +
     I_a/2 (left_d^2 + right_d^2)`` with ``m = m_body + 2 m_w``, ``J = m_body track^2 / 6 + m_w r^2 / 2 + m_body d^2 + 2
-    m_w b^2``, ``I_a = m_w r^2 / 2``: the sleigh's M (:func:`sleigh_terms`, ``m a`` -> ``m_body d``) and ``C qd = -m_body
-    d hd^2 (c, s, 0, 0, 0)``; g = 0 (gravity along -z).
+    m_w b^2``, ``I_a = m_w r^2 / 2``: the sleigh's M (:func:`sleigh_terms`, ``m a`` -> ``m_body d``) and ``C qd =
+    -m_body d hd^2 (c, s, 0, 0, 0)``; g = 0 (gravity along -z).
 
     The rows (``cases.differential_drive``), each wheel's contact along its rolling direction e1 and the axle across
     e2: ``A = [[c, s, -b, -r, 0], [c, s, b, 0, -r], [-s, c, 0, 0, 0]]``; only the heading enters A, so ``Adot qd = hd
@@ -142,9 +142,9 @@ def drive_terms(q, qd, m_body, m_wheel, r, track, com_ahead):
 def drive_load(q, drag, g, payload) -> np.ndarray:
     """``tau_ext = J^T F`` of the crate on the tray by hand (``cases.differential_drive``): the body-frame force ``f_b =
     (-drag, -0.4 drag, -payload g)`` and couple ``(0, 0, 0.1 drag)`` at ``r_b = (-0.15, 0.05, 2 r)`` from the chassis
-    origin P. The point moves with ``Pdot + hd z x (R r_b)``, so x and y take the horizontal force ``R f_b``, the heading
-    the moment about z ``r_bx f_by - r_by f_bx + 0.1 drag``; the weight does no work (nothing moves vertically), the
-    wheels take nothing."""
+    origin P. The point moves with ``Pdot + hd z x (R r_b)``, so x and y take the horizontal force ``R f_b``, the
+    heading the moment about z ``r_bx f_by - r_by f_bx + 0.1 drag``; the weight does no work (nothing moves vertically),
+    the wheels take nothing."""
     s, c = np.sin(q[2]), np.cos(q[2])
     fx, fy = -drag, -0.4 * drag
     return np.array([c * fx - s * fy, s * fx + c * fy, -0.15 * fy - 0.05 * fx + 0.1 * drag, 0.0, 0.0])
@@ -152,9 +152,9 @@ def drive_load(q, drag, g, payload) -> np.ndarray:
 
 def drive_motion(q, qd, u, tau_ext, m_body, m_wheel, r, track, com_ahead):
     """The differential drive's accelerations and multipliers by hand at an admissible state (``Pdot = v e1``, ``left_d
-    = (v - b w) / r``, ``right_d = (v + b w) / r``, ``w = hd``) under the wheel torques u and the load's ``tau_ext = (F_x,
-    F_y, tau, 0, 0)``: with ``F_along = c F_x + s F_y``, ``F_lat = -s F_x + c F_y`` and lam = (left traction, right
-    traction, axle's lateral force), the forces the ground exerts along e1 at each contact and along e2 at P.
+    = (v - b w) / r``, ``right_d = (v + b w) / r``, ``w = hd``) under the wheel torques u and the load's ``tau_ext =
+    (F_x, F_y, tau, 0, 0)``: with ``F_along = c F_x + s F_y``, ``F_lat = -s F_x + c F_y`` and lam = (left traction,
+    right traction, axle's lateral force), the forces the ground exerts along e1 at each contact and along e2 at P.
 
     Newton-Euler of chassis + wheels. The system's COM is ``d m_body / m`` ahead of P, so its momentum changes along
     e1 and e2 by ``m vdot - m_body d w^2`` and ``m v w + m_body d wdot`` (``Pddot = vdot e1 + v w e2``); its angular
@@ -167,8 +167,9 @@ def drive_motion(q, qd, u, tau_ext, m_body, m_wheel, r, track, com_ahead):
         J wdot + m_body d v w = tau + b (lam_r - lam_l),    I_a (vdot -+ b wdot) / r = u_l,r - r lam_l,r
 
     and eliminating the tractions: ``(m + 2 I_a / r^2) vdot = F_along + m_body d w^2 + (u_l + u_r) / r``, ``(J + 2 b^2
-    I_a / r^2) wdot = tau - m_body d v w + b (u_r - u_l) / r``; ``lam_a = m v w + m_body d wdot - F_lat``. Then ``xdd = c
-    vdot - s v w``, ``ydd = s vdot + c v w``, ``hdd = wdot``, ``spin_dd = (vdot -+ b wdot) / r``. Returns (qdd, lam)."""
+    I_a / r^2) wdot = tau - m_body d v w + b (u_r - u_l) / r``; ``lam_a = m v w + m_body d wdot - F_lat``. Then ``xdd =
+    c vdot - s v w``, ``ydd = s vdot + c v w``, ``hdd = wdot``, ``spin_dd = (vdot -+ b wdot) / r``. Returns (qdd,
+    lam)."""
     s, c = np.sin(q[2]), np.cos(q[2])
     b, d = track / 2.0, com_ahead
     m, md, Ia = m_body + 2.0 * m_wheel, m_body * com_ahead, m_wheel * r**2 / 2.0

@@ -24,8 +24,8 @@ public API, the charts and the linearization here):
   in the Newton–Euler pass: ``h`` is then ``C qd + g - tau_ext`` (so :func:`bias_forces` of a loaded model includes
   ``-tau_ext``), and the drift (eq. 14) carries them;
 * the constrained solve by the range-space method: ``lam = S^+ (-Jcdot qd - Jc M^-1 f)``, ``qdd = M^-1 (f + Jc^T
-  lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``crosscheck.guards.conditioning.redundant_below`` dropped
-  (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
+  lam)`` with ``S = Jc M^-1 Jc^T``, eigenvalues of S at or below ``crosscheck.guards.conditioning.redundant_below``
+  dropped (the minimum-norm multipliers, the backends' rule); ``f = B u - h`` for total and lam, ``-h`` for drift and
   lam_drift (eq. 14), and ``ctrl = B_c B u`` (eq. 17) computed directly.
 
 Group joints (``cases.model``; article 2.1-2.2, 6.2, 6.4). With the joint frame ``(Rj, o)`` (the parent's frame
