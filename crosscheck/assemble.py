@@ -5,7 +5,7 @@ A user's backend (docs/plugins.md) usually has M, C qd and g and solves for the 
 it does not want to write is the bookkeeping the harness reads: the control power, ``cond(M)`` and ``accel_scale``
 (:func:`crosscheck.guards.conditioning.normwise_scales`), and with constraints ``Jc^T lam``, the constraint power, ``Jc
 qd`` and the conditioning of ``S = Jc M^-1 Jc^T`` (:func:`crosscheck.guards.conditioning.constraint_conditions`). These
-helpers add it. The five formalisms do not use them (``tests/test_independence.py``): each computes every number it
+helpers add it. The five formalisms do not use them (``tests/backends/test_independence.py``): each computes every number it
 reports itself, so that a bug here cannot move them together.
 """
 

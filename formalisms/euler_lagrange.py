@@ -71,7 +71,7 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     translation ``sum [phi]x^(k-1) rho / k!``), so every number evaluated at 0 is exact, although ``E_2`` is not a
     rotation away from 0 (the T written with it differs from the true one by ``O(|xi|^2) |xid|^2``). The closed forms
     (Rodrigues, ``V(phi)``) would bring ``sin|xi| / |xi|`` and its removable 0/0 into symbolic differentiation.
-    ``tests/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
+    ``tests/backends/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
   * Caches. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`).
 Velocity representations (:func:`split_chart` with a chart whose ``representation`` is ``"world"`` or ``"mixed"``;
 docs/design.md "Configuration on Lie groups", article 6.2, 6.4). The configuration stays q and the velocity is w with
@@ -446,7 +446,7 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
 # ----------------------------------------------------------------------------------------------------------
 
 #: The truncation order of the exponential series in the local chart: 2 is exact for everything the Euler–Lagrange
-#: equations evaluate at ``xi = 0`` (module docstring, "Group joints"); ``tests/test_group_euler_lagrange.py``
+#: equations evaluate at ``xi = 0`` (module docstring, "Group joints"); ``tests/backends/test_group_euler_lagrange.py``
 #: compares it with orders 3 and 4, and shows that order 1 is wrong.
 EXP_ORDER = 2
 #: The cache key of the chart of the group joints (part of what is derived, so part of :func:`cache_key`).

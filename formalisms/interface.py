@@ -19,7 +19,7 @@ This module holds only what every backend must agree on to be compared at all: t
 :class:`SplitBatch`, :class:`Formalism`, :class:`Chart`), constants (the rule for redundant and degenerate rows),
 validators of the state vectors and exceptions (docs/design.md, "Independence is the product"). Every number a backend
 reports, its power, constraint forces, factorization, rank decision, conditioning and task inertia, it computes
-itself, its own way; ``tests/test_independence.py`` holds the formalisms to the names listed in :data:`__all__`.
+itself, its own way; ``tests/backends/test_independence.py`` holds the formalisms to the names listed in :data:`__all__`.
 The definitions those numbers follow are written out in :class:`Split`'s fields below.
 """
 

@@ -132,7 +132,7 @@ again: ``eps cond(A)^1.5`` was measured. So eq. (22) is evaluated and solved in 
 results are rotated back. What remains is inherent to the recomposition: ``Jdot qd`` has an O(1) component along
 the lost direction while ``J qdd`` there is O(sigma_min(J)), so ``xdd - Jdot qd`` cancels and ``J_bar`` amplifies
 the rounding: a joint error of about ``eps |Jdot qd| sqrt(cond(A) / lambda_max(A))``, the error the breakdown
-limit is calibrated against (tests/test_operational_space.py).
+limit is calibrated against (tests/backends/test_operational_space.py).
 
 Linearization (article 4.8, eq. 11; :func:`linearize`) by forward-mode differentiation of the passes above: ``q`` and
 ``qd`` enter as dual numbers (:class:`_Dual`: a value and its tangents along all ``2 nv`` state directions at once,

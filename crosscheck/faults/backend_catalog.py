@@ -5,7 +5,7 @@ Every entry changes its backend's output at some state of the default gate, and 
 entries with a ``gap`` note: realistic faults the gate misses, kept to document its blind spots (the note says
 why, and which check would catch them; none at present: the last two, joint reactions at the wrong acceleration and
 an uninverted task-space inertia, are caught since the gate compares ``joint_wrenches`` and ``task_inertia``);
-``tests/test_faults.py`` checks all of this. A replacement is built from the original: most wrap it and alter an
+``tests/faults/test_faults.py`` checks all of this. A replacement is built from the original: most wrap it and alter an
 argument or the result, so the fault is exactly the bug described.
 """
 

@@ -10,7 +10,7 @@ invariance checks, the conditions audit (``crosscheck.guards.conditioning``), th
 (``crosscheck.guards.coverage``) and the self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such
 bugs, each with the guard expected to catch it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug,
 cheapest first (the self-test, building the cases, their coverage, then the states round robin, as
-``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/test_common_mode.py`` checks that every
+``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/faults/test_common_mode.py`` checks that every
 entry is caught, and by its guard.
 
 A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at

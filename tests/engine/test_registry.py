@@ -16,7 +16,7 @@ from crosscheck.engine.run import run_gate
 from crosscheck.reports.gate_summary import render
 from crosscheck.core.sampling import sample_states
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ALL = [backends.get(name) for name in backends.names()]
 QUICK = Checks(charts=False, frames=0, conservation=False, linearization=False)
 REASON = "Christoffel term dropped on purpose in this test"

@@ -30,7 +30,7 @@ from crosscheck.needs import PinocchioScene, SourceScene
 
 #: A state of the chain (revolute, continuous, prismatic): q, qd, u.
 STATE = ([0.3, -0.7, 0.05], [1.0, -2.0, 0.3], [0.5, -0.2, 0.1])
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MUJOCO, DAMPED = "examples/mujoco_plugin.py:MUJOCO", "examples/mujoco_plugin.py:DAMPING_LEFT_ON"
 
 INERTIA = 'ixx="0.02" ixy="0.001" ixz="-0.002" iyy="0.03" iyz="0.0015" izz="0.025"'

@@ -25,7 +25,7 @@ import pytest
 
 import formalisms
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE_DIR = ROOT / "formalisms"
 SHARED = {"formalisms/__init__.py", "formalisms/interface.py"}
 
@@ -39,7 +39,7 @@ INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported",
              "joint_vectors", "with_block_form",
              "cache_dir", "write_cache_file",  # disk-cache plumbing: where a backend keeps its derivations, no numerics
              # the linearization's type and its kinematic rows: the group convention (no dynamics), held against the
-             # flow of cases.configuration.integrate by tests/test_linearize.py, outside the vote
+             # flow of cases.configuration.integrate by tests/checks/test_linearize.py, outside the vote
              "Linearization", "state_space", "tangent_kinematics"}
 # roots that are never allowed (named for a clear message; the allow-list would refuse them anyway)
 FORBIDDEN = {"pinocchio": "the external reference (Pinocchio) is kept apart from the five formalisms",

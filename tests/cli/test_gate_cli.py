@@ -50,7 +50,7 @@ def test_gate_passes_and_is_reproducible(tmp_path):
 def test_workers_give_the_same_report_with_the_cases_in_order(tmp_path, monkeypatch):
     """Cases in two spawned processes (the larger model, n_link_pendulum, starts first): the report of one process,
     timings apart, cases in the order given. ``--workers`` means what it means in every command: 0 runs in this
-    process, N in N worker processes (``tests/test_outputs.py``)."""
+    process, N in N worker processes (``tests/reports/test_outputs.py``)."""
     pooled, real = [], pool.in_pool
     monkeypatch.setattr(pool, "in_pool", lambda *args: pooled.append(args[7]) or real(*args))
     args = ("--case", "double_pendulum", "--case", "n_link_pendulum", "--samples", "4", "--seed", "2")

@@ -21,7 +21,7 @@ import pytest
 
 from crosscheck.cli import build_parser, main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 #: The README's two examples: run in full (each ~10 s), as written, in a scratch copy of the files they read.

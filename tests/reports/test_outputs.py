@@ -17,7 +17,7 @@ from crosscheck.campaigns.fuzz import settings
 from crosscheck.cli import trajectory_cli
 from crosscheck.reports import gate_summary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _subcommands() -> dict[str, argparse.ArgumentParser]:

@@ -124,7 +124,7 @@ def test_3d_cases_see_a_relative_1e_10_error_in_m_c_qd_and_g(case):
     tolerance at some of the default gate's first 40 states (made from the exact relations between the answers, as
     the self-test canaries are). 40 states: the error in C qd shows at only 16 of the Panda's first 99 states (within
     its joint limits; 23 of 99 on spatial_arm), so 40 miss it with probability 0.84^40 < 1e-3 (20 with 3 %: the
-    Panda's first 20 within its limits do; tests/test_sensitivity.py, STATES)."""
+    Panda's first 20 within its limits do; tests/faults/test_sensitivity.py, STATES)."""
     from crosscheck.guards import selftest
     from crosscheck.core.sampling import sample_states
 
@@ -169,7 +169,7 @@ def test_the_multiplier_tolerance_covers_a_short_row_times_the_free_acceleration
     assert not outcome.failed, [k for k, c in outcome.comparisons.items() if c.verdict == DISAGREE]
 
 
-CONSTRAINT_SOLVE_FINDINGS = sorted((Path(__file__).parent / "findings").glob("*.json"))
+CONSTRAINT_SOLVE_FINDINGS = sorted((Path(__file__).parents[1] / "findings").glob("*.json"))
 
 
 @pytest.mark.parametrize("path", CONSTRAINT_SOLVE_FINDINGS, ids=lambda p: p.stem)

@@ -381,7 +381,7 @@ def test_singular_mass_matrix_names_model_and_eigenvalues():
 
 
 def test_unknown_constraint_declaration_is_rejected():
-    """Constrained models are handled (tests/test_constrained_newton_euler.py); a declaration that is none of
+    """Constrained models are handled (tests/backends/test_constrained_newton_euler.py); a declaration that is none of
     ``cases.constraints`` is a TypeError naming the known ones."""
     model = dataclasses.replace(double_pendulum(), constraints=("placeholder",))
     with pytest.raises(TypeError, match="does not know the constraint declaration 'placeholder'.*PointOnCircle"):

@@ -3,7 +3,7 @@
 and ``examples/slurm/merge.sh``.
 
 Their own shell scripts run here, as written, for two shards of one example each and then their merge; the merged
-report must be that of the unsharded run with the same seed (``tests/test_fuzz.py`` proves the same of
+report must be that of the unsharded run with the same seed (``tests/campaigns/test_fuzz.py`` proves the same of
 ``crosscheck.campaigns.fuzz.runs.merge`` itself). ``crosscheck`` is this checkout's command line, put on PATH as the workflow's install step
 and the Slurm scripts' virtual environment put it. The shards run in-process (WORKERS=0; worker processes give the
 same chunks, ``test_fuzz.py``), and OPTIONS keeps the drawn models small. The workflow is read without a YAML
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 WORKFLOW = ROOT / ".github" / "workflows" / "fuzz-campaign.yml"
 SLURM_FUZZ = ROOT / "examples" / "slurm" / "fuzz.sh"
 SLURM_MERGE = ROOT / "examples" / "slurm" / "merge.sh"

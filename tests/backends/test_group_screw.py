@@ -38,7 +38,7 @@ from formalisms.screw import kinematics, lie
 GROUP_CASES = ("free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm")
 #: Allowed difference from the reference, relative to the field's scale (:func:`scales`); measured: below 1e-13.
 RTOL = 1e-9
-#: Allowed difference of a batch row from ``split``, in units of ``cond(M) accel_scale`` (tests/test_split_batch.py).
+#: Allowed difference of a batch row from ``split``, in units of ``cond(M) accel_scale`` (tests/backends/test_split_batch.py).
 BATCH_RTOL = 100 * np.finfo(float).eps
 
 EPS = np.finfo(float).eps

@@ -99,7 +99,7 @@ def test_the_state_carried_into_the_chart_rounds_the_power():
 
     from crosscheck.campaigns.fuzz import replay
 
-    finding = json.loads((Path(__file__).parent / "findings" / "charts" / "3a211f395087.json").read_text())
+    finding = json.loads((Path(__file__).parents[1] / "findings" / "charts" / "3a211f395087.json").read_text())
     outcome = replay.replay(finding)
     power = outcome.checks["chart zyx: power_ctrl"]
     assert not outcome.failed and 0.0 < power.worst_ratio < 1e-2, power

@@ -1,7 +1,7 @@
 """The geometric backend's compiled evaluation (formalisms/geometric.py, "Compiled evaluation").
 
 * The C compiled from a Function gives what casadi's interpreter gives, to ``100 eps cond(M)`` of the scale of each
-  quantity (the bound of tests/test_split_batch.py on two correct solves of one problem), on a fixed base, a
+  quantity (the bound of tests/backends/test_split_batch.py on two correct solves of one problem), on a fixed base, a
   constrained mechanism, group joints (free and ball), a chart and a chart of the group; single states and batches.
 * Without a compiler, with ``CROSSCHECK_COMPILE=0``, when the compiler fails, or for an operation without a C form,
   the Function stays interpreted and says why.

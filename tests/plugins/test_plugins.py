@@ -28,7 +28,7 @@ from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
 from formalisms.interface import Unsupported
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "closed_form_plugin"
 GOOD, BUGGY = "closed_form_pendulum:CLOSED_FORM", "closed_form_pendulum:SIGN_ERROR"
 DP_STATE = ["--q=0.7853981633974483,0.5235987755982988", "--qd=2,-1", "--u=5,-2"]

@@ -9,7 +9,7 @@ References written independently of the backend:
   ``pdd = Dpsi^-1 (qdd - (d/dt Dpsi) pd)``) for chart invariance;
 * classical identities: symmetry of the connection in its lower indices, ``Mdot - 2C`` skew-symmetric, energy
   balance ``dE/dt = tau . qd`` (section 9), central differences of the metric.
-Agreement with Pinocchio is tests/test_against_pinocchio.py (it iterates every registered formalism).
+Agreement with Pinocchio is tests/references/test_against_pinocchio.py (it iterates every registered formalism).
 """
 
 from __future__ import annotations

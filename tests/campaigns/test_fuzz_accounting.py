@@ -1,5 +1,5 @@
 """A fuzz campaign's accounting of its examples (asked, generated, and why fewer) and its findings grouped by
-signature (issue 20, item 6), on hand-written chunk logs and findings; ``tests/test_fuzz.py`` checks both on a real
+signature (issue 20, item 6), on hand-written chunk logs and findings; ``tests/campaigns/test_fuzz.py`` checks both on a real
 campaign."""
 
 from __future__ import annotations
