@@ -12,7 +12,8 @@ from crosscheck import backends
 from crosscheck.checks import charts
 from crosscheck.engine import evaluation
 from crosscheck.campaigns import stability
-from crosscheck.cli import build_parser, cmd_stability
+from crosscheck.cli import build_parser
+from crosscheck.cli.stability import cmd_stability
 
 
 @pytest.fixture(scope="module")
