@@ -54,7 +54,7 @@ signal.signal(signal.SIGINT, signal.default_int_handler)
 
 @pytest.fixture(scope="session", autouse=True)
 def single_threaded_blas():
-    """One BLAS thread, as the command line runs (``crosscheck.cli.BLAS_THREADS``): the matrices are tiny."""
+    """One BLAS thread, as the command line runs (``crosscheck.cli.options.BLAS_THREADS``): the matrices are tiny."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):

@@ -13,7 +13,8 @@ from crosscheck.checks import charts
 from crosscheck.engine import evaluation
 from crosscheck.campaigns import stability
 from crosscheck.reports import stability_report
-from crosscheck.cli import build_parser, cmd_stability
+from crosscheck.cli import build_parser
+from crosscheck.cli.stability import cmd_stability
 
 
 @pytest.fixture(scope="module")

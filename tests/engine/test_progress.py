@@ -75,7 +75,7 @@ def test_quiet_silences_the_gates_progress(tmp_path, capsys):
 def interrupt_at(monkeypatch):
     """Ctrl-C at the progress step of a case about to evaluate state k + 1 (after k states)."""
     def arm(case: str, k: int) -> None:
-        real = cli._gate_progress
+        real = cli.gate._gate_progress
 
         def interrupting(display):
             inner = real(display)
@@ -87,7 +87,7 @@ def interrupt_at(monkeypatch):
 
             return progress
 
-        monkeypatch.setattr(cli, "_gate_progress", interrupting)
+        monkeypatch.setattr(cli.gate, "_gate_progress", interrupting)
     return arm
 
 

@@ -112,7 +112,7 @@ def test_constrained_drawn_states_are_admissible(data):
     phi, Jc, _ = kinematics.constraint_kinematics(model, state.q, state.qd)
     scale = model.length_scale ** 2
     assert np.abs(phi).max() <= sampling.PHI_TOL * scale
-    assert np.abs(Jc @ np.array(state.qd)).max() <= cli.ADMISSIBLE * scale * (1.0 + np.abs(state.qd).sum())
+    assert np.abs(Jc @ np.array(state.qd)).max() <= cli.eval.ADMISSIBLE * scale * (1.0 + np.abs(state.qd).sum())
 
 
 def test_constraints_of_every_type_are_drawn():

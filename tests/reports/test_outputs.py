@@ -14,7 +14,7 @@ import pytest
 
 from crosscheck import cli
 from crosscheck.campaigns.fuzz import settings
-from crosscheck.cli import trajectory_cli
+from crosscheck.cli import options
 from crosscheck.reports import gate_summary
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,21 +53,21 @@ def test_no_default_output_is_under_reports():
     assert set(defaults) == {"gate --report", "faults --report", "fuzz --out", "replay --dir", "bench --out",
                              "stability --out", "trajectory --report"}
     for option, default in defaults.items():
-        assert Path(default).parts[0] == cli.OUTPUT_DIR and cli.REPORTS_DIR not in Path(default).parts, option
-    assert settings.DEFAULT_DIR == cli.DEFAULT_FUZZ_DIR == _option(_subcommands()["replay"], "dir").default
-    assert f"{cli.OUTPUT_DIR}/" in (ROOT / ".gitignore").read_text().splitlines()
+        assert Path(default).parts[0] == options.OUTPUT_DIR and options.REPORTS_DIR not in Path(default).parts, option
+    assert settings.DEFAULT_DIR == cli.fuzz.DEFAULT_FUZZ_DIR == _option(_subcommands()["replay"], "dir").default
+    assert f"{options.OUTPUT_DIR}/" in (ROOT / ".gitignore").read_text().splitlines()
 
 
 @pytest.fixture
 def in_a_checkout(tmp_path, monkeypatch):
     """A current directory with a reports/ directory, as the repository's root has."""
-    (tmp_path / cli.REPORTS_DIR).mkdir()
+    (tmp_path / options.REPORTS_DIR).mkdir()
     monkeypatch.chdir(tmp_path)
 
 
 def test_the_reports_command_runs_each_report_command_into_reports(in_a_checkout, monkeypatch, capsys):
-    """``crosscheck reports`` runs the commands of ``cli.REPORTS`` as they are (so a report names the command that
-    regenerates it), each writing into reports/; ``--only`` picks some, in the order given."""
+    """``crosscheck reports`` runs the commands of ``cli.reports.REPORTS`` as they are (so a report names the command
+    that regenerates it), each writing into reports/; ``--only`` picks some, in the order given."""
     ran = []
 
     def fake(args) -> int:
@@ -75,9 +75,8 @@ def test_the_reports_command_runs_each_report_command_into_reports(in_a_checkout
         ran.append((args.command, str(target), getattr(args, "scale", False), " ".join(args.argv)))
         return 0
 
-    for name in ("cmd_gate", "cmd_faults", "cmd_bench", "cmd_stability"):
-        monkeypatch.setattr(cli, name, fake)
-    monkeypatch.setattr(trajectory_cli, "cmd_trajectory", fake)
+    for name in ("gate", "faults", "bench", "stability", "trajectory"):   # each module's parser reads its cmd_NAME
+        monkeypatch.setattr(getattr(cli, name), f"cmd_{name}", fake)
     assert cli.main(["reports", "--quiet"]) == 0
     assert [r[0] for r in ran] == ["gate", "faults", "bench", "stability", "bench", "trajectory"]
     assert [r[1] for r in ran] == ["reports/gate.md", "reports/faults.md", "reports", "reports", "reports", "reports"]
@@ -89,22 +88,22 @@ def test_the_reports_command_runs_each_report_command_into_reports(in_a_checkout
 
 
 def test_the_reports_command_passes_failures_on_and_stops_at_ctrl_c(in_a_checkout, monkeypatch, capsys):
-    codes = {"gate": 1, "faults": cli.INTERRUPTED}
-    for name in ("gate", "faults"):
-        monkeypatch.setattr(cli, f"cmd_{name}", lambda args: codes[args.command])
-    monkeypatch.setattr(cli, "cmd_stability", lambda args: pytest.fail("ran after Ctrl-C"))
+    codes = {"gate": 1, "faults": options.INTERRUPTED}
+    monkeypatch.setattr(cli.gate, "cmd_gate", lambda args: codes[args.command])
+    monkeypatch.setattr(cli.faults, "cmd_faults", lambda args: codes[args.command])
+    monkeypatch.setattr(cli.stability, "cmd_stability", lambda args: pytest.fail("ran after Ctrl-C"))
     assert cli.main(["reports", "--only", "gate"]) == 1
     assert "exit non-zero: gate" in capsys.readouterr().out
-    assert cli.main(["reports", "--only", "faults,stability"]) == cli.INTERRUPTED
+    assert cli.main(["reports", "--only", "faults,stability"]) == options.INTERRUPTED
     assert "interrupted while regenerating faults; not run: stability" in capsys.readouterr().err
 
 
 def test_the_reports_command_runs_where_the_reports_are(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(cli, "cmd_gate", lambda args: pytest.fail("ran outside a checkout"))
+    monkeypatch.setattr(cli.gate, "cmd_gate", lambda args: pytest.fail("ran outside a checkout"))
     assert cli.main(["reports", "--only", "gate"]) == 2
     assert "there is no reports/ directory here" in capsys.readouterr().err
-    assert not (tmp_path / cli.REPORTS_DIR).exists()
+    assert not (tmp_path / options.REPORTS_DIR).exists()
 
 
 @pytest.mark.parametrize("only", ["gate,nope", ",", "reports"])
@@ -152,8 +151,8 @@ def test_a_failing_gate_report_leads_with_the_failures(tmp_path, dropped_corioli
 
 
 def test_every_workers_option_has_one_meaning_and_one_default():
-    """Each ``--workers`` (gate, fuzz, faults, trajectory --report) is ``cli.add_workers_option``'s: default None, resolved by
-    ``cli.workers``, and the same help."""
+    """Each ``--workers`` (gate, fuzz, faults, trajectory --report) is ``options.add_workers_option``'s: default
+    None, resolved by ``options.workers``, and the same help."""
     found = {name: _option(parser, "workers") for name, parser in _subcommands().items()}
     found = {name: action for name, action in found.items() if action is not None}
     assert set(found) == {"gate", "fuzz", "faults", "trajectory"}
@@ -165,15 +164,15 @@ def test_every_workers_option_has_one_meaning_and_one_default():
 
 def test_workers_resolves_the_same_way_everywhere():
     cpus = os.cpu_count() or 1
-    assert cli.workers(None, 1) == 0                       # one case, one chunk: a pool would only add start-up
-    assert cli.workers(None, 21) == min(cpus, 21)
-    assert cli.workers(None, math.inf) == cpus
-    assert cli.workers(0, 21) == 0
-    assert cli.workers(1, 1) == 1                          # asked for a worker process: one, also for one case
-    assert cli.workers(2, 1) == 1                          # never more processes than units of work
-    for bad in (-1, cli.WORKERS_PER_CPU * cpus + 1):
-        with pytest.raises(cli.UsageError, match=r"--workers takes 0 to \d+ \(2 per CPU\) processes"):
-            cli.workers(bad, 5)
+    assert options.workers(None, 1) == 0                   # one case, one chunk: a pool would only add start-up
+    assert options.workers(None, 21) == min(cpus, 21)
+    assert options.workers(None, math.inf) == cpus
+    assert options.workers(0, 21) == 0
+    assert options.workers(1, 1) == 1                      # asked for a worker process: one, also for one case
+    assert options.workers(2, 1) == 1                      # never more processes than units of work
+    for bad in (-1, options.WORKERS_PER_CPU * cpus + 1):
+        with pytest.raises(options.UsageError, match=r"--workers takes 0 to \d+ \(2 per CPU\) processes"):
+            options.workers(bad, 5)
 
 
 def test_gate_workers_1_is_one_worker_process(monkeypatch, tmp_path):
@@ -214,10 +213,10 @@ def test_faults_in_worker_processes_give_the_same_report(tmp_path, capsys):
 
 def test_fuzz_workers_share_out_the_chunks_of_its_shard():
     parse = cli.build_parser().parse_args
-    assert cli._fuzz_chunks(parse(["fuzz"])) == 10                      # 100 examples in chunks of 10
-    assert cli._fuzz_chunks(parse(["fuzz", "--examples", "25", "--shard", "1/2"])) == 1   # chunks 0, 1, 2: only 1
-    assert cli._fuzz_chunks(parse(["fuzz", "--examples", "5"])) == 1
-    assert cli._fuzz_chunks(parse(["fuzz", "--minutes", "1"])) == math.inf
+    assert cli.fuzz._fuzz_chunks(parse(["fuzz"])) == 10                  # 100 examples in chunks of 10
+    assert cli.fuzz._fuzz_chunks(parse(["fuzz", "--examples", "25", "--shard", "1/2"])) == 1  # chunks 0, 1, 2: only 1
+    assert cli.fuzz._fuzz_chunks(parse(["fuzz", "--examples", "5"])) == 1
+    assert cli.fuzz._fuzz_chunks(parse(["fuzz", "--minutes", "1"])) == math.inf
 
 
 def test_trajectory_workers_apply_to_the_report(capsys):

@@ -1,6 +1,6 @@
-"""``crosscheck trajectory``: forward ZTCF trajectories of one case per backend (crosscheck/trajectory.py), or the
-report (``--report [DIR]``: DIR/trajectories.md and its charts, crosscheck/trajectory_report.py; DIR defaults to the
-output directory, ``crosscheck-out``; ``crosscheck reports`` writes the committed one in reports/).
+"""``crosscheck trajectory``: forward ZTCF trajectories of one case per backend (crosscheck/campaigns/trajectory.py),
+or the report (``--report [DIR]``: DIR/trajectories.md and its charts, crosscheck/reports/trajectory_report.py; DIR
+defaults to the output directory, ``crosscheck-out``; ``crosscheck reports`` writes the committed one in reports/).
 
 Exit codes: 0 every backend inside the envelope, 1 a backend outside it (named), 2 bad input (one line).
 """
@@ -10,17 +10,25 @@ from __future__ import annotations
 import json
 import math
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
+
+import cases
+from crosscheck.campaigns import trajectory as T
+from crosscheck.cli.options import OUTPUT_DIR, add_workers_option, workers
+from crosscheck.core.sampling import project_configuration, project_velocity
+from crosscheck.reports import trajectory_report
+import formalisms
 
 OUTPUT_INTERVAL = 0.05
 
 
-def add_parser(sub, parser_class, out: str, add_workers_option) -> None:
-    """The ``trajectory`` subcommand on ``sub``; ``out`` the default ``--report`` directory, ``add_workers_option``
-    the command line's ``--workers`` (one meaning in every command)."""
+def add_parser(sub) -> None:
+    """The ``trajectory`` subcommand on ``sub``."""
     tr = sub.add_parser("trajectory", help="forward ZTCF trajectories per backend against a 50-digit reference "
-                        f"(--report: {out}/trajectories.md)")
+                        f"(--report: {OUTPUT_DIR}/trajectories.md)")
     tr.add_argument("--case", help="a built-in case (crosscheck cases), revolute and prismatic joints only")
     tr.add_argument("--q", help="start configuration, comma-separated (default 0.3 per joint, projected onto the "
                     "constraints)")
@@ -32,8 +40,8 @@ def add_parser(sub, parser_class, out: str, add_workers_option) -> None:
                     help="backend to integrate (repeatable; default the five formalisms and pinocchio)")
     tr.add_argument("--project", default="none", help="none | project | baumgarte (constrained cases)")
     tr.add_argument("--json", action="store_true", help="print the table as JSON")
-    tr.add_argument("--report", nargs="?", const=out, metavar="DIR",
-                    help=f"write DIR/trajectories.md and its charts (default DIR: {out})")
+    tr.add_argument("--report", nargs="?", const=OUTPUT_DIR, metavar="DIR",
+                    help=f"write DIR/trajectories.md and its charts (default DIR: {OUTPUT_DIR})")
     add_workers_option(tr, "job of --report")
     tr.set_defaults(run=cmd_trajectory)
 
@@ -57,8 +65,6 @@ def _numbers(text: str, n: int, label: str) -> np.ndarray:
 
 def start_state(model, q_text: str | None, v_text: str | None):
     """The start state: given or the defaults (module doc of the parser); constrained states made admissible."""
-    from crosscheck.core.sampling import project_configuration, project_velocity
-
     q = _numbers(q_text, model.n, "q") if q_text else np.full(model.n, 0.3)
     v = _numbers(v_text, model.nv, "v") if v_text else np.zeros(model.nv)
     if model.constraints:
@@ -68,18 +74,7 @@ def start_state(model, q_text: str | None, v_text: str | None):
 
 
 def cmd_trajectory(args) -> int:
-    import cases
-    from crosscheck.campaigns import trajectory as T
-
     if args.report is not None:
-        from pathlib import Path
-
-        from crosscheck.reports import trajectory_report
-
-        from dataclasses import replace
-
-        from crosscheck.cli import workers
-
         settings = replace(trajectory_report.Settings(), workers=workers(args.workers, math.inf))
         path = trajectory_report.write(Path(args.report), settings)
         print(f"wrote {path}")
@@ -99,7 +94,6 @@ def cmd_trajectory(args) -> int:
             raise ValueError(f"unknown integrator '{args.integrator}'; valid: {', '.join(T.INTEGRATORS)}")
         if args.project not in T.PROJECTIONS:
             raise ValueError(f"unknown projection '{args.project}'; valid: {', '.join(T.PROJECTIONS)}")
-        import formalisms
         names = args.formalism or [*formalisms.names(), T.PINOCCHIO]
         for name in names:
             if name != T.PINOCCHIO and name not in formalisms.names():
