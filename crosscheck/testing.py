@@ -34,11 +34,11 @@ from hypothesis import assume
 from hypothesis import strategies as st
 
 from cases import constraints as decl, loads as load_decl
-from cases.model import JOINT_DOF, Body, Model, TaskPoint
 from cases.build import build_model
+from cases.model import JOINT_DOF, Body, Model, TaskPoint
 from crosscheck import backends as backend_registry
 from crosscheck.checks import charts as chart_catalog, frames as frame_tools
-from crosscheck.core import sampling, tolerance as policy
+from crosscheck.core import sampling, tolerance
 from crosscheck.core.compare import DISAGREE, compare, Comparison
 from crosscheck.engine import evaluation
 from crosscheck.engine.outcomes import StateOutcome
@@ -514,13 +514,13 @@ def assert_split_close(a: Split, b: Split, model: Model, q, qd, names: tuple[str
         >>> a = formalisms.get("newton_euler").split(model, q, qd, u)
         >>> testing.assert_split_close(a, my_split(model, q, qd, u), model, q, qd, names=("newton_euler", "mine"))
     """
-    at = policy.scales([a, b], model, np.asarray(q, dtype=float), np.asarray(qd, dtype=float), u=u)
+    at = tolerance.scales([a, b], model, np.asarray(q, dtype=float), np.asarray(qd, dtype=float), u=u)
     bad = []
-    for quantity in policy.quantities(model):
+    for quantity in tolerance.quantities(model):
         values = {names[0]: a.quantity(quantity), names[1]: b.quantity(quantity)}
-        if quantity in policy.EXACT:
-            values["exact"] = policy.EXACT[quantity]
-        c = compare(quantity, values, policy.tolerance(quantity, at))
+        if quantity in tolerance.EXACT:
+            values["exact"] = tolerance.EXACT[quantity]
+        c = compare(quantity, values, tolerance.tolerance(quantity, at))
         if c.verdict == DISAGREE:
             bad += describe_comparison(quantity, c)
     if bad:

@@ -36,7 +36,7 @@ import cases
 from cases.model import Model
 from cases.representation import general_3d
 from crosscheck import backends
-from crosscheck.core import sampling, tolerance as policy
+from crosscheck.core import sampling, tolerance
 from crosscheck.engine import progress
 from crosscheck.references import precise
 from crosscheck.references.pinocchio import build
@@ -210,8 +210,8 @@ def errors(formalism, model: Model, Q, QD, U, exact: Sequence[precise.PreciseSpl
     flagged = 0
     for q, qd, u, ref in zip(Q, QD, U, exact):
         s = formalism.split(model, q, qd, u)
-        broken = policy.breakdown(s)
-        skip = set(found) if broken and policy.whole(broken) else policy.left_out(broken) & set(found)
+        broken = tolerance.breakdown(s)
+        skip = set(found) if broken and tolerance.whole(broken) else tolerance.left_out(broken) & set(found)
         flagged += bool(skip)
         for name in set(found) - skip:
             found[name].append(precise.relative_error(getattr(s, name), getattr(ref, name)))

@@ -37,14 +37,14 @@ from typing import Mapping
 import numpy as np
 
 from cases.model import Model
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
 from crosscheck.references.pinocchio.kinematics import centroidal_momentum_map
 from formalisms import euler_lagrange, geometric
 from formalisms.interface import Split
 
-EPS = policy.EPS
+EPS = tolerance.EPS
 FACTOR = 100.0
 
 
@@ -84,18 +84,18 @@ def _external_power(model: Model, split: Split) -> float:
 
 
 def checks(model: Model, state: State, splits: Mapping[str, Split],
-           at: policy.Scales | None = None) -> dict[str, Comparison]:
+           at: tolerance.Scales | None = None) -> dict[str, Comparison]:
     """Energy-rate, Christoffel and momentum checks at ``state`` for the (trusted) ``splits``; ``at``: their
     ``tolerance.scales`` at the state when the caller has them (computed here otherwise)."""
     q, qd = np.array(state.q), np.array(state.qd)
     if at is None:
-        at = policy.scales(splits.values(), model, q, qd, u=state.u)
+        at = tolerance.scales(splits.values(), model, q, qd, u=state.u)
     M = geometric.metric(model, q)
     force = at.accel_scale * np.linalg.norm(M, 2) / at.cond_M       # H = accel_scale * lambda_min(M)
     at_drift, at_total, tol = _energy_rates(model, q, qd, splits, force, at.cond_M)
     # an acceleration the comparison accepts (within the drift tolerance) changes dE/dt = qd . (M qdd + ...) by up
     # to |M qd| . (that tolerance): the operational-space recomposition uses that room (a fuzz finding, 8x)
-    tol = max(tol, float(np.sum(np.abs(M @ qd) * policy.tolerance("drift", at))))
+    tol = max(tol, float(np.sum(np.abs(M @ qd) * tolerance.tolerance("drift", at))))
     out = {"conservation: energy rate at drift": compare("dE/dt", {**at_drift, "exact": 0.0}, tol),
            "conservation: energy rate at total - power": compare("dE/dt - P", {**at_total, "exact": 0.0}, tol)}
     out.update(_christoffel(model, q, qd, splits, at, M, force))
@@ -103,7 +103,7 @@ def checks(model: Model, state: State, splits: Mapping[str, Split],
     return out
 
 
-def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: policy.Scales, M: np.ndarray,
+def _christoffel(model: Model, q, qd, splits: Mapping[str, Split], at: tolerance.Scales, M: np.ndarray,
                  force: float) -> dict[str, Comparison]:
     """The skew-symmetry of ``Mdot - 2C`` and ``C qd`` three ways. Pinocchio's ``C qd`` is ``RNEA(q, qd, 0) - g``,
     so its rounding is that of the forces summed (``force`` = H, gravity included), times cond(M) for the
@@ -158,7 +158,7 @@ def _momentum_rows(model: Model, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
-                    at: policy.Scales | None = None) -> dict[str, Comparison]:
+                    at: tolerance.Scales | None = None) -> dict[str, Comparison]:
     """The momentum law of the model's roots under each backend's drift (module doc, "Momentum"); empty when no
     law applies."""
     q, qd = np.array(state.q), np.array(state.qd)
@@ -168,12 +168,12 @@ def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
         return {}
     R, exact = rows
     if at is None:
-        at = policy.scales(splits.values(), model, q, qd, u=state.u)
+        at = tolerance.scales(splits.values(), model, q, qd, u=state.u)
     Q, bias = R @ A, R @ b
     rates = {name: Q @ s.drift + bias if np.all(np.isfinite(s.drift)) else np.full(len(exact), np.nan)
              for name, s in splits.items()}
     size = np.max([np.abs(Q) @ np.abs(s.drift) for s in splits.values() if np.all(np.isfinite(s.drift))]
                   + [np.zeros(len(exact))], axis=0)
-    tol = (np.abs(Q) @ np.broadcast_to(policy.tolerance("drift", at), (model.nv,))
+    tol = (np.abs(Q) @ np.broadcast_to(tolerance.tolerance("drift", at), (model.nv,))
            + FACTOR * EPS * (size + np.abs(bias) + np.abs(exact) + np.abs(R) @ np.abs(b)))
     return {"conservation: momentum rate at drift (Noether)": compare("dh/dt", {**rates, "exact": exact}, tol)}

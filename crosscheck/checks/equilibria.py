@@ -38,7 +38,7 @@ import scipy.linalg
 import cases
 from cases.model import Model
 from crosscheck.checks import linearization
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
 from crosscheck.references import precise
@@ -117,7 +117,7 @@ def _kappa(A: np.ndarray, count: int) -> float:
     return float(np.max(1.0 / np.maximum(dots, np.finfo(float).tiny)))
 
 
-def _bound(model: Model, state: State, values: dict[str, Linearization], at: policy.Scales, count: int) -> float:
+def _bound(model: Model, state: State, values: dict[str, Linearization], at: tolerance.Scales, count: int) -> float:
     """``kappa ||dA||`` (module doc) with ``||dA||`` the ``dvdot/dq`` block's tolerance summed along a row."""
     blocks = {name: linearization.blocks(model, lin)["dvdot/dq"] for name, lin in values.items()}
     tol = linearization.tolerances(model, state, blocks, "dvdot/dq", at).reshape(model.nv, model.nv)
@@ -149,7 +149,7 @@ def checks(equilibrium: Equilibrium, params: dict, model: Model, backends: Seque
         return {}, errors
     if model.constraints:                        # the 50-digit reference votes where Pinocchio's derivatives do not
         found["exact"] = precise.linearize(model, q, zero_v, zero_u)
-    at = policy.scales(splits.values(), model, q, zero_v, u=zero_u)
+    at = tolerance.scales(splits.values(), model, q, zero_v, u=zero_u)
     exact = equilibrium.eigenvalues(params)
     count = len(exact)
     tol = _bound(model, state, found, at, count)

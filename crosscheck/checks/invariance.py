@@ -28,12 +28,12 @@ import numpy as np
 
 from cases.model import Model
 from crosscheck.checks import charts, frames
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
 from formalisms.interface import Formalism, Split, Unsupported
 
-EPS = policy.EPS
+EPS = tolerance.EPS
 
 #: Quantities checked for invariance under a chart change and under a frame change. The joint loads are body-frame
 #: quantities and Lambda is in task coordinates (whose directions turn with a moved scene), so neither depends on
@@ -61,7 +61,7 @@ def _invariant(model: Model) -> tuple[str, ...]:
 
 def _votes(split: Split, quantity: str) -> bool:
     """Whether ``split`` votes on ``quantity`` (not left out by a narrow BREAKDOWN, e.g. non-unique multipliers)."""
-    return quantity not in policy.left_out(policy.breakdown(split))
+    return quantity not in tolerance.left_out(tolerance.breakdown(split))
 
 #: extra name -> how its rows transform under a frame change: the name of the 6x6 map in ``crosscheck.checks.frames``
 #: (looked up when used), or None for a quantity that does not change (body-frame rows).
@@ -127,18 +127,18 @@ class _AtPoint:
         return getattr(self._chart, name)
 
 
-def _tolerance(quantity: str, scales: Sequence[policy.Scales], gains: Sequence):
+def _tolerance(quantity: str, scales: Sequence[tolerance.Scales], gains: Sequence):
     """The largest of the tolerances the contributing scales give (entry by entry where they are per coordinate),
     each carried by its gain: a number, or a matrix (``|Dpsi^-1|``, the map that carried joint-chart accelerations
     into the chart) applied to a per-coordinate tolerance."""
     carried = [g @ t if np.ndim(g) == 2 else g * t
-               for g, t in ((g, policy.tolerance(quantity, s)) for s, g in zip(scales, gains))]
+               for g, t in ((g, tolerance.tolerance(quantity, s)) for s, g in zip(scales, gains))]
     return np.maximum.reduce(np.broadcast_arrays(*carried)) if any(np.ndim(c) for c in carried) else max(carried)
 
 
 def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping[str, Split],
                  backends: Sequence[Formalism], errors: dict[str, str],
-                 joint_scales: policy.Scales | None = None, record: dict | None = None,
+                 joint_scales: tolerance.Scales | None = None, record: dict | None = None,
                  limit: float = charts.GIMBAL_LIMIT) -> dict[str, Comparison]:
     """Chart invariance at ``state``: the chart-capable ``backends`` evaluated in p against every trusted
     joint-chart split in ``joint`` mapped into p. A backend raising is recorded in ``errors``. ``joint_scales``:
@@ -175,11 +175,11 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     inverse = np.linalg.inv(at_p.jacobian(p))
     gain = np.abs(inverse) if joint_scales is None or joint_scales.accel is not None else np.linalg.norm(inverse, 2)
     if joint_scales is None:
-        joint_scales = policy.scales(joint.values(), model, q, qd, u=u)
-    at = [policy.scales(native.values(), model, q, qd, joint_chart=False, u=u), joint_scales]
+        joint_scales = tolerance.scales(joint.values(), model, q, qd, u=u)
+    at = [tolerance.scales(native.values(), model, q, qd, joint_chart=False, u=u), joint_scales]
     out = {}
     done: dict[str, dict] = {name: {} for name in joint}
-    left_out = {name: policy.left_out(policy.breakdown(split)) for name, split in (*joint.items(), *native.items())}
+    left_out = {name: tolerance.left_out(tolerance.breakdown(split)) for name, split in (*joint.items(), *native.items())}
     for quantity in _invariant(model):
         if all(isinstance(split.quantity(quantity), Unsupported) for split in native.values()):
             continue                        # no answer from the chart itself: nothing the joint chart has not
@@ -192,9 +192,9 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
             gains = (covector_gain := float(np.abs(at_p.jacobian(p)).sum(axis=0).max()), covector_gain)
         tol = _tolerance(quantity, at, gains)
         if quantity == "power_ctrl":
-            tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, tau_p))
+            tol = max(tol, tolerance.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, tau_p))
         if quantity == "power_ext":          # as the input's power: pd carries the state's rounding into the chart
-            tol = max(tol, policy.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, _loads_in_chart(
+            tol = max(tol, tolerance.TOLERANCES[quantity][1] * EPS * _transfer(at_p, p, pd, _loads_in_chart(
                 at_p, p, joint)))
         record["tolerances"][quantity] = tol
         out[f"chart {chart.name}: {quantity}"] = compare(quantity, values, tol)
@@ -235,7 +235,7 @@ def _load_scale(model: Model, u: np.ndarray) -> float:
 
 
 def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapping[str, Split],
-                 moved: Mapping[str, Split], original_scales: policy.Scales | None = None,
+                 moved: Mapping[str, Split], original_scales: tolerance.Scales | None = None,
                  moved_model: Model | None = None) -> dict[str, Comparison]:
     """Frame invariance at ``state``: each backend's split of the moved scene (``moved``) against the unmoved
     splits (``original``), for the joint quantities (all backends vote together) and, per backend, for each
@@ -255,9 +255,9 @@ def frame_checks(model: Model, frame: frames.Frame, state: State, original: Mapp
     # exactly 0) but rounds on |t| moved (a fuzz finding): the moved scene's task lever adds |t|.
     reach = 1.0 + float(np.linalg.norm(frame.translation))
     u = np.array(state.u)
-    there = policy.scales([moved[n] for n in both], moved_model, q, qd, u=u)
+    there = tolerance.scales([moved[n] for n in both], moved_model, q, qd, u=u)
     if original_scales is None or len(both) < len(original):
-        original_scales = policy.scales([original[n] for n in both], model, q, qd, u=u)
+        original_scales = tolerance.scales([original[n] for n in both], model, q, qd, u=u)
     at = [original_scales, dataclasses.replace(there, lever=there.lever + reach - 1.0)]
     out = {}
     for quantity in _invariant(model):

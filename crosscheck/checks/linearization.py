@@ -33,7 +33,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from cases.model import Model
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare, Comparison
 from crosscheck.core.sampling import State
 from crosscheck.references import precise
@@ -96,27 +96,27 @@ def linearizations(model: Model, state: State, backends: Sequence[Formalism]
 
 
 def tolerances(model: Model, state: State, values: Mapping[str, np.ndarray], block: str,
-               at: policy.Scales) -> np.ndarray:
+               at: tolerance.Scales) -> np.ndarray:
     """The per-entry tolerance of ``block`` (module doc) for the voters' ``values`` of it."""
     stacked = np.array(list(values.values()), dtype=float)
     cond = at.cond_M * (max(at.cond_S, 1.0) if model.constraints else 1.0)
     if block == "vdot":
-        return np.broadcast_to(policy.tolerance("total", at), (model.nv,))
+        return np.broadcast_to(tolerance.tolerance("total", at), (model.nv,))
     if block == "kinematic rows":                    # entries of v and exact zeros and ones: rounding of |v| at most
-        return np.full(model.nv * (2 * model.nv + model.m), FACTOR * policy.EPS * (float(np.abs(state.qd).max()) + 1.0))
+        return np.full(model.nv * (2 * model.nv + model.m), FACTOR * tolerance.EPS * (float(np.abs(state.qd).max()) + 1.0))
     size = np.abs(stacked).max(axis=(0, 1)) if stacked.size else np.zeros(stacked.shape[-1])
     if block == "dvdot/dq":
         terms = at.accel_scale / tangent_units(model)
     elif block == "dvdot/dv":
         rate = max(float(np.linalg.norm(state.qd)), np.sqrt(at.accel_scale / model.length_scale))
-        terms = np.full(model.nv, at.accel_scale / max(rate, policy.TINY))
+        terms = np.full(model.nv, at.accel_scale / max(rate, tolerance.TINY))
     else:
         terms = at.minv * np.abs(model.input_map).max(axis=0)
-    column = FACTOR * policy.EPS * cond * np.maximum(size + terms, policy.TINY)
+    column = FACTOR * tolerance.EPS * cond * np.maximum(size + terms, tolerance.TINY)
     return np.broadcast_to(column, stacked.shape[1:]).ravel()
 
 
-def checks(model: Model, state: State, backends: Sequence[Formalism], at: policy.Scales
+def checks(model: Model, state: State, backends: Sequence[Formalism], at: tolerance.Scales
            ) -> tuple[dict[str, Comparison], dict[str, str]]:
     """The comparisons of the dynamic blocks of A and B (module doc) at ``state``, and the backends' errors."""
     found, errors, unsupported = linearizations(model, state, backends)
@@ -124,7 +124,7 @@ def checks(model: Model, state: State, backends: Sequence[Formalism], at: policy
 
 
 def compared(model: Model, state: State, found: Mapping[str, Linearization], unsupported: Sequence[str],
-             at: policy.Scales) -> dict[str, Comparison]:
+             at: tolerance.Scales) -> dict[str, Comparison]:
     """The comparison of each block (:data:`BLOCKS`) among the linearizations ``found`` (the ``unsupported``
     backends joining as UNSUPPORTED), with the tolerance of :func:`tolerances`."""
     out = {}

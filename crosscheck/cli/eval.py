@@ -15,7 +15,7 @@ from cases import configuration
 from crosscheck.checks import charts, frames, linearization
 from crosscheck.cli.options import (MAX_FRAMES, _backends, _one_line, _seed, _specs, _vector, add_plugin_option,
                                     add_task_point_option, UsageError)
-from crosscheck.core import sampling, tolerance as policy
+from crosscheck.core import sampling, tolerance
 from crosscheck.core.compare import DISAGREE
 from crosscheck.engine import evaluation
 from crosscheck.guards import preflight
@@ -78,10 +78,10 @@ def _chart_split(backend, model, chart, p, pd, u, tau_p) -> tuple[str, object]:
 def _non_finite(split) -> list[str]:
     """The fields of ``split`` holding NaN or inf at a finite state: the backend failed, unless a condition it
     reports in BREAKDOWN covers the field (a task singularity's Lambda is inf; ``tolerance.left_out``)."""
-    broken = policy.breakdown(split)
-    if policy.whole(broken):
+    broken = tolerance.breakdown(split)
+    if tolerance.whole(broken):
         return []
-    excused = policy.left_out(broken) | {"conditions"}
+    excused = tolerance.left_out(broken) | {"conditions"}
     return [key for key in split.__dataclass_fields__ if key not in excused
             and isinstance(value := getattr(split, key), (float, np.ndarray)) and not np.all(np.isfinite(value))]
 
@@ -188,9 +188,9 @@ def cmd_eval(args) -> int:
           f"generalized force = {tau_p.tolist()}")
     for name, values in out.items():
         how, split = splits[name]
-        broken = policy.breakdown(split)
+        broken = tolerance.breakdown(split)
         print(f"{name} ({how}):" + (" BREAKDOWN (" + ", ".join(
-            f"cond {k} = {v:.3g} > {policy.BREAKDOWN_LIMITS[k]:.3g}" for k, v in broken.items()) + ")"
+            f"cond {k} = {v:.3g} > {tolerance.BREAKDOWN_LIMITS[k]:.3g}" for k, v in broken.items()) + ")"
             if broken else ""))
         keys = ("drift", "ctrl", "total", "task_drift", "power_ctrl", "kinetic_energy", "task_inertia",
                 "joint_wrenches", "joint_wrenches_drift", "cond_M", "conditions")
@@ -226,7 +226,7 @@ def _eval_linearize(model, chart, p, pd, u, splits: dict, chosen: list, verdict:
                         for name, lin in found.items()},
            "not_supported": unsupported, "errors": errors, "checks": {}}
     if trusted:
-        at = policy.scales(trusted, model, p, pd, u=u)
+        at = tolerance.scales(trusted, model, p, pd, u=u)
         comparisons = linearization.compared(model, state, found, unsupported, at)
         out["checks"] = {name: {"verdict": c.verdict, "worst_ratio": c.worst_ratio, "outlier": c.outlier}
                          for name, c in comparisons.items()}

@@ -16,7 +16,7 @@ import numpy as np
 
 from cases.model import Model
 from crosscheck.checks import charts as chart_catalog, conservation, equilibria, frames, invariance, linearization
-from crosscheck.core import tolerance as tolerance_policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare
 from crosscheck.core.sampling import State
 from crosscheck.engine.outcomes import StateOutcome
@@ -79,7 +79,7 @@ def outcome_of(state: State, found: dict[str, tuple[Split | None, str | None]]) 
     comparisons; the backends in BREAKDOWN found from their splits."""
     splits = {name: split for name, (split, _) in found.items() if split is not None}
     errors = {name: error for name, (_, error) in found.items() if error is not None}
-    breakdowns = {name: b for name, split in splits.items() if (b := tolerance_policy.breakdown(split))}
+    breakdowns = {name: b for name, split in splits.items() if (b := tolerance.breakdown(split))}
     return StateOutcome(state, splits, errors, {}, breakdowns)
 
 
@@ -116,13 +116,13 @@ def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] 
     outcome.scales = None
     if not outcome.trusted:
         return
-    at = outcome.scales = tolerance_policy.scales(outcome.trusted.values(), model, state.q, state.qd, u=state.u)
-    for quantity in tolerance_policy.quantities(model):
+    at = outcome.scales = tolerance.scales(outcome.trusted.values(), model, state.q, state.qd, u=state.u)
+    for quantity in tolerance.quantities(model):
         values = {name: split.quantity(quantity) for name, split in outcome.voters(quantity).items()}
         values.update(dict.fromkeys(unsupported, UNSUPPORTED))
-        if quantity in tolerance_policy.EXACT:
-            values["exact"] = tolerance_policy.EXACT[quantity]
-        outcome.comparisons[quantity] = compare(quantity, values, tolerance_policy.tolerance(quantity, at))
+        if quantity in tolerance.EXACT:
+            values["exact"] = tolerance.EXACT[quantity]
+        outcome.comparisons[quantity] = compare(quantity, values, tolerance.tolerance(quantity, at))
 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
@@ -135,7 +135,7 @@ def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism
     state, trusted = outcome.state, outcome.trusted
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
     if trusted and outcome.scales is None:
-        outcome.scales = tolerance_policy.scales(trusted.values(), model, state.q, state.qd, u=state.u)
+        outcome.scales = tolerance.scales(trusted.values(), model, state.q, state.qd, u=state.u)
     for chart in case_charts:
         outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors,
                                                       outcome.scales))

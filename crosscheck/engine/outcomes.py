@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from cases.model import Model
 from crosscheck.checks import frames
-from crosscheck.core import tolerance as tolerance_policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import DISAGREE, backend_of, Comparison, worst_of
 from crosscheck.core.sampling import State
 from crosscheck.engine.specs import CaseSpec, Checks
@@ -29,7 +29,7 @@ class StateOutcome:
     breakdowns: dict[str, dict[str, float]] = field(default_factory=dict)
     checks: dict[str, Comparison] = field(default_factory=dict)
     hint: str = ""
-    scales: tolerance_policy.Scales | None = None
+    scales: tolerance.Scales | None = None
 
     @property
     def failed(self) -> bool:
@@ -41,12 +41,12 @@ class StateOutcome:
         """The splits of the backends not wholly in BREAKDOWN (a narrower breakdown, e.g. non-unique multipliers,
         leaves out only its quantities: ``tolerance.BREAKDOWN_SCOPE``)."""
         return {name: split for name, split in self.splits.items()
-                if not tolerance_policy.whole(self.breakdowns.get(name, {}))}
+                if not tolerance.whole(self.breakdowns.get(name, {}))}
 
     def voters(self, quantity: str) -> dict[str, Split]:
         """The trusted splits that vote on ``quantity``."""
         return {name: split for name, split in self.trusted.items()
-                if quantity not in tolerance_policy.left_out(self.breakdowns.get(name, {}))}
+                if quantity not in tolerance.left_out(self.breakdowns.get(name, {}))}
 
     @property
     def worst_ratio(self) -> float:

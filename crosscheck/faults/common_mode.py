@@ -33,7 +33,7 @@ from crosscheck.core.sampling import sample_states
 from crosscheck.engine import divergences
 from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
 from crosscheck.faults import injection
-from crosscheck.guards import coverage as coverage_of, selftest
+from crosscheck.guards import coverage, selftest
 from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 
@@ -108,7 +108,7 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
         except Exception as exc:  # the gate refuses bad input: it does not pass
             return done("model build", f"{type(exc).__name__}: {exc}")
         for case in setups:
-            problems = coverage_of.measure(case.setup.model, sample_states(case.setup.model, samples, seed,
+            problems = coverage.measure(case.setup.model, sample_states(case.setup.model, samples, seed,
                                                                            case.setup.spec.name)).problems
             if problems:
                 return done(f"coverage {case.setup.spec.name}", problems[0])

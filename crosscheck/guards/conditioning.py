@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from cases.model import Model
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import compare, Comparison
 from crosscheck.references.pinocchio.kinematics import bias_forces, constraint_kinematics, mass_matrix, task_jacobian
 
@@ -73,7 +73,7 @@ def _task_conditions(model: Model, q, M_factor, inverse_norm: float, J: np.ndarr
     w = np.linalg.eigvalsh(0.5 * (A + A.T))
     floor = max(len(w) * EPS * w[-1], degenerate_floor(model))
     cond = float(w[-1] / w[0]) if np.all(np.isfinite(w)) and w[0] > floor else float("inf")
-    short = policy.task_lever(model, q) * float(np.sqrt(inverse_norm / w[0])) if w[0] > 0.0 else float("inf")
+    short = tolerance.task_lever(model, q) * float(np.sqrt(inverse_norm / w[0])) if w[0] > 0.0 else float("inf")
     return cond, short
 
 
@@ -174,7 +174,7 @@ def _margin(name: str) -> float:
 def _saturated(name: str, value: float) -> float:
     """A condition number as compared, on a log scale from 1 (its rounding is relative): above twice its limit all
     values are one (broken is broken)."""
-    limit = policy.BREAKDOWN_LIMITS[name]
+    limit = tolerance.BREAKDOWN_LIMITS[name]
     value = min(value, 2.0 * limit) if value == value else value
     return float(np.log(max(value, 1.0)))
 
@@ -189,11 +189,11 @@ def audit(model: Model, state, splits: Mapping, breakdowns: dict[str, dict[str, 
     except (np.linalg.LinAlgError, ValueError):
         return {}
     out = {}
-    for name in policy.BREAKDOWN_LIMITS:
+    for name in tolerance.BREAKDOWN_LIMITS:
         reported = {backend: s.conditions[name] for backend, s in splits.items() if name in s.conditions}
         if not reported or name not in truth:
             continue
-        limit, margin, kappa = policy.BREAKDOWN_LIMITS[name], _margin(name), truth[name]
+        limit, margin, kappa = tolerance.BREAKDOWN_LIMITS[name], _margin(name), truth[name]
         for backend, value in reported.items():
             if not value <= limit and kappa <= limit / margin:
                 breakdowns.get(backend, {}).pop(name, None)

@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from crosscheck import backends as registry
-from crosscheck.core import tolerance as policy
+from crosscheck.core import tolerance
 from crosscheck.core.compare import DISAGREE, suspect
 from crosscheck.core.sampling import sample_states
 from crosscheck.engine.evaluation import CaseSetup, compare_all
@@ -163,7 +163,7 @@ def _judge(canary: Canary, model, outcome) -> CanaryResult:
     splits = dict(outcome.splits)
     splits[canary.backend] = inject(canary, splits[canary.backend], outcome.splits["pinocchio"])
     faulty = StateOutcome(outcome.state, splits, {}, {}, {name: b for name, split in splits.items()
-                                                          if (b := policy.breakdown(split))})
+                                                          if (b := tolerance.breakdown(split))})
     compare_all(model, faulty)
     failing = [(key, c) for key, c in faulty.comparisons.items() if c.verdict == DISAGREE]
     worst_key, worst = max(failing, key=lambda kc: np.nan_to_num(kc[1].worst_ratio, nan=np.inf),

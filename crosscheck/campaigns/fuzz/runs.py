@@ -26,7 +26,7 @@ from crosscheck.campaigns.fuzz.settings import (CHUNKS_PER_PROCESS, INTERRUPT_GR
 from crosscheck.campaigns.fuzz.storage import (append_chunk, CampaignResult, final_records, load_campaign, load_chunks,
                                                load_findings, locked, prepare, prune, record_run, save_finding,
                                                write_atomic)
-from crosscheck.engine import progress, workers as worker_processes
+from crosscheck.engine import progress, workers
 from crosscheck.reports.fuzz_report import write_report
 
 
@@ -185,7 +185,7 @@ def _in_pool(cfg: FuzzConfig, plan: Iterator[int], cache: str, tally: _Tally) ->
     report; a lost worker then raises :class:`FuzzError`."""
     ctx = multiprocessing.get_context("spawn")
     queue, stop = ctx.Queue(), ctx.RawValue("b", 0)
-    with worker_processes.spawning():   # its workers ignore Ctrl-C until their initializer handles it
+    with workers.spawning():   # its workers ignore Ctrl-C until their initializer handles it
         pool = ctx.Pool(cfg.workers, initializer=_init_worker,
                         initargs=(cfg.plugins, cache, queue, stop, os.getpid()), maxtasksperchild=CHUNKS_PER_PROCESS)
         flight = _Flight(cfg, pool, queue, tally)
