@@ -193,7 +193,8 @@ def run(canaries: Sequence[Canary] = CANARIES, backends=None) -> SelfTest:
     """Evaluate each canary's state once with every backend (the default gate's backends and the case's closed form,
     without charts, frames or conservation), leave out any backend that disagrees there without a fault
     (:func:`_clean`), and judge each canary there."""
-    chosen = [backend_registry.get(name) for name in backend_registry.builtin_names()] if backends is None else list(backends)
+    chosen = ([backend_registry.get(name) for name in backend_registry.builtin_names()] if backends is None
+              else list(backends))
     results, evaluated, unusable = [], {}, []
     for canary in canaries:
         key = (canary.case, canary.state)
