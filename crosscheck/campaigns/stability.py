@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+import cases
 from crosscheck import backends as backend_registry
 from crosscheck.checks import charts, invariance
 from crosscheck.checks.invariance import mapped
@@ -94,8 +95,6 @@ def four_bar_state(delta: float) -> tuple[tuple, tuple, tuple]:
     """The parallelogram four-bar (the default 1-2-1-2) on its parallelogram branch q = (a, pi/2 - a, a), crank
     angle a = pi/2 - delta, ``delta`` from the change point q = (pi/2, 0, pi/2) where the loop Jacobian loses rank;
     q polished onto phi = 0 and qd = 1.3 (1, -1, 1) projected onto Jc qd = 0 (``crosscheck.core.sampling``)."""
-    import cases
-
     model = cases.load("four_bar")
     a = np.pi / 2 - delta
     q = project_configuration(model, (a, np.pi / 2 - a, a))
@@ -159,8 +158,6 @@ GIMBAL_YAW, GIMBAL_ROLL, GIMBAL_PD, GIMBAL_U = 0.4, -0.7, (0.9, -1.3, 0.6), (0.5
 def gimbal_state(delta: float) -> tuple[tuple, tuple, tuple]:
     """The ball pendulum at zyx angles (yaw, pi/2 - delta, roll) with chart rates pd: q = psi(p) and qd = Dpsi pd
     rounded to floats (the joint-chart state the gate is given), u fixed."""
-    import cases
-
     chart = charts.get("zyx", cases.load("ball_pendulum"))
     p = np.array([GIMBAL_YAW, np.pi / 2 - delta, GIMBAL_ROLL])
     return (tuple(chart.q_of(p).tolist()), tuple((chart.jacobian(p) @ np.array(GIMBAL_PD)).tolist()), GIMBAL_U)

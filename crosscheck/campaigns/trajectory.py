@@ -73,14 +73,17 @@ import mpmath
 import numpy as np
 from mpmath import mpf
 
+import formalisms
 from cases import configuration
 from cases.model import GROUP_JOINTS, Model
 from crosscheck.core.sampling import project_configuration, project_velocity
 from crosscheck.core.tolerance import acceleration_bound
 from crosscheck.references import precise
+from crosscheck.references.pinocchio import reference
 from crosscheck.references.pinocchio.kinematics import constraint_kinematics, mass_matrix
 from crosscheck.references.precise import (algebra as precise_algebra, dynamics as precise_dynamics,
                                            kinematics as precise_kinematics)
+from formalisms.interface import SplitBatch
 
 EPS = float(np.finfo(float).eps)
 INTEGRATORS = ("rk4", "gauss", "adaptive")
@@ -117,11 +120,7 @@ def check_model(model: Model) -> None:
 def _split_functions(backend):
     """(split, split_batch or None) of a backend name, or of an object with ``split`` (a wrapped backend)."""
     if isinstance(backend, str):
-        if backend == PINOCCHIO:
-            from crosscheck.references.pinocchio import reference as mod
-        else:
-            import formalisms
-            mod = formalisms.get(backend)
+        mod = reference if backend == PINOCCHIO else formalisms.get(backend)
         return mod.split, getattr(mod, "split_batch", None)
     return backend.split, getattr(backend, "split_batch", None)
 
@@ -707,7 +706,6 @@ class FaultyBackend:
     def split_batch(self, model, Q, QD, U):
         out = self._batch(model, Q, QD, U) if self._batch else None
         if out is None:
-            from formalisms.interface import SplitBatch
             ss = [self._split(model, q, v, u) for q, v, u in zip(Q, QD, U)]
             return SplitBatch(np.array([s.drift for s in ss]) * (1 + self.rel),
                               np.array([s.ctrl for s in ss]), np.array([s.total for s in ss]) * (1 + self.rel))
