@@ -179,7 +179,8 @@ def chart_checks(model: Model, state: State, chart: charts.Chart, joint: Mapping
     at = [tolerance.scales(native.values(), model, q, qd, joint_chart=False, u=u), joint_scales]
     out = {}
     done: dict[str, dict] = {name: {} for name in joint}
-    left_out = {name: tolerance.left_out(tolerance.breakdown(split)) for name, split in (*joint.items(), *native.items())}
+    left_out = {name: tolerance.left_out(tolerance.breakdown(split))
+                for name, split in (*joint.items(), *native.items())}
     for quantity in _invariant(model):
         if all(isinstance(split.quantity(quantity), Unsupported) for split in native.values()):
             continue                        # no answer from the chart itself: nothing the joint chart has not

@@ -103,7 +103,8 @@ def tolerances(model: Model, state: State, values: Mapping[str, np.ndarray], blo
     if block == "vdot":
         return np.broadcast_to(tolerance.tolerance("total", at), (model.nv,))
     if block == "kinematic rows":                    # entries of v and exact zeros and ones: rounding of |v| at most
-        return np.full(model.nv * (2 * model.nv + model.m), FACTOR * tolerance.EPS * (float(np.abs(state.qd).max()) + 1.0))
+        return np.full(model.nv * (2 * model.nv + model.m),
+                       FACTOR * tolerance.EPS * (float(np.abs(state.qd).max()) + 1.0))
     size = np.abs(stacked).max(axis=(0, 1)) if stacked.size else np.zeros(stacked.shape[-1])
     if block == "dvdot/dq":
         terms = at.accel_scale / tangent_units(model)

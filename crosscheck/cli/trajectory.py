@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import cases
-from crosscheck.campaigns import trajectory
+from crosscheck.campaigns import trajectory as T
 from crosscheck.cli.options import OUTPUT_DIR, add_workers_option, workers
 from crosscheck.core.sampling import project_configuration, project_velocity
 from crosscheck.reports import trajectory_report
@@ -90,34 +90,34 @@ def cmd_trajectory(args) -> int:
             raise ValueError(f"--horizon must be a positive number of seconds, got {args.horizon}")
         if not args.dt > 0 or not math.isfinite(args.dt) or args.dt > args.horizon:
             raise ValueError(f"--dt must be positive and at most the horizon, got {args.dt}")
-        if args.integrator not in trajectory.INTEGRATORS:
-            raise ValueError(f"unknown integrator '{args.integrator}'; valid: {', '.join(trajectory.INTEGRATORS)}")
-        if args.project not in trajectory.PROJECTIONS:
-            raise ValueError(f"unknown projection '{args.project}'; valid: {', '.join(trajectory.PROJECTIONS)}")
-        names = args.formalism or [*formalisms.names(), trajectory.PINOCCHIO]
+        if args.integrator not in T.INTEGRATORS:
+            raise ValueError(f"unknown integrator '{args.integrator}'; valid: {', '.join(T.INTEGRATORS)}")
+        if args.project not in T.PROJECTIONS:
+            raise ValueError(f"unknown projection '{args.project}'; valid: {', '.join(T.PROJECTIONS)}")
+        names = args.formalism or [*formalisms.names(), T.PINOCCHIO]
         for name in names:
-            if name != trajectory.PINOCCHIO and name not in formalisms.names():
+            if name != T.PINOCCHIO and name not in formalisms.names():
                 raise ValueError(f"unknown formalism '{name}'; valid: {', '.join(formalisms.names())}, pinocchio")
         model = cases.load(args.case)
-        trajectory.check_model(model)
+        T.check_model(model)
         q0, v0 = start_state(model, args.q, args.v)
         every = max(1, int(round(OUTPUT_INTERVAL / args.dt)))
         interval = every * args.dt
         horizon = interval * max(1, int(round(args.horizon / interval)))
-        runs = [trajectory.simulate(model, b, q0, v0, horizon, args.dt, args.integrator, args.project, every) for b in names]
+        runs = [T.simulate(model, b, q0, v0, horizon, args.dt, args.integrator, args.project, every) for b in names]
     except (ValueError, cases.CaseError) as exc:
         return _fail(" ".join(str(exc).split()))
     closed = {} if args.case == "double_pendulum" else None
-    ref = trajectory.reference_trajectory(model, q0, v0, horizon, interval, closed_form=closed)
-    lyap = trajectory.lyapunov(model, ref)
-    sigma = trajectory.rounding_rate(model, ref, args.dt if args.integrator != "adaptive" else interval, args.integrator)
-    verdict = trajectory.judge(runs, ref, lyap, sigma)
+    ref = T.reference_trajectory(model, q0, v0, horizon, interval, closed_form=closed)
+    lyap = T.lyapunov(model, ref)
+    sigma = T.rounding_rate(model, ref, args.dt if args.integrator != "adaptive" else interval, args.integrator)
+    verdict = T.judge(runs, ref, lyap, sigma)
     rows = []
     for r in runs:
-        rows.append({"backend": r.backend, "error_at_end": float(trajectory.errors(r, ref)[-1]),
-                     "max_energy_error": float(np.max(trajectory.energy_error(model, r, ref))),
-                     "max_constraint_drift": float(np.max(trajectory.constraint_drift(model, r))),
-                     "digits_gone_at": trajectory.digits_gone(r, ref), "inside_envelope": r.backend not in verdict.outside,
+        rows.append({"backend": r.backend, "error_at_end": float(T.errors(r, ref)[-1]),
+                     "max_energy_error": float(np.max(T.energy_error(model, r, ref))),
+                     "max_constraint_drift": float(np.max(T.constraint_drift(model, r))),
+                     "digits_gone_at": T.digits_gone(r, ref), "inside_envelope": r.backend not in verdict.outside,
                      "failure": r.failure, "evaluations": r.evals, "seconds": round(r.seconds, 3)})
     summary = {"case": args.case, "q0": q0.tolist(), "v0": v0.tolist(), "horizon": horizon, "dt": args.dt,
                "integrator": args.integrator, "project": args.project, "reference_error_estimate": ref.error_estimate,

@@ -146,11 +146,11 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     the self-test canaries are caught (``crosscheck.guards.selftest``, unless ``checks.self_test`` is off).
 
     ``workers`` 0 runs the cases in this process; N >= 1 in N spawned processes
-    (:func:`crosscheck.engine.pool.in_pool`), at most one per case (``crosscheck.cli.options.workers``: the one meaning of
-    ``--workers``); the outcomes are the same as in this process and come back in case order, so the report is too (its
-    timings apart). Backends that cannot be sent to another process (not picklable: a lambda, a local function) keep the
-    run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the start and the end of
-    a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
+    (:func:`crosscheck.engine.pool.in_pool`), at most one per case (``crosscheck.cli.options.workers``: the one
+    meaning of ``--workers``); the outcomes are the same as in this process and come back in case order, so the report
+    is too (its timings apart). Backends that cannot be sent to another process (not picklable: a lambda, a local
+    function) keep the run in this process. ``progress`` is told every :class:`Step` of a case run here, and only the
+    start and the end of a case run in a worker process. Ctrl-C raises :class:`Interrupted` with the partial result."""
     tell = progress or _ignore
     count = min(workers, len(specs))
     pooled = count >= 1 and pool.picklable(backends)

@@ -10,8 +10,8 @@ invariance checks, the conditions audit (``crosscheck.guards.conditioning``), th
 (``crosscheck.guards.coverage``) and the self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such
 bugs, each with the guard expected to catch it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug,
 cheapest first (the self-test, building the cases, their coverage, then the states round robin, as
-``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/faults/test_common_mode.py`` checks that every
-entry is caught, and by its guard.
+``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/faults/test_common_mode.py`` checks that
+every entry is caught, and by its guard.
 
 A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at
 several targets (a constant imported by every backend is one bug at every import); a fault in code a cached derivation
@@ -262,7 +262,8 @@ CATALOG: list[SharedFault] = [
     SharedFault("sampling-rates-never-sampled", "sampling",
                 "The sampler leaves every joint rate at 0 (qd drawn but never stored).",
                 ("crosscheck.core.sampling:sample_states", "crosscheck.engine.run:sample_states",
-                 "crosscheck.faults.injection:sample_states", "crosscheck.faults.common_mode:sample_states"), _rates_never_sampled,
+                 "crosscheck.faults.injection:sample_states", "crosscheck.faults.common_mode:sample_states"),
+                _rates_never_sampled,
                 "the self-test canaries (their states are sampled) or the sampling coverage"),
     SharedFault("sampling-angles-in-a-sliver", "sampling",
                 "The sampler draws joint angles from +-1e-4 rad instead of one turn (degrees taken for radians "

@@ -63,9 +63,10 @@ class Canary:
 
 
 #: The canaries of every gate run: the article's double pendulum (planar), the 3-D spatial arm, a constrained case.
-#: Sizes calibrated on these states (``tests/guards/test_selftest.py`` re-measures every ratio): double pendulum #3 M 3.1,
-#: g 4.0, one entry 4.4, #4 C qd 6.9; spatial arm #27 M 3.3, C qd 2.1, g 3.9. The 3-D claim is 1e-10 (sensitivity).
-#: The one-entry canary's backend is neither the first voter nor the last, so that a signed difference misses it.
+#: Sizes calibrated on these states (``tests/guards/test_selftest.py`` re-measures every ratio): double pendulum #3
+#: M 3.1, g 4.0, one entry 4.4, #4 C qd 6.9; spatial arm #27 M 3.3, C qd 2.1, g 3.9. The 3-D claim is 1e-10
+#: (sensitivity). The one-entry canary's backend is neither the first voter nor the last, so that a signed difference
+#: misses it.
 CANARIES: tuple[Canary, ...] = (
     Canary("double_pendulum", 3, "newton_euler", "mass matrix", 1e-11),
     Canary("double_pendulum", 4, "screw", "velocity products", 1e-10),

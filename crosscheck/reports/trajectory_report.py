@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import cases
-from crosscheck.campaigns import trajectory
+from crosscheck.campaigns import trajectory as T
 from crosscheck.core.sampling import project_configuration, project_velocity
 from crosscheck.references.pinocchio import reference
 
@@ -77,12 +77,12 @@ def _job(kind: str, args: tuple):
         if kind == "run":
             case, params, backend, q0, v0, horizon, dt, integrator, project, every = args
             if isinstance(backend, tuple):          # ("fault", name, rel)
-                backend = trajectory.FaultyBackend(backend[1], backend[2])
-            return trajectory.simulate(_model(case, params), backend, q0, v0, horizon, dt, integrator, project, every)
+                backend = T.FaultyBackend(backend[1], backend[2])
+            return T.simulate(_model(case, params), backend, q0, v0, horizon, dt, integrator, project, every)
         if kind == "ref":
             case, params, x0, interval, intervals, tol, closed_form, perturb = args
             start = time.perf_counter()
-            xs, evals = trajectory.reference_run(_model(case, params), x0, interval, intervals, tol, None, trajectory.DIGITS,
+            xs, evals = T.reference_run(_model(case, params), x0, interval, intervals, tol, None, T.DIGITS,
                                         closed_form, perturb)
             return xs, evals, time.perf_counter() - start
         if kind == "rk4_stable":
@@ -110,15 +110,15 @@ def _largest_stable_step(ratio: float, q0, v0, periods: float, backend: str):
     when stable: energy loss is accuracy, not instability)."""
     model = cases.load("double_pendulum", m1=1.0, m2=ratio)
     omega = fastest_frequency(model, np.zeros(model.n))       # at the hanging equilibrium
-    E0 = trajectory.energy(model, q0, v0)
+    E0 = T.energy(model, q0, v0)
     scale = abs(E0) + float(np.sum([b.mass for b in model.bodies])) * 9.81 * 2.0
 
     def stable(dt: float) -> bool:
         horizon = periods * 2 * math.pi / omega
-        run = trajectory.simulate(model, backend, q0, v0, horizon, dt, "rk4", "none", every=max(1, int(horizon / dt) // 50))
+        run = T.simulate(model, backend, q0, v0, horizon, dt, "rk4", "none", every=max(1, int(horizon / dt) // 50))
         if run.failure:
             return False
-        return all(trajectory.energy(model, q, v) - E0 <= 0.1 * scale for q, v in zip(run.q, run.v))
+        return all(T.energy(model, q, v) - E0 <= 0.1 * scale for q, v in zip(run.q, run.v))
     lo, hi = 0.1 / omega, 10.0 / omega         # lo stable, hi unstable (checked)
     if not stable(lo):
         return ratio, omega, float("nan")
@@ -144,7 +144,7 @@ class Row:
     gone: float
     gone_extrapolated: bool
     inside: bool
-    run: trajectory.Run = field(repr=False)
+    run: T.Run = field(repr=False)
 
 
 @dataclass
@@ -153,19 +153,19 @@ class Family:
 
     case: str
     params: tuple
-    ref: trajectory.Reference
-    lyap: trajectory.Lyapunov
+    ref: T.Reference
+    lyap: T.Lyapunov
     rows: list
     judgments: dict          # (integrator, project) -> Judgment
     sigmas: dict
 
 
-def _gone(run: trajectory.Run, ref: trajectory.Reference, lam: float) -> tuple[float, bool]:
+def _gone(run: T.Run, ref: T.Reference, lam: float) -> tuple[float, bool]:
     """Digits-gone time: measured, else extrapolated from the last error with the FTLE (exp(lam t) growth)."""
-    t = trajectory.digits_gone(run, ref)
+    t = T.digits_gone(run, ref)
     if math.isfinite(t) or run.failure or lam <= 0:
         return t, False
-    e = trajectory.errors(run, ref)[-1]
+    e = T.errors(run, ref)[-1]
     size = float(np.abs(ref.x[len(run.t) - 1]).max())
     if e <= 0:
         return float("inf"), True
@@ -179,13 +179,13 @@ def _family(pool, case: str, params: tuple, q0, v0, horizon: float, s: Settings,
     intervals = int(round(horizon / s.interval))
     every = int(round(s.interval / s.dt))
     x0 = np.concatenate([np.asarray(q0, float), np.asarray(v0, float)])
-    d = trajectory.perturbation_direction(model, np.asarray(q0, float))
+    d = T.perturbation_direction(model, np.asarray(q0, float))
     futures = {}
-    futures["main"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, trajectory.REFERENCE_TOL, closed_form,
+    futures["main"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, T.REFERENCE_TOL, closed_form,
                                                 None))
-    futures["fine"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, trajectory.VERIFY_TOL, closed_form,
+    futures["fine"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, T.VERIFY_TOL, closed_form,
                                                 None))
-    futures["lyap"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, trajectory.VERIFY_TOL, closed_form,
+    futures["lyap"] = pool.submit(_job, "ref", (case, params, x0, s.interval, intervals, T.VERIFY_TOL, closed_form,
                                                 tuple(d)))
     jobs = []
     for integrator in integrators:
@@ -200,39 +200,39 @@ def _family(pool, case: str, params: tuple, q0, v0, horizon: float, s: Settings,
     main, e1, s1 = futures["main"].result()
     fine, e2, s2 = futures["fine"].result()
     pert, e3, s3 = futures["lyap"].result()
-    ref = trajectory.assemble_reference(model, main, fine, s.interval, e1 + e2, s1 + s2, trajectory.DIGITS, closed_form)
-    lyap = trajectory.lyapunov(model, ref, perturbed=pert)
+    ref = T.assemble_reference(model, main, fine, s.interval, e1 + e2, s1 + s2, T.DIGITS, closed_form)
+    lyap = T.lyapunov(model, ref, perturbed=pert)
     runs: dict = {}
     for key, fut in jobs:
         runs.setdefault(key[:2], []).append(fut.result())
     rows, judgments, sigmas = [], {}, {}
     for (integrator, project), rs in runs.items():
         dt = s.dt if integrator != "adaptive" else s.interval
-        sigma = trajectory.rounding_rate(model, ref, dt, integrator)
+        sigma = T.rounding_rate(model, ref, dt, integrator)
         sigmas[(integrator, project)] = sigma
-        judgments[(integrator, project)] = trajectory.judge(rs, ref, lyap, sigma)
+        judgments[(integrator, project)] = T.judge(rs, ref, lyap, sigma)
         for r in rs:
             gone, extra = _gone(r, ref, lyap.ftle)
-            e = trajectory.errors(r, ref)
-            rows.append(Row(r.backend, integrator, project, float(e[-1]), float(np.max(trajectory.energy_error(model, r, ref))),
-                            float(np.max(trajectory.constraint_drift(model, r))), gone, extra,
+            e = T.errors(r, ref)
+            rows.append(Row(r.backend, integrator, project, float(e[-1]), float(np.max(T.energy_error(model, r, ref))),
+                            float(np.max(T.constraint_drift(model, r))), gone, extra,
                             r.backend not in judgments[(integrator, project)].outside, r))
     return Family(case, params, ref, lyap, rows, judgments, sigmas)
 
 
 def _drift_horizon(case, params, q0, v0, dt, horizon, bound, backend):
     model = _model(case, params)
-    run = trajectory.simulate(model, backend, q0, v0, horizon, dt, "rk4", "none", every=max(1, int(round(0.02 / dt))))
-    drift = trajectory.constraint_drift(model, run)
+    run = T.simulate(model, backend, q0, v0, horizon, dt, "rk4", "none", every=max(1, int(round(0.02 / dt))))
+    drift = T.constraint_drift(model, run)
     over = np.nonzero(drift > bound)[0]
     return dt, run.t, drift, (float(run.t[over[0]]) if over.size else float("inf"))
 
 
 def _energy_long(q0, dt, horizon, integrator, backend):
     model = cases.load("double_pendulum")
-    run = trajectory.simulate(model, backend, q0, (0.0, 0.0), horizon, dt, integrator, "none", every=10)
-    E0 = trajectory.energy(model, q0, (0.0, 0.0))
-    return integrator, run.t, np.array([trajectory.energy(model, q, v) - E0 for q, v in zip(run.q, run.v)]), run.iterations
+    run = T.simulate(model, backend, q0, (0.0, 0.0), horizon, dt, integrator, "none", every=10)
+    E0 = T.energy(model, q0, (0.0, 0.0))
+    return integrator, run.t, np.array([T.energy(model, q, v) - E0 for q, v in zip(run.q, run.v)]), run.iterations
 
 
 def _job2(kind, args):
@@ -289,12 +289,12 @@ def compute(s: Settings):
                                                s.map_backend)) for dt in s.drift_dts]
         maps_c = [pool.submit(_job2, "energy", (s.energy_q0, s.energy_dt, s.energy_horizon, i, s.map_backend))
                   for i in ("rk4", "gauss")]
-        dp = _family(pool, "double_pendulum", (), s.q0, s.v0, s.horizon, s, trajectory.INTEGRATORS, ("none",), s.backends, {},
+        dp = _family(pool, "double_pendulum", (), s.q0, s.v0, s.horizon, s, T.INTEGRATORS, ("none",), s.backends, {},
                      True, s.interval)
         constrained = []
         for case, params in s.constrained:
             q, v = _start_state(case, params)
-            constrained.append(_family(pool, case, params, q, v, s.c_horizon, s, ("rk4",), trajectory.PROJECTIONS,
+            constrained.append(_family(pool, case, params, q, v, s.c_horizon, s, ("rk4",), T.PROJECTIONS,
                                        s.c_backends, None, False, s.c_interval))
         a = [f.result() for f in maps_a]
         b = [f.result() for f in maps_b]
@@ -351,12 +351,12 @@ def _chart_family(fam: Family, path: Path, title: str) -> None:
         rows = [r for r in fam.rows if (r.integrator, r.project) == key]
         for r in rows:
             style = "--" if "+" in r.backend else "-"
-            e = trajectory.errors(r.run, fam.ref)
+            e = T.errors(r.run, fam.ref)
             err_ax.semilogy(r.run.t, np.maximum(e, 1e-18), style, lw=1, color=_color(r.backend),
                             label=SHORT.get(r.backend, r.backend))
-            e_ax.semilogy(r.run.t, np.maximum(trajectory.constraint_drift(_model(fam.case, fam.params), r.run)
+            e_ax.semilogy(r.run.t, np.maximum(T.constraint_drift(_model(fam.case, fam.params), r.run)
                                               if fam.case != "double_pendulum" else
-                                              np.abs(trajectory.energy_error(_model(fam.case, fam.params), r.run, fam.ref)),
+                                              np.abs(T.energy_error(_model(fam.case, fam.params), r.run, fam.ref)),
                                               1e-18), style, lw=1, color=_color(r.backend))
         size = np.abs(fam.ref.x).max(axis=1)
         err_ax.semilogy(t, size, "k:", lw=1, label="|x| (digits gone)")
@@ -467,7 +467,7 @@ def write(out: Path, s: Settings | None = None) -> Path:
     for fam in constrained:
         _chart_family(fam, out / f"trajectories_{fam.case}.png",
                       f"{fam.case}: RK4 dt = {s.dt:g}, without and with projection, Baumgarte alpha = "
-                      f"{trajectory.BAUMGARTE_ALPHA:g}")
+                      f"{T.BAUMGARTE_ALPHA:g}")
     _chart_maps(maps, s, out / "trajectories_maps.png")
     lines = _markdown(dp, constrained, maps, s, seconds)
     path = out / "trajectories.md"
@@ -479,22 +479,23 @@ def _markdown(dp: Family, constrained, maps, s: Settings, seconds: float) -> lis
     ref, ly = dp.ref, dp.lyap
     a, b, c = maps
     L = ["# Forward ZTCF trajectories", "",
-         "Generated by `crosscheck trajectory --report` (crosscheck/reports/trajectory_report.py; the methods are documented in "
-         "crosscheck/campaigns/trajectory.py). A pointwise ZTCF sample is the drift at one instant (article 4.5, 10.3); here "
+         "Generated by `crosscheck trajectory --report` (crosscheck/reports/trajectory_report.py; the methods are "
+         "documented in crosscheck/campaigns/trajectory.py). A pointwise ZTCF sample is the drift at one instant "
+         "(article 4.5, 10.3); here "
          "the drift (u = 0) is integrated forward by every backend through the same integrators and compared with a "
          "50-digit reference trajectory and with each other.", "",
          "## Double pendulum (chaotic)", "",
          f"State q = {s.q0}, v = {s.v0} (released from rest, article section 3's angles), horizon {s.horizon:g} s, "
          f"output every {s.interval:g} s. RK4 and Gauss–Legendre (2 stages, fixed-point iteration to "
-         f"{trajectory.GAUSS_TOL:.1e} |x|) with dt = {s.dt:g}; DOP853 with rtol = atol = {trajectory.ADAPTIVE_TOL:g}.", "",
-         f"- Reference: Gragg–Bulirsch–Stoer of order {2 * trajectory.GBS_LEVELS} at {trajectory.DIGITS} digits on the article's "
-         f"eqs. (6)-(8), local tolerance {trajectory.REFERENCE_TOL:g}; verification run at {trajectory.VERIFY_TOL:.1e} (what halving "
+         f"{T.GAUSS_TOL:.1e} |x|) with dt = {s.dt:g}; DOP853 with rtol = atol = {T.ADAPTIVE_TOL:g}.", "",
+         f"- Reference: Gragg–Bulirsch–Stoer of order {2 * T.GBS_LEVELS} at {T.DIGITS} digits on the article's "
+         f"eqs. (6)-(8), local tolerance {T.REFERENCE_TOL:g}; verification run at {T.VERIFY_TOL:.1e} (what halving "
          f"every step gives): largest difference over the horizon **{ref.error_estimate:.1e}**; energy conserved "
          f"to {max(abs(float(e - ref.energy[0])) for e in ref.energy):.1e} J; {ref.evals} evaluations, "
          f"{ref.seconds:.0f} s of CPU.",
-         f"- Lyapunov: two reference trajectories {trajectory.LYAPUNOV_EPS:g} apart; growth G({s.horizon:g} s) = "
+         f"- Lyapunov: two reference trajectories {T.LYAPUNOV_EPS:g} apart; growth G({s.horizon:g} s) = "
          f"{ly.growth[-1]:.2e}, finite-time Lyapunov exponent **{ly.ftle:.2f} 1/s**; worst growth over any "
-         f"window of lag >= {trajectory.WINDOW:g} s gives lambda_env = {ly.exponent:.2f} 1/s "
+         f"window of lag >= {T.WINDOW:g} s gives lambda_env = {ly.exponent:.2f} 1/s "
          "(the envelope uses the measured worst growth per lag, crosscheck/campaigns/trajectory.py).",
          f"- The judgment is shown to fail: `{s.backends[0]}+{s.fault:g}` is {s.backends[0]} with its drift "
          f"multiplied by 1 + {s.fault:g} (RK4 only).", "",
@@ -506,9 +507,10 @@ def _markdown(dp: Family, constrained, maps, s: Settings, seconds: float) -> lis
     for fam in constrained:
         L += [f"## {fam.case} {dict(fam.params) if fam.params else ''}".rstrip(), "",
               f"RK4 dt = {s.dt:g} over {s.c_horizon:g} s from an admissible state; reference from the generic "
-              f"{trajectory.DIGITS}-digit split (crosscheck.references.precise), error estimate {fam.ref.error_estimate:.1e}; FTLE "
+              f"{T.DIGITS}-digit split (crosscheck.references.precise), error estimate "
+              f"{fam.ref.error_estimate:.1e}; FTLE "
               f"{fam.lyap.ftle:.2f} 1/s. Projection: `project` moves q onto phi = 0 and v onto Jc v = 0 after every "
-              f"step; `baumgarte` adds the stabilizing term with alpha = {trajectory.BAUMGARTE_ALPHA:g} 1/s.", "",
+              f"step; `baumgarte` adds the stabilizing term with alpha = {T.BAUMGARTE_ALPHA:g} 1/s.", "",
               f"![{fam.case}](trajectories_{fam.case}.png)", ""]
         L += _table(fam, True) + ["", "Judgment:", ""] + _judgment_lines(fam) + [""]
     L += ["## Stability maps", "", "![maps](trajectories_maps.png)", "",
