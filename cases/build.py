@@ -17,7 +17,6 @@ from cases.task import axes_through, choose, default_task_point, full_rank, moti
 from cases.validation import as_array, finite, frozen, orthonormal_rows
 
 
-
 class TaskPointError(ValueError):
     """A task point given by the user (``--task-point``, :func:`with_task_point`) is not valid: the message says what
     is wrong and what is valid."""
