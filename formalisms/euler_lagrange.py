@@ -161,11 +161,20 @@ Drift's parts (article 4.5-4.6): every Split carries ``zvcf = -M^-1 g`` and ``dr
 solved directly (:func:`_free_parts`; with constraints the KKT solves with ``f = -g`` and no bias, and with ``f = -C
 xd`` and the bias ``Jcdot xd``: :func:`_constrained_parts`), so that they add up to the drift to rounding.
 Linearization (article 4.8, eq. 11; :func:`linearize`): the exact derivatives of this derivation's own equations.
-  * Symbolic. With symbols ``a`` and ``lam`` as parameters, the KKT rows ``force = M a + C xd + g - Jc^T lam`` and
-    ``accel = Jc a + Jcdot xd`` are differentiated by every coordinate and rate with the staged chain rule (the same
-    :meth:`_Staged.diff` that made M and C; :func:`_linear_program`) and emitted as Python by the same emitter. They
-    are derived on the first ``linearize`` of a (model, chart), never during ``split``, and cached in memory and on
-    disk (:func:`linearization_key`: the dynamics' key, which holds this module's hash, with what is differentiated).
+  * Differentiated, not derived (forward mode through the dynamics' own code; :func:`linear_terms`). The rows
+    ``force = M a + C xd + g - Jc^T lam`` and ``accel = Jc a + Jcdot xd`` at fixed ``a`` and ``lam`` need the first
+    derivatives of M, C xd, g, Jc and Jcdot xd in every coordinate and rate. They come from the generated Python
+    that ``split`` runs, run once on 2n complex columns, column j at ``x + i h e_j`` (then ``xd + i h e_j``) with
+    h = :data:`STEP` = 2^-70: every operation of the code (``+``, ``*``, ``1/b``, ``sqrt``, ``sin``, ``cos``,
+    integer powers) is analytic, so the imaginary part of each output is h times its directional derivative, carried
+    operation by operation like a dual number's (the complex step). Nothing is subtracted, so the derivatives are as
+    accurate as the values; h^2 ~ 1e-42 is below every rounding of the real parts. The cost is one batched
+    evaluation of the dynamics' code over 2n columns (:func:`_derivatives`): the Panda 10 ms, solo12 16 ms, with no
+    derivation (until 2026-11 the derivatives were derived symbolically: 5-11 s cold on those two, minutes for a
+    humanoid). With group joints the joint chart's code is evaluated at ``xi = 0`` with xi gone, so the linearization
+    has its own program, the dynamics in the local chart to order :data:`LINEAR_ORDER` with xi among the inputs
+    (:func:`_local_program`), derived on the first ``linearize`` of the model (never during ``split``) and cached in
+    memory and on disk (:func:`linearization_key`); in a chart and without group joints nothing is derived.
   * Numeric. ``vdot`` and ``lam`` by the split's own solve; then per direction the differentiated KKT system
     ``[[M, -Jc^T], [Jc, 0]] [dvdot; dlam] = [dtau - d force; -d accel]`` at ``a = vdot`` by the same scaled,
     rank-revealing :func:`_kkt` (minimum-norm multipliers, the same rank rule), ``dvdot/du = B_c B`` (eq. 17); without
@@ -180,11 +189,6 @@ Linearization (article 4.8, eq. 11; :func:`linearize`): the exact derivatives of
   * In a chart ``q = psi(p)`` (:func:`linearize_chart`): the chart's own derivation differentiated the same way, x =
     (p, pd), ``A_qq = 0`` and the input ``tau_p`` (``B = [[0], [B_c]]``, n columns); no local chart, so no chain rule
     (a zyx chart of group joints is a chart like any other). Velocity representations are refused.
-  * Cost (CPU, cold, one process on the 2-core machine): the derivative code is about ten times the dynamics' code,
-    forward-mode in 2n directions. Panda (9 joints + coupling): derivation and differentiation 8.6 s, Python emitted
-    3.2 s (2.7 MB), compiled 1.7 s; 13 ms a call after. solo12 (free base, nv 18): 23 s + 3.4 s + 2.3 s; 23 ms a
-    call. A 24-link planar chain: 71 s + 113 s (16 MB, 225,000 definitions; the emitter's tree walk dominates) +
-    12 s, 130 ms a call. The code is interpreted (the C path is the dynamics' only).
 Everything a split reports is computed here (the interface supplies only types and validators), by methods of its
 own: cond(M) and ``||M^-1||`` from M's extreme eigenvalues, each by Sturm-sequence bisection (:func:`_mass_spectrum`);
 S's eigenvalues, rank and the consistency of the KKT right-hand sides from the SVD of the scaled constraint block
@@ -1065,9 +1069,10 @@ class _Program(NamedTuple):
 OUTPUTS = ("M_upper", "Cqd", "g", "T", "phi", "Jc", "bias", "Qext")
 
 
-def _program(model: Model, chart: Chart | None, order: int) -> _Program:
+def _program(model: Model, chart: Chart | None, order: int, at_origin: bool = True) -> _Program:
     """:func:`derivation`'s outputs and the definitions they use; with spherical or free joints at ``xi = 0``
-    (:func:`_at_origin`; ``order`` of the exponential series, module docstring "Group joints")."""
+    (:func:`_at_origin`; ``order`` of the exponential series, module docstring "Group joints"), or with the xi as
+    inputs after the state's q (``at_origin`` False: the linearization's :func:`_local_program`)."""
     d = derivation(model, chart, order)
     n = model.n
     outputs = {"M_upper": [d.M[i, j] for i in range(n) for j in range(i, n)], "Cqd": list(d.Cqd), "g": list(d.g),
@@ -1075,17 +1080,19 @@ def _program(model: Model, chart: Chart | None, order: int) -> _Program:
     if d.Qext:                       # only with loads: a model without them keeps its code as it was
         outputs["Qext"] = list(d.Qext)
     definitions = d.staged.needed([e for v in outputs.values() for e in v])
-    if d.local:
+    if d.local and at_origin:
         definitions, outputs = _at_origin(definitions, outputs, d.local)
     key = chart_key(model, chart)
     where = "joint coordinates" if key == JOINT_CHART else f"chart '{chart.name}' ({key})"
     if d.local:
-        where = f"local exponential coordinates at xi = 0 ({_group_chart_text(model, chart, order)})"
+        at = "at xi = 0" if at_origin else "xi (inputs after q), for the linearization"
+        where = f"local exponential coordinates {at} ({_group_chart_text(model, chart, order)})"
     elif model.group_joints:
         where += f" ({GROUP_IN_CHART})"
+    inputs = list(d.configuration or d.coordinates) + ([] if at_origin else list(d.local))
     return _Program(f"Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by "
                     "crosscheck", ("q", "qd") if key == JOINT_CHART or d.local else ("p", "pd"),
-                    list(d.configuration or d.coordinates), list(d.rates), definitions, outputs)
+                    inputs, list(d.rates), definitions, outputs)
 
 
 def _source(program: _Program, syntax) -> _Source:
@@ -2083,64 +2090,69 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
 # Linearization (article 4.8, eq. 11): the derivation's inverse dynamics and constraint terms differentiated
 # ----------------------------------------------------------------------------------------------------------
 
-#: The truncation order of the local chart's exponential series in the linearization's derivation (module docstring,
+#: The truncation order of the local chart's exponential series in the linearization's program (module docstring,
 #: "Group joints"): the first derivatives in xi at 0 of ``C xd`` and ``Jcdot xd`` use the poses' derivatives in xi up
 #: to order 3, which ``E_3 = I + X + X^2/2 + X^3/6`` has exactly (order 2 gives wrong dvdot/dq).
 LINEAR_ORDER = 3
-#: What the linearization's code computes (part of its cache key, :func:`linearization_key`).
-LINEARIZATION = ("linearization:d/d(x,xd) of force=M a+C xd+g-Jc^T lam and accel=Jc a+Jcdot xd at parameters a, lam:"
-                 f"exponential order {LINEAR_ORDER}")
-#: The outputs of the linearization's code, in order: ``d force/dx``, ``d force/dxd`` (n x n each, row by row),
-#: ``d accel/dx``, ``d accel/dxd`` (k x n each).
-LINEAR_OUTPUTS = ("force_x", "force_xd", "accel_x", "accel_xd")
+#: What the linearization's own program computes (part of its cache key, :func:`linearization_key`): the dynamics'
+#: outputs in the local exponential chart with xi among the inputs (group joints only).
+LINEARIZATION = f"linearization:the dynamics' outputs with xi as inputs:exponential order {LINEAR_ORDER}"
+#: The complex step of the forward-mode differentiation (module docstring, "Linearization"): a power of two, so the
+#: imaginary part divides by it exactly; its square (1e-42) is below every rounding of the real parts.
+STEP = 2.0 ** -70
 
 
-def _linear_program(model: Model, chart: Chart | None) -> _Program:
-    """The straight-line program of the derivatives of the inverse dynamics and the constraint terms
-    (:func:`linearize`), symbolically: with symbols ``a`` (the accelerations) and ``lam`` (the multipliers) as
-    parameters, ``force = M a + C xd + g - Jc^T lam`` (eq. 2, 12: the KKT system's first row) and ``accel = Jc a +
-    Jcdot xd`` (eq. 13, its second row), each differentiated by every coordinate and every rate with the staged chain
-    rule (:meth:`_Staged.diff`: ``dM/dx a``, ``d(C xd)/dx``, ``dg/dx``, ``dJc^T/dx lam``, ``d(Jcdot xd)/dx`` and the
-    rates' likewise), derived in :data:`LINEAR_ORDER` and, with group joints, at ``xi = 0`` (:func:`_at_origin`).
-    The code reads ``x = (q, a, lam)`` and ``xd``."""
-    d = derivation(model, chart, LINEAR_ORDER)
-    n, k, st = model.n, model.k, d.staged
-    a, lam = list(sp.symbols(f"a0:{n}")), list(sp.symbols(f"lam0:{k}"))
-    force = [sp.Add(*[d.M[i, j] * a[j] for j in range(n)], d.Cqd[i], d.g[i], *[-d.Jc[r][i] * lam[r] for r in range(k)])
-             for i in range(n)]
-    accel = [sp.Add(*[d.Jc[r][j] * a[j] for j in range(n)], d.bias[r]) for r in range(k)]
-    outputs = {label: [st.diff(e, j + offset) for e in rows for j in range(n)]
-               for label, rows, offset in (("force_x", force, 0), ("force_xd", force, n), ("accel_x", accel, 0),
-                                           ("accel_xd", accel, n))}
-    definitions = st.needed([e for v in outputs.values() for e in v])
-    if d.local:
-        definitions, outputs = _at_origin(definitions, outputs, d.local)
-    return _Program(f"Euler-Lagrange linearization of model '{model.name}' ({model.digest()}), {LINEARIZATION}, "
-                    f"chart {chart_key(model, chart)}, generated by crosscheck", ("x", "xd"),
-                    list(d.configuration or d.coordinates) + a + lam, list(d.rates), definitions, outputs)
+def _needs_local_program(model: Model, chart: Chart | None) -> bool:
+    """Whether the linearization needs its own program: the joint chart of a model with group joints, whose dynamics'
+    code is evaluated at ``xi = 0`` with xi gone (:func:`_at_origin`), so it cannot be differentiated in xi."""
+    return bool(model.group_joints) and chart_key(model, chart) == JOINT_CHART
+
+
+def _local_program(model: Model) -> _Program:
+    """The dynamics' straight-line program of a model with group joints in the local exponential chart with the xi kept
+    as inputs after the state's q (:data:`LINEAR_ORDER`), for :func:`linear_terms` to differentiate at ``xi = 0``."""
+    return _program(model, None, LINEAR_ORDER, at_origin=False)
 
 
 def linearization_key(model: Model, chart: Chart | None = None) -> str:
-    """The disk-cache key of the linearization's code: :func:`cache_key` (model, chart, this module's hash) with
-    :data:`LINEARIZATION` (what is differentiated, and the exponential order)."""
+    """The disk-cache key of the linearization's own program (group joints in the joint chart): :func:`cache_key`
+    (model, chart, this module's hash) with :data:`LINEARIZATION`."""
     return hashlib.sha256(f"{cache_key(model, chart)}\0{LINEARIZATION}".encode()).hexdigest()[:32]
 
 
+class _Directional(NamedTuple):
+    """The code :func:`linear_terms` differentiates: its batched ``evaluate(x, xd)`` (columns of states, numpy's
+    functions, so complex columns too), per coordinate of the chart the index of the input it moves, and the number of
+    local coordinates xi that follow the state's q among the inputs (0 but for :func:`_local_program`)."""
+
+    evaluate: Callable
+    columns: tuple[int, ...]
+    local: int = 0
+
+
 @functools.lru_cache(maxsize=64)
-def _linear_code(model: Model, ref: _ChartRef | None) -> Callable:
-    """The linearization's ``evaluate(x, xd)`` (:func:`_linear_program`, Python from the module's emitter), derived on
-    the first call for (model, chart) and cached in memory and on disk (:func:`linearization_key`; never during
-    ``split``)."""
+def _linear_code(model: Model, ref: _ChartRef | None) -> _Directional:
+    """The code of :func:`linear_terms`: the dynamics' own code (:func:`cached_code`, the code ``split`` runs) in a
+    chart and in the joint chart without group joints; with group joints in the joint chart the local program
+    (:func:`_local_program`), derived on the first ``linearize`` (never during ``split``) and cached in memory and on
+    disk (:func:`linearization_key`)."""
     chart = None if ref is None else ref.chart
-    path = _cache_dir() / f"{linearization_key(model, chart)}.py"
-    code = _cached_code(path, lambda: _cached_text(path, lambda: _python(_linear_program(model, chart))))
-    namespace = {"sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
+    if _needs_local_program(model, chart):
+        program = _local_program(model)
+        path = _cache_dir() / f"{linearization_key(model, chart)}.py"
+        code = _cached_code(path, lambda: _cached_text(path, lambda: _python(program)))
+        inputs = [str(s) for s in program.inputs]
+        coordinates, _, _ = _local_coordinates(model)
+        columns = tuple(inputs.index(str(s)) for s in coordinates)
+    else:
+        code, columns = cached_code(model, chart), tuple(range(model.n))
+    namespace = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
     exec(code, namespace)
-    return namespace["evaluate"]
+    return _Directional(namespace["evaluate"], columns, len(columns) - len(set(columns) & set(range(model.nq))))
 
 
 class LinearTerms(NamedTuple):
-    """The derivatives of the KKT rows at a state (:func:`_linear_program`), in the chart they were derived in."""
+    """The derivatives of the KKT rows at a state (:func:`linear_terms`), in the chart they were derived in."""
 
     force_x: np.ndarray    # d(M a + C xd + g - Jc^T lam)/dx (n x n)
     force_xd: np.ndarray   # the same by xd
@@ -2148,14 +2160,36 @@ class LinearTerms(NamedTuple):
     accel_xd: np.ndarray   # the same by xd
 
 
+def _derivatives(model: Model, x, xd, chart: Chart | None) -> tuple[Terms, ConstraintTerms]:
+    """The derivatives of the dynamics' outputs (:data:`OUTPUTS`) in the 2n directions of ``(x, xd)`` at a state, as
+    :class:`Terms` and :class:`ConstraintTerms` with a leading axis of 2n directions (coordinates, then rates). Forward mode by the complex step: each direction is a column of the batched code with
+    ``x + i h e_j`` (or ``xd + i h e_j``), whose imaginary parts are ``h`` times the derivatives (module docstring,
+    "Linearization")."""
+    n = model.n
+    code = _linear_code(model, _ref(model, chart))
+    x, xd = np.asarray(x, dtype=float), np.asarray(xd, dtype=float)
+    inputs = np.concatenate([x, np.zeros(code.local)])                                          # xi = 0
+    X = np.tile(inputs.astype(complex), (2 * n, 1))
+    XD = np.tile(xd.astype(complex), (2 * n, 1))
+    X[np.arange(n), code.columns] += 1j * STEP
+    XD[np.arange(n, 2 * n), np.arange(n)] += 1j * STEP
+    outputs = _flat(code.evaluate(X.T, XD.T))
+    out = np.empty((2 * n, len(outputs)))
+    for i, value in enumerate(outputs):
+        out[:, i] = np.imag(value) / STEP
+    return _unpack(model, out)
+
+
 def linear_terms(model: Model, x, xd, a, lam, chart: Chart | None = None) -> LinearTerms:
     """:class:`LinearTerms` at coordinates ``x`` (q with group joints: the local chart at ``xi = 0``), rates ``xd``,
-    accelerations ``a`` and multipliers ``lam`` (k)."""
-    n, k = model.n, model.k
-    args = np.concatenate([x, a, lam]).tolist()
-    out = _linear_code(model, _ref(model, chart))(args, np.asarray(xd, dtype=float).tolist())
-    shapes = ((n, n), (n, n), (k, n), (k, n))
-    return LinearTerms(*(np.array(o, dtype=float).reshape(shape) for o, shape in zip(out, shapes)))
+    accelerations ``a`` and multipliers ``lam`` (k): the rows ``force = M a + C xd + g - Jc^T lam`` (eq. 2, 12: the
+    KKT system's first row) and ``accel = Jc a + Jcdot xd`` (eq. 13, its second) differentiated in every coordinate
+    and rate from the derivatives of M, C xd, g, Jc and Jcdot xd (:func:`_derivatives`) at fixed ``a`` and ``lam``."""
+    n = model.n
+    (dM, dCqd, dg, *_), (_, dJc, dbias) = _derivatives(model, x, xd, chart)
+    force = dM @ np.asarray(a, dtype=float) + dCqd + dg - np.einsum("drj,r->dj", dJc, np.asarray(lam, dtype=float))
+    accel = dJc @ np.asarray(a, dtype=float) + dbias
+    return LinearTerms(force[:n].T, force[n:].T, accel[:n].T, accel[n:].T)
 
 
 def _ad(e: np.ndarray) -> np.ndarray:
@@ -2211,7 +2245,7 @@ def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None
     """``(vdot, dF/dx, dF/dxd, dF/dinputs)`` of the chart's ``xdd = F(x, xd)`` under the generalized force ``tau`` (the
     KKT solution of eqs. 12-13 at ``a = vdot``; module docstring, "Linearization"): vdot and lam by the split's own
     solve, then the differentiated KKT system ``[[M, -Jc^T], [Jc, 0]] [dF; dlam] = [dtau - d force; -d accel]`` per
-    direction, with :func:`linear_terms` (the symbolic derivatives) and the same scaled, rank-revealing :func:`_kkt`
+    direction, with :func:`linear_terms` (the dynamics' code differentiated) and the same scaled, rank-revealing :func:`_kkt`
     (unconstrained: ``dF = M^-1 (dtau - d force)`` by the Cholesky factor), and ``dF/dinputs = B_c inputs`` (eq. 17;
     ``M^-1 inputs`` unconstrained). ``dtau`` is the local chart's (:func:`_chart_force`) in the joint chart (None), 0
     in a chart ``q = psi(p)``, whose force ``tau_p`` is its own coordinate's."""

@@ -8,14 +8,12 @@
 * the drift's parts against ``-M^-1 g`` and ``-M^-1 C qd`` from the reference's M, C qd and g, adding up to the drift;
 * the derivation of the linearization is lazy (never during ``split``) and cached on disk under its own key.
 
-Every derivation goes to a scratch cache (``fresh_derivation_cache``), so the tests test the current code. Panda
-(9 joints + the finger coupling) and solo12 (free base, 12 joints) take 10-30 s to derive cold: they run with
-``CROSSCHECK_SLOW=1`` (measured and reported in the branch's notes).
+Every derivation goes to a scratch cache (``fresh_derivation_cache``), so the tests test the current code; the
+largest (solo12, free base) takes about a second cold since the linearization differentiates the dynamics' code.
 """
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -37,8 +35,6 @@ pytestmark = pytest.mark.usefixtures("fresh_derivation_cache")
 EL = formalisms.get("euler_lagrange")
 #: A drawn model's derivation takes a second or more, so a failure is reported as drawn, not shrunk for minutes.
 NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)
-SLOW = pytest.mark.skipif(os.environ.get("CROSSCHECK_SLOW") != "1",
-                          reason="cold derivation of 10-30 s; CROSSCHECK_SLOW=1 runs it")
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -167,18 +163,30 @@ def test_panda_with_its_finger_coupling_matches_central_differences():
     _against_differences(model, *_state(model, 3))
 
 
-@SLOW
 @pytest.mark.parametrize("name", ["solo12", "spatial_arm", "satellite_arm"])
 def test_large_models_match_pinocchio(name):
     model = cases.load(name)
     _against_pinocchio(model, *_state(model, 4))
 
 
-def test_the_linearization_is_derived_lazily_and_cached_under_its_own_key():
-    """``split`` never derives it; the first ``linearize`` does, once, into the disk cache under
+def test_the_linearization_differentiates_the_dynamics_own_code():
+    """Without group joints the linearization derives nothing: it differentiates the code ``split`` runs (the
+    dynamics' cache entry, no file of its own)."""
+    model = cases.load("n_link_pendulum", n=3)  # no other test here derives it
+    q, v, u = _state(model, 5)
+    EL.split(model, q, v, u)
+    files = set(el._cache_dir().iterdir())
+    EL.linearize(model, q, v, u)
+    assert set(el._cache_dir().iterdir()) == files
+    assert not (el._cache_dir() / f"{el.linearization_key(model)}.py").exists()
+
+
+def test_the_local_program_is_derived_lazily_and_cached_under_its_own_key():
+    """With group joints the joint chart's code is evaluated at xi = 0, so the linearization has its own program (xi
+    among the inputs): ``split`` never derives it; the first ``linearize`` does, once, into the disk cache under
     ``linearization_key`` (distinct from the dynamics' key); a second call is served from memory, and a process
     without the memory cache reads the disk and gives the same numbers."""
-    model = cases.load("n_link_pendulum", n=3)  # no other test here derives it
+    model = cases.load("ball_pendulum")  # no other test here linearizes it
     q, v, u = _state(model, 5)
     path = el._cache_dir() / f"{el.linearization_key(model)}.py"
     before = el._linear_code.cache_info()
@@ -186,7 +194,7 @@ def test_the_linearization_is_derived_lazily_and_cached_under_its_own_key():
     assert el._linear_code.cache_info() == before and not path.exists()
     first = EL.linearize(model, q, v, u)
     assert path.exists() and el.linearization_key(model) != el.cache_key(model)
-    assert "linearization" in path.read_text().splitlines()[0]
+    assert "for the linearization" in path.read_text().splitlines()[0]
     EL.linearize(model, q, v, u)
     assert el._linear_code.cache_info().misses == before.misses + 1
     el._linear_code.cache_clear()
