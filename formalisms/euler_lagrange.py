@@ -199,6 +199,7 @@ correctly rounded sum (:func:`_power`).
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import hashlib
 import importlib.util
@@ -247,6 +248,78 @@ def _skew(a: sp.DenseMatrix) -> sp.DenseMatrix:
     return sp.DenseMatrix([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
 
 
+#: The world data of each constraint type (module docstring, "World as parameters"): the fields a moved scene changes.
+_WORLD_FIELDS = {PointOnCircle: ("center", "plane"), PointsCoincide: ("offset_b", "directions"),
+                 PointOnLine: ("origin", "normals"), PointVelocity: ("directions",), RollingContact: ("plane",)}
+
+
+def _world_data(model: Model) -> list[tuple[str, np.ndarray]]:
+    """The model's world data in a fixed order (module docstring, "World as parameters"): gravity, each root body's
+    placement, the world points and directions of the constraints and the world-frame data of the loads; what a moved
+    scene or a gravity-free copy changes, and nothing else."""
+    out = [("gravity", model.gravity)]
+    for i, body in enumerate(model.bodies):
+        if body.parent is None:
+            out += [(f"root{i}.rotation", body.rotation), (f"root{i}.translation", body.translation)]
+    for r, c in enumerate(model.constraints):
+        out += [(f"constraint{r}.{f}", getattr(c, f)) for f in _WORLD_FIELDS.get(type(c), ())
+                if not (f == "offset_b" and c.body_b is not None)]
+    for r, load in enumerate(model.loads):
+        fields = ("anchor",) if isinstance(load, PointSpring) else () if load.frame == "body" else \
+            ("force", "moment") if isinstance(load, ExternalWrench) else ("force",)
+        out += [(f"load{r}.{f}", getattr(load, f)) for f in fields]
+    return out
+
+
+def _world_values(model: Model) -> np.ndarray:
+    """The numbers of :func:`_world_data`, flat, in order: what the generated code reads after the coordinates."""
+    return np.concatenate([np.ravel(np.asarray(a, dtype=float)) for _, a in _world_data(model)])
+
+
+class _World:
+    """The world data as symbols of the derivation (parameters: never differentiated), one per number of
+    :func:`_world_data`, named ``world0 ..`` in that order; :meth:`matrix` gives a datum's symbols in its shape
+    (a vector as a column)."""
+
+    def __init__(self, model: Model):
+        self.model = model
+        self.symbols: list = []
+        self._data: dict = {}
+        for label, value in _world_data(model):
+            shape = np.shape(value)
+            flat = list(sp.symbols(f"world{len(self.symbols)}:{len(self.symbols) + int(np.prod(shape))}"))
+            self.symbols += flat
+            self._data[label] = sp.DenseMatrix(shape[0], shape[1] if len(shape) == 2 else 1, flat)
+
+    def matrix(self, label: str) -> sp.DenseMatrix:
+        return self._data[label]
+
+    def of(self, declaration, field: str) -> sp.DenseMatrix:
+        """The symbols of a constraint's or a load's world datum ``field`` (the declaration found by identity)."""
+        for kind, declarations in (("constraint", self.model.constraints), ("load", self.model.loads)):
+            for r, d in enumerate(declarations):
+                if d is declaration:
+                    return self._data[f"{kind}{r}.{field}"]
+        raise KeyError(f"{declaration!r} is not a declaration of model '{self.model.name}'")
+
+
+def _shape_digest(model: Model) -> str:
+    """The model's digest with its world data (:func:`_world_data`) set to zero: what a derivation depends on, so a
+    moved scene and a gravity-free copy share the model's derivation, code and library. The task points, which this
+    backend does not use, are left out too."""
+    bodies = [dataclasses.replace(b, rotation=np.zeros((3, 3)), translation=np.zeros(3)) if b.parent is None else b
+              for b in model.bodies]
+    constraints = [dataclasses.replace(c, **{f: np.zeros(np.shape(getattr(c, f)))
+                                             for f in _WORLD_FIELDS.get(type(c), ())
+                                             if not (f == "offset_b" and c.body_b is not None)})
+                   for c in model.constraints]
+    loads = [dataclasses.replace(load, **{f: np.zeros(3) for f in ("anchor", "force", "moment")
+                                          if hasattr(load, f) and (f == "anchor" or load.frame == "world")})
+             for load in model.loads]
+    return dataclasses.replace(model, bodies=tuple(bodies), gravity=np.zeros(3), constraints=tuple(constraints),
+                               loads=tuple(loads), task_points=()).digest()
+
+
 class _Staged:
     """Named intermediate expressions with a memoized chain rule: forward-mode differentiation, symbolically.
 
@@ -278,6 +351,8 @@ class _Staged:
         self._seeded: dict[sp.Symbol, tuple[sp.Expr, sp.Expr]] = {}
         self._rate: dict[sp.Symbol, sp.Expr] = {}
         self._count = 0
+        #: The model's world data as parameters (:class:`_World`), set by :func:`derivation`.
+        self.world: _World | None = None
 
     def name(self, expr) -> sp.Expr:
         """A symbol standing for ``expr`` (numbers and symbols are returned as they are)."""
@@ -430,9 +505,12 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
     for i in model.topological_order:
         body = model.bodies[i]
         parent = model.parent_index[i]
-        R_par, p_par = (sp.eye(3), sp.zeros(3, 1)) if parent < 0 else poses[parent]
-        R_joint = R_par * _matrix(body.rotation)
-        p_joint = p_par + R_par * _matrix(body.translation)
+        if parent < 0:       # a root body: its placement in the world is world data (module docstring)
+            R_joint, p_joint = st.world.matrix(f"root{i}.rotation"), st.world.matrix(f"root{i}.translation")
+        else:
+            R_par, p_par = poses[parent]
+            R_joint = R_par * _matrix(body.rotation)
+            p_joint = p_par + R_par * _matrix(body.translation)
         axis = _matrix(body.axis)
         if i in local:
             R_m, p_m = local[i]
@@ -563,7 +641,7 @@ def _energies(model: Model, st: _Staged, poses) -> tuple[sp.Expr, sp.Expr]:
     """Kinetic energy T(p, pd) and potential energy V(p) of the whole tree (module docstring, step 2); the body
     velocities ``c_dot`` and ``R_dot`` are the staged time derivatives of the poses (:meth:`_Staged.dt`)."""
     T, V = ZERO, ZERO
-    gravity = _matrix(model.gravity)
+    gravity = st.world.matrix("gravity")
     for body, (R, p) in zip(model.bodies, poses):
         c = _com(R, p, body.com).applyfunc(st.name)
         c_dot = c.applyfunc(st.dt)
@@ -588,14 +666,15 @@ def _constraint_rows(model: Model, st: _Staged, poses, declarations=None) -> lis
     as :mod:`cases.constraints` fixes them."""
     rows: list = []
     for c in (model.constraints if declarations is None else declarations):
+        world = functools.partial(st.world.of, c)
         if isinstance(c, PointOnCircle):
-            d = _matrix(c.plane) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.center))
+            d = world("plane") * (_point(model, st, poses, c.body, c.offset) - world("center"))
             rows.append((d.T * d)[0] - _exact(c.radius**2))
         elif isinstance(c, PointsCoincide):
-            b = _matrix(c.offset_b) if c.body_b is None else _point(model, st, poses, c.body_b, c.offset_b)
-            rows.extend(_matrix(c.directions) * (_point(model, st, poses, c.body_a, c.offset_a) - b))
+            b = world("offset_b") if c.body_b is None else _point(model, st, poses, c.body_b, c.offset_b)
+            rows.extend(world("directions") * (_point(model, st, poses, c.body_a, c.offset_a) - b))
         elif isinstance(c, PointOnLine):
-            rows.extend(_matrix(c.normals) * (_point(model, st, poses, c.body, c.offset) - _matrix(c.origin)))
+            rows.extend(world("normals") * (_point(model, st, poses, c.body, c.offset) - world("origin")))
         else:  # JointCoupling: sum_j c_j q_j - offset, with q = psi(p) (revolute and prismatic joints only)
             index = model.v_index if st.joint_index is None else st.joint_index
             rows.append(sp.Add(*[_exact(a) * st.joint[index[model.body_index(j)]]
@@ -617,12 +696,13 @@ def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
     ``Jcdot pd`` then follow by differentiating the rows (:func:`_constraints`): the turning of t is in ``dt``."""
     R, _ = poses[model.body_index(c.body)]
     if isinstance(c, PointVelocity):
-        return list(_matrix(c.directions) * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))
+        return list(st.world.of(c, "directions") * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))
     if isinstance(c, KnifeEdge):
         e = R * _matrix(c.direction)
         return [(e.T * _point(model, st, poses, c.body, c.offset).applyfunc(st.dt))[0]]
     # RollingContact
-    n = _matrix(np.cross(c.plane[0], c.plane[1]))
+    plane = st.world.of(c, "plane")
+    n = (_skew(plane[0, :].T) * plane[1, :].T).applyfunc(st.name)
     a = (R * _matrix(c.axis)).applyfunc(st.name)
     raw = (n - (n.T * a)[0] * a).applyfunc(st.name)
     length = st.name(sp.sqrt((raw.T * raw)[0]))
@@ -633,7 +713,7 @@ def _pfaffian_rows(model: Model, st: _Staged, poses, c) -> list:
         b = (_skew(a) * n).applyfunc(st.name)
         t = (b * (ONE / st.name(sp.sqrt((b.T * b)[0])))).applyfunc(st.name)
         return [(t.T * velocity)[0]]
-    return list(_matrix(c.plane) * velocity)
+    return list(plane * velocity)
 
 
 def _constraints(model: Model, st: _Staged, poses) -> tuple[list, list, list]:
@@ -773,7 +853,8 @@ class Derivation(NamedTuple):
     symbols p, pd (named q, qd in the joint chart); ``joint`` is q = psi(p). With spherical or free joints
     (module docstring, "Group joints") ``coordinates`` are the local chart's (joint values and xi, nv of them),
     ``configuration`` the nq symbols of the state's q (the quaternions and free positions are parameters) and
-    ``local`` the xi, which the generated code sets to 0; both are empty without group joints."""
+    ``local`` the xi, which the generated code sets to 0; both are empty without group joints. ``world`` are the
+    symbols of the world data (:class:`_World`), read by the generated code after the coordinates."""
 
     M: sp.DenseMatrix
     Cqd: sp.DenseMatrix
@@ -790,6 +871,7 @@ class Derivation(NamedTuple):
     configuration: tuple = ()
     local: tuple = ()
     Qext: tuple = ()
+    world: tuple = ()
 
 
 def _external_forces(model: Model, st: _Staged, poses) -> list:
@@ -801,17 +883,18 @@ def _external_forces(model: Model, st: _Staged, poses) -> list:
         R, _ = poses[model.body_index(load.body)]
         x = _point(model, st, poses, load.body, load.offset)
         if isinstance(load, PointSpring):
-            d = x - _matrix(load.anchor)
+            d = x - st.world.of(load, "anchor")
             squared = st.name((d.T * d)[0])
             V = (HALF * _exact(load.stiffness) * (st.name(sp.sqrt(squared)) - _exact(load.rest_length)) ** 2
                  if load.rest_length else HALF * _exact(load.stiffness) * squared)
             Q = [Q[j] - st.diff(V, j) for j in range(n)]
             continue
-        world = (lambda v: _matrix(v)) if load.frame == "world" else (lambda v, R=R: R * _matrix(v))
-        f = world(load.force)
+        world = (lambda f: st.world.of(load, f)) if load.frame == "world" else \
+            (lambda f, R=R: R * _matrix(getattr(load, f)))
+        f = world("force")
         Q = [Q[j] + (f.T * x.applyfunc(lambda e, j=j: st.diff(e, j)))[0] for j in range(n)]
         if isinstance(load, ExternalWrench):
-            m = world(load.moment)
+            m = world("moment")
             for j in range(n):
                 S = R.applyfunc(lambda e, j=j: st.diff(e, j)) * R.T         # [dR/dp_j R^T]x: the turn rate per p_j
                 Q[j] = Q[j] + m[0] * S[2, 1] + m[1] * S[0, 2] + m[2] * S[1, 0]
@@ -845,6 +928,7 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
         x = list(sp.symbols(f"{letter}0:{n}"))
     xd = list(sp.symbols(f"{letter}d0:{n}"))
     st = _Staged(x, xd)
+    st.world = _World(model)
     motions = None
     if side:  # a velocity representation: the local chart with the exponential on the left
         motions = _local_motions(model, st, configuration, order, side)
@@ -870,7 +954,7 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
     if Qext:                                              # velocity-independent: with gravity (module doc, step 5)
         g = sp.DenseMatrix([g[i] - Qext[i] for i in range(n)])
     return Derivation(M, Cqd, g, T, V, *_constraints(model, st, poses), x, xd, list(st.joint), st,
-                      tuple(configuration), tuple(local), tuple(Qext))
+                      tuple(configuration), tuple(local), tuple(Qext), tuple(st.world.symbols))
 
 
 def derive(model: Model, chart: Chart | None = None):
@@ -1089,7 +1173,7 @@ def _program(model: Model, chart: Chart | None, order: int, at_origin: bool = Tr
         where = f"local exponential coordinates {at} ({_group_chart_text(model, chart, order)})"
     elif model.group_joints:
         where += f" ({GROUP_IN_CHART})"
-    inputs = list(d.configuration or d.coordinates) + ([] if at_origin else list(d.local))
+    inputs = list(d.configuration or d.coordinates) + ([] if at_origin else list(d.local)) + list(d.world)
     return _Program(f"Euler-Lagrange dynamics of model '{model.name}' ({model.digest()}) in {where}, generated by "
                     "crosscheck", ("q", "qd") if key == JOINT_CHART or d.local else ("p", "pd"),
                     inputs, list(d.rates), definitions, outputs)
@@ -1246,8 +1330,9 @@ def _cache_dir() -> Path:
 
 
 def cache_key(model: Model, chart: Chart | None = None) -> str:
-    """The disk-cache key: a digest of (model digest, chart key or ``"identity"``, hash of this module)."""
-    parts = (model.digest(), chart_key(model, chart))
+    """The disk-cache key: a digest of (the model's digest without its world data, :func:`_shape_digest`; the chart key
+    or ``"identity"``; a hash of this module)."""
+    parts = (_shape_digest(model), chart_key(model, chart))
     if model.group_joints:  # how the group joints are derived is part of the key: the local chart, or psi's q
         parts += (GROUP_IN_CHART if parts[1] != JOINT_CHART and _representation(model, chart) is None
                   else _group_chart_text(model, chart, EXP_ORDER),)
@@ -1490,19 +1575,21 @@ class _Evaluator(NamedTuple):
 
 def _native(model: Model, chart: Chart | None) -> _Evaluator:
     """The compiled library (:func:`_library`) called through ctypes: one call per state, one per block of states
-    (``evaluate_batch``, row-major arrays). A ValueError names arguments of the wrong shape (the library reads
-    exactly its layout's lengths)."""
+    (``evaluate_batch``, row-major arrays), the model's world data (:func:`_world_values`) after each state's
+    coordinates. A ValueError names arguments of the wrong shape (the library reads exactly its layout's lengths)."""
     library, (nx, nv, size) = _library(model, chart)
+    world = _world_values(model)
+    nx -= len(world)
     one, many = library.evaluate, library.evaluate_batch
     one.argtypes, one.restype = [ctypes.c_void_p] * 3, None
     many.argtypes, many.restype = [ctypes.c_long] + [ctypes.c_void_p] * 3, None
 
     def arguments(x, xd, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
-        x, xd = np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(xd, dtype=float)
+        x, xd = np.asarray(x, dtype=float), np.ascontiguousarray(xd, dtype=float)
         if x.shape != shape + (nx,) or xd.shape != shape + (nv,):
             raise ValueError(f"Euler–Lagrange: the compiled code of model '{model.name}' takes x of shape "
                              f"{shape + (nx,)} and xd of {shape + (nv,)}, not {x.shape} and {xd.shape}")
-        return x, xd
+        return np.ascontiguousarray(np.concatenate([x, np.broadcast_to(world, shape + world.shape)], axis=-1)), xd
 
     def single(x, xd) -> np.ndarray:
         x, xd = arguments(x, xd, ())
@@ -1536,20 +1623,24 @@ def _rows(values, size: int) -> np.ndarray:
 
 def _interpreted(model: Model, chart: Chart | None, reason: str) -> _Evaluator:
     """The cached Python code (:func:`cached_code`) run with ``math``'s ``sin`` and ``cos`` for one state, and with
-    numpy's on columns of states (each coordinate an array with one entry per state) for a batch; the batched call
-    holds one array per local of the code."""
+    numpy's on columns of states (each coordinate an array with one entry per state) for a batch, the model's world
+    data (:func:`_world_values`) after the coordinates; the batched call holds one array per local of the code."""
     code = cached_code(model, chart)
     scalar = {"sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
     columns = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
     exec(code, scalar)
     exec(code, columns)
     one, many = scalar["evaluate"], columns["evaluate"]
+    world = _world_values(model)
 
     def single(x, xd) -> np.ndarray:
-        return np.array(_flat(one(np.asarray(x, dtype=float).tolist(), np.asarray(xd, dtype=float).tolist())))
+        return np.array(_flat(one(np.asarray(x, dtype=float).tolist() + world.tolist(),
+                                  np.asarray(xd, dtype=float).tolist())))
 
     def batch(X, XD) -> np.ndarray:
-        outputs = many(np.ascontiguousarray(X.T, dtype=float), np.ascontiguousarray(XD.T, dtype=float))
+        X = np.asarray(X, dtype=float)
+        X = np.concatenate([X, np.broadcast_to(world, (len(X), len(world)))], axis=1)
+        outputs = many(np.ascontiguousarray(X.T), np.ascontiguousarray(XD.T, dtype=float))
         return _rows(_flat(outputs), len(X)).T
 
     return _Evaluator(single, batch, len(many.__code__.co_varnames), f"interpreted Python ({reason})")
@@ -2168,7 +2259,7 @@ def _derivatives(model: Model, x, xd, chart: Chart | None) -> tuple[Terms, Const
     n = model.n
     code = _linear_code(model, _ref(model, chart))
     x, xd = np.asarray(x, dtype=float), np.asarray(xd, dtype=float)
-    inputs = np.concatenate([x, np.zeros(code.local)])                                          # xi = 0
+    inputs = np.concatenate([x, np.zeros(code.local), _world_values(model)])                    # xi = 0
     X = np.tile(inputs.astype(complex), (2 * n, 1))
     XD = np.tile(xd.astype(complex), (2 * n, 1))
     X[np.arange(n), code.columns] += 1j * STEP

@@ -350,9 +350,11 @@ def test_velocity_derivative_is_the_second_derivative_of_xi_at_the_origin(name):
 
 
 def _evaluator(model, order):
+    """The generated code's ``evaluate(q, qd)``, the model's world data after q (as the backend passes them)."""
     namespace = {"sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
     exec(el.generate_source(model, order=order), namespace)
-    return namespace["evaluate"]
+    world = el._world_values(model).tolist()
+    return lambda q, qd: namespace["evaluate"](list(q) + world, qd)
 
 
 @pytest.mark.parametrize("name", ["ball_pendulum", "free_body"] + list(CONSTRAINED_CASES))
@@ -392,7 +394,7 @@ def test_the_local_chart_is_part_of_the_cache_key(tmp_path, monkeypatch):
     assert "local exponential coordinates" in source.splitlines()[0]
     assert el.GROUP_CHART.format(order=el.EXP_ORDER) in source.splitlines()[0]
     header, body = source.split("\n", 1)
-    assert "def evaluate(q, qd):" in body and "q0, q1, q2, q3, = q" in body and "xi" not in body
+    assert "def evaluate(q, qd):" in body and "q0, q1, q2, q3, world0, " in body and "xi" not in body
     with monkeypatch.context() as mp:
         mp.setattr(el, "EXP_ORDER", 3)
         assert el.cache_key(group) != key, "another truncation of the chart must be another cache entry"
@@ -621,7 +623,7 @@ def test_zyx_chart_cache_entry(tmp_path, monkeypatch):
     source = el.cached_source(model, chart)
     header, body = source.split("\n", 1)
     assert f"chart 'zyx' ({chart.key})" in header and el.GROUP_IN_CHART in header
-    assert "def evaluate(p, pd):" in body and "p0, p1, p2, p3, p4, p5, = p" in body and "xi" not in body
+    assert "def evaluate(p, pd):" in body and "p0, p1, p2, p3, p4, p5, world0, " in body and "xi" not in body
     assert (tmp_path / "euler_lagrange" / f"{key}.py").read_text() == source
     assert el.cached_source(model, chart) == source and el.cached_source(model) == joint_source
     assert len(list(tmp_path.rglob("*.py"))) == 2
