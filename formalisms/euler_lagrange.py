@@ -224,7 +224,7 @@ from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, cache_dir, chart_vectors, check_batch, check_state, state_space,
-                                  write_cache_file)
+                                  used_cache_file, write_cache_file)
 
 ZERO, ONE, HALF = sp.Integer(0), sp.Integer(1), sp.Rational(1, 2)
 JOINT_CHART = "identity"  # the cache key of the joint chart q = p
@@ -1359,6 +1359,7 @@ def cached_source(model: Model, chart: Chart | None = None, language: str = "pyt
 def _cached_text(path: Path, make: Callable[[], str]) -> str:
     """The text cached at ``path``, else ``make()`` written there (:func:`~formalisms.interface.write_cache_file`)."""
     if path.exists():
+        used_cache_file(path)
         return path.read_text()
     source = make()
     write_cache_file(path, source.encode())
@@ -1382,6 +1383,8 @@ def _cached_code(path: Path, source: Callable[[], str]) -> types.CodeType:
         except (EOFError, ValueError, TypeError):
             code = None
         if isinstance(code, types.CodeType):
+            used_cache_file(path)
+            used_cache_file(code_path)
             return code
     code = compile(source(), str(path), "exec")
     write_cache_file(code_path, marshal.dumps(code))
@@ -1491,6 +1494,7 @@ def _library(model: Model, chart: Chart | None) -> tuple[ctypes.CDLL, tuple[int,
     if _intact(path):
         try:
             library = ctypes.CDLL(str(path))
+            used_cache_file(path)
             return library, _layout(library, model)
         except (OSError, ValueError):  # whole, but not loadable here (another machine's) or not this model's
             pass

@@ -267,7 +267,7 @@ from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, StateError, cache_dir, check_batch, chart_vectors, check_state,
-                                  joint_vectors, state_space, write_cache_file)
+                                  joint_vectors, state_space, used_cache_file, write_cache_file)
 
 JOINT_CHART = "joint"  # cache key of the joint chart q = p (chart=None)
 
@@ -830,9 +830,12 @@ def _cached(path: Path, outputs: int) -> _Library | None:
     if hashlib.sha256(data).hexdigest() != digest:
         return None
     try:
-        return _Library(path, outputs)
+        library = _Library(path, outputs)
     except (OSError, AttributeError):
         return None
+    used_cache_file(path)
+    used_cache_file(path.with_suffix(".sha256"))
+    return library
 
 
 def _build(source: str, command: list[str], path: Path, outputs: int) -> _Library:

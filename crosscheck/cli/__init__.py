@@ -1,9 +1,9 @@
 """The ``crosscheck`` command line: cases, formalisms, gate, eval, faults, fuzz, replay, merge, bench, stability,
-trajectory, reports.
+trajectory, reports, cache.
 
 Each command lives in its own module of this package, which adds its subparser (``add_parser(sub)``) and runs it:
 ``listing`` (cases, formalisms), ``gate``, ``eval``, ``faults``, ``fuzz`` (fuzz, replay, merge), ``bench`` (also
-``--scale``), ``stability``, ``trajectory`` and ``reports``; what they share (the parser class, the common options,
+``--scale``), ``stability``, ``trajectory``, ``reports`` and ``cache``; what they share (the parser class, the common options,
 the ``--workers`` policy, the output directories) is in ``options``. This module assembles the parser and runs a
 command (:func:`main`, the ``crosscheck`` console script); the command modules never import it.
 
@@ -28,16 +28,16 @@ from cases.model import ModelError
 import cases.urdf
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.cli import bench, eval, faults, fuzz, gate, listing, reports, stability, trajectory
+from crosscheck.cli import bench, cache, eval, faults, fuzz, gate, listing, reports, stability, trajectory
 from crosscheck.cli.options import BLAS_THREADS, _interrupted, _one_line, _Parser, UsageError
 from crosscheck.core import sampling
 from crosscheck.engine.run import PreparationNotice
 from crosscheck.guards import preflight
 from formalisms import UnknownFormalism
-from formalisms.interface import StateError
+from formalisms.interface import StateError, cache_limit
 
 #: The command modules in the order ``crosscheck --help`` lists their subcommands.
-COMMANDS = (listing, gate, eval, faults, fuzz, bench, stability, trajectory, reports)
+COMMANDS = (listing, gate, eval, faults, fuzz, bench, stability, trajectory, reports, cache)
 
 
 def _version() -> str:
@@ -82,6 +82,10 @@ def _main(argv: list[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)
         args.argv = argv
+        try:
+            cache_limit()            # a bad CROSSCHECK_CACHE_LIMIT is named here, not by a backend's first write
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
         backends.load_plugins(getattr(args, "plugin", []))
         with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return args.run(args)

@@ -37,7 +37,7 @@ PROJECT = {"formalisms.interface", "cases.model", "cases.constraints", "cases.lo
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
              "joint_vectors", "with_block_form",
-             "cache_dir", "write_cache_file",  # disk-cache plumbing: where a backend keeps its derivations, no numerics
+             "cache_dir", "write_cache_file", "used_cache_file",  # disk-cache plumbing: where a backend keeps its derivations, no numerics
              # the linearization's type and its kinematic rows: the group convention (no dynamics), held against the
              # flow of cases.configuration.integrate by tests/checks/test_linearize.py, outside the vote
              "Linearization", "state_space", "tangent_kinematics"}
