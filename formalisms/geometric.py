@@ -187,8 +187,9 @@ Linearization (article 4.8, eq. 11; :func:`linearize`, :func:`linearize_chart`).
 multipliers) solve ``r(p, pd, a, lam) = (tau, 0)``, eqs. (12)-(13) written with this backend's own expressions,
 ``r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam; Jc a + Jcdot pd] = [r_dyn; r_con]`` (M, the first-kind contraction
 from the dM of the Function, dV, Jc and Jcdot pd read out of the Function's own SX expression). casadi differentiates r
-in the point and in pd (a second Function, built on the first linearize of a (model, chart) and cached with the
-first; never by split), it is evaluated at the split's own ``(total, lam)``, and the implicit function theorem gives
+in forward mode along a direction of the point and pd (``jtimes``: a second Function, built on the first linearize of
+a (model, chart) and cached with the first; never by split), evaluated at the split's own ``(total, lam)`` along every
+coordinate in one batched call, and the implicit function theorem gives
 the derivatives: per direction ``M dvdot - Jc^T dlam = dtau - dr_dyn``, ``Jc dvdot = -dr_con``, solved as the split
 is (the metric's Cholesky factor; with constraints the same null-space solve with the same independent rows, which
 is eq. (17)'s ``B_c`` for the inputs). This is the KKT system differentiated, exact to rounding: no finite
@@ -1025,20 +1026,24 @@ class _Compiled:
 
     @property
     def linearization(self) -> _Evaluator:
-        """``(point, [pd, a, lam]) -> [vec dr/dpoint, vec dr/dpd]``: the partial derivatives (casadi AD, built on first
-        use) of the residual of eqs. (12)-(13) at the acceleration ``a`` and multipliers ``lam``,
+        """``(point, [pd, a, lam, dpoint, dpd]) -> dr``: the derivative of the residual of eqs. (12)-(13) at the
+        acceleration ``a`` and multipliers ``lam``,
 
             r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam;  Jc a + Jcdot pd]        ((n + kc) rows),
 
-        whose zero is the split's total (and lam): the implicit function theorem turns them into A and B
-        (:func:`_derivatives`). ``dr/dpoint`` has one column per coordinate of the Function's point (q, nq, for a model
+        along the direction ``(dpoint, dpd)``: casadi's forward-mode AD of the same graph (``jtimes``, built on first
+        use; about three times r's instructions, where the whole Jacobian's graph is 16 times r's and took a 29-joint
+        humanoid 10 s to build). Its zero is the split's total (and lam): the implicit function theorem turns the
+        derivatives along every coordinate of the point and of pd, one batched call, into A and B
+        (:func:`_derivatives`). ``dpoint`` has one entry per coordinate of the Function's point (q, nq, for a model
         with spherical or free joints: the derivative of the group chart's origin values, not of the chart)."""
         if self._linearization is None:
             a, lam = ca.SX.sym("a", self.n), ca.SX.sym("lam", self.kc)
+            dpoint, dpd = ca.SX.sym("dpoint", self.point.numel()), ca.SX.sym("dpd", self.n)
             M, Cqd, dV, Jc, Jc_bias = self._terms()
             r = ca.vertcat(ca.mtimes(M, a) + Cqd + dV - ca.mtimes(Jc.T, lam), ca.mtimes(Jc, a) + Jc_bias)
-            self._linearization = _Evaluator("geometric_linearize", self.point, ca.vertcat(self.pd, a, lam), ca.vertcat(
-                ca.vec(ca.jacobian(r, self.point)), ca.vec(ca.jacobian(r, self.pd))))
+            self._linearization = _Evaluator("geometric_linearize", self.point, ca.vertcat(self.pd, a, lam, dpoint, dpd),
+                                             ca.jtimes(r, ca.vertcat(self.point, self.pd), ca.vertcat(dpoint, dpd)))
         return self._linearization
 
     @property
@@ -1593,17 +1598,18 @@ def _derivatives(model: Model, chart, point: np.ndarray, pd: np.ndarray, tau: np
         Jc dvdot = -d/dx (Jc a + Jcdot pd),
 
     i.e. ``dvdot = M^-1 (...)`` (the metric's Cholesky factor) or, with constraints, the split's own null-space solve
-    (:func:`_projected`, the same independent rows): exact, from casadi's AD of the backend's own expressions (M, its
-    derivatives, dV/dp, Jc, Jcdot pd), never finite differences. ``dvdot/dpoint`` has a column per coordinate of the
+    (:func:`_projected`, the same independent rows): exact, from casadi's forward-mode AD of the backend's own
+    expressions (M, its derivatives, dV/dp, Jc, Jcdot pd) in every direction at once, never finite differences. ``dvdot/dpoint`` has a column per coordinate of the
     point (nq for a model with spherical or free joints: the ambient derivative at the group chart's origin)."""
     c = _compiled(model, chart)
     pt = _evaluate(model, chart, point, pd)
     s = _split_at(model, chart, pt, point, pd, tau)
     n, kc, width = model.n, c.kc, point.size
     lam = np.asarray(s.lam, dtype=float) if model.constraints else np.zeros(0)
-    flat = c.linearization(point, np.concatenate([pd, s.total, lam]))
-    dr_dpoint = flat[:(n + kc) * width].reshape(width, n + kc).T             # vec is column-major
-    dr_dpd = flat[(n + kc) * width:].reshape(n, n + kc).T
+    directions = np.eye(width + n)                       # every coordinate of the point, then of pd
+    at = np.hstack([np.tile(np.concatenate([pd, s.total, lam]), (width + n, 1)), directions])
+    dr = c.linearization.batch(np.tile(point, (width + n, 1)), at)            # row j: dr along direction j
+    dr_dpoint, dr_dpd = dr[:width].T, dr[width:].T
     forces = np.hstack([-dr_dpoint[:n], -dr_dpd[:n], inputs])
     if model.constraints:
         metric_factor, _, _, _, _, dist = _constraint_distribution(model, chart, pt, point)
