@@ -198,6 +198,7 @@ correctly rounded sum (:func:`_power`).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import dataclasses
 import functools
@@ -213,7 +214,12 @@ import tempfile
 import types
 import warnings
 from pathlib import Path
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, Iterator, NamedTuple, Sequence
+
+try:
+    import fcntl
+except ImportError:                       # not POSIX: entries are not locked while derived (:func:`_deriving`)
+    fcntl = None
 
 import numpy as np
 import scipy.linalg
@@ -1357,13 +1363,36 @@ def cached_source(model: Model, chart: Chart | None = None, language: str = "pyt
 
 
 def _cached_text(path: Path, make: Callable[[], str]) -> str:
-    """The text cached at ``path``, else ``make()`` written there (:func:`~formalisms.interface.write_cache_file`)."""
+    """The text cached at ``path``, else ``make()`` written there (:func:`~formalisms.interface.write_cache_file`).
+    A miss holds an exclusive lock on ``<path>.lock`` while it derives (:func:`_deriving`), so a process that needs
+    the same entry meanwhile (a helper deriving ahead, a second worker) waits and reads it instead of deriving it
+    again."""
     if path.exists():
         used_cache_file(path)
         return path.read_text()
-    source = make()
-    write_cache_file(path, source.encode())
+    with _deriving(path):
+        if path.exists():                 # another process derived it while this one waited
+            used_cache_file(path)
+            return path.read_text()
+        source = make()
+        write_cache_file(path, source.encode())
     return source
+
+
+@contextlib.contextmanager
+def _deriving(path: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``<path>.lock`` (POSIX; nothing elsewhere, or where the cache cannot be written: the
+    work is then only done twice). The kernel releases it when its process ends, killed or not."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path.with_name(path.name + ".lock"), "a")
+    except OSError:
+        yield
+        return
+    with handle:
+        if fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
 
 
 def cached_code(model: Model, chart: Chart | None = None) -> types.CodeType:
@@ -2215,6 +2244,21 @@ def linearization_key(model: Model, chart: Chart | None = None) -> str:
     return hashlib.sha256(f"{cache_key(model, chart)}\0{LINEARIZATION}".encode()).hexdigest()[:32]
 
 
+def _local_code(model: Model) -> types.CodeType:
+    """The code of :func:`_local_program`, from the disk cache (:func:`linearization_key`) or derived into it."""
+    path = _cache_dir() / f"{linearization_key(model, None)}.py"
+    return _cached_code(path, lambda: _cached_text(path, lambda: _python(_local_program(model))))
+
+
+def prepare(model: Model, chart: Chart | None = None, linearization: bool = False) -> None:
+    """Derive the model's code in ``chart`` (None: the joint chart) into the disk cache now, and with
+    ``linearization`` the linearization's own program where it has one (:func:`_needs_local_program`): what a
+    process deriving ahead of the gate does (``Formalism.prepare``). Nothing when it is cached."""
+    cached_code(model, chart)
+    if linearization and _needs_local_program(model, chart):
+        _local_code(model)
+
+
 class _Directional(NamedTuple):
     """The code :func:`linear_terms` differentiates: its batched ``evaluate(x, xd)`` (columns of states, numpy's
     functions, so complex columns too), per coordinate of the chart the index of the input it moves, and the number of
@@ -2233,12 +2277,9 @@ def _linear_code(model: Model, ref: _ChartRef | None) -> _Directional:
     disk (:func:`linearization_key`)."""
     chart = None if ref is None else ref.chart
     if _needs_local_program(model, chart):
-        program = _local_program(model)
-        path = _cache_dir() / f"{linearization_key(model, chart)}.py"
-        code = _cached_code(path, lambda: _cached_text(path, lambda: _python(program)))
-        inputs = [str(s) for s in program.inputs]
-        coordinates, _, _ = _local_coordinates(model)
-        columns = tuple(inputs.index(str(s)) for s in coordinates)
+        code = _local_code(model)
+        inputs = [f"q{k}" for k in range(model.nq)] + [str(s) for s in _local_coordinates(model)[2]]
+        columns = tuple(inputs.index(str(s)) for s in _local_coordinates(model)[0])
     else:
         code, columns = cached_code(model, chart), tuple(range(model.n))
     namespace = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
@@ -2402,6 +2443,7 @@ FORMALISM = Formalism(
     split_batch=split_batch,
     evaluation=evaluation,
     preparation=preparation_estimate,
+    prepare=prepare,
     linearize=linearize,
     linearize_chart=linearize_chart,
 )

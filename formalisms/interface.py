@@ -438,6 +438,9 @@ class Formalism:
     prints it. None for a backend with nothing to choose.
     ``preparation(model, chart)``, when present, estimates the CPU seconds of the one-off work before the first answer
     on ``model`` in ``chart`` (None: the joint chart), 0 when it is cached: a symbolic derivation, a compilation.
+    ``prepare(model, chart, linearization)``, when present, does that work now and caches it on disk (with
+    ``linearization``, what the backend's ``linearize`` needs too), so that another process can derive ahead of the
+    one that evaluates (``crosscheck.engine.prepare``).
     ``linearize(model, q, v, u)`` returns the :class:`Linearization` (A, B of eq. 11) from the backend's own exact
     derivative of its own computation (no finite differences); ``linearize_chart(model, chart, p, pd, tau_p)`` the same
     in a chart's coordinates ``x = (p, pd)`` (A_qq = 0 there). None for a backend without them.
@@ -452,6 +455,7 @@ class Formalism:
     preparation: Callable[[Model, "Chart | None"], float] | None = None
     linearize: Callable[[Model, np.ndarray, np.ndarray, np.ndarray], Linearization] | None = None
     linearize_chart: Callable[[Model, Chart, np.ndarray, np.ndarray, np.ndarray], Linearization] | None = None
+    prepare: Callable[[Model, "Chart | None", bool], None] | None = None
 
 
 def _unit_quaternions(model: Model, q: np.ndarray, label: str) -> None:

@@ -15,7 +15,7 @@ import warnings
 from typing import Callable, Iterator, Sequence
 
 from crosscheck.core.sampling import sample_states, State
-from crosscheck.engine import pool
+from crosscheck.engine import pool, prepare
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.engine.phases import DONE, EVALUATING, SELF_TEST, SETTING_UP, _ignore, Clock, Step
@@ -48,13 +48,25 @@ class _CaseInterrupted(KeyboardInterrupt):
 
 
 def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
-             progress: Callable[[Step], None] | None = None, checks: Checks = Checks()) -> CaseOutcome:
+             progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
+             derive_ahead: bool = False) -> CaseOutcome:
     """The case's ``samples`` seeded states, each evaluated (:meth:`CaseSetup.evaluate`); ``progress`` is told
-    every :class:`Step`. Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
+    every :class:`Step`. ``derive_ahead``: a CPU is free for a helper process that derives the charts ahead
+    (``crosscheck.engine.prepare``). Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
     tell = progress or _ignore
     tell(Step(spec.name, 0, samples, SETTING_UP))
     setup = CaseSetup.build(spec, seed, checks)
-    announce_preparation(setup, backends)
+    seconds = announce_preparation(setup, backends)
+    helper = prepare.ahead(setup, backends, seconds, checks, seed) if derive_ahead else None
+    try:
+        return _run_case(setup, backends, samples, seed, tell, checks)
+    finally:
+        prepare.stop(helper)
+
+
+def _run_case(setup: CaseSetup, backends: Sequence[Formalism], samples: int, seed: int,
+              tell: Callable[[Step], None], checks: Checks) -> CaseOutcome:
+    spec = setup.spec
     states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
     outcomes: list[StateOutcome] = []
 
@@ -85,29 +97,33 @@ class PreparationNotice(UserWarning):
 
 
 def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
-    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart, each sampled chart
-    and each moved scene (a moved model is another model to prepare); 0 for a backend without an estimate."""
+    """The backend's estimated preparation of the case (``Formalism.preparation``): the joint chart and each sampled
+    chart; 0 for a backend without an estimate. The moved scenes are the model's with other world data, which a
+    backend that prepares (Euler–Lagrange) takes as parameters of the model's own preparation."""
     if backend.preparation is None:
         return 0.0
     model = setup.model
     try:
-        return (backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
-                + sum(backend.preparation(moved, None) for _, moved in setup.scenes))
+        return backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
     except ModelNotSupported:
         return 0.0
 
 
-def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> None:
+def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> float:
     """Warn (:class:`PreparationNotice`) before a case whose preparation by some backend is estimated above
-    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it."""
+    :data:`PREPARATION_NOTICE_S`, saying how long, that it is done once (cached on disk) and how to skip it. Returns
+    the estimated seconds, summed over the backends."""
+    total = 0.0
     for backend in backends:
         seconds = preparation_seconds(setup, backend)
+        total += seconds
         if seconds > PREPARATION_NOTICE_S:
             warnings.warn(PreparationNotice(
-                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart, "
-                f"{len(setup.charts)} chart(s) and {len(setup.scenes)} moved scene(s) takes about {seconds:.0f} s of "
-                "CPU before its first answers (once: then cached on disk); --no-charts and --frames 0 leave out "
-                "the charts and the moved scenes, --formalism (naming the others) leaves it out"), stacklevel=2)
+                f"{backend.name}: preparing case '{setup.spec.name}' ({setup.model.n} coordinates) in the joint chart "
+                f"and {len(setup.charts)} chart(s) takes about {seconds:.0f} s of CPU before its first answers (once: "
+                "then cached on disk); --no-charts leaves out the charts, --formalism (naming the others) leaves it "
+                "out"), stacklevel=2)
+    return total
 
 
 def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
@@ -160,8 +176,8 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
         if pooled:
             pool.in_pool(run_case, specs, backends, samples, seed, tell, checks, count, outcomes)
         else:
-            for spec in specs:
-                outcomes.append(run_case(spec, backends, samples, seed, tell, checks))
+            for spec in specs:      # one case at a time here: the other CPUs may derive ahead
+                outcomes.append(run_case(spec, backends, samples, seed, tell, checks, derive_ahead=True))
         if checks.self_test:
             tell(Step("", 0, 0, SELF_TEST))
             result.self_test = selftest.run()
