@@ -11,14 +11,19 @@ Outputs: every command writes under ``options.OUTPUT_DIR`` (``crosscheck-out/``,
 the committed reports in ``options.REPORTS_DIR`` are written only by ``crosscheck reports`` (``reports.REPORTS``).
 
 Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
-one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report).
+one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report), 143
+terminated by SIGTERM (``timeout``, a CI job's limit: the same partial report as at Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import warnings
+from typing import Iterator
 
 from threadpoolctl import threadpool_limits
 
@@ -28,13 +33,14 @@ from cases.model import ModelError
 import cases.urdf
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.cli import bench, cache, eval, faults, fuzz, gate, listing, reports, stability, trajectory
+from crosscheck.cli import bench, cache, eval, faults, fuzz, gate, listing, options, reports, stability, trajectory
 from crosscheck.cli.options import BLAS_THREADS, _interrupted, _one_line, _Parser, UsageError
 from crosscheck.core import sampling
 from crosscheck.engine.run import PreparationNotice
 from crosscheck.guards import preflight
 from formalisms import UnknownFormalism
-from formalisms.interface import StateError, cache_limit
+from formalisms.cache import cache_limit
+from formalisms.interface import StateError
 
 #: The command modules in the order ``crosscheck --help`` lists their subcommands.
 COMMANDS = (listing, gate, eval, faults, fuzz, bench, stability, trajectory, reports, cache)
@@ -72,9 +78,24 @@ _show_warning = warnings.showwarning
 
 
 def main(argv: list[str] | None = None) -> int:
-    with warnings.catch_warnings():     # the loaders' notices as one line each, for this command only
+    with warnings.catch_warnings(), _sigterm_stops():   # the loaders' notices as one line each, for this command only
         warnings.showwarning = _notice
         return _main(argv)
+
+
+@contextlib.contextmanager
+def _sigterm_stops() -> Iterator[None]:
+    """SIGTERM ends the command as Ctrl-C does (partial report, one line; exit 143: ``options.on_sigterm``), for this
+    command only; nothing when not in the main thread (signals go to the main thread alone)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    options._SIGNALLED.clear()
+    previous = signal.signal(signal.SIGTERM, options.on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _main(argv: list[str] | None) -> int:

@@ -1,12 +1,12 @@
 """``crosscheck cache``: where the backends' derivations and compiled code are kept, how much of the limit they use,
-and ``--clear`` to empty it (formalisms.interface: ``cache_root``, the size limit ``CROSSCHECK_CACHE_LIMIT``, least
+and ``--clear`` to empty it (``formalisms.cache``: ``cache_root``, the size limit ``CROSSCHECK_CACHE_LIMIT``, least
 recently used files evicted past it)."""
 
 from __future__ import annotations
 
 import shutil
 
-from formalisms.interface import CACHE_LIMIT_VARIABLE, cache_files, cache_limit, cache_root
+from formalisms.cache import CACHE_LIMIT_VARIABLE, cache_files, cache_limit, cache_root
 
 
 def _size(n: float) -> str:

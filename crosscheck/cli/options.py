@@ -25,6 +25,24 @@ OUTPUT_DIR = "crosscheck-out"
 REPORTS_DIR = "reports"
 #: Exit code of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED = 130
+#: Exit code of a run ended by SIGTERM (``timeout``, a CI job's time limit, a scheduler): 128 + 15.
+TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by :func:`on_sigterm`: a KeyboardInterrupt, so every command stops and writes
+    its partial report exactly as at Ctrl-C; :func:`_interrupted` then says so and exits with :data:`TERMINATED`."""
+
+
+_SIGNALLED: list[str] = []
+
+
+def on_sigterm(signum, frame) -> None:
+    """The SIGTERM handler of a command (``crosscheck.cli.main`` installs it): stop as Ctrl-C does (:class:`Terminated`).
+    Once: a second SIGTERM while the partial report is written is ignored."""
+    if not _SIGNALLED:
+        _SIGNALLED.append("SIGTERM")
+        raise Terminated("SIGTERM")
 
 #: BLAS threads for a command. Every matrix here is tiny (n <= 30); a threaded BLAS level-3 call on one (e.g. a
 #: triangular solve with a few right-hand sides) costs milliseconds in thread hand-off on a busy 2-core machine:
@@ -180,6 +198,10 @@ def _registry(args) -> divergences.Registry | None:
 
 
 def _interrupted(detail: str = "") -> int:
-    """Ctrl-C: one line on stderr (``detail``: where the run stopped, what it left behind); exit code 130."""
+    """Ctrl-C: one line on stderr (``detail``: where the run stopped, what it left behind); exit code 130. After SIGTERM
+    (:func:`on_sigterm`) the line says so and the exit code is 143."""
+    if _SIGNALLED:
+        print("crosscheck: terminated by SIGTERM" + (f" {detail}" if detail else ""), file=sys.stderr)
+        return TERMINATED
     print("crosscheck: interrupted" + (f" {detail}" if detail else ""), file=sys.stderr)
     return INTERRUPTED

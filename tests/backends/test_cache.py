@@ -1,6 +1,6 @@
-"""The backends' disk cache (``formalisms.interface``): bounded by ``CROSSCHECK_CACHE_LIMIT``, least recently used
-files evicted first, a hit counts as a use; ``crosscheck cache`` shows it and ``--clear`` empties it. And the
-Euler–Lagrange derivation shared by a model's moved scenes and its gravity-free copy (the world data are parameters)."""
+"""The backends' disk cache (``formalisms.cache``): bounded by ``CROSSCHECK_CACHE_LIMIT``, least recently used files
+evicted first, a hit counts as a use; ``crosscheck cache`` shows it and ``--clear`` empties it. And the Euler–Lagrange
+derivation shared by a model's moved scenes and its gravity-free copy (the world data are parameters)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import cases
 import formalisms.euler_lagrange as el
 from crosscheck import cli
 from crosscheck.checks import frames
-from formalisms import interface
+from formalisms import cache as interface
 
 
 @pytest.fixture

@@ -26,6 +26,7 @@ from crosscheck.engine import phases
 from crosscheck.reports import gate_summary
 from crosscheck.faults.injection import Hunt
 from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.engine import progress
 from crosscheck.engine.progress import Display
 from formalisms.interface import Formalism
 
@@ -238,3 +239,53 @@ def test_only_a_spawned_pool_worker_ignores_ctrl_c():
     env = {**os.environ, crosscheck.WORKER: str(os.getpid())}
     done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "True", done.stderr
+
+
+def test_without_a_terminal_a_heartbeat_line_comes_at_least_every_interval(monkeypatch):
+    """A CI log gets a line every ``HEARTBEAT_S`` while the command runs, even while nothing advances (a long
+    derivation): what runs now, the count, the elapsed time and an ETA once something is done."""
+    monkeypatch.setattr(progress, "HEARTBEAT_S", 0.05)
+    out = io.StringIO()
+    with Display("gate", "states", 4, console=Console(file=out, force_terminal=False, width=200)) as display:
+        display.doing("g1: preparing euler_lagrange")
+        time.sleep(0.3)
+        display.advance(2)
+        time.sleep(0.3)
+    lines = out.getvalue().splitlines()
+    assert len(lines) >= 4, lines
+    assert lines[0].startswith("crosscheck gate: 0/4 states, 0:00 elapsed; g1: preparing euler_lagrange"), lines
+    assert any(line.startswith("crosscheck gate: 2/4 states, ") and ", ETA 0:0" in line for line in lines), lines
+    quiet = io.StringIO()
+    with Display("gate", "states", 4, quiet=True, console=Console(file=quiet, force_terminal=False)):
+        time.sleep(0.2)
+    assert quiet.getvalue() == ""
+
+
+def test_sigterm_ends_the_gate_like_ctrl_c_with_a_partial_report(tmp_path):
+    """SIGTERM (``timeout``, a CI job's limit) to the gate's process alone: exit 143, one line that says so, and the
+    partial report, as at Ctrl-C."""
+    (tmp_path / "slow_backend.py").write_text(SLOW_PLUGIN)
+    marker, report = tmp_path / "marker", tmp_path / "gate.md"
+    env = {**os.environ, "SLOW_MARKER": str(marker),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    argv = ["gate", "--case", "double_pendulum", "--samples", "200", *BARE[:-2], "--formalism", "pinocchio",
+            "--formalism", "slow", "--plugin", "slow_backend:SLOW", "--workers", "0", "--quiet", "--report",
+            str(report)]
+    proc = subprocess.Popen([sys.executable, "-m", "crosscheck.cli", *argv], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not marker.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert marker.exists(), f"no state was evaluated: {proc.communicate()}"
+        proc.terminate()
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 143 and "Traceback" not in stderr, stderr
+    (line,) = stderr.splitlines()
+    assert line.startswith("crosscheck: terminated by SIGTERM after ") and f"partial report written to {report}" in line
+    text = gate_summary.read(report)
+    assert "**PARTIAL**" in text and "PASS" not in text
