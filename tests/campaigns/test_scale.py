@@ -53,7 +53,7 @@ def test_the_gate_announces_a_long_preparation_before_the_case(tmp_path, monkeyp
     monkeypatch.setattr(run, "PREPARATION_NOTICE_S", 0.5)
     spec = specs.CaseSpec("n_link_pendulum", (("n", "14"),))
     with pytest.warns(run.PreparationNotice, match=r"euler_lagrange: preparing case 'n_link_pendulum' \(14 coordinates\)"
-                      r" in the joint chart, 3 chart\(s\) and 2 moved scene\(s\) takes about \d+ s"):
+                      r" in the joint chart and 3 chart\(s\) takes about \d+ s"):
         run.announce_preparation(evaluation.CaseSetup.build(spec, 0), [el.FORMALISM])
 
 
