@@ -63,7 +63,7 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     ARE ``M vdot + nle(q, v) = tau``: ``g(0) = rnea(q, 0, 0)`` and ``C(0, v) v = rnea(q, v, 0) - g`` (what
     :func:`terms` returns for such a model). Constraints likewise: ``Jc = dphi/dxi (0)`` is the v-space Jacobian,
     and ``d^2/dt^2 phi = Jc xidd + xid^T (d^2 phi / dxi^2) xid`` gives ``Jcdot v = v^T (d^2 phi/dxi^2)(0) v``.
-  * Truncation (:data:`EXP_ORDER` = 2). At ``xi = 0`` the equations use ``M``, ``dM/dxi``, ``dV/dxi``, ``phi``,
+  * Truncation (:data:`EXP_ORDER` = 3; 2 would do for the dynamics). At ``xi = 0`` the equations use ``M``, ``dM/dxi``, ``dV/dxi``, ``phi``,
     ``dphi/dxi`` and ``d^2 phi/dxi^2``: T's coefficients (M is a quadratic form in the poses' first derivatives) to
     first order in xi, V to first and phi to second order, i.e. derivatives of the poses of order at most 2 in xi
     (any order in the other coordinates). ``E_2 = I + X + X^2/2`` agrees with ``exp(X)`` to ``O(|xi|^3)``, and
@@ -71,7 +71,10 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     translation ``sum [phi]x^(k-1) rho / k!``), so every number evaluated at 0 is exact, although ``E_2`` is not a
     rotation away from 0 (the T written with it differs from the true one by ``O(|xi|^2) |xid|^2``). The closed forms
     (Rodrigues, ``V(phi)``) would bring ``sin|xi| / |xi|`` and its removable 0/0 into symbolic differentiation.
-    ``tests/backends/test_group_euler_lagrange.py`` shows orders 3 and 4 give the same numbers and order 1 does not.
+    ``tests/backends/test_group_euler_lagrange.py`` shows orders 2, 3 and 4 give the same numbers and order 1 does
+    not. The series is truncated at 3, not 2, because the linearization differentiates the same derivation once more
+    in xi (module docstring, "Linearization"): one derivation then serves both (:func:`_derived`), where two cost a
+    humanoid 4.8 s each, and at ``xi = 0`` the code is the same (the third-order terms vanish there).
   * Caches. The local chart (and its order) is part of the cache key (:data:`GROUP_CHART`).
 Velocity representations (:func:`split_chart` with a chart whose ``representation`` is ``"world"`` or ``"mixed"``;
 docs/design.md "Configuration on Lie groups", article 6.2, 6.4). The configuration stays q and the velocity is w with
@@ -534,9 +537,10 @@ def _poses(model: Model, st: _Staged, local: dict | None = None) -> list[tuple[s
 # ----------------------------------------------------------------------------------------------------------
 
 #: The truncation order of the exponential series in the local chart: 2 is exact for everything the Euler–Lagrange
-#: equations evaluate at ``xi = 0`` (module docstring, "Group joints"); ``tests/backends/test_group_euler_lagrange.py``
-#: compares it with orders 3 and 4, and shows that order 1 is wrong.
-EXP_ORDER = 2
+#: equations evaluate at ``xi = 0`` and 3 for their first derivatives in xi (the linearization), so 3, and one
+#: derivation serves both (module docstring, "Group joints"); ``tests/backends/test_group_euler_lagrange.py``
+#: compares orders 2, 3 and 4, and shows that order 1 is wrong.
+EXP_ORDER = 3
 #: The cache key of the chart of the group joints (part of what is derived, so part of :func:`cache_key`).
 GROUP_CHART = "local-exponential:q(+)xi=q*exp(xi) on the right:twist(linear,angular):order{order}"
 #: The local charts of a base-velocity representation (module docstring, "Velocity representations"): the exponential
@@ -1159,11 +1163,18 @@ class _Program(NamedTuple):
 OUTPUTS = ("M_upper", "Cqd", "g", "T", "phi", "Jc", "bias", "Qext")
 
 
+@functools.lru_cache(maxsize=1)
+def _derived(model: Model, order: int) -> Derivation:
+    """The joint chart's derivation of a model with group joints, the last one kept: the dynamics' program (at
+    ``xi = 0``) and the linearization's (xi as inputs, :func:`_local_program`) are both made from it."""
+    return derivation(model, None, order)
+
+
 def _program(model: Model, chart: Chart | None, order: int, at_origin: bool = True) -> _Program:
     """:func:`derivation`'s outputs and the definitions they use; with spherical or free joints at ``xi = 0``
     (:func:`_at_origin`; ``order`` of the exponential series, module docstring "Group joints"), or with the xi as
     inputs after the state's q (``at_origin`` False: the linearization's :func:`_local_program`)."""
-    d = derivation(model, chart, order)
+    d = _derived(model, order) if _needs_local_program(model, chart) else derivation(model, chart, order)
     n = model.n
     outputs = {"M_upper": [d.M[i, j] for i in range(n) for j in range(i, n)], "Cqd": list(d.Cqd), "g": list(d.g),
                "T": [d.T], "phi": d.phi, "Jc": [e for row in d.Jc for e in row], "bias": d.bias}
@@ -2217,7 +2228,7 @@ def split_batch(model: Model, Q, QD, U) -> SplitBatch:
 #: The truncation order of the local chart's exponential series in the linearization's program (module docstring,
 #: "Group joints"): the first derivatives in xi at 0 of ``C xd`` and ``Jcdot xd`` use the poses' derivatives in xi up
 #: to order 3, which ``E_3 = I + X + X^2/2 + X^3/6`` has exactly (order 2 gives wrong dvdot/dq).
-LINEAR_ORDER = 3
+LINEAR_ORDER = EXP_ORDER
 #: What the linearization's own program computes (part of its cache key, :func:`linearization_key`): the dynamics'
 #: outputs in the local exponential chart with xi among the inputs (group joints only).
 LINEARIZATION = f"linearization:the dynamics' outputs with xi as inputs:exponential order {LINEAR_ORDER}"

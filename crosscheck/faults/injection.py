@@ -149,7 +149,7 @@ def _same_call(fault: str, target: str, original: Any, faulty: Any) -> None:
 
 #: The Euler–Lagrange lru_caches of code derived from the model (a fault in the derivation must not outlive itself in
 #: any of them: a faulty linearization of the double pendulum once did, and named the next fault's backend wrongly).
-_EULER_LAGRANGE_CACHES = ("_compiled", "_linear_code")
+_EULER_LAGRANGE_CACHES = ("_compiled", "_linear_code", "_derived")
 
 
 @contextmanager
