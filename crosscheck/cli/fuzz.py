@@ -115,7 +115,8 @@ def add_parser(sub) -> None:
     fz.add_argument("--max-bodies", type=int, default=4, help="largest drawn model (default 4 bodies)")
     fz.add_argument("--chunk-examples", type=int, default=None, metavar="N",
                     help="examples per chunk (part of the campaign's identity; default 10)")
-    fz.add_argument("--max-states", type=int, default=4, help="states per drawn model (default up to 4)")
+    fz.add_argument("--max-states", type=int, default=settings.MAX_STATES,
+                    help=f"states per drawn model, at most (default {settings.MAX_STATES}: 1 to that many)")
     fz.add_argument("--constraints", choices=["never", "sometimes", "always"], default="sometimes",
                     help="constrained models (default sometimes)")
     fz.add_argument("--pfaffian", action="store_true",

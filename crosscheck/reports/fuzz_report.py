@@ -234,7 +234,9 @@ def render_report(out: Path, command: str = "") -> str:
         f"| compute time | {seconds:.1f} s in chunks |",
         f"| wall time | {wall:.1f} s |",
         f"| throughput | {total['examples'] / seconds if seconds else 0.0:.2f} examples/s, "
-        f"{total['states'] / seconds if seconds else 0.0:.2f} states/s (per process) |", ""]
+        f"{total['states'] / seconds if seconds else 0.0:.2f} states/s (per process); over the wall time "
+        f"{total['states'] / wall if wall else 0.0:.2f} states/s and {total['models'] / wall if wall else 0.0:.2f} "
+        "models/s |", ""]
     lines += _signature_section(findings)
     lines += ["## Findings", ""]
     if not findings:

@@ -41,6 +41,13 @@ class FuzzError(ValueError):
     unknown finding, incompatible shards) or a worker process lost."""
 
 
+#: States drawn per model, at most (each example draws 1 to this many, about a third of it on average): a drawn model
+#: costs its preparation (Euler–Lagrange's derivations, geometric's Functions) once for all its states, evaluated as
+#: one block. At 4 a campaign checked 5 states/s in a process, at 100 about 50 (2 workers: 95 states/s, 3.1
+#: models/s), so throughput and model diversity are both kept (docs/performance.md).
+MAX_STATES = 100
+
+
 @dataclass(frozen=True)
 class FuzzConfig:
     """A campaign's parameters. ``examples`` bounds the run (examples generated over all shards, in chunks of
@@ -63,7 +70,7 @@ class FuzzConfig:
     plugins: tuple[str, ...] = ()
     chunk_examples: int = CHUNK_EXAMPLES
     max_bodies: int = 4
-    max_states: int = 4
+    max_states: int = MAX_STATES
     constraints: bool | None = None
     loads: bool | None = None
     group_joints: bool = True
