@@ -144,8 +144,16 @@ Jc, Jcdot pd at the state.
   :data:`COMPILE_AFTER` states in the process (a campaign, a batch; the few states of a gate stay interpreted), or at
   once when its library is in the cache (:class:`_Deferred`). :func:`evaluation` says which is in use
   (``crosscheck formalisms``); ``split``, ``split_chart`` and ``split_batch`` all run the same one.
+World as parameters. Whatever places the model in the world, and nothing else, is a parameter of the derivation, not
+a number in it (:func:`_world_data`, :class:`_World`): gravity, each root body's placement, the world points and
+directions of the constraints (a circle's centre and plane, a ground point, a line's origin and normals, the
+directions of a point's velocity rows, the ground plane of a rolling contact) and the world-frame data of the loads
+(forces, couples, a spring's anchor). They are symbols the chain rule never differentiates; the generated code reads
+their numbers after the coordinates (:func:`_world_values`), so a moved scene or a gravity-free copy of a model
+evaluates the model's own derivation and compiled code with other numbers (the frame checks then compare that code's
+answers in two placements). The code grows about 10 % (``R_root^T R_root`` no longer simplifies).
 Caches: the sources (Python and C), the Python code object (``marshal``) and the library are cached on disk keyed by
-the model digest (which covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
+the model digest without its world data (:func:`_shape_digest`; it covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
 with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
 process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
 Every file is written atomically (a temporary file renamed into place:

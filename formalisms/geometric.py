@@ -183,6 +183,11 @@ The drift's parts (article 4.5-4.6): ``zvcf = -grad V = -M^-1 dV/dp`` (the drift
 forces ``-dV/dp`` and no bias, drift_velocity with ``-M Gamma(pd, pd)`` and the bias ``Jcdot pd``, so they add up to the
 drift to rounding (the system is linear in forces and bias). In every Split, joint chart and chart alike.
 
+World data. Gravity, each root body's placement, the task point's directions, the world points and directions of
+the constraints and the world-frame data of the loads are parameters of the SX graph (:func:`_world_data`,
+:class:`_World`), read by every Function after the point (:func:`_arguments`): the Functions are built once per model
+shape (:func:`_shape_digest`), and a moved scene or a gravity-free copy evaluates them with its own numbers.
+
 Linearization (article 4.8, eq. 11; :func:`linearize`, :func:`linearize_chart`). The accelerations ``a`` (and
 multipliers) solve ``r(p, pd, a, lam) = (tau, 0)``, eqs. (12)-(13) written with this backend's own expressions,
 ``r = [M a + M Gamma(pd, pd) + dV/dp - Jc^T lam; Jc a + Jcdot pd] = [r_dyn; r_con]`` (M, the first-kind contraction
@@ -254,6 +259,7 @@ import threading
 import time
 import warnings
 import weakref
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -423,10 +429,91 @@ def _joint_coordinates(model: Model, chart, p: ca.SX) -> list:
     return [ca.SX(qi) for qi in q]
 
 
-def _walk(model: Model, motion) -> tuple[list, list, list]:
+#: The world data of each constraint type: the fields a moved scene changes (module docstring, "World data").
+_WORLD_FIELDS = {PointOnCircle: ("center", "plane"), PointsCoincide: ("offset_b", "directions"),
+                 PointOnLine: ("origin", "normals"), PointVelocity: ("directions",), RollingContact: ("plane",)}
+
+
+def _world_data(model: Model) -> list[tuple[str, np.ndarray]]:
+    """The model's world data in a fixed order (module docstring, "World data"): gravity, each root body's placement,
+    the task point's directions, the world points and directions of the constraints and the world-frame data of the
+    loads: what a moved scene or a gravity-free copy changes, and nothing else."""
+    out = [("gravity", model.gravity), ("task.directions", model.task_point().directions)]
+    for i, body in enumerate(model.bodies):
+        if body.parent is None:
+            out += [(f"root{i}.rotation", body.rotation), (f"root{i}.translation", body.translation)]
+    for r, c in enumerate(model.constraints):
+        out += [(f"constraint{r}.{f}", getattr(c, f)) for f in _WORLD_FIELDS.get(type(c), ())
+                if not (f == "offset_b" and c.body_b is not None)]
+    for r, load in enumerate(model.loads):
+        fields = ("anchor",) if isinstance(load, PointSpring) else () if load.frame == "body" else \
+            ("force", "moment") if isinstance(load, ExternalWrench) else ("force",)
+        out += [(f"load{r}.{f}", getattr(load, f)) for f in fields]
+    return out
+
+
+def _world_values(model: Model) -> np.ndarray:
+    """The numbers of :func:`_world_data`, each matrix column by column (casadi's order), in order: what the Functions
+    read after the point."""
+    return np.concatenate([np.asarray(a, dtype=float).ravel(order="F") for _, a in _world_data(model)])
+
+
+def _arguments(model: Model, point: np.ndarray) -> np.ndarray:
+    """A Function's first argument: the point (or the rows of a stack of points) and the model's world data."""
+    world = _world_values(model)
+    point = np.asarray(point, dtype=float)
+    return np.concatenate([point, np.broadcast_to(world, point.shape[:-1] + world.shape)], axis=-1)
+
+
+class _World:
+    """The world data of :func:`_world_data` as SX symbols (``symbolic``, a compiled Function's parameters, read after
+    the point) or as the model's own numbers; :meth:`matrix` gives a datum in its shape (a vector as a column)."""
+
+    def __init__(self, model: Model, symbolic: bool = True):
+        self.model, self._data, symbols = model, {}, []
+        for label, value in _world_data(model):
+            value = np.asarray(value, dtype=float)
+            rows, cols = (value.shape + (1,))[:2]
+            if symbolic:
+                symbols.append(ca.SX.sym(label.replace(".", "_"), value.size))
+                self._data[label] = ca.reshape(symbols[-1], rows, cols)
+            else:
+                self._data[label] = ca.SX(ca.DM(value.reshape(rows, cols)))
+        self.symbols = ca.vertcat(*symbols) if symbols else ca.SX(0, 1)
+
+    def matrix(self, label: str) -> ca.SX:
+        return self._data[label]
+
+    def of(self, declaration, field: str) -> ca.SX:
+        """A constraint's or a load's world datum ``field`` (the declaration found by identity)."""
+        for kind, declarations in (("constraint", self.model.constraints), ("load", self.model.loads)):
+            for r, d in enumerate(declarations):
+                if d is declaration:
+                    return self._data[f"{kind}{r}.{field}"]
+        raise KeyError(f"{declaration!r} is not a declaration of model '{self.model.name}'")
+
+
+def _shape_digest(model: Model) -> str:
+    """The model's digest with its world data (:func:`_world_data`) set to zero: what a compiled Function depends on,
+    so a moved scene and a gravity-free copy share the model's Functions."""
+    def zero(x, fields):
+        return dataclasses.replace(x, **{f: np.zeros(np.shape(getattr(x, f))) for f in fields})
+    bodies = [zero(b, ("rotation", "translation")) if b.parent is None else b for b in model.bodies]
+    constraints = [zero(c, [f for f in _WORLD_FIELDS.get(type(c), ())
+                            if not (f == "offset_b" and c.body_b is not None)]) for c in model.constraints]
+    loads = [zero(load, [f for f in ("anchor", "force", "moment")
+                         if hasattr(load, f) and (f == "anchor" or load.frame == "world")]) for load in model.loads]
+    task_points = [zero(tp, ("directions",)) for tp in model.task_points]
+    return dataclasses.replace(model, bodies=tuple(bodies), gravity=np.zeros(3), constraints=tuple(constraints),
+                               loads=tuple(loads), task_points=tuple(task_points)).digest()
+
+
+def _walk(model: Model, motion, world: _World | None = None) -> tuple[list, list, list]:
     """``(R, o, values)``: the world rotations and origins of every body frame (SX, parents first) and the joints'
     values, ``motion(i, Rj, oj) = (R_i, o_i, value_i)`` body ``i``'s from the world rotation ``Rj`` and origin ``oj`` of
-    its joint frame (``X_body = X_parent * (rotation, translation) * motion(q_i)``, ``cases.model``)."""
+    its joint frame (``X_body = X_parent * (rotation, translation) * motion(q_i)``, ``cases.model``); a root's joint
+    frame is its placement in the world, from ``world`` (:class:`_World`; the model's numbers when None)."""
+    world = _World(model, symbolic=False) if world is None else world
     nb = len(model.bodies)
     R: list = [None] * nb
     o: list = [None] * nb
@@ -434,7 +521,7 @@ def _walk(model: Model, motion) -> tuple[list, list, list]:
     for i in model.topological_order:
         body, parent = model.bodies[i], model.parent_index[i]
         if parent < 0:
-            Rj, oj = ca.SX(ca.DM(body.rotation)), ca.SX(ca.DM(body.translation))
+            Rj, oj = world.matrix(f"root{i}.rotation"), world.matrix(f"root{i}.translation")
         else:
             Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
             oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
@@ -450,9 +537,9 @@ def _scalar_motion(body, x, Rj: ca.SX, oj: ca.SX) -> tuple:
     return Rj, oj + ca.mtimes(Rj, ca.DM(body.axis)) * x, x
 
 
-def _frames(model: Model, q: list) -> tuple[list, list]:
+def _frames(model: Model, q: list, world: _World | None = None) -> tuple[list, list]:
     """World rotations ``R_i`` and origins ``o_i`` of every body frame (SX), parents first."""
-    R, o, _ = _walk(model, lambda i, Rj, oj: _scalar_motion(model.bodies[i], q[i], Rj, oj))
+    R, o, _ = _walk(model, lambda i, Rj, oj: _scalar_motion(model.bodies[i], q[i], Rj, oj), world)
     return R, o
 
 
@@ -488,7 +575,8 @@ def _exp_series(X: ca.SX, order: int) -> ca.SX:
     return E
 
 
-def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int, side: str | None = None) -> tuple[list, list, list]:
+def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int, side: str | None = None,
+                  world: _World | None = None) -> tuple[list, list, list]:
     """``(R, o, values)``: the world rotations and origins of every body frame (SX, parents first) in the group chart
     of the configuration ``q`` (SX, nq): revolute and prismatic joints in their own coordinate ``p[v_index[i]]``
     (their joint values, ``values[i]``), a spherical joint at ``R0 exp([xi]x)`` and a free joint at ``X0 exp6(xi)``
@@ -516,7 +604,7 @@ def _group_frames(model: Model, q: ca.SX, p: ca.SX, exp_order: int, side: str | 
         # world: exp6(xi) X0 = (E_R R0, E_R position + E_p)
         return (ca.mtimes(Rj, ca.mtimes(E[:3, :3], R0)),
                 oj + ca.mtimes(Rj, ca.mtimes(E[:3, :3], position) + E[:3, 3]), None)
-    return _walk(model, motion)
+    return _walk(model, motion, world)
 
 
 #: The base-velocity representations this backend evaluates natively (module docstring, "Velocity representations").
@@ -597,7 +685,7 @@ def _group_chart_coordinates(model: Model, chart, p: ca.SX) -> list:
     return q
 
 
-def _chart_group_frames(model: Model, q: list) -> tuple[list, list, list]:
+def _chart_group_frames(model: Model, q: list, world: _World | None = None) -> tuple[list, list, list]:
     """``(R, o, values)`` of a model with spherical or free joints at ``q = psi(p)`` (nq SX expressions of the chart
     coordinates, :func:`_group_chart_coordinates`): each joint's own ``motion(q_i)`` (``cases.model``), nothing else.
     A revolute or prismatic joint by its value ``q[q_index[i]]`` (``values[i]``), a spherical joint at
@@ -614,7 +702,7 @@ def _chart_group_frames(model: Model, q: list) -> tuple[list, list, list]:
         # free: (R(quat), position), the position in the joint frame
         R = ca.mtimes(Rj, _quaternion_rotation(ca.vertcat(*q[a + 3:a + 7])))
         return R, oj + ca.mtimes(Rj, ca.vertcat(*q[a:a + 3])), None
-    return _walk(model, motion)
+    return _walk(model, motion, world)
 
 
 def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
@@ -623,16 +711,16 @@ def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
     return o[b] + ca.mtimes(R[b], ca.DM(offset))
 
 
-def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
-    """``phi`` of one declaration, exactly as tabled in ``cases.constraints``."""
+def _constraint_rows(model: Model, c, q: list, R: list, o: list, world: _World) -> ca.SX:
+    """``phi`` of one declaration, exactly as tabled in ``cases.constraints``, its world data from ``world``."""
     if isinstance(c, PointOnCircle):
-        d = ca.mtimes(ca.DM(c.plane), _point(model, R, o, c.body, c.offset) - ca.DM(c.center))
+        d = ca.mtimes(world.of(c, "plane"), _point(model, R, o, c.body, c.offset) - world.of(c, "center"))
         return ca.dot(d, d) - c.radius ** 2
     if isinstance(c, PointsCoincide):
-        other = ca.DM(c.offset_b) if c.body_b is None else _point(model, R, o, c.body_b, c.offset_b)
-        return ca.mtimes(ca.DM(c.directions), _point(model, R, o, c.body_a, c.offset_a) - other)
+        other = world.of(c, "offset_b") if c.body_b is None else _point(model, R, o, c.body_b, c.offset_b)
+        return ca.mtimes(world.of(c, "directions"), _point(model, R, o, c.body_a, c.offset_a) - other)
     if isinstance(c, PointOnLine):
-        return ca.mtimes(ca.DM(c.normals), _point(model, R, o, c.body, c.offset) - ca.DM(c.origin))
+        return ca.mtimes(world.of(c, "normals"), _point(model, R, o, c.body, c.offset) - world.of(c, "origin"))
     if isinstance(c, JointCoupling):
         terms = [coefficient * q[model.body_index(j)] for j, coefficient in zip(c.joints, c.coefficients)]
         return ca.sum1(ca.vertcat(*terms)) - c.offset
@@ -640,19 +728,20 @@ def _constraint_rows(model: Model, c, q: list, R: list, o: list) -> ca.SX:
                      "backend does not know")
 
 
-def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX) -> ca.SX:
+def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX, world: _World) -> ca.SX:
     """The velocity rows ``A(p) pd`` of a Pfaffian declaration, exactly as :mod:`cases.constraints` fixes them: a
     point's velocity ``jtimes(x, p, pd)``, the body's world angular velocity from ``Rdot R^T``; for a rolling contact
     the material point at the contact ``p_c = c - r u`` moves with ``cdot + w x (p_c - c)`` (its rows along the ground's
     tangents T, or with ``lateral=False`` along the rolling direction ``t = (a x n) / |a x n|`` alone)."""
     b = model.body_index(c.body)
     if isinstance(c, PointVelocity):
-        return ca.mtimes(ca.DM(c.directions), ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
+        return ca.mtimes(world.of(c, "directions"), ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
     if isinstance(c, KnifeEdge):
         e = ca.mtimes(R[b], ca.DM(c.direction))
         return ca.dot(e, ca.jtimes(_point(model, R, o, c.body, c.offset), p, pd))
     if isinstance(c, RollingContact):
-        n = ca.DM(np.cross(c.plane[0], c.plane[1]))
+        plane = world.of(c, "plane")
+        n = ca.cross(plane[0, :].T, plane[1, :].T)
         a = ca.mtimes(R[b], ca.DM(c.axis))
         raw = n - ca.dot(n, a) * a
         e = -c.radius * raw / ca.norm_2(raw)
@@ -662,32 +751,33 @@ def _pfaffian_rates(model: Model, c, R: list, o: list, p: ca.SX, pd: ca.SX) -> c
         if not c.lateral:   # the rolling direction t = (a x n) / |a x n| only; (da/dp) pd turns t with the axle
             b = ca.cross(a, n)
             return ca.dot(b / ca.norm_2(b), velocity)
-        return ca.mtimes(ca.DM(c.plane), velocity)
+        return ca.mtimes(plane, velocity)
     raise ValueError(f"model '{model.name}': constraint '{c.name}' is a {type(c).__name__}, which the geometric "
                      "backend does not know")
 
 
-def _rate_rows(model: Model, q: list, R: list, o: list, p: ca.SX, pd: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+def _rate_rows(model: Model, q: list, R: list, o: list, p: ca.SX, pd: ca.SX,
+               world: _World) -> tuple[ca.SX, ca.SX, ca.SX]:
     """``phi``, ``Jc`` and ``Jcdot pd`` of a model with Pfaffian rows: every row as a rate ``a(p, pd)`` (a holonomic
     row's ``jtimes(phi, p, pd)``, a Pfaffian row's :func:`_pfaffian_rates`), ``Jc = da/dpd`` and ``Jcdot pd = (da/dp)
     pd``; ``phi`` is the holonomic rows' function and 0 on the Pfaffian rows."""
     values, rates = [], []
     for c in model.constraints:
         if c.holonomic:
-            value = _constraint_rows(model, c, q, R, o)
+            value = _constraint_rows(model, c, q, R, o, world)
             values.append(value)
             rates.append(ca.jtimes(value, p, pd))
         else:
-            rate = _pfaffian_rates(model, c, R, o, p, pd)
+            rate = _pfaffian_rates(model, c, R, o, p, pd, world)
             values.append(ca.SX.zeros(rate.shape[0], 1))
             rates.append(rate)
     a = ca.vertcat(*rates)
     return ca.vertcat(*values), ca.jacobian(a, pd), ca.mtimes(ca.jacobian(a, p), pd)
 
 
-def _constraint_function(model: Model, q: list, R: list, o: list) -> ca.SX:
+def _constraint_function(model: Model, q: list, R: list, o: list, world: _World) -> ca.SX:
     """``phi(p)`` (k,): the rows of every declaration in order, of the joint values ``q = psi(p)`` and the frames."""
-    return ca.vertcat(*[_constraint_rows(model, c, q, R, o) for c in model.constraints])
+    return ca.vertcat(*[_constraint_rows(model, c, q, R, o, world) for c in model.constraints])
 
 
 # ------------------------------------------------------------------------------------------ compiled evaluation
@@ -975,11 +1065,14 @@ class _Compiled:
     chart's origin (module docstring, "Spherical and free joints")."""
 
     def __init__(self, n: int, k: int, kc: int, p: ca.SX, pd: ca.SX, T: ca.SX, V: ca.SX, out: ca.SX,
-                 point: ca.SX | None = None, origin: ca.SX | None = None, external: bool = False):
+                 point: ca.SX | None = None, origin: ca.SX | None = None, external: bool = False,
+                 world: ca.SX | None = None):
         self.n, self.k, self.p, self.pd, self.T, self.V = n, k, p, pd, T, V
         # a model with group joints: the Functions take the configuration ``point`` (nq) and evaluate every
         # derivative in p at the group chart's origin ``p = origin(point)`` (module docstring); otherwise point = p
         self.point, self.origin = (p, None) if point is None else (point, origin)
+        # what every Function reads first: the point, then the model's world data (:func:`_arguments`)
+        self.arguments = self.point if world is None else ca.vertcat(self.point, world)
         rows, cols = np.triu_indices(n)
         nu = rows.size
         upper = np.empty((n, n), dtype=np.intp)  # position of M[i, j] in M_upper
@@ -999,7 +1092,7 @@ class _Compiled:
         at = self.Jc_bias_slice.stop      # then tau_ext (n) for a model with external loads
         self.ext_slice = slice(at, at + n) if external else None
         self.kc, self.out = kc, self._at_origin(out)   # the Function's expression, of (point, pd)
-        self.evaluate = _Evaluator("geometric", self.point, pd, self.out)
+        self.evaluate = _Evaluator("geometric", self.arguments, pd, self.out)
         self._energy: _Evaluator | None = None
         self._linearization: _Evaluator | None = None
 
@@ -1042,7 +1135,8 @@ class _Compiled:
             dpoint, dpd = ca.SX.sym("dpoint", self.point.numel()), ca.SX.sym("dpd", self.n)
             M, Cqd, dV, Jc, Jc_bias = self._terms()
             r = ca.vertcat(ca.mtimes(M, a) + Cqd + dV - ca.mtimes(Jc.T, lam), ca.mtimes(Jc, a) + Jc_bias)
-            self._linearization = _Evaluator("geometric_linearize", self.point, ca.vertcat(self.pd, a, lam, dpoint, dpd),
+            self._linearization = _Evaluator("geometric_linearize", self.arguments,
+                                             ca.vertcat(self.pd, a, lam, dpoint, dpd),
                                              ca.jtimes(r, ca.vertcat(self.point, self.pd), ca.vertcat(dpoint, dpd)))
         return self._linearization
 
@@ -1051,7 +1145,7 @@ class _Compiled:
         """``(p, pd) -> [T, V, dE/dp, dE/dpd]`` with ``E = T + V`` (automatic differentiation of the energies)."""
         if self._energy is None:
             E = self.T + self.V
-            self._energy = _Evaluator("geometric_energy", self.point, self.pd, self._at_origin(
+            self._energy = _Evaluator("geometric_energy", self.arguments, self.pd, self._at_origin(
                 ca.vertcat(self.T, self.V, ca.gradient(E, self.p), ca.gradient(E, self.pd))))
         return self._energy
 
@@ -1074,16 +1168,17 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     p, pd = ca.SX.sym("p", n), ca.SX.sym("pd", n)
     point = None
     side = _representation(model, chart)
+    world = _World(model)
     if model.group_joints and (chart is None or side):
         point = ca.SX.sym("q", model.nq)
-        R, o, q = _group_frames(model, point, p, exp_order, side)
+        R, o, q = _group_frames(model, point, p, exp_order, side, world)
     elif model.group_joints:        # a chart whose psi returns the whole q (module docstring, "Charts of the group")
-        R, o, q = _chart_group_frames(model, _group_chart_coordinates(model, chart, p))
+        R, o, q = _chart_group_frames(model, _group_chart_coordinates(model, chart, p), world)
     else:
         q = _joint_coordinates(model, chart, p)
-        R, o = _frames(model, q)
+        R, o = _frames(model, q, world)
     T, V, M = ca.SX(0), ca.SX(0), ca.SX.zeros(n, n)
-    gravity = ca.DM(model.gravity)
+    gravity = world.matrix("gravity")
     spins = []                                        # body-frame angular velocities, for the external loads' power
     for i, body in enumerate(model.bodies):
         c = o[i] + ca.mtimes(R[i], ca.DM(body.com))
@@ -1108,23 +1203,24 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
     dM_upper = ca.jacobian(M_upper, p)  # column k = d M_upper / dp_k (so vec(dM_upper) is [k, upper entry])
     dV = ca.gradient(V, p)
     tp = model.task_point()
-    x = ca.mtimes(ca.DM(tp.directions), _point(model, R, o, tp.body, tp.offset))
+    x = ca.mtimes(world.matrix("task.directions"), _point(model, R, o, tp.body, tp.offset))
     J = ca.jacobian(x, p)
     Jdot_pd = ca.jtimes(ca.jtimes(x, p, pd), p, pd)
     if model.pfaffian_rows.any():
-        phi, Jc, Jc_bias = _rate_rows(model, q, R, o, p, pd)
+        phi, Jc, Jc_bias = _rate_rows(model, q, R, o, p, pd, world)
     else:
-        phi = _constraint_function(model, q, R, o) if model.constraints else ca.SX(0, 1)
+        phi = _constraint_function(model, q, R, o, world) if model.constraints else ca.SX(0, 1)
         Jc = ca.jacobian(phi, p)
         Jc_bias = ca.mtimes(ca.jacobian(ca.mtimes(Jc, pd), p), pd)  # Jcdot pd = (d(Jc pd)/dp) pd
     out = ca.vertcat(M_upper, ca.vec(dM_upper), dV, T, ca.vec(J), Jdot_pd, phi, ca.vec(Jc), Jc_bias)
     if model.loads:                  # appended: a model without loads keeps its Function as it was
-        out = ca.vertcat(out, _external_covector(model, R, o, p, pd, spins))
+        out = ca.vertcat(out, _external_covector(model, R, o, p, pd, spins, world))
     return _Compiled(n=n, k=x.shape[0], kc=phi.shape[0], p=p, pd=pd, T=T, V=V, out=out, point=point,
-                     origin=None if point is None else _chart_origin(model, point), external=bool(model.loads))
+                     origin=None if point is None else _chart_origin(model, point), external=bool(model.loads),
+                     world=world.symbols)
 
 
-def _external_covector(model: Model, R: list, o: list, p: ca.SX, pd: ca.SX, spins: list) -> ca.SX:
+def _external_covector(model: Model, R: list, o: list, p: ca.SX, pd: ca.SX, spins: list, world: _World) -> ca.SX:
     """``tau_ext`` (n) of the model's external loads in the chart p (module docstring, "External loads"): ``dP/dpd``
     of the loads' virtual power ``P = sum f . xdot + m . w`` (``xdot = (dx/dp) pd``, ``w = R_b w_body``), minus
     ``dV_s/dp`` of the springs' potential ``1/2 k (|x - anchor| - L0)^2``."""
@@ -1133,20 +1229,20 @@ def _external_covector(model: Model, R: list, o: list, p: ca.SX, pd: ca.SX, spin
         b = model.body_index(load.body)
         x = _point(model, R, o, load.body, load.offset)
         if isinstance(load, PointSpring):
-            d = x - ca.DM(load.anchor)
+            d = x - world.of(load, "anchor")
             stretch = ca.sqrt(ca.dot(d, d)) - load.rest_length if load.rest_length else None
             springs += 0.5 * load.stiffness * (stretch * stretch if load.rest_length else ca.dot(d, d))
             continue
-        power += ca.dot(_in_world(load, R[b], load.force), ca.jtimes(x, p, pd))
+        power += ca.dot(_in_world(load, R[b], world, "force"), ca.jtimes(x, p, pd))
         if isinstance(load, ExternalWrench):
-            power += ca.dot(_in_world(load, R[b], load.moment), ca.mtimes(R[b], spins[b]))
+            power += ca.dot(_in_world(load, R[b], world, "moment"), ca.mtimes(R[b], spins[b]))
     return ca.gradient(power, pd) - ca.gradient(springs, p)
 
 
-def _in_world(load, R: ca.SX, v) -> ca.SX:
-    """A load's vector ``v`` (its force or couple) in the world: as given for ``frame = "world"``, ``R v`` for
-    ``"body"`` (R the body's orientation, world <- body)."""
-    return ca.DM(v) if load.frame == "world" else ca.mtimes(R, ca.DM(v))
+def _in_world(load, R: ca.SX, world: _World, field: str) -> ca.SX:
+    """A load's vector ``field`` (its force or couple) in the world: the world datum for ``frame = "world"``, ``R v``
+    for ``"body"`` (R the body's orientation, world <- body)."""
+    return world.of(load, field) if load.frame == "world" else ca.mtimes(R, ca.DM(getattr(load, field)))
 
 
 _LOCK = threading.Lock()
@@ -1158,14 +1254,15 @@ def _model_digest(model: Model) -> str:
     entry = _DIGESTS.get(id(model))
     if entry is not None and entry[0]() is model:
         return entry[1]
-    digest = model.digest()  # the model's arrays are read-only, so its digest never changes
+    digest = _shape_digest(model)  # the model's arrays are read-only, so its digest never changes
     key = id(model)
     _DIGESTS[key] = (weakref.ref(model, lambda _, key=key: _DIGESTS.pop(key, None)), digest)
     return digest
 
 
 def _compiled(model: Model, chart) -> _Compiled:
-    """The cached casadi Functions of ``(model, chart)``, keyed by the model digest and ``chart.key``."""
+    """The cached casadi Functions of ``(model, chart)``, keyed by the model's digest without its world data
+    (:func:`_shape_digest`: a moved scene and a gravity-free copy share them) and ``chart.key``."""
     key = (_model_digest(model), JOINT_CHART if chart is None else str(chart.key))
     found = _COMPILED.get(key)
     if found is None:
@@ -1197,7 +1294,7 @@ class _Point:
 
 def _evaluate(model: Model, chart, p: np.ndarray, pd: np.ndarray) -> _Point:
     c = _compiled(model, chart)
-    flat = c.evaluate(p, pd)
+    flat = c.evaluate(_arguments(model, p), pd)
     tau_ext = None if c.ext_slice is None else flat[c.ext_slice]
     return _Point(M=flat[c.M_index], dM=flat[c.dM_index],
                   dV=flat[c.dV_slice] if tau_ext is None else flat[c.dV_slice] - tau_ext, T=float(flat[c.T_index]),
@@ -1608,7 +1705,7 @@ def _derivatives(model: Model, chart, point: np.ndarray, pd: np.ndarray, tau: np
     lam = np.asarray(s.lam, dtype=float) if model.constraints else np.zeros(0)
     directions = np.eye(width + n)                       # every coordinate of the point, then of pd
     at = np.hstack([np.tile(np.concatenate([pd, s.total, lam]), (width + n, 1)), directions])
-    dr = c.linearization.batch(np.tile(point, (width + n, 1)), at)            # row j: dr along direction j
+    dr = c.linearization.batch(np.tile(_arguments(model, point), (width + n, 1)), at)   # row j: along direction j
     dr_dpoint, dr_dpd = dr[:width].T, dr[width:].T
     forces = np.hstack([-dr_dpoint[:n], -dr_dpd[:n], inputs])
     if model.constraints:
@@ -1691,7 +1788,7 @@ def christoffel(model: Model, p, chart=None) -> np.ndarray:
 def energy(model: Model, p, pd, chart=None) -> tuple[float, float]:
     """``(T, V)``: kinetic and potential energy at ``(p, pd)`` in ``chart``."""
     p, pd = _vectors(model, chart, p, pd=pd)
-    values = _compiled(model, chart).energy(p, pd)
+    values = _compiled(model, chart).energy(_arguments(model, p), pd)
     return float(values[0]), float(values[1])
 
 
@@ -1731,7 +1828,7 @@ def energy_rates(model: Model, p, pd, accelerations, chart=None) -> list[EnergyR
     labels = ["pdd"] if len(accelerations) == 1 else [f"pdd[{i}]" for i in range(len(accelerations))]
     p, pd, *accelerations = _vectors(model, chart, p, pd=pd, **dict(zip(labels, accelerations)))
     n = model.n
-    values = _compiled(model, chart).energy(p, pd)
+    values = _compiled(model, chart).energy(_arguments(model, p), pd)
     dE_dp, dE_dpd = values[2:2 + n], values[2 + n:]
     momentum = np.array(dE_dpd)
     momentum.setflags(write=False)
@@ -1836,7 +1933,7 @@ def _split_block(model: Model, P: np.ndarray, PD: np.ndarray, tau: np.ndarray) -
     symbols contracted with the rates (:func:`_first_kind_contracted`), then raised by the metric (the same connection
     as :func:`_split`, which raises every symbol first); with constraints :func:`_constrained_block`."""
     c = _compiled(model, None)
-    flat = c.evaluate.batch(P, PD)
+    flat = c.evaluate.batch(_arguments(model, P), PD)
     M, dV = flat[:, c.M_index], flat[:, c.dV_slice]
     if c.ext_slice is not None:
         dV = dV - flat[:, c.ext_slice]                                       # dV/dp - tau_ext

@@ -98,3 +98,25 @@ def test_moved_scenes_and_the_gravity_free_copy_share_the_derivation(cache, monk
     if not model.loads and model.gravity.any():
         np.testing.assert_allclose(g_free, 0.0, atol=1e-12)
         assert np.abs(here[0].g).max() > 0.1
+
+
+@pytest.mark.parametrize("name", ["double_pendulum_circle", "satellite_arm", "double_pendulum_tip_force", "rolling_disk"])
+def test_moved_scenes_share_the_geometric_functions(name):
+    """geometric's casadi Functions take the world data as parameters too: the moved scene evaluates the model's own
+    Functions (one build), and its joint-space accelerations are the model's (the scene moves rigidly, gravity and
+    the loads' world data with it); a copy without gravity accelerates otherwise."""
+    from formalisms import geometric
+    model = cases.load(name)
+    moved = frames.move_scene(model, frames.sampled(1, name, 1)[0])
+    assert geometric._compiled(moved, None) is geometric._compiled(model, None)
+    rng = np.random.default_rng(5)
+    q = cases.configuration.random_configuration(model, rng, 1.0, 0.3)
+    v, u = rng.normal(size=model.nv), rng.normal(size=model.m)
+    here, there = geometric.split(model, q, v, u), geometric.split(moved, q, v, u)
+    np.testing.assert_allclose(there.total, here.total, rtol=0, atol=1e-10 * max(1.0, np.abs(here.total).max()))
+    if model.gravity.any():
+        weightless = cases.build_model(model.name, list(model.bodies), gravity=np.zeros(3),
+                                       input_map=model.input_map, task_points=list(model.task_points),
+                                       constraints=list(model.constraints), loads=list(model.loads))
+        assert geometric._compiled(weightless, None) is geometric._compiled(model, None)
+        assert not np.allclose(geometric.split(weightless, q, v, u).total, here.total)

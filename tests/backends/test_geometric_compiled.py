@@ -116,6 +116,7 @@ def test_compiled_code_can_differ(cache):
     broken = source.replace(mul, mul.replace("*", "+", 1), 1)
     library = geo._build(broken, [geo._compiler(), *geo.C_FLAGS], cache / "broken.so", function.nnz_out(0))
     P, PD = (np.array(x) for x in list(zip(*states))[:2])
+    P = geo._arguments(model, P)                     # the points, then the world data the Function reads
     want = np.array(function.map(len(P))(P.T, PD.T)).T
     assert not np.allclose(library(P, PD), want, rtol=1e-6)
     assert np.array_equal(geo._build(source, [geo._compiler(), *geo.C_FLAGS], cache / "good.so",

@@ -292,11 +292,12 @@ def test_the_truncated_exponential_is_exact(name):
     compiled = {K: geometric._compile(model, None, exp_order=K) for K in (1, 2, 3, 6)}
     assert geometric.EXP_ORDER == 2
     for q, qd, _ in states_of(name, 3):
-        out = {K: c.evaluate(q, qd) for K, c in compiled.items()}
+        x = geometric._arguments(model, q)              # the point, then the world data the Functions read
+        out = {K: c.evaluate(x, qd) for K, c in compiled.items()}
         scale = np.abs(out[6]).max()
         assert np.abs(out[2] - out[6]).max() <= 1e-14 * scale
         assert np.abs(out[3] - out[6]).max() <= 1e-14 * scale
-        assert np.array_equal(out[2], geometric._compiled(model, None).evaluate(q, qd))
+        assert np.array_equal(out[2], geometric._compiled(model, None).evaluate(x, qd))
         assert np.abs(out[1] - out[6]).max() > 1e-6 * scale
 
 
