@@ -1,12 +1,13 @@
 """Scale (``crosscheck bench --scale``): what large robots and long campaigns cost, each as a whole process.
 
-* **gate**: the default ``crosscheck gate`` (every check, 100 states) on tiago (48 joints, fixed base), the g1
-  humanoid (29 joints, free base) and solo12 (12 joints, free base), each from an empty cache, and on the built-in
-  cases cold and warm (the same cache again);
+* **gate**: ``crosscheck gate`` with every check at 100 states on the robots of the speed targets (the g1 humanoid, 29
+  joints on a free base; tiago, 48 joints; pr2; simple_humanoid on a free base; baxter) and solo12, each from an empty
+  cache, and on the built-in cases cold and warm (the same cache again);
 * **Euler–Lagrange preparation** against the number of joints: its first ``split`` minus a steady one, cold (empty
   cache: the symbolic derivation) and cached, on planar chains of 2 to 48 links
   (:func:`crosscheck.campaigns.bench.preparation`);
-* **fuzz**: states per second of a campaign with every check on (``crosscheck fuzz``), as a whole process.
+* **fuzz**: states and models per second of a campaign with every check on, on 2 workers (``crosscheck fuzz``), as
+  a whole process.
 
 Each run is a child process measured by the kernel (``os.wait4``, whose figures on Linux cover the child and the
 descendants it waited for): wall seconds, CPU seconds (user + system) and the peak resident memory of the largest
@@ -31,9 +32,12 @@ from crosscheck.campaigns import bench
 from crosscheck.engine import progress
 
 #: The robots of the gate's scale measurement: label, example-robot-data path, base.
-ROBOTS = (("tiago (48 joints)", "tiago_description/robots/tiago.urdf", "fixed"),
-          ("g1 humanoid (29 joints)", "g1_description/urdf/g1_29dof_rev_1_0.urdf", "free"),
-          ("solo12 (12 joints)", "solo_description/robots/solo12.urdf", "free"))
+ROBOTS = (("g1 humanoid (29 joints, free base)", "g1_description/urdf/g1_29dof_rev_1_0.urdf", "free"),
+          ("tiago (48 joints)", "tiago_description/robots/tiago.urdf", "fixed"),
+          ("pr2", "pr2_description/urdf/pr2.urdf", "fixed"),
+          ("simple_humanoid (free base)", "simple_humanoid_description/urdf/simple_humanoid.urdf", "free"),
+          ("baxter", "baxter_description/urdf/baxter.urdf", "fixed"),
+          ("solo12 (12 joints, free base)", "solo_description/robots/solo12.urdf", "free"))
 _ROBOT_DATA = "cmeel.prefix/share/example-robot-data/robots"
 
 
@@ -114,19 +118,20 @@ def gate_runs(plan: ScalePlan, display: progress.Display) -> list[Run]:
             cache = tempfile.mkdtemp(dir=tmp)
             for state in ("cold", "warm"):
                 display.doing(f"gate on the built-in cases, {state}")
-                runs.append(measured(f"gate built-in cases, {state}", ["gate", "--quiet", "--report",
+                runs.append(measured(f"gate built-in cases, {state}", ["gate", "--quiet", "--samples",
+                                                                        str(plan.samples), "--report",
                                                                         os.path.join(tmp, "gate.md")], cache))
                 display.advance()
     return runs
 
 
 def fuzz_run(plan: ScalePlan, display: progress.Display) -> Run:
-    """A campaign of ``plan.fuzz_examples`` examples with every check on, in-process (one core); its states from
-    the chunk log."""
+    """A campaign of ``plan.fuzz_examples`` examples with every check on, on 2 workers; its states and models from the
+    chunk log."""
     display.doing(f"fuzz campaign of {plan.fuzz_examples} examples")
     with tempfile.TemporaryDirectory(prefix="crosscheck-scale-") as tmp:
         out = os.path.join(tmp, "campaign")
-        run = measured("fuzz", ["fuzz", "--quiet", "--examples", str(plan.fuzz_examples), "--workers", "0",
+        run = measured("fuzz", ["fuzz", "--quiet", "--examples", str(plan.fuzz_examples), "--workers", "2",
                                 "--out", out], tempfile.mkdtemp(dir=tmp))
         chunks = [json.loads(line) for line in Path(out, "chunks.jsonl").read_text().splitlines() if line.strip()]
     run.detail.update(examples=sum(c["examples"] for c in chunks), states=sum(c["states"] for c in chunks),
@@ -165,15 +170,16 @@ def render(results: ScaleResults) -> str:
               "cached (the code the cold run wrote).", "", "| chain | cold s | cached s |", "|---|---:|---:|"]
     lines += [f"| {p.scene} | {p.cold_s:.2f} | {p.cached_s:.3f} |" for p in results.preparations]
     lines += ["", "## Fuzz throughput", "",
-              "States per second of the whole process, and of the chunks alone (start-up and the report left out); "
-              "every drawn model is new, so its symbolic derivations and casadi Functions are built for it.", "",
-              "| examples | models | states | exit | wall s | CPU s | states/s | in chunks: s, states/s | peak MiB |",
-              "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              "States and models per second of the whole process (2 workers, start-up and the report included), and "
+              "the chunks' own seconds summed over the workers; every drawn model is new, so its symbolic derivations "
+              "and casadi Functions are built for it, once for all its states.", "",
+              "| examples | models | states | exit | wall s | CPU s | states/s | models/s | in chunks: s | peak MiB |",
+              "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results.fuzz:
         d = r.detail
         lines.append(f"| {d['examples']} | {d['models']} | {d['states']} | {r.status} | {r.wall_s:.1f} | "
-                     f"{r.cpu_s:.1f} | {d['states'] / r.wall_s:.2f} | {d['chunk_s']:.1f}, "
-                     f"{d['states'] / max(d['chunk_s'], 1e-9):.2f} | {r.peak_mib:.0f} |")
+                     f"{r.cpu_s:.1f} | {d['states'] / r.wall_s:.1f} | {d['models'] / r.wall_s:.2f} | "
+                     f"{d['chunk_s']:.1f} | {r.peak_mib:.0f} |")
     failed = [r for r in results.gates + results.fuzz if "output" in r.detail]
     for r in failed:
         lines += ["", f"`{r.what}` ended with status {r.status}:", "", "```", *r.detail["output"], "```"]

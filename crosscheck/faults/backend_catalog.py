@@ -351,9 +351,9 @@ def _point_offset_unrotated(point):
 
 def _knife_edge_world_fixed(rates):
     """The geometric backend's knife edge with its body-frame direction used as a world direction (not turned by R)."""
-    def faulty(model, c, R, o, p, pd):
+    def faulty(model, c, R, o, p, pd, world):
         if type(c).__name__ != "KnifeEdge":
-            return rates(model, c, R, o, p, pd)
+            return rates(model, c, R, o, p, pd, world)
         import casadi
 
         from formalisms import geometric
@@ -413,7 +413,9 @@ GEOMETRIC = [
     Fault("geo-external-body-force-unturned", GEO,
           "A body-frame external force (or couple) enters the virtual power as a world vector: the body's rotation R "
           "is left out.",
-          "formalisms.geometric:_in_world", lambda f: lambda load, R, v: _casadi_vector(v), derived=True),
+          "formalisms.geometric:_in_world",
+          lambda f: lambda load, R, world, field: f(load, R, world, field) if load.frame == "world"
+          else _casadi_vector(getattr(load, field)), derived=True),
 ]
 
 
