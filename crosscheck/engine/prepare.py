@@ -12,8 +12,10 @@ finished stays in the cache.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 from typing import Sequence
 
 import formalisms
@@ -28,16 +30,20 @@ AHEAD_S = 5.0
 
 def _prepare(spec: CaseSpec, seed: int, checks: Checks, names: Sequence[str]) -> None:
     """The helper process: every chart of the case in reverse order, then the joint chart (with the linearization's
-    program when that check runs), by each named built-in backend's ``prepare``."""
-    setup = CaseSetup.build(spec, seed, checks)
-    for name in names:
-        prepare = formalisms.get(name).prepare
-        for chart in reversed(setup.charts):
-            try:
-                prepare(setup.model, chart, False)
-            except ModelNotSupported:
-                pass
-        prepare(setup.model, None, checks.linearization)
+    program when that check runs), by each named built-in backend's ``prepare``. Silent: Ctrl-C at a terminal reaches
+    the whole process group, and the evaluating process stops the helper itself; a derivation that fails here fails
+    again in the evaluating process, which reports it where it belongs."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        setup = CaseSetup.build(spec, seed, checks)
+        for name in names:
+            prepare = formalisms.get(name).prepare
+            for chart in reversed(setup.charts):
+                with contextlib.suppress(ModelNotSupported):
+                    prepare(setup.model, chart, False)
+            prepare(setup.model, None, checks.linearization)
+    except Exception:  # noqa: BLE001 - reported by the evaluating process, which derives it again
+        pass
 
 
 def ahead(setup: CaseSetup, backends: Sequence[Formalism], seconds: float, checks: Checks,
@@ -52,7 +58,10 @@ def ahead(setup: CaseSetup, backends: Sequence[Formalism], seconds: float, check
     process = multiprocessing.get_context("spawn").Process(
         target=_prepare, args=(setup.spec, seed, checks, names), daemon=True,
         name=f"crosscheck-prepare-{setup.spec.name}")
-    process.start()
+    try:
+        process.start()
+    except OSError:            # no process to spare (a limit, a sandbox): the evaluating process derives alone
+        return None
     return process
 
 
