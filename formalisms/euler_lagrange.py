@@ -145,7 +145,7 @@ Jc, Jcdot pd at the state.
   once when its library is in the cache (:class:`_Deferred`). :func:`evaluation` says which is in use
   (``crosscheck formalisms``); ``split``, ``split_chart`` and ``split_batch`` all run the same one.
 World as parameters. Whatever places the model in the world, and nothing else, is a parameter of the derivation, not
-a number in it (:func:`_world_data`, :class:`_World`): gravity, each root body's placement, the world points and
+a number in it (``cases.world``, :class:`_World`): gravity, each root body's placement, the world points and
 directions of the constraints (a circle's centre and plane, a ground point, a line's origin and normals, the
 directions of a point's velocity rows, the ground plane of a rolling contact) and the world-frame data of the loads
 (forces, couples, a spring's anchor). They are symbols the chain rule never differentiates; the generated code reads
@@ -153,7 +153,7 @@ their numbers after the coordinates (:func:`_world_values`), so a moved scene or
 evaluates the model's own derivation and compiled code with other numbers (the frame checks then compare that code's
 answers in two placements). The code grows about 10 % (``R_root^T R_root`` no longer simplifies).
 Caches: the sources (Python and C), the Python code object (``marshal``) and the library are cached on disk keyed by
-the model digest without its world data (:func:`_shape_digest`; it covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
+the model digest without its world data (``cases.world.shape_digest``; it covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
 with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
 process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
 Every file is written atomically (a temporary file renamed into place:
@@ -211,7 +211,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import dataclasses
 import functools
 import hashlib
 import importlib.util
@@ -236,9 +235,10 @@ import numpy as np
 import scipy.linalg
 import symengine as sp
 
-from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity, RollingContact
+from cases.constraints import KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import JOINT_DOF, Model
+from cases.world import label_of, shape_digest, world_data
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Chart, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, cache_dir, chart_vectors, check_batch, check_state, state_space,
                                   used_cache_file, write_cache_file)
@@ -265,44 +265,22 @@ def _skew(a: sp.DenseMatrix) -> sp.DenseMatrix:
     return sp.DenseMatrix([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
 
 
-#: The world data of each constraint type (module docstring, "World as parameters"): the fields a moved scene changes.
-_WORLD_FIELDS = {PointOnCircle: ("center", "plane"), PointsCoincide: ("offset_b", "directions"),
-                 PointOnLine: ("origin", "normals"), PointVelocity: ("directions",), RollingContact: ("plane",)}
-
-
-def _world_data(model: Model) -> list[tuple[str, np.ndarray]]:
-    """The model's world data in a fixed order (module docstring, "World as parameters"): gravity, each root body's
-    placement, the world points and directions of the constraints and the world-frame data of the loads; what a moved
-    scene or a gravity-free copy changes, and nothing else."""
-    out = [("gravity", model.gravity)]
-    for i, body in enumerate(model.bodies):
-        if body.parent is None:
-            out += [(f"root{i}.rotation", body.rotation), (f"root{i}.translation", body.translation)]
-    for r, c in enumerate(model.constraints):
-        out += [(f"constraint{r}.{f}", getattr(c, f)) for f in _WORLD_FIELDS.get(type(c), ())
-                if not (f == "offset_b" and c.body_b is not None)]
-    for r, load in enumerate(model.loads):
-        fields = ("anchor",) if isinstance(load, PointSpring) else () if load.frame == "body" else \
-            ("force", "moment") if isinstance(load, ExternalWrench) else ("force",)
-        out += [(f"load{r}.{f}", getattr(load, f)) for f in fields]
-    return out
-
-
 def _world_values(model: Model) -> np.ndarray:
-    """The numbers of :func:`_world_data`, flat, in order: what the generated code reads after the coordinates."""
-    return np.concatenate([np.ravel(np.asarray(a, dtype=float)) for _, a in _world_data(model)])
+    """The numbers of the model's world data (``cases.world.world_data``), flat, in order: what the generated code reads
+    after the coordinates."""
+    return np.concatenate([np.ravel(np.asarray(a, dtype=float)) for _, a in world_data(model)])
 
 
 class _World:
-    """The world data as symbols of the derivation (parameters: never differentiated), one per number of
-    :func:`_world_data`, named ``world0 ..`` in that order; :meth:`matrix` gives a datum's symbols in its shape
-    (a vector as a column)."""
+    """The world data (``cases.world.world_data``) as symbols of the derivation (parameters: never differentiated), one
+    per number, named ``world0 ..`` in that order; :meth:`matrix` gives a datum's symbols in its shape (a vector as a
+    column), :meth:`of` a constraint's or a load's."""
 
     def __init__(self, model: Model):
         self.model = model
         self.symbols: list = []
         self._data: dict = {}
-        for label, value in _world_data(model):
+        for label, value in world_data(model):
             shape = np.shape(value)
             flat = list(sp.symbols(f"world{len(self.symbols)}:{len(self.symbols) + int(np.prod(shape))}"))
             self.symbols += flat
@@ -312,29 +290,7 @@ class _World:
         return self._data[label]
 
     def of(self, declaration, field: str) -> sp.DenseMatrix:
-        """The symbols of a constraint's or a load's world datum ``field`` (the declaration found by identity)."""
-        for kind, declarations in (("constraint", self.model.constraints), ("load", self.model.loads)):
-            for r, d in enumerate(declarations):
-                if d is declaration:
-                    return self._data[f"{kind}{r}.{field}"]
-        raise KeyError(f"{declaration!r} is not a declaration of model '{self.model.name}'")
-
-
-def _shape_digest(model: Model) -> str:
-    """The model's digest with its world data (:func:`_world_data`) set to zero: what a derivation depends on, so a
-    moved scene and a gravity-free copy share the model's derivation, code and library. The task points, which this
-    backend does not use, are left out too."""
-    bodies = [dataclasses.replace(b, rotation=np.zeros((3, 3)), translation=np.zeros(3)) if b.parent is None else b
-              for b in model.bodies]
-    constraints = [dataclasses.replace(c, **{f: np.zeros(np.shape(getattr(c, f)))
-                                             for f in _WORLD_FIELDS.get(type(c), ())
-                                             if not (f == "offset_b" and c.body_b is not None)})
-                   for c in model.constraints]
-    loads = [dataclasses.replace(load, **{f: np.zeros(3) for f in ("anchor", "force", "moment")
-                                          if hasattr(load, f) and (f == "anchor" or load.frame == "world")})
-             for load in model.loads]
-    return dataclasses.replace(model, bodies=tuple(bodies), gravity=np.zeros(3), constraints=tuple(constraints),
-                               loads=tuple(loads), task_points=()).digest()
+        return self._data[label_of(self.model, declaration, field)]
 
 
 class _Staged:
@@ -1355,9 +1311,9 @@ def _cache_dir() -> Path:
 
 
 def cache_key(model: Model, chart: Chart | None = None) -> str:
-    """The disk-cache key: a digest of (the model's digest without its world data, :func:`_shape_digest`; the chart key
+    """The disk-cache key: a digest of (the model's digest without its world data, ``cases.world.shape_digest``; the chart key
     or ``"identity"``; a hash of this module)."""
-    parts = (_shape_digest(model), chart_key(model, chart))
+    parts = (shape_digest(model), chart_key(model, chart))
     if model.group_joints:  # how the group joints are derived is part of the key: the local chart, or psi's q
         parts += (GROUP_IN_CHART if parts[1] != JOINT_CHART and _representation(model, chart) is None
                   else _group_chart_text(model, chart, EXP_ORDER),)

@@ -184,9 +184,9 @@ forces ``-dV/dp`` and no bias, drift_velocity with ``-M Gamma(pd, pd)`` and the 
 drift to rounding (the system is linear in forces and bias). In every Split, joint chart and chart alike.
 
 World data. Gravity, each root body's placement, the task point's directions, the world points and directions of
-the constraints and the world-frame data of the loads are parameters of the SX graph (:func:`_world_data`,
+the constraints and the world-frame data of the loads are parameters of the SX graph (``cases.world``,
 :class:`_World`), read by every Function after the point (:func:`_arguments`): the Functions are built once per model
-shape (:func:`_shape_digest`), and a moved scene or a gravity-free copy evaluates them with its own numbers.
+shape (``cases.world.shape_digest``), and a moved scene or a gravity-free copy evaluates them with its own numbers.
 
 Linearization (article 4.8, eq. 11; :func:`linearize`, :func:`linearize_chart`). The accelerations ``a`` (and
 multipliers) solve ``r(p, pd, a, lam) = (tau, 0)``, eqs. (12)-(13) written with this backend's own expressions,
@@ -259,7 +259,6 @@ import threading
 import time
 import warnings
 import weakref
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -272,6 +271,7 @@ from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnL
                                RollingContact)
 from cases.loads import ExternalWrench, PointSpring
 from cases.model import Model
+from cases.world import label_of, shape_digest, world_data
 from formalisms.interface import (CONSTRAINT_RCOND, DEGENERATE_ROW, Formalism, Linearization, ModelNotSupported,
                                   Split, SplitBatch, StateError, cache_dir, check_batch, chart_vectors, check_state,
                                   joint_vectors, state_space, used_cache_file, write_cache_file)
@@ -429,33 +429,10 @@ def _joint_coordinates(model: Model, chart, p: ca.SX) -> list:
     return [ca.SX(qi) for qi in q]
 
 
-#: The world data of each constraint type: the fields a moved scene changes (module docstring, "World data").
-_WORLD_FIELDS = {PointOnCircle: ("center", "plane"), PointsCoincide: ("offset_b", "directions"),
-                 PointOnLine: ("origin", "normals"), PointVelocity: ("directions",), RollingContact: ("plane",)}
-
-
-def _world_data(model: Model) -> list[tuple[str, np.ndarray]]:
-    """The model's world data in a fixed order (module docstring, "World data"): gravity, each root body's placement,
-    the task point's directions, the world points and directions of the constraints and the world-frame data of the
-    loads: what a moved scene or a gravity-free copy changes, and nothing else."""
-    out = [("gravity", model.gravity), ("task.directions", model.task_point().directions)]
-    for i, body in enumerate(model.bodies):
-        if body.parent is None:
-            out += [(f"root{i}.rotation", body.rotation), (f"root{i}.translation", body.translation)]
-    for r, c in enumerate(model.constraints):
-        out += [(f"constraint{r}.{f}", getattr(c, f)) for f in _WORLD_FIELDS.get(type(c), ())
-                if not (f == "offset_b" and c.body_b is not None)]
-    for r, load in enumerate(model.loads):
-        fields = ("anchor",) if isinstance(load, PointSpring) else () if load.frame == "body" else \
-            ("force", "moment") if isinstance(load, ExternalWrench) else ("force",)
-        out += [(f"load{r}.{f}", getattr(load, f)) for f in fields]
-    return out
-
-
 def _world_values(model: Model) -> np.ndarray:
-    """The numbers of :func:`_world_data`, each matrix column by column (casadi's order), in order: what the Functions
-    read after the point."""
-    return np.concatenate([np.asarray(a, dtype=float).ravel(order="F") for _, a in _world_data(model)])
+    """The numbers of the model's world data (``cases.world.world_data`` with the task directions), each matrix column
+    by column (casadi's order), in order: what the Functions read after the point."""
+    return np.concatenate([np.asarray(a, dtype=float).ravel(order="F") for _, a in world_data(model, task=True)])
 
 
 def _arguments(model: Model, point: np.ndarray) -> np.ndarray:
@@ -466,12 +443,13 @@ def _arguments(model: Model, point: np.ndarray) -> np.ndarray:
 
 
 class _World:
-    """The world data of :func:`_world_data` as SX symbols (``symbolic``, a compiled Function's parameters, read after
-    the point) or as the model's own numbers; :meth:`matrix` gives a datum in its shape (a vector as a column)."""
+    """The world data (``cases.world.world_data`` with the task directions) as SX symbols (``symbolic``, a compiled
+    Function's parameters, read after the point) or as the model's own numbers; :meth:`matrix` gives a datum in its
+    shape (a vector as a column), :meth:`of` a constraint's or a load's."""
 
     def __init__(self, model: Model, symbolic: bool = True):
         self.model, self._data, symbols = model, {}, []
-        for label, value in _world_data(model):
+        for label, value in world_data(model, task=True):
             value = np.asarray(value, dtype=float)
             rows, cols = (value.shape + (1,))[:2]
             if symbolic:
@@ -485,27 +463,7 @@ class _World:
         return self._data[label]
 
     def of(self, declaration, field: str) -> ca.SX:
-        """A constraint's or a load's world datum ``field`` (the declaration found by identity)."""
-        for kind, declarations in (("constraint", self.model.constraints), ("load", self.model.loads)):
-            for r, d in enumerate(declarations):
-                if d is declaration:
-                    return self._data[f"{kind}{r}.{field}"]
-        raise KeyError(f"{declaration!r} is not a declaration of model '{self.model.name}'")
-
-
-def _shape_digest(model: Model) -> str:
-    """The model's digest with its world data (:func:`_world_data`) set to zero: what a compiled Function depends on,
-    so a moved scene and a gravity-free copy share the model's Functions."""
-    def zero(x, fields):
-        return dataclasses.replace(x, **{f: np.zeros(np.shape(getattr(x, f))) for f in fields})
-    bodies = [zero(b, ("rotation", "translation")) if b.parent is None else b for b in model.bodies]
-    constraints = [zero(c, [f for f in _WORLD_FIELDS.get(type(c), ())
-                            if not (f == "offset_b" and c.body_b is not None)]) for c in model.constraints]
-    loads = [zero(load, [f for f in ("anchor", "force", "moment")
-                         if hasattr(load, f) and (f == "anchor" or load.frame == "world")]) for load in model.loads]
-    task_points = [zero(tp, ("directions",)) for tp in model.task_points]
-    return dataclasses.replace(model, bodies=tuple(bodies), gravity=np.zeros(3), constraints=tuple(constraints),
-                               loads=tuple(loads), task_points=tuple(task_points)).digest()
+        return self._data[label_of(self.model, declaration, field)]
 
 
 def _walk(model: Model, motion, world: _World | None = None) -> tuple[list, list, list]:
@@ -1254,7 +1212,7 @@ def _model_digest(model: Model) -> str:
     entry = _DIGESTS.get(id(model))
     if entry is not None and entry[0]() is model:
         return entry[1]
-    digest = _shape_digest(model)  # the model's arrays are read-only, so its digest never changes
+    digest = shape_digest(model)  # the model's arrays are read-only, so its digest never changes
     key = id(model)
     _DIGESTS[key] = (weakref.ref(model, lambda _, key=key: _DIGESTS.pop(key, None)), digest)
     return digest
@@ -1262,7 +1220,7 @@ def _model_digest(model: Model) -> str:
 
 def _compiled(model: Model, chart) -> _Compiled:
     """The cached casadi Functions of ``(model, chart)``, keyed by the model's digest without its world data
-    (:func:`_shape_digest`: a moved scene and a gravity-free copy share them) and ``chart.key``."""
+    (``cases.world.shape_digest``: a moved scene and a gravity-free copy share them) and ``chart.key``."""
     key = (_model_digest(model), JOINT_CHART if chart is None else str(chart.key))
     found = _COMPILED.get(key)
     if found is None:

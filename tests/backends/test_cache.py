@@ -22,8 +22,10 @@ def cache(tmp_path, monkeypatch):
     monkeypatch.setattr(interface, "_MEASURED", {})
     monkeypatch.setattr(interface, "_WRITTEN", {})
     el._compiled.cache_clear()
+    el._derived.cache_clear()
     yield tmp_path
     el._compiled.cache_clear()
+    el._derived.cache_clear()
 
 
 def _write(name: str, size: int, age: float):

@@ -32,7 +32,8 @@ SHARED = {"formalisms/__init__.py", "formalisms/interface.py", "formalisms/cache
 # third-party libraries a formalism may use: numerics and symbolics only
 THIRD_PARTY = {"numpy", "scipy", "sympy", "symengine", "casadi"}
 # project modules a formalism may use: the model types and the shared interface
-PROJECT = {"formalisms.interface", "cases.model", "cases.constraints", "cases.loads"}
+PROJECT = {"formalisms.interface", "cases.model", "cases.constraints", "cases.loads",
+           "cases.world"}  # which data place a model in the world (model language, no numerics)
 # what a formalism may take from formalisms.interface: types, constants, validators and exceptions, nothing numeric
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
