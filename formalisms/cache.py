@@ -74,8 +74,8 @@ def evict_cache(keep: Path | None = None, written: int = 0) -> int:
     of the limit (so that writes do not evict one file each); ``keep`` (the file just written) is never removed.
     ``written`` bytes just added: the cache is walked again only when its last measured size plus what this process
     has written since could exceed the limit, or this process has written a tenth of the limit since (other
-    processes' writes are seen then: each can overshoot the limit by at most a tenth). Returns the bytes freed; files another process removes meanwhile are
-    skipped."""
+    processes' writes are seen then: each can overshoot the limit by at most a tenth). Returns the bytes freed; files
+    another process removes meanwhile are skipped."""
     root, limit = cache_root(), cache_limit()
     _WRITTEN[root] = _WRITTEN.get(root, 0) + written
     if root in _MEASURED and _MEASURED[root] + _WRITTEN[root] <= limit and _WRITTEN[root] <= limit // 10:

@@ -63,9 +63,9 @@ the body twist for a free joint). Such a model is derived in LOCAL EXPONENTIAL C
     ARE ``M vdot + nle(q, v) = tau``: ``g(0) = rnea(q, 0, 0)`` and ``C(0, v) v = rnea(q, v, 0) - g`` (what
     :func:`terms` returns for such a model). Constraints likewise: ``Jc = dphi/dxi (0)`` is the v-space Jacobian,
     and ``d^2/dt^2 phi = Jc xidd + xid^T (d^2 phi / dxi^2) xid`` gives ``Jcdot v = v^T (d^2 phi/dxi^2)(0) v``.
-  * Truncation (:data:`EXP_ORDER` = 3; 2 would do for the dynamics). At ``xi = 0`` the equations use ``M``, ``dM/dxi``, ``dV/dxi``, ``phi``,
-    ``dphi/dxi`` and ``d^2 phi/dxi^2``: T's coefficients (M is a quadratic form in the poses' first derivatives) to
-    first order in xi, V to first and phi to second order, i.e. derivatives of the poses of order at most 2 in xi
+  * Truncation (:data:`EXP_ORDER` = 3; 2 would do for the dynamics). At ``xi = 0`` the equations use ``M``,
+    ``dM/dxi``, ``dV/dxi``, ``phi``, ``dphi/dxi`` and ``d^2 phi/dxi^2``: T's coefficients (M is a quadratic form in
+    the poses' first derivatives) to first order in xi, V to first and phi to second order, i.e. derivatives of the poses of order at most 2 in xi
     (any order in the other coordinates). ``E_2 = I + X + X^2/2`` agrees with ``exp(X)`` to ``O(|xi|^3)``, and
     its first and second derivatives at 0 with exp's (the 4x4 series is SE(3)'s: rotation ``sum [phi]x^k / k!``,
     translation ``sum [phi]x^(k-1) rho / k!``), so every number evaluated at 0 is exact, although ``E_2`` is not a
@@ -153,11 +153,11 @@ their numbers after the coordinates (:func:`_world_values`), so a moved scene or
 evaluates the model's own derivation and compiled code with other numbers (the frame checks then compare that code's
 answers in two placements). The code grows about 10 % (``R_root^T R_root`` no longer simplifies).
 Caches: the sources (Python and C), the Python code object (``marshal``) and the library are cached on disk keyed by
-the model digest without its world data (``cases.world.shape_digest``; it covers the constraints), the chart's key (``"identity"`` for the joint chart), for a model
-with group joints the local chart with its order (:data:`GROUP_CHART`), and a hash of this module, so a second
-process loads them instead of re-deriving or compiling (:func:`cached_source`, :func:`cached_code`, :func:`_library`).
-Every file is written atomically (a temporary file renamed into place:
-:func:`~formalisms.interface.write_cache_file`), and a library is compiled in
+the model digest without its world data (``cases.world.shape_digest``; it covers the constraints), the chart's key
+(``"identity"`` for the joint chart), for a model with group joints the local chart with its order
+(:data:`GROUP_CHART`), and a hash of this module, so a second process loads them instead of re-deriving or compiling
+(:func:`cached_source`, :func:`cached_code`, :func:`_library`). Every file is written atomically (a temporary file
+renamed into place: :func:`~formalisms.interface.write_cache_file`), and a library is compiled in
 a private directory, so processes filling the same entry at once do not disturb each other; a library is sealed with
 its SHA-256 and one that does not match (damaged, truncated) is compiled again, never loaded; a cache that cannot be
 written only costs the work next time.
@@ -1311,8 +1311,8 @@ def _cache_dir() -> Path:
 
 
 def cache_key(model: Model, chart: Chart | None = None) -> str:
-    """The disk-cache key: a digest of (the model's digest without its world data, ``cases.world.shape_digest``; the chart key
-    or ``"identity"``; a hash of this module)."""
+    """The disk-cache key: a digest of (the model's digest without its world data, ``cases.world.shape_digest``; the
+    chart key or ``"identity"``; a hash of this module)."""
     parts = (shape_digest(model), chart_key(model, chart))
     if model.group_joints:  # how the group joints are derived is part of the key: the local chart, or psi's q
         parts += (GROUP_IN_CHART if parts[1] != JOINT_CHART and _representation(model, chart) is None
@@ -2251,15 +2251,17 @@ def _linear_code(model: Model, ref: _ChartRef | None) -> _Directional:
     (:func:`_local_program`), derived on the first ``linearize`` (never during ``split``) and cached in memory and on
     disk (:func:`linearization_key`)."""
     chart = None if ref is None else ref.chart
+    local: list = []
     if _needs_local_program(model, chart):
         code = _local_code(model)
-        inputs = [f"q{k}" for k in range(model.nq)] + [str(s) for s in _local_coordinates(model)[2]]
-        columns = tuple(inputs.index(str(s)) for s in _local_coordinates(model)[0])
+        coordinates, configuration, local = _local_coordinates(model)
+        inputs = configuration + local                    # :func:`_local_program`'s, before the world data
+        columns = tuple(inputs.index(s) for s in coordinates)
     else:
         code, columns = cached_code(model, chart), tuple(range(model.n))
     namespace = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
     exec(code, namespace)
-    return _Directional(namespace["evaluate"], columns, len(columns) - len(set(columns) & set(range(model.nq))))
+    return _Directional(namespace["evaluate"], columns, len(local))
 
 
 class LinearTerms(NamedTuple):
@@ -2273,7 +2275,8 @@ class LinearTerms(NamedTuple):
 
 def _derivatives(model: Model, x, xd, chart: Chart | None) -> tuple[Terms, ConstraintTerms]:
     """The derivatives of the dynamics' outputs (:data:`OUTPUTS`) in the 2n directions of ``(x, xd)`` at a state, as
-    :class:`Terms` and :class:`ConstraintTerms` with a leading axis of 2n directions (coordinates, then rates). Forward mode by the complex step: each direction is a column of the batched code with
+    :class:`Terms` and :class:`ConstraintTerms` with a leading axis of 2n directions (coordinates, then rates). Forward
+    mode by the complex step: each direction is a column of the batched code with
     ``x + i h e_j`` (or ``xd + i h e_j``), whose imaginary parts are ``h`` times the derivatives (module docstring,
     "Linearization")."""
     n = model.n
@@ -2356,7 +2359,8 @@ def _differentiated(model: Model, x, xd, tau, inputs, chart: Chart | None = None
     """``(vdot, dF/dx, dF/dxd, dF/dinputs)`` of the chart's ``xdd = F(x, xd)`` under the generalized force ``tau`` (the
     KKT solution of eqs. 12-13 at ``a = vdot``; module docstring, "Linearization"): vdot and lam by the split's own
     solve, then the differentiated KKT system ``[[M, -Jc^T], [Jc, 0]] [dF; dlam] = [dtau - d force; -d accel]`` per
-    direction, with :func:`linear_terms` (the dynamics' code differentiated) and the same scaled, rank-revealing :func:`_kkt`
+    direction, with :func:`linear_terms` (the dynamics' code differentiated) and the same scaled, rank-revealing
+    :func:`_kkt`
     (unconstrained: ``dF = M^-1 (dtau - d force)`` by the Cholesky factor), and ``dF/dinputs = B_c inputs`` (eq. 17;
     ``M^-1 inputs`` unconstrained). ``dtau`` is the local chart's (:func:`_chart_force`) in the joint chart (None), 0
     in a chart ``q = psi(p)``, whose force ``tau_p`` is its own coordinate's."""

@@ -1654,8 +1654,9 @@ def _derivatives(model: Model, chart, point: np.ndarray, pd: np.ndarray, tau: np
 
     i.e. ``dvdot = M^-1 (...)`` (the metric's Cholesky factor) or, with constraints, the split's own null-space solve
     (:func:`_projected`, the same independent rows): exact, from casadi's forward-mode AD of the backend's own
-    expressions (M, its derivatives, dV/dp, Jc, Jcdot pd) in every direction at once, never finite differences. ``dvdot/dpoint`` has a column per coordinate of the
-    point (nq for a model with spherical or free joints: the ambient derivative at the group chart's origin)."""
+    expressions (M, its derivatives, dV/dp, Jc, Jcdot pd) in every direction at once, never finite differences.
+    ``dvdot/dpoint`` has a column per coordinate of the point (nq for a model with spherical or free joints: the ambient
+    derivative at the group chart's origin)."""
     c = _compiled(model, chart)
     pt = _evaluate(model, chart, point, pd)
     s = _split_at(model, chart, pt, point, pd, tau)

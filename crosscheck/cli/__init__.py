@@ -3,9 +3,9 @@ trajectory, reports, cache.
 
 Each command lives in its own module of this package, which adds its subparser (``add_parser(sub)``) and runs it:
 ``listing`` (cases, formalisms), ``gate``, ``eval``, ``faults``, ``fuzz`` (fuzz, replay, merge), ``bench`` (also
-``--scale``), ``stability``, ``trajectory``, ``reports`` and ``cache``; what they share (the parser class, the common options,
-the ``--workers`` policy, the output directories) is in ``options``. This module assembles the parser and runs a
-command (:func:`main`, the ``crosscheck`` console script); the command modules never import it.
+``--scale``), ``stability``, ``trajectory``, ``reports`` and ``cache``; what they share (the parser class, the common
+options, the ``--workers`` policy, the output directories) is in ``options``. This module assembles the parser and runs
+a command (:func:`main`, the ``crosscheck`` console script); the command modules never import it.
 
 Outputs: every command writes under ``options.OUTPUT_DIR`` (``crosscheck-out/``, git-ignored) unless told otherwise;
 the committed reports in ``options.REPORTS_DIR`` are written only by ``crosscheck reports`` (``reports.REPORTS``).

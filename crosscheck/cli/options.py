@@ -38,8 +38,8 @@ _SIGNALLED: list[str] = []
 
 
 def on_sigterm(signum, frame) -> None:
-    """The SIGTERM handler of a command (``crosscheck.cli.main`` installs it): stop as Ctrl-C does (:class:`Terminated`).
-    Once: a second SIGTERM while the partial report is written is ignored."""
+    """The SIGTERM handler of a command (``crosscheck.cli.main`` installs it): stop as Ctrl-C does
+    (:class:`Terminated`). Once: a second SIGTERM while the partial report is written is ignored."""
     if not _SIGNALLED:
         _SIGNALLED.append("SIGTERM")
         raise Terminated("SIGTERM")

@@ -102,7 +102,8 @@ def test_moved_scenes_and_the_gravity_free_copy_share_the_derivation(cache, monk
         assert np.abs(here[0].g).max() > 0.1
 
 
-@pytest.mark.parametrize("name", ["double_pendulum_circle", "satellite_arm", "double_pendulum_tip_force", "rolling_disk"])
+@pytest.mark.parametrize("name", ["double_pendulum_circle", "satellite_arm", "double_pendulum_tip_force",
+                                  "rolling_disk"])
 def test_moved_scenes_share_the_geometric_functions(name):
     """geometric's casadi Functions take the world data as parameters too: the moved scene evaluates the model's own
     Functions (one build), and its joint-space accelerations are the model's (the scene moves rigidly, gravity and

@@ -95,8 +95,8 @@ def _relative_scale(value: float, condition: float = 1.0) -> float:
 
 
 def assert_agrees_with_reference(model, q, qd, u, evaluated=None) -> dict[str, float]:
-    """The backend's split against ``crosscheck.references.pinocchio.reference.split`` on every field it reports, each within ``RTOL``
-    of its scale: accelerations of ``accel_scale``; powers of ``|B u| . |qd|``; T of itself; ``cond_M``,
+    """The backend's split against ``crosscheck.references.pinocchio.reference.split`` on every field it reports, each
+    within ``RTOL`` of its scale: accelerations of ``accel_scale``; powers of ``|B u| . |qd|``; T of itself; ``cond_M``,
     ``accel_scale``, the conditions and ``lam_scale`` relatively; multipliers of ``lam_scale``; constraint forces of
     ``||Jc|| lam_scale``; phi, Jc of the length scale L; ``Jc qd`` of ``L |qd|``; ``Jcdot qd`` of ``L |qd|^2``.
     Multipliers and the rank are compared where neither side reports a constraint BREAKDOWN (they are not unique
@@ -360,9 +360,10 @@ def _evaluator(model, order):
 @pytest.mark.parametrize("name", ["ball_pendulum", "free_body"] + list(CONSTRAINED_CASES))
 def test_second_order_exponential_is_exact_at_the_origin(name):
     """Every output of the generated code (M, C qd, g, T, phi, Jc, Jcdot qd) with the series truncated after order 3
-    (the cached derivation, ``EXP_ORDER``) equals orders 2 and 4 to rounding, and order 1 (``exp(X) ~ I + X``, which loses the
-    ``X(xid)^2`` of ``Eddot``) gets C qd (and Jcdot qd) wrong: only derivatives of order <= 2 in xi are evaluated.
-    The constrained variants hold the unconstrained cases' M, C qd, g (two ball joints; a free base and an arm)."""
+    (the cached derivation, ``EXP_ORDER``) equals orders 2 and 4 to rounding, and order 1 (``exp(X) ~ I + X``, which
+    loses the ``X(xid)^2`` of ``Eddot``) gets C qd (and Jcdot qd) wrong: only derivatives of order <= 2 in xi are
+    evaluated. The constrained variants hold the unconstrained cases' M, C qd, g (two ball joints; a free base and an
+    arm)."""
     model = model_of(name)
     evaluators = {order: _evaluator(model, order) for order in (1, 2, 4)}
     labels = ("M", "Cqd", "g", "T", "phi", "Jc", "bias")
@@ -440,9 +441,9 @@ def chart_arguments(model, chart, q, qd, u):
 
 
 def assert_chart_agrees_with_reference(model, q, qd, u, chart_name="zyx") -> dict[str, float] | None:
-    """``el.split_chart`` in the zyx chart against ``crosscheck.references.pinocchio.reference.split`` mapped into the chart with the
-    harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the ctrl without
-    the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
+    """``el.split_chart`` in the zyx chart against ``crosscheck.references.pinocchio.reference.split`` mapped into the
+    chart with the harness's own ``Dpsi`` (never given to the backend): ``pdd = Dpsi^-1 (vdot - (d/dt Dpsi) pd)`` (the
+    ctrl without the rate term), invariant fields equal (T, powers, multipliers, constraint values and velocities, S's
     conditions), covariant ones mapped (``Jc_p = Jc Dpsi``, ``Jcdot_p pd = Jcdot v + Jc (d/dt Dpsi) pd``,
     ``Jc_p^T lam = Dpsi^T Jc^T lam``) and ``cond_M`` that of ``M_p = Dpsi^T M Dpsi``; each within ``RTOL`` of its
     scale. None (nothing compared) near gimbal lock. Returns each field's error over its scale."""
@@ -523,10 +524,11 @@ def test_zyx_chart_agrees_with_the_reference_mapped_into_the_chart(name, chart_n
 @pytest.mark.parametrize("chart_name", ("zyx", "exp"))
 @pytest.mark.parametrize("name", GROUP_CASES + CONSTRAINED_CASES + ("solo12",))
 def test_zyx_chart_check_of_the_gate(name, chart_name, tmp_path, monkeypatch):
-    """The gate's own chart check (``crosscheck.checks.invariance.chart_checks`` through ``testing.assert_backends_agree``):
-    the backend's native answers in the zyx chart, and in the exp chart (exponential coordinates about the centre
-    drawn for the case), against Pinocchio's joint-chart split mapped into it, on every quantity the gate compares
-    there (the checks exist: the backend is not left out of the chart), from a cold derivation (an empty cache; its
+    """The gate's own chart check (``crosscheck.checks.invariance.chart_checks`` through
+    ``testing.assert_backends_agree``): the backend's native answers in the zyx chart, and in the exp chart (exponential
+    coordinates about the centre drawn for the case), against Pinocchio's joint-chart split mapped into it, on every
+    quantity the gate compares there (the checks exist: the backend is not left out of the chart), from a cold
+    derivation (an empty cache; its
     time is measured by ``crosscheck bench``, not asserted here)."""
     model = model_of(name)
     chart = charts.get(chart_name, model, 0, name)

@@ -4,14 +4,14 @@ and shares no numerics with the others.
 Every module under ``formalisms/`` except the package ``__init__`` (the lazy registry) and ``interface.py`` is
 read with ``ast`` (never imported, so nothing it would import is loaded) and every import is checked against an
 allow-list: the standard library, the numeric libraries below, ``formalisms.interface``, the model language
-(``cases.model``, ``cases.constraints``, ``cases.loads``: declarations each backend maps itself), and a formalism's own sub-modules when it is a package. A new
-dependency must be added here, with a reason. From ``formalisms.interface`` a formalism may use only the names in
-:data:`INTERFACE` (types, constants, validators, exceptions: imported, or read as attributes of the module), and
-``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for plugins) and ``block_form`` (the
-harness's look-up of a block form): a power, a constraint force, a factorization, a rank decision, a conditioning or
-a task inertia computed there once for every backend would be compared bit-identically and prove nothing.
-Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their argument is a
-string literal, and refused when it is not (they could load anything).
+(``cases.model``, ``cases.constraints``, ``cases.loads``: declarations each backend maps itself), and a formalism's own
+sub-modules when it is a package. A new dependency must be added here, with a reason. From ``formalisms.interface`` a
+formalism may use only the names in :data:`INTERFACE` (types, constants, validators, exceptions: imported, or read as
+attributes of the module), and ``interface.py`` itself defines nothing else but ``split_batch_by_loop`` (a loop for
+plugins) and ``block_form`` (the harness's look-up of a block form): a power, a constraint force, a factorization, a
+rank decision, a conditioning or a task inertia computed there once for every backend would be compared bit-identically
+and prove nothing. Dynamic imports (``importlib.import_module``, ``__import__``) are checked the same way when their
+argument is a string literal, and refused when it is not (they could load anything).
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ PROJECT = {"formalisms.interface", "cases.model", "cases.constraints", "cases.lo
 INTERFACE = {"CONSTRAINT_RCOND", "DEGENERATE_ROW", "UNSUPPORTED", "Unsupported", "Chart", "Formalism",
              "ModelNotSupported", "Split", "SplitBatch", "StateError", "chart_vectors", "check_batch", "check_state",
              "joint_vectors", "with_block_form",
-             "cache_dir", "write_cache_file", "used_cache_file",  # disk-cache plumbing: where a backend keeps its derivations, no numerics
+             # disk-cache plumbing: where a backend keeps its derivations, no numerics
+             "cache_dir", "write_cache_file", "used_cache_file",
              # the linearization's type and its kinematic rows: the group convention (no dynamics), held against the
              # flow of cases.configuration.integrate by tests/checks/test_linearize.py, outside the vote
              "Linearization", "state_space", "tangent_kinematics"}
