@@ -79,22 +79,32 @@ class ScaleResults:
         return json.dumps(asdict(self), indent=1, sort_keys=True)
 
 
+#: The small process that starts each measured command and reads its rusage (:func:`measured`): a process forked from
+#: a large one inherits its peak resident memory in ``ru_maxrss`` (Linux keeps the high-water mark across fork and
+#: exec), so the command is forked from this one, which has imported nothing, and its figures are those of the
+#: command and its descendants alone. It writes ``[status, CPU seconds, peak KiB]`` to the file named first.
+_LAUNCHER = ("import json, os, subprocess, sys; child = subprocess.Popen(sys.argv[2:]); "
+             "_, status, usage = os.wait4(child.pid, 0); code = os.waitstatus_to_exitcode(status); "
+             "open(sys.argv[1], 'w').write(json.dumps([code, usage.ru_utime + usage.ru_stime, usage.ru_maxrss]))")
+
+
 def measured(what: str, arguments: Sequence[str], cache: str) -> Run:
     """``crosscheck ARGUMENTS`` in a child process with the Euler–Lagrange and geometric caches in ``cache``, measured
-    by the kernel (module doc). Its output is kept only for a failure (the last lines, in ``detail``)."""
+    by the kernel (module doc) through :data:`_LAUNCHER`. Its output is kept only for a failure (the last lines, in
+    ``detail``)."""
     command = [sys.executable, "-c", "from crosscheck.cli import main; raise SystemExit(main())", *arguments]
     env = {**os.environ, "CROSSCHECK_CACHE": cache}
-    with tempfile.TemporaryFile() as log:
+    with tempfile.TemporaryFile() as log, tempfile.TemporaryDirectory() as tmp:
+        figures = os.path.join(tmp, "rusage.json")
         start = time.perf_counter()
-        child = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(child.pid, 0)
+        subprocess.run([sys.executable, "-S", "-c", _LAUNCHER, figures, *command], env=env, stdout=log,
+                       stderr=subprocess.STDOUT)
         wall = time.perf_counter() - start
-        child.returncode = os.waitstatus_to_exitcode(status)
+        status, cpu, peak_kib = json.loads(Path(figures).read_text())
         log.seek(0)
         tail = log.read().decode(errors="replace").strip().splitlines()[-5:]
-    run = Run(what, list(arguments), child.returncode, wall, usage.ru_utime + usage.ru_stime,
-              usage.ru_maxrss / 1024)
-    if child.returncode not in (0, 1):  # 1: the gate or campaign found something, still a measurement
+    run = Run(what, list(arguments), status, wall, cpu, peak_kib / 1024)
+    if status not in (0, 1):  # 1: the gate or campaign found something, still a measurement
         run.detail["output"] = tail
     return run
 

@@ -68,6 +68,19 @@ def test_a_measured_child_reports_its_status_time_and_memory(tmp_path):
     assert failed.status == 2 and any("no_such_case" in line for line in failed.detail["output"])
 
 
+def test_a_measured_child_does_not_inherit_the_peak_memory_of_its_parent(tmp_path):
+    """Linux carries a process's peak resident memory across fork and exec, so a command forked from a large process
+    (``crosscheck reports`` after the faults and the bench) reported that process's peak as its own; the launcher in
+    between gives the command's own."""
+    import numpy as np
+
+    ballast = np.ones(60_000_000)          # 480 MB resident in this process
+    ballast[::512] = 2.0
+    run = scale.measured("cases", ["cases"], str(tmp_path))
+    assert run.status == 0 and run.peak_mib < 300, run.peak_mib
+    assert ballast.sum() > 0
+
+
 def test_the_scale_report_shows_every_measurement():
     gate_run = scale.Run("gate tiago (48 joints)", ["gate"], 0, 700.0, 690.0, 2600.0)
     fuzz_run = scale.Run("fuzz", ["fuzz"], 0, 60.0, 58.0, 300.0,
