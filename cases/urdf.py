@@ -31,8 +31,9 @@ one :class:`BaseNotice` warning saying so and how to float it. The source record
 Inputs: the identity's columns of every joint velocity but a free joint's, whose six velocities are unactuated
 (a floating base has no motor to the world). ``actuated`` (URDF joint names, e.g. ``["joint1", "joint3"]``; the
 command line's ``--actuated joint1,joint3``) makes B the identity's columns of those joints only, in the order given:
-``u[k]`` is the force or torque of ``actuated[k]``. A name that is not a movable joint of the file (unknown, fixed,
-floating, or given twice) is a :class:`~cases.model.ModelError` listing the movable joints.
+``u[k]`` is the force or torque of ``actuated[k]``; an empty list (``--actuated ""``) makes the model passive, B with
+no columns. A name that is not a movable joint of the file (unknown, fixed, floating, or given twice) is a
+:class:`~cases.model.ModelError` listing the movable joints.
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
 parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
@@ -394,8 +395,6 @@ def _named_inputs(robot: ET.Element, actuated, problems: list[str]) -> list[str]
     types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
     movable = sorted(name for name, kind in types.items() if kind in ("revolute", "continuous", "prismatic"))
     n_before = len(problems)
-    if not actuated:
-        problems.append(f"actuated names no joint; name at least one of the movable joints {movable}")
     problems += [f"actuated names joint '{name}' {actuated.count(name)} times; name each joint once"
                  for name in sorted(set(actuated)) if actuated.count(name) > 1]
     for name in dict.fromkeys(actuated):

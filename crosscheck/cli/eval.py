@@ -340,7 +340,7 @@ def add_parser(sub) -> None:
     ev.add_argument("--base", choices=("fixed", "free"),
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     ev.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
-                    "of u (default: every joint but a free base's)")
+                    "of u (default: every joint but a free base's; \"\": none, a passive model)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
                     "--chart world or mixed), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "

@@ -130,7 +130,7 @@ def add_parser(sub) -> None:
     gate.add_argument("--base", choices=("fixed", "free"),
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
-                      "of u (default: every joint but a free base's)")
+                      "of u (default: every joint but a free base's; \"\": none, a passive model)")
     gate.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
                       help=f"states per case (default {DEFAULT_SAMPLES})")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")

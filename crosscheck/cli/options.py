@@ -152,7 +152,7 @@ def _specs(args) -> list[CaseSpec]:
     if actuated is not None and not args.model:
         raise UsageError("--actuated applies to a --model URDF file (its joint names, e.g. --actuated joint1,joint3); "
                          "a built-in case has its own input map")
-    actuated = None if actuated is None else tuple(name.strip() for name in actuated.split(","))
+    actuated = None if actuated is None else tuple(filter(None, (name.strip() for name in actuated.split(","))))
     specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
     point = getattr(args, "task_point", None)
     if point is not None and len(specs) != 1:

@@ -91,6 +91,8 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
+    if ratios.shape[1] == 0:                                           # empty values (B of a model with no input)
+        return Comparison(quantity, AGREE, 0.0, 0.0, dict.fromkeys(combinations(present, 2), 0.0), None, skipped)
     per_pair = ratios.max(axis=1)                                      # NaN where a pair has one
     worst_pair, entry = _worst(ratios, per_pair)
     pairs = dict(zip(combinations(present, 2), per_pair.tolist()))

@@ -78,7 +78,8 @@ class CaseSpec:
         point = f" --task-point {self.task_point}" if self.task_point is not None else ""
         if self.path is not None:
             return (f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
-                    + (f" --actuated {','.join(self.actuated)}" if self.actuated is not None else "") + point)
+                    + (f" --actuated {','.join(self.actuated) or chr(39) * 2}" if self.actuated is not None else "")
+                    + point)
         return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params]) + point
 
 

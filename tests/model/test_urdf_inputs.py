@@ -51,7 +51,6 @@ def test_actuated_joints_are_the_columns_of_b_in_the_order_given(path):
     (["j_x"], "actuated joint 'j_x' is not a joint of the file; movable joints: ['j_a', 'j_b', 'j_c']"),
     (["j_tool"], "actuated joint 'j_tool' is fixed, which no motor drives here"),
     (["j_a", "j_a"], "actuated names joint 'j_a' 2 times; name each joint once"),
-    ([], "actuated names no joint; name at least one of the movable joints"),
     ("j_a", "actuated must be a list of URDF joint names, got 'j_a'"),
 ])
 def test_a_bad_actuated_joint_is_refused_with_the_movable_ones(path, actuated, message):
@@ -80,3 +79,19 @@ def test_ctrl_of_every_backend_uses_the_input_map(path, capsys):
 def test_actuated_applies_to_a_urdf_only(capsys):
     assert cli.main(["eval", "--case", "double_pendulum", "--actuated", "j1", "--q=0,0"]) == 2
     assert "--actuated applies to a --model URDF file" in capsys.readouterr().err
+
+
+def test_no_actuated_joint_is_a_passive_model_and_the_gate_runs_every_check(path, tmp_path):
+    """``actuated=[]`` (``--actuated ""``): B has no columns; every check runs, the linearization's empty B
+    included (issue 34: a zero-size B crashed the comparison)."""
+    model = cases.from_urdf(path, base="fixed", actuated=[])
+    assert model.input_map.shape == (3, 0)
+    spec = CaseSpec("inputs", path=path, base="fixed", actuated=())
+    assert spec.cli_args() == f"--model {path} --base fixed --actuated ''"
+    report = tmp_path / "gate.md"
+    assert cli.main(["gate", "--model", path, "--base", "fixed", "--actuated", "", "--samples", "3",
+                     "--workers", "0", "--report", str(report)]) == 0
+    text = report.read_text()
+    assert "linearization: 2 states in 1 case(s), 10 comparisons, 0 DISAGREE" in (   # 5 blocks, dvdot/du empty
+        tmp_path / "gate-details.md").read_text()
+    assert "PASS" in text
