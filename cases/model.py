@@ -174,6 +174,11 @@ class Model:
     topological_order: tuple[int, ...] = ()
     source: ModelSource | None = None
     loads: tuple = ()
+    #: What is physically impossible in the data but still gives a positive-definite M (an inertia that violates the
+    #: triangle inequality beyond rounding, a massless body with a rotational inertia): reported
+    #: at the top of a gate report, the backends still compared (``--strict-model`` refuses such a model). Derived
+    #: from the bodies by :func:`cases.build.build_model`, so left out of the digest.
+    findings: tuple[str, ...] = ()
 
     @property
     def n(self) -> int:

@@ -49,9 +49,11 @@ own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
 order of ``A``. The mimic joint keeps its column of the identity input map. Pinocchio is asked to ignore the tags
 (``mimic=False``), so the tags are read from the XML here, and the reference reads them from the file again and
 checks the declaration (``crosscheck.references.pinocchio.reference``). Panda: 9 coordinates, ``panda_finger_joint2``
-mimics ``panda_finger_joint1``, one constraint row. Refused (:class:`~cases.model.ModelError`, naming the joint): a
-mimic of a joint that does not exist, of itself, of a fixed joint or of a joint that is itself a mimic (a chain), a
-mimic on a fixed joint, a multiplier that is 0, not a number or not finite, an offset that is not a finite number.
+mimics ``panda_finger_joint1``, one constraint row. A mimic tag on a fixed joint constrains nothing (the joint has no
+coordinate) and is ignored with one :class:`MimicNotice`, as Pinocchio ignores it (TALOS's grippers). Refused
+(:class:`~cases.model.ModelError`, naming the joint): a mimic of a joint that does not exist, of itself, of a fixed
+joint or of a joint that is itself a mimic (a chain), a multiplier that is 0, not a number or not finite, an offset
+that is not a finite number.
 
 Before Pinocchio parses, the file is read here and checked to be a URDF tree: XML whose root is ``<robot>``, every
 joint attaching two distinct links that exist, no link the child of two joints, no chain of joints that closes on
@@ -69,6 +71,7 @@ import math
 import os
 import sys
 import tempfile
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import NamedTuple
@@ -85,8 +88,16 @@ class UrdfError(ValueError):
     """A URDF file cannot be read or parsed (the message names the path)."""
 
 
-class BaseNotice(UserWarning):
+class LoadNotice(UserWarning):
+    """Something a loader did with a file that the user should know and may want to change (one line each)."""
+
+
+class BaseNotice(LoadNotice):
     """A URDF file loaded with a fixed base because no base was asked for (module docstring, "The base")."""
+
+
+class MimicNotice(LoadNotice):
+    """``<mimic>`` tags on fixed joints, ignored: a fixed joint has no coordinate to couple (module docstring)."""
 
 
 #: The ``base`` values of :func:`from_urdf`.
@@ -197,6 +208,11 @@ def _mimics(robot: ET.Element, problems: list[str]) -> list[Mimic]:
     """The ``<mimic>`` tags (module docstring), appending to ``problems`` the ones that cannot be a coupling."""
     types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
     tags = [(j.get("name"), j.find("mimic")) for j in robot.findall("joint") if j.find("mimic") is not None]
+    fixed = [name for name, _ in tags if types[name] == "fixed"]
+    if fixed:
+        warnings.warn(MimicNotice(f"{len(fixed)} fixed joint(s) carry a <mimic> tag, ignored: a fixed joint has no "
+                                  f"coordinate to couple ({', '.join(fixed)})"), stacklevel=3)
+    tags = [(name, tag) for name, tag in tags if types[name] != "fixed"]
     mimicking = {name for name, _ in tags}
     problems += [f"joint '{j.get('name')}' has {len(j.findall('mimic'))} <mimic> tags; a joint follows one joint"
                  for j in robot.findall("joint") if len(j.findall("mimic")) > 1]
@@ -228,9 +244,8 @@ def _mimic_problems(where: str, name: str, target: str | None, types: dict, mimi
         problems.append(f"{where}, which itself mimics another joint; a mimic chain is not supported: let "
                         f"'{name}' mimic the joint at the start of the chain")
     elif types[target] == "fixed":
-        problems.append(f"{where}, a fixed joint with no coordinate")
-    if types[name] == "fixed":
-        problems.append(f"{where}, but is itself a fixed joint with no coordinate")
+        problems.append(f"{where}, a fixed joint with no coordinate; remove the tag, or make '{name}' fixed too if "
+                        "it does not move")
     return problems
 
 
@@ -502,8 +517,6 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
     source = ModelSource("urdf", str(path.resolve()), root=root)
     model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven)
     if notice is not None:
-        import warnings
-
         warnings.warn(BaseNotice(notice), stacklevel=2)
     return model
 

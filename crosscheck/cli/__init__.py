@@ -66,9 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _notice(message, category, filename, lineno, file=None, line=None) -> None:
-    """A loader's notice (``cases.urdf.BaseNotice``) or the gate's (``engine.run.PreparationNotice``) as one line;
+    """A loader's notice (``cases.urdf.LoadNotice``) or the gate's (``engine.run.PreparationNotice``) as one line;
     other warnings as Python prints them."""
-    if issubclass(category, (cases.urdf.BaseNotice, PreparationNotice)):
+    if issubclass(category, (cases.urdf.LoadNotice, PreparationNotice)):
         print(f"crosscheck: notice: {message}", file=sys.stderr if file is None else file)
     else:
         _show_warning(message, category, filename, lineno, file, line)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import shlex
 import sys
 
+from cases.model import ModelError
 from crosscheck import backends
 from crosscheck.cli.options import (MAX_FRAMES, OUTPUT_DIR, _backends, _interrupted, _registry, _seed, _specs,
                                     add_plugin_option, add_quiet_option, add_task_point_option, add_workers_option,
@@ -33,6 +34,16 @@ def _required(args) -> list[str]:
     return [name for name in dict.fromkeys(named) if name not in args.optional]
 
 
+def _model_findings(model, strict: bool) -> None:
+    """A model's findings (``Model.findings``: physically impossible data that still gives a positive-definite M):
+    one notice line each, or with ``--strict-model`` a refusal."""
+    if strict and model.findings:
+        raise ModelError(model.name, [*model.findings, "--strict-model refuses what is physically impossible: fix "
+                                      "the file, or leave --strict-model out to compare the backends on it"])
+    for finding in model.findings:
+        print(f"crosscheck: model finding: {model.name}: {finding}", file=sys.stderr)
+
+
 def cmd_gate(args) -> int:
     if args.samples < 1:
         raise UsageError("--samples must be at least 1")
@@ -43,6 +54,7 @@ def cmd_gate(args) -> int:
     chosen = _backends(args.formalism)
     for model in [spec.build() for spec in specs]:  # every model first, so bad input fails before any work
         preflight.check_model(model)
+        _model_findings(model, args.strict_model)
     known = _registry(args)
     placeholder = "# crosscheck gate\n\nThe run writing this report has not finished (interrupted or failed).\n"
     report = preflight.claim_output(args.report, "report", placeholder)
@@ -100,7 +112,9 @@ def cmd_gate(args) -> int:
             print(f"FAIL self-test: {line}", file=sys.stderr)
         print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
               "canaries caught and named", file=sys.stderr)
-    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report} (details in {details})")
+    findings = sum(len(case.model.findings) for case in result.cases)
+    noted = f" with {findings} model finding(s) at its top" if findings else ""
+    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}{noted} (details in {details})")
     return 0 if result.passed else 1
 
 
@@ -147,6 +161,9 @@ def add_parser(sub) -> None:
                       help="leave the article's closed forms (voter closed_form) out of the vote")
     gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
                       "(a URDF or MJCF file) declares joint limits (default: within them)")
+    gate.add_argument("--strict-model", action="store_true", help="refuse a model with findings (an inertia "
+                      "violating the triangle inequality, a massless body with inertia) instead of reporting them "
+                      "at the top of the report and comparing the backends")
     gate.add_argument("--no-self-test", action="store_true",
                       help="skip the self-test canaries (known tiny faults the gate must catch)")
     gate.add_argument("--optional", action="append", default=[], metavar="NAME",

@@ -106,6 +106,16 @@ def _headline(result: GateResult) -> list[str]:
             f"{broken} state(s) with a backend in BREAKDOWN.", ""]
 
 
+def _model_findings(result: GateResult) -> list[str]:
+    """The models' findings (``cases.model.Model.findings``), first: what is physically impossible in a model the
+    backends were still compared on."""
+    found = [f"- {case.spec.name}: {finding}" for case in result.cases for finding in case.model.findings]
+    if not found:
+        return []
+    return ["## Model findings", "", "Physically impossible data that still gives a positive-definite M: the backends "
+            "were compared on the model as given (`--strict-model` refuses it).", "", *found, ""]
+
+
 def _worst_line(result: GateResult) -> str:
     """The largest error/tolerance of the run over every comparison and check, and where it was."""
     found = [(case, state, key, comp) for case in result.cases for state in case.states
@@ -239,7 +249,7 @@ def summary(result: GateResult, command: str, applied: Applied | None = None, de
     task condition was in BREAKDOWN at most states and why, the pictures of the mechanism (``figures``);
     ``details_link`` the file holding :func:`details` (None: they follow in the same text)."""
     where = f"[{details_link}]({details_link})" if details_link else "below"
-    lines = _headline(result) + _failures_section(result)
+    lines = _headline(result) + _model_findings(result) + _failures_section(result)
     lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
     lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
     lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "

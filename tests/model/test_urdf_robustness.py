@@ -157,13 +157,17 @@ def test_a_bad_mimic_is_refused_with_the_joint_and_the_reason(tmp_path, mimic, r
         from_urdf(_write(tmp_path, text))
 
 
-def test_a_mimic_of_or_on_a_fixed_joint_is_refused(tmp_path):
+def test_a_mimic_of_a_fixed_joint_is_refused_and_one_on_a_fixed_joint_is_ignored(tmp_path):
     text = _chain(_joint("j1", "base", "a", kind="fixed"), _joint("j2", "a", "b", extra=_mimic("j1")),
-                  _joint("j3", "b", "c", kind="fixed", extra=_mimic("j2")))
+                  _joint("j3", "b", "c"))
     with pytest.raises(ModelError) as info:
         from_urdf(_write(tmp_path, text))
-    assert "joint 'j2' mimics joint 'j1', a fixed joint with no coordinate" in str(info.value)
-    assert "joint 'j3' mimics joint 'j2', but is itself a fixed joint" in str(info.value)
+    assert "joint 'j2' mimics joint 'j1', a fixed joint with no coordinate; remove the tag" in str(info.value)
+    on_fixed = _chain(_joint("j1", "base", "a"), _joint("j2", "a", "b"),
+                      _joint("j3", "b", "c", kind="fixed", extra=_mimic("j2")))     # TALOS's grippers
+    with pytest.warns(cases.urdf.MimicNotice, match=r"1 fixed joint\(s\) carry a <mimic> tag, ignored.*\(j3\)"):
+        model = from_urdf(_write(tmp_path, on_fixed), base="fixed")
+    assert model.n == 2 and model.constraints == ()
 
 
 # ----------------------------------------------------------------------------------------------- not a tree
@@ -267,3 +271,22 @@ def test_urdfdom_errors_on_a_file_pinocchio_accepts_are_an_error(tmp_path):
     text = _chain(_joint("j1", "base", "a"), _joint("j2", "a", "b"), _joint("j3", "b", "c"))
     with pytest.raises(UrdfError, match=r"mass \[nan\] is not a float"):
         from_urdf(_write(tmp_path, text.replace('<mass value="1.0"/>', '<mass value="nan"/>', 2)))
+
+
+# ------------------------------------------------------------------------------------------ model findings
+
+
+def test_an_impossible_inertia_is_a_finding_at_the_top_and_strict_model_refuses_it(tmp_path, capfd):
+    """romeo_small's case: a principal moment above the sum of the others (0.05 > 0.012 + 0.008) is reported, and the
+    backends are still compared; ``--strict-model`` refuses the file instead (exit 2, one line)."""
+    path = _write(tmp_path, _robot([_link("base"), _link("a", ixx="0.05"), _link("b")],
+                                   [_joint("j1", "base", "a"), _joint("j2", "a", "b", axis="0 1 0")]))
+    rc, summary = _gate(path, tmp_path, 3)
+    assert rc == 0
+    top = summary.split("- command:")[0]
+    assert "## Model findings" in top and "body 'a' inertia about its COM violates the triangle inequality" in top
+    assert "model finding(s) at its top" in capfd.readouterr().out
+    assert cli.main(["gate", "--model", path, "--samples", "1", "--strict-model", "--workers", "0",
+                     "--report", str(tmp_path / "strict.md")]) == 2
+    err = capfd.readouterr().err
+    assert "triangle inequality" in err and "leave --strict-model out" in err and len(err.splitlines()) == 1

@@ -151,6 +151,14 @@ def _depth_first(model: Model) -> list[int]:
     return order
 
 
+def _inertia(body) -> "pin.Inertia":
+    """The body's spatial inertia as given, as Pinocchio's URDF parser keeps a file's (its checked constructor refuses
+    a principal moment of -1e-20, rounding that ``cases.build`` accepts: ``INERTIA_ROUNDING``)."""
+    inertia = pin.Inertia.Zero()
+    inertia.mass, inertia.lever, inertia.inertia = float(body.mass), np.array(body.com), np.array(body.inertia)
+    return inertia
+
+
 def _build_from_data(model: Model) -> Compiled:
     """The reference of a model without a file source: a Pinocchio model of our bodies (module docstring)."""
     pm = pin.Model()
@@ -161,7 +169,7 @@ def _build_from_data(model: Model) -> Compiled:
         parent = 0 if model.parent_index[i] < 0 else joint_id[model.parent_index[i]]
         placement = pin.SE3(np.array(b.rotation), np.array(b.translation))
         jid = pm.addJoint(parent, _joint_model(b.joint, b.axis), placement, b.name)
-        pm.appendBodyToJoint(jid, pin.Inertia(float(b.mass), np.array(b.com), np.array(b.inertia)), pin.SE3.Identity())
+        pm.appendBodyToJoint(jid, _inertia(b), pin.SE3.Identity())
         joint_id[i] = jid
     pm.gravity = pin.Motion(np.array(model.gravity), np.zeros(3))
     order, q_pin, q_ours = np.empty(model.nv, dtype=int), np.empty(model.nq, dtype=int), np.empty(model.nq, dtype=int)
@@ -291,12 +299,14 @@ def _map_joints(pm: pin.Model, model: Model, path: str) -> tuple[JointMapRow, ..
 
 
 def _file_mimics(path: str) -> list[tuple[str, str, float, float]]:
-    """The file's ``<mimic>`` tags, read from the XML (Pinocchio is asked to ignore them, as the loader does):
-    (joint, the joint it mimics, multiplier (default 1), offset (default 0))."""
+    """The file's ``<mimic>`` tags, read from the XML (Pinocchio is asked to ignore them, as the loader does), but
+    those of fixed joints, which have no coordinate to couple: (joint, the joint it mimics, multiplier (default 1),
+    offset (default 0))."""
     try:
         joints = ET.parse(path).getroot().findall("joint")
         return [(j.get("name"), j.find("mimic").get("joint"), float(j.find("mimic").get("multiplier", 1.0)),
-                 float(j.find("mimic").get("offset", 0.0))) for j in joints if j.find("mimic") is not None]
+                 float(j.find("mimic").get("offset", 0.0))) for j in joints
+                if j.find("mimic") is not None and j.get("type") != "fixed"]
     except (OSError, ET.ParseError, ValueError) as exc:
         raise ValueError(f"the reference cannot read the <mimic> tags of '{path}': {exc}") from exc
 
