@@ -36,8 +36,11 @@ no columns. A name that is not a movable joint of the file (unknown, fixed, floa
 :class:`~cases.model.ModelError` listing the movable joints.
 
 Task points: one per leaf link (a URDF link no joint hangs from), at that link's origin expressed in its
-parent joint's frame. Leaves whose name contains ``tcp`` (a tool centre point, e.g. ``panda_hand_tcp``) come
-first; the rest keep Pinocchio's frame order. Leaves welded to the universe are skipped. The default (first) task
+parent joint's frame, ranked (:func:`_leaf_rank`): sensor frames last (a word of the name, split at anything but
+letters and digits, in :data:`SENSOR_WORDS`: ``narrow_stereo_..._optical_frame``, ``LFsrCenter_frame``), tool and
+end-effector frames first (:data:`TOOL_WORDS`: ``panda_hand_tcp``, ``ee_link``, ``l_gripper_tool_frame``), then the
+longest chain (the most joints with a coordinate: a humanoid's arm before its legs), then Pinocchio's frame order.
+Leaves welded to the universe are skipped. The default (first) task
 point is the first leaf that lies on no joint axis of its chain, with the task directions it moves in
 (``cases.task.choose``): a leaf link's origin is often its own joint's origin, on its axis, where the task Jacobian
 is rank-deficient at every state; then the leaf's COM (or an offset point of it) is the default, named
@@ -69,6 +72,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import sys
 import tempfile
 import warnings
@@ -440,14 +444,47 @@ def _couplings(pm, link_of: dict, mimics: list[Mimic]) -> list[JointCoupling]:
                           (1.0, -m.multiplier), m.offset) for m in by_joint]
 
 
+#: Words of a link name (split at anything but letters and digits) that make a leaf a tool or end-effector frame,
+#: and words that make it a sensor frame (unless it is also a tool: a force sensor's tool side, ``wrist_ft_tool_link``).
+TOOL_WORDS = frozenset({"tcp", "tool", "ee", "eef", "effector", "flange", "grasping"})
+SENSOR_WORDS = frozenset({"camera", "cam", "optical", "stereo", "kinect", "depth", "rgb", "sensor", "imu", "laser",
+                          "lidar", "hokuyo", "sonar", "scan", "gazebo", "fsr", "accelerometer", "gyro", "itb", "led"})
+
+
+def _words(tp: TaskPoint) -> set[str]:
+    return set(re.split(r"[^a-z0-9]+", tp.name.lower()))
+
+
+def _is_sensor(tp: TaskPoint) -> bool:
+    return bool(_words(tp) & SENSOR_WORDS) and not _words(tp) & TOOL_WORDS
+
+
+def _leaf_rank(tp: TaskPoint, chain: int) -> tuple[int, int, int]:
+    """Sort key of a leaf as the default task point (module docstring, "Task points"): not a sensor frame, then a
+    tool or end-effector frame, then the longest chain (``chain`` movable joints from the root)."""
+    return int(_is_sensor(tp)), int(not _words(tp) & TOOL_WORDS), -chain
+
+
 def _task_points(pin, pm, link_of: dict) -> list[TaskPoint]:
-    """One task point per leaf link not welded to the universe (module docstring), tool centre points first."""
+    """One task point per leaf link not welded to the universe, in the order of :func:`_leaf_rank` (stable)."""
     joint_types = (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT)
     has_child = {_frame_previous(f) for f in pm.frames if f.type in joint_types}
-    leaves = [TaskPoint(f.name, link_of[_frame_parent_joint(f)], np.array(f.placement.translation))
-              for k, f in enumerate(pm.frames)
-              if f.type == pin.FrameType.BODY and k not in has_child and _frame_parent_joint(f) != 0]
-    return sorted(leaves, key=lambda tp: 0 if "tcp" in tp.name.lower() else 1)  # stable: tool centre points first
+    ranked = []
+    for k, f in enumerate(pm.frames):
+        joint = _frame_parent_joint(f)
+        if f.type == pin.FrameType.BODY and k not in has_child and joint != 0:
+            tp = TaskPoint(f.name, link_of[joint], np.array(f.placement.translation))
+            ranked.append((_leaf_rank(tp, _chain_length(pm, joint)), tp))
+    return [tp for _, tp in sorted(ranked, key=lambda pair: pair[0])]
+
+
+def _chain_length(pm, joint: int) -> int:
+    """The number of joints with a coordinate from the universe down to ``joint``."""
+    count = 0
+    while joint != 0:
+        count += pm.joints[joint].nv > 0
+        joint = pm.parents[joint]
+    return count
 
 
 def _root(robot: ET.Element) -> tuple[str | None, str | None]:
@@ -551,7 +588,8 @@ def _with_default_task_point(model: Model, leaves: list[TaskPoint], source: Mode
     if not leaves:
         return model
     kind = source.kind.upper()
-    chosen = task.choose(model, leaves, [f"the {kind} leaf link '{tp.name}' (its origin)" for tp in leaves])
+    tried = [tp for tp in leaves if not _is_sensor(tp)] or leaves           # a sensor frame only when all are
+    chosen = task.choose(model, tried, [f"the {kind} leaf link '{tp.name}' (its origin)" for tp in tried])
     rest = [tp for tp in model.task_points if tp.name != chosen.name]
     return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
                        task_points=[chosen, *rest], constraints=model.constraints, source=model.source)

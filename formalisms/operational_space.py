@@ -91,7 +91,7 @@ N^T g`` with ``xdd_zvcf = -A p`` (no ``Jdot qd`` at ``qd = 0``), and ``drift_vel
 qd) - M^-1 N^T C qd`` with ``xdd_velocity = -A mu``: ``-M^-1 g`` and ``-M^-1 C qd``, which add up to the drift.
 
 Breakdown (6.3.4): the method inverts ``A``, so every result carries ``cond = cond_2(A)`` (``Split.conditions
-["task"]``) and how much shorter than its lever the task Jacobian is (``"task_jacobian"``, numerics below); the
+["task"]``) and how much the recomposition amplifies the task bias's rounding (``"task_jacobian"``, numerics below); the
 harness declares states above their limits a BREAKDOWN. Where ``A`` is numerically singular (its
 smallest eigenvalue is not positive, not finite, or below ``k eps lambda_max``, eigvalsh's absolute accuracy for
 a k x k matrix, so indistinguishable from zero) ``cond`` is ``inf`` and every task-space quantity and joint
@@ -677,14 +677,16 @@ def _task_lever(model: Model, q: np.ndarray) -> float:
     return lever
 
 
-def _jacobian_condition(model: Model, q: np.ndarray, A: np.ndarray, inverse_norm: float) -> float:
-    """``L sqrt(||M^-1|| / lambda_min(A))``: how much shorter than its lever L the task Jacobian is in its shortest
-    direction (in the metric of M). The recomposition's error is about ``eps |Jdot qd| sqrt(1 / lambda_min(A))``
-    (module docstring, numerics); cond(A) misses it where every direction is short alike (a one-row task nearly
-    normal to the point's motion: cond 1, Lambda 8e12, a relative error of 4e-10, a fuzz finding). inf where A is
-    singular."""
-    w = np.linalg.eigvalsh(A)[0]
-    return _task_lever(model, q) * float(np.sqrt(inverse_norm / w)) if w > 0.0 else float("inf")
+def _jacobian_condition(model: Model, q: np.ndarray, J_bar: np.ndarray) -> float:
+    """``L ||J_bar||_2``, ``J_bar = M^-1 J^T Lambda``, L the task lever: how much the recomposition ``qdd = J_bar (xdd
+    - Jdot qd) + ...`` amplifies the rounding of the task bias, ``eps |Jdot qd|``, a sum of lever-sized terms (module
+    docstring, numerics). cond(A) misses it where every direction is short alike (a one-row task nearly normal to
+    the point's motion: cond 1, Lambda 8e12, a relative error of 4e-10, a fuzz finding). Its bound ``L sqrt(||M^-1|| /
+    lambda_min(A))`` is reached only by a task that moves the lightest direction of M: a 4e-6 kg m^2 wrist roll about
+    the tool's own axis made it 30 times too large on tiago (issue 34). inf where A is singular (J_bar NaN)."""
+    if not np.all(np.isfinite(J_bar)):
+        return float("inf")
+    return _task_lever(model, q) * float(np.sqrt(np.linalg.eigvalsh(J_bar.T @ J_bar)[-1]))
 
 
 def _principal_task_space(model, J, Jdot_qd, Minv, Cqd, g, tau_ctrl,
@@ -1100,7 +1102,7 @@ def _split_of(model: Model, s: _Solution, q: np.ndarray, qd: np.ndarray, u: np.n
                 power_ctrl=float(u @ (model.input_map.T @ qd)), power_ctrl_per_coord=s.tau_ctrl * qd, cond_M=cond_M,
                 task_drift=s.task.xdd_drift,
                 conditions={"task": s.task.cond,
-                            "task_jacobian": _jacobian_condition(model, q, s.task.A, inverse_norm)},
+                            "task_jacobian": _jacobian_condition(model, q, s.task.J_bar)},
                 kinetic_energy=0.5 * qd @ s.M @ qd, task_inertia=s.task.Lambda)
     if s.tau_ext is not None:
         free.update(external_force=s.tau_ext, power_ext=float(s.tau_ext @ qd))

@@ -34,6 +34,16 @@ def _required(args) -> list[str]:
     return [name for name in dict.fromkeys(named) if name not in args.optional]
 
 
+def _allowed_breakdown(args, chosen) -> tuple[str, ...]:
+    """The backends that may be in BREAKDOWN at most states of a case: ``--allow-breakdown`` (a backend of the run)
+    and ``--optional``."""
+    names = [b.name for b in chosen]
+    for name in args.allow_breakdown:
+        if name not in names:
+            raise UsageError(f"--allow-breakdown {name}: not a backend of this run ({', '.join(names)})")
+    return tuple(dict.fromkeys([*args.allow_breakdown, *args.optional]))
+
+
 def _model_findings(model, strict: bool) -> None:
     """A model's findings (``Model.findings``: physically impossible data that still gives a positive-definite M):
     one notice line each, or with ``--strict-model`` a refusal."""
@@ -67,7 +77,8 @@ def cmd_gate(args) -> int:
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
-                              workers=count, required=_required(args))
+                              workers=count, required=_required(args),
+                              allow_breakdown=_allowed_breakdown(args, chosen))
         except run.Interrupted as stop:
             result = stop.result
     applied = divergences.apply(known, result) if known else None
@@ -87,7 +98,7 @@ def cmd_gate(args) -> int:
         broken = sum(bool(s.breakdowns) for s in case.states)
         worst = worst_of(s.worst_ratio for s in case.states)
         checked = [c.worst_ratio for s in case.states for c in s.checks.values()]
-        status = "FAIL" if bad else "ok"
+        status = "FAIL" if bad or case.spec.name in result.broken else "ok"
         known_here = sum(c.verdict == KNOWN for s in case.states for c in [*s.comparisons.values(),
                                                                            *s.checks.values()])
         print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {known_here} known, "
@@ -100,6 +111,11 @@ def cmd_gate(args) -> int:
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
+    for case, backends_out in result.broken.items():
+        for name, count in backends_out.items():
+            print(f"FAIL {case}: backend {name} was in BREAKDOWN (out of the vote) at {count} of "
+                  f"{args.samples} states; the report says which condition and why. Name it with "
+                  f"--allow-breakdown {name} if that is expected", file=sys.stderr)
     for name in result.absent:
         raised = [s.errors[name] for case in result.cases for s in case.states if name in s.errors]
         why = (f"it raised at {len(raised)} states, first: {raised[0]}" if raised
@@ -112,6 +128,7 @@ def cmd_gate(args) -> int:
             print(f"FAIL self-test: {line}", file=sys.stderr)
         print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
               "canaries caught and named", file=sys.stderr)
+    print(gate_summary.compared_line(result))
     findings = sum(len(case.model.findings) for case in result.cases)
     noted = f" with {findings} model finding(s) at its top" if findings else ""
     print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}{noted} (details in {details})")
@@ -161,6 +178,9 @@ def add_parser(sub) -> None:
                       help="leave the article's closed forms (voter closed_form) out of the vote")
     gate.add_argument("--ignore-limits", action="store_true", help="draw the states freely, also where a model "
                       "(a URDF or MJCF file) declares joint limits (default: within them)")
+    gate.add_argument("--allow-breakdown", action="append", default=[], metavar="NAME",
+                      help="a backend that may be in BREAKDOWN (ill-conditioned, out of the vote) at most states of "
+                      "a case (otherwise that fails the run; repeatable)")
     gate.add_argument("--strict-model", action="store_true", help="refuse a model with findings (an inertia "
                       "violating the triangle inequality, a massless body with inertia) instead of reporting them "
                       "at the top of the report and comparing the backends")

@@ -151,9 +151,9 @@ def quantities(model) -> tuple[str, ...]:
 #: 1e4 and 4.5 at 1e6 (the recomposition's floor grows like eps |Jdot qd| sqrt(cond)).
 BREAKDOWN_LIMITS: dict[str, float] = {
     "task": 1e3,                      # cond(J M^-1 J^T), operational space (article 6.3.4)
-    "task_jacobian": 1e3,             # L sqrt(||M^-1|| / lambda_min(J M^-1 J^T)), operational space: a task Jacobian
-                                      # short in every direction (cond 1) loses eps L / |J| in the recomposition;
-                                      # 0.18 of the tolerance at 9e3, 0.009 at 9e2; 286 the most on the gate's cases
+    "task_jacobian": 1e3,             # L ||M^-1 J^T Lambda||_2, operational space: the recomposition's amplification
+                                      # of the task bias's rounding (a Jacobian short in every direction, cond 1);
+                                      # 0.03-0.18 of the tolerance at 1e3 (docs/tolerances.md); 286 on the gate's cases
     "constraint": 1e8,                # cond(Jc M^-1 Jc^T): redundant or degenerate constraints (5.6)
     "constraint_kept": 1e8,           # the same over the directions kept: nearly (not exactly) redundant rows
     "constraint_consistency": 1e-10,  # share of the KKT right-hand side S cannot reach: H_t is empty (5.4); it is

@@ -71,6 +71,16 @@ class CaseOutcome:
     def failed(self) -> bool:
         return any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
 
+    def mostly_broken(self) -> dict[str, int]:
+        """The backends wholly in BREAKDOWN (``tolerance.whole``: out of the vote) at more than half of this case's
+        states, with their number of such states: a backend that checks almost nothing of the case."""
+        counts: dict[str, int] = {}
+        for s in self.states:
+            for name, conditions in s.breakdowns.items():
+                if tolerance.whole(conditions):
+                    counts[name] = counts.get(name, 0) + 1
+        return {name: k for name, k in counts.items() if 2 * k > len(self.states)}
+
     def voted(self) -> set[str]:
         """The backends that took part in at least one comparison or check of this case."""
         pairs: set[tuple[str, str]] = set()
@@ -85,7 +95,8 @@ class GateResult:
     """A gate run. ``required`` are the backends named on the command line without ``--optional``: each must take
     part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
     ``self_test`` the canaries' outcome (``crosscheck.guards.selftest``), None when skipped; ``interrupted``, for a run
-    ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise."""
+    ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise;
+    ``allow_breakdown`` the backends that may be in BREAKDOWN at most states of a case (:attr:`broken`)."""
 
     seed: int
     samples: int
@@ -95,6 +106,7 @@ class GateResult:
     required: tuple[str, ...] = ()
     self_test: object = None
     interrupted: str = ""
+    allow_breakdown: tuple[str, ...] = ()
 
     @property
     def absent(self) -> tuple[str, ...]:
@@ -105,7 +117,21 @@ class GateResult:
         return tuple(name for name in self.required if name not in voted)
 
     @property
+    def broken(self) -> dict[str, dict[str, int]]:
+        """Case name -> the backends wholly in BREAKDOWN at most of its states (:meth:`CaseOutcome.mostly_broken`) and
+        not in ``allow_breakdown`` (``--allow-breakdown``, ``--optional``): each fails the run, since a backend left
+        out of the vote at most states checks almost nothing there."""
+        found = {case.spec.name: {name: k for name, k in case.mostly_broken().items()
+                                  if name not in self.allow_breakdown} for case in self.cases}
+        return {name: backends for name, backends in found.items() if backends}
+
+    def compared(self, case: CaseOutcome) -> tuple[str, ...]:
+        """The backends of the run that took part in some comparison of ``case``, in the run's order."""
+        voted = case.voted()
+        return tuple(name for name in self.backends if name in voted)
+
+    @property
     def passed(self) -> bool:
         """Whether the run finished and nothing failed (an interrupted run never passes)."""
         return (not self.interrupted and not any(c.failed for c in self.cases) and not self.absent
-                and (self.self_test is None or self.self_test.passed))
+                and not self.broken and (self.self_test is None or self.self_test.passed))

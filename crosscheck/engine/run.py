@@ -156,10 +156,12 @@ def _closed_form_coverage(spec: CaseSpec, checks: Checks) -> str:
 
 def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: int, seed: int,
              progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
-             workers: int = 0, required: Sequence[str] = ()) -> GateResult:
+             workers: int = 0, required: Sequence[str] = (), allow_breakdown: Sequence[str] = ()) -> GateResult:
     """Run the gate over the cases; the result passes when no state shows a disagreement or an error, no case's
-    sample is degenerate (``crosscheck.guards.coverage``), every ``required`` backend took part in some comparison and
-    the self-test canaries are caught (``crosscheck.guards.selftest``, unless ``checks.self_test`` is off).
+    sample is degenerate (``crosscheck.guards.coverage``), every ``required`` backend took part in some comparison, no
+    backend but those in ``allow_breakdown`` is out of the vote (BREAKDOWN) at most states of a case
+    (``GateResult.broken``) and the self-test canaries are caught (``crosscheck.guards.selftest``, unless
+    ``checks.self_test`` is off).
 
     ``workers`` 0 runs the cases in this process; N >= 1 in N spawned processes
     (:func:`crosscheck.engine.pool.in_pool`), at most one per case (``crosscheck.cli.options.workers``: the one
@@ -171,7 +173,8 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
     count = min(workers, len(specs))
     pooled = count >= 1 and pool.picklable(backends)
     outcomes: list[CaseOutcome] = []
-    result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required))
+    result = GateResult(seed, samples, tuple(b.name for b in backends), outcomes, checks, tuple(required),
+                        allow_breakdown=tuple(allow_breakdown))
     try:
         if pooled:
             pool.in_pool(run_case, specs, backends, samples, seed, tell, checks, count, outcomes)

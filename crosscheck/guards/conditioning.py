@@ -19,7 +19,7 @@ the gate would say PASS. So the harness computes every condition the backends re
 
 The definitions are the backends' (``formalisms.interface`` documents them): ``task`` and ``task_inertia`` =
 cond(J M^-1 J^T) of the model's default task point (inf where it is numerically singular), ``task_jacobian`` = ``L
-sqrt(||M^-1|| / lambda_min(J M^-1 J^T))`` with L the task lever (operational space); ``constraint`` = cond(S),
+||M^-1 J^T (J M^-1 J^T)^-1||_2`` with L the task lever (operational space); ``constraint`` = cond(S),
 ``S = Jc M^-1 Jc^T``, its largest eigenvalue taken at least the degenerate floor; ``constraint_kept`` the same over
 the eigenvalues kept above :func:`redundant_below`; ``constraint_consistency`` the largest share of the KKT
 right-hand sides ``-Jcdot qd - Jc M^-1 f`` (``f = B u - h`` and ``-h``) in S's redundant directions.
@@ -66,15 +66,18 @@ def redundant_below(model: Model, w_max):
     return np.maximum(CONSTRAINT_RCOND * np.asarray(w_max, dtype=float), degenerate_floor(model))
 
 
-def _task_conditions(model: Model, q, M_factor, inverse_norm: float, J: np.ndarray) -> tuple[float, float]:
-    """cond(A), ``A = J M^-1 J^T`` (inf where numerically singular), and ``L sqrt(||M^-1|| / lambda_min(A))``, L the
-    task lever (``tolerance.task_lever``; inf where ``lambda_min`` is not positive)."""
-    A = J @ scipy.linalg.cho_solve(M_factor, J.T)
-    w = np.linalg.eigvalsh(0.5 * (A + A.T))
+def _task_conditions(model: Model, q, M_factor, J: np.ndarray) -> tuple[float, float]:
+    """cond(A), ``A = J M^-1 J^T`` (inf where numerically singular), and ``L ||M^-1 J^T A^-1||_2``, L the task lever
+    (``tolerance.task_lever``; inf where ``lambda_min(A)`` is not positive)."""
+    Minv_JT = scipy.linalg.cho_solve(M_factor, J.T)
+    A = 0.5 * (J @ Minv_JT + (J @ Minv_JT).T)
+    w = np.linalg.eigvalsh(A)
     floor = max(len(w) * EPS * w[-1], degenerate_floor(model))
     cond = float(w[-1] / w[0]) if np.all(np.isfinite(w)) and w[0] > floor else float("inf")
-    short = tolerance.task_lever(model, q) * float(np.sqrt(inverse_norm / w[0])) if w[0] > 0.0 else float("inf")
-    return cond, short
+    if not w[0] > 0.0:
+        return cond, float("inf")
+    J_bar = Minv_JT @ np.linalg.inv(A)
+    return cond, tolerance.task_lever(model, q) * float(np.linalg.norm(J_bar, 2))
 
 
 def normwise_scales(model: Model, M: np.ndarray, Cqd, g, tau, qd) -> tuple[float, float]:
@@ -153,7 +156,7 @@ def independent(model: Model, q, qd, u) -> dict[str, float]:
     factor = scipy.linalg.cho_factor(M)
     eig = np.linalg.eigvalsh(M)
     J = task_jacobian(model, q)
-    task, short = _task_conditions(model, q, factor, 1.0 / float(eig[0]), J)
+    task, short = _task_conditions(model, q, factor, J)
     out = {"M": float(eig[-1] / eig[0]), "task": task, "task_inertia": task, "task_jacobian": short,
            "rows task": _short(model, J), "rows constraint": 1.0}
     if model.constraints:

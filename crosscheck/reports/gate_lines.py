@@ -132,9 +132,20 @@ def task_point_lines(case: CaseOutcome) -> list[str]:
         worst = max(v for s in broken for c in s.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS)
         lines.append(f"  - a task condition was in BREAKDOWN at {len(broken)} of {len(case.states)} states (worst "
                      f"{worst:.3g}); at state #{first.state.index}: " +
-                     (why or "the task Jacobian has full rank there: a near-singular configuration") +
+                     (why or _full_rank_why(first)) +
                      f". Choose another point with `--task-point BODY[:x,y,z]`.")
     return lines
+
+
+def _full_rank_why(state: StateOutcome) -> str:
+    """Why a task condition broke down at ``state`` where the task Jacobian has full rank: the conditions above their
+    limits, and what each means."""
+    found = {k: v for c in state.breakdowns.values() for k, v in c.items() if k in TASK_CONDITIONS}
+    meaning = ("near-singular: cond(J M^-1 J^T) above its limit" if "task" in found or "task_inertia" in found else
+               "short in every direction: the recomposition amplifies the rounding of the task bias (task_jacobian "
+               "= L ||M^-1 J^T Lambda||) above its limit")
+    values = ", ".join(f"{k} {v:.3g} > {BREAKDOWN_LIMITS[k]:.3g}" for k, v in sorted(found.items()))
+    return f"the task Jacobian has full rank there ({values}), but is {meaning}"
 
 
 def _verdict_line(key: str, comp: Comparison) -> str:

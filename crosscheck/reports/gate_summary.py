@@ -103,7 +103,24 @@ def _headline(result: GateResult) -> list[str]:
             f"**{verdict_text(result)}**: {len(failed_states(result))} of {n_states} states disagree or fail "
             f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
             f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
-            f"{broken} state(s) with a backend in BREAKDOWN.", ""]
+            f"{broken} state(s) with a backend in BREAKDOWN.", "", compared_line(result), ""]
+
+
+def compared_line(result: GateResult) -> str:
+    """Which backends were compared in each case: every one, or per case the ones that were not and why (declined
+    the model, raised, or out of the vote by BREAKDOWN at most states)."""
+    missing = []
+    for case in result.cases:
+        compared, mostly = result.compared(case), case.mostly_broken()
+        for name in result.backends:
+            if name in mostly:
+                missing.append(f"{case.spec.name}: {name} in BREAKDOWN at {mostly[name]} of {len(case.states)} "
+                               "states" + (" (allowed)" if name in result.allow_breakdown else ""))
+            elif name not in compared:
+                missing.append(f"{case.spec.name}: {name} not compared")
+    if not missing:
+        return f"Compared: every backend in every case ({len(result.backends)})."
+    return "Compared: every backend but " + "; ".join(missing) + "."
 
 
 def _model_findings(result: GateResult) -> list[str]:
@@ -151,6 +168,11 @@ def _failures_section(result: GateResult) -> list[str]:
     other += [f"- **FAIL: {name} took part in no comparison** (named on the command line; it declined every case or "
               f"was in BREAKDOWN everywhere). Name it with `--optional {name}` if that is expected."
               for name in result.absent]
+    other += [f"- **{case}: {name} was in BREAKDOWN (out of the vote) at {count} of {len(by_name[case].states)} "
+              f"states**: it checked almost nothing there (the breakdowns below say which condition). Name it with "
+              f"`--allow-breakdown {name}` if that is expected."
+              for by_name in [{c.spec.name: c for c in result.cases}]
+              for case, found in result.broken.items() for name, count in found.items()]
     other += [f"- **self-test: {line}**" for line in (result.self_test.failures() if result.self_test else ())]
     if other:
         lines += ["## Other failures", ""] + other + [""]

@@ -415,3 +415,35 @@ def test_batch_is_nan_exactly_where_split_breaks_down():
         for name in ("drift", "ctrl", "total"):
             np.testing.assert_allclose(getattr(batch, name)[row], getattr(regular, name), rtol=0,
                                        atol=1e-12 * regular.accel_scale)
+
+
+def _arm_with_a_tool_roll(roll_inertia: float) -> cases.Model:
+    """Three bodies: shoulder (z), elbow (y), and a tool roll about its own x axis whose inertia about that axis is
+    ``roll_inertia`` (tiago's 4e-6 kg m^2 wrist); the task point lies 0.1 m out along the roll's axis."""
+    return cases.build_model("tool_roll", [
+        cases.Body("upper", None, "revolute", (0, 0, 1), 2.0, com=(0.2, 0, 0), inertia=np.diag([0.01, 0.03, 0.03])),
+        cases.Body("fore", "upper", "revolute", (0, 1, 0), 1.0, com=(0.2, 0, 0), inertia=np.diag([0.005, 0.02, 0.02]),
+                   translation=(0.4, 0, 0)),
+        cases.Body("roll", "fore", "revolute", (1, 0, 0), 0.3, inertia=np.diag([roll_inertia, 2e-3, 2e-3]),
+                   translation=(0.4, 0, 0))],
+        task_points=[cases.TaskPoint("tool", "roll", (0.1, 0.0, 0.0), directions=np.eye(3)[:2])])
+
+
+def test_the_task_jacobian_condition_ignores_a_tiny_inertia_the_task_does_not_move():
+    """Issue 34: the bound ``L sqrt(||M^-1|| / lambda_min(A))`` grew with a tiny wrist-roll inertia the task never
+    moves (tiago, pr2: operational space in BREAKDOWN at every state of a well-conditioned task); ``L ||J_bar||`` is
+    what amplifies the rounding, and it does not see that inertia."""
+    from crosscheck.references.pinocchio.kinematics import mass_matrix, task_jacobian
+
+    q, qd, u = np.array([0.3, 0.8, -0.4]), np.array([0.5, -0.2, 3.0]), np.zeros(3)
+    found = {}
+    for inertia in (1e-2, 1e-6, 1e-10):
+        model = _arm_with_a_tool_roll(inertia)
+        found[inertia] = op.split(model, q, qd, u).conditions["task_jacobian"]
+        M, J = mass_matrix(model, q), task_jacobian(model, q)
+        bound = policy.task_lever(model, q) * np.sqrt(np.linalg.eigvalsh(np.linalg.inv(M))[-1]
+                                                      / np.linalg.eigvalsh(J @ np.linalg.solve(M, J.T))[0])
+        assert found[inertia] <= bound * (1 + 1e-9)
+    assert bound > 10 * policy.BREAKDOWN_LIMITS["task_jacobian"]          # the old measure: BREAKDOWN at 1e-10
+    assert found[1e-10] < policy.BREAKDOWN_LIMITS["task_jacobian"] / 100
+    assert max(found.values()) / min(found.values()) < 1.0 + 1e-6

@@ -231,7 +231,8 @@ def _oblique_task():
 def test_a_task_jacobian_short_in_every_direction_is_an_operational_space_breakdown(example):
     """Two fuzz findings where the operational-space recomposition lost accuracy with cond(J M^-1 J^T) = 1: its error,
     eps L / |J| relative, is 2.3 and 280 times the componentwise drift tolerance (it once inflated the energy-rate
-    tolerance instead). The backend reports how short its task Jacobian is (``task_jacobian``, 2e5 and 5e6 here):
+    tolerance instead). The backend reports how much its recomposition amplifies the task bias's rounding
+    (``task_jacobian``, 7.9e4 and 1.6e6 here):
     a BREAKDOWN, and nothing else fails; the energy rate holds for the voters."""
     from crosscheck.checks import conservation
     from crosscheck.engine.evaluation import evaluate
@@ -241,7 +242,7 @@ def test_a_task_jacobian_short_in_every_direction_is_an_operational_space_breakd
     state = State(0, q, qd, (0.0, 0.0, 0.0))
     outcome = evaluate(model, state, [backends.get(name) for name in backends.names()])
     assert set(outcome.breakdowns) == {"operational_space"}
-    assert outcome.breakdowns["operational_space"]["task_jacobian"] > 1e5
+    assert outcome.breakdowns["operational_space"]["task_jacobian"] > 5e4
     assert not outcome.failed
     rate = conservation.checks(model, state, outcome.trusted)["conservation: energy rate at drift"]
     assert rate.verdict != DISAGREE and "operational_space" not in rate.voters
