@@ -233,7 +233,7 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,
                 task_points: Iterable[TaskPoint] | None = None, constraints: Iterable = (),
-                source: ModelSource | None = None, loads: Iterable = ()) -> Model:
+                source: ModelSource | None = None, loads: Iterable = (), findings: Iterable[str] = ()) -> Model:
     """Validate the description and return an immutable :class:`Model`.
 
     Every violated precondition is collected and reported together in one :class:`ModelError`.
@@ -241,14 +241,15 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     lies on a joint axis, an offset point of it, with the task directions it moves in (``cases.task.choose``: a planar
     chain's plane), so that its task Jacobian has full row rank away from singular configurations.
     ``source``: the file the description was converted from (:class:`ModelSource`; loaders set it).
-    ``loads``: external load declarations (:mod:`cases.loads`), validated like the constraints.
+    ``loads``: external load declarations (:mod:`cases.loads`), validated like the constraints. ``findings``: what a
+    loader found wrong in the file and worked around (``Model.findings``, after the bodies' own).
     """
     bodies = list(bodies)
     problems: list[str] = []
     if not bodies:
         problems.append("a model needs at least one body")
-    findings: list[str] = []
-    valid = [_validate_body(problems, findings, b) for b in bodies]
+    found: list[str] = []
+    valid = [_validate_body(problems, found, b) for b in bodies]
     parent, order = _topology(problems, bodies)
     g = as_array(problems, "gravity", gravity, (3,))
     n = sum(JOINT_DOF.get(b.joint, (1, 1))[1] for b in bodies)
@@ -284,7 +285,7 @@ def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), in
     B.setflags(write=False)
     model = Model(name=name, bodies=tuple(valid), gravity=frozen(g, 3), input_map=B,
                   task_points=tuple(tps), constraints=constraints, parent_index=parent, topological_order=order,
-                  source=source, loads=loads, findings=tuple(findings))
+                  source=source, loads=loads, findings=tuple(dict.fromkeys([*found, *findings])))
     if default:
         tp = _validate_task_point(problems, default_task_point(model), names)
         model = dataclasses.replace(model, task_points=(tp,))
@@ -340,6 +341,6 @@ def with_task_point(model: Model, body: str, offset=None, directions=None) -> Mo
     try:
         return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
                            task_points=[tp, *others], constraints=model.constraints, source=model.source,
-                           loads=model.loads)
+                           loads=model.loads, findings=model.findings)
     except ModelError as exc:
         raise TaskPointError(f"--task-point {body}: {'; '.join(exc.problems)}") from None

@@ -53,10 +53,11 @@ order of ``A``. The mimic joint keeps its column of the identity input map. Pino
 (``mimic=False``), so the tags are read from the XML here, and the reference reads them from the file again and
 checks the declaration (``crosscheck.references.pinocchio.reference``). Panda: 9 coordinates, ``panda_finger_joint2``
 mimics ``panda_finger_joint1``, one constraint row. A mimic tag on a fixed joint constrains nothing (the joint has no
-coordinate) and is ignored with one :class:`MimicNotice`, as Pinocchio ignores it (TALOS's grippers). Refused
-(:class:`~cases.model.ModelError`, naming the joint): a mimic of a joint that does not exist, of itself, of a fixed
-joint or of a joint that is itself a mimic (a chain), a multiplier that is 0, not a number or not finite, an offset
-that is not a finite number.
+coordinate) and is ignored with one :class:`MimicNotice`, as Pinocchio ignores it (TALOS's grippers). A mimic of a
+joint that does not exist is ignored too, as a model finding (``Model.findings``; alex_psyonic_hands names
+``index_q1`` for ``Left_index_q1``). Refused (:class:`~cases.model.ModelError`, naming the joint): a mimic of itself,
+of a fixed joint or of a joint that is itself a mimic (a chain), a multiplier that is 0, not a number or not finite,
+an offset that is not a finite number.
 
 Before Pinocchio parses, the file is read here and checked to be a URDF tree: XML whose root is ``<robot>``, every
 joint attaching two distinct links that exist, no link the child of two joints, no chain of joints that closes on
@@ -70,6 +71,7 @@ Pinocchio is imported inside :func:`from_urdf`, so importing :mod:`cases` does n
 from __future__ import annotations
 
 import contextlib
+import difflib
 import math
 import os
 import re
@@ -78,7 +80,7 @@ import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -208,15 +210,22 @@ def _cycles(joints: dict, parent_joint: dict[str, list[str]]) -> list[str]:
     return problems
 
 
-def _mimics(robot: ET.Element, problems: list[str]) -> list[Mimic]:
-    """The ``<mimic>`` tags (module docstring), appending to ``problems`` the ones that cannot be a coupling."""
+def _mimics(robot: ET.Element, problems: list[str], findings: list[str]) -> list[Mimic]:
+    """The ``<mimic>`` tags (module docstring), appending to ``problems`` the ones that cannot be a coupling and to
+    ``findings`` the ones that name no joint of the file (ignored)."""
     types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
     tags = [(j.get("name"), j.find("mimic")) for j in robot.findall("joint") if j.find("mimic") is not None]
     fixed = [name for name, _ in tags if types[name] == "fixed"]
     if fixed:
         warnings.warn(MimicNotice(f"{len(fixed)} fixed joint(s) carry a <mimic> tag, ignored: a fixed joint has no "
                                   f"coordinate to couple ({', '.join(fixed)})"), stacklevel=3)
-    tags = [(name, tag) for name, tag in tags if types[name] != "fixed"]
+    for name, tag in tags:
+        target = tag.get("joint")
+        if target is not None and target not in types:
+            near = difflib.get_close_matches(target, list(types), n=1)
+            findings.append(f"joint '{name}' mimics joint '{target}', which does not exist: the tag is ignored, so "
+                            f"'{name}' moves freely" + (f" (did the file mean '{near[0]}'?)" if near else ""))
+    tags = [(name, tag) for name, tag in tags if types[name] != "fixed" and tag.get("joint") in (None, *types)]
     mimicking = {name for name, _ in tags}
     problems += [f"joint '{j.get('name')}' has {len(j.findall('mimic'))} <mimic> tags; a joint follows one joint"
                  for j in robot.findall("joint") if len(j.findall("mimic")) > 1]
@@ -240,8 +249,6 @@ def _mimic_problems(where: str, name: str, target: str | None, types: dict, mimi
     problems = []
     if target is None:
         problems.append(f"joint '{name}' has a <mimic> without a joint attribute; name the joint it follows")
-    elif target not in types:
-        problems.append(f"{where}, which does not exist (joints: {sorted(types)})")
     elif target == name:
         problems.append(f"{where}, itself")
     elif target in mimicking:
@@ -539,8 +546,8 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
     path = Path(path)
     robot = _read_robot(path)
     model_name = name if name is not None else robot.get("name") or path.stem
-    problems = _tree_problems(robot)
-    mimics = _mimics(robot, problems)
+    problems, findings = _tree_problems(robot), []
+    mimics = _mimics(robot, problems, findings)
     driven = None if actuated is None or problems else _named_inputs(
         robot, actuated if isinstance(actuated, str) else list(actuated), problems)
     root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
@@ -552,17 +559,18 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
         raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
                           "(pip install pin)") from exc
     source = ModelSource("urdf", str(path.resolve()), root=root)
-    model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven)
+    model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven, findings)
     if notice is not None:
         warnings.warn(BaseNotice(notice), stacklevel=2)
     return model
 
 
 def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] = (),
-            driven_links: list[str] | None = None) -> Model:
+            driven_links: list[str] | None = None, findings: Sequence[str] = ()) -> Model:
     """Our :class:`Model` of a parsed Pinocchio model (module docstring): bodies, gravity, task points, the mimic
-    couplings, the input map (of the bodies ``driven_links`` names, else every joint but a free one) and the file's
-    ``source``; a ModelError naming the file for what cannot be converted."""
+    couplings, the input map (of the bodies ``driven_links`` names, else every joint but a free one), the file's
+    ``source`` and the loader's ``findings`` (``Model.findings``); a ModelError naming the file for what cannot be
+    converted."""
     problems: list[str] = []
     link_of = _links_of(pin, pm)
     bodies = _bodies(pm, link_of, problems)
@@ -576,7 +584,7 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
         model = build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
                             input_map=_input_map(bodies, driven_links),
                             task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
-                            source=source)
+                            source=source, findings=findings)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
         raise ModelError(model_name, list(exc.problems) + [where]) from None
     return _with_default_task_point(model, leaves, source)
@@ -592,4 +600,5 @@ def _with_default_task_point(model: Model, leaves: list[TaskPoint], source: Mode
     chosen = task.choose(model, tried, [f"the {kind} leaf link '{tp.name}' (its origin)" for tp in tried])
     rest = [tp for tp in model.task_points if tp.name != chosen.name]
     return build_model(model.name, model.bodies, gravity=model.gravity, input_map=model.input_map,
-                       task_points=[chosen, *rest], constraints=model.constraints, source=model.source)
+                       task_points=[chosen, *rest], constraints=model.constraints, source=model.source,
+                       findings=model.findings)

@@ -68,14 +68,14 @@ def redundant_below(model: Model, w_max):
 
 def _task_conditions(model: Model, q, M_factor, J: np.ndarray) -> tuple[float, float]:
     """cond(A), ``A = J M^-1 J^T`` (inf where numerically singular), and ``L ||M^-1 J^T A^-1||_2``, L the task lever
-    (``tolerance.task_lever``; inf where ``lambda_min(A)`` is not positive)."""
+    (``tolerance.task_lever``; inf where A is numerically singular, as the backend's ``J_bar`` is NaN there)."""
     Minv_JT = scipy.linalg.cho_solve(M_factor, J.T)
     A = 0.5 * (J @ Minv_JT + (J @ Minv_JT).T)
     w = np.linalg.eigvalsh(A)
     floor = max(len(w) * EPS * w[-1], degenerate_floor(model))
     cond = float(w[-1] / w[0]) if np.all(np.isfinite(w)) and w[0] > floor else float("inf")
-    if not w[0] > 0.0:
-        return cond, float("inf")
+    if cond == float("inf"):
+        return cond, cond
     J_bar = Minv_JT @ np.linalg.inv(A)
     return cond, tolerance.task_lever(model, q) * float(np.linalg.norm(J_bar, 2))
 

@@ -300,13 +300,14 @@ def _map_joints(pm: pin.Model, model: Model, path: str) -> tuple[JointMapRow, ..
 
 def _file_mimics(path: str) -> list[tuple[str, str, float, float]]:
     """The file's ``<mimic>`` tags, read from the XML (Pinocchio is asked to ignore them, as the loader does), but
-    those of fixed joints, which have no coordinate to couple: (joint, the joint it mimics, multiplier (default 1),
-    offset (default 0))."""
+    those of fixed joints, which have no coordinate to couple, and those naming no joint of the file: (joint, the
+    joint it mimics, multiplier (default 1), offset (default 0))."""
     try:
         joints = ET.parse(path).getroot().findall("joint")
+        names = {j.get("name") for j in joints}
         return [(j.get("name"), j.find("mimic").get("joint"), float(j.find("mimic").get("multiplier", 1.0)),
                  float(j.find("mimic").get("offset", 0.0))) for j in joints
-                if j.find("mimic") is not None and j.get("type") != "fixed"]
+                if j.find("mimic") is not None and j.get("type") != "fixed" and j.find("mimic").get("joint") in names]
     except (OSError, ET.ParseError, ValueError) as exc:
         raise ValueError(f"the reference cannot read the <mimic> tags of '{path}': {exc}") from exc
 
