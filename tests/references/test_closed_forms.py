@@ -330,8 +330,8 @@ def _l2_read_from_l1(monkeypatch):
 
 def _placement_rotation_dropped(monkeypatch):
     validate = cases.build._validate_body
-    monkeypatch.setattr(cases.build, "_validate_body", lambda problems, body: None if (b := validate(
-        problems, body)) is None else dataclasses.replace(b, rotation=np.eye(3)))
+    monkeypatch.setattr(cases.build, "_validate_body", lambda problems, findings, body: None if (b := validate(
+        problems, findings, body)) is None else dataclasses.replace(b, rotation=np.eye(3)))
 
 
 _ROD = cases.constrained._rod
