@@ -8,8 +8,8 @@ tau_p)`` and ``needs``, what ``X`` is. It joins in one of two ways:
 * an entry point in the group ``crosscheck.formalisms`` of an installed distribution, named like the backend
   (``closed_form_pendulum = "closed_form_pendulum:CLOSED_FORM"``), discovered on first use, in name order;
 * :func:`load_plugin` (the command line's ``--plugin``): ``"module:object"`` (a module on ``sys.path`` or in the
-  current directory) or ``"path/to/file.py:object"`` (a file, no installation or environment variable needed);
-  or :func:`register` (the object).
+  current directory) or ``"path/to/file.py:object"`` (a file, no installation or environment variable needed; its
+  folder joins ``sys.path``, so it imports the modules beside it); or :func:`register` (the object).
 
 What a plugin needs
 -------------------
@@ -212,7 +212,8 @@ def _discover() -> None:
 
 def _import_file(path_text: str, spec: str):
     """Import the plugin's module from a ``.py`` file (relative to the current directory), as a module named after
-    the file."""
+    the file, with the file's folder on ``sys.path`` (after the installed packages) so that it can import the modules
+    beside it; a worker or child process loading the plugin by its spec does the same."""
     path = Path(path_text).resolve()
     if not path.is_file():
         raise PluginError(f"plugin '{spec}': file '{path_text}' not found (from {os.getcwd()})")
@@ -223,6 +224,8 @@ def _import_file(path_text: str, spec: str):
             return loaded
         raise PluginError(f"plugin '{spec}': a module named '{name}' is already imported (from "
                           f"{getattr(loaded, '__file__', None) or 'built in'}); rename the file")
+    if str(path.parent) not in sys.path:        # its sibling modules import, as a script's do (after the installed)
+        sys.path.append(str(path.parent))
     found = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(found)
     sys.modules[name] = module

@@ -138,3 +138,26 @@ def test_the_child_answers_like_the_plugin_and_keeps_its_exceptions():
     with pytest.raises(ModelNotSupported, match="unconstrained models only"):
         formalism.split(four_bar, np.zeros(four_bar.nq), np.zeros(four_bar.nv), np.zeros(four_bar.m))
 
+
+
+def test_a_plugin_file_imports_the_modules_beside_it(tmp_path, monkeypatch):
+    """``--plugin path/to/file.py:OBJ``: the file's folder is on sys.path here, in the workers of ``--workers`` and
+    in the plugin's child process, so a helper module beside it imports."""
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    folder = tmp_path / "my_wrapper"
+    folder.mkdir()
+    (folder / "sibling_helper_xyz.py").write_text("from crosscheck import backends\n\n"
+                                                  "def split(model, q, qd, u):\n"
+                                                  "    return backends.get('newton_euler').split(model, q, qd, u)\n")
+    (folder / "sibling_plugin.py").write_text("import sibling_helper_xyz\n\n"
+                                              "class Sibling:\n    name = 'sibling'\n\n"
+                                              "    def split(self, model, q, qd, u):\n"
+                                              "        return sibling_helper_xyz.split(model, q, qd, u)\n\n"
+                                              "SIBLING = Sibling()\n")
+    monkeypatch.delitem(sys.modules, "sibling_plugin", raising=False)
+    monkeypatch.delitem(sys.modules, "sibling_helper_xyz", raising=False)
+    for workers in ("0", "2"):
+        code, report = _gate(tmp_path, "--plugin", f"{folder / 'sibling_plugin.py'}:SIBLING", "--case",
+                             "double_pendulum", "--case", "acrobot", "--samples", "2", "--workers", workers)
+        assert code == 0 and "pinocchio, sibling)" in report and "raised" not in report, report[:3000]
+        assert _drift_row(report, "acrobot", 2)["agree"] == "2"
