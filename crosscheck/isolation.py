@@ -104,8 +104,8 @@ class _Child:
         self.tokens = itertools.count()
 
     def call(self, key: str, function: Callable[..., Any], model, args: tuple):
-        """``function(model, *args)`` in the child: its result, or the exception it raised (raised here); EOFError
-        when the child died; :class:`_Unpicklable` (nothing sent) when the call cannot be pickled."""
+        """``function(model, *args)`` in the child: ``(True, its result)`` or ``(False, the exception it raised)``;
+        EOFError when the child died; :class:`_Unpicklable` (nothing sent) when the call cannot be pickled."""
         forget = len(self.models) >= MODELS_KEPT and id(model) not in self.models
         known = {} if forget else self.models
         token = known[id(model)][1] if id(model) in known else next(self.tokens)
@@ -128,9 +128,7 @@ class _Child:
         if not kept:               # the child could not unpickle this call: it holds neither its function nor its model
             self.functions.discard(key)
             self.models.pop(id(model), None)
-        if not ok:
-            raise value
-        return value
+        return ok, value
 
     def end(self) -> str:
         """Close the pipes and reap the child (dead, or ending on the closed pipe): its exit status in words."""
@@ -190,7 +188,7 @@ def call(spec: str, name: str, attribute: str, function: Callable[..., Any], mod
         if channel.child is None:
             channel.child = _Child()
         try:
-            out = channel.child.call(attribute, function, model, args)
+            ok, out = channel.child.call(attribute, function, model, args)
         except _Unpicklable:
             return function(model, *args)
         except EOFError:
@@ -203,8 +201,15 @@ def call(spec: str, name: str, attribute: str, function: Callable[..., Any], mod
                 raise PluginCrashed(channel.failed) from None
             raise PluginCrashed(f"plugin '{name}' crashed ({how}) in {attribute} on model '{model.name}'; its process "
                                 "is started again for the next call") from None
+        except BaseException:      # Ctrl-C while waiting: its answer would come to the next call, so the child goes
+            channel.child.process.kill()
+            channel.child.end()
+            channel.child = None
+            raise
         channel.crashes = 0
-        return out
+    if not ok:
+        raise out
+    return out
 
 
 def stop_all() -> None:
@@ -244,14 +249,23 @@ def serve() -> None:
         except EOFError:
             return
         except Exception as exc:  # unpickling loads the plugin (PluginError) or its model: answered, not fatal
-            _write(answers, (*_failure(exc), False))
-            continue
-        forget, key, function, token, model, args = message
-        if forget:
-            models.clear()
-        functions.setdefault(key, function)
-        models.setdefault(token, model)
-        _write(answers, (*_answer(functions[key], models[token], args), True))
+            answer = (*_failure(exc), False)
+        else:
+            answer = _served(message, functions, models)
+        try:
+            _write(answers, answer)
+        except OSError:           # the parent is gone (a worker stopped on Ctrl-C): nobody to answer, nothing to say
+            os._exit(0)
+
+
+def _served(message: tuple, functions: dict[str, Callable[..., Any]], models: dict[int, Any]) -> tuple:
+    """The answer to one call (:func:`serve`); the function and model it brings are kept for the next calls."""
+    forget, key, function, token, model, args = message
+    if forget:
+        models.clear()
+    functions.setdefault(key, function)
+    models.setdefault(token, model)
+    return (*_answer(functions[key], models[token], args), True)
 
 
 def _answer(function: Callable[..., Any], model, args: tuple) -> tuple[bool, Any]:
