@@ -33,21 +33,28 @@ class Sizes:
 def unconstrained_split(model: Model | Sizes, *, M, Cqd, g, tau_ctrl, qd, drift, ctrl, total, extras=None,
                         task_drift=UNSUPPORTED, conditions=None, kinetic_energy=UNSUPPORTED,
                         joint_wrenches=UNSUPPORTED, joint_wrenches_drift=UNSUPPORTED,
-                        task_inertia=UNSUPPORTED) -> Split:
+                        task_inertia=UNSUPPORTED, zvcf=UNSUPPORTED, drift_velocity=UNSUPPORTED,
+                        external_force=None) -> Split:
     """The :class:`Split` of an unconstrained model from a backend's drift, ctrl and total and its own M, ``C qd``,
     ``g`` and applied force ``tau_ctrl = B u``: adds the control power ``tau_ctrl . qd`` (per coordinate too),
-    ``cond(M)`` and ``accel_scale`` (from the model, or from :class:`Sizes`)."""
+    ``cond(M)`` and ``accel_scale`` (from the model, or from :class:`Sizes`). The drift's parts ``zvcf`` (``M^-1
+    (tau_ext - g)``) and ``drift_velocity`` (``-M^-1 C qd``), each the backend's own solve, and the external loads'
+    generalized force ``external_force`` (``tau_ext``, for a model with ``cases.loads``; its power ``tau_ext . qd`` is
+    added) are passed through; the fields of :class:`~formalisms.interface.Split` say what each is."""
     M = np.asarray(M, dtype=float)
     if isinstance(model, Sizes):
         cond_M, accel_scale = scales_of(M, Cqd, g, tau_ctrl, qd, model.mass, model.gravity)
     else:
         cond_M, accel_scale = normwise_scales(model, M, Cqd, g, tau_ctrl, qd)
-    per = np.asarray(tau_ctrl, dtype=float) * np.asarray(qd, dtype=float)
+    qd = np.asarray(qd, dtype=float)
+    per = np.asarray(tau_ctrl, dtype=float) * qd
+    power_ext = None if external_force is None else float(np.asarray(external_force, dtype=float) @ qd)
     return Split(drift=drift, ctrl=ctrl, total=total, lam=None, lam_drift=None, power_ctrl=float(per.sum()),
                  power_ctrl_per_coord=per, power_constr=None, power_constr_per_coord=None, cond_M=cond_M,
                  accel_scale=accel_scale, extras=extras or {}, task_drift=task_drift, conditions=conditions or {},
                  kinetic_energy=kinetic_energy, joint_wrenches=joint_wrenches,
-                 joint_wrenches_drift=joint_wrenches_drift, task_inertia=task_inertia)
+                 joint_wrenches_drift=joint_wrenches_drift, task_inertia=task_inertia, zvcf=zvcf,
+                 drift_velocity=drift_velocity, external_force=external_force, power_ext=power_ext)
 
 
 def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, lam, lam_drift, **free) -> Split:
@@ -55,7 +62,9 @@ def constrained_split(model: Model, *, M, Cqd, g, tau_ctrl, qd, phi, Jc, bias, l
     ``phi``, ``Jc``, ``Jcdot qd``: :func:`unconstrained_split`'s fields, plus ``Jc^T lam`` (and at the drift), the
     constraint power ``(Jc^T lam) . qd`` (per coordinate too, 5.5), ``Jc qd``, and the conditions ``constraint``,
     ``constraint_kept``, ``constraint_consistency``, the rank and ``lam_scale``; ``accel_scale`` includes the
-    accelerations the constraint force can produce."""
+    accelerations the constraint force can produce. ``zvcf`` and ``drift_velocity`` (keywords of
+    :func:`unconstrained_split`) are then the KKT solves with ``f = tau_ext - g`` and no bias, and with ``f = -C qd``
+    and the bias ``Jcdot qd``."""
     if isinstance(model, Sizes):
         raise TypeError("constrained_split needs crosscheck's Model (its length and inertia scales define the "
                         "constraint conditions): declare needs = 'model', or build the Split's fields yourself")

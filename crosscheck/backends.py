@@ -8,8 +8,8 @@ tau_p)`` and ``needs``, what ``X`` is. It joins in one of two ways:
 * an entry point in the group ``crosscheck.formalisms`` of an installed distribution, named like the backend
   (``closed_form_pendulum = "closed_form_pendulum:CLOSED_FORM"``), discovered on first use, in name order;
 * :func:`load_plugin` (the command line's ``--plugin``): ``"module:object"`` (a module on ``sys.path`` or in the
-  current directory) or ``"path/to/file.py:object"`` (a file, no installation or environment variable needed);
-  or :func:`register` (the object).
+  current directory) or ``"path/to/file.py:object"`` (a file, no installation or environment variable needed; its
+  folder joins ``sys.path``, so it imports the modules beside it); or :func:`register` (the object).
 
 What a plugin needs
 -------------------
@@ -33,6 +33,14 @@ Order (:func:`names`): the five formalisms, the reference, then the plugins (ent
 last so that adding one never moves a built-in backend: with and without plugins the built-ins keep their places
 in every report table, and the first backend (whose cond(M) a report prints per state) stays a built-in.
 
+Isolation
+---------
+A plugin loaded by spec (``--plugin``, :func:`load_plugin`) or from an entry point is evaluated in a child process
+of its own (:mod:`crosscheck.isolation`): a crash of its native code (a segfault) is a ``PluginCrashed`` error of that plugin at
+that state, which fails the gate naming it (like any exception other than ``ModelNotSupported``, ``--optional`` or
+not), and the run goes on and writes its report. A plugin given by object (:func:`register`) has no spec to be
+loaded by in another process and runs in the evaluating process.
+
 Every problem with a plugin is a :class:`PluginError` naming the plugin and what to fix. A plugin that raises
 ``formalisms.interface.ModelNotSupported`` for a model is NOT COMPARED on it
 (``crosscheck.engine.evaluation.evaluate``).
@@ -46,12 +54,13 @@ import importlib.util
 import os
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from crosscheck import isolation
 from crosscheck.needs import NEEDS, given
 from crosscheck.references.pinocchio.reference import REFERENCE
 import formalisms
@@ -78,7 +87,9 @@ class _Checked:
     """A plugin's ``split`` (or ``split_chart``), given what the plugin ``need``s for the model of each call
     (:func:`crosscheck.needs.given`), whose result must be a Split; anything else is a TypeError, which the gate
     reports as that backend's error at that state. A plugin loaded by spec is sent to a worker process as its spec
-    (:meth:`__reduce__`), so a plugin loaded from a file path needs no importable module there."""
+    (:meth:`__reduce__`), so a plugin loaded from a file path needs no importable module there, and is evaluated in
+    a child process of its own (:mod:`crosscheck.isolation`: a crash of its native code is an error of this plugin
+    at that state, not the end of the run)."""
 
     name: str
     function: Callable[..., Any]
@@ -91,8 +102,10 @@ class _Checked:
             return super().__reduce__()
         return _reloaded, (self.spec, self.name, self.attribute)
 
-    def __call__(self, model, *args, **kwargs) -> Split:
-        out = self.function(given(self.need, model, self.name), *args, **kwargs)
+    def __call__(self, model, *args) -> Split:
+        if self.spec is not None and isolation.isolated():
+            return replace(isolation.call(self.spec, self.name, self.attribute, self, model, args))  # arrays frozen
+        out = self.function(given(self.need, model, self.name), *args)
         if not isinstance(out, Split):
             raise TypeError(f"plugin '{self.name}' returned {type(out).__name__}, not a formalisms.interface.Split "
                             "(build one with crosscheck.assemble.unconstrained_split or constrained_split)")
@@ -148,8 +161,10 @@ def _problems(obj) -> list[str]:
     return out
 
 
-def _add(obj, source: str, spec: str | None) -> Formalism:
-    """Validate ``obj`` and register it under its name; the same object again is a no-op."""
+def _add(obj, source: str, spec: str | None, loads: str | None = None) -> Formalism:
+    """Validate ``obj`` and register it under its name; the same object again is a no-op. ``spec`` is what a worker
+    process loads it by (:func:`plugin_specs`); ``loads``, when there is no spec, the ``module:object`` that loads it
+    in its child process (an entry point's value: a worker discovers the entry points itself)."""
     problems = _problems(obj)
     if problems:
         raise PluginError(f"{source} is not a backend (formalisms.interface.Formalism): it has "
@@ -163,9 +178,12 @@ def _add(obj, source: str, spec: str | None) -> Formalism:
         raise PluginError(f"{source} is named '{name}', a name already taken by {_plugins[name].source}; "
                           "give one of them another name")
     chart, need = getattr(obj, "split_chart", None), getattr(obj, "needs", NEEDS[0])
-    formalism = Formalism(name, getattr(obj, "summary", ""), _Checked(name, obj.split, need, spec),
-                          None if chart is None else _Checked(name, chart, need, spec, "split_chart"))
+    loads = spec or loads
+    formalism = Formalism(name, getattr(obj, "summary", ""), _Checked(name, obj.split, need, loads),
+                          None if chart is None else _Checked(name, chart, need, loads, "split_chart"))
     _plugins[name] = _Plugin(obj, formalism, source, spec)
+    if loads is not None:
+        isolation.start(loads)
     return formalism
 
 
@@ -188,13 +206,14 @@ def _discover() -> None:
         if getattr(obj, "name", None) != ep.name and not _problems(obj):
             raise PluginError(f"{source} loads a backend named '{obj.name}'; name the entry point like the backend "
                               f"('{obj.name} = {ep.value}')")
-        _add(obj, source, None)
+        _add(obj, source, None, ep.value)
     _discovered = True
 
 
 def _import_file(path_text: str, spec: str):
     """Import the plugin's module from a ``.py`` file (relative to the current directory), as a module named after
-    the file."""
+    the file, with the file's folder on ``sys.path`` (after the installed packages) so that it can import the modules
+    beside it; a worker or child process loading the plugin by its spec does the same."""
     path = Path(path_text).resolve()
     if not path.is_file():
         raise PluginError(f"plugin '{spec}': file '{path_text}' not found (from {os.getcwd()})")
@@ -205,6 +224,8 @@ def _import_file(path_text: str, spec: str):
             return loaded
         raise PluginError(f"plugin '{spec}': a module named '{name}' is already imported (from "
                           f"{getattr(loaded, '__file__', None) or 'built in'}); rename the file")
+    if str(path.parent) not in sys.path:        # its sibling modules import, as a script's do (after the installed)
+        sys.path.append(str(path.parent))
     found = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(found)
     sys.modules[name] = module
@@ -282,9 +303,10 @@ def plugin_sources() -> dict[str, str]:
 
 
 def reset() -> None:
-    """Forget every plugin; the entry points are discovered again on next use."""
+    """Forget every plugin (and end their child processes); the entry points are discovered again on next use."""
     global _discovered
     _plugins.clear()
+    isolation.stop_all()
     _discovered = False
 
 

@@ -50,7 +50,11 @@ class SourceScene:
     g`` when ``gravity`` is True and not at all when it is False. ``bodies[i]`` is the file's link (URDF) or body
     (MJCF) that body ``i``'s joint moves and ``joints[i]`` that joint's type ("revolute", "prismatic", "spherical",
     "free"); its coordinates are ``q[q_index[i]:...]``, its velocities ``qd[v_index[i]:...]`` (``cases.model``:
-    Pinocchio's conventions, a free joint's linear velocity in the body frame). ``input_map`` is B of ``tau = B
+    Pinocchio's conventions, a free joint's linear velocity in the body frame). ``joint_names[i]`` is the file's name
+    of that joint (URDF ``<joint name>``, MJCF ``<joint>``/``<freejoint>`` name as Pinocchio reads it), None for the
+    free joint ``root = "free"`` adds (it is not in the file); ``root_link`` is the file's root link (URDF: the link
+    no joint has as child) or root body (MJCF: the first body of ``<worldbody>``), the first body Pinocchio reads:
+    welded to the world on a fixed base, moved by ``joints[0]`` on a free one. ``input_map`` is B of ``tau = B
     u``; ``constraints`` are the model's declarations (a URDF ``<mimic>``: ``cases.constraints.JointCoupling``)."""
 
     name: str
@@ -68,6 +72,8 @@ class SourceScene:
     nv: int
     input_map: np.ndarray
     constraints: tuple
+    joint_names: tuple[str | None, ...]
+    root_link: str
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,16 +127,23 @@ def _no_loads(model: Model, plugin: str, need: str) -> None:
 
 
 def source_scene(model: Model, plugin: str) -> SourceScene:
-    """The :class:`SourceScene` of ``model``; ModelNotSupported for a model without a file."""
+    """The :class:`SourceScene` of ``model``; ModelNotSupported for a model without a file. The joint names and the
+    root link are read from the Pinocchio model the reference builds from the file (``joint_map``), the file's own."""
     _no_loads(model, plugin, "source")
     src = model.source
     if src is None:
         raise ModelNotSupported(f"plugin '{plugin}' needs the model's source file (needs = \"source\"), and model "
                                 f"'{model.name}' was built in code (a built-in case or a fuzz model), not loaded from "
                                 "a file; run it on a file (--model PATH)")
+    import pinocchio as pin
+
+    built = reference_model(model)                  # read from the file itself: the names are the file's
+    names = tuple(None if src.root == "free" and i == 0 else row.joint for i, row in enumerate(built.joint_map))
+    root_link = next(f.name for f in built.model.frames if f.type == pin.FrameType.BODY)
     return SourceScene(model.name, src.kind, src.path, src.root, np.array(src.rotation), np.array(src.translation),
                        src.gravity, tuple(b.name for b in model.bodies), tuple(b.joint for b in model.bodies),
-                       model.q_index, model.v_index, model.nq, model.nv, np.array(model.input_map), model.constraints)
+                       model.q_index, model.v_index, model.nq, model.nv, np.array(model.input_map), model.constraints,
+                       names, root_link)
 
 
 _COPIES: dict[tuple, object] = {}

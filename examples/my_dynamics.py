@@ -25,7 +25,7 @@ class MyDynamics:
         Cqd = scene.ours(pin.nonLinearEffects(model, data, q_p, v_p)) - g            # your code: C(q, qd) qd
         qd, tau = np.asarray(qd, dtype=float), scene.input_map @ np.asarray(u, dtype=float)
         drift, ctrl = np.linalg.solve(M, -(Cqd + g)), np.linalg.solve(M, tau)
-        sizes = Sizes(mass=sum(inertia.mass for inertia in model.inertias), gravity=model.gravity.linear)
+        sizes = Sizes(mass=sum(inertia.mass for inertia in model.inertias[1:]), gravity=model.gravity.linear)
         return unconstrained_split(sizes, M=M, Cqd=Cqd, g=g, tau_ctrl=tau, qd=qd,
                                    drift=drift, ctrl=ctrl, total=drift + ctrl, kinetic_energy=0.5 * qd @ M @ qd)
 

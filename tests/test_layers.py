@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYER = {
     "crosscheck": 0,                     # the package itself: the worker marker
     "crosscheck.references": 1, "crosscheck.backends": 1, "crosscheck.needs": 1,
+    "crosscheck.isolation": 1,
     "crosscheck.core": 2,
     "crosscheck.checks": 3, "crosscheck.guards": 3,
     "crosscheck.engine": 4, "crosscheck.guards.selftest": 4, "crosscheck.assemble": 4,

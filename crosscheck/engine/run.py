@@ -14,6 +14,7 @@ from __future__ import annotations
 import warnings
 from typing import Callable, Iterator, Sequence
 
+from crosscheck import isolation
 from crosscheck.core.sampling import sample_states, State
 from crosscheck.engine import pool, prepare
 from crosscheck.engine.evaluation import CaseSetup
@@ -52,9 +53,12 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
              derive_ahead: bool = False) -> CaseOutcome:
     """The case's ``samples`` seeded states, each evaluated (:meth:`CaseSetup.evaluate`); ``progress`` is told
     every :class:`Step`. ``derive_ahead``: a CPU is free for a helper process that derives the charts ahead
-    (``crosscheck.engine.prepare``). Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until then."""
+    (``crosscheck.engine.prepare``). A plugin that crashed too often in the case before is tried again
+    (``crosscheck.isolation.new_case``). Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until
+    then."""
     tell = progress or _ignore
     tell(Step(spec.name, 0, samples, SETTING_UP))
+    isolation.new_case()
     setup = CaseSetup.build(spec, seed, checks)
     seconds = announce_preparation(setup, backends)
     helper = prepare.ahead(setup, backends, seconds, checks, seed) if derive_ahead else None

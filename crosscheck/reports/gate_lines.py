@@ -10,7 +10,8 @@ import numpy as np
 from cases import task
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.core.compare import AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, suspect, suspects, vote
+from crosscheck.core.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, backend_of, suspect,
+                                     suspects, vote)
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE, EXACT, TOLERANCES
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
@@ -18,6 +19,8 @@ from formalisms.interface import Unsupported
 
 
 MAX_LISTED_FAILURES = 20
+#: Different messages listed per backend and case (:func:`backend_errors`); the rest are counted.
+MAX_LISTED_MESSAGES = 5
 VERDICTS = (AGREE, DISAGREE, KNOWN, NOT_COMPARED)
 
 
@@ -193,8 +196,8 @@ def state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: int
     if state.failed:
         lines.append(f"- suspects: {_state_suspects(state)}")
     lines.append("")
-    for name, message in state.errors.items():
-        lines.append(f"- **{name} raised** `{message}`")
+    if state.errors:
+        lines.append(f"- raised here: {', '.join(state.errors)} (what each raised: Backend errors)")
     for name, conditions in state.breakdowns.items():
         lines.append(f"- {name}: BREAKDOWN, not compared: " + "; ".join(
             f"{scope_text(k)} ({condition_text(state, name, k, v)})" for k, v in conditions.items()))
@@ -250,6 +253,29 @@ def verdict_text(result: GateResult) -> str:
 
 def failed_states(result: GateResult) -> list[tuple[CaseOutcome, StateOutcome]]:
     return [(c, s) for c in result.cases for s in c.states if s.failed]
+
+
+def backend_errors(case: CaseOutcome) -> list[str]:
+    """What the backends raised in ``case``, one line per backend and message (its moved scenes and linearization
+    counted with it: ``crosscheck.core.compare.backend_of``) with the number of states and the first, at most
+    :data:`MAX_LISTED_MESSAGES` messages per backend: a plugin that cannot build its model at any state is one line,
+    not one per state."""
+    found: dict[str, dict[str, list[tuple[int, str]]]] = {}
+    for state in case.states:
+        for label, message in state.errors.items():
+            found.setdefault(backend_of(label), {}).setdefault(message, []).append((state.state.index, label))
+    lines = []
+    for name, messages in found.items():
+        for message, where in list(messages.items())[:MAX_LISTED_MESSAGES]:
+            index, label = where[0]
+            states = len({i for i, _ in where})
+            lines.append(f"- **{name} raised** `{message}` ({case.spec.name}: {states} of {len(case.states)} "
+                         f"states, first #{index}{'' if label == name else f' as {label}'})")
+        rest = list(messages.values())[MAX_LISTED_MESSAGES:]
+        if rest:
+            lines.append(f"- **{name}** raised {len(rest)} other messages at "
+                         f"{len({i for where in rest for i, _ in where})} states of {case.spec.name}")
+    return lines
 
 
 def policy_lines() -> list[str]:

@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from crosscheck.core.compare import KNOWN, NOT_COMPARED
+from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import GateResult
 from crosscheck.reports.gate_details import breakdowns_of, details, limits_line
-from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, counted, failed_states, ratio_of,
-                                           registry_line, self_test_line, state_detail, task_broken_states,
+from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, backend_errors, counted, failed_states,
+                                           ratio_of, registry_line, self_test_line, state_detail, task_broken_states,
                                            task_point_lines, typical_state, verdict_text, where_worst)
 
 
@@ -152,21 +152,23 @@ def _run_lines(result: GateResult, command: str, applied: Applied | None) -> lis
 
 
 def _failures_section(result: GateResult) -> list[str]:
-    """What failed the run, first: the failing states with their reproduce commands, degenerate samples, required
-    backends that compared nothing, missed canaries."""
-    failed = failed_states(result)
-    lines = []
+    """What failed the run, first: what the backends raised (once per backend and message), the disagreeing states
+    with their reproduce commands, degenerate samples, required backends that compared nothing, missed canaries."""
+    errors = [line for case in result.cases for line in backend_errors(case)]
+    lines = ["## Backend errors", "", *errors, ""] if errors else []
+    failed = [(case, state) for case, state in failed_states(result)      # not the states that only raised: above
+              if any(c.verdict == DISAGREE for c in all_comparisons(state))]
     if failed:
         lines += ["## Disagreements", ""]
         for case, state in failed[:MAX_LISTED_FAILURES]:
             lines += state_detail(case, state, f"{case.spec.name}, state #{state.state.index}", result.seed,
                                    full=False)
         if len(failed) > MAX_LISTED_FAILURES:
-            lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more failing states.", ""]
+            lines += [f"... and {len(failed) - MAX_LISTED_FAILURES} more disagreeing states.", ""]
     other = [f"- **{case.spec.name}: degenerate sample**: {p}" for case in result.cases
              for p in (case.coverage.problems if case.coverage else ())]
-    other += [f"- **FAIL: {name} took part in no comparison** (named on the command line; it declined every case or "
-              f"was in BREAKDOWN everywhere). Name it with `--optional {name}` if that is expected."
+    other += [f"- **FAIL: {name} took part in no comparison** (named on the command line; it raised, declined or "
+              f"was in BREAKDOWN at every state). Name it with `--optional {name}` if that is expected."
               for name in result.absent]
     other += [f"- **{case}: {name} was in BREAKDOWN (out of the vote) at {count} of {len(by_name[case].states)} "
               f"states**: it checked almost nothing there (the breakdowns below say which condition). Name it with "
