@@ -83,8 +83,8 @@ def test_inertias_rounded_at_1e_10_are_hinted_as_the_mass_matrix():
 
 
 def test_an_energy_bookkeeping_error_alone_is_not_hinted_as_the_mass_matrix():
-    """Inertias rounded (1e-9) in the kinetic energy only (its dynamics use the right M): its energy at its own ctrl is off
-    its own work as much as off the others', so the energy bookkeeping is named, not M."""
+    """Inertias rounded (1e-9) in the kinetic energy only (its dynamics use the right M): its energy at its own
+    ctrl is off its own work as much as off the others', so the energy bookkeeping is named, not M."""
     hints = _hints(Rounded("energy_only", body=1, energy=1e-9))
     assert hints and all(h.startswith("only in kinetic_energy (the accelerations agree): the kinetic energy "
                                       "bookkeeping") for h in hints), hints
