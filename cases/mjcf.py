@@ -74,7 +74,7 @@ def from_mjcf(path, name: str | None = None) -> Model:
             raise MjcfError(f"could not parse MJCF file '{path}': {' '.join(str(exc).split())}") from None
     problems = _unsupported(root, pm)
     if problems:
-        raise ModelError(model_name, problems + [f"(from MJCF file '{path}')"])
+        raise ModelError(model_name, problems, f"MJCF file '{path}'")
     _limits(root, pin, pm)
     return convert(pin, pm, model_name, ModelSource("mjcf", str(path.resolve())))
 

@@ -68,12 +68,14 @@ SOURCE_ROOTS = ("fixed", "free")
 
 
 class ModelError(ValueError):
-    """A model violates one or more preconditions; the message lists every violation, one per line."""
+    """A model violates one or more preconditions; the message lists every violation, one per line, after the file
+    the model came from (``source``, e.g. "URDF file 'robot.urdf'"), which is no problem of its own."""
 
-    def __init__(self, model_name: str, problems: Sequence[str]):
-        self.problems = tuple(problems)
+    def __init__(self, model_name: str, problems: Sequence[str], source: str = ""):
+        self.problems, self.source = tuple(problems), source
         lines = "\n".join(f"  - {p}" for p in self.problems)
-        super().__init__(f"model '{model_name}' is invalid ({len(self.problems)} problem(s)):\n{lines}")
+        origin = f" from {source}" if source else ""
+        super().__init__(f"model '{model_name}'{origin} is invalid ({len(self.problems)} problem(s)):\n{lines}")
 
 
 @dataclass(frozen=True)

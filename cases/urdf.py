@@ -25,8 +25,10 @@ mass does not move and is left out, Pinocchio's reading of the file); with ``bas
 joint above it (``pinocchio.buildModelFromUrdf(path, JointModelFreeFlyer())``), so the root link is a floating base
 with its mass. A file whose root joint is already ``floating`` (from a ``world`` link) loads free either way, and
 ``base="fixed"`` is refused for it. Left out (``base=None``), a file without a floating root joint loads fixed with
-one :class:`BaseNotice` warning saying so and how to float it. The source records the choice
-(``ModelSource.root``), so the reference reads the file the same way.
+one :class:`BaseNotice` warning saying so and how to float it; none when the root link is named ``world``
+(:data:`WORLD_LINK`): that link is the world frame by the ROS convention, and the joints hanging from it (fixed for
+an arm bolted down) are the file's own statement of its base. The source records the choice (``ModelSource.root``),
+so the reference reads the file the same way.
 
 Inputs: the identity's columns of every joint velocity but a free joint's, whose six velocities are unactuated
 (a floating base has no motor to the world). ``actuated`` (URDF joint names, e.g. ``["joint1", "joint3"]``; the
@@ -92,6 +94,11 @@ from cases.model import JOINT_DOF, Body, Model, ModelError, ModelSource, TaskPoi
 
 class UrdfError(ValueError):
     """A URDF file cannot be read or parsed (the message names the path)."""
+
+
+#: The name of a root link that stands for the world frame (the ROS convention for a robot fixed to the world by its
+#: own joint from it): a file with it says how its base is held, so loading it fixed needs no notice.
+WORLD_LINK = "world"
 
 
 class LoadNotice(UserWarning):
@@ -518,7 +525,7 @@ def _base(path: Path, robot: ET.Element, base: str | None, problems: list[str]) 
             problems.append(f"the root joint '{floating}' of '{path}' is floating; the file floats its base, so it "
                             "cannot be loaded with base='fixed' (make that joint fixed in the file instead)")
         return "fixed", None    # Pinocchio reads the floating joint itself: no joint is added
-    notice = None if base is not None else (
+    notice = None if base is not None or root == WORLD_LINK else (
         f"'{path}' has no joint between its root link '{root}' and the world: loaded with a fixed base (to float it: "
         "--base free, or cases.from_urdf(path, base='free'))")
     return base or "fixed", notice
@@ -552,7 +559,7 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
         robot, actuated if isinstance(actuated, str) else list(actuated), problems)
     root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
     if problems:
-        raise ModelError(model_name, problems + [f"(from URDF file '{path}')"])
+        raise ModelError(model_name, problems, f"URDF file '{path}'")
     try:
         import pinocchio as pin
     except ImportError as exc:  # pragma: no cover - pin is a declared dependency
@@ -574,11 +581,11 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
     problems: list[str] = []
     link_of = _links_of(pin, pm)
     bodies = _bodies(pm, link_of, problems)
-    where = f"(from {source.kind.upper()} file '{source.path}')"
+    where = f"{source.kind.upper()} file '{source.path}'"
     if not bodies and not problems:
-        problems.append(f"{source.kind.upper()} file '{source.path}' has no movable joint")
+        problems.append(_nothing_moves(source))
     if problems:
-        raise ModelError(model_name, problems + [where])
+        raise ModelError(model_name, problems, where)
     leaves = _task_points(pin, pm, link_of)
     try:
         model = build_model(model_name, bodies, gravity=np.array(pm.gravity.linear),
@@ -586,8 +593,21 @@ def convert(pin, pm, model_name: str, source: ModelSource, mimics: list[Mimic] =
                             task_points=leaves if leaves else None, constraints=_couplings(pm, link_of, mimics),
                             source=source, findings=findings)
     except ModelError as exc:  # e.g. a massless link on a moving joint: say which file it came from
-        raise ModelError(model_name, list(exc.problems) + [where]) from None
+        raise ModelError(model_name, exc.problems, where) from None
     return _with_default_task_point(model, leaves, source)
+
+
+def _nothing_moves(source: ModelSource) -> str:
+    """The problem of a file without a movable joint, with the way to make it move: a URDF loaded with a fixed base
+    welds its root link to the world (a lone body, a quadrotor: ``--base free`` floats it); an MJCF body moves only on
+    its own joints (a ``<freejoint/>`` floats it)."""
+    if source.kind == "urdf" and source.root == "fixed":
+        return ("no movable joint: with a fixed base its root link is welded to the world and nothing moves; a "
+                "free-flying body (a quadrotor, a lone rigid body) floats with --base free (cases.from_urdf(path, "
+                "base='free'))")
+    if source.kind == "mjcf":
+        return "no movable joint: a body without a joint is welded to the world; give it a <freejoint/> to float it"
+    return "no movable joint"
 
 
 def _with_default_task_point(model: Model, leaves: list[TaskPoint], source: ModelSource) -> Model:

@@ -107,10 +107,12 @@ def _hunt_faults(args, chosen, shared, known, display: Display, hunts: list, sha
         display.advance()
 
 
-def _init_hunter() -> None:
-    """A fault-hunting worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread."""
+def _init_hunter(show=None) -> None:
+    """A fault-hunting worker process: Ctrl-C ignored (the parent stops the pool), warnings shown as the parent shows
+    them (``show``: ``workers.warning_display``), one BLAS thread."""
     global _HUNTER_LIMITS
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    worker_processes.show_warnings_with(show)
     _HUNTER_LIMITS = threadpool_limits(limits=BLAS_THREADS, user_api="blas")
 
 
@@ -136,7 +138,8 @@ def _hunt_in_pool(args, chosen, shared, known, display: Display, hunts: list, sh
     ctx = multiprocessing.get_context("spawn")
     jobs = [(False, f) for f in chosen] + [(True, f) for f in shared]
     display.doing(f"{len(jobs)} faults in {count} worker processes")
-    with worker_processes.spawning(), ctx.Pool(count, initializer=_init_hunter) as pool:
+    with worker_processes.spawning(), ctx.Pool(count, initializer=_init_hunter,
+                                                   initargs=(worker_processes.warning_display(),)) as pool:
         pending = [pool.apply_async(_hunt_one, (is_shared, f.name, args.samples, args.seed, known))
                    for is_shared, f in jobs]
         for (is_shared, fault), result in zip(jobs, pending):

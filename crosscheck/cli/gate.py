@@ -1,12 +1,12 @@
 """``crosscheck gate``: sample states per case, compare every backend, write the report (a summary and a details
-file, a JUnit file on request) and a line per case, the run's progress on the display."""
+file, a JUnit file on request) and a line per case (with, for a failing case, the ``crosscheck eval`` command that
+reproduces its first failing state), the run's progress on the display."""
 
 from __future__ import annotations
 
 import shlex
 import sys
 
-from cases.model import ModelError
 from crosscheck import backends
 from crosscheck.cli.options import (MAX_FRAMES, OUTPUT_DIR, _backends, _interrupted, _registry, _seed, _specs,
                                     add_plugin_option, add_quiet_option, add_task_point_option, add_workers_option,
@@ -18,7 +18,7 @@ from crosscheck.engine.run import run_gate
 from crosscheck.engine.specs import DEFAULT_SAMPLES, Checks
 from crosscheck.guards import preflight
 from crosscheck.reports import diagnosis, gate_summary, junit
-from crosscheck.reports.gate_lines import task_point_lines
+from crosscheck.reports.gate_lines import reproduce_command, task_point_lines
 
 DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
 
@@ -48,8 +48,9 @@ def _model_findings(model, strict: bool) -> None:
     """A model's findings (``Model.findings``: physically impossible data that still gives a positive-definite M):
     one notice line each, or with ``--strict-model`` a refusal."""
     if strict and model.findings:
-        raise ModelError(model.name, [*model.findings, "--strict-model refuses what is physically impossible: fix "
-                                      "the file, or leave --strict-model out to compare the backends on it"])
+        raise UsageError(f"--strict-model: model '{model.name}' has {len(model.findings)} finding(s): "
+                         f"{'; '.join(model.findings)}; fix the file, or leave --strict-model out to compare the "
+                         "backends on it with the findings reported")
     for finding in model.findings:
         print(f"crosscheck: model finding: {model.name}: {finding}", file=sys.stderr)
 
@@ -105,6 +106,9 @@ def cmd_gate(args) -> int:
               f"{broken} breakdown, "
               f"worst error/tolerance {worst:.3g}; {len(checked)} invariance/conservation comparisons, worst "
               f"{worst_of(checked):.3g}")
+        first = next((s for s in case.states if s.failed), None)
+        if first is not None:       # the README's promise: a command that reproduces a failing state, here too
+            print(f"     reproduce state #{first.state.index}: {reproduce_command(case, first)}")
     for case in result.cases:
         for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
             print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)

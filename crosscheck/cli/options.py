@@ -61,7 +61,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).replace("\n  - ", "; ").split())
+    """An error's message on one line: a list of problems (``- ...`` lines, as a ModelError gives) after its colon,
+    separated by semicolons."""
+    return " ".join(str(exc).replace(":\n  - ", ": ").replace("\n  - ", "; ").split())
 
 
 def _vector(text: str, label: str) -> list[float]:

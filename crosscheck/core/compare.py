@@ -8,6 +8,7 @@ divergence registry explains becomes KNOWN (``crosscheck.engine.divergences``): 
 from __future__ import annotations
 
 import functools
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -42,7 +43,9 @@ class Comparison:
     ``outlier`` is the backend whose removal makes all others agree while it disagrees with each of them;
     None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
     kept for a disagreement only, for the report. ``severity`` (:data:`SEVERITY`) is set for a disagreement;
-    ``reason`` is the registry's explanation of a KNOWN one.
+    ``reason`` is the registry's explanation of a KNOWN one. ``closeness`` maps each voter that is a backend to its
+    largest difference from the consensus divided by its tolerance (:func:`consensus`): how close that voter came,
+    where ``pairs`` says only how far apart two are.
     """
 
     quantity: str
@@ -55,6 +58,7 @@ class Comparison:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     severity: str | None = None
     reason: str | None = None
+    closeness: dict[str, float] = field(default_factory=dict)
 
     @property
     def voters(self) -> tuple[str, ...]:
@@ -92,7 +96,9 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
     if ratios.shape[1] == 0:                                           # empty values (B of a model with no input)
-        return Comparison(quantity, AGREE, 0.0, 0.0, dict.fromkeys(combinations(present, 2), 0.0), None, skipped)
+        return Comparison(quantity, AGREE, 0.0, 0.0, dict.fromkeys(combinations(present, 2), 0.0), None, skipped,
+                          closeness={name: 0.0 for name in present if name not in NOT_BACKENDS})
+    close = _closeness(list(present), _stacked(list(present.values())), tols)
     per_pair = ratios.max(axis=1)                                      # NaN where a pair has one
     worst_pair, entry = _worst(ratios, per_pair)
     pairs = dict(zip(combinations(present, 2), per_pair.tolist()))
@@ -100,8 +106,8 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
     at = float(tols[entry if tols.size > 1 else 0])
     if not worst <= 1.0:
         return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
-                          severity(worst))
-    return Comparison(quantity, AGREE, at, worst, pairs, None, skipped)
+                          severity(worst), closeness=close)
+    return Comparison(quantity, AGREE, at, worst, pairs, None, skipped, closeness=close)
 
 
 def _worst(ratios: np.ndarray, per_pair: np.ndarray) -> tuple[int, int]:
@@ -130,15 +136,44 @@ def _pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
     return i, j
 
 
-def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
-    """Absolute differences of every pair (rows, in ``itertools.combinations`` order) entry by entry (columns), in one
-    array operation; a scalar (the exact voter) is compared with every entry."""
+def _stacked(vectors: list[np.ndarray]) -> np.ndarray:
+    """The voters' values as rows of one array, a scalar (the exact voter) repeated for every entry."""
     size = max(v.size for v in vectors)
     if any(v.size not in (1, size) for v in vectors):
         raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
-    V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
+    return np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
+
+
+def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
+    """Absolute differences of every pair (rows, in ``itertools.combinations`` order) entry by entry (columns), in one
+    array operation; a scalar (the exact voter) is compared with every entry."""
+    V = _stacked(vectors)
     i, j = _pair_indices(len(vectors))
     return np.abs(V[i] - V[j])
+
+
+def consensus(names: list[str], V: np.ndarray) -> np.ndarray:
+    """The vote's reference value, entry by entry, of the voters ``names`` with values ``V`` (:func:`_stacked`): the
+    value of a voter that is not a backend (:data:`NOT_BACKENDS`: a value known exactly, the harness's own
+    condition) when there is one, else the median of the finite values (NaN where none is)."""
+    known = [k for k, name in enumerate(names) if name in NOT_BACKENDS]
+    if known:
+        return V[known[0]]
+    finite = np.isfinite(V)
+    if finite.all():                                              # np.median's own overhead is most of its cost here
+        ordered = np.sort(V, axis=0)
+        half = len(V) // 2
+        return ordered[half] if len(V) % 2 else 0.5 * (ordered[half - 1] + ordered[half])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # an entry with no finite value: NaN, said so
+        return np.nanmedian(np.where(finite, V, np.nan), axis=0)
+
+
+def _closeness(names: list[str], V: np.ndarray, tols: np.ndarray) -> dict[str, float]:
+    """Each voter that is a backend: its largest difference from the :func:`consensus` divided by the tolerance
+    (NaN when it has a NaN, as :func:`worst_of`)."""
+    worst = _ratios(np.abs(V - consensus(names, V)), tols).max(axis=1)         # NaN where a row has one
+    return {name: ratio for name, ratio in zip(names, worst.tolist()) if name not in NOT_BACKENDS}
 
 
 def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | None:

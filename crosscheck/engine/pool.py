@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import pickle
 import signal
+import warnings
 from typing import Callable, Sequence
 
+from cases.urdf import BaseNotice
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.engine import workers as worker_processes
 from crosscheck.engine.outcomes import CaseOutcome
@@ -26,13 +28,16 @@ _BACKENDS: list[Formalism] = []
 _LIMITS = None
 
 
-def _init_worker(chosen: list[Formalism], plugins: Sequence[str]) -> None:
-    """A worker process: Ctrl-C ignored (the parent stops the pool), one BLAS thread, the parent's plugins, the
-    backends of the run."""
+def _init_worker(chosen: list[Formalism], plugins: Sequence[str], show: Callable | None = None) -> None:
+    """A worker process: Ctrl-C ignored (the parent stops the pool), warnings shown as the parent shows them
+    (``show``: ``workers.warning_display``) but for the loaders' notices, which the parent showed when it built every
+    model to order the cases (:func:`in_pool`), one BLAS thread, the parent's plugins, the backends of the run."""
     global _LIMITS
     from threadpoolctl import threadpool_limits
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    worker_processes.show_warnings_with(show)
+    warnings.filterwarnings("ignore", category=BaseNotice)
     _LIMITS = threadpool_limits(limits=1, user_api="blas")
     load_plugins(plugins)
     _BACKENDS[:] = chosen
@@ -55,7 +60,8 @@ def in_pool(run_case: Callable[..., CaseOutcome], specs: Sequence[CaseSpec], bac
     ctx = multiprocessing.get_context("spawn")
     order = sorted(range(len(specs)), key=lambda k: -specs[k].build().n)
     with worker_processes.spawning(), ctx.Pool(workers, initializer=_init_worker,
-                                               initargs=(list(backends), plugin_specs())) as pool:
+                                               initargs=(list(backends), plugin_specs(),
+                                                         worker_processes.warning_display())) as pool:
         pending = {k: pool.apply_async(_worker_case, (run_case, specs[k], samples, seed, checks)) for k in order}
         try:
             for k, spec in enumerate(specs):

@@ -6,13 +6,19 @@ what they hold), so a worker must not die of the signal on its own: a spawned wo
 would print a traceback. :func:`spawning` marks the workers a pool starts, also those it starts later in place of
 others, and ``crosscheck/__init__.py`` makes a marked process ignore SIGINT from its first import of the harness on;
 the worker's initializer then sets what it takes (the gate's ignores it, the campaign's handles it).
+
+Warnings a worker raises (a loader's ``BaseNotice``, the gate's ``PreparationNotice``) are shown as the command shows
+them in its own process, one line each (``crosscheck.cli``): :func:`warning_display` hands the worker this process's
+way of showing them and :func:`show_warnings_with` installs it there.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-from typing import Iterator
+import pickle
+import warnings
+from typing import Callable, Iterator
 
 from crosscheck import WORKER
 
@@ -29,3 +35,20 @@ def spawning() -> Iterator[None]:
             os.environ.pop(WORKER, None)
         else:
             os.environ[WORKER] = before
+
+
+def warning_display() -> Callable | None:
+    """This process's way of showing warnings (``warnings.showwarning``: during a command, the command line's one line
+    per notice) when a spawned worker can be given it (a module-level function, sent by its name), else None."""
+    show = warnings.showwarning
+    try:
+        pickle.dumps(show)
+    except Exception:  # a local function or a bound method of some object: the worker keeps Python's own display
+        return None
+    return show
+
+
+def show_warnings_with(show: Callable | None) -> None:
+    """In a worker: show warnings with ``show`` (:func:`warning_display` of the parent); Python's display if None."""
+    if show is not None:
+        warnings.showwarning = show

@@ -14,6 +14,12 @@ the median of the others, or the spread of all voters when none is named. Per ar
 - one independent of qd that vanishes without gravity is in ``g``; one that persists is in the inertia;
 - one in ctrl while the drift agrees is in the input map (``B``, or the solve of ``M^-1 B u``); one in ctrl and in
   the drift or the kinetic energy is in what they share, M (and the constraint projection, eq. 17);
+- a small error in M itself (an inertia rounded in a late digit) may leave the drift within its tolerance and show
+  in ctrl, the kinetic energy or the total alone. For any M the ctrl ``a = M^-1 B u`` has ``a . M a = a . B u``, so
+  at qd along the suspect's own ctrl twice its kinetic energy equals its own work ``a . B u`` while it differs from
+  the others' when its energy and its dynamics share one M that is not theirs (:func:`own_mass_matrix`): that names
+  M. An error in the energy bookkeeping alone misses its own work too; one in B alone leaves its energy with the
+  others';
 - one only in the constrained quantities is in the multipliers or the constraint kinematics (article 5); a value
   that is a constant multiple of the others' (-1: a sign) is a convention slip;
 - one only in a chart or frame check is in the chart map or the frame transformation (9.1, 7.4);
@@ -89,21 +95,25 @@ class Probe:
     def __init__(self, model: Model, outcome: StateOutcome, backends: Sequence[Formalism], who: str | None):
         self.model, self.outcome, self.who = model, outcome, who
         self.backends = [b for b in backends if b.name in outcome.trusted]
-        self._cache: dict[tuple[float, float, bool], dict[str, Split]] = {}
+        self._cache: dict[tuple, dict[str, Split]] = {}
         self._bare: Model | None = None
 
-    def splits(self, qd_scale: float = 1.0, u_scale: float = 1.0, gravity: bool = True) -> dict[str, Split]:
-        """Every voter at (q, qd_scale qd, u_scale u), on the scene with or without gravity; a backend raising
-        there is left out of the measurement (the state's own report shows its errors)."""
-        key = (qd_scale, u_scale, gravity)
-        if key == (1.0, 1.0, True):
+    def splits(self, qd_scale: float = 1.0, u_scale: float = 1.0, gravity: bool = True,
+               qd: tuple[float, ...] | None = None, u: tuple[float, ...] | None = None) -> dict[str, Split]:
+        """Every voter at (q, qd_scale qd, u_scale u), the state's qd and u or the ones given, on the scene with or
+        without gravity; a backend raising there is left out of the measurement (the state's own report shows its
+        errors)."""
+        key = (qd_scale, u_scale, gravity, qd, u)
+        if key == (1.0, 1.0, True, None, None):
             return self.outcome.trusted
         if key not in self._cache:
             if not gravity and self._bare is None:
                 self._bare = without_gravity(self.model)
             model = self.model if gravity else self._bare
             s = self.outcome.state
-            q, qd, u = np.array(s.q), qd_scale * np.array(s.qd), u_scale * np.array(s.u)
+            q = np.array(s.q)
+            qd = qd_scale * np.array(s.qd if qd is None else qd, dtype=float)
+            u = u_scale * np.array(s.u if u is None else u, dtype=float)
             found = {}
             for backend in self.backends:
                 try:
@@ -176,6 +186,56 @@ def _ctrl_shape(probe: Probe, tol: float, total_tol: float) -> str:
             f"total error {_times(at_rest, probe.error('total'), total_tol)} at u = 0")
 
 
+#: How many times farther the suspect's kinetic energy at its own ctrl must be from the others' than from the work of
+#: the input along that ctrl (and than the others' spread) for :func:`own_mass_matrix` to name its M.
+OWN_M = 10.0
+
+
+def own_mass_matrix(probe: Probe) -> str:
+    """The measured evidence that the suspect's mass matrix differs from the others', in words; "" when there is none.
+
+    For any M, the ctrl ``a = M^-1 B u`` satisfies ``a . M a = a . B u``: twice the kinetic energy at velocity a is
+    the input's work along it (with constraints too, since ``Jc a = 0``). So at qd = a' (the suspect's ctrl,
+    rescaled to the state's speed) a suspect whose energy and ctrl come from one M' != M has ``2T' = a' . B u`` to
+    rounding, while the others' ``2T`` differs by ``a' . (M' - M) a'``. A wrong input map or a wrong solve leaves its
+    energy with the others'; a wrong energy bookkeeping (the body twists) leaves it off its own work too. Measured
+    with the state's u and with ``u = B^T qd`` (the input that works along the state's own velocity, where the
+    energy was compared: the state's u may barely move the body whose inertia is off); named when, for one of
+    them, the distance to the others is :data:`OWN_M` times the residual of its own work and the others' spread."""
+    if probe.who is None:
+        return ""
+    state = probe.outcome.state
+    for u in (tuple(state.u), tuple((probe.model.input_map.T @ np.asarray(state.qd, dtype=float)).tolist())):
+        found = _work_and_energy(probe, u)
+        if found:
+            return found
+    return ""
+
+
+def _work_and_energy(probe: Probe, u: tuple[float, ...]) -> str:
+    """:func:`own_mass_matrix` with the input ``u``."""
+    who, state = probe.who, probe.outcome.state
+    split = probe.splits(u=u).get(who)
+    a = _value(split, "ctrl") if split is not None else None
+    if a is None or not np.all(np.isfinite(a)) or not a.any():
+        return ""
+    qd = np.asarray(state.qd, dtype=float)
+    speed = float(np.linalg.norm(qd)) / float(np.linalg.norm(a)) if qd.any() else 1.0
+    work = speed**2 * float(a @ (probe.model.input_map @ np.asarray(u, dtype=float)))     # 2T at speed * a
+    voters = probe.outcome.voters("kinetic_energy")
+    twice = {name: 2.0 * float(e[0]) for name, found in probe.splits(qd=tuple((speed * a).tolist()), u=u).items()
+             if name in voters and (e := _value(found, "kinetic_energy")) is not None}
+    others = [e for name, e in twice.items() if name != who]
+    if who not in twice or len(others) < 2 or work == 0.0:
+        return ""
+    off, own = abs(twice[who] - float(np.median(others))), abs(twice[who] - work)
+    if not off > OWN_M * max(own, max(others) - min(others)):
+        return ""
+    return (f"at qd along its own ctrl, {who}'s 2T equals its own work ctrl . B u to {own / abs(work):.2g} "
+            f"but differs from the others' by {off / abs(work):.2g} (relative): its energy and its ctrl share one M "
+            "that is not the others'")
+
+
 def _check_hint(failing: Mapping[str, Comparison]) -> str:
     """Only chart, frame or conservation checks fail: the maps, not the dynamics."""
     families = sorted({key.split(":")[0] for key in failing})
@@ -244,16 +304,25 @@ def hint(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> 
             both = "drift" if "drift" in failing else "kinetic energy"
             shared = ", with the constraint projection" if model.constraints else ""
             return f"{both} and ctrl both off; {shape}: {INERTIA} (M is what {both} and ctrl share{shared})"
+        own = own_mass_matrix(probe)
+        if own:
+            return f"only in ctrl ({names}; drift agrees); {shape}; {own}: {INERTIA}"
         return f"only in ctrl ({names}; drift agrees); {shape}: the input map B or M^-1 B u"
     if "drift" in failing:
         text, cause = _shape(probe, "drift", tol["drift"])
         return f"{subject} drift {text}: {cause}"
     if "total" in failing or "additivity" in failing:
+        own = own_mass_matrix(probe)
+        if own:
+            return f"drift and ctrl agree but the total does not ({names}); {own}: {INERTIA}"
         return f"drift and ctrl agree but the total does not ({names}): the total solve (drift + ctrl != total)"
     if "task_drift" in failing:
         text, cause = _shape(probe, "task_drift", tol["task_drift"])
         return (f"only the task acceleration ({names}): the task-point kinematics (J, Jdot qd); {subject} {text}: "
                 f"{cause}")
+    own = own_mass_matrix(probe) if "kinetic_energy" in failing else ""
+    if own:
+        return f"only in {names} (the accelerations agree); {own}: {INERTIA}"
     causes = dict.fromkeys(ALONE.get(q, f"the {q} bookkeeping") for q in failing)
     return f"only in {names} (the accelerations agree): " + "; ".join(causes)
 

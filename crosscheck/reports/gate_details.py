@@ -13,6 +13,7 @@ from crosscheck.core.tolerance import BREAKDOWN_LIMITS, quantities
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.references.pinocchio import build, reference
+from crosscheck.reports.gate_closeness import case_closeness_section
 from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, VERDICTS, all_comparisons, check_groups, condition_text,
                                            no_chart, policy_lines, ratio_of, reproduce_command, scope_text, severity_of,
                                            state_detail, task_point_lines, vec_text, verdict_text)
@@ -390,6 +391,7 @@ def details(result: GateResult, command: str, applied: Applied | None = None, su
     for case in result.cases:
         lines += _summary_rows(case)
     lines.append("")
+    lines += case_closeness_section(result)
     lines += _self_test_section(result)
     lines += _coverage_section(result)
     lines += _known_section(result)

@@ -20,6 +20,7 @@ from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import GateResult
+from crosscheck.reports.gate_closeness import closeness_section
 from crosscheck.reports.gate_details import breakdowns_of, details, limits_line
 from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, backend_errors, counted, failed_states,
                                            ratio_of, registry_line, self_test_line, state_detail, task_broken_states,
@@ -281,4 +282,5 @@ def summary(result: GateResult, command: str, applied: Applied | None = None, de
               "the drift's parts, worst state per case, timing, tolerance policy", ""]
     lines += figure_lines(figures or {})
     lines += _case_table(result)
+    lines += closeness_section(result)
     return "\n".join(lines) + "\n"

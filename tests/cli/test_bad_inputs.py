@@ -6,6 +6,8 @@ Each case here was a traceback, a wrong verdict or a silent misreading before ``
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -176,3 +178,55 @@ def test_an_unwritable_derivation_cache_costs_time_not_the_backend(tmp_path, mon
     argv = ["eval", *DP, "--param", "m1=1.2345", "--q=0.1,0.2", "--formalism", "euler_lagrange"]
     assert cli.main(argv) == 0
     assert "ERROR" not in capsys.readouterr().out
+
+
+LINK = ('<link name="{0}"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/>'
+        '</inertial></link>')
+
+
+def _urdf(tmp_path, name: str, links: list[str], joints: list[str]) -> str:
+    path = tmp_path / f"{name}.urdf"
+    path.write_text(f'<?xml version="1.0"?><robot name="{name}">' + "".join(LINK.format(link) for link in links)
+                    + "".join(joints) + "</robot>")
+    return str(path)
+
+
+def _joint(name: str, kind: str, parent: str, child: str) -> str:
+    return (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+            '<axis xyz="0 0 1"/></joint>')
+
+
+def test_a_model_error_counts_its_problems_and_names_its_file_once(tmp_path, capsys):
+    """Two unsupported joints are two problems; the file is where the model came from, not a third problem."""
+    path = _urdf(tmp_path, "two_planar", ["base", "a", "b"],
+                 [_joint("j1", "planar", "base", "a"), _joint("j2", "planar", "a", "b")])
+    assert cli.main(["gate", "--model", path, "--samples", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crosscheck: error: model 'two_planar' from URDF file '{path}' is invalid (2 problem(s)): "
+                          "joint 'j1' has Pinocchio type JointModelPlanar"), err
+    assert "; joint 'j2'" in err and ":;" not in err and err.count(path) == 1 and len(err.splitlines()) == 1
+
+
+def test_a_urdf_whose_root_link_has_no_joint_is_told_to_float_it(tmp_path, capsys):
+    """A quadrotor's URDF is one link: welded to the world nothing moves; the error says --base free."""
+    path = _urdf(tmp_path, "quadrotor", ["base_link"], [])
+    assert cli.main(["gate", "--model", path, "--samples", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "(1 problem(s)): no movable joint: with a fixed base its root link is welded to the world" in err
+    assert "floats with --base free" in err
+
+
+def test_a_root_link_named_world_is_the_world_frame_and_loads_fixed_without_a_notice(tmp_path):
+    """By the ROS convention a root link named world is the world frame: the file fixes its base itself."""
+    fixed_to_world = _urdf(tmp_path, "bolted", ["world", "base", "arm"],
+                           [_joint("bolt", "fixed", "world", "base"), _joint("shoulder", "continuous", "base", "arm")])
+    loose = _urdf(tmp_path, "loose", ["base", "arm"], [_joint("shoulder", "continuous", "base", "arm")])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = cases.from_urdf(fixed_to_world)
+        assert not [w for w in caught if issubclass(w.category, cases.urdf.BaseNotice)]
+        cases.from_urdf(loose)
+    assert model.n == 1 and model.source.root == "fixed"
+    assert [str(w.message) for w in caught if issubclass(w.category, cases.urdf.BaseNotice)] == [
+        f"'{loose}' has no joint between its root link 'base' and the world: loaded with a fixed base (to float it: "
+        "--base free, or cases.from_urdf(path, base='free'))"]

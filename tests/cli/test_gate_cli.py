@@ -88,7 +88,7 @@ def test_dropped_coriolis_fails_the_gate_and_is_named(tmp_path, dropped_coriolis
     disagreements = report.split("## Disagreements")[1]
     command = next(line for line in disagreements.splitlines() if "reproduce: `" in line).split("`")[1]
     argv = shlex.split(command)[1:] + ["--json"]
-    capsys.readouterr()
+    assert f"     reproduce state #1: {command}\n" in capsys.readouterr().out   # printed too, the first failing state
     assert cli.main(argv) == 1   # the backends disagree there: eval's verdict says so
     data = json.loads(capsys.readouterr().out)
     assert data["verdict"]["agree"] is False and data["verdict"]["outliers"] == ["euler_lagrange"]

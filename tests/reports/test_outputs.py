@@ -125,8 +125,10 @@ def test_a_passing_gate_report_is_short_and_its_details_sit_next_to_it(tmp_path)
     assert gate_summary.details_path("/tmp/panda.md") == Path("/tmp/panda-details.md")
     code, summary, details = _gate_files(tmp_path)
     assert code == 0
-    lines = summary.splitlines()
+    short, closeness = summary.split("## How close each backend came\n")
+    lines = short.splitlines()
     assert lines[2].startswith("**PASS**: 0 of 6 states") and len(lines) < 30, len(lines)
+    assert len(closeness.splitlines()) == 5 + 7 + 1   # blank, text, blank, header, rule; 6 backends, closed_form; blank
     assert "- worst error/tolerance: " in summary and "- checked: every quantity every backend supplies, chart " \
         "invariance, energy and Christoffel conservation, linearizations A, B (eq. 11), the article's closed " \
         "forms as a voter" in summary
