@@ -85,7 +85,9 @@ def env(tmp_path_factory) -> dict:
     (plugins / "faulty_backend.py").write_text(PLUGIN)
     path = os.pathsep.join([str(plugins), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     clean = {k: v for k, v in os.environ.items() if not k.startswith("FAULTY_")}
-    return {**clean, "PYTHONPATH": path}
+    # the plugin runs in its worker (not in a child of its own, crosscheck.isolation), so the pid it writes is the
+    # worker's: these tests strike the campaign's processes, not a plugin's
+    return {**clean, "PYTHONPATH": path, "CROSSCHECK_ISOLATE": "0"}
 
 
 def run(env: dict, out: Path) -> subprocess.CompletedProcess:

@@ -43,7 +43,7 @@ def test_a_gate_in_worker_processes_shows_a_loader_notice_once_in_one_line(tmp_p
     it again does not repeat it."""
     with warnings.catch_warnings():
         warnings.simplefilter("default", BaseNotice)        # as outside pytest, which records warnings instead
-        code = cli.main(["gate", "--model", ARM, "--case", "double_pendulum", "--workers", "2", "--samples", "1",
+        code = cli.main(["gate", "--model", ARM, "--case", "double_pendulum", "--workers", "2", "--samples", "2",
                          "--no-self-test", "--no-charts", "--frames", "0", "--report", str(tmp_path / "gate.md")])
     err = capfd.readouterr().err
     assert code == 0

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from cases.model import Model
 from cases.serialize import model_to_dict
-from crosscheck import backends, testing
+from crosscheck import backends, isolation, testing
 from crosscheck.campaigns.fuzz.interrupts import INTERRUPTS
 from crosscheck.campaigns.fuzz.settings import chunk_seed, chunk_size, FuzzConfig
 from crosscheck.campaigns.fuzz.storage import save_finding
@@ -151,7 +151,9 @@ def evaluate_block(model: Model, states: Sequence[State], chart: charts.Chart, f
 def _evaluate(model: Model, states: Sequence[State], chart_spec: tuple[str, int], frame: frames.Frame,
               chosen, checks: dict, rec: _Recorder) -> tuple[float, dict | None]:
     """Every state (:func:`evaluate_block`); (worst ratio, finding of the first failing state or None). An exception
-    of the harness itself is a finding too."""
+    of the harness itself is a finding too. A plugin that crashed too often on an earlier model is tried again
+    (``crosscheck.isolation.new_case``)."""
+    isolation.new_case()
     worst, names = 0.0, [b.name for b in chosen]
     chart = charts.get(chart_spec[0], model, chart_spec[1])
     outcomes = evaluate_block(model, states, chart, frame, chosen, checks)
