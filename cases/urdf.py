@@ -302,7 +302,9 @@ def _parse(pin, path: Path, root: str = "fixed"):
         detail = " ".join(str(error).split()) + (f" (urdfdom: {'; '.join(reasons)})" if reasons else "")
     else:
         detail = f"urdfdom reported errors and skipped what it could not read: {'; '.join(reasons)}"
-    raise UrdfError(f"could not parse URDF file '{path}': {detail}")
+    raise UrdfError(f"could not parse URDF file '{path}': {detail}; Pinocchio's parser (urdfdom) reads the file for "
+                    "the reference and for crosscheck alike, so fix what it names (check_urdf, from urdfdom, shows "
+                    "the same)")
 
 
 @contextlib.contextmanager

@@ -6,7 +6,8 @@ and the worst state (error/tolerance, severity, vote), its text one line per fai
 command. KNOWN comparisons (``crosscheck.engine.divergences``) pass, with the registry's reason in ``<system-out>``; a
 testcase whose every comparison is NOT COMPARED is ``<skipped>``. Backend errors are an ``<error>`` testcase;
 states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>``. Each case also has a ``sampling
-coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``), and the run a ``self-test`` suite
+coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``) and a ``backends compared`` one
+(failing when a backend sat out most states in BREAKDOWN: ``GateResult.broken``), and the run a ``self-test`` suite
 (one testcase per canary, ``crosscheck.guards.selftest``) and a ``backends`` suite (a required backend that took part in
 no comparison fails), so that every reason the gate fails shows on a dashboard.
 """
@@ -99,6 +100,10 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
     if case.coverage is not None:
         outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "sampling coverage",
                                 "; ".join(case.coverage.problems)))
+    broken = result.broken.get(case.spec.name, {})
+    outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "backends compared", "; ".join(
+        f"{name} was in BREAKDOWN (out of the vote) at {k} of {len(case.states)} states; --allow-breakdown {name} "
+        "if that is expected" for name, k in broken.items())))
     errors = [s for s in case.states if s.errors]
     if errors:
         element = ET.SubElement(suite, "testcase", classname=f"crosscheck.{case.spec.name}", name="backend errors")

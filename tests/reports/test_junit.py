@@ -47,7 +47,7 @@ def test_a_passing_gate_has_one_suite_per_case_and_one_testcase_per_quantity_and
                                                                   for tc in canaries.values())
     for suite, case in zip(suites, result.cases):
         families = {check_family(k) for s in case.states for k in s.checks}
-        assert set(_cases(suite)) == set(quantities(case.model)) | families | {"sampling coverage"}
+        assert set(_cases(suite)) == set(quantities(case.model)) | families | {"sampling coverage", "backends compared"}
         assert int(suite.get("tests")) == len(suite.findall("testcase"))
         assert suite.get("failures") == "0" and suite.get("errors") == "0"
         assert {p.get("name"): p.get("value") for p in suite.iter("property")}["case"] == f"--case {case.spec.name}"
