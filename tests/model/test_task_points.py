@@ -111,8 +111,8 @@ def test_cli_refuses_a_bad_task_point_and_the_report_names_the_point(urdf_path, 
     junit = tmp_path / "gate.xml"
     assert cli.main(base + ["--task-point", "link2:0,0,0", "--junit", str(junit)]) == 1   # out at most states: FAIL
     assert ("--allow-breakdown operational_space if that is expected" in capsys.readouterr().err)
-    assert ('name="backends compared"><failure type="FAIL" message="operational_space was in BREAKDOWN (out of the '
-            'vote) at 2 of 2 states' in junit.read_text())
+    assert ('name="backends compared">\n      <failure type="FAIL" message="operational_space was in BREAKDOWN (out '
+            'of the vote) at 2 of 2 states' in junit.read_text())
     assert cli.main(base + ["--task-point", "link2:0,0,0", "--allow-breakdown", "operational_space"]) == 0
     captured = capsys.readouterr()
     assert "note double_pendulum_continuous: a task condition was in BREAKDOWN at 2 of 2 states" in captured.err
