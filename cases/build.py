@@ -186,15 +186,17 @@ def _validate_task_point(problems: list[str], tp: TaskPoint, body_names: set[str
 
 
 def _moving_mass(problems: list[str], bodies: Sequence[Body], parent: Sequence[int]) -> None:
-    """Every joint must move some mass, or its row of M is zero (a massless carriage at the tip)."""
-    subtree = [b.mass for b in bodies]
+    """Every joint must move some mass, or its row of M is zero (a massless carriage at the tip); a joint that turns
+    may move a rotational inertia instead (a massless body with one is a finding, ``_check_inertia``)."""
+    subtree = [(b.mass, b.mass + float(np.abs(b.inertia).max())) for b in bodies]
     for i in sorted(range(len(bodies)), key=lambda j: -_depth(parent, j)):
         if parent[i] >= 0:
-            subtree[parent[i]] += subtree[i]
-    for b, carried in zip(bodies, subtree):
-        if carried == 0.0:
+            subtree[parent[i]] = tuple(a + b for a, b in zip(subtree[parent[i]], subtree[i]))
+    for b, (mass, anything) in zip(bodies, subtree):
+        if (mass if b.joint in ("prismatic", "free") else anything) == 0.0:      # a slide needs a mass
             problems.append(f"joint of body '{b.name}' moves no mass (the body and all its descendants are "
-                            "massless), so the mass matrix is singular; give the body or a descendant a mass")
+                            "massless), so the mass matrix is singular; give the body or a descendant a mass, or "
+                            "make the joint fixed (a massless finger of a hand model)")
 
 
 def _depth(parent: Sequence[int], i: int) -> int:

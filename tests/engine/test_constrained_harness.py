@@ -51,8 +51,7 @@ def test_a_massless_carriage_is_allowed_but_a_joint_that_moves_no_mass_is_not():
         build_model("bare", [carriage])
     with pytest.raises(ModelError, match="joint of body 'carriage' moves no mass"):    # an inertia moves no slide
         build_model("odd", [dataclasses.replace(carriage, inertia=np.eye(3))])
-    spinner = build_model("spinner", [Body("disk", None, "revolute", (0.0, 0.0, 1.0), 0.0, inertia=np.eye(3)),
-                                      Body("rim", "disk", "revolute", (1.0, 0.0, 0.0), 1.0, translation=(0.3, 0, 0))])
+    spinner = build_model("spinner", [Body("disk", None, "revolute", (0.0, 0.0, 1.0), 0.0, inertia=np.eye(3))])
     assert spinner.findings == ("body 'disk' has zero mass but a non-zero inertia [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], "
                                 "[0.0, 0.0, 1.0]]; a massless body (a carriage) has zero inertia",)
     assert cases.load("cartesian_pendulum").bodies[0].mass == 0.0
