@@ -44,6 +44,15 @@ def test_each_chart_inverts_and_its_jacobian_and_rate_are_the_derivatives_of_psi
         np.testing.assert_allclose(chart.jacobian_rate(p, pd), rate, atol=1e-7)
 
 
+def test_the_affine_chart_of_a_large_model_is_drawn_in_bounded_time_within_its_condition():
+    """tiago_dual (101 coordinates): a random banded A almost never has cond <= 10 past 50 coordinates, and the draw
+    looped for ever (issue 34); after AFFINE_DRAWS draws the last one is shrunk to meet the bound."""
+    model = cases.load("n_link_pendulum", n=60)
+    chart = charts.random_affine(model, 0, "n_link_pendulum")
+    assert np.linalg.cond(chart.A) <= 10.0 and np.count_nonzero(np.triu(chart.A, 3)) == 0       # still banded
+    np.testing.assert_array_equal(charts.random_affine(model, 0, "n_link_pendulum").A, chart.A)  # still seeded
+
+
 def test_absolute_chart_is_the_articles_and_only_for_planar_serial_chains():
     chart = charts.get("absolute", DP)
     theta = chart.q_of(np.array([0.3, 1.0]))         # phi = (theta1, theta1 + theta2)
