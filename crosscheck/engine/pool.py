@@ -7,7 +7,7 @@ import signal
 import warnings
 from typing import Callable, Sequence
 
-from cases.urdf import BaseNotice
+from cases.urdf import LoadNotice
 from crosscheck.backends import load_plugins, plugin_specs
 from crosscheck.engine import workers as worker_processes
 from crosscheck.engine.outcomes import CaseOutcome
@@ -37,7 +37,7 @@ def _init_worker(chosen: list[Formalism], plugins: Sequence[str], show: Callable
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     worker_processes.show_warnings_with(show)
-    warnings.filterwarnings("ignore", category=BaseNotice)
+    warnings.filterwarnings("ignore", category=LoadNotice)
     _LIMITS = threadpool_limits(limits=1, user_api="blas")
     load_plugins(plugins)
     _BACKENDS[:] = chosen

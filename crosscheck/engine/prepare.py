@@ -16,6 +16,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import warnings
 from typing import Sequence
 
 import formalisms
@@ -32,8 +33,10 @@ def _prepare(spec: CaseSpec, seed: int, checks: Checks, names: Sequence[str]) ->
     """The helper process: every chart of the case in reverse order, then the joint chart (with the linearization's
     program when that check runs), by each named built-in backend's ``prepare``. Silent: Ctrl-C at a terminal reaches
     the whole process group, and the evaluating process stops the helper itself; a derivation that fails here fails
-    again in the evaluating process, which reports it where it belongs."""
+    again in the evaluating process, which reports it where it belongs; and so does any warning (the loader's notices
+    when the case is built again here)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore")
     try:
         setup = CaseSetup.build(spec, seed, checks)
         for name in names:
