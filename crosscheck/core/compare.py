@@ -8,7 +8,6 @@ divergence registry explains becomes KNOWN (``crosscheck.engine.divergences``): 
 from __future__ import annotations
 
 import functools
-import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -43,9 +42,7 @@ class Comparison:
     ``outlier`` is the backend whose removal makes all others agree while it disagrees with each of them;
     None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
     kept for a disagreement only, for the report. ``severity`` (:data:`SEVERITY`) is set for a disagreement;
-    ``reason`` is the registry's explanation of a KNOWN one. ``closeness`` maps each voter that is a backend to its
-    largest difference from the consensus divided by its tolerance (:func:`consensus`): how close that voter came,
-    where ``pairs`` says only how far apart two are.
+    ``reason`` is the registry's explanation of a KNOWN one. :meth:`closeness` says how close each backend came.
     """
 
     quantity: str
@@ -58,17 +55,39 @@ class Comparison:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     severity: str | None = None
     reason: str | None = None
-    closeness: dict[str, float] = field(default_factory=dict)
 
     @property
     def voters(self) -> tuple[str, ...]:
         """The voters compared, in order of first appearance in ``pairs``."""
         return tuple(dict.fromkeys(name for pair in self.pairs for name in pair))
 
+    def closeness(self) -> dict[str, float]:
+        """Each voter that is a backend: how close it came, from the pairs alone (nothing more is kept per comparison,
+        so it costs the evaluation nothing): its error/tolerance against a voter that is not a backend (the exact
+        value) when there is one, else the lower median of its error/tolerance against each other voter, NaN above
+        every finite figure (its own figure is NaN when most of its pairs are). An outlier's figure is its distance
+        from the others; another voter's, its distance from the typical voter, which one outlier does not move."""
+        theirs: dict[str, list[float]] = {}
+        for (a, b), ratio in self.pairs.items():
+            theirs.setdefault(a, []).append(ratio)
+            theirs.setdefault(b, []).append(ratio)
+        known = [v for v in self.voters if v in NOT_BACKENDS]
+        if known:
+            return {v: self.pairs.get((v, known[0]), self.pairs.get((known[0], v))) for v in theirs
+                    if v not in NOT_BACKENDS}
+        return {v: _low_median(ratios) for v, ratios in theirs.items() if v not in NOT_BACKENDS}
+
     @property
     def disagreeing_pairs(self) -> list[tuple[str, str]]:
         """The pairs further apart than the tolerance (NaN included)."""
         return [pair for pair, ratio in self.pairs.items() if not ratio <= 1.0]
+
+
+def _low_median(ratios: list[float]) -> float:
+    """The lower median of error/tolerance ratios (a ratio one pair has: with one other voter wrong, a voter's figure is
+    still one of its good pairs'), a NaN above every number."""
+    ordered = sorted(ratios, key=lambda r: float("inf") if r != r else r)
+    return ordered[(len(ordered) - 1) // 2]
 
 
 def severity(ratio: float) -> str:
@@ -96,9 +115,7 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
     if ratios.shape[1] == 0:                                           # empty values (B of a model with no input)
-        return Comparison(quantity, AGREE, 0.0, 0.0, dict.fromkeys(combinations(present, 2), 0.0), None, skipped,
-                          closeness={name: 0.0 for name in present if name not in NOT_BACKENDS})
-    close = _closeness(list(present), _stacked(list(present.values())), tols)
+        return Comparison(quantity, AGREE, 0.0, 0.0, dict.fromkeys(combinations(present, 2), 0.0), None, skipped)
     per_pair = ratios.max(axis=1)                                      # NaN where a pair has one
     worst_pair, entry = _worst(ratios, per_pair)
     pairs = dict(zip(combinations(present, 2), per_pair.tolist()))
@@ -106,8 +123,8 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
     at = float(tols[entry if tols.size > 1 else 0])
     if not worst <= 1.0:
         return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
-                          severity(worst), closeness=close)
-    return Comparison(quantity, AGREE, at, worst, pairs, None, skipped, closeness=close)
+                          severity(worst))
+    return Comparison(quantity, AGREE, at, worst, pairs, None, skipped)
 
 
 def _worst(ratios: np.ndarray, per_pair: np.ndarray) -> tuple[int, int]:
@@ -136,44 +153,15 @@ def _pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
     return i, j
 
 
-def _stacked(vectors: list[np.ndarray]) -> np.ndarray:
-    """The voters' values as rows of one array, a scalar (the exact voter) repeated for every entry."""
-    size = max(v.size for v in vectors)
-    if any(v.size not in (1, size) for v in vectors):
-        raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
-    return np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
-
-
 def _pairwise(vectors: list[np.ndarray]) -> np.ndarray:
     """Absolute differences of every pair (rows, in ``itertools.combinations`` order) entry by entry (columns), in one
     array operation; a scalar (the exact voter) is compared with every entry."""
-    V = _stacked(vectors)
+    size = max(v.size for v in vectors)
+    if any(v.size not in (1, size) for v in vectors):
+        raise ValueError(f"values of different sizes cannot be compared: {[v.shape for v in vectors]}")
+    V = np.array([v.ravel() if v.size == size else np.full(size, v.flat[0]) for v in vectors])
     i, j = _pair_indices(len(vectors))
     return np.abs(V[i] - V[j])
-
-
-def consensus(names: list[str], V: np.ndarray) -> np.ndarray:
-    """The vote's reference value, entry by entry, of the voters ``names`` with values ``V`` (:func:`_stacked`): the
-    value of a voter that is not a backend (:data:`NOT_BACKENDS`: a value known exactly, the harness's own
-    condition) when there is one, else the median of the finite values (NaN where none is)."""
-    known = [k for k, name in enumerate(names) if name in NOT_BACKENDS]
-    if known:
-        return V[known[0]]
-    finite = np.isfinite(V)
-    if finite.all():                                              # np.median's own overhead is most of its cost here
-        ordered = np.sort(V, axis=0)
-        half = len(V) // 2
-        return ordered[half] if len(V) % 2 else 0.5 * (ordered[half - 1] + ordered[half])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)          # an entry with no finite value: NaN, said so
-        return np.nanmedian(np.where(finite, V, np.nan), axis=0)
-
-
-def _closeness(names: list[str], V: np.ndarray, tols: np.ndarray) -> dict[str, float]:
-    """Each voter that is a backend: its largest difference from the :func:`consensus` divided by the tolerance
-    (NaN when it has a NaN, as :func:`worst_of`)."""
-    worst = _ratios(np.abs(V - consensus(names, V)), tols).max(axis=1)         # NaN where a row has one
-    return {name: ratio for name, ratio in zip(names, worst.tolist()) if name not in NOT_BACKENDS}
 
 
 def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | None:

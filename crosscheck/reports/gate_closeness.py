@@ -1,12 +1,11 @@
 """How close each backend came, per family of quantities and checks: the gate report's per-backend table.
 
-A cell is the backend's largest error/tolerance against the vote's consensus (``crosscheck.core.compare.consensus``:
-the exact value where there is one, else the entrywise median of the voters) over every comparison of the family at
-every state of the cases, the voters of a backend in charts and moved scenes (``screw@affine``, ``screw@g1``)
-counting as the backend. Where it has no figure the cell says why: the backend declared the quantities unsupported,
-was in BREAKDOWN or raised wherever they were compared. The summary has one table over the run
-(:func:`closeness_section`), the details one per case when there are several
-(:func:`case_closeness_section`).
+A cell is the backend's worst figure (``crosscheck.core.compare.Comparison.closeness``: its error/tolerance against the
+exact value where there is one, else the lower median of its error/tolerance against each other voter) over every
+comparison of the family at every state of the cases, the voters of a backend in charts and moved scenes
+(``screw@affine``, ``screw@g1``) counting as the backend. Where it has no figure the cell says why: the backend declared
+the quantities unsupported, was in BREAKDOWN or raised wherever they were compared. The summary has one table over the
+run (:func:`closeness_section`), the details one per case when there are several (:func:`case_closeness_section`).
 """
 
 from __future__ import annotations
@@ -97,7 +96,7 @@ def _cells(cases: Sequence[CaseOutcome], rows: Sequence[str], where_case: bool) 
                     continue
                 family = family_of(key)
                 mine: dict[str, float] = {}
-                for voter, ratio in comp.closeness.items():
+                for voter, ratio in comp.closeness().items():
                     backend = backend_of(voter)
                     best = mine.get(backend)
                     if best is None or ratio != ratio or (best == best and ratio > best):
@@ -115,7 +114,7 @@ def _cells(cases: Sequence[CaseOutcome], rows: Sequence[str], where_case: bool) 
 def _rows(cases: Sequence[CaseOutcome], backends: Sequence[str]) -> list[str]:
     """The run's backends, then any other voter that is one (the case's closed form)."""
     seen = {backend_of(voter) for case in cases for state in case.states
-            for comp in (*state.comparisons.values(), *state.checks.values()) for voter in comp.closeness}
+            for comp in (*state.comparisons.values(), *state.checks.values()) for voter in comp.voters}
     return [*backends, *sorted(name for name in seen if name == "closed_form")]
 
 
@@ -147,9 +146,9 @@ def _left_out_text(row: Sequence[_Cell]) -> str:
     return "; ".join(parts) or "-"
 
 
-EXPLAINED = ("Each backend's largest error/tolerance against the vote's consensus (the exact value where there is "
-             "one, else the entrywise median of the voters) over every state; below 1 is within tolerance, **bold** "
-             "above. Two backends are at most the sum of their figures apart. Without a figure, why: not supplied "
+EXPLAINED = ("Each backend's error/tolerance against the exact value where there is one, else the lower median of "
+             "its error/tolerance against each other voter (so one outlier does not move the others' figures), the "
+             "worst over every state; below 1 is within tolerance, **bold** above. Without a figure, why: not supplied "
              "(declared unsupported), BREAKDOWN (ill-conditioned there, so left out) or raised wherever that column "
              "was compared; - where it took no part. Left out: the states where a BREAKDOWN or an error kept it out "
              "of some comparison.")
