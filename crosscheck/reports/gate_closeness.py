@@ -87,35 +87,40 @@ def _left_out(cell: _Cell, backend: str, case: CaseOutcome, state: StateOutcome,
 
 
 def _cells(cases: Sequence[CaseOutcome], rows: Sequence[str], where_case: bool) -> dict[tuple[str, str], _Cell]:
-    """(backend, family) -> its cell over the ``cases``; ``where_case`` puts the case name in each cell's place."""
+    """(backend, family) -> its cell over the ``cases``; ``where_case`` puts the case name in each cell's place. A
+    backend's figure in a comparison is at most the comparison's worst ratio, so the figures
+    (``Comparison.closeness``) are computed only where one could raise a cell."""
     cells: dict[tuple[str, str], _Cell] = {}
     for case in cases:
+        prefix = case.spec.name + " " if where_case else ""
         for state in case.states:
             for key, comp in (*state.comparisons.items(), *state.checks.items()):
                 if comp.verdict == NOT_COMPARED and not comp.not_compared:
                     continue
                 family = family_of(key)
+                row = [cells.setdefault((backend, family), _Cell()) for backend in rows]
+                voted = {backend_of(voter) for voter in comp.voters}
                 mine: dict[str, float] = {}
-                for voter, ratio in comp.closeness().items():
-                    backend = backend_of(voter)
-                    best = mine.get(backend)
-                    if best is None or ratio != ratio or (best == best and ratio > best):
-                        mine[backend] = ratio
-                place = f"{case.spec.name + ' ' if where_case else ''}{key} #{state.state.index}"
-                for backend in rows:
-                    cell = cells.setdefault((backend, family), _Cell())
+                if any(not (cell.worst is not None and cell.worst >= comp.worst_ratio)
+                       for backend, cell in zip(rows, row) if backend in voted):
+                    for voter, ratio in comp.closeness().items():
+                        backend = backend_of(voter)
+                        best = mine.get(backend)
+                        if best is None or ratio != ratio or (best == best and ratio > best):
+                            mine[backend] = ratio
+                for backend, cell in zip(rows, row):
                     if backend in mine:
-                        cell.add(mine[backend], place)
-                    elif mine or comp.not_compared:
+                        cell.add(mine[backend], f"{prefix}{key} #{state.state.index}")
+                    elif backend not in voted and (voted or comp.not_compared):
                         _left_out(cell, backend, case, state, key, comp)
     return cells
 
 
 def _rows(cases: Sequence[CaseOutcome], backends: Sequence[str]) -> list[str]:
-    """The run's backends, then any other voter that is one (the case's closed form)."""
-    seen = {backend_of(voter) for case in cases for state in case.states
-            for comp in (*state.comparisons.values(), *state.checks.values()) for voter in comp.voters}
-    return [*backends, *sorted(name for name in seen if name == "closed_form")]
+    """The run's backends, then the case's closed form where it votes (on the quantities, at every state)."""
+    voting = any("closed_form" in pair for case in cases for state in case.states[:1]
+                 for comp in state.comparisons.values() for pair in comp.pairs)
+    return [*backends, *(["closed_form"] if voting else [])]
 
 
 def closeness_table(cases: Sequence[CaseOutcome], backends: Sequence[str], where_case: bool = True) -> list[str]:
