@@ -10,6 +10,7 @@ run (:func:`closeness_section`), the details one per case when there are several
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 from crosscheck.core.compare import NOT_COMPARED, Comparison, backend_of
@@ -49,12 +50,12 @@ class _Cell:
     """One backend in one family: its worst ratio and where, and the states where it was left out and why."""
 
     def __init__(self):
-        self.worst, self.where = None, ""
+        self.worst, self.where = None, ("", "")
         self.not_supplied: set[tuple[str, int]] = set()
         self.breakdown: set[tuple[str, int]] = set()
         self.raised: set[tuple[str, int]] = set()
 
-    def add(self, ratio: float, where: str) -> None:
+    def add(self, ratio: float, where: tuple[str, str]) -> None:
         nan_now, nan_before = ratio != ratio, self.worst is not None and self.worst != self.worst
         if self.worst is None or (nan_now and not nan_before) or (not nan_before and ratio > self.worst):
             self.worst, self.where = ratio, where
@@ -86,34 +87,60 @@ def _left_out(cell: _Cell, backend: str, case: CaseOutcome, state: StateOutcome,
         cell.raised.add(at)
 
 
-def _cells(cases: Sequence[CaseOutcome], rows: Sequence[str], where_case: bool) -> dict[tuple[str, str], _Cell]:
-    """(backend, family) -> its cell over the ``cases``; ``where_case`` puts the case name in each cell's place. A
-    backend's figure in a comparison is at most the comparison's worst ratio, so the figures
-    (``Comparison.closeness``) are computed only where one could raise a cell."""
+def _case_cells(case: CaseOutcome, rows: Sequence[str]) -> dict[tuple[str, str], _Cell]:
+    """(backend, family) -> its cell over the case. A backend's figure in a comparison is at most the comparison's
+    worst ratio, so the figures (``Comparison.closeness``) are computed only where one could raise a cell."""
     cells: dict[tuple[str, str], _Cell] = {}
-    for case in cases:
-        prefix = case.spec.name + " " if where_case else ""
-        for state in case.states:
-            for key, comp in (*state.comparisons.items(), *state.checks.items()):
-                if comp.verdict == NOT_COMPARED and not comp.not_compared:
-                    continue
-                family = family_of(key)
-                row = [cells.setdefault((backend, family), _Cell()) for backend in rows]
-                voted = {backend_of(voter) for voter in comp.voters}
-                mine: dict[str, float] = {}
-                if any(not (cell.worst is not None and cell.worst >= comp.worst_ratio)
-                       for backend, cell in zip(rows, row) if backend in voted):
-                    for voter, ratio in comp.closeness().items():
-                        backend = backend_of(voter)
-                        best = mine.get(backend)
-                        if best is None or ratio != ratio or (best == best and ratio > best):
-                            mine[backend] = ratio
-                for backend, cell in zip(rows, row):
-                    if backend in mine:
-                        cell.add(mine[backend], f"{prefix}{key} #{state.state.index}")
-                    elif backend not in voted and (voted or comp.not_compared):
-                        _left_out(cell, backend, case, state, key, comp)
+    for state in case.states:
+        for key, comp in (*state.comparisons.items(), *state.checks.items()):
+            if comp.verdict == NOT_COMPARED and not comp.not_compared:
+                continue
+            family = family_of(key)
+            row = [cells.setdefault((backend, family), _Cell()) for backend in rows]
+            voted = {backend_of(voter) for voter in comp.voters}
+            mine: dict[str, float] = {}
+            if any(not (cell.worst is not None and cell.worst >= comp.worst_ratio)
+                   for backend, cell in zip(rows, row) if backend in voted):
+                for voter, ratio in comp.closeness().items():
+                    backend = backend_of(voter)
+                    best = mine.get(backend)
+                    if best is None or ratio != ratio or (best == best and ratio > best):
+                        mine[backend] = ratio
+            for backend, cell in zip(rows, row):
+                if backend in mine:
+                    cell.add(mine[backend], (case.spec.name, f"{key} #{state.state.index}"))
+                elif backend not in voted and (voted or comp.not_compared):
+                    _left_out(cell, backend, case, state, key, comp)
     return cells
+
+
+def _merged(per_case: Sequence[dict[tuple[str, str], _Cell]]) -> dict[tuple[str, str], _Cell]:
+    """The cells of several cases as one: the worst figure and where, the union of the states left out."""
+    out: dict[tuple[str, str], _Cell] = {}
+    for cells in per_case:
+        for key, cell in cells.items():
+            merged = out.setdefault(key, _Cell())
+            if cell.worst is not None:
+                merged.add(cell.worst, cell.where)
+            merged.not_supplied |= cell.not_supplied
+            merged.breakdown |= cell.breakdown
+            merged.raised |= cell.raised
+    return out
+
+
+@dataclass(frozen=True)
+class Closeness:
+    """The table's cells for a run: the rows (backends) and each case's cells, computed once for the summary and the
+    details (:func:`of`)."""
+
+    rows: tuple[str, ...]
+    per_case: tuple[dict[tuple[str, str], _Cell], ...]
+
+
+def of(result: GateResult) -> Closeness:
+    """The cells of every case of ``result``."""
+    rows = tuple(_rows(result.cases, result.backends))
+    return Closeness(rows, tuple(_case_cells(case, rows) for case in result.cases))
 
 
 def _rows(cases: Sequence[CaseOutcome], backends: Sequence[str]) -> list[str]:
@@ -123,11 +150,9 @@ def _rows(cases: Sequence[CaseOutcome], backends: Sequence[str]) -> list[str]:
     return [*backends, *(["closed_form"] if voting else [])]
 
 
-def closeness_table(cases: Sequence[CaseOutcome], backends: Sequence[str], where_case: bool = True) -> list[str]:
-    """The markdown table: a row per backend, a column per family compared in ``cases`` (:data:`COLUMNS`), and the
-    place of the row's worst figure (case, quantity or check, state); [] when nothing was compared."""
-    rows = _rows(cases, backends)
-    cells = _cells(cases, rows, where_case)
+def closeness_table(rows: Sequence[str], cells: dict[tuple[str, str], _Cell], where_case: bool = True) -> list[str]:
+    """The markdown table: a row per backend, a column per family with a figure (:data:`COLUMNS`), and the place of
+    the row's worst figure (case if ``where_case``, quantity or check, state); [] when nothing was compared."""
     columns = [c for c in (*COLUMNS, "other") if any(cells.get((b, c)) and cells[(b, c)].worst is not None
                                                     for b in rows)]
     if not columns:
@@ -137,8 +162,9 @@ def closeness_table(cases: Sequence[CaseOutcome], backends: Sequence[str], where
         row = [cells.get((backend, c), _Cell()) for c in columns]
         figures = [cell for cell in row if cell.worst is not None]
         worst = max(figures, key=lambda cell: float("inf") if cell.worst != cell.worst else cell.worst, default=None)
-        lines.append(f"| {backend} | " + " | ".join(cell.text() for cell in row) +
-                     f" | {worst.where if worst else '-'} | {_left_out_text(row)} |")
+        where = "-" if worst is None else (" ".join(worst.where) if where_case else worst.where[1])
+        lines.append(f"| {backend} | " + " | ".join(cell.text() for cell in row) + f" | {where} | "
+                     f"{_left_out_text(row)} |")
     return lines
 
 
@@ -159,19 +185,21 @@ EXPLAINED = ("Each backend's error/tolerance against the exact value where there
              "of some comparison.")
 
 
-def closeness_section(result: GateResult) -> list[str]:
-    """The summary's table over every case of the run."""
-    table = closeness_table(result.cases, result.backends)
+def closeness_section(result: GateResult, found: Closeness | None = None) -> list[str]:
+    """The summary's table over every case of the run (``found``: :func:`of` the result, computed here if None)."""
+    found = found or of(result)
+    table = closeness_table(found.rows, _merged(found.per_case))
     return ["## How close each backend came", "", EXPLAINED, "", *table, ""] if table else []
 
 
-def case_closeness_section(result: GateResult) -> list[str]:
+def case_closeness_section(result: GateResult, found: Closeness | None = None) -> list[str]:
     """The details' tables, one per case, for a run of two or more (the summary's table is the one case's)."""
     if len(result.cases) < 2:
         return []
+    found = found or of(result)
     lines = []
-    for case in result.cases:
-        table = closeness_table([case], result.backends, where_case=False)
+    for case, cells in zip(result.cases, found.per_case):
+        table = closeness_table(found.rows, cells, where_case=False)
         if table:
             lines += [f"### {case.spec.name}", "", *table, ""]
     if not lines:

@@ -13,7 +13,7 @@ from crosscheck.core.tolerance import BREAKDOWN_LIMITS, quantities
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.references.pinocchio import build, reference
-from crosscheck.reports.gate_closeness import case_closeness_section
+from crosscheck.reports import gate_closeness
 from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, VERDICTS, all_comparisons, check_groups, condition_text,
                                            no_chart, policy_lines, ratio_of, reproduce_command, scope_text, severity_of,
                                            state_detail, task_point_lines, vec_text, verdict_text)
@@ -370,11 +370,12 @@ def _registry_section(applied: Applied | None) -> list[str]:
     return lines + [""]
 
 
-def details(result: GateResult, command: str, applied: Applied | None = None, summary_link: str | None = None) -> str:
+def details(result: GateResult, command: str, applied: Applied | None = None, summary_link: str | None = None,
+            closeness: gate_closeness.Closeness | None = None) -> str:
     """The report's second part: the tolerance policy, suspects, voters, task points, the per-quantity table, then
     each section (self-test, coverage, known divergences, stale registry entries, breakdowns, checks, power audit,
     the drift's parts), the worst state per case and the timing; ``summary_link`` the file holding :func:`summary`,
-    if any."""
+    if any; ``closeness`` the per-backend table's cells (``gate_closeness.of``, computed here if None)."""
     back = f" (summary: [{summary_link}]({summary_link}))" if summary_link else ""
     lines = [f"# crosscheck gate report: details{back}", "",
              f"**{verdict_text(result)}**; command `{command}`, seed {result.seed}.", ""]
@@ -391,7 +392,7 @@ def details(result: GateResult, command: str, applied: Applied | None = None, su
     for case in result.cases:
         lines += _summary_rows(case)
     lines.append("")
-    lines += case_closeness_section(result)
+    lines += gate_closeness.case_closeness_section(result, closeness)
     lines += _self_test_section(result)
     lines += _coverage_section(result)
     lines += _known_section(result)

@@ -20,7 +20,7 @@ from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import GateResult
-from crosscheck.reports.gate_closeness import closeness_section
+from crosscheck.reports import gate_closeness
 from crosscheck.reports.gate_details import breakdowns_of, details, limits_line
 from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, backend_errors, counted, failed_states,
                                            ratio_of, registry_line, self_test_line, state_detail, task_broken_states,
@@ -73,8 +73,9 @@ def write(result: GateResult, command: str, path: str | Path, applied: Applied |
     """Write the short report to ``path`` (:func:`summary`, linking ``figures``: :func:`mechanism_figures`) and
     everything else next to it (:func:`details`, at :func:`details_path`); the two paths."""
     path, more = Path(path), details_path(path)
-    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures))
-    more.write_text(details(result, command, applied, summary_link=path.name))
+    found = gate_closeness.of(result)
+    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures, closeness=found))
+    more.write_text(details(result, command, applied, summary_link=path.name, closeness=found))
     return path, more
 
 
@@ -90,7 +91,9 @@ def render(result: GateResult, command: str, applied: Applied | None = None,
     ``command`` is the gate command that produced it, ``applied`` the divergence registry as applied to ``result``
     (``crosscheck.engine.divergences.apply``), if any, ``figures`` the pictures of the mechanism to link
     (:func:`mechanism_figures`). The command line writes the two parts to two files (:func:`write`)."""
-    return summary(result, command, applied, figures=figures) + "\n" + details(result, command, applied)
+    found = gate_closeness.of(result)
+    return (summary(result, command, applied, figures=figures, closeness=found) + "\n"
+            + details(result, command, applied, closeness=found))
 
 
 def _headline(result: GateResult) -> list[str]:
@@ -268,11 +271,12 @@ def _silent_lines(result: GateResult) -> list[str]:
 
 
 def summary(result: GateResult, command: str, applied: Applied | None = None, details_link: str | None = None,
-            figures: dict[str, str] | None = None) -> str:
+            figures: dict[str, str] | None = None, closeness: gate_closeness.Closeness | None = None) -> str:
     """The report's first part, short: the verdict, a failing run's failures with their reproduce commands, what
     was run, one line per case, the worst ratio, what was checked and skipped, the task point of each case where a
     task condition was in BREAKDOWN at most states and why, the pictures of the mechanism (``figures``);
-    ``details_link`` the file holding :func:`details` (None: they follow in the same text)."""
+    ``details_link`` the file holding :func:`details` (None: they follow in the same text); ``closeness`` the
+    per-backend table's cells (``gate_closeness.of``, computed here if None)."""
     where = f"[{details_link}]({details_link})" if details_link else "below"
     lines = _headline(result) + _model_findings(result) + _failures_section(result)
     lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
@@ -282,5 +286,5 @@ def summary(result: GateResult, command: str, applied: Applied | None = None, de
               "the drift's parts, worst state per case, timing, tolerance policy", ""]
     lines += figure_lines(figures or {})
     lines += _case_table(result)
-    lines += closeness_section(result)
+    lines += gate_closeness.closeness_section(result, closeness)
     return "\n".join(lines) + "\n"
