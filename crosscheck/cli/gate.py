@@ -115,11 +115,12 @@ def cmd_gate(args) -> int:
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)
+    states = {case.spec.name: len(case.states) for case in result.cases}
     for case, backends_out in result.broken.items():
         for name, count in backends_out.items():
-            print(f"FAIL {case}: backend {name} was in BREAKDOWN (out of the vote) at {count} of "
-                  f"{args.samples} states; the report says which condition and why. Name it with "
-                  f"--allow-breakdown {name} if that is expected", file=sys.stderr)
+            print(f"FAIL {case}: backend {name} was in BREAKDOWN (out of the vote) at {count} of {states[case]} "
+                  f"states; the report says which condition and why. Name it with --allow-breakdown {name} if "
+                  "that is expected", file=sys.stderr)
     for name in result.absent:
         raised = [s.errors[name] for case in result.cases for s in case.states if name in s.errors]
         why = (f"it raised at {len(raised)} states, first: {raised[0]}" if raised
