@@ -97,3 +97,14 @@ def fresh_derivation_cache(tmp_path_factory):
         el._compiled.cache_clear()
         yield
     el._compiled.cache_clear()
+
+
+@pytest.fixture
+def isolated_cache(tmp_path, monkeypatch):
+    """One test's own scratch disk cache (``CROSSCHECK_CACHE``), no Euler–Lagrange program loaded before it and none
+    compiled from it (or from a patched generator) outliving it."""
+    import formalisms.euler_lagrange as el
+    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
+    el._compiled.cache_clear()
+    yield tmp_path
+    el._compiled.cache_clear()

@@ -413,14 +413,6 @@ def test_derived_cqd_is_quadratic_in_qd(derived):
 # The disk cache of the generated source
 # ----------------------------------------------------------------------------------------------------------
 
-@pytest.fixture
-def isolated_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
-    el._compiled.cache_clear()
-    yield tmp_path
-    el._compiled.cache_clear()  # nothing compiled from the tmp dir (or the patched generator) outlives the test
-
-
 def test_disk_cache_writes_once_and_reloads_without_deriving(isolated_cache, monkeypatch):
     model = cases.load("double_pendulum", m1=1.25)
     q, qd = np.array([0.3, -1.1]), np.array([0.7, 2.0])

@@ -250,14 +250,6 @@ def test_kinetic_energy_is_half_qd_M_qd(name):
 # Caches: keyed by (model digest, chart key, module hash)
 # ----------------------------------------------------------------------------------------------------------
 
-@pytest.fixture
-def isolated_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
-    el._compiled.cache_clear()
-    yield tmp_path
-    el._compiled.cache_clear()
-
-
 def test_each_chart_has_its_own_cache_entry_and_is_never_served_for_another(isolated_cache, monkeypatch):
     model = cases.load("double_pendulum", m2=1.7)
     chart_list = [charts.random_affine(model, 0, "x"), charts.random_affine(model, 1, "x"),

@@ -7,7 +7,6 @@ from __future__ import annotations
 import threading
 import time
 
-import pytest
 
 import formalisms.euler_lagrange as el
 from crosscheck import backends
@@ -16,15 +15,7 @@ from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.specs import CaseSpec, Checks
 
 
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("CROSSCHECK_CACHE", str(tmp_path))
-    el._compiled.cache_clear()
-    yield tmp_path
-    el._compiled.cache_clear()
-
-
-def test_a_process_needing_an_entry_being_derived_waits_and_reads_it(cache):
+def test_a_process_needing_an_entry_being_derived_waits_and_reads_it(isolated_cache):
     path = el._cache_dir() / "entry.py"
     made, inside = [], threading.Event()
 
@@ -42,7 +33,7 @@ def test_a_process_needing_an_entry_being_derived_waits_and_reads_it(cache):
     assert made == []
 
 
-def test_the_helper_derives_the_charts_and_the_outcomes_do_not_change(cache, monkeypatch):
+def test_the_helper_derives_the_charts_and_the_outcomes_do_not_change(isolated_cache, monkeypatch):
     """With a CPU to spare and enough to derive, a helper process prepares every chart of the case (their entries are
     in the cache afterwards, derived by it or by the evaluating process, once each); the outcomes are those of a run
     without it."""
