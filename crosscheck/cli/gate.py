@@ -18,7 +18,7 @@ from crosscheck.engine.run import run_gate
 from crosscheck.engine.specs import DEFAULT_SAMPLES, Checks
 from crosscheck.guards import preflight
 from crosscheck.reports import diagnosis, gate_summary, junit
-from crosscheck.reports.gate_lines import reproduce_command, task_point_lines
+from crosscheck.reports.gate_lines import canary_count, reproduce_command, task_point_lines
 
 DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
 
@@ -131,8 +131,7 @@ def cmd_gate(args) -> int:
         failures = result.self_test.failures()
         for line in failures:
             print(f"FAIL self-test: {line}", file=sys.stderr)
-        print(f"self-test: {len(result.self_test.results) - len(failures)} of {len(result.self_test.results)} "
-              "canaries caught and named", file=sys.stderr)
+        print(f"self-test: {canary_count(result.self_test)}", file=sys.stderr)
     print(gate_summary.compared_line(result))
     findings = sum(len(case.model.findings) for case in result.cases)
     noted = f" with {findings} model finding(s) at its top" if findings else ""

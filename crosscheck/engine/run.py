@@ -187,7 +187,7 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
                 outcomes.append(run_case(spec, backends, samples, seed, tell, checks, derive_ahead=True))
         if checks.self_test:
             tell(Step("", 0, 0, SELF_TEST))
-            result.self_test = selftest.run()
+            result.self_test = selftest.run(checks=checks)
     except KeyboardInterrupt as exc:
         result.interrupted = _where(exc, specs, samples, outcomes, pooled)
         raise Interrupted(result) from None

@@ -101,7 +101,7 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
         return SharedHunt(fault, bool(by), by, detail, count, time.perf_counter() - start)
 
     with injected(fault):
-        if checks.self_test and not (test := selftest.run()).passed:
+        if checks.self_test and not (test := selftest.run(checks=checks)).passed:
             return done("self-test", test.failures()[0])
         try:
             setups = [injection._Case(spec, seed, checks) for spec in specs]

@@ -1,106 +1,185 @@
-"""Self-test canaries: every gate run proves it can still see small errors (docs/design.md, "a check that cannot fail").
+"""Self-test canaries: every gate run proves that each of its checks can still see a small error (docs/design.md, "a
+check that cannot fail").
 
-The code every backend shares (the model language, sampling, tolerances, the comparison, the vote) is outside the
-vote: a tolerance loosened tenfold, a comparison that takes a signed difference or lets NaN agree, a vote that names
-the wrong backend would leave every run green. So the gate injects a few tiny, known faults into one backend's
-answer at fixed states of fixed built-in cases and checks that its own comparisons catch each one and name that
-backend (:func:`run`); a canary that is not caught fails the run: the gate has lost sensitivity.
+The code every backend shares (the model language, sampling, tolerances, the comparison, the vote, and the checks
+themselves: charts, frames, conservation, linearization, equilibria, the conditions audit, coverage, the closed forms)
+is outside the vote: a check that silently stops comparing (compares a scene with itself, drops a term, returns ratio
+0) or a tolerance loosened tenfold leaves every run green. So the gate injects a tiny known fault per check at fixed
+states of fixed built-in cases, runs that check as the gate runs it (``crosscheck.engine.evaluation.CaseSetup``, with
+the check switched on), and demands that the check itself catches the fault (a DISAGREE among its own comparisons,
+:data:`FAMILIES`) and names the faulty voter; a canary that is not caught names the check that lost its power.
 
-A canary is a fault of known size in one backend's answer, made from exact relations between the answers:
+A canary (:class:`Canary`) is a fault of known size in one place:
 
-* ``mass matrix``: M off by a relative ``size``, ``(1 + size) M``: every acceleration (drift, ctrl, total) divided
-  by ``1 + size``;
-* ``velocity products``: ``C qd`` off by a relative ``size``: drift and total move by ``-size M^-1 C qd``;
-* ``gravity``: ``g`` off by a relative ``size``: drift and total move by ``-size M^-1 g``;
-* ``one entry``: the first entry of the drift raised by ``size`` times the drift's largest (a one-signed error in one
-  place: a comparison that takes a signed difference sees it from one side of each pair only);
-* ``multiplier sign``: the multipliers reported with the opposite sign convention (lam and lam_drift negated);
-* ``not a number``: a NaN in one entry of the drift (a NaN must never count as agreement).
+* in one backend's joint-chart answer (``split``; checks ``comparisons``, ``multipliers``, ``conditions``,
+  ``conservation``), by ``kind``:
 
-``M``, ``C qd`` and ``g`` come from the Pinocchio reference's split at the state. The sizes are calibrated: each
-canary is caught with an error/tolerance ratio between 2 and 10 (see :data:`CANARIES`), so a tolerance loosened
-tenfold misses it, while rounding (ratios below 0.1 on these states) cannot fake a catch.
+  - ``mass matrix``: M off by a relative ``size``, ``(1 + size) M``: every acceleration divided by ``1 + size``;
+  - ``velocity products`` / ``gravity``: ``C qd`` / ``g`` off by a relative ``size``: drift and total move by
+    ``-size M^-1 C qd`` / ``-size M^-1 g`` (M, C qd and g from the Pinocchio reference at the state);
+  - ``one entry``: the first entry of the drift raised by ``size`` times the drift's largest (one-signed: a comparison
+    taking a signed difference sees it from one side of each pair only);
+  - ``entry``: entry ``index`` of ``quantity`` raised by ``size`` times its scale (the largest entry; for the
+    constraint power, the sum of its terms ``|Jc^T lam|_i |qd_i|``, since the power itself is 0);
+  - ``multiplier sign``: lam and lam_drift negated; ``not a number``: a NaN in the drift;
+  - ``condition``: the reported condition ``quantity`` off by a relative ``size``;
+  - ``extra``: the extra ``quantity`` (Pinocchio's ``C qd``, which the Christoffel identity reads) off by ``size``;
+
+* in a backend's chart-native answer (``split_chart``; check ``charts``) or its answer in the moved scene (``split``
+  on the moved model; check ``frames``): ``mass matrix`` there;
+* in a backend's linearization (``linearize``; checks ``linearization``, ``equilibria``): ``stiffness``, the block
+  ``dvdot/dq`` off by a relative ``size`` (the equilibria's eigenvalues move by about ``size / 2``);
+* in the model every backend reads (check ``closed forms``): ``mass``, body ``index``'s mass off by a relative
+  ``size``; the backends agree with each other on the wrong model and the closed form, bound to the case's parameters,
+  must disagree with all of them;
+* in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
+  ``repeated``, every state a copy of one; ``rates never sampled``, qd = 0 everywhere.
+
+Sizes are calibrated (:data:`CANARIES`; ``tests/guards/test_selftest.py`` re-measures every ratio): each sized canary
+is caught with an error/tolerance ratio between 2 and :data:`CALIBRATED`, so that a check loosened tenfold misses it,
+while rounding (ratios below 0.1 on these states) cannot fake a catch. A coverage canary's margin is its
+construction: a coordinate spread over :data:`SLIVER_WIDTH` of its span is five times thinner than the sliver bound.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+import cases
 from crosscheck import backends as backend_registry
-from crosscheck.core import tolerance
-from crosscheck.core.compare import DISAGREE, suspect
-from crosscheck.core.sampling import sample_states
-from crosscheck.engine.evaluation import CaseSetup, compare_all
-from crosscheck.engine.outcomes import StateOutcome
+from crosscheck.core.compare import DISAGREE, backend_of, suspect
+from crosscheck.core.sampling import State, sample_states
+from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.specs import CaseSpec, Checks
+from crosscheck.guards import coverage
+from formalisms.interface import Formalism, Linearization
 
 #: The seed of the canaries' states (fixed: the canaries are calibrated on these states, whatever the run's seed).
 SEED = 0
 #: States drawn per canary case (the canaries use some of them).
 STATES = 30
+#: A coverage canary's squeezed coordinate spans this share of its span: five times below the sliver bound, 0.1.
+#: Written here, not read from ``crosscheck.guards.coverage``, so that a loosened bound misses it.
+SLIVER_WIDTH = 0.02
 
 
 @dataclass(frozen=True)
 class Canary:
-    """A known fault: ``kind`` (module doc) of relative ``size`` in ``backend``'s answer at state ``state`` of the
-    built-in case ``case`` (``sample_states(model, STATES, SEED, case)``)."""
+    """A known fault for the check ``check``: ``kind`` (module doc) of relative ``size`` (``quantity`` and ``index``
+    where the kind needs them) in ``backend``'s answer at state ``state`` of the built-in case ``case``
+    (``sample_states(model, STATES, SEED, case)``); ``key``, when given, a part of the name of the comparison of the
+    check that must catch it (``"momentum"``: the momentum rows of the conservation checks)."""
 
+    check: str
     case: str
     state: int
     backend: str
     kind: str
     size: float = 0.0
+    quantity: str = ""
+    index: int = 0
+    key: str = ""
 
     def describe(self) -> str:
-        what = {"mass matrix": "M", "velocity products": "C qd", "gravity": "g", "one entry": "one drift entry"}.get(
-            self.kind)
+        what = {"mass matrix": "M", "velocity products": "C qd", "gravity": "g", "one entry": "one drift entry",
+                "entry": f"{self.quantity}[{self.index}]", "condition": f"the condition {self.quantity}",
+                "extra": f"its {self.quantity}", "stiffness": "dvdot/dq",
+                "mass": f"the mass of body {self.index} of the model"}.get(self.kind)
         fault = f"a relative {self.size:.0e} error in {what}" if what else self.kind
-        return f"{fault} of {self.backend} at {self.case} #{self.state}"
+        place = {"charts": " in a chart", "frames": " in a moved scene"}.get(self.check, "")
+        if self.check == "coverage":
+            return f"{fault} in the sample of {self.case}"
+        return f"{fault}{place} of {self.backend} at {self.case} #{self.state}"
 
 
-#: The canaries of every gate run: the article's double pendulum (planar), the 3-D spatial arm, a constrained case.
-#: Sizes calibrated on these states (``tests/guards/test_selftest.py`` re-measures every ratio): double pendulum #3
-#: M 3.1, g 4.0, one entry 4.4, #4 C qd 6.9; spatial arm #27 M 3.3, C qd 2.1, g 3.9. The 3-D claim is 1e-10
-#: (sensitivity). The one-entry canary's backend is neither the first voter nor the last, so that a signed difference
-#: misses it.
+#: The canaries of every gate run, by the check each proves. Sizes calibrated on these states (each caught at an
+#: error/tolerance ratio of about 3 to 7; ``tests/guards/test_selftest.py`` re-measures them); on the 3-D spatial arm
+#: the 1e-10 claim (``crosscheck.faults.sensitivity``). The one-entry canary's backend is neither the first voter nor
+#: the last, so that a signed difference misses it. The multipliers' canaries sit on cases with several constraint
+#: rows (four_bar: 2, the absolute loop: 4), where cond(S) is 4 to 40.
 CANARIES: tuple[Canary, ...] = (
-    Canary("double_pendulum", 3, "newton_euler", "mass matrix", 1e-11),
-    Canary("double_pendulum", 4, "screw", "velocity products", 1e-10),
-    Canary("double_pendulum", 3, "euler_lagrange", "gravity", 2e-11),
-    Canary("double_pendulum", 3, "geometric", "one entry", 2e-11),
-    Canary("spatial_arm", 27, "geometric", "mass matrix", 3e-11),
-    Canary("spatial_arm", 27, "operational_space", "velocity products", 1e-10),
-    Canary("spatial_arm", 27, "pinocchio", "gravity", 1e-10),
-    Canary("double_pendulum_circle", 2, "geometric", "multiplier sign"),
-    Canary("double_pendulum_circle", 2, "newton_euler", "not a number"),
+    Canary("comparisons", "double_pendulum", 3, "newton_euler", "mass matrix", 1e-11),
+    Canary("comparisons", "double_pendulum", 4, "screw", "velocity products", 1e-10),
+    Canary("comparisons", "double_pendulum", 3, "euler_lagrange", "gravity", 2e-11),
+    Canary("comparisons", "double_pendulum", 3, "geometric", "one entry", 2e-11),
+    Canary("comparisons", "spatial_arm", 27, "geometric", "mass matrix", 3e-11),
+    Canary("comparisons", "spatial_arm", 27, "operational_space", "velocity products", 1e-10),
+    Canary("comparisons", "spatial_arm", 27, "pinocchio", "gravity", 1e-10),
+    Canary("comparisons", "double_pendulum_circle", 2, "geometric", "multiplier sign"),
+    Canary("comparisons", "double_pendulum_circle", 2, "newton_euler", "not a number"),
+    Canary("multipliers", "four_bar", 3, "newton_euler", "entry", 2e-10, "lam", 1),
+    Canary("multipliers", "four_bar", 3, "screw", "entry", 4e-10, "constraint_force", 2),
+    Canary("multipliers", "four_bar", 3, "geometric", "entry", 2.5e-9, "power_constr"),
+    Canary("multipliers", "double_pendulum_absolute_loop", 3, "operational_space", "entry", 3e-9, "lam", 3),
+    Canary("multipliers", "double_pendulum_absolute_loop", 3, "newton_euler", "entry", 6e-9, "lam_drift", 2),
+    Canary("charts", "double_pendulum", 3, "geometric", "mass matrix", 1.5e-11),
+    Canary("charts", "spatial_arm", 27, "euler_lagrange", "mass matrix", 6e-10),
+    Canary("frames", "double_pendulum", 3, "screw", "mass matrix", 5e-11),
+    Canary("frames", "spatial_arm", 27, "newton_euler", "mass matrix", 1e-10),
+    Canary("conservation", "double_pendulum", 3, "newton_euler", "gravity", 8e-11, key="energy"),
+    Canary("conservation", "double_pendulum", 3, "pinocchio", "extra", 1e-9, "Cqd", key="C qd"),
+    Canary("conservation", "free_body", 3, "screw", "velocity products", 1.5e-10, key="momentum"),
+    Canary("linearization", "double_pendulum", 1, "newton_euler", "stiffness", 2e-11),
+    Canary("linearization", "spatial_arm", 1, "screw", "stiffness", 4e-8),
+    Canary("equilibria", "double_pendulum", 0, "euler_lagrange", "stiffness", 1.5e-9),
+    Canary("conditions", "spatial_arm", 27, "screw", "condition", 4.5e-9, "task_inertia"),
+    Canary("conditions", "four_bar", 3, "newton_euler", "condition", 4.5e-9, "constraint"),
+    Canary("closed forms", "double_pendulum", 3, "", "mass", 8e-13, index=1),
+    Canary("closed forms", "double_pendulum_circle", 2, "", "mass", 8e-12, index=0),
+    Canary("coverage", "double_pendulum", 0, "", "sliver", index=1),
+    Canary("coverage", "spatial_arm", 0, "", "repeated"),
+    Canary("coverage", "double_pendulum_circle", 0, "", "rates never sampled"),
 )
 
-#: A caught canary's error/tolerance ratio must stay below this: a tolerance loosened by this factor misses it.
+#: Which comparisons of a state each check owns: a predicate on the key of ``outcome.comparisons`` (the quantities)
+#: or ``outcome.checks`` (``"chart zyx: drift"``, ``"frame: total"``, ...), and which dictionary.
+FAMILIES: dict[str, tuple[str, Callable[[str, Canary], bool]]] = {
+    "comparisons": ("comparisons", lambda key, c: True),
+    "multipliers": ("comparisons", lambda key, c: key == c.quantity),
+    "closed forms": ("comparisons", lambda key, c: True),
+    "conditions": ("checks", lambda key, c: key.startswith("conditions: ")),
+    "charts": ("checks", lambda key, c: key.startswith("chart ")),
+    "frames": ("checks", lambda key, c: key.startswith(("frame: ", "frame law: "))),
+    "conservation": ("checks", lambda key, c: key.startswith("conservation: ")),
+    "linearization": ("checks", lambda key, c: key.startswith("linearization: ")),
+    "equilibria": ("checks", lambda key, c: key.startswith("equilibrium ")),
+}
+CHECKS = (*FAMILIES, "coverage")
+
+#: A caught canary's error/tolerance ratio must stay below this: a check loosened by this factor misses it.
 CALIBRATED = 10.0
+
+
+def switched_on(check: str, checks: Checks) -> bool:
+    """Whether the run ``checks`` runs the check ``check`` (a canary of a check switched off is not run)."""
+    return {"charts": checks.charts, "frames": checks.frames > 0, "conservation": checks.conservation,
+            "linearization": checks.linearization, "equilibria": checks.linearization,
+            "closed forms": checks.closed_forms}.get(check, True)
 
 
 @dataclass(frozen=True)
 class CanaryResult:
-    """A canary against the gate: ``caught`` (some comparison DISAGREEs), ``named`` (the vote names the canary's
-    backend its outlier: it disagrees with every other voter, which agree), the worst error/tolerance ratio and the
-    comparison that had it. ``skipped`` says why a canary was not
-    judged: its backend already disagrees at the state without any fault (a real bug there, which the gate reports
-    on its own cases, or one the divergence registry explains)."""
+    """A canary against its check: ``caught`` (a comparison of the check DISAGREEs), ``named`` (the vote names the
+    faulty voter its outlier: the canary's backend, or the closed form against a wrong model), the worst
+    error/tolerance ratio of the check and ``where``, the comparison that had it. ``skipped`` says why a canary was
+    not judged (its check is off in this run, or its backend already disagrees at the state without any fault: a real
+    bug there, which the gate reports on its own cases); ``error``, the internal error that stopped it."""
 
     canary: Canary
     caught: bool
     named: bool
     ratio: float
-    quantity: str
+    where: str
     skipped: str = ""
+    error: str = ""
 
     @property
     def passed(self) -> bool:
-        return bool(self.skipped) or (self.caught and self.named)
+        return not self.error and (bool(self.skipped) or (self.caught and self.named))
 
 
 @dataclass(frozen=True)
@@ -120,93 +199,214 @@ class SelfTest:
         out = [f"the gate disagrees with itself without any fault at {where}; no canary can be judged there (a "
                "broken comparison or tolerance)" for where in self.unusable]
         for r in self.results:
-            if r.skipped:
+            check = r.canary.check
+            if r.error:
+                out.append(f"the {check} canary could not run ({r.canary.describe()}): internal error {r.error}")
+            elif r.skipped:
                 continue
-            if not r.caught:
-                out.append(f"the gate has lost sensitivity: {r.canary.describe()} was not caught (worst "
-                           f"error/tolerance {r.ratio:.3g}); a loosened tolerance, a broken comparison or degenerate "
-                           "sampling")
+            elif not r.caught:
+                out.append(f"the {check} check has lost its power: {r.canary.describe()} was not caught (worst "
+                           f"error/tolerance {r.ratio:.3g}); a check switched off, compared with itself, or loosened")
             elif not r.named:
-                out.append(f"the vote failed: {r.canary.describe()} was caught ({r.quantity}, ratio {r.ratio:.3g}) "
-                           f"but {r.canary.backend} was not named as its outlier")
+                out.append(f"the vote failed in the {check} check: {r.canary.describe()} was caught ({r.where}, ratio "
+                           f"{r.ratio:.3g}) but {_faulty_voter(r.canary)} was not named as its outlier")
         return out
 
 
-def inject(canary: Canary, split, reference):
-    """``split`` (the canary backend's answer) with the canary's fault; ``reference`` is the Pinocchio split at the
-    same state (its ``extras`` M, C qd and g)."""
-    size = canary.size
-    if canary.kind == "mass matrix":
+def _faulty_voter(canary: Canary) -> str:
+    return "closed_form" if canary.check == "closed forms" else canary.backend
+
+
+# ------------------------------------------------------------------------------------------------- the faults
+
+
+def _scale(split, quantity: str, qd: np.ndarray) -> float:
+    """The size an ``entry`` fault of ``quantity`` is relative to (module doc)."""
+    if quantity == "power_constr":
+        return float(np.abs(np.asarray(split.constraint_force) * qd).sum())
+    return float(np.abs(np.asarray(split.quantity(quantity), dtype=float)).max())
+
+
+def inject(canary: Canary, split, reference=None, qd=None):
+    """``split`` with the canary's fault; ``reference`` is the Pinocchio split at the same state (its ``extras`` M,
+    C qd and g; for the ``velocity products`` and ``gravity`` kinds), ``qd`` the state's rates (``entry``)."""
+    size, kind = canary.size, canary.kind
+    if kind == "mass matrix":
         return dataclasses.replace(split, drift=split.drift / (1.0 + size), ctrl=split.ctrl / (1.0 + size),
                                    total=split.total / (1.0 + size))
-    if canary.kind in ("velocity products", "gravity"):
-        force = reference.extras["Cqd" if canary.kind == "velocity products" else "g"]
+    if kind in ("velocity products", "gravity"):
+        force = reference.extras["Cqd" if kind == "velocity products" else "g"]
         shift = -size * np.linalg.solve(reference.extras["M"], force)
         return dataclasses.replace(split, drift=split.drift + shift, total=split.total + shift)
-    if canary.kind == "one entry":
+    if kind == "one entry":
         drift = np.array(split.drift)
         drift[0] += size * float(np.abs(drift).max())
         return dataclasses.replace(split, drift=drift)
-    if canary.kind == "multiplier sign":
+    if kind == "entry":
+        value = np.array(split.quantity(canary.quantity), dtype=float)
+        value.flat[canary.index] += size * _scale(split, canary.quantity, np.asarray(qd, dtype=float))
+        return dataclasses.replace(split, **{canary.quantity: value if value.ndim else float(value)})
+    if kind == "multiplier sign":
         return dataclasses.replace(split, lam=-split.lam, lam_drift=-split.lam_drift)
-    if canary.kind == "not a number":
+    if kind == "not a number":
         drift = np.array(split.drift)
         drift[0] = np.nan
         return dataclasses.replace(split, drift=drift)
-    raise ValueError(f"unknown canary kind '{canary.kind}'")
+    if kind == "condition":
+        return dataclasses.replace(split, conditions={**split.conditions, canary.quantity: (
+            split.conditions[canary.quantity] * (1.0 + size))})
+    if kind == "extra":
+        return dataclasses.replace(split, extras={**split.extras, canary.quantity: (
+            (1.0 + size) * np.asarray(split.extras[canary.quantity]))})
+    raise ValueError(f"unknown canary kind '{kind}'")
 
 
-def _judge(canary: Canary, model, outcome) -> CanaryResult:
-    """Compare again at ``outcome``'s state (clean, :func:`_clean`) with the canary's backend faulty, as the gate
-    compares."""
-    if canary.backend not in outcome.splits:
-        return CanaryResult(canary, False, False, 0.0, "-", f"{canary.backend} disagrees at this state without a fault")
-    splits = dict(outcome.splits)
-    splits[canary.backend] = inject(canary, splits[canary.backend], outcome.splits["pinocchio"])
-    faulty = StateOutcome(outcome.state, splits, {}, {}, {name: b for name, split in splits.items()
-                                                          if (b := tolerance.breakdown(split))})
-    compare_all(model, faulty)
-    failing = [(key, c) for key, c in faulty.comparisons.items() if c.verdict == DISAGREE]
-    worst_key, worst = max(failing, key=lambda kc: np.nan_to_num(kc[1].worst_ratio, nan=np.inf),
-                           default=("-", None))
-    ratio = max((c.worst_ratio for c in faulty.comparisons.values()),
-                key=lambda r: np.nan_to_num(r, nan=np.inf), default=0.0) if worst is None else worst.worst_ratio
-    return CanaryResult(canary, bool(failing), any(c.outlier == canary.backend for _, c in failing), ratio,
-                        worst_key)
+def _stiffer(canary: Canary, lin: Linearization, nv: int) -> Linearization:
+    A = np.array(lin.A)
+    A[nv:, :nv] *= 1.0 + canary.size
+    return dataclasses.replace(lin, A=A)
 
 
-def _clean(model, outcome):
-    """``outcome`` without the backends that disagree at it without any fault (each named by the vote), compared
-    again; None when the state disagrees and no single backend explains it."""
-    failing = [c for c in outcome.comparisons.values() if c.verdict == DISAGREE]
-    if not failing:
-        return outcome
-    blamed = {suspect(c) for c in failing}
+def faulty(canary: Canary, backend: Formalism, model) -> Formalism:
+    """``backend`` with the canary's fault where its check looks (module doc); ``model`` is the case's (unmoved)
+    model (the canary's state is evaluated alone: no block form is used)."""
+    reference = backend_registry.get("pinocchio")
+
+    def split(m, q, qd, u):
+        answer = backend.split(m, q, qd, u)
+        if canary.check == "frames" and m is model:
+            return answer
+        needs = canary.kind in ("velocity products", "gravity")
+        return inject(canary, answer, reference.split(m, q, qd, u) if needs else None, qd)
+
+    if canary.check == "charts":
+        return dataclasses.replace(backend, split_chart=lambda *args: inject(
+            canary, backend.split_chart(*args)))
+    if canary.check in ("linearization", "equilibria"):
+        return dataclasses.replace(backend, linearize=lambda m, q, v, u: _stiffer(
+            canary, backend.linearize(m, q, v, u), m.nv))
+    return dataclasses.replace(backend, split=split)
+
+
+# ------------------------------------------------------------------------------------------------- judging
+
+
+def _family(canary: Canary, outcome) -> dict:
+    where, owns = FAMILIES[canary.check]
+    return {key: c for key, c in getattr(outcome, where).items() if owns(key, canary) and canary.key in key}
+
+
+def _judge(canary: Canary, outcome) -> CanaryResult:
+    """Whether the canary's check caught it at ``outcome`` (the state evaluated with the fault) and named its
+    voter."""
+    found = _family(canary, outcome)
+    failing = {key: c for key, c in found.items() if c.verdict == DISAGREE}
+    pool = failing or found
+    where = max(pool, key=lambda k: np.nan_to_num(pool[k].worst_ratio, nan=np.inf), default="-")
+    ratio = pool[where].worst_ratio if pool else 0.0
+    voter = _faulty_voter(canary)
+    named = any(c.outlier is not None and backend_of(c.outlier) == voter for c in failing.values())
+    return CanaryResult(canary, bool(failing), named, float(ratio), where)
+
+
+def _setup(canary: Canary) -> CaseSetup:
+    """The canary's case set up with its check switched on (and the others off, as far as they can be)."""
+    check = canary.check
+    return CaseSetup.build(CaseSpec(canary.case), SEED, Checks(
+        charts=check == "charts", frames=1 if check == "frames" else 0, conservation=check == "conservation",
+        closed_forms=True, self_test=False, linearization=check in ("linearization", "equilibria")))
+
+
+def _clean(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Formalism]):
+    """The backends the canary can be judged among: ``chosen`` without those that disagree in the canary's check at
+    the state without any fault (each named by the vote); None when the state disagrees there and no single backend
+    explains it."""
+    outcome = setup.evaluate(state, chosen)
+    blamed = {suspect(c) for c in _family(canary, outcome).values() if c.verdict == DISAGREE}
+    blamed |= {backend_of(name) for name in outcome.errors}
     if None in blamed:
         return None
-    kept = {name: split for name, split in outcome.splits.items() if name not in blamed}
-    clean = StateOutcome(outcome.state, kept, {}, {}, {k: v for k, v in outcome.breakdowns.items() if k in kept})
-    compare_all(model, clean)
-    return None if any(c.verdict == DISAGREE for c in clean.comparisons.values()) else clean
+    return [b for b in chosen if b.name not in blamed]
 
 
-def run(canaries: Sequence[Canary] = CANARIES, backends=None) -> SelfTest:
-    """Evaluate each canary's state once with every backend (the default gate's backends and the case's closed form,
-    without charts, frames or conservation), leave out any backend that disagrees there without a fault
-    (:func:`_clean`), and judge each canary there."""
+def _model_canary(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Formalism]) -> CanaryResult:
+    """A closed-forms canary: the model every backend reads with body ``index``'s mass off (module doc); the backends
+    evaluated are those that prepare nothing for a new model (no symbolic derivation), with the case's closed form."""
+    bodies = list(setup.model.bodies)
+    body = bodies[canary.index]
+    bodies[canary.index] = dataclasses.replace(body, mass=body.mass * (1.0 + canary.size))
+    wrong = dataclasses.replace(setup.model, bodies=tuple(bodies))
+    numeric = [b for b in chosen if b.preparation is None and b.prepare is None]
+    outcome = dataclasses.replace(setup, model=wrong).evaluate(state, numeric)
+    return _judge(canary, outcome)
+
+
+def _coverage_canary(canary: Canary) -> CanaryResult:
+    """A coverage canary: the case's gate sample (``crosscheck.engine.specs.DEFAULT_SAMPLES`` states) made degenerate
+    by the canary's kind; caught when coverage names a problem."""
+    from crosscheck.engine.specs import DEFAULT_SAMPLES
+
+    model = cases.load(canary.case)
+    states = sample_states(model, DEFAULT_SAMPLES, SEED, canary.case)
+    states = [_degenerate(canary, states, s) for s in states]
+    problems = coverage.measure(model, states).problems
+    return CanaryResult(canary, bool(problems), bool(problems), float(len(problems)),
+                        problems[0] if problems else "-")
+
+
+def _degenerate(canary: Canary, states: Sequence[State], s: State) -> State:
+    if canary.kind == "repeated":
+        return dataclasses.replace(states[1], index=s.index)
+    if canary.kind == "rates never sampled":
+        return dataclasses.replace(s, qd=(0.0,) * len(s.qd))
+    if canary.kind == "sliver":
+        k, centre = canary.index, states[0].q[canary.index]
+        span = coverage.REVOLUTE_SPAN
+        q = list(s.q)
+        q[k] = centre + (q[k] - centre) * SLIVER_WIDTH * span / max(np.ptp([t.q[k] for t in states]), 1e-300)
+        return dataclasses.replace(s, q=tuple(q))
+    raise ValueError(f"unknown coverage canary kind '{canary.kind}'")
+
+
+def _one(canary: Canary, chosen: Sequence[Formalism], evaluated: dict) -> CanaryResult | str:
+    """The canary's result, or the name of its state when the state is unusable."""
+    if canary.check == "coverage":
+        return _coverage_canary(canary)
+    setup = _setup(canary)
+    state = sample_states(setup.model, STATES, SEED, canary.case)[canary.state]
+    if canary.check == "closed forms":
+        return _model_canary(canary, setup, state, chosen)
+    key = (canary.case, canary.state, canary.check)
+    if key not in evaluated:
+        evaluated[key] = _clean(canary, setup, state, chosen)
+    kept = evaluated[key]
+    if kept is None:
+        return f"{canary.case} #{canary.state} ({canary.check})"
+    if canary.backend not in [b.name for b in kept]:
+        return CanaryResult(canary, False, False, 0.0, "-", f"{canary.backend} disagrees at this state without a "
+                            "fault")
+    backends = [faulty(canary, b, setup.model) if b.name == canary.backend else b for b in kept]
+    return _judge(canary, setup.evaluate(state, backends))
+
+
+def run(canaries: Iterable[Canary] | None = None, backends=None, checks: Checks = Checks()) -> SelfTest:
+    """Judge each canary (:data:`CANARIES` by default) whose check ``checks`` switches on (the others are listed as
+    skipped) among ``backends`` (default: every built-in backend, whatever the run's): its state evaluated once clean
+    (a backend that disagrees there without a fault is left out, :func:`_clean`), then with the fault. An exception
+    of the harness while a canary runs is that canary's internal error, never the run's end."""
     chosen = ([backend_registry.get(name) for name in backend_registry.builtin_names()] if backends is None
               else list(backends))
     results, evaluated, unusable = [], {}, []
-    for canary in canaries:
-        key = (canary.case, canary.state)
-        if key not in evaluated:
-            setup = CaseSetup.build(CaseSpec(canary.case), SEED, Checks(charts=False, frames=0, conservation=False,
-                                                                        self_test=False, linearization=False))
-            state = sample_states(setup.model, STATES, SEED, canary.case)[canary.state]
-            evaluated[key] = (setup.model, _clean(setup.model, setup.evaluate(state, chosen)))
-            if evaluated[key][1] is None:
-                unusable.append(f"{canary.case} #{canary.state}")
-        model, outcome = evaluated[key]
-        if outcome is not None:
-            results.append(_judge(canary, model, outcome))
+    for canary in CANARIES if canaries is None else canaries:
+        if not switched_on(canary.check, checks):
+            results.append(CanaryResult(canary, False, False, 0.0, "-", f"the {canary.check} check is off"))
+            continue
+        try:
+            found = _one(canary, chosen, evaluated)
+        except Exception as exc:  # noqa: BLE001 - the harness failing in a canary is reported, by check
+            found = CanaryResult(canary, False, False, 0.0, "-", error=f"{type(exc).__name__}: {exc}")
+        if isinstance(found, str):
+            unusable += [found] if found not in unusable else []
+        else:
+            results.append(found)
     return SelfTest(tuple(results), tuple(unusable))

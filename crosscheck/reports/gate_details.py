@@ -275,16 +275,23 @@ def _self_test_section(result: GateResult) -> list[str]:
     if test is None:
         return ["## Self-test", "", "Skipped (`--no-self-test`): this run did not prove it can see small errors.", ""]
     lines = ["## Self-test: canaries", "",
-             "Known tiny faults injected into one backend's answer at fixed states; each must be caught and its "
-             "backend named, or the gate has lost sensitivity. Sizes are calibrated so that each is caught at "
-             "2 to 10 times its tolerance: a tolerance loosened tenfold misses them.", "",
-             "| canary | case | backend | caught by | error/tolerance | named | verdict |",
+             "A known tiny fault per check of the gate (the comparisons, the multipliers on cases with several "
+             "constraint rows, the charts, the moved scenes, conservation, the linearizations and equilibria, the "
+             "conditions audit, the closed forms, the sampling coverage), each run through that check as the gate "
+             "runs it: the check itself must catch it and name the faulty voter, or it has lost its power. Sizes are "
+             "calibrated so that each is caught at 2 to 10 times its tolerance: a check loosened tenfold misses them.",
+             "",
+             "| check | canary | case | caught by | error/tolerance | named | verdict |",
              "|---|---|---|---|---|---|---|"]
     for r in test.results:
         c = r.canary
         size = f" ({c.size:.0e})" if c.size else ""
-        verdict = f"skipped: {r.skipped}" if r.skipped else "ok" if r.passed else "**FAIL**"
-        lines.append(f"| {c.kind}{size} | {c.case} #{c.state} | {c.backend} | {r.quantity} | {r.ratio:.3g} | "
+        what = f"{c.kind}{size}" + (f" of {c.quantity}" if c.quantity else "") + (f" in {c.backend}" if c.backend
+                                                                                  else "")
+        verdict = (f"**internal error**: {r.error}" if r.error else f"skipped: {r.skipped}" if r.skipped
+                   else "ok" if r.passed else "**FAIL**")
+        ratio = "-" if c.check == "coverage" or r.skipped else f"{r.ratio:.3g}"
+        lines.append(f"| {c.check} | {what} | {c.case} #{c.state} | {r.where.replace('|', '/')} | {ratio} | "
                      f"{'yes' if r.named else 'no'} | {verdict} |")
     return lines + [""] + [f"- **{line}**" for line in test.failures()] + ([""] if test.failures() else [])
 

@@ -244,7 +244,16 @@ def self_test_line(result: GateResult) -> str:
     if test is None:
         return "- self-test: " + ("not run (interrupted)" if result.interrupted and result.checks.self_test
                                   else "skipped")
-    return f"- self-test: {sum(r.passed for r in test.results)} of {len(test.results)} canaries caught and named"
+    return f"- self-test: {canary_count(test)}"
+
+
+def canary_count(test) -> str:
+    """How many canaries were caught and named, of those run, and over how many checks."""
+    judged = [r for r in test.results if not r.skipped]
+    checks = {r.canary.check for r in judged}
+    skipped = len(test.results) - len(judged)
+    return (f"{sum(r.passed for r in judged)} of {len(judged)} canaries caught and named, over {len(checks)} checks"
+            + (f" ({skipped} not run: their check is off)" if skipped else ""))
 
 
 def verdict_text(result: GateResult) -> str:

@@ -140,8 +140,9 @@ def _run_suite(root: ET.Element, name: str, cases: list[tuple[str, str]]) -> dic
 def _self_test_cases(result: GateResult) -> list[tuple[str, str]]:
     test = result.self_test
     out = [(f"unusable state {where}", "the backends disagree there without any fault") for where in test.unusable]
-    return out + [(r.canary.describe(), "" if r.passed else ("not caught" if not r.caught else "not named")
-                   + f" (error/tolerance {r.ratio:.3g})") for r in test.results]
+    return out + [(f"{r.canary.check}: {r.canary.describe()}", "" if r.passed else (
+        f"internal error {r.error}" if r.error else ("not caught" if not r.caught else "not named")
+        + f" (error/tolerance {r.ratio:.3g})")) for r in test.results]
 
 
 def to_xml(result: GateResult) -> ET.ElementTree:

@@ -1,13 +1,19 @@
-"""Self-test canaries (crosscheck.guards.selftest): every canary is caught and named at a calibrated ratio, and the harness
-faults they exist for (a loosened tolerance, a signed difference, NaN as agreement, a broken vote) make them fail."""
+"""Self-test canaries (crosscheck.guards.selftest): every check of the gate has a canary, every canary is caught by
+its own check and names its voter at a calibrated ratio, and each check switched off, loosened tenfold or failing
+makes its canaries fail (the harness faults they exist for)."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 
+from crosscheck.checks import conservation, equilibria, invariance, linearization
 from crosscheck.core import compare, tolerance
-from crosscheck.guards import selftest
+from crosscheck.engine.specs import Checks
+from crosscheck.guards import conditioning, coverage, selftest
+from crosscheck.references import closed_forms
 
 
 @pytest.fixture(scope="module")
@@ -15,15 +21,30 @@ def clean() -> selftest.SelfTest:
     return selftest.run()
 
 
-def test_every_canary_is_caught_and_named(clean):
+def of(check: str) -> list[selftest.Canary]:
+    return [c for c in selftest.CANARIES if c.check == check]
+
+
+def test_every_canary_is_caught_by_its_check_and_named(clean):
     assert clean.passed, clean.failures()
-    assert {r.canary.kind for r in clean.results} == {"mass matrix", "velocity products", "gravity", "one entry",
-                                                     "multiplier sign", "not a number"}
+    assert not any(r.skipped for r in clean.results)
+    assert {r.canary.check for r in clean.results} == set(selftest.CHECKS)
+
+
+def test_each_canary_is_caught_in_its_own_check(clean):
+    """Where a canary was caught is a comparison its check owns (the momentum canary by the momentum rows)."""
+    for r in clean.results:
+        c = r.canary
+        if c.check in ("comparisons", "closed forms", "coverage"):
+            continue
+        prefix = {"charts": "chart ", "frames": "frame", "conservation": "conservation: ", "conditions": "conditions: ",
+                  "linearization": "linearization: ", "equilibria": "equilibrium ", "multipliers": c.quantity}[c.check]
+        assert r.where.startswith(prefix) and c.key in r.where, (c, r.where)
 
 
 def test_sized_canaries_are_caught_within_their_calibration(clean):
     """Caught with a margin (ratio >= 2: rounding, below 0.1 on these states, cannot fake a catch) and at most
-    CALIBRATED times the tolerance, so that a tolerance loosened that much misses them."""
+    CALIBRATED times the tolerance, so that a check loosened that much misses them."""
     for r in clean.results:
         if r.canary.size:
             assert 2.0 <= r.ratio <= selftest.CALIBRATED, (r.canary.describe(), r.ratio)
@@ -31,16 +52,87 @@ def test_sized_canaries_are_caught_within_their_calibration(clean):
 
 def test_the_3d_canaries_are_the_issues_claim(clean):
     """On the 3-D spatial arm a relative 1e-10 error in C qd and in g, and a smaller one in M, are caught."""
-    sizes = {r.canary.kind: r.canary.size for r in clean.results if r.canary.case == "spatial_arm"}
+    sizes = {r.canary.kind: r.canary.size for r in clean.results
+             if r.canary.case == "spatial_arm" and r.canary.check == "comparisons"}
     assert sizes["velocity products"] <= 1e-10 and sizes["gravity"] <= 1e-10 and sizes["mass matrix"] <= 1e-10
+
+
+def test_the_multipliers_canaries_sit_on_cases_with_several_rows():
+    import cases
+
+    assert all(cases.load(c.case).k >= 2 for c in of("multipliers"))
+    assert {c.quantity for c in of("multipliers")} >= {"lam", "constraint_force", "power_constr"}
+
+
+def _loosened(module):
+    """``module``'s ``compare`` with every tolerance ten times larger."""
+    real = module.compare
+    return lambda quantity, values, tol, *args, **kw: real(quantity, values, 10.0 * np.asarray(tol), *args, **kw)
+
+
+def _no_problems(measure):
+    return lambda model, states: dataclasses.replace(measure(model, states), problems=())
+
+
+#: check -> (what switches it off, what loosens it tenfold): (module, attribute, replacement of the original).
+BREAKS = {
+    "charts": ((invariance, "chart_checks", lambda f: lambda *a, **k: {}), (invariance, "compare", None)),
+    "frames": ((invariance, "frame_checks", lambda f: lambda *a, **k: {}), (invariance, "compare", None)),
+    "conservation": ((conservation, "checks", lambda f: lambda *a, **k: {}), (conservation, "compare", None)),
+    "linearization": ((linearization, "checks", lambda f: lambda *a, **k: ({}, {})), (linearization, "compare", None)),
+    "equilibria": ((equilibria, "checks", lambda f: lambda *a, **k: ({}, {})), (equilibria, "compare", None)),
+    "conditions": ((conditioning, "audit", lambda f: lambda *a, **k: {}), (conditioning, "compare", None)),
+    "closed forms": ((closed_forms, "voter", lambda f: lambda *a, **k: None),
+                     (tolerance, "TOLERANCES", lambda t: {q: (kind, 10.0 * factor) for q, (kind, factor) in t.items()})),
+    "multipliers": ((tolerance, "quantities", lambda f: lambda model: [q for q in f(model) if q not in (
+        "lam", "lam_drift", "constraint_force", "power_constr")]),
+                    (tolerance, "TOLERANCES", lambda t: {q: (kind, 10.0 * factor if q in (
+                        "lam", "lam_drift", "constraint_force", "power_constr") else factor)
+                        for q, (kind, factor) in t.items()})),
+    "coverage": ((coverage, "measure", _no_problems), (coverage, "SLIVER", lambda value: value / 10.0)),
+}
+
+
+def test_every_check_has_a_break_below():
+    assert set(BREAKS) == set(selftest.CHECKS) - {"comparisons"}
+
+
+@pytest.mark.parametrize("how", ["off", "loosened tenfold"])
+@pytest.mark.parametrize("check", sorted(BREAKS))
+def test_a_check_switched_off_or_loosened_fails_its_canaries(monkeypatch, check, how):
+    module, name, replace = BREAKS[check][0 if how == "off" else 1]
+    if check == "coverage" and how != "off":
+        canaries = [c for c in of(check) if c.kind == "sliver"]      # the one canary of coverage with a bound
+    else:
+        canaries = of(check)
+    original = getattr(module, name)
+    monkeypatch.setattr(module, name, _loosened(module) if replace is None else replace(original))
+    result = selftest.run(canaries)
+    assert not result.passed
+    assert all(not r.passed for r in result.results), [(r.canary, r.ratio) for r in result.results if r.passed]
+    assert all(check in line for line in result.failures())
+
+
+def test_a_check_raising_is_its_canarys_internal_error(monkeypatch):
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a fault in the energy bookkeeping")
+
+    monkeypatch.setattr(conservation, "checks", broken)
+    result = selftest.run(of("conservation"))
+    assert not result.passed and all("conservation" in line for line in result.failures())
+
+
+def test_a_check_switched_off_in_the_run_skips_its_canaries():
+    result = selftest.run(of("charts") + of("frames"), checks=Checks(charts=False, frames=0))
+    assert result.passed and all("off" in r.skipped for r in result.results)
 
 
 def test_a_tolerance_loosened_tenfold_is_caught(monkeypatch):
     loose = {q: (kind, 10.0 * factor) for q, (kind, factor) in tolerance.TOLERANCES.items()}
     monkeypatch.setattr(tolerance, "TOLERANCES", loose)
-    result = selftest.run()
+    result = selftest.run(of("comparisons"))
     assert not result.passed
-    assert any("lost sensitivity" in line for line in result.failures())
+    assert any("lost its power" in line for line in result.failures())
 
 
 def test_a_signed_difference_in_the_comparison_is_caught(monkeypatch):
@@ -53,17 +145,17 @@ def test_a_signed_difference_in_the_comparison_is_caught(monkeypatch):
         return V[i] - V[j]
 
     monkeypatch.setattr(compare, "_pairwise", signed)
-    assert not selftest.run().passed
+    assert not selftest.run(of("comparisons")).passed
 
 
 def test_nan_counted_as_agreement_is_caught(monkeypatch):
     real = compare._ratios
     monkeypatch.setattr(compare, "_ratios", lambda d, t: np.nan_to_num(real(d, t), nan=0.0))
-    result = selftest.run()
+    result = selftest.run(of("comparisons"))
     assert [r.canary.kind for r in result.results if not r.passed] == ["not a number"]
 
 
 def test_a_vote_that_names_the_wrong_backend_is_caught(monkeypatch):
     monkeypatch.setattr(compare, "_outlier", lambda names, pairs: names[0] if len(names) >= 3 else None)
-    result = selftest.run()
+    result = selftest.run(of("comparisons"))
     assert not result.passed and any("not named" in line for line in result.failures())
