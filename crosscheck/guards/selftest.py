@@ -26,7 +26,9 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   - ``extra``: the extra ``quantity`` (Pinocchio's ``C qd``, which the Christoffel identity reads) off by ``size``;
 
 * in a backend's chart-native answer (``split_chart``; check ``charts``) or its answer in the moved scene (``split``
-  on the moved model; check ``frames``): ``mass matrix`` there;
+  on the moved model; check ``frames``): ``mass matrix`` or ``extra`` there; or ``gravity unrotated``: the backend
+  evaluates the moved scene with its gravity turned back towards the unmoved scene's by the share ``size`` (a frame
+  check that compares a scene with itself, unmoved, cannot see it);
 * in a backend's linearization (``linearize``; checks ``linearization``, ``equilibria``): ``stiffness``, the block
   ``dvdot/dq`` off by a relative ``size`` (the equilibria's eigenvalues move by about ``size / 2``);
 * in the model every backend reads (check ``closed forms``): ``mass``, body ``index``'s mass off by a relative
@@ -88,7 +90,8 @@ class Canary:
         what = {"mass matrix": "M", "velocity products": "C qd", "gravity": "g", "one entry": "one drift entry",
                 "entry": f"{self.quantity}[{self.index}]", "condition": f"the condition {self.quantity}",
                 "extra": f"its {self.quantity}", "stiffness": "dvdot/dq",
-                "mass": f"the mass of body {self.index} of the model"}.get(self.kind)
+                "mass": f"the mass of body {self.index} of the model",
+                "gravity unrotated": "the moved scene's gravity (turned back)"}.get(self.kind)
         fault = f"a relative {self.size:.0e} error in {what}" if what else self.kind
         place = {"charts": " in a chart", "frames": " in a moved scene"}.get(self.check, "")
         if self.check == "coverage":
@@ -118,8 +121,11 @@ CANARIES: tuple[Canary, ...] = (
     Canary("multipliers", "double_pendulum_absolute_loop", 3, "newton_euler", "entry", 6e-9, "lam_drift", 2),
     Canary("charts", "double_pendulum", 3, "geometric", "mass matrix", 1.5e-11),
     Canary("charts", "spatial_arm", 27, "euler_lagrange", "mass matrix", 6e-10),
+    Canary("charts", "ball_pendulum", 3, "geometric", "mass matrix", 8e-12),
     Canary("frames", "double_pendulum", 3, "screw", "mass matrix", 5e-11),
     Canary("frames", "spatial_arm", 27, "newton_euler", "mass matrix", 1e-10),
+    Canary("frames", "spatial_arm", 27, "newton_euler", "gravity unrotated", 3e-10),
+    Canary("frames", "spatial_arm", 27, "screw", "extra", 2e-6, "wrenches_space", key="frame law"),
     Canary("conservation", "double_pendulum", 3, "newton_euler", "gravity", 8e-11, key="energy"),
     Canary("conservation", "double_pendulum", 3, "pinocchio", "extra", 1e-9, "Cqd", key="C qd"),
     Canary("conservation", "free_body", 3, "screw", "velocity products", 1.5e-10, key="momentum"),
@@ -163,8 +169,8 @@ def switched_on(check: str, checks: Checks) -> bool:
 
 @dataclass(frozen=True)
 class CanaryResult:
-    """A canary against its check: ``caught`` (a comparison of the check DISAGREEs), ``named`` (the vote names the
-    faulty voter its outlier: the canary's backend, or the closed form against a wrong model), the worst
+    """A canary against its check: ``caught`` (a comparison of the check DISAGREEs), ``named`` (the vote points at the
+    faulty voter, :func:`_points_at`: the canary's backend, or the closed form against a wrong model), the worst
     error/tolerance ratio of the check and ``where``, the comparison that had it. ``skipped`` says why a canary was
     not judged (its check is off in this run, or its backend already disagrees at the state without any fault: a real
     bug there, which the gate reports on its own cases); ``error``, the internal error that stopped it."""
@@ -261,6 +267,12 @@ def inject(canary: Canary, split, reference=None, qd=None):
     raise ValueError(f"unknown canary kind '{kind}'")
 
 
+def _unrotated(canary: Canary, moved, model):
+    """The moved scene with its gravity turned back towards the unmoved scene's by the share ``size``."""
+    gravity = np.asarray(moved.gravity, dtype=float)
+    return dataclasses.replace(moved, gravity=gravity + canary.size * (np.asarray(model.gravity) - gravity))
+
+
 def _stiffer(canary: Canary, lin: Linearization, nv: int) -> Linearization:
     A = np.array(lin.A)
     A[nv:, :nv] *= 1.0 + canary.size
@@ -273,9 +285,11 @@ def faulty(canary: Canary, backend: Formalism, model) -> Formalism:
     reference = backend_registry.get("pinocchio")
 
     def split(m, q, qd, u):
-        answer = backend.split(m, q, qd, u)
         if canary.check == "frames" and m is model:
-            return answer
+            return backend.split(m, q, qd, u)
+        if canary.kind == "gravity unrotated":
+            return backend.split(_unrotated(canary, m, model), q, qd, u)
+        answer = backend.split(m, q, qd, u)
         needs = canary.kind in ("velocity products", "gravity")
         return inject(canary, answer, reference.split(m, q, qd, u) if needs else None, qd)
 
@@ -296,6 +310,14 @@ def _family(canary: Canary, outcome) -> dict:
     return {key: c for key, c in getattr(outcome, where).items() if owns(key, canary) and canary.key in key}
 
 
+def _points_at(comparison, voter: str) -> bool:
+    """Whether the vote names ``voter``: its outlier, or the one voter behind a comparison of its own answers (a frame
+    law: its prediction against its moved answer)."""
+    if comparison.outlier is not None:
+        return backend_of(comparison.outlier) == voter
+    return {backend_of(v) for v in comparison.voters} == {voter}
+
+
 def _judge(canary: Canary, outcome) -> CanaryResult:
     """Whether the canary's check caught it at ``outcome`` (the state evaluated with the fault) and named its
     voter."""
@@ -305,7 +327,7 @@ def _judge(canary: Canary, outcome) -> CanaryResult:
     where = max(pool, key=lambda k: np.nan_to_num(pool[k].worst_ratio, nan=np.inf), default="-")
     ratio = pool[where].worst_ratio if pool else 0.0
     voter = _faulty_voter(canary)
-    named = any(c.outlier is not None and backend_of(c.outlier) == voter for c in failing.values())
+    named = any(_points_at(c, voter) for c in failing.values())
     return CanaryResult(canary, bool(failing), named, float(ratio), where)
 
 
@@ -318,13 +340,13 @@ def _setup(canary: Canary) -> CaseSetup:
 
 
 def _clean(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Formalism]):
-    """The backends the canary can be judged among: ``chosen`` without those that disagree in the canary's check at
-    the state without any fault (each named by the vote); None when the state disagrees there and no single backend
-    explains it."""
+    """The backends the canary can be judged among: ``chosen`` without the one backend that disagrees in the canary's
+    check at the state without any fault (named by the vote: a real bug, which the gate reports on its own cases); None
+    when the state disagrees there and no single backend explains it (shared code every backend moves with)."""
     outcome = setup.evaluate(state, chosen)
     blamed = {suspect(c) for c in _family(canary, outcome).values() if c.verdict == DISAGREE}
     blamed |= {backend_of(name) for name in outcome.errors}
-    if None in blamed:
+    if None in blamed or len(blamed) > 1:
         return None
     return [b for b in chosen if b.name not in blamed]
 

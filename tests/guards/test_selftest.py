@@ -113,6 +113,20 @@ def test_a_check_switched_off_or_loosened_fails_its_canaries(monkeypatch, check,
     assert all(check in line for line in result.failures())
 
 
+def test_a_frame_check_comparing_a_scene_with_itself_is_caught(monkeypatch):
+    """A moved scene that is a copy of the unmoved one: the canary whose backend leaves gravity unrotated in the moved
+    scene is not caught, and where a frame law expects the extras turned every backend disagrees without a fault."""
+    from crosscheck.checks import frames
+
+    monkeypatch.setattr(frames, "move_scene", lambda model, frame: dataclasses.replace(model))
+    monkeypatch.setattr(invariance, "FRAME_LAWS", {})
+    result = selftest.run([c for c in of("frames") if c.key != "frame law"])
+    assert [r.canary.kind for r in result.results if not r.passed] == ["gravity unrotated"]
+    monkeypatch.undo()
+    monkeypatch.setattr(frames, "move_scene", lambda model, frame: dataclasses.replace(model))
+    assert not selftest.run(of("frames")).passed
+
+
 def test_a_check_raising_is_its_canarys_internal_error(monkeypatch):
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a fault in the energy bookkeeping")
