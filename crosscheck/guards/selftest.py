@@ -92,7 +92,7 @@ class Canary:
                 "extra": f"its {self.quantity}", "stiffness": "dvdot/dq",
                 "mass": f"the mass of body {self.index} of the model",
                 "gravity unrotated": "the moved scene's gravity (turned back)"}.get(self.kind)
-        fault = f"a relative {self.size:.0e} error in {what}" if what else self.kind
+        fault = f"a relative {self.size:.2g} error in {what}" if what else self.kind
         place = {"charts": " in a chart", "frames": " in a moved scene"}.get(self.check, "")
         if self.check == "coverage":
             return f"{fault} in the sample of {self.case}"

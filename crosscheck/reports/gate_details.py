@@ -285,14 +285,14 @@ def _self_test_section(result: GateResult) -> list[str]:
              "|---|---|---|---|---|---|---|"]
     for r in test.results:
         c = r.canary
-        size = f" ({c.size:.0e})" if c.size else ""
+        size = f" ({c.size:.2g})" if c.size else ""
         what = f"{c.kind}{size}" + (f" of {c.quantity}" if c.quantity else "") + (f" in {c.backend}" if c.backend
                                                                                   else "")
         verdict = (f"**internal error**: {r.error}" if r.error else f"skipped: {r.skipped}" if r.skipped
                    else "ok" if r.passed else "**FAIL**")
         ratio = "-" if c.check == "coverage" or r.skipped else f"{r.ratio:.3g}"
         lines.append(f"| {c.check} | {what} | {c.case} #{c.state} | {r.where.replace('|', '/')} | {ratio} | "
-                     f"{'yes' if r.named else 'no'} | {verdict} |")
+                     f"{'-' if c.check == 'coverage' else 'yes' if r.named else 'no'} | {verdict} |")
     return lines + [""] + [f"- **{line}**" for line in test.failures()] + ([""] if test.failures() else [])
 
 

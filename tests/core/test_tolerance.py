@@ -125,16 +125,22 @@ def test_3d_cases_see_a_relative_1e_10_error_in_m_c_qd_and_g(case):
     the self-test canaries are). 40 states: the error in C qd shows at only 16 of the Panda's first 99 states (within
     its joint limits; 23 of 99 on spatial_arm), so 40 miss it with probability 0.84^40 < 1e-3 (20 with 3 %: the
     Panda's first 20 within its limits do; tests/faults/test_sensitivity.py, STATES)."""
-    from crosscheck.guards import selftest
     from crosscheck.core.sampling import sample_states
+    from crosscheck.engine.evaluation import compare_all
+    from crosscheck.engine.outcomes import StateOutcome
+    from crosscheck.guards import selftest
 
     model = cases.load(case)
     caught = dict.fromkeys(("mass matrix", "velocity products", "gravity"), 0)
     for state in sample_states(model, 40, 0, case)[1:]:
         outcome = evaluate(model, state, ALL)
         for kind in caught:
-            canary = selftest.Canary(case, state.index, "newton_euler", kind, 1e-10)
-            caught[kind] += selftest._judge(canary, model, outcome).passed
+            canary = selftest.Canary("comparisons", case, state.index, "newton_euler", kind, 1e-10)
+            splits = {**outcome.splits, "newton_euler": selftest.inject(canary, outcome.splits["newton_euler"],
+                                                                        outcome.splits["pinocchio"])}
+            faulty = StateOutcome(state, splits, {}, {}, dict(outcome.breakdowns))
+            compare_all(model, faulty)
+            caught[kind] += selftest._judge(canary, faulty).passed
     assert all(caught.values()), caught
 
 
