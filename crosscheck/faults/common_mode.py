@@ -241,6 +241,39 @@ def _world_loads_validated_as_body(validate):
     return faulty
 
 
+_SAMPLERS = ("crosscheck.core.sampling:sample_states", "crosscheck.engine.run:sample_states",
+             "crosscheck.faults.injection:sample_states", "crosscheck.faults.common_mode:sample_states",
+             "crosscheck.guards.selftest:sample_states")
+
+
+def _sample_changed(change):
+    """A replacement for ``sample_states`` (at each of :data:`_SAMPLERS`) that alters the drawn states."""
+    def replace(sample):
+        def faulty(model, count, seed, case, **options):
+            return change(model, sample(model, count, seed, case, **options))
+        return faulty
+    return replace
+
+
+def _pinned(model, states):
+    """The last coordinate of q left at its home value (state 0's) in every state."""
+    k = model.nq - 1
+    return [dataclasses.replace(s, q=s.q[:k] + (states[0].q[k],) + s.q[k + 1:]) for s in states]
+
+
+def _repeated(model, states):
+    """Every state after the second a copy of the second."""
+    return states[:2] + [dataclasses.replace(states[1], index=s.index) for s in states[2:]]
+
+
+MULTIPLIER_QUANTITIES = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr")
+
+
+def _times_cond_S(tolerance_of):
+    """``tolerance.tolerance`` with the multipliers' quantities multiplied by cond(S) once more."""
+    return lambda quantity, at: tolerance_of(quantity, at) * (at.cond_S if quantity in MULTIPLIER_QUANTITIES else 1.0)
+
+
 CATALOG: list[SharedFault] = [
     SharedFault("urdf-joint-rotation-transposed", "URDF conversion",
                 "The URDF loader stores each joint placement's rotation transposed (parent <- child read as child "
@@ -354,6 +387,55 @@ CATALOG: list[SharedFault] = [
                 "(against 0 under the drift), as if only gravity and the inputs acted.",
                 ("crosscheck.checks.conservation:_external_power",), lambda f: lambda model, split: 0.0,
                 "the energy-rate conservation checks"),
+    SharedFault("tolerance-multipliers-times-cond-S", "tolerance",
+                "The multipliers' tolerance counts cond(S) twice: lam, lam_drift, the constraint forces and the "
+                "constraint power are held to cond(S) times their bound (4 to 40 on the built-in cases with several "
+                "rows).",
+                ("crosscheck.core.tolerance:tolerance",), _times_cond_S,
+                "the self-test canaries (the multipliers on cases with several rows)"),
+    SharedFault("charts-every-chart-left-out", "charts",
+                "The chart check's gimbal-lock test leaves out every chart (the limit on cond(Dpsi) taken as 0), so "
+                "no chart is ever compared.",
+                ("crosscheck.checks.invariance:chart_checks",),
+                lambda f: lambda *args, **kw: f(*args, **{**kw, "limit": 0.0}), "the self-test canaries (charts)"),
+    SharedFault("frames-scene-not-moved", "frames",
+                "The moved scene is a copy of the unmoved one (the frame's rotation and translation dropped), so the "
+                "frame checks compare each scene with itself.",
+                ("crosscheck.checks.frames:move_scene",), lambda f: lambda model, frame: dataclasses.replace(model),
+                "the self-test canaries (frames)"),
+    SharedFault("conservation-tolerance-tenfold", "conservation",
+                "The conservation checks' safety factor is 1000, not 100 (energy rate, Christoffel identities, "
+                "momentum).",
+                ("crosscheck.checks.conservation:FACTOR",), lambda value: 10.0 * value,
+                "the self-test canaries (conservation)"),
+    SharedFault("linearization-tolerance-tenfold", "linearization",
+                "The linearization checks' safety factor is 1000, not 100 (and so the equilibria's bound).",
+                ("crosscheck.checks.linearization:FACTOR",), lambda value: 10.0 * value,
+                "the self-test canaries (linearization, equilibria)"),
+    SharedFault("equilibria-none-found", "linearization",
+                "The equilibria table is looked up under the wrong key, so no case has an equilibrium and the "
+                "eigenvalues of A are never checked against physics.",
+                ("crosscheck.checks.equilibria:of_case",), lambda f: lambda case, params=None: (),
+                "the self-test canaries (equilibria)"),
+    SharedFault("conditions-audit-saturated", "conditions audit",
+                "The conditions audit saturates every condition at 1 before comparing (the limit taken as 0), so a "
+                "backend's reported condition is never compared with the harness's own.",
+                ("crosscheck.guards.conditioning:_saturated",), lambda f: lambda name, value: 0.0,
+                "the self-test canaries (conditions)"),
+    SharedFault("closed-forms-never-found", "closed forms",
+                "The closed forms are looked up under a wrong name, so no case gets its closed-form voter.",
+                ("crosscheck.references.closed_forms:voter",), lambda f: lambda case, params=None: None,
+                "the self-test canaries (closed forms)"),
+    SharedFault("coverage-sliver-bound-tenfold", "coverage",
+                "The sliver bound of the sampling coverage is 0.01 of a coordinate's span, not 0.1.",
+                ("crosscheck.guards.coverage:SLIVER",), lambda value: value / 10.0,
+                "the self-test canaries (coverage)"),
+    SharedFault("sampling-last-coordinate-pinned", "sampling",
+                "The sampler never draws the last coordinate of q: it stays at its home value in every state.",
+                _SAMPLERS, _sample_changed(_pinned), "the sampling coverage"),
+    SharedFault("sampling-states-repeated", "sampling",
+                "The sampler's generator is re-seeded after the second state, so every later state repeats it.",
+                _SAMPLERS, _sample_changed(_repeated), "the sampling coverage"),
     SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
                 "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
                 "on the left) instead of dv - ad_v dq, on ball and free joints.",

@@ -20,6 +20,7 @@ and are computed once (:class:`_Cached`).
 from __future__ import annotations
 
 import dataclasses
+from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -48,6 +49,12 @@ FAMILIES = {"planar": ("double_pendulum", "n_link_pendulum", "acrobot"),
 #: The 3-D cases of the claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
 CLAIMED = ("spatial_arm", "panda")
 CLAIM = 1e-10
+#: The multipliers' term: every backend's lam and lam_drift scaled by ``1 + size`` in its answer (as a multiplier solve
+#: off by that much), measured on the default gate's cases with several constraint rows, where the multipliers'
+#: tolerance carries cond(S) (4 to 40 there) and a loosened one would hide the most.
+MULTIPLIERS = "lam"
+MULTI_ROW = ("four_bar", "slider_crank", "double_pendulum_absolute_loop", "solo12_standing", "rolling_disk",
+             "differential_drive")
 
 
 def _scaled(term: str, size: float, M, Cqd, g):
@@ -148,6 +155,15 @@ class _Cached:
         return Formalism(b.name, b.summary, lambda *args: self._call(b.split, *args), chart)
 
 
+def _multipliers_scaled(split: Callable, size: float) -> Callable:
+    """``split`` with its lam and lam_drift scaled by ``1 + size``."""
+    def faulty(*args):
+        s = split(*args)
+        return dataclasses.replace(s, lam=(1.0 + size) * np.asarray(s.lam), lam_drift=(1.0 + size) * np.asarray(
+            s.lam_drift))
+    return faulty
+
+
 def _worst(outcome: StateOutcome) -> tuple[float, str]:
     """The largest error/tolerance ratio of every comparison and check at a state (NaN and an error count as inf),
     and where."""
@@ -180,7 +196,7 @@ class Session:
 
     def __init__(self, backends: Sequence[Formalism], states: int = 30, seed: int = 0, checks: Checks = Checks(),
                  cases: Sequence[str] | None = None):
-        names = [c for family in FAMILIES.values() for c in family] if cases is None else list(cases)
+        names = list(dict.fromkeys([c for family in FAMILIES.values() for c in family] if cases is None else cases))
         self.setups = {name: CaseSetup.build(CaseSpec(name), seed, dataclasses.replace(checks, self_test=False))
                        for name in names}
         self.states = {name: sample_states(s.model, states, seed, name) for name, s in self.setups.items()}
@@ -190,15 +206,20 @@ class Session:
         return [backend if name == faulty else c.formalism() for name, c in self.cached.items()]
 
     def measure(self, backend: str, term: str, case: str, count: int | None = None) -> Measurement:
-        """:class:`Measurement` of ``term`` in ``backend`` on ``case`` (module doc), over the case's first ``count``
-        states (all the session drew by default)."""
-        target, hook = TERM_HOOKS[backend]
+        """:class:`Measurement` of ``term`` in ``backend`` on ``case`` (module doc; :data:`MULTIPLIERS`: its
+        multipliers), over the case's first ``count`` states (all the session drew by default)."""
         setup, states = self.setups[case], self.states[case][:count]
+        original = self.cached[backend].backend
 
         def worst_at(size: float, among) -> tuple[float, str, int]:
-            with injection.patched(f"sensitivity-{backend}", target, hook(term, size)):
-                chosen = self._backends(backend, self.cached[backend].backend)
-                found = [(*_worst(setup.evaluate(s, chosen)), s.index) for s in among]
+            with ExitStack() as stack:
+                faulty = original
+                if term == MULTIPLIERS:
+                    faulty = dataclasses.replace(original, split=_multipliers_scaled(original.split, size))
+                else:
+                    target, hook = TERM_HOOKS[backend]
+                    stack.enter_context(injection.patched(f"sensitivity-{backend}", target, hook(term, size)))
+                found = [(*_worst(setup.evaluate(s, self._backends(backend, faulty))), s.index) for s in among]
             return max(found, default=(0.0, "-", -1))
 
         ratio, key, best = worst_at(PROBE, states)
@@ -230,7 +251,8 @@ class Table:
 
 def run(backends: Sequence[Formalism], states: int = 30, seed: int = 0,
         progress: Callable[[str], None] | None = None) -> Table:
-    """Measure every backend with a term hook, every term and every case of :data:`FAMILIES`."""
+    """Measure every backend with a term hook, every term and every case of :data:`FAMILIES`; and every backend's
+    multipliers on the cases of :data:`MULTI_ROW`."""
     session = Session(backends, states, seed)
     out = []
     for backend in [b.name for b in backends if b.name in TERM_HOOKS]:
@@ -239,6 +261,10 @@ def run(backends: Sequence[Formalism], states: int = 30, seed: int = 0,
                 out.append(session.measure(backend, term, case))
             if progress:
                 progress(f"sensitivity {backend} {term}: done")
+    for backend in [b.name for b in backends]:
+        out += [session.measure(backend, MULTIPLIERS, case) for case in MULTI_ROW]
+        if progress:
+            progress(f"sensitivity {backend} multipliers: done")
     return Table(tuple(out), states)
 
 
@@ -270,4 +296,21 @@ def render(table: Table) -> list[str]:
                      for m in family]
             lines.append(f"| {backend} | {term} | " + " | ".join(cells) + " | "
                          + " | ".join(_size(m) for m in claimed) + f" | {'met' if ok else '**not met**'} |")
+    return lines + [""] + _multiplier_lines(table)
+
+
+def _multiplier_lines(table: Table) -> list[str]:
+    """The multipliers' table: per backend and case with several constraint rows, the smallest relative error in
+    its lam caught (empty when none was measured)."""
+    found = [m for m in table.measurements if m.term == MULTIPLIERS]
+    if not found:
+        return []
+    rows = list(dict.fromkeys(m.case for m in found))
+    lines = ["### The multipliers on cases with several constraint rows", "",
+             "Each backend's lam and lam_drift scaled by 1 + e in its answer; e is the smallest that fails a state of "
+             f"the gate, on the first {table.states} states of each case.", "",
+             "| backend | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
+    for backend in dict.fromkeys(m.backend for m in found):
+        lines.append(f"| {backend} | " + " | ".join(_size(table.smallest(backend, MULTIPLIERS, (case,)))
+                                                   for case in rows) + " |")
     return lines + [""]

@@ -342,11 +342,12 @@ def _setup(canary: Canary) -> CaseSetup:
 def _clean(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Formalism]):
     """The backends the canary can be judged among: ``chosen`` without the one backend that disagrees in the canary's
     check at the state without any fault (named by the vote: a real bug, which the gate reports on its own cases); None
-    when the state disagrees there and no single backend explains it (shared code every backend moves with)."""
+    when the state disagrees there and no single backend explains it, or the vote blames the closed form or the exact
+    values (shared code every backend moves with: a model, a check)."""
     outcome = setup.evaluate(state, chosen)
     blamed = {suspect(c) for c in _family(canary, outcome).values() if c.verdict == DISAGREE}
     blamed |= {backend_of(name) for name in outcome.errors}
-    if None in blamed or len(blamed) > 1:
+    if None in blamed or len(blamed) > 1 or not blamed <= {b.name for b in chosen}:
         return None
     return [b for b in chosen if b.name not in blamed]
 

@@ -67,3 +67,26 @@ def test_the_table_renders_per_family_and_the_claim():
     text = "\n".join(sensitivity.render(table))
     assert "| newton_euler | g | - | 1e-11 (panda) | - | - | - | - | - | 1e-11 | **not met** |" in text
     assert not table.claim_met()               # spatial_arm was not measured: no claim without a measurement
+
+
+def test_the_multiplier_cases_are_every_default_case_with_several_rows():
+    import cases
+
+    several = [name for name in cases.names() if cases.load(name).k >= 2]
+    assert sorted(sensitivity.MULTI_ROW) == sorted(several)
+
+
+def test_a_relative_error_in_the_multipliers_is_caught_on_a_multi_row_case():
+    """Every backend's lam off by a relative 1e-9 on four_bar (two rows, cond(S) about 10) fails a state of the gate
+    within ten states, at the multipliers' own comparisons."""
+    chosen = [backends.get(name) for name in backends.builtin_names()]
+    session = sensitivity.Session(chosen, states=10, cases=("four_bar",))
+    for name in backends.builtin_names():
+        m = session.measure(name, sensitivity.MULTIPLIERS, "four_bar")
+        assert m.caught <= 1e-9 and m.confirmed and m.key.startswith("lam"), (name, m)
+
+
+def test_the_multipliers_table_renders():
+    m = sensitivity.Measurement("screw", sensitivity.MULTIPLIERS, "four_bar", 20, 4e3, 2, "lam", 2.5e-12, True)
+    text = "\n".join(sensitivity.render(sensitivity.Table((m,), 20)))
+    assert "| backend | four_bar |" in text and "| screw | 2e-12 |" in text
