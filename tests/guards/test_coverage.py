@@ -343,3 +343,13 @@ def _limited():
         Body("b", "a", "prismatic", (1.0, 0.0, 0.0), 1.0, com=(0.1, 0.0, 0.0), inertia=np.eye(3) * 0.01,
              translation=(0.6, 0.0, 0.0), limits=(-0.04, 0.0))])
 
+
+def test_the_details_report_says_which_limits_a_file_model_was_measured_against():
+    from types import SimpleNamespace
+
+    from crosscheck.reports.gate_details import _coverage_section
+
+    outcome = run_case(CaseSpec("panda"), [], 12, 0, checks=Checks(charts=False, frames=0, conservation=False))
+    assert not outcome.coverage.problems and "URDF file" in outcome.coverage.limits_source
+    section = "\n".join(_coverage_section(SimpleNamespace(cases=[outcome])))
+    assert "- panda: joint limits measured against the URDF file " in section and "panda.urdf" in section
