@@ -301,12 +301,15 @@ def _span(rows: np.ndarray) -> str:
 
 
 def _coverage_section(result: GateResult) -> list[str]:
-    """What each case's sample spans (``crosscheck.guards.coverage``), and what made a sample degenerate."""
+    """What each case's sample spans (``crosscheck.guards.coverage``), which joint limits it was measured against,
+    and what made a sample degenerate."""
     lines = ["## Sampling coverage", "",
              "The ranges of q, qd and u over the sampled states (per coordinate, [min, max]); a sample whose rates or "
-             "inputs are all zero, or whose configurations lie in a sliver of the joint ranges, fails.", "",
+             "inputs are all zero, whose states repeat, whose configurations lie in a sliver of the joint ranges, pile "
+             "into a band or at the joint limits, or whose model's joint limits differ from its file's (a loader "
+             "finding), fails.", "",
              "| case | states | q | qd | u | rank Jc | verdict |", "|---|---|---|---|---|---|---|"]
-    problems = []
+    problems, limits = [], []
     for case in result.cases:
         cov = case.coverage
         if cov is None:
@@ -315,7 +318,9 @@ def _coverage_section(result: GateResult) -> list[str]:
         lines.append(f"| {case.spec.name} | {cov.states} | {_span(cov.q)} | {_span(cov.qd)} | {_span(cov.u)} | "
                      f"{rank} | {'**degenerate**' if cov.degenerate else 'ok'} |")
         problems += [f"- **{case.spec.name}**: {p}" for p in cov.problems]
-    return lines + [""] + problems + ([""] if problems else [])
+        if cov.limits_source and (case.model.source is not None or any(lim is not None for lim in cov.limits)):
+            limits.append(f"- {case.spec.name}: joint limits measured against {cov.limits_source}")
+    return lines + [""] + limits + ([""] if limits else []) + problems + ([""] if problems else [])
 
 
 def _voters_section(result: GateResult) -> list[str]:
