@@ -427,7 +427,7 @@ CATALOG: list[SharedFault] = [
                 ("crosscheck.references.closed_forms:voter",), lambda f: lambda case, params=None: None,
                 "the self-test canaries (closed forms)"),
     SharedFault("coverage-sliver-bound-tenfold", "coverage",
-                "The sliver bound of the sampling coverage is 0.01 of a coordinate's span, not 0.1.",
+                "The sampling coverage's sliver bound is 0.01 of a coordinate's span, not 0.1.",
                 ("crosscheck.guards.coverage:SLIVER",), lambda value: value / 10.0,
                 "the self-test canaries (coverage)"),
     SharedFault("sampling-last-coordinate-pinned", "sampling",

@@ -35,12 +35,14 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   ``size``; the backends agree with each other on the wrong model and the closed form, bound to the case's parameters,
   must disagree with all of them;
 * in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
-  ``repeated``, every state a copy of one; ``rates never sampled``, qd = 0 everywhere.
+  ``band``, four states of five squeezed so (the others keep the full range); ``repeated``, every state a copy of one;
+  ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
+  the problem's text).
 
 Sizes are calibrated (:data:`CANARIES`; ``tests/guards/test_selftest.py`` re-measures every ratio): each sized canary
 is caught with an error/tolerance ratio between 2 and :data:`CALIBRATED`, so that a check loosened tenfold misses it,
 while rounding (ratios below 0.1 on these states) cannot fake a catch. A coverage canary's margin is its
-construction: a coordinate spread over :data:`SLIVER_WIDTH` of its span is five times thinner than the sliver bound.
+construction: a coordinate spread over :data:`SLIVER_WIDTH` of its span is a third of the sliver bound.
 """
 
 from __future__ import annotations
@@ -64,9 +66,14 @@ from formalisms.interface import Formalism, Linearization
 SEED = 0
 #: States drawn per canary case (the canaries use some of them).
 STATES = 30
-#: A coverage canary's squeezed coordinate spans this share of its span: five times below the sliver bound, 0.1.
-#: Written here, not read from ``crosscheck.guards.coverage``, so that a loosened bound misses it.
-SLIVER_WIDTH = 0.02
+#: A coverage canary's squeezed coordinate spans this share of its span: a third of the sliver bound and of the band
+#: rule's window (0.1 each). Written here, not read from ``crosscheck.guards.coverage``, so that a bound loosened
+#: tenfold misses it.
+SLIVER_WIDTH = 0.03
+#: The band canary keeps every BAND_SPREAD-th state as drawn (its coordinate still spans the full range) and squeezes
+#: the others: 40 of 50 states in a window a third of the band rule's (0.1 of the span), where 30 is the most uniform
+#: draws hold (``crosscheck.guards.coverage``); the rule with a window ten times wider, the whole span, holds them all.
+BAND_SPREAD = 5
 
 
 @dataclass(frozen=True)
@@ -136,9 +143,10 @@ CANARIES: tuple[Canary, ...] = (
     Canary("conditions", "four_bar", 3, "newton_euler", "condition", 4.5e-9, "constraint"),
     Canary("closed forms", "double_pendulum", 3, "", "mass", 8e-13, index=1),
     Canary("closed forms", "double_pendulum_circle", 2, "", "mass", 8e-12, index=0),
-    Canary("coverage", "double_pendulum", 0, "", "sliver", index=1),
-    Canary("coverage", "spatial_arm", 0, "", "repeated"),
-    Canary("coverage", "double_pendulum_circle", 0, "", "rates never sampled"),
+    Canary("coverage", "double_pendulum", 0, "", "sliver", index=1, key="sliver"),
+    Canary("coverage", "spatial_arm", 0, "", "band", index=2, key="band"),
+    Canary("coverage", "spatial_arm", 0, "", "repeated", key="repeat"),
+    Canary("coverage", "double_pendulum_circle", 0, "", "rates never sampled", key="rate"),
 )
 
 #: Which comparisons of a state each check owns: a predicate on the key of ``outcome.comparisons`` (the quantities)
@@ -372,7 +380,7 @@ def _coverage_canary(canary: Canary) -> CanaryResult:
     model = cases.load(canary.case)
     states = sample_states(model, DEFAULT_SAMPLES, SEED, canary.case)
     states = [_degenerate(canary, states, s) for s in states]
-    problems = coverage.measure(model, states).problems
+    problems = [p for p in coverage.measure(model, states).problems if canary.key in p]
     return CanaryResult(canary, bool(problems), bool(problems), float(len(problems)),
                         problems[0] if problems else "-")
 
@@ -382,7 +390,9 @@ def _degenerate(canary: Canary, states: Sequence[State], s: State) -> State:
         return dataclasses.replace(states[1], index=s.index)
     if canary.kind == "rates never sampled":
         return dataclasses.replace(s, qd=(0.0,) * len(s.qd))
-    if canary.kind == "sliver":
+    if canary.kind in ("sliver", "band"):
+        if canary.kind == "band" and s.index % BAND_SPREAD == 0:
+            return s                                   # these states keep the full range
         k, centre = canary.index, states[0].q[canary.index]
         span = coverage.REVOLUTE_SPAN
         q = list(s.q)

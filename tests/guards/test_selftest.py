@@ -89,7 +89,8 @@ BREAKS = {
                     (tolerance, "TOLERANCES", lambda t: {q: (kind, 10.0 * factor if q in (
                         "lam", "lam_drift", "constraint_force", "power_constr") else factor)
                         for q, (kind, factor) in t.items()})),
-    "coverage": ((coverage, "measure", _no_problems), (coverage, "SLIVER", lambda value: value / 10.0)),
+    "coverage": ((coverage, "measure", _no_problems), (coverage, "SLIVER", lambda value: value / 10.0),
+                 (coverage, "BAND", lambda value: 10.0 * value)),
 }
 
 
@@ -100,13 +101,14 @@ def test_every_check_has_a_break_below():
 @pytest.mark.parametrize("how", ["off", "loosened tenfold"])
 @pytest.mark.parametrize("check", sorted(BREAKS))
 def test_a_check_switched_off_or_loosened_fails_its_canaries(monkeypatch, check, how):
-    module, name, replace = BREAKS[check][0 if how == "off" else 1]
+    patches = BREAKS[check][:1] if how == "off" else BREAKS[check][1:]
     if check == "coverage" and how != "off":
-        canaries = [c for c in of(check) if c.kind == "sliver"]      # the one canary of coverage with a bound
+        canaries = [c for c in of(check) if c.kind in ("sliver", "band")]    # the canaries of coverage with bounds
     else:
         canaries = of(check)
-    original = getattr(module, name)
-    monkeypatch.setattr(module, name, _loosened(module) if replace is None else replace(original))
+    for module, name, replace in patches:
+        original = getattr(module, name)
+        monkeypatch.setattr(module, name, _loosened(module) if replace is None else replace(original))
     result = selftest.run(canaries)
     assert not result.passed
     assert all(not r.passed for r in result.results), [(r.canary, r.ratio) for r in result.results if r.passed]
