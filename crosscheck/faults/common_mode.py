@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from crosscheck.core import sampling
 from crosscheck.core.sampling import sample_states
 from crosscheck.engine import divergences
 from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
@@ -266,6 +267,26 @@ def _repeated(model, states):
     return states[:2] + [dataclasses.replace(states[1], index=s.index) for s in states[2:]]
 
 
+def _limits_in_degrees(position_limits):
+    """The URDF loader's ``_position_limits`` with the file's radians read as degrees (converted once more)."""
+    def faulty(pm, j, jm):
+        limits = position_limits(pm, j, jm)
+        return None if limits is None else tuple(np.degrees(limits))
+    return faulty
+
+
+def _to_the_ends(within_limits):
+    """``sampling.within_limits`` sending each limited coordinate to the nearer of its limits."""
+    def faulty(model, q, home=False):
+        q = within_limits(model, q, home)
+        for i in sampling.limited_joints(model):
+            lower, upper = model.bodies[i].limits
+            iq = model.q_index[i]
+            q[iq] = lower if q[iq] - lower < upper - q[iq] else upper
+        return q
+    return faulty
+
+
 MULTIPLIER_QUANTITIES = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr")
 
 
@@ -436,6 +457,15 @@ CATALOG: list[SharedFault] = [
     SharedFault("sampling-states-repeated", "sampling",
                 "The sampler's generator is re-seeded after the second state, so every later state repeats it.",
                 _SAMPLERS, _sample_changed(_repeated), "the sampling coverage"),
+    SharedFault("urdf-limits-read-as-degrees", "URDF conversion",
+                "The URDF loader converts the joint limits from degrees to radians, though a URDF's are in radians "
+                "already (a limit of 2.9 becomes 166).",
+                ("cases.urdf:_position_limits",), _limits_in_degrees,
+                "the sampling coverage (the limits read from the file)"),
+    SharedFault("sampling-limited-joints-at-their-ends", "sampling",
+                "The sampler maps each limited joint's draw onto the nearer of its limits instead of into the range "
+                "between them.",
+                ("crosscheck.core.sampling:within_limits",), _to_the_ends, "the sampling coverage"),
     SharedFault("interface-tangent-kinematics-sign", "interface (linearization)",
                 "The kinematic rows of every backend's linearization take d/dt dq = dv + ad_v dq (the perturbation "
                 "on the left) instead of dv - ad_v dq, on ball and free joints.",
