@@ -5,7 +5,10 @@ robots (``panda``, ``solo12``), none of which has a mimic multiplier other than 
 file. These cases put every path of the loaders (``cases.urdf``, ``cases.mjcf``) in every default gate run: each is
 loaded through the loader, so its model carries the file as its ``source`` and the Pinocchio reference is built
 from the file itself (``crosscheck.references.pinocchio.build``): a conversion fault moves the five formalisms and
-not the reference. They have no closed form; the file-built reference is their independent voter.
+not the reference. They have no closed form; the file-built reference is their independent voter. They are built-in
+cases like the others: the gate's ``CaseSpec(name)`` carries no path, so ``--case NAME`` (a report's reproduce
+command, ``crosscheck eval --case NAME``) builds them through this registry wherever the package is installed, and
+the file is found next to this module (:data:`FILES`).
 
 =================  ===================================  ===========================================================
 case               file                                 loader paths
