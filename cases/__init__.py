@@ -2,22 +2,25 @@
 
     >>> import cases
     >>> cases.names()
-    ['double_pendulum', 'n_link_pendulum', 'acrobot', 'spatial_arm', 'panda', 'rotor', 'inclined_slider',
-     'spherical_pendulum', 'double_pendulum_circle', 'four_bar', 'slider_crank', 'cartesian_pendulum',
-     'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums', 'free_body', 'ball_pendulum',
-     'ball_double_pendulum', 'satellite_arm', 'solo12', 'solo12_standing', 'knife_edge', 'rolling_disk',
-     'differential_drive']
+    ['double_pendulum', 'double_pendulum_tip_force', 'double_pendulum_spring', 'n_link_pendulum', 'acrobot',
+     'spatial_arm', 'panda', 'rotor', 'inclined_slider', 'spherical_pendulum', 'double_pendulum_circle', 'four_bar',
+     'slider_crank', 'cartesian_pendulum', 'double_pendulum_absolute_loop', 'double_pendulum_rail', 'geared_pendulums',
+     'free_body', 'ball_pendulum', 'ball_double_pendulum', 'satellite_arm', 'solo12', 'solo12_standing', 'knife_edge',
+     'rolling_disk', 'differential_drive', 'urdf_gripper', 'mjcf_floating', 'mjcf_ball_slide']
     >>> model = cases.load("n_link_pendulum", n="3")     # strings (CLI --param n=3) convert by the default's type
 
 ``catalog()`` lists each case with a one-line summary and its parameters with their defaults. Importing this
-package does not import Pinocchio (only ``from_urdf`` and the ``panda`` case do, when called).
+package does not import Pinocchio (only ``from_urdf`` and the cases loaded from a file do, when called).
+``model_file(name)`` names the model file a built-in case is loaded from (``panda``, ``solo12`` and the small files
+shipped in ``cases/files/``, :mod:`cases.file_cases`), None for a case built in code.
 """
 
 from __future__ import annotations
 
 from cases import constrained, floating, nonholonomic  # noqa: F401 (register the constrained, Lie-group and
 #                                                            nonholonomic cases)
-from cases.factories import REGISTRY, CaseError, CaseInfo
+from cases import file_cases  # noqa: F401 (register the cases loaded from the shipped model files, last)
+from cases.factories import MODEL_FILES, REGISTRY, CaseError, CaseInfo
 from cases.constraints import (JointCoupling, KnifeEdge, PointOnCircle, PointOnLine, PointsCoincide, PointVelocity,
                                RollingContact)
 from cases.loads import ExternalForce, ExternalWrench, PointSpring
@@ -52,6 +55,12 @@ def from_file(path, name: str | None = None, base: str | None = None, actuated=N
 def names() -> list[str]:
     """The registered case names, in registry order."""
     return list(REGISTRY)
+
+
+def model_file(name: str) -> str | None:
+    """The model file the built-in case ``name`` is loaded from, in words (its reference is built from that file), or
+    None for a case built in code."""
+    return MODEL_FILES.get(name)
 
 
 def catalog() -> list[CaseInfo]:
@@ -114,5 +123,5 @@ def parameters(name: str, **params) -> dict:
 __all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
            "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model",
            "catalog", "constrained", "from_file",
-           "from_urdf", "load",
+           "from_urdf", "load", "model_file",
            "names", "parameters"]

@@ -51,6 +51,20 @@ def register(func: Callable[..., Model]) -> Callable[..., Model]:
     return func
 
 
+#: The built-in cases whose model is loaded from a model file, by name: that file, in words (``cases.model_file``).
+#: Their model carries the file as its ``source``, so the reference is built from the file itself
+#: (``crosscheck.references.pinocchio.build``), and no closed form is bound to them.
+MODEL_FILES: dict[str, str] = {}
+
+
+def loaded_from(description: str) -> Callable[[Callable[..., Model]], Callable[..., Model]]:
+    """Mark a case factory as loading its model from the file ``description`` names (:data:`MODEL_FILES`)."""
+    def mark(func: Callable[..., Model]) -> Callable[..., Model]:
+        MODEL_FILES[func.__name__] = description
+        return func
+    return mark
+
+
 # ----------------------------------------------------------------------------------------------- helpers
 
 
@@ -267,6 +281,7 @@ def robot_data_path(relative: str, case: str):
 
 
 @register
+@loaded_from("example-robot-data's panda_description/urdf/panda.urdf")
 def panda() -> Model:
     """Franka Emika Panda from example-robot-data's URDF via Pinocchio: 7 arm joints + 2 finger joints, the second
     finger coupled to the first by the URDF's ``<mimic>`` (a ``JointCoupling``, ``mimic:panda_finger_joint2``).

@@ -11,7 +11,7 @@ import numpy as np
 
 from cases.build import build_model
 from cases.constraints import PointsCoincide
-from cases.factories import _PLANE, _inertia, _positive, _require, _rot, register
+from cases.factories import _PLANE, _inertia, _positive, _require, _rot, loaded_from, register
 from cases.model import Body, Model, TaskPoint
 
 _ZERO = (0.0, 0.0, 0.0)
@@ -108,6 +108,7 @@ SOLO12_FEET = ("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT")
 
 
 @register
+@loaded_from("example-robot-data's solo_description/robots/solo12.urdf")
 def solo12() -> Model:
     """Solo12, a 12-joint quadruped (example-robot-data's URDF via Pinocchio), on a free base: nq 19, nv 18.
 
@@ -120,6 +121,8 @@ def solo12() -> Model:
 
 
 @register
+@loaded_from("example-robot-data's solo_description/robots/solo12.urdf (its feet pinned by constraints declared "
+             "in code)")
 def solo12_standing() -> Model:
     """Solo12 (``solo12``) standing on four point contacts: each foot pinned to the ground point under it in the
     standing posture (``PointsCoincide`` with the world, 3 rows each: 12 rows on 18 velocities).

@@ -91,6 +91,9 @@ def linearizations(model: Model, state: State, backends: Sequence[Formalism]
             return found, errors, unsupported
         except ModelNotSupported:        # world-frame loads and springs: Pinocchio's fext is fixed in the joints
             pass
+        except Exception as exc:  # noqa: BLE001 - e.g. a file-built reference refusing the model: a failure, named
+            errors["pinocchio"] = f"linearize raised {type(exc).__name__}: {exc}"
+            return found, errors, unsupported
     found["exact"] = precise.linearize(model, q, qd, u)
     return found, errors, unsupported
 

@@ -45,7 +45,8 @@ FAMILIES = {"planar": ("double_pendulum", "n_link_pendulum", "acrobot"),
             "Lie groups": ("free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm", "solo12",
                            "solo12_standing"),
             "external loads": ("double_pendulum_tip_force", "double_pendulum_spring"),
-            "nonholonomic": ("knife_edge", "rolling_disk", "differential_drive")}
+            "nonholonomic": ("knife_edge", "rolling_disk", "differential_drive"),
+            "model files": ("urdf_gripper", "mjcf_floating", "mjcf_ball_slide")}
 #: The 3-D cases of the claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
 CLAIMED = ("spatial_arm", "panda")
 CLAIM = 1e-10

@@ -65,7 +65,7 @@ def test_the_table_renders_per_family_and_the_claim():
     m = sensitivity.Measurement("newton_euler", "g", "panda", 20, 800.0, 3, "drift", 1.2e-11, True)
     table = sensitivity.Table((m,), 20)
     text = "\n".join(sensitivity.render(table))
-    assert "| newton_euler | g | - | 1e-11 (panda) | - | - | - | - | - | 1e-11 | **not met** |" in text
+    assert "| newton_euler | g | - | 1e-11 (panda) | - | - | - | - | - | - | 1e-11 | **not met** |" in text
     assert not table.claim_met()               # spatial_arm was not measured: no claim without a measurement
 
 

@@ -15,11 +15,12 @@ import pytest
 import cases
 from cases import CaseError, Model
 
-ALL = ["double_pendulum", "double_pendulum_tip_force", "double_pendulum_spring", "n_link_pendulum", "acrobot", "spatial_arm", "panda", "rotor", "inclined_slider",
-       "spherical_pendulum", "double_pendulum_circle", "four_bar", "slider_crank", "cartesian_pendulum",
-       "double_pendulum_absolute_loop", "double_pendulum_rail", "geared_pendulums", "free_body", "ball_pendulum",
-       "ball_double_pendulum", "satellite_arm", "solo12", "solo12_standing", "knife_edge", "rolling_disk",
-       "differential_drive"]
+ALL = ["double_pendulum", "double_pendulum_tip_force", "double_pendulum_spring", "n_link_pendulum", "acrobot",
+       "spatial_arm", "panda", "rotor", "inclined_slider", "spherical_pendulum", "double_pendulum_circle", "four_bar",
+       "slider_crank", "cartesian_pendulum", "double_pendulum_absolute_loop", "double_pendulum_rail",
+       "geared_pendulums", "free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm", "solo12",
+       "solo12_standing", "knife_edge", "rolling_disk", "differential_drive", "urdf_gripper", "mjcf_floating",
+       "mjcf_ball_slide"]
 
 
 def _rodrigues(axis, angle):

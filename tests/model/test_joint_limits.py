@@ -1,5 +1,6 @@
 """Joint limits: read from URDF and MJCF files, validated, serialized, and the sampler draws within them (issue 20,
-item 6); ``--ignore-limits`` draws freely, and the gate report says which."""
+item 6); ``--ignore-limits`` draws freely, and the gate report says which. The file-built reference reads the limits
+from the file's XML itself and refuses a model whose limits are not the file's (issue 35)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cases
+import dataclasses
+
 from cases.model import Body, ModelError
 from cases.build import build_model
 from cases.serialize import model_from_dict, model_to_dict
 from crosscheck import cli
 from crosscheck.core import sampling
+from crosscheck.references.pinocchio import build
 
 Z = (0.0, 0.0, 1.0)
 
@@ -113,6 +117,7 @@ def test_a_urdf_limit_without_lower_and_upper_is_no_limit(tmp_path):
     path.write_text(text)
     model = cases.from_urdf(str(path), base="fixed")
     assert [b.limits for b in model.bodies] == [None, (-1.0, 0.5), None]
+    assert len(build.joint_map(model)) == 3          # the reference reads the file's limits the same way
 
 
 MJCF = """<mujoco model="m">{compiler}
@@ -144,11 +149,52 @@ def test_mjcf_ranges_are_read_as_mujoco_reads_them(tmp_path, compiler, expected)
 
     path = tmp_path / "m.xml"
     path.write_text(MJCF.format(compiler=compiler))
-    found = [b.limits for b in from_mjcf(path).bodies]
+    model = from_mjcf(path)
+    found = [b.limits for b in model.bodies]
     assert [f is None for f in found] == [e is None for e in expected]
     for f, e in zip(found, expected):
         if e is not None:
             np.testing.assert_allclose(f, e, rtol=1e-15)
+    assert len(build.joint_map(model)) == 5          # the reference reads the file's ranges the same way
+
+
+def _with_limits(model: cases.Model, body: str, limits) -> cases.Model:
+    bodies = [dataclasses.replace(b, limits=limits) if b.name == body else b for b in model.bodies]
+    return build_model(model.name, bodies, model.gravity, input_map=model.input_map, task_points=model.task_points,
+                       constraints=model.constraints, source=model.source)
+
+
+@pytest.mark.parametrize("compiler, body, limits, message", [
+    ("", "b1", (-90.0, 45.0), r"joint 'h1' has limits \[-1.57\d*, 0.78\d*\] in the file"),   # degrees as radians
+    ("", "b2", (np.radians(-0.1), np.radians(0.2)), r"joint 's2' has limits \[-0.1, 0.2\]"),   # a slide in degrees
+    ("", "b3", (-1.0, 1.0), "joint 'h3' has no limits in the file"),                            # its class's limited
+    ("", "b5", (-1.0, 1.0), "joint 'h5' has no limits in the file"),                            # no range
+    ('<compiler angle="radian" autolimits="false"/>', "b1", (-90.0, 45.0), "joint 'h1' has no limits"),
+    ("", "b4", None, r"joint 'h4' has limits \[-0.017\d*, 0.017\d*\] in the file \(as MJCF reads them\), and the "
+     r"model samples body 'b4' with no limits; check the loader's joint limits \(cases/mjcf.py\)"),
+])
+def test_the_reference_refuses_limits_that_are_not_the_mjcf_files(tmp_path, compiler, body, limits, message):
+    """The limits bound the states the gate samples and enter no equation, so the vote cannot see a misread one: the
+    file-built reference reads them from the XML itself and refuses the model, naming the joint and both readings
+    (the limits are out of the digest, so a model differing in its limits alone is checked again, not cached)."""
+    from cases.mjcf import from_mjcf
+
+    path = tmp_path / "m.xml"
+    path.write_text(MJCF.format(compiler=compiler))
+    model = from_mjcf(path)
+    build.joint_map(model)
+    changed = _with_limits(model, body, limits)
+    assert changed.digest() == model.digest()
+    with pytest.raises(ValueError, match=message):
+        build.joint_map(changed)
+
+
+def test_the_reference_refuses_limits_that_are_not_the_urdf_files():
+    model = cases.load("panda")
+    with pytest.raises(ValueError, match=r"joint 'panda_joint4' has limits \[-3.0718, -0.0698\] in the file \(as URDF "
+                       r"reads them\), and the model samples body 'panda_link4' with limits \[-3.0718, 0.0698\]"):
+        build.joint_map(_with_limits(model, "panda_link4", (-3.0718, 0.0698)))
+    assert len(build.joint_map(_with_limits(model, "panda_link4", (-3.0718, -0.0698 + 1e-14)))) == 9   # rounding
 
 
 def test_eval_warns_of_a_q_outside_the_limits_and_evaluates_it(capsys):

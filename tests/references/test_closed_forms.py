@@ -460,10 +460,19 @@ def test_a_mismatch_fails_the_gate_as_an_error_of_the_voter():
 
 
 def test_cases_without_a_closed_form_have_no_voter():
-    for case in ("spatial_arm", "panda"):
-        assert closed_forms.voter(case, {}) is None
-        assert closed_forms.coverage(case, {}).startswith("none (closed forms exist for double_pendulum, ")
+    assert closed_forms.voter("spatial_arm", {}) is None
+    assert closed_forms.coverage("spatial_arm", {}).startswith("none (closed forms exist for double_pendulum, ")
     assert set(CASES) <= set(cases.names())
+
+
+@pytest.mark.parametrize("case, file", [("panda", "example-robot-data's panda_description/urdf/panda.urdf"),
+                                        ("urdf_gripper", "cases/files/gripper.urdf, shipped with crosscheck"),
+                                        ("mjcf_floating", "cases/files/floating.xml, shipped with crosscheck"),
+                                        ("mjcf_ball_slide", "cases/files/ball_slide.xml, shipped with crosscheck")])
+def test_a_case_loaded_from_a_file_has_no_voter_and_says_its_reference_reads_the_file(case, file):
+    assert closed_forms.voter(case, {}) is None and case not in CASES
+    assert closed_forms.coverage(case, {}) == (f"none (loaded from the model file {file}; its reference is built "
+                                               "from the file)")
 
 
 def test_unknown_parameters_are_refused_when_binding():

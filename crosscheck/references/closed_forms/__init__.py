@@ -198,8 +198,11 @@ def voter(case: str, params: Mapping[str, object] | None = None) -> Formalism | 
 
 def coverage(case: str, params: Mapping[str, object] | None = None) -> str:
     """For a report's line on ``case`` (the caller names the case): the closed form that votes on it with ``params``,
-    the typed parameters it is bound to and the quantities it supplies, or "none" and the cases that have one."""
+    the typed parameters it is bound to and the quantities it supplies, or "none" and, for a case loaded from a model
+    file (``cases.model_file``), that its reference is built from the file, else the cases that have one."""
     form = CLOSED_FORMS.get(case)
+    if form is None and cases.model_file(case) is not None:
+        return f"none (loaded from the model file {cases.model_file(case)}; its reference is built from the file)"
     if form is None:
         return f"none (closed forms exist for {', '.join(CLOSED_FORMS)})"
     typed = cases.parameters(case, **dict(params or {}))
