@@ -1,6 +1,6 @@
 """Joint limits: read from URDF and MJCF files, validated, serialized, and the sampler draws within them (issue 20,
-item 6); ``--ignore-limits`` draws freely, and the gate report says which. The file-built reference reads the limits
-from the file's XML itself and refuses a model whose limits are not the file's (issue 35)."""
+item 6); ``--ignore-limits`` draws freely, and the gate report says which. The coverage reads the limits from the
+file's XML apart from the loader and names a model whose limits are not the file's (issue 35)."""
 
 from __future__ import annotations
 
@@ -164,37 +164,41 @@ def _with_limits(model: cases.Model, body: str, limits) -> cases.Model:
                        constraints=model.constraints, source=model.source)
 
 
-@pytest.mark.parametrize("compiler, body, limits, message", [
-    ("", "b1", (-90.0, 45.0), r"joint 'h1' has limits \[-1.57\d*, 0.78\d*\] in the file"),   # degrees as radians
-    ("", "b2", (np.radians(-0.1), np.radians(0.2)), r"joint 's2' has limits \[-0.1, 0.2\]"),   # a slide in degrees
-    ("", "b3", (-1.0, 1.0), "joint 'h3' has no limits in the file"),                            # its class's limited
-    ("", "b5", (-1.0, 1.0), "joint 'h5' has no limits in the file"),                            # no range
-    ('<compiler angle="radian" autolimits="false"/>', "b1", (-90.0, 45.0), "joint 'h1' has no limits"),
-    ("", "b4", None, r"joint 'h4' has limits \[-0.017\d*, 0.017\d*\] in the file \(as MJCF reads them\), and the "
-     r"model samples body 'b4' with no limits; check the loader's joint limits \(cases/mjcf.py\)"),
+@pytest.mark.parametrize("compiler, body, limits", [
+    ("", "b1", (-90.0, 45.0)),                                     # a hinge's range in degrees taken as radians
+    ("", "b2", (np.radians(-0.1), np.radians(0.2))),               # a slide's range in metres converted as degrees
+    ("", "b3", (-1.0, 1.0)),                                       # its class says limited="false"
+    ("", "b5", (-1.0, 1.0)),                                       # no range
+    ('<compiler angle="radian" autolimits="false"/>', "b1", (-90.0, 45.0)),
+    ("", "b4", None),                                              # a limit dropped
 ])
-def test_the_reference_refuses_limits_that_are_not_the_mjcf_files(tmp_path, compiler, body, limits, message):
+def test_limits_that_are_not_the_mjcf_files_are_a_loader_finding(tmp_path, compiler, body, limits):
     """The limits bound the states the gate samples and enter no equation, so the vote cannot see a misread one: the
-    file-built reference reads them from the XML itself and refuses the model, naming the joint and both readings
-    (the limits are out of the digest, so a model differing in its limits alone is checked again, not cached)."""
+    coverage reads them from the XML apart from the loader (``crosscheck.guards.file_limits``) and names the joint."""
     from cases.mjcf import from_mjcf
+    from crosscheck.guards import coverage
 
     path = tmp_path / "m.xml"
     path.write_text(MJCF.format(compiler=compiler))
     model = from_mjcf(path)
-    build.joint_map(model)
     changed = _with_limits(model, body, limits)
-    assert changed.digest() == model.digest()
-    with pytest.raises(ValueError, match=message):
-        build.joint_map(changed)
+    states = sampling.sample_states(changed, 10, 0, "m")
+    assert not [p for p in coverage.measure(model, sampling.sample_states(model, 10, 0, "m")).problems
+                if "loader finding" in p]
+    found = [p for p in coverage.measure(changed, states).problems if "loader finding" in p]
+    assert len(found) == 1 and f"({body}, " in found[0], found
 
 
-def test_the_reference_refuses_limits_that_are_not_the_urdf_files():
+def test_limits_that_are_not_the_urdf_files_are_a_loader_finding():
+    from crosscheck.guards import coverage
+
     model = cases.load("panda")
-    with pytest.raises(ValueError, match=r"joint 'panda_joint4' has limits \[-3.0718, -0.0698\] in the file \(as URDF "
-                       r"reads them\), and the model samples body 'panda_link4' with limits \[-3.0718, 0.0698\]"):
-        build.joint_map(_with_limits(model, "panda_link4", (-3.0718, 0.0698)))
-    assert len(build.joint_map(_with_limits(model, "panda_link4", (-3.0718, -0.0698 + 1e-14)))) == 9   # rounding
+    changed = _with_limits(model, "panda_link4", (-3.0718, 0.0698))
+    found = [p for p in coverage.measure(changed, sampling.sample_states(changed, 10, 0, "panda")).problems
+             if "loader finding" in p]
+    assert len(found) == 1 and "panda_link4" in found[0] and "panda_joint4" in found[0], found
+    rounding = _with_limits(model, "panda_link4", (-3.0718, -0.0698 + 1e-14))
+    assert not coverage.measure(rounding, sampling.sample_states(rounding, 10, 0, "panda")).problems
 
 
 def test_eval_warns_of_a_q_outside_the_limits_and_evaluates_it(capsys):

@@ -16,10 +16,9 @@ Which Pinocchio model
   ignore them) are read from the XML here too: each must be declared on the model as the loader's coupling
   ``mimic:<joint>`` of the two joints the joint map gives, else the reference refuses the model
   (:func:`_check_mimics`), so a mimic the conversion drops, invents or attaches to another joint is not voted on.
-  Likewise the joint limits, which bound the states the gate samples and enter no equation: the position limits of
-  each revolute and prismatic coordinate (``Body.limits``) must be the file's, read here from the XML as URDF and
-  MuJoCo read them (:func:`_check_limits`), else the reference refuses the model, so a limit the conversion misreads
-  (an MJCF range in degrees taken as radians, a dropped limit) does not silently move the states checked.
+  The joint limits, which bound the states the gate samples and enter no equation, are read from the file apart
+  from the loader by ``crosscheck.guards.file_limits`` (through this joint map), and the coverage judges the sample
+  against them: a limit the conversion misreads is a loader finding there.
 * A model without a source (factories, fuzz, a moved copy built in code) is checked against a ``pinocchio.Model``
   built from OUR model data (:func:`to_pinocchio`): joints added in a depth-first order of ``model.bodies``,
   each with its placement, axis and inertia.
@@ -49,7 +48,7 @@ import pinocchio as pin
 
 from cases.constraints import JointCoupling, PointOnCircle, PointOnLine, PointsCoincide
 from cases.model import GROUP_JOINTS, JOINT_DOF, Model, ModelSource
-from cases.urdf import UNLIMITED, read_file
+from cases.urdf import read_file
 from formalisms.interface import DEGENERATE_ROW
 
 
@@ -351,108 +350,6 @@ def _check_mimics(model: Model, rows: tuple[JointMapRow, ...], path: str) -> Non
         raise ValueError(f"{where}: the model declares {sorted(declared)}, but the file has no such <mimic> tag")
 
 
-def _urdf_limits(robot: ET.Element) -> dict[str, tuple[float, float] | None]:
-    """URDF joint name -> its ``<limit lower upper>`` (each 0 where absent, as urdfdom reads it) for a revolute or
-    prismatic joint, None for a continuous one."""
-    out: dict[str, tuple[float, float] | None] = {}
-    for joint in robot.findall("joint"):
-        kind, limit = joint.get("type"), joint.find("limit")
-        if kind == "continuous":
-            out[joint.get("name")] = None
-        elif kind in ("revolute", "prismatic") and limit is not None:
-            out[joint.get("name")] = (float(limit.get("lower", 0.0)), float(limit.get("upper", 0.0)))
-    return out
-
-
-def _mjcf_limits(root: ET.Element) -> dict[str, tuple[float, float] | None]:
-    """MJCF hinge and slide joint name -> its range as MuJoCo reads it, or None where MuJoCo leaves it unlimited: an
-    attribute from the joint, else its class (the joint's ``class``, else the nearest ``childclass`` above it, else
-    ``main``) and that class's ancestors; limited where ``limited`` is "true", or "auto" (the default) with a range
-    and ``<compiler autolimits>`` on (the default); a hinge's range in degrees unless ``<compiler angle="radian">``,
-    a slide's in metres."""
-    compiler = {k: v for c in root.findall("compiler") for k, v in c.attrib.items()}
-    degrees, auto = compiler.get("angle", "degree") == "degree", compiler.get("autolimits", "true") == "true"
-    classes: dict[str, tuple[dict, str | None]] = {}     # class -> (its own joint attributes, its parent class)
-
-    def defaults(element: ET.Element, parent: str | None) -> None:
-        name = element.get("class", "main" if parent is None else None)
-        if name is not None:
-            joint = element.find("joint")
-            classes[name] = ({} if joint is None else dict(joint.attrib), parent)
-            for child in element.findall("default"):
-                defaults(child, name)
-
-    for top in root.findall("default"):
-        defaults(top, None)
-
-    def attribute(joint: ET.Element, cls: str | None, key: str) -> str | None:
-        while key not in joint.attrib and cls is not None:
-            own, parent = classes.get(cls, ({}, None))
-            if key in own:
-                return own[key]
-            cls = parent
-        return joint.get(key)
-
-    out: dict[str, tuple[float, float] | None] = {}
-
-    def visit(element: ET.Element, childclass: str) -> None:
-        for child in element:
-            if child.tag == "joint" and child.get("name") is not None:
-                cls = child.get("class", childclass)
-                kind, text = attribute(child, cls, "type") or "hinge", attribute(child, cls, "range")
-                limited = attribute(child, cls, "limited") or "auto"
-                if kind in ("hinge", "slide"):
-                    on = limited == "true" or (limited == "auto" and auto and text is not None)
-                    scale = np.pi / 180.0 if kind == "hinge" and degrees else 1.0
-                    out[child.get("name")] = (tuple(scale * float(x) for x in (text or "0 0").split()[:2])
-                                              if on else None)
-            elif child.tag in ("body", "frame"):
-                visit(child, child.get("childclass", childclass))
-
-    for world in root.findall("worldbody"):
-        visit(world, "main")
-    return out
-
-
-def _file_limits(source: ModelSource) -> dict[str, tuple[float, float] | None]:
-    """The position limits of the file's one-coordinate joints by joint name, read from its XML (module docstring):
-    (lower, upper), or None for a joint without limits. A joint the XML does not name (an MJCF joint without a name,
-    one from an ``<include>``d file) is not in it."""
-    try:
-        root = ET.parse(source.path).getroot()
-        return _mjcf_limits(root) if source.kind == "mjcf" else _urdf_limits(root)
-    except (OSError, ET.ParseError, ValueError) as exc:
-        raise ValueError(f"the reference cannot read the joint limits of '{source.path}': {exc}") from exc
-
-
-def _same_limits(ours, theirs) -> bool:
-    """Whether our ``Body.limits`` are the file's ``theirs``: a range that is empty (lower >= upper: urdfdom's (0, 0)
-    for a ``<limit>`` without bounds) or beyond ``cases.urdf.UNLIMITED`` is no limit; bounds to rounding (an MJCF
-    range in degrees converted by Pinocchio's parser)."""
-    if theirs is not None and not (theirs[0] < theirs[1] and max(map(abs, theirs)) < UNLIMITED):
-        theirs = None
-    if ours is None or theirs is None:
-        return ours is None and theirs is None
-    return all(abs(a - b) <= 1e-12 * max(1.0, abs(b)) for a, b in zip(ours, theirs))
-
-
-def _check_limits(model: Model, rows: tuple[JointMapRow, ...], source: ModelSource) -> None:
-    """Every revolute and prismatic coordinate's limits (``Body.limits``, which bound the states the gate samples) are
-    the file's (:func:`_file_limits`, module docstring); a ValueError names the joint, both readings and the file."""
-    limits = _file_limits(source)
-    for r in rows:
-        body = model.bodies[r.coordinate]
-        if body.joint not in ("revolute", "prismatic") or r.joint not in limits:
-            continue
-        if not _same_limits(body.limits, limits[r.joint]):
-            file = "no limits" if limits[r.joint] is None else f"limits {list(limits[r.joint])}"
-            ours = "no limits" if body.limits is None else f"limits {list(body.limits)}"
-            raise ValueError(f"the reference cannot check model '{model.name}' against '{source.path}': joint "
-                             f"'{r.joint}' has {file} in the file (as {source.kind.upper()} reads them), and the model "
-                             f"samples body '{body.name}' with {ours}; check the loader's joint limits "
-                             f"(cases/{'mjcf' if source.kind == 'mjcf' else 'urdf'}.py)")
-
-
 def _file_scales(pm: pin.Model, rows: tuple[JointMapRow, ...]) -> _Scales:
     """:class:`_Scales` of the file's joints, summed in our coordinate order (the same numbers as our model's when
     the conversion is right)."""
@@ -481,7 +378,6 @@ def _build_from_file(model: Model) -> Compiled:
     pm = _read_file(model.source)
     rows = _map_joints(pm, model, model.source.path)
     _check_mimics(model, rows, model.source.path)
-    _check_limits(model, rows, model.source)
     joint_of = {r.body: pm.getJointId(r.joint) for r in rows}
     order = np.empty(model.nv, dtype=int)
     for r in rows:
@@ -514,12 +410,7 @@ def from_data(model: Model) -> Compiled:
 
 
 def reference_key(model: Model) -> tuple:
-    """The cache key of the reference of ``model``: its digest, and for a file source the source and the joint limits,
-    which the digest leaves out (they enter no equation) and the file-built reference checks (:func:`_check_limits`):
-    a model that differs from a checked one in its limits alone is checked again."""
-    if model.source is None:
-        return ("data", model.digest())
-    return ("file", model.digest(), model.source.key(), tuple(b.limits for b in model.bodies))
+    return ("data", model.digest()) if model.source is None else ("file", model.digest(), model.source.key())
 
 
 def to_pinocchio(model: Model) -> pin.Model:
