@@ -236,20 +236,29 @@ def _work_and_energy(probe: Probe, u: tuple[float, ...]) -> str:
             "that is not the others'")
 
 
+CHART_MAP = "the chart map (Dpsi, its rate, the covector map Dpsi^T)"
+FRAME_MOVE = "the frame transformation (the moved scene, Ad_g, Ad_g^-T)"
+
+
 def _check_hint(failing: Mapping[str, Comparison]) -> str:
     """Only chart, frame or conservation checks fail: the maps, not the dynamics."""
     families = sorted({key.split(":")[0] for key in failing})
-    named = Counter(who for c in failing.values() if (who := suspect(c)) is not None)
+    shared = sorted({c.shared for c in failing.values() if c.shared is not None and c.outlier == c.shared})
+    named = Counter(who for c in failing.values() if (who := suspect(c)) is not None and who not in shared)
     keys = ", ".join(sorted(failing)[:4]) + (", ..." if len(failing) > 4 else "")
+    if shared and not named:     # the vote named code every backend shares (crosscheck.core.compare, shared code)
+        return (f"only in a chart or frame check ({keys}); pointing at the {' and the '.join(shared)} (shared code) — "
+                "every backend moves together: " + " or ".join(
+                    ([CHART_MAP] if any(s.startswith("chart") for s in shared) else [])
+                    + ([FRAME_MOVE] if any(s.startswith("frame") for s in shared) else [])) + ", not a backend")
     causes = []
     if any(f.startswith("chart") for f in families):
-        causes.append("the chart map (Dpsi, its rate, the covector map Dpsi^T)"
-                      if not named else "a chart-native evaluation")
+        causes.append(CHART_MAP if not named else "a chart-native evaluation")
     if any(f.startswith("frame") for f in families):
-        causes.append("the frame transformation (the moved scene, Ad_g, Ad_g^-T)")
+        causes.append(FRAME_MOVE)
     if "conservation" in families:
         causes.append("the energy bookkeeping or the Christoffel symbols")
-    who = f"pointing at {', '.join(named)}" if named else "no single backend named"
+    who = f"pointing at {', '.join([*shared, *named])}" if named else "no single backend named"
     where = "a chart or frame check" if "conservation" not in families else "invariance or conservation checks"
     return f"only in {where} ({keys}); {who}: {' or '.join(causes)}"
 
