@@ -41,6 +41,13 @@ AGREE, DISAGREE, KNOWN, NOT_COMPARED = "agree", "DISAGREE", "KNOWN", "NOT COMPAR
 SEVERITY: tuple[tuple[float, str], ...] = ((10.0, "marginal"), (1e4, "clear"), (np.inf, "gross"))
 
 
+class ToleranceError(ValueError):
+    """A tolerance that is NaN or negative: the harness's own failure (``crosscheck.engine.internal``), which no
+    answer of the backends could agree or disagree with. Raised by :func:`compare` for what its caller computed."""
+
+    caller_to_blame = True
+
+
 @dataclass(frozen=True)
 class Comparison:
     """Verdict for one quantity: the worst pairwise error/tolerance ratio and, when a vote allows, the outlier.
@@ -126,6 +133,9 @@ def compare(quantity: str, values: dict[str, object], tol, shared: str | None = 
     present = {k: _as_vector(v) for k, v in values.items() if v is not None and not isinstance(v, Unsupported)}
     skipped = tuple(k for k, v in values.items() if isinstance(v, Unsupported))
     tols = np.asarray(tol, dtype=float).ravel()
+    if not (tols >= 0.0).all():
+        raise ToleranceError(f"the tolerance for {quantity} is {tols[~(tols >= 0.0)][0]:g} (NaN or negative): the "
+                             "harness cannot judge it, whatever the backends answer")
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
