@@ -43,6 +43,7 @@ from cases.model import Model
 from crosscheck.backends import REFERENCE_NAME
 from crosscheck.core.compare import DISAGREE, Comparison, suspect
 from crosscheck.core.tolerance import CONSTRAINED_QUANTITIES
+from crosscheck.engine.internal import guarded
 from crosscheck.engine.outcomes import GateResult, StateOutcome
 from formalisms.interface import Formalism, Split, Unsupported
 
@@ -357,8 +358,10 @@ HINTED_STATES = 20
 
 
 def annotate(result: GateResult, backends: Sequence[Formalism], limit: int = HINTED_STATES) -> int:
-    """Set ``hint`` on the first ``limit`` failing states of ``result`` (run order); returns how many."""
+    """Set ``hint`` on the first ``limit`` failing states of ``result`` (run order); returns how many. The harness
+    failing in a hint is that state's internal error ``diagnosis hint`` (``crosscheck.engine.internal``)."""
     failing = [(case, state) for case in result.cases for state in case.states if state.failed][:limit]
     for case, state in failing:
-        state.hint = hint(case.model, state, backends)
+        with guarded(state.internal, "diagnosis hint"):
+            state.hint = hint(case.model, state, backends)
     return len(failing)
