@@ -84,7 +84,8 @@ def _suspects_section(result: GateResult) -> list[str]:
     if not rows:
         return ["Suspects: none (no disagreement).", ""]
     return ["Suspects (the backend each disagreement points at: the outlier of a vote of three or more, or the one "
-            "backend behind a frame law):", "",
+            "backend behind a frame law; or the shared code every backend moved together with, a chart map or a frame "
+            "move):", "",
             "| case | suspect | quantities | checks | states |", "|---|---|---|---|---|"] + rows + [""]
 
 

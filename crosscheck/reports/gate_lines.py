@@ -158,7 +158,9 @@ def _verdict_line(key: str, comp: Comparison) -> str:
     severity = f" ({comp.severity})" if comp.severity else ""
     line = (f"- **{key}**: {comp.verdict}{severity}, worst error/tolerance {comp.worst_ratio:.3g} "
             f"(tolerance {comp.tolerance:.3g})")
-    if comp.outlier:
+    if comp.shared is not None:          # along code every backend shares: why, in words (compare, shared code)
+        line += f"; {vote(comp)}"
+    elif comp.outlier:
         line += f", outlier **{comp.outlier}**"
     elif comp.verdict in (DISAGREE, KNOWN):
         line += f"; {vote(comp)}"

@@ -110,3 +110,20 @@ def test_a_lone_chart_native_backend_is_not_blamed_for_the_map(fault):
     for key, comp in failing:
         assert comp.outlier is None and suspect(comp) is None, (key, vote(comp))
         assert "(shared code) or euler_lagrange@" in vote(comp)
+
+
+def test_the_report_says_the_shared_map_moved_every_backend_together():
+    from crosscheck.engine.run import run_gate
+    from crosscheck.reports import diagnosis, gate_summary
+
+    with common_mode.injected(common_mode.get("charts-rate-term-dropped")):
+        result = run_gate([CaseSpec("double_pendulum")], ALL, samples=2, seed=0,
+                          checks=Checks(frames=0, conservation=False, linearization=False, self_test=False))
+        diagnosis.annotate(result, ALL)
+    text = gate_summary.render(result, "cmd")
+    assert "- **chart nonlinear: drift**: DISAGREE (gross)" in text
+    assert "; outlier chart map nonlinear (shared code) — every backend moves together: the 2 voters " \
+           "euler_lagrange@nonlinear, geometric@nonlinear agree with each other against the" in text
+    assert "| double_pendulum | chart map nonlinear |" in text                  # the suspects table
+    hint = next(s.hint for s in result.cases[0].states if s.failed)
+    assert "pointing at the chart map nonlinear (shared code) — every backend moves together" in hint
