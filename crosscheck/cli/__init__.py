@@ -10,7 +10,8 @@ a command (:func:`main`, the ``crosscheck`` console script); the command modules
 Outputs: every command writes under ``options.OUTPUT_DIR`` (``crosscheck-out/``, git-ignored) unless told otherwise;
 the committed reports in ``options.REPORTS_DIR`` are written only by ``crosscheck reports`` (``reports.REPORTS``).
 
-Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 130 interrupted (Ctrl-C:
+Exit codes: 0 all agree, 1 a disagreement (or a backend error), 2 bad input or usage, 3 the harness itself failed
+(``gate``: an internal error, ``crosscheck.engine.internal``; the report says where), 130 interrupted (Ctrl-C:
 one line on stderr; gate, faults and bench write a partial report of what completed, fuzz its campaign's report), 143
 terminated by SIGTERM (``timeout``, a CI job's limit: the same partial report as at Ctrl-C).
 """

@@ -1,6 +1,10 @@
 """``crosscheck gate``: sample states per case, compare every backend, write the report (a summary and a details
 file, a JUnit file on request) and a line per case (with, for a failing case, the ``crosscheck eval`` command that
-reproduces its first failing state), the run's progress on the display."""
+reproduces its first failing state), the run's progress on the display.
+
+Exit codes: 0 the gate passed, 1 it failed (a disagreement, a backend error, ...), 2 bad input (refused before the
+run), 3 the harness itself failed (an internal error: ``crosscheck.engine.internal``; the report is written all the same,
+with a section saying where, and the exit is 3 whatever else failed), 130/143 interrupted."""
 
 from __future__ import annotations
 
@@ -12,7 +16,8 @@ from crosscheck.cli.options import (MAX_FRAMES, OUTPUT_DIR, _backends, _interrup
                                     add_plugin_option, add_quiet_option, add_task_point_option, add_workers_option,
                                     UsageError, workers)
 from crosscheck.core.compare import KNOWN, worst_of
-from crosscheck.engine import divergences, phases, run
+from crosscheck.engine import divergences, internal, phases, run
+from crosscheck.engine.outcomes import GateResult
 from crosscheck.engine.progress import Display
 from crosscheck.engine.run import run_gate
 from crosscheck.engine.specs import DEFAULT_SAMPLES, Checks
@@ -21,6 +26,8 @@ from crosscheck.reports import diagnosis, gate_summary, junit
 from crosscheck.reports.gate_lines import canary_count, reproduce_command, task_point_lines
 
 DEFAULT_REPORT = f"{OUTPUT_DIR}/gate.md"
+#: The exit code of a run where the harness itself failed (module doc).
+INTERNAL_ERROR = 3
 
 
 def _required(args) -> list[str]:
@@ -75,22 +82,52 @@ def cmd_gate(args) -> int:
     checks = Checks(charts=not args.no_charts, frames=args.frames, conservation=not args.no_conservation,
                     closed_forms=not args.no_closed_forms, self_test=not args.no_self_test,
                     linearization=not args.no_linearization, joint_limits=not args.ignore_limits)
+    required, allowed = _required(args), _allowed_breakdown(args, chosen)
     with Display("gate", "states", args.samples * len(specs), quiet=args.quiet) as display:
         try:
             result = run_gate(specs, chosen, args.samples, args.seed, _gate_progress(display), checks,
-                              workers=count, required=_required(args),
-                              allow_breakdown=_allowed_breakdown(args, chosen))
+                              workers=count, required=required, allow_breakdown=allowed)
         except run.Interrupted as stop:
             result = stop.result
-    applied = divergences.apply(known, result) if known else None
+        except run.INPUT_ERRORS:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the harness failing outside every guard: reported, exit 3
+            result = GateResult(args.seed, args.samples, tuple(b.name for b in chosen), [], checks, tuple(required),
+                                allow_breakdown=allowed, internal={"run": internal.of(exc)})
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
+    written: list[bool] = []
+    try:
+        return _report(args, result, chosen, known, report, command, written)
+    except Exception as exc:  # noqa: BLE001 - the report is written whatever happens, and the exit says why
+        check = "terminal lines" if written else "report"
+        result.internal.setdefault(check, internal.of(exc))
+        if not written:
+            report.write_text(gate_summary.write_fallback(result, command))
+        print(f"FAIL {internal.Occurrence(check, result.internal[check]).describe()}")
+        print(f"FAIL: the harness itself failed; report written to {report}")
+        return INTERNAL_ERROR
+
+
+def _report(args, result: GateResult, chosen, known, report, command: str, written: list[bool]) -> int:
+    """After the run: the registry applied, the hints, the report, the JUnit file and the lines on the terminal; the
+    exit code. The harness failing in one of them is the run's internal error (``crosscheck.engine.internal``);
+    ``written`` gets an entry once the report is."""
+    applied = None
+    if known:
+        with internal.guarded(result.internal, "divergence registry"):
+            applied = divergences.apply(known, result)
     if result.interrupted:   # what completed, without the hints (they evaluate again): the user wants out
         gate_summary.write(result, command, report, applied)
         return _interrupted(f"{result.interrupted}; partial report written to {report}")
     diagnosis.annotate(result, chosen)
-    _, details = gate_summary.write(result, command, report, applied, gate_summary.mechanism_figures(result, report))
-    if args.junit:
-        junit.write(result, args.junit)
+    figures = {}
+    with internal.guarded(result.internal, "report: pictures"):
+        figures = gate_summary.mechanism_figures(result, report)
+    if args.junit:           # before the report: a failure in writing it is in the report
+        with internal.guarded(result.internal, "junit"):
+            junit.write(result, args.junit)
+    _, details = gate_summary.write(result, command, report, applied, figures)
+    written.append(True)
     for entry in applied.stale if applied else ():
         print(f"crosscheck: warning: stale {entry.describe()} in {applied.registry.source}: compared in this run "
               "but explained no disagreement", file=sys.stderr)
@@ -99,7 +136,7 @@ def cmd_gate(args) -> int:
         broken = sum(bool(s.breakdowns) for s in case.states)
         worst = worst_of(s.worst_ratio for s in case.states)
         checked = [c.worst_ratio for s in case.states for c in s.checks.values()]
-        status = "FAIL" if bad or case.spec.name in result.broken else "ok"
+        status = "FAIL" if bad or case.internal or case.spec.name in result.broken else "ok"
         known_here = sum(c.verdict == KNOWN for s in case.states for c in [*s.comparisons.values(),
                                                                            *s.checks.values()])
         print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {known_here} known, "
@@ -133,10 +170,13 @@ def cmd_gate(args) -> int:
             print(f"FAIL self-test: {line}", file=sys.stderr)
         print(f"self-test: {canary_count(result.self_test)}", file=sys.stderr)
     print(gate_summary.compared_line(result))
+    for found in internal.occurrences(result):
+        print(f"FAIL {found.describe()}")
     findings = sum(len(case.model.findings) for case in result.cases)
     noted = f" with {findings} model finding(s) at its top" if findings else ""
-    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}{noted} (details in {details})")
-    return 0 if result.passed else 1
+    harness = " (the harness itself failed: Internal errors of the harness)" if result.has_internal_errors else ""
+    print(f"{'PASS' if result.passed else 'FAIL'}: report written to {report}{noted}{harness} (details in {details})")
+    return INTERNAL_ERROR if result.has_internal_errors else 0 if result.passed else 1
 
 
 def _gate_progress(display: Display):

@@ -3,6 +3,15 @@
 A DISAGREE carries its severity (how many tolerances the worst pair is apart, :data:`SEVERITY`) and the vote:
 the outlier when three or more voters allow one, or why none is named (:func:`vote`). A DISAGREE that the
 divergence registry explains becomes KNOWN (``crosscheck.engine.divergences``): reported with its reason, not a failure.
+
+Shared code. In a chart or frame check the voters are of two kinds, told apart by their labels: plain ones
+(``newton_euler``: a joint-chart answer, mapped into the chart by the harness; an answer in the original scene) and
+marked ones (``newton_euler@zyx``: a chart-native answer; ``newton_euler@g1``: an answer in the scene the harness moved).
+Between the two sits code every backend shares (``compare(..., shared="chart map zyx")``). When the disagreement
+separates exactly along it (the plain voters agree with each other, the marked ones too, and every pair across
+disagrees), every backend moved together and none is to blame: the shared code is the outlier (``Comparison.shared``)
+when each side has two voters or more; with one voter alone on its side, the vote cannot tell the shared code from
+that voter's backend and names neither.
 """
 
 from __future__ import annotations
@@ -32,6 +41,13 @@ AGREE, DISAGREE, KNOWN, NOT_COMPARED = "agree", "DISAGREE", "KNOWN", "NOT COMPAR
 SEVERITY: tuple[tuple[float, str], ...] = ((10.0, "marginal"), (1e4, "clear"), (np.inf, "gross"))
 
 
+class ToleranceError(ValueError):
+    """A tolerance that is NaN or negative: the harness's own failure (``crosscheck.engine.internal``), which no
+    answer of the backends could agree or disagree with. Raised by :func:`compare` for what its caller computed."""
+
+    caller_to_blame = True
+
+
 @dataclass(frozen=True)
 class Comparison:
     """Verdict for one quantity: the worst pairwise error/tolerance ratio and, when a vote allows, the outlier.
@@ -43,6 +59,9 @@ class Comparison:
     None when everything agrees or no single backend explains the disagreement. ``values`` (voter -> value) is
     kept for a disagreement only, for the report. ``severity`` (:data:`SEVERITY`) is set for a disagreement;
     ``reason`` is the registry's explanation of a KNOWN one. :meth:`closeness` says how close each backend came.
+    ``shared``: the shared code (module doc: ``chart map zyx``, ``frame move g1``) when the disagreement separates
+    exactly along it; it is then the outlier, unless one side has a single voter (the outlier is then None: that voter's
+    backend or the shared code). None otherwise.
     """
 
     quantity: str
@@ -55,6 +74,7 @@ class Comparison:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     severity: str | None = None
     reason: str | None = None
+    shared: str | None = None
 
     @property
     def voters(self) -> tuple[str, ...]:
@@ -105,12 +125,17 @@ def _as_vector(value) -> np.ndarray:
     return np.atleast_1d(np.asarray(value, dtype=float))
 
 
-def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
+def compare(quantity: str, values: dict[str, object], tol, shared: str | None = None) -> Comparison:
     """Compare ``values`` (backend name -> value, None or UNSUPPORTED) pairwise against ``tol``: one tolerance for
-    every entry, or an array of one per entry of the values (flattened)."""
+    every entry, or an array of one per entry of the values (flattened). ``shared``: the name of the code every
+    backend shares between the plain voters and the ``backend@scene`` ones (module doc), blamed when the disagreement
+    separates exactly along it."""
     present = {k: _as_vector(v) for k, v in values.items() if v is not None and not isinstance(v, Unsupported)}
     skipped = tuple(k for k, v in values.items() if isinstance(v, Unsupported))
     tols = np.asarray(tol, dtype=float).ravel()
+    if not (tols >= 0.0).all():
+        raise ToleranceError(f"the tolerance for {quantity} is {tols[~(tols >= 0.0)][0]:g} (NaN or negative): the "
+                             "harness cannot judge it, whatever the backends answer")
     if len(present) < 2:
         return Comparison(quantity, NOT_COMPARED, float(tols.max(initial=0.0)), 0.0, not_compared=skipped)
     ratios = _ratios(_pairwise(list(present.values())), tols)          # (pairs, entries)
@@ -122,8 +147,13 @@ def compare(quantity: str, values: dict[str, object], tol) -> Comparison:
     worst = float(per_pair[worst_pair])
     at = float(tols[entry if tols.size > 1 else 0])
     if not worst <= 1.0:
-        return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
-                          severity(worst))
+        sides = _sides(list(present), pairs) if shared is not None else None
+        if sides is None:
+            return Comparison(quantity, DISAGREE, at, worst, pairs, _outlier(list(present), pairs), skipped, present,
+                              severity(worst))
+        outlier = shared if min(len(side) for side in sides) >= 2 else None
+        return Comparison(quantity, DISAGREE, at, worst, pairs, outlier, skipped, present, severity(worst),
+                          shared=shared)
     return Comparison(quantity, AGREE, at, worst, pairs, None, skipped)
 
 
@@ -176,6 +206,22 @@ def _outlier(names: list[str], pairs: dict[tuple[str, str], float]) -> str | Non
     return None
 
 
+def marked(voter: str) -> bool:
+    """Whether a voter is on the marked side of a shared code (module doc): ``backend@scene``."""
+    return "@" in voter
+
+
+def _sides(names: list[str], pairs: dict[tuple[str, str], float]) -> tuple[list[str], list[str]] | None:
+    """(plain voters, marked voters) when a disagreement among three or more separates exactly between them: every
+    pair on one side agrees, every pair across disagrees; else None."""
+    plain, marks = [n for n in names if not marked(n)], [n for n in names if marked(n)]
+    if len(names) < 3 or not plain or not marks:
+        return None
+    if any((marked(a) != marked(b)) == (r <= 1.0) for (a, b), r in pairs.items()):
+        return None
+    return plain, marks
+
+
 #: Voters that are not backends: a value known exactly (``exact``) and a condition the harness computed itself
 #: (``independent``, ``crosscheck.guards.conditioning``). A disagreement is never blamed on them by elimination.
 NOT_BACKENDS = ("exact", "independent")
@@ -191,7 +237,10 @@ def suspect(comp: Comparison) -> str | None:
     """The backend a disagreement points at: the outlier's backend; or the one backend behind every voter of a
     comparison that involves only it (a frame law: its prediction against its moved answer); or the one backend
     in every disagreeing pair while two or more other voters remain (a chart or frame check, where a backend votes
-    twice, in the joint chart and in the chart or the moved scene); else None."""
+    twice, in the joint chart and in the chart or the moved scene); else None. A disagreement along shared code
+    (``Comparison.shared``) points at that code (its name) when the vote names it, else at no one."""
+    if comp.shared is not None:
+        return comp.shared if comp.outlier == comp.shared else None
     if comp.outlier is not None:
         return backend_of(comp.outlier)
     behind = {backend_of(v) for v in comp.voters} - set(NOT_BACKENDS)
@@ -207,6 +256,8 @@ def suspect(comp: Comparison) -> str | None:
 def vote(comp: Comparison) -> str:
     """How the vote on a disagreement came out, in words: the outlier, or why none is named."""
     named = suspect(comp)
+    if comp.shared is not None:
+        return _shared_vote(comp)
     if comp.outlier == "exact":
         return "outlier exact: the backends agree with each other against the exact value (the state or the claim)"
     if comp.outlier == "independent":
@@ -223,6 +274,20 @@ def vote(comp: Comparison) -> str:
         return f"only two voters ({', '.join(comp.voters)}): no vote, either may be wrong"
     split = ", ".join(f"{a}/{b}" for a, b in comp.disagreeing_pairs)
     return f"split vote: no single backend explains it among {len(comp.voters)} voters (apart: {split})"
+
+
+def _shared_vote(comp: Comparison) -> str:
+    """:func:`vote` for a disagreement along shared code (``Comparison.shared``)."""
+    sides = _sides(list(comp.voters), comp.pairs)
+    if sides is None:       # a check of one backend blamed on the shared code by the state's other checks (frame laws)
+        return (f"outlier {comp.shared} (shared code) — every backend moves together: the other checks of the state "
+                f"separate along it, so {' vs '.join(comp.voters)} is not one backend's")
+    few, many = sorted(sides, key=len)
+    if comp.outlier == comp.shared:
+        return (f"outlier {comp.shared} (shared code) — every backend moves together: the {len(few)} voters "
+                f"{', '.join(few)} agree with each other against the {len(many)} others, which agree with each other")
+    return (f"{comp.shared} (shared code) or {few[0]}, the only voter on its side: the {len(many)} others agree with "
+            f"each other against it; one voter alone cannot tell its backend from the shared code")
 
 
 @dataclass(frozen=True)

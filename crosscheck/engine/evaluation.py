@@ -5,7 +5,12 @@ Each backend runs once per state and scene (joint chart, each chart, the moved s
 trusted joint-chart splits are computed once per state and shared by every check. A case's states are evaluated in
 blocks (:meth:`CaseSetup.evaluate_block`): a backend with a block form (``formalisms.interface.with_block_form``)
 splits a block's states in one call in the joint chart and in each moved scene, with the very numbers of its
-state-by-state ``split``, so the outcomes are those of one state at a time."""
+state-by-state ``split``, so the outcomes are those of one state at a time.
+
+The gate evaluates with ``guard=True``: an exception the harness's own code raises in a check (a tolerance, a chart
+map, a frame move) is recorded as an internal error of that check in ``outcome.internal``
+(``crosscheck.engine.internal``), and the other checks and states go on; a backend raising is its error, as always.
+Without ``guard`` (``crosscheck eval``, the fuzzer, the self-test's own calls) such an exception propagates."""
 
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ from crosscheck.checks import charts as chart_catalog, conservation, equilibria,
 from crosscheck.core import tolerance
 from crosscheck.core.compare import compare
 from crosscheck.core.sampling import State
+from crosscheck.engine.internal import guarded
 from crosscheck.engine.outcomes import StateOutcome
 from crosscheck.engine.phases import Clock
 from crosscheck.engine.specs import CaseSpec, Checks
@@ -26,22 +32,23 @@ from crosscheck.guards import conditioning
 from formalisms.interface import UNSUPPORTED, block_form, Formalism, ModelNotSupported, Split
 
 
-def run_backends(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None
-                 ) -> StateOutcome:
+def run_backends(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None,
+                 guard: bool = False) -> StateOutcome:
     """Every backend's split at ``state``, the errors they raised and the backends in BREAKDOWN, without the
     comparisons (what a moved scene needs: :func:`add_checks`). A backend raising ``ModelNotSupported`` is in
-    neither ``splits`` nor ``errors``."""
-    return run_block(model, [state], backends, clock)[0]
+    neither ``splits`` nor ``errors``. ``guard``: the harness's own failure is an internal error (module doc)."""
+    return run_block(model, [state], backends, clock, guard)[0]
 
 
-def run_block(model: Model, states: Sequence[State], backends: Sequence[Formalism], clock: Clock | None = None
-              ) -> list[StateOutcome]:
+def run_block(model: Model, states: Sequence[State], backends: Sequence[Formalism], clock: Clock | None = None,
+              guard: bool = False) -> list[StateOutcome]:
     """:func:`run_backends` at each of ``states``, every backend over the block at once (:func:`_split_states`);
     ``clock`` receives each state's share of a backend's time on the block."""
     clock = clock or Clock()
     found = {backend.name: clock.timed(backend.name, lambda: _split_states(backend, model, states), len(states))
              for backend in backends}
-    return [outcome_of(state, {name: splits[k] for name, splits in found.items()}) for k, state in enumerate(states)]
+    return [outcome_of(state, {name: splits[k] for name, splits in found.items()}, guard)
+            for k, state in enumerate(states)]
 
 
 def _split_states(backend: Formalism, model: Model, states: Sequence[State]) -> list[tuple[Split | None, str | None]]:
@@ -74,13 +81,18 @@ def _split_one(backend: Formalism, model: Model, state: State) -> tuple[Split | 
         return None, f"{type(exc).__name__}: {exc}"
 
 
-def outcome_of(state: State, found: dict[str, tuple[Split | None, str | None]]) -> StateOutcome:
+def outcome_of(state: State, found: dict[str, tuple[Split | None, str | None]], guard: bool = False
+               ) -> StateOutcome:
     """The outcome at ``state`` of the backends' splits and errors (:func:`_split_one`, by backend), without the
-    comparisons; the backends in BREAKDOWN found from their splits."""
+    comparisons; the backends in BREAKDOWN found from their splits (``guard``: the harness failing to find them is
+    the internal error ``breakdown conditions``, and no backend is in BREAKDOWN)."""
     splits = {name: split for name, (split, _) in found.items() if split is not None}
     errors = {name: error for name, (_, error) in found.items() if error is not None}
-    breakdowns = {name: b for name, split in splits.items() if (b := tolerance.breakdown(split))}
-    return StateOutcome(state, splits, errors, {}, breakdowns)
+    internal: dict = {}
+    breakdowns: dict[str, dict[str, float]] = {}
+    with guarded(internal if guard else None, "breakdown conditions"):
+        breakdowns = {name: b for name, split in splits.items() if (b := tolerance.breakdown(split))}
+    return StateOutcome(state, splits, errors, {}, breakdowns, internal=internal)
 
 
 def evaluate(model: Model, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
@@ -100,12 +112,16 @@ def evaluate(model: Model, state: State, backends: Sequence[Formalism], clock: C
     return outcome
 
 
-def judge(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+def judge(model: Model, outcome: StateOutcome, backends: Sequence[Formalism], guard: bool = False) -> None:
     """What :func:`evaluate` does once the ``backends`` have run at ``outcome``'s state: the conditioning audit and
-    the comparisons, the backends that declined the model joining them as UNSUPPORTED."""
-    outcome.checks.update(conditioning.audit(model, outcome.state, outcome.splits, outcome.breakdowns))
-    compare_all(model, outcome, [b.name for b in backends if b.name not in outcome.splits
-                                 and b.name not in outcome.errors])
+    the comparisons, the backends that declined the model joining them as UNSUPPORTED. ``guard``: the harness failing
+    in either is the internal error ``conditions audit`` or ``comparisons`` (module doc)."""
+    found = outcome.internal if guard else None
+    with guarded(found, "conditions audit"):
+        outcome.checks.update(conditioning.audit(model, outcome.state, outcome.splits, outcome.breakdowns))
+    with guarded(found, "comparisons"):
+        compare_all(model, outcome, [b.name for b in backends if b.name not in outcome.splits
+                                     and b.name not in outcome.errors])
 
 
 def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] = ()) -> None:
@@ -127,37 +143,53 @@ def compare_all(model: Model, outcome: StateOutcome, unsupported: Sequence[str] 
 
 def add_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
                case_charts: Sequence[chart_catalog.Chart], scene: tuple[frames.Frame, Model] | None,
-               do_conservation: bool, there: StateOutcome | None = None) -> None:
+               do_conservation: bool, there: StateOutcome | None = None, guard: bool = False) -> None:
     """Add the chart checks, the frame checks against the moved ``scene`` (frame, moved model) and the conservation
     checks at ``outcome``'s state to it; a backend raising in a chart or in the moved scene is an error there. The
     trusted splits' scales are computed once (``outcome.scales``, else here) and shared by every check. ``there``:
-    the backends' outcome in the moved scene when the caller has run them (:func:`run_block`), else they run here."""
-    state, trusted = outcome.state, outcome.trusted
+    the backends' outcome in the moved scene when the caller has run them (:func:`run_block`), else they run here.
+    ``guard``: the harness failing in a check is an internal error of that check (``chart zyx``, ``frame g1``,
+    ``conservation``; module doc), and the other checks go on."""
+    state = outcome.state
+    found = outcome.internal if guard else None
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]  # not ModelNotSupported
-    if trusted and outcome.scales is None:
-        outcome.scales = tolerance.scales(trusted.values(), model, state.q, state.qd, u=state.u)
+
+    def scales() -> tolerance.Scales | None:
+        """The trusted splits' scales, computed on first use (inside the check that uses them first)."""
+        if outcome.scales is None and outcome.trusted:
+            outcome.scales = tolerance.scales(outcome.trusted.values(), model, state.q, state.qd, u=state.u)
+        return outcome.scales
+
     for chart in case_charts:
-        outcome.checks.update(invariance.chart_checks(model, state, chart, trusted, supported, outcome.errors,
-                                                      outcome.scales))
+        with guarded(found, f"chart {chart.name}"):
+            outcome.checks.update(invariance.chart_checks(model, state, chart, outcome.trusted, supported,
+                                                          outcome.errors, scales()))
     if scene is not None:
         frame, moved = scene
-        there = run_backends(moved, state, backends) if there is None else there
-        outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
-        outcome.checks.update(invariance.frame_checks(model, frame, state, trusted, there.trusted, outcome.scales,
-                                                      moved))
-    if do_conservation and trusted:
-        outcome.checks.update(conservation.checks(model, state, trusted, outcome.scales))
+        with guarded(found, f"frame {frame.name}"):
+            there = run_backends(moved, state, backends, guard=guard) if there is None else there
+            outcome.errors.update({f"{name}@{frame.name}": message for name, message in there.errors.items()})
+            for check, error in there.internal.items():      # the harness failing in the moved scene's outcome
+                outcome.internal.setdefault(f"frame {frame.name}: {check}", error)
+            outcome.checks.update(invariance.frame_checks(model, frame, state, outcome.trusted, there.trusted,
+                                                          scales(), moved))
+    with guarded(found, "conservation"):
+        if do_conservation and outcome.trusted:
+            outcome.checks.update(conservation.checks(model, state, outcome.trusted, scales()))
 
 
-def add_linearization_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
+def add_linearization_checks(model: Model, outcome: StateOutcome, backends: Sequence[Formalism],
+                             guard: bool = False) -> None:
     """Add the comparisons of the backends' linearizations (``crosscheck.checks.linearization``) at ``outcome``'s state,
-    the backends that raised in ``linearize`` joining its errors; nothing when no split is trusted (no scales)."""
+    the backends that raised in ``linearize`` joining its errors; nothing when no split is trusted (no scales).
+    ``guard``: the harness failing here is the internal error ``linearization`` (module doc)."""
     if outcome.scales is None:
         return
     supported = [b for b in backends if b.name in outcome.splits or b.name in outcome.errors]
-    found, errors = linearization.checks(model, outcome.state, supported, outcome.scales)
-    outcome.checks.update(found)
-    outcome.errors.update({f"{name} (linearize)": message for name, message in errors.items()})
+    with guarded(outcome.internal if guard else None, "linearization"):
+        found, errors = linearization.checks(model, outcome.state, supported, outcome.scales)
+        outcome.checks.update(found)
+        outcome.errors.update({f"{name} (linearize)": message for name, message in errors.items()})
 
 
 @dataclass(frozen=True)
@@ -174,8 +206,9 @@ class CaseSetup:
     linearization: bool = False
 
     @classmethod
-    def build(cls, spec: CaseSpec, seed: int, checks: Checks = Checks()) -> "CaseSetup":
-        model = spec.build()
+    def build(cls, spec: CaseSpec, seed: int, checks: Checks = Checks(), model: Model | None = None) -> "CaseSetup":
+        """The case set up from ``spec`` (``model``: ``spec.build()`` when the caller has built it already)."""
+        model = spec.build() if model is None else model
         case_charts = chart_catalog.sampled(model, seed, spec.name) if checks.charts else []
         case_frames = frames.sampled(seed, spec.name, checks.frames) if checks.frames > 0 else []
         scenes = tuple((frame, frames.move_scene(model, frame)) for frame in case_frames)
@@ -187,27 +220,31 @@ class CaseSetup:
         """The moved scene state ``i`` is checked in: frame ``i mod frames``."""
         return self.scenes[state.index % len(self.scenes)] if self.scenes else None
 
-    def evaluate(self, state: State, backends: Sequence[Formalism], clock: Clock | None = None) -> StateOutcome:
+    def evaluate(self, state: State, backends: Sequence[Formalism], clock: Clock | None = None,
+                 guard: bool = False) -> StateOutcome:
         """Everything the gate does at one state: the comparisons (:func:`evaluate`) among ``backends`` and the case's
-        own voters (its closed form), and the checks (:func:`add_checks`)."""
-        (outcome,) = self.evaluate_block([state], backends, clock)
+        own voters (its closed form), and the checks (:func:`add_checks`); ``guard`` as in :meth:`evaluate_block`."""
+        (outcome,) = self.evaluate_block([state], backends, clock, guard)
         return outcome
 
     def evaluate_block(self, states: Sequence[State], backends: Sequence[Formalism],
-                       clock: Clock | None = None) -> Iterator[StateOutcome]:
+                       clock: Clock | None = None, guard: bool = False) -> Iterator[StateOutcome]:
         """:meth:`evaluate` at each of ``states``, yielded as each is done: the backends run over the block at once in
         the joint chart and in each moved scene (the states checked there, :func:`run_block`), then state by state
-        come the comparisons and the checks."""
+        come the comparisons and the checks. ``guard`` (the gate): the harness failing in a check is an internal error
+        of that check at that state (module doc), and the other checks and states go on."""
         backends, own = [*backends, *self.voters], backends
-        outcomes = run_block(self.model, states, backends, clock)
-        moved = self._moved(states, backends)
+        outcomes = run_block(self.model, states, backends, clock, guard)
+        moved = self._moved(states, backends, guard)
         for outcome, there in zip(outcomes, moved):
-            judge(self.model, outcome, backends)
-            add_checks(self.model, outcome, backends, self.charts, self.scene(outcome.state), self.conservation, there)
+            judge(self.model, outcome, backends, guard)
+            add_checks(self.model, outcome, backends, self.charts, self.scene(outcome.state), self.conservation, there,
+                       guard)
             if self.linearization and outcome.state.index < linearization.STATES:
-                add_linearization_checks(self.model, outcome, own)
+                add_linearization_checks(self.model, outcome, own, guard)
             if self.linearization and outcome.state.index == 0:
-                self._equilibria(outcome, own)
+                with guarded(outcome.internal if guard else None, "equilibria"):
+                    self._equilibria(outcome, own)
             yield outcome
 
     def _equilibria(self, outcome: StateOutcome, backends: Sequence[Formalism]) -> None:
@@ -221,12 +258,13 @@ class CaseSetup:
             outcome.checks.update(found)
             outcome.errors.update(errors)
 
-    def _moved(self, states: Sequence[State], backends: Sequence[Formalism]) -> list[StateOutcome | None]:
+    def _moved(self, states: Sequence[State], backends: Sequence[Formalism], guard: bool = False
+               ) -> list[StateOutcome | None]:
         """The backends' outcome at each of ``states`` in the moved scene it is checked in (:meth:`scene`), each
         scene's states as one block; None for every state when the case has no moved scenes."""
         out: list[StateOutcome | None] = [None] * len(states)
         for k, (_, moved) in enumerate(self.scenes):
             at = [j for j, state in enumerate(states) if state.index % len(self.scenes) == k]
-            for j, there in zip(at, run_block(moved, [states[j] for j in at], backends)):
+            for j, there in zip(at, run_block(moved, [states[j] for j in at], backends, guard=guard)):
                 out[j] = there
         return out

@@ -10,6 +10,7 @@ from crosscheck.checks import frames
 from crosscheck.core import tolerance
 from crosscheck.core.compare import DISAGREE, backend_of, Comparison, worst_of
 from crosscheck.core.sampling import State
+from crosscheck.engine.internal import InternalError
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import coverage as coverage_of
 from formalisms.interface import Split
@@ -20,7 +21,8 @@ class StateOutcome:
     """All backends at one state: their splits, any errors they raised, the backends in BREAKDOWN (condition name
     -> value above its limit; left out of the comparisons) and one comparison per quantity; ``hint``, for a failing
     state, what the shape of the error suggests (``crosscheck.reports.diagnosis``); ``scales``, the tolerance scales of
-    the trusted splits (None when no split is trusted)."""
+    the trusted splits (None when no split is trusted); ``internal``, the harness's own failures at this state, by
+    check (``crosscheck.engine.internal``: ``chart zyx`` -> the exception it raised), each failing the state."""
 
     state: State
     splits: dict[str, Split]
@@ -30,11 +32,12 @@ class StateOutcome:
     checks: dict[str, Comparison] = field(default_factory=dict)
     hint: str = ""
     scales: tolerance.Scales | None = None
+    internal: dict[str, InternalError] = field(default_factory=dict)
 
     @property
     def failed(self) -> bool:
-        return bool(self.errors) or any(c.verdict == DISAGREE for c in self.comparisons.values()) or any(
-            c.verdict == DISAGREE for c in self.checks.values())
+        return (bool(self.errors) or bool(self.internal) or any(c.verdict == DISAGREE for c in self.comparisons.values())
+                or any(c.verdict == DISAGREE for c in self.checks.values()))
 
     @property
     def trusted(self) -> dict[str, Split]:
@@ -55,7 +58,9 @@ class StateOutcome:
 
 @dataclass
 class CaseOutcome:
-    """One case's states and timings (first call includes one-off preparation such as symbolic derivation)."""
+    """One case's states and timings (first call includes one-off preparation such as symbolic derivation);
+    ``internal``, the harness's own failures in setting up or running the case outside its states, by check (``case
+    setup``, ``sampling``, ``coverage``, ``case``: ``crosscheck.engine.internal``), each failing the case."""
 
     spec: CaseSpec
     model: Model
@@ -66,10 +71,12 @@ class CaseOutcome:
     frames: tuple[frames.Frame, ...] = ()
     coverage: coverage_of.Coverage | None = None
     closed_form: str = ""
+    internal: dict[str, InternalError] = field(default_factory=dict)
 
     @property
     def failed(self) -> bool:
-        return any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
+        return (any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
+                or bool(self.internal))
 
     def mostly_broken(self) -> dict[str, int]:
         """The backends wholly in BREAKDOWN (``tolerance.whole``: out of the vote) at more than half of this case's
@@ -96,7 +103,9 @@ class GateResult:
     part in some comparison (a backend that declines every model, or is in BREAKDOWN everywhere, checks nothing);
     ``self_test`` the canaries' outcome (``crosscheck.guards.selftest``), None when skipped; ``interrupted``, for a run
     ended by Ctrl-C, where it stopped ("after 37/100 states of case 'panda'"; :class:`Interrupted`), "" otherwise;
-    ``allow_breakdown`` the backends that may be in BREAKDOWN at most states of a case (:attr:`broken`)."""
+    ``allow_breakdown`` the backends that may be in BREAKDOWN at most states of a case (:attr:`broken`); ``internal``
+    the harness's own failures outside the cases (the self-test, a section of the report), by check
+    (``crosscheck.engine.internal``)."""
 
     seed: int
     samples: int
@@ -107,6 +116,7 @@ class GateResult:
     self_test: object = None
     interrupted: str = ""
     allow_breakdown: tuple[str, ...] = ()
+    internal: dict[str, InternalError] = field(default_factory=dict)
 
     @property
     def absent(self) -> tuple[str, ...]:
@@ -132,6 +142,13 @@ class GateResult:
 
     @property
     def passed(self) -> bool:
-        """Whether the run finished and nothing failed (an interrupted run never passes)."""
+        """Whether the run finished and nothing failed (an interrupted run never passes, nor one where the harness
+        failed: :attr:`has_internal_errors`)."""
         return (not self.interrupted and not any(c.failed for c in self.cases) and not self.absent
-                and not self.broken and (self.self_test is None or self.self_test.passed))
+                and not self.broken and (self.self_test is None or self.self_test.passed)
+                and not self.has_internal_errors)
+
+    @property
+    def has_internal_errors(self) -> bool:
+        """Whether the harness's own code failed anywhere in the run (``crosscheck.engine.internal``)."""
+        return bool(self.internal) or any(c.internal or any(s.internal for s in c.states) for c in self.cases)

@@ -51,10 +51,13 @@ def _worker_case(run_case: Callable[..., CaseOutcome], spec: CaseSpec, samples: 
 
 def in_pool(run_case: Callable[..., CaseOutcome], specs: Sequence[CaseSpec], backends: Sequence[Formalism],
              samples: int, seed: int, tell: Callable[[Step], None], checks: Checks, workers: int,
-             outcomes: list[CaseOutcome]) -> None:
+             outcomes: list[CaseOutcome], failed: Callable[[CaseSpec, Exception], CaseOutcome] | None = None,
+             passing: tuple[type[BaseException], ...] = ()) -> None:
     """The cases, each run by ``run_case``, in ``workers`` spawned processes, the largest models (most coordinates)
     first so that no worker is left with a large case at the end; their outcomes added to ``outcomes`` in case order. On
-    Ctrl-C the outcomes already in, in case order, are kept there, and the workers are stopped."""
+    Ctrl-C the outcomes already in, in case order, are kept there, and the workers are stopped. ``failed``: the outcome
+    of a case whose worker raised (the harness's failure: ``crosscheck.engine.run.failed_case``), the exceptions of
+    ``passing`` (bad input) aside, which propagate; None: every exception propagates."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")
@@ -66,9 +69,23 @@ def in_pool(run_case: Callable[..., CaseOutcome], specs: Sequence[CaseSpec], bac
         try:
             for k, spec in enumerate(specs):
                 tell(Step(spec.name, 0, samples, IN_WORKER))
-                outcomes.append(pending[k].get())
+                outcomes.append(_outcome(pending[k], spec, failed, passing))
                 tell(Step(spec.name, samples, samples, DONE))
         except KeyboardInterrupt:
             outcomes[:] = [pending[k].get() for k in range(len(specs))
                            if pending[k].ready() and pending[k].successful()]
             raise
+
+
+def _outcome(pending, spec: CaseSpec, failed: Callable[[CaseSpec, Exception], CaseOutcome] | None,
+             passing: tuple[type[BaseException], ...]) -> CaseOutcome:
+    """A worker's outcome of ``spec``, or ``failed(spec, exc)`` for what it raised (module doc of
+    ``crosscheck.engine.internal``: the harness's failure in a worker process is the case's internal error)."""
+    if failed is None:
+        return pending.get()
+    try:
+        return pending.get()
+    except passing:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the harness's failure in the worker (its traceback is the cause)
+        return failed(spec, exc)

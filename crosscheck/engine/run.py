@@ -7,6 +7,13 @@ outcomes, in case order. ``run_gate(..., progress=...)`` tells a progress displa
 (``crosscheck.engine.phases.Step``: the case, the states evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends
 the run with :class:`Interrupted`, which carries the partial result: every state evaluated until then, marked as
 interrupted, never passing.
+
+The harness's own failures do not end the run (``crosscheck.engine.internal``): an exception its code raises in a
+check at a state is an internal error of that check there (``CaseSetup.evaluate_block(..., guard=True)``); one in
+setting up a case (its charts, moved scenes, closed form), drawing its states or measuring their coverage, or anywhere
+else in running it, is the case's (the case fails, the other cases run); one in the self-test is the run's. A model
+that is bad input (``cases.CaseError``, ``cases.model.ModelError``, ...: :data:`INPUT_ERRORS`) still raises, as
+before: the command line refuses it before the run.
 """
 
 from __future__ import annotations
@@ -14,17 +21,25 @@ from __future__ import annotations
 import warnings
 from typing import Callable, Iterator, Sequence
 
+import cases
+from cases.build import TaskPointError
+from cases.model import ModelError
 from crosscheck import isolation
-from crosscheck.core.sampling import sample_states, State
+from crosscheck.core.sampling import ProjectionError, sample_states, State
 from crosscheck.engine import pool, prepare
 from crosscheck.engine.evaluation import CaseSetup
+from crosscheck.engine.internal import guarded, InternalError, of as internal_error
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.engine.phases import DONE, EVALUATING, SELF_TEST, SETTING_UP, _ignore, Clock, Step
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import coverage as coverage_of, selftest
 from crosscheck.references import closed_forms
-from formalisms.interface import Formalism, ModelNotSupported
+from formalisms.interface import Formalism, ModelNotSupported, StateError
 
+
+#: What a model or its states that are bad input raise: the user's error, not the harness's. It propagates from a
+#: case (``crosscheck.cli`` turns it into exit 2), never becoming an internal error.
+INPUT_ERRORS = (cases.CaseError, cases.UrdfError, ModelError, StateError, TaskPointError, ProjectionError)
 
 #: States a case evaluates as one block after its first state (:func:`run_case`): enough that a backend's block form
 #: spreads numpy's per-call cost over many states, few enough that the splits of a block take little memory.
@@ -55,11 +70,18 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     every :class:`Step`. ``derive_ahead``: a CPU is free for a helper process that derives the charts ahead
     (``crosscheck.engine.prepare``). A plugin that crashed too often in the case before is tried again
     (``crosscheck.isolation.new_case``). Ctrl-C raises :class:`_CaseInterrupted` with the states evaluated until
-    then."""
+    then. The harness failing in setting up the case or in running it outside a state's checks is an internal error
+    of the case (module doc); a model that is bad input raises (:data:`INPUT_ERRORS`)."""
     tell = progress or _ignore
     tell(Step(spec.name, 0, samples, SETTING_UP))
     isolation.new_case()
-    setup = CaseSetup.build(spec, seed, checks)
+    model = spec.build()                 # bad input raises here (the command line refused it before the run)
+    internal: dict[str, InternalError] = {}
+    with guarded(internal, "case setup"):
+        setup = CaseSetup.build(spec, seed, checks, model)
+    if internal:
+        tell(Step(spec.name, 0, 0, DONE))
+        return CaseOutcome(spec, model, [], internal=internal)
     seconds = announce_preparation(setup, backends)
     helper = prepare.ahead(setup, backends, seconds, checks, seed) if derive_ahead else None
     try:
@@ -71,7 +93,10 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
 def _run_case(setup: CaseSetup, backends: Sequence[Formalism], samples: int, seed: int,
               tell: Callable[[Step], None], checks: Checks) -> CaseOutcome:
     spec = setup.spec
-    states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
+    internal: dict[str, InternalError] = {}
+    states: list[State] = []
+    with guarded(internal, "sampling", passing=INPUT_ERRORS):
+        states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
     outcomes: list[StateOutcome] = []
 
     def at(phase: str) -> None:
@@ -81,14 +106,17 @@ def _run_case(setup: CaseSetup, backends: Sequence[Formalism], samples: int, see
     try:
         at(EVALUATING)
         for block in _blocks(states):
-            for outcome in setup.evaluate_block(block, backends, clock):
+            for outcome in setup.evaluate_block(block, backends, clock, guard=True):
                 outcomes.append(outcome)
                 if len(outcomes) < len(states):
                     at(EVALUATING)
     except KeyboardInterrupt:
-        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks)) from None
+        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks, internal)) from None
     at(DONE)
-    return _case_outcome(setup, outcomes, clock, coverage_of.measure(setup.model, states), checks)
+    coverage = None
+    with guarded(internal, "coverage"):
+        coverage = coverage_of.measure(setup.model, states) if states else None
+    return _case_outcome(setup, outcomes, clock, coverage, checks, internal)
 
 
 #: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
@@ -111,6 +139,8 @@ def preparation_seconds(setup: CaseSetup, backend: Formalism) -> float:
         return backend.preparation(model, None) + sum(backend.preparation(model, c) for c in setup.charts)
     except ModelNotSupported:
         return 0.0
+    except Exception:  # noqa: BLE001 - a backend's estimate failing: no notice; its own calls report its errors
+        return 0.0
 
 
 def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> float:
@@ -131,11 +161,33 @@ def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> flo
 
 
 def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
-                  coverage: coverage_of.Coverage | None, checks: Checks) -> CaseOutcome:
-    """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case)."""
+                  coverage: coverage_of.Coverage | None, checks: Checks,
+                  internal: dict[str, InternalError] | None = None) -> CaseOutcome:
+    """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case);
+    ``internal`` the case's own internal errors."""
     return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
                        tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
-                       _closed_form_coverage(setup.spec, checks))
+                       _closed_form_coverage(setup.spec, checks), dict(internal or {}))
+
+
+def run_case_guarded(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,
+                     progress: Callable[[Step], None] | None = None, checks: Checks = Checks(),
+                     derive_ahead: bool = False) -> CaseOutcome:
+    """:func:`run_case`, with any exception it raises but bad input (:data:`INPUT_ERRORS`) and Ctrl-C turned into the
+    case's internal error ``case``: the case fails, with no states, and the run goes on."""
+    try:
+        return run_case(spec, backends, samples, seed, progress, checks, derive_ahead)
+    except INPUT_ERRORS:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the harness's own failure: the case's internal error
+        (progress or _ignore)(Step(spec.name, 0, 0, DONE))
+        return failed_case(spec, exc)
+
+
+def failed_case(spec: CaseSpec, exc: Exception) -> CaseOutcome:
+    """The outcome of a case whose run raised ``exc`` (the harness's failure): no states, the internal error
+    ``case``."""
+    return CaseOutcome(spec, spec.build(), [], internal={"case": internal_error(exc)})
 
 
 def _blocks(states: Sequence[State]) -> Iterator[Sequence[State]]:
@@ -181,13 +233,15 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
                         allow_breakdown=tuple(allow_breakdown))
     try:
         if pooled:
-            pool.in_pool(run_case, specs, backends, samples, seed, tell, checks, count, outcomes)
+            pool.in_pool(run_case_guarded, specs, backends, samples, seed, tell, checks, count, outcomes,
+                         failed_case, INPUT_ERRORS)
         else:
             for spec in specs:      # one case at a time here: the other CPUs may derive ahead
-                outcomes.append(run_case(spec, backends, samples, seed, tell, checks, derive_ahead=True))
+                outcomes.append(run_case_guarded(spec, backends, samples, seed, tell, checks, derive_ahead=True))
         if checks.self_test:
             tell(Step("", 0, 0, SELF_TEST))
-            result.self_test = selftest.run(checks=checks)
+            with guarded(result.internal, "self-test"):
+                result.self_test = selftest.run(checks=checks)
     except KeyboardInterrupt as exc:
         result.interrupted = _where(exc, specs, samples, outcomes, pooled)
         raise Interrupted(result) from None

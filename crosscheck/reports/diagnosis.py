@@ -43,6 +43,7 @@ from cases.model import Model
 from crosscheck.backends import REFERENCE_NAME
 from crosscheck.core.compare import DISAGREE, Comparison, suspect
 from crosscheck.core.tolerance import CONSTRAINED_QUANTITIES
+from crosscheck.engine.internal import guarded
 from crosscheck.engine.outcomes import GateResult, StateOutcome
 from formalisms.interface import Formalism, Split, Unsupported
 
@@ -236,20 +237,29 @@ def _work_and_energy(probe: Probe, u: tuple[float, ...]) -> str:
             "that is not the others'")
 
 
+CHART_MAP = "the chart map (Dpsi, its rate, the covector map Dpsi^T)"
+FRAME_MOVE = "the frame transformation (the moved scene, Ad_g, Ad_g^-T)"
+
+
 def _check_hint(failing: Mapping[str, Comparison]) -> str:
     """Only chart, frame or conservation checks fail: the maps, not the dynamics."""
     families = sorted({key.split(":")[0] for key in failing})
-    named = Counter(who for c in failing.values() if (who := suspect(c)) is not None)
+    shared = sorted({c.shared for c in failing.values() if c.shared is not None and c.outlier == c.shared})
+    named = Counter(who for c in failing.values() if (who := suspect(c)) is not None and who not in shared)
     keys = ", ".join(sorted(failing)[:4]) + (", ..." if len(failing) > 4 else "")
+    if shared and not named:     # the vote named code every backend shares (crosscheck.core.compare, shared code)
+        return (f"only in a chart or frame check ({keys}); pointing at the {' and the '.join(shared)} (shared code) — "
+                "every backend moves together: " + " or ".join(
+                    ([CHART_MAP] if any(s.startswith("chart") for s in shared) else [])
+                    + ([FRAME_MOVE] if any(s.startswith("frame") for s in shared) else [])) + ", not a backend")
     causes = []
     if any(f.startswith("chart") for f in families):
-        causes.append("the chart map (Dpsi, its rate, the covector map Dpsi^T)"
-                      if not named else "a chart-native evaluation")
+        causes.append(CHART_MAP if not named else "a chart-native evaluation")
     if any(f.startswith("frame") for f in families):
-        causes.append("the frame transformation (the moved scene, Ad_g, Ad_g^-T)")
+        causes.append(FRAME_MOVE)
     if "conservation" in families:
         causes.append("the energy bookkeeping or the Christoffel symbols")
-    who = f"pointing at {', '.join(named)}" if named else "no single backend named"
+    who = f"pointing at {', '.join([*shared, *named])}" if named else "no single backend named"
     where = "a chart or frame check" if "conservation" not in families else "invariance or conservation checks"
     return f"only in {where} ({keys}); {who}: {' or '.join(causes)}"
 
@@ -348,8 +358,10 @@ HINTED_STATES = 20
 
 
 def annotate(result: GateResult, backends: Sequence[Formalism], limit: int = HINTED_STATES) -> int:
-    """Set ``hint`` on the first ``limit`` failing states of ``result`` (run order); returns how many."""
+    """Set ``hint`` on the first ``limit`` failing states of ``result`` (run order); returns how many. The harness
+    failing in a hint is that state's internal error ``diagnosis hint`` (``crosscheck.engine.internal``)."""
     failing = [(case, state) for case in result.cases for state in case.states if state.failed][:limit]
     for case, state in failing:
-        state.hint = hint(case.model, state, backends)
+        with guarded(state.internal, "diagnosis hint"):
+            state.hint = hint(case.model, state, backends)
     return len(failing)

@@ -1,7 +1,8 @@
-"""The gate report's second part (``NAME-details.md`` next to the summary): the tolerance policy, counts per verdict,
-suspects, voters, the task points, the per-quantity table, the self-test, coverage, known divergences, stale registry
-entries, breakdowns, the invariance and conservation checks, the constraint power audit, the external load power, the
-drift's parts, the worst state per case and the timing (the only part that changes between runs of one seed)."""
+"""The gate report's second part (``NAME-details.md`` next to the summary): the harness's internal errors (with their
+tracebacks' frames in the project), the tolerance policy, counts per verdict, suspects, voters, the task points, the
+per-quantity table, the self-test, coverage, known divergences, stale registry entries, breakdowns, the invariance and
+conservation checks, the constraint power audit, the external load power, the drift's parts, the worst state per case
+and the timing (the only part that changes between runs of one seed)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.references.pinocchio import build, reference
 from crosscheck.reports import gate_closeness
 from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, VERDICTS, all_comparisons, check_groups, condition_text,
-                                           no_chart, policy_lines, ratio_of, reproduce_command, scope_text, severity_of,
-                                           state_detail, task_point_lines, vec_text, verdict_text)
+                                           internal_lines, no_chart, policy_lines, ratio_of, reproduce_command,
+                                           scope_text, sections, severity_of, state_detail, task_point_lines, vec_text,
+                                           verdict_text)
 from formalisms.interface import Unsupported
 
 
@@ -82,7 +84,8 @@ def _suspects_section(result: GateResult) -> list[str]:
     if not rows:
         return ["Suspects: none (no disagreement).", ""]
     return ["Suspects (the backend each disagreement points at: the outlier of a vote of three or more, or the one "
-            "backend behind a frame law):", "",
+            "backend behind a frame law; or the shared code every backend moved together with, a chart map or a frame "
+            "move):", "",
             "| case | suspect | quantities | checks | states |", "|---|---|---|---|---|"] + rows + [""]
 
 
@@ -389,34 +392,42 @@ def details(result: GateResult, command: str, applied: Applied | None = None, su
     the drift's parts), the worst state per case and the timing; ``summary_link`` the file holding :func:`summary`,
     if any; ``closeness`` the per-backend table's cells (``gate_closeness.of``, computed here if None)."""
     back = f" (summary: [{summary_link}]({summary_link}))" if summary_link else ""
-    lines = [f"# crosscheck gate report: details{back}", "",
-             f"**{verdict_text(result)}**; command `{command}`, seed {result.seed}.", ""]
-    lines += policy_lines() + ["", "## Summary", "", "Comparisons per verdict (quantities and checks) and states:",
-                                ""]
-    lines += _counts_rows(result) + [""]
-    lines += _suspects_section(result)
-    lines += _voters_section(result)
-    lines += ["Task points:", ""] + [line for case in result.cases for line in task_point_lines(case)] + [""]
-    lines += ["Per quantity:", "",
-              "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
-              "at state | not supplied by |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    body = sections(result, [
+        ("tolerance policy", lambda: policy_lines() + [""]),
+        ("counts", lambda: ["## Summary", "", "Comparisons per verdict (quantities and checks) and states:", ""]
+         + _counts_rows(result) + [""]),
+        ("suspects", lambda: _suspects_section(result)),
+        ("voters", lambda: _voters_section(result)),
+        ("task points", lambda: ["Task points:", ""] + [line for case in result.cases
+                                                        for line in task_point_lines(case)] + [""]),
+        ("per quantity", lambda: _per_quantity(result)),
+        ("per-backend closeness per case", lambda: gate_closeness.case_closeness_section(result, closeness)),
+        ("self-test", lambda: _self_test_section(result)),
+        ("coverage", lambda: _coverage_section(result)),
+        ("known divergences", lambda: _known_section(result)),
+        ("registry", lambda: _registry_section(applied)),
+        ("breakdowns", lambda: _breakdown_section(result)),
+        ("checks", lambda: _checks_section(result)),
+        ("power audit", lambda: _power_audit(result)),
+        ("external power", lambda: _external_power(result)),
+        ("drift parts", lambda: _drift_parts_section(result)),
+        ("worst states", lambda: _worst_states_section(result)),
+        ("timing", lambda: _timing_section(result))])
+    head = sections(result, [("details headline", lambda: [
+        f"# crosscheck gate report: details{back}", "",
+        f"**{verdict_text(result)}**; command `{command}`, seed {result.seed}.", ""])])
+    found = sections(result, [("internal errors", lambda: internal_lines(result, traces=True))])
+    return "\n".join(head + found + body) + "\n"
+
+
+def _per_quantity(result: GateResult) -> list[str]:
+    lines = ["Per quantity:", "",
+             "| case | n | quantity | agree | DISAGREE | KNOWN | not compared | worst error/tolerance | severity | "
+             "at state | not supplied by |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in result.cases:
         lines += _summary_rows(case)
-    lines.append("")
-    lines += gate_closeness.case_closeness_section(result, closeness)
-    lines += _self_test_section(result)
-    lines += _coverage_section(result)
-    lines += _known_section(result)
-    lines += _registry_section(applied)
-    lines += _breakdown_section(result)
-    lines += _checks_section(result)
-    lines += _power_audit(result)
-    lines += _external_power(result)
-    lines += _drift_parts_section(result)
-    lines += _worst_states_section(result)
-    lines += _timing_section(result)
-    return "\n".join(lines) + "\n"
+    return lines + [""]
 
 
 def _worst_states_section(result: GateResult) -> list[str]:

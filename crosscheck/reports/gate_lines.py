@@ -13,6 +13,7 @@ from crosscheck.checks import charts
 from crosscheck.core.compare import (AGREE, DISAGREE, KNOWN, NOT_COMPARED, SEVERITY, Comparison, backend_of, suspect,
                                      suspects, vote)
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS, BREAKDOWN_SCOPE, EXACT, TOLERANCES
+from crosscheck.engine import internal
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from formalisms.interface import Unsupported
@@ -157,7 +158,9 @@ def _verdict_line(key: str, comp: Comparison) -> str:
     severity = f" ({comp.severity})" if comp.severity else ""
     line = (f"- **{key}**: {comp.verdict}{severity}, worst error/tolerance {comp.worst_ratio:.3g} "
             f"(tolerance {comp.tolerance:.3g})")
-    if comp.outlier:
+    if comp.shared is not None:          # along code every backend shares: why, in words (compare, shared code)
+        line += f"; {vote(comp)}"
+    elif comp.outlier:
         line += f", outlier **{comp.outlier}**"
     elif comp.verdict in (DISAGREE, KNOWN):
         line += f"; {vote(comp)}"
@@ -198,6 +201,8 @@ def state_detail(case: CaseOutcome, state: StateOutcome, heading: str, seed: int
     lines.append("")
     if state.errors:
         lines.append(f"- raised here: {', '.join(state.errors)} (what each raised: Backend errors)")
+    if state.internal:
+        lines.append(f"- the harness failed here in: {', '.join(state.internal)} (Internal errors of the harness)")
     for name, conditions in state.breakdowns.items():
         lines.append(f"- {name}: BREAKDOWN, not compared: " + "; ".join(
             f"{scope_text(k)} ({condition_text(state, name, k, v)})" for k, v in conditions.items()))
@@ -254,6 +259,58 @@ def canary_count(test) -> str:
     skipped = len(test.results) - len(judged)
     return (f"{sum(r.passed for r in judged)} of {len(judged)} canaries caught and named, over {len(checks)} checks"
             + (f" ({skipped} not run: their check is off)" if skipped else ""))
+
+
+INTERNAL_HEADING = "## Internal errors of the harness"
+
+
+_A_LINE = object()
+
+
+def section(result: GateResult, name: str, make, failed=_A_LINE):
+    """``make()``: a report section's lines (or a value the report needs); when the harness fails in it, ``failed``
+    (by default one line saying the section could not be written), the failure recorded as the run's internal error
+    ``report: <name>`` (``crosscheck.engine.internal``)."""
+    try:
+        return make()
+    except Exception as exc:  # noqa: BLE001 - one section failing leaves the rest of the report
+        error = internal.of(exc)
+        result.internal.setdefault(f"report: {name}", error)
+        return [f"(The section '{name}' could not be written: the harness failed there: `{error}`.)", ""] \
+            if failed is _A_LINE else failed
+
+
+def sections(result: GateResult, made) -> list[str]:
+    """The lines of each (name, make) of ``made`` in order, each made under :func:`section`."""
+    return [line for name, make in made for line in section(result, name, make)]
+
+
+def internal_lines(result: GateResult, traces: bool = False) -> list[str]:
+    """The report's section on the harness's own failures (``crosscheck.engine.internal``), empty when there are none:
+    each once, with the check it happened in, the case, the first state and how many, the exception and the last frame
+    of the traceback in the project's code (``traces``: the project's frames, innermost last)."""
+    found = internal.occurrences(result)
+    if not found:
+        return []
+    states = {case.spec.name: len(case.states) for case in result.cases}
+    lines = [INTERNAL_HEADING, "",
+             f"The harness's own code raised ({counted(len(found), 'entry', 'entries')}, each once per check, case and "
+             "place): a bug in crosscheck, not in a backend (a backend raising is under Backend errors). Each check "
+             "named was left out where it raised; every other check and state ran. The run does not pass (exit 3).",
+             ""]
+    for o in found:
+        scope = [o.case] if o.case else ["the run"]
+        if o.states:
+            scope.append(f"{o.states} of {states.get(o.case, o.states)} states, first #{o.first}")
+        elif o.case:
+            scope.append("its sampling coverage was not measured" if o.check == "coverage"
+                         else "none of its states was evaluated")
+        lines.append(f"- **internal error in {o.check}** ({', '.join(scope)}): `{o.error.error}` at "
+                     f"`{o.error.where}`")
+        if traces and o.error.trace:
+            lines.append(f"  - traceback in the project (innermost first, each called from the next): "
+                         f"{' <- '.join(reversed(o.error.trace))}")
+    return lines + [""]
 
 
 def verdict_text(result: GateResult) -> str:

@@ -8,6 +8,11 @@ entries, breakdowns, the invariance and conservation checks, the constraint powe
 state per case and the timing.
 
 Same seed, same report byte for byte, apart from the timing section at the end of the details.
+
+The harness's own failures (``crosscheck.engine.internal``) come first after the verdict, in both parts (the details
+with the traceback's frames in the project). A section the harness fails to write is replaced by a line saying so and
+the failure joins them as the run's internal error ``report: <section>`` (:func:`sections`); the report is written
+whatever happens (:func:`write_fallback` when even that fails).
 """
 
 from __future__ import annotations
@@ -18,12 +23,14 @@ import numpy as np
 
 from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED
 from crosscheck.core.tolerance import BREAKDOWN_LIMITS
+from crosscheck.engine import internal
 from crosscheck.engine.divergences import Applied
 from crosscheck.engine.outcomes import GateResult
 from crosscheck.reports import gate_closeness
 from crosscheck.reports.gate_details import breakdowns_of, details, limits_line
-from crosscheck.reports.gate_lines import (MAX_LISTED_FAILURES, all_comparisons, backend_errors, counted, failed_states,
-                                           ratio_of, registry_line, self_test_line, state_detail, task_broken_states,
+from crosscheck.reports.gate_lines import (INTERNAL_HEADING, MAX_LISTED_FAILURES, all_comparisons, backend_errors,
+                                           counted, failed_states, internal_lines, ratio_of, registry_line,
+                                           section, sections, self_test_line, state_detail, task_broken_states,
                                            task_point_lines, typical_state, verdict_text, where_worst)
 
 
@@ -73,10 +80,37 @@ def write(result: GateResult, command: str, path: str | Path, applied: Applied |
     """Write the short report to ``path`` (:func:`summary`, linking ``figures``: :func:`mechanism_figures`) and
     everything else next to it (:func:`details`, at :func:`details_path`); the two paths."""
     path, more = Path(path), details_path(path)
-    found = gate_closeness.of(result)
-    path.write_text(summary(result, command, applied, details_link=more.name, figures=figures, closeness=found))
-    more.write_text(details(result, command, applied, summary_link=path.name, closeness=found))
+    try:
+        first, second = _both(result, lambda found: (
+            summary(result, command, applied, details_link=more.name, figures=figures, closeness=found),
+            details(result, command, applied, summary_link=path.name, closeness=found)))
+    except Exception as exc:  # noqa: BLE001 - the report is written whatever happens: what is known, and why
+        result.internal.setdefault("report", internal.of(exc))
+        first, second = write_fallback(result, command), ""
+    path.write_text(first)
+    more.write_text(second)
     return path, more
+
+
+def _both(result: GateResult, render_with) -> tuple[str, str]:
+    """``render_with(closeness)``: the two parts, rendered again when the harness failed in a section (a failure in the
+    details joins the summary's internal errors: the second rendering has it from the start)."""
+    before = dict(result.internal)
+    found = section(result, "per-backend closeness", lambda: gate_closeness.of(result), None)
+    parts = render_with(found)
+    return render_with(found) if result.internal != before else parts
+
+
+def write_fallback(result: GateResult, command: str) -> str:
+    """The least report: the verdict (FAIL), the command, and the harness's internal errors (the one that stopped the
+    report among them), each in as few steps as possible so that it can be written when the full report cannot."""
+    lines = ["# crosscheck gate report", "", "**FAIL**: the harness failed while writing this report; what follows is "
+             "what it knows (internal errors of the harness below; exit 3).", "", f"- command: `{command}`", ""]
+    try:
+        lines += internal_lines(result, traces=True)
+    except Exception:  # noqa: BLE001 - the very least: the run's own errors, as they were recorded
+        lines += [INTERNAL_HEADING, ""] + [f"- **{check}**: `{error}`" for check, error in result.internal.items()]
+    return "\n".join(lines) + "\n"
 
 
 def read(path: str | Path) -> str:
@@ -91,9 +125,9 @@ def render(result: GateResult, command: str, applied: Applied | None = None,
     ``command`` is the gate command that produced it, ``applied`` the divergence registry as applied to ``result``
     (``crosscheck.engine.divergences.apply``), if any, ``figures`` the pictures of the mechanism to link
     (:func:`mechanism_figures`). The command line writes the two parts to two files (:func:`write`)."""
-    found = gate_closeness.of(result)
-    return (summary(result, command, applied, figures=figures, closeness=found) + "\n"
-            + details(result, command, applied, closeness=found))
+    first, second = _both(result, lambda found: (summary(result, command, applied, figures=figures, closeness=found),
+                                                 details(result, command, applied, closeness=found)))
+    return first + "\n" + second
 
 
 def _headline(result: GateResult) -> list[str]:
@@ -103,7 +137,11 @@ def _headline(result: GateResult) -> list[str]:
     known = sum(c.verdict == KNOWN for case in result.cases for s in case.states for c in all_comparisons(s))
     partial = [f"**PARTIAL REPORT: the run was interrupted {result.interrupted}.** It holds only the states "
                "evaluated until then and gives no verdict (a disagreement below is still one).", ""]
-    return ["# crosscheck gate report", "", *(partial if result.interrupted else []),
+    found = len(internal.occurrences(result))
+    harness = [f"**The harness itself failed**: {counted(found, 'internal error', 'internal errors')} of crosscheck's "
+               "own code (below): the checks named were left out where they raised, so the run does not pass.",
+               ""] if found else []
+    return ["# crosscheck gate report", "", *(partial if result.interrupted else []), *harness,
             f"**{verdict_text(result)}**: {len(failed_states(result))} of {n_states} states disagree or fail "
             f"across {len(result.cases)} case(s) and {len(result.backends)} backends "
             f"({', '.join(result.backends)}); {known} known divergence(s) (KNOWN, not failures); "
@@ -278,13 +316,20 @@ def summary(result: GateResult, command: str, applied: Applied | None = None, de
     ``details_link`` the file holding :func:`details` (None: they follow in the same text); ``closeness`` the
     per-backend table's cells (``gate_closeness.of``, computed here if None)."""
     where = f"[{details_link}]({details_link})" if details_link else "below"
-    lines = _headline(result) + _model_findings(result) + _failures_section(result)
-    lines += _run_lines(result, command, applied) + [_worst_line(result)] + _checked_lines(result)
-    lines += [line for case in result.cases if len(explained := task_point_lines(case)) > 1 for line in explained]
-    lines += [f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
-              "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, "
-              "the drift's parts, worst state per case, timing, tolerance policy", ""]
-    lines += figure_lines(figures or {})
-    lines += _case_table(result)
-    lines += gate_closeness.closeness_section(result, closeness)
-    return "\n".join(lines) + "\n"
+    body = sections(result, [
+        ("model findings", lambda: _model_findings(result)),
+        ("failures", lambda: _failures_section(result)),
+        ("what was run", lambda: _run_lines(result, command, applied) + [_worst_line(result)]
+         + _checked_lines(result)),
+        ("task points", lambda: [line for case in result.cases if len(explained := task_point_lines(case)) > 1
+                                 for line in explained]),
+        ("details link", lambda: [
+            f"- details {where}: suspects, voters, task points, per-quantity table, self-test, sampling coverage, "
+            "known divergences, breakdowns, invariance and conservation checks, power audit, external load power, "
+            "the drift's parts, worst state per case, timing, tolerance policy", ""]),
+        ("pictures", lambda: figure_lines(figures or {})),
+        ("cases", lambda: _case_table(result)),
+        ("per-backend closeness", lambda: gate_closeness.closeness_section(result, closeness))])
+    first = sections(result, [("headline", lambda: _headline(result))])      # after the others: it counts their
+    found = sections(result, [("internal errors", lambda: internal_lines(result))])   # failures too
+    return "\n".join(first + found + body) + "\n"

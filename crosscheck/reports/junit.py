@@ -9,7 +9,9 @@ states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>`
 coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``) and a ``backends compared`` one
 (failing when a backend sat out most states in BREAKDOWN: ``GateResult.broken``), and the run a ``self-test`` suite
 (one testcase per canary, ``crosscheck.guards.selftest``) and a ``backends`` suite (a required backend that took part in
-no comparison fails), so that every reason the gate fails shows on a dashboard.
+no comparison fails), so that every reason the gate fails shows on a dashboard. The harness's own failures
+(``crosscheck.engine.internal``) are a failing ``internal errors of the harness`` testcase in their case's suite, and
+the run's own (the self-test, the report) a ``harness`` suite with one failing testcase per check.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 
 from crosscheck.core.compare import DISAGREE, KNOWN, NOT_COMPARED, Comparison, vote
 from crosscheck.core.tolerance import quantities
+from crosscheck.engine import internal
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.reports.gate_lines import check_family, check_reproduce_command, reproduce_command
 
@@ -111,6 +114,12 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
                               message=f"a backend raised at {len(errors)} states")
         error.text = "\n".join(f"#{s.state.index} {name}: {message}; reproduce: {reproduce_command(case, s)}"
                                for s in errors for name, message in s.errors.items())
+    harness = [o for o in internal.occurrences(result) if o.case == case.spec.name]
+    if harness:
+        outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "internal errors of the harness",
+                                f"{len(harness)} internal error(s) of the harness (crosscheck's own code raised; "
+                                f"the checks named were left out where they raised): {harness[0].describe()}",
+                                "\n".join(o.describe() for o in harness), "InternalError"))
     if any(s.breakdowns for s in case.states):
         ET.SubElement(suite, "system-out").text = _breakdowns(case)
     counts = {"tests": len(outcomes) + bool(errors), "failures": outcomes.count("failure"),
@@ -119,11 +128,12 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
     return counts
 
 
-def _simple(suite: ET.Element, classname: str, name: str, failure: str) -> str:
-    """A testcase that fails with ``failure`` (passes when it is empty); returns its outcome."""
+def _simple(suite: ET.Element, classname: str, name: str, failure: str, text: str = "", kind: str = "FAIL") -> str:
+    """A testcase that fails with ``failure`` (passes when it is empty; ``text`` the failure's body, ``kind`` its
+    type); returns its outcome."""
     element = ET.SubElement(suite, "testcase", classname=classname, name=name)
     if failure:
-        ET.SubElement(element, "failure", type="FAIL", message=failure)
+        ET.SubElement(element, "failure", type=kind, message=failure).text = text or None
         return "failure"
     return "passed"
 
@@ -152,6 +162,9 @@ def to_xml(result: GateResult) -> ET.ElementTree:
     counts = [_suite(root, case, result) for case in result.cases]
     if result.self_test is not None:
         counts.append(_run_suite(root, "self-test", _self_test_cases(result)))
+    if result.internal:
+        counts.append(_run_suite(root, "harness", [(f"internal error in {check}", str(error))
+                                                   for check, error in result.internal.items()]))
     if result.required:
         absent = set(result.absent)
         counts.append(_run_suite(root, "backends", [

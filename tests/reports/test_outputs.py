@@ -185,7 +185,7 @@ def test_gate_workers_1_is_one_worker_process(monkeypatch, tmp_path):
 
     pools = []
 
-    def recorder(run_case, specs, backends, samples, seed, tell, checks, count, outcomes):
+    def recorder(run_case, specs, backends, samples, seed, tell, checks, count, outcomes, *how_a_case_fails):
         pools.append(count)
         outcomes.extend(run_case(spec, backends, samples, seed, tell, checks) for spec in specs)
 
