@@ -242,6 +242,10 @@ def run_gate(specs: Sequence[CaseSpec], backends: Sequence[Formalism], samples: 
             tell(Step("", 0, 0, SELF_TEST))
             with guarded(result.internal, "self-test"):
                 result.self_test = selftest.run(checks=checks)
+            for r in result.self_test.results if result.self_test else ():
+                if r.error:     # the harness failing in a check's canary: an internal error of that check
+                    result.internal.setdefault(f"self-test ({r.canary.check} canary)", InternalError(
+                        r.error, f"the {r.canary.check} canary"))
     except KeyboardInterrupt as exc:
         result.interrupted = _where(exc, specs, samples, outcomes, pooled)
         raise Interrupted(result) from None

@@ -116,7 +116,7 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
         for case, state in injection._round_robin(setups, min(samples, rounds or samples)):
             if progress:
                 progress(case.setup.spec.name, state.index)
-            outcome = case.setup.evaluate(state, backends)
+            outcome = case.setup.evaluate(state, backends, guard=True)
             if known is not None:
                 divergences.apply_to_state(known, (case.setup.spec.name, case.setup.model.name), outcome)
             count += 1
@@ -290,6 +290,11 @@ def _to_the_ends(within_limits):
 MULTIPLIER_QUANTITIES = ("lam", "lam_drift", "constraint_force", "constraint_force_drift", "power_constr")
 
 
+def _input_power_scale_divides_by_zero(power_scale):
+    """``tolerance.power_scale`` divided by the number of inputs a passive model would have: a ZeroDivisionError."""
+    return lambda model, qd, u: power_scale(model, qd, u) / (len(u) - model.m)
+
+
 def _times_cond_S(tolerance_of):
     """``tolerance.tolerance`` with the multipliers' quantities multiplied by cond(S) once more."""
     return lambda quantity, at: tolerance_of(quantity, at) * (at.cond_S if quantity in MULTIPLIER_QUANTITIES else 1.0)
@@ -457,6 +462,11 @@ CATALOG: list[SharedFault] = [
     SharedFault("sampling-states-repeated", "sampling",
                 "The sampler's generator is re-seeded after the second state, so every later state repeats it.",
                 _SAMPLERS, _sample_changed(_repeated), "the sampling coverage"),
+    SharedFault("tolerance-power-scale-raises", "tolerance",
+                "The input power's tolerance scale divides by the number of inputs less the model's (0): every state "
+                "raises ZeroDivisionError in the harness's own code.",
+                ("crosscheck.core.tolerance:power_scale",), _input_power_scale_divides_by_zero,
+                "the internal errors of the harness (each check named)"),
     SharedFault("urdf-limits-read-as-degrees", "URDF conversion",
                 "The URDF loader converts the joint limits from degrees to radians, though a URDF's are in radians "
                 "already (a limit of 2.9 becomes 166).",

@@ -386,6 +386,8 @@ class Hunt:
 def catches(outcome: StateOutcome) -> tuple[Catch, ...]:
     """Every failing comparison, check and error at a state, worst first."""
     found = [Catch(f"error {where}", float("inf"), backend_of(where)) for where in outcome.errors]
+    found += [Catch(f"internal error in {check}: {error}", float("inf"), None)
+              for check, error in getattr(outcome, "internal", {}).items()]
     for key, comparison in {**outcome.comparisons, **outcome.checks}.items():
         if comparison.verdict == DISAGREE:
             found.append(Catch(key, comparison.worst_ratio, suspect(comparison)))

@@ -57,6 +57,7 @@ import cases
 from crosscheck import backends as backend_registry
 from crosscheck.core.compare import DISAGREE, backend_of, suspect
 from crosscheck.core.sampling import State, sample_states
+from crosscheck.engine import internal
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import coverage
@@ -437,7 +438,7 @@ def run(canaries: Iterable[Canary] | None = None, backends=None, checks: Checks 
         try:
             found = _one(canary, chosen, evaluated)
         except Exception as exc:  # noqa: BLE001 - the harness failing in a canary is reported, by check
-            found = CanaryResult(canary, False, False, 0.0, "-", error=f"{type(exc).__name__}: {exc}")
+            found = CanaryResult(canary, False, False, 0.0, "-", error=str(internal.of(exc)))
         if isinstance(found, str):
             unusable += [found] if found not in unusable else []
         else:

@@ -123,7 +123,7 @@ def test_a_degenerate_sample_a_missed_canary_and_an_absent_backend_fail_on_the_d
     root = _parsed(result, tmp_path)
     suites = {s.get("name"): s for s in root.findall("testsuite")}
     assert _cases(suites["acrobot"])["sampling coverage"].find("failure").get("message") == "every joint rate is 0"
-    assert _cases(suites["self-test"])[r.results[0].canary.describe()].find("failure") is not None
+    assert _cases(suites["self-test"])[f"{r.results[0].canary.check}: {r.results[0].canary.describe()}"].find("failure") is not None
     assert _cases(suites["backends"])["nobody takes part"].find("failure") is not None
     assert root.get("failures") == "3" and not result.passed and isinstance(result.cases[0].coverage,
                                                                             coverage.Coverage)
