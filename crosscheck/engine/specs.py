@@ -16,7 +16,7 @@ from formalisms.interface import UNSUPPORTED, Split
 
 
 #: States per case of a default run (``--samples``). Every check runs at every state, so the run's time is linear in
-#: it: 50 states of the 26 built-in cases keep the default gate near a minute on 2 cores. The fault catalog's every
+#: it: 50 states of the 29 built-in cases keep the default gate near a minute on 2 cores. The fault catalog's every
 #: fault is caught within the first two states of some case (docs/faults.md), and a fault that shows at a share p of
 #: a case's states is missed with probability (1 - p)^50; longer runs: ``--samples``, ``crosscheck fuzz``.
 DEFAULT_SAMPLES = 50

@@ -31,9 +31,10 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   check that compares a scene with itself, unmoved, cannot see it);
 * in a backend's linearization (``linearize``; checks ``linearization``, ``equilibria``): ``stiffness``, the block
   ``dvdot/dq`` off by a relative ``size`` (the equilibria's eigenvalues move by about ``size / 2``);
-* in the model every backend reads (check ``closed forms``): ``mass``, body ``index``'s mass off by a relative
-  ``size``; the backends agree with each other on the wrong model and the closed form, bound to the case's parameters,
-  must disagree with all of them;
+* in the model every backend reads (checks ``closed forms`` and ``file reference``): ``mass``, body ``index``'s mass
+  off by a relative ``size``; the backends agree with each other on the wrong model, and the closed form, bound to
+  the case's parameters, or the Pinocchio reference, built from a file case's own file, must disagree with all of
+  them;
 * in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
   ``band``, four states of five squeezed so (the others keep the full range); ``repeated``, every state a copy of one;
   ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
@@ -144,6 +145,7 @@ CANARIES: tuple[Canary, ...] = (
     Canary("conditions", "four_bar", 3, "newton_euler", "condition", 4.5e-9, "constraint"),
     Canary("closed forms", "double_pendulum", 3, "", "mass", 8e-13, index=1),
     Canary("closed forms", "double_pendulum_circle", 2, "", "mass", 8e-12, index=0),
+    Canary("file reference", "urdf_gripper", 3, "", "mass", 1.1e-12, index=1),
     Canary("coverage", "double_pendulum", 0, "", "sliver", index=1, key="sliver"),
     Canary("coverage", "spatial_arm", 0, "", "band", index=2, key="band"),
     Canary("coverage", "spatial_arm", 0, "", "repeated", key="repeat"),
@@ -156,6 +158,7 @@ FAMILIES: dict[str, tuple[str, Callable[[str, Canary], bool]]] = {
     "comparisons": ("comparisons", lambda key, c: True),
     "multipliers": ("comparisons", lambda key, c: key == c.quantity),
     "closed forms": ("comparisons", lambda key, c: True),
+    "file reference": ("comparisons", lambda key, c: True),
     "conditions": ("checks", lambda key, c: key.startswith("conditions: ")),
     "charts": ("checks", lambda key, c: key.startswith("chart ")),
     "frames": ("checks", lambda key, c: key.startswith(("frame: ", "frame law: "))),
@@ -229,7 +232,7 @@ class SelfTest:
 
 
 def _faulty_voter(canary: Canary) -> str:
-    return "closed_form" if canary.check == "closed forms" else canary.backend
+    return {"closed forms": "closed_form", "file reference": "pinocchio"}.get(canary.check, canary.backend)
 
 
 # ------------------------------------------------------------------------------------------------- the faults
@@ -362,8 +365,9 @@ def _clean(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Form
 
 
 def _model_canary(canary: Canary, setup: CaseSetup, state: State, chosen: Sequence[Formalism]) -> CanaryResult:
-    """A closed-forms canary: the model every backend reads with body ``index``'s mass off (module doc); the backends
-    evaluated are those that prepare nothing for a new model (no symbolic derivation), with the case's closed form."""
+    """A closed-forms or file-reference canary: the model every backend reads with body ``index``'s mass off (module
+    doc); the backends evaluated are those that prepare nothing for a new model (no symbolic derivation), with the
+    case's closed form."""
     bodies = list(setup.model.bodies)
     body = bodies[canary.index]
     bodies[canary.index] = dataclasses.replace(body, mass=body.mass * (1.0 + canary.size))
@@ -408,7 +412,7 @@ def _one(canary: Canary, chosen: Sequence[Formalism], evaluated: dict) -> Canary
         return _coverage_canary(canary)
     setup = _setup(canary)
     state = sample_states(setup.model, STATES, SEED, canary.case)[canary.state]
-    if canary.check == "closed forms":
+    if canary.check in ("closed forms", "file reference"):
         return _model_canary(canary, setup, state, chosen)
     key = (canary.case, canary.state, canary.check)
     if key not in evaluated:
