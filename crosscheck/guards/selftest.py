@@ -36,8 +36,10 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   the case's parameters, or the Pinocchio reference, built from a file case's own file, must disagree with all of
   them;
 * in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
-  ``band``, four states of five squeezed so (the others keep the full range); ``repeated``, every state a copy of one;
-  ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
+  ``band``, four states of five squeezed so (the others keep the full range); ``at the limits``, one state of eight with a
+  limited coordinate at one of its limits; ``limits misread``, a limited body's limits in the model converted
+  from degrees once more (a loader's slip: the file's limits, read apart from the loader, differ); ``repeated``,
+  every state a copy of one; ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
   the problem's text).
 
 Sizes are calibrated (:data:`CANARIES`; ``tests/guards/test_selftest.py`` re-measures every ratio): each sized canary
@@ -76,6 +78,9 @@ SLIVER_WIDTH = 0.03
 #: the others: 40 of 50 states in a window a third of the band rule's (0.1 of the span), where 30 is the most uniform
 #: draws hold (``crosscheck.guards.coverage``); the rule with a window ten times wider, the whole span, holds them all.
 BAND_SPREAD = 5
+#: The at-the-limits canary puts every AT_LIMITS_EVERY-th state at a limit: 7 of 50, three times the 2 that uniform
+#: draws (and home) may put there (``crosscheck.guards.coverage.limit_allowance``).
+AT_LIMITS_EVERY = 8
 
 
 @dataclass(frozen=True)
@@ -149,6 +154,8 @@ CANARIES: tuple[Canary, ...] = (
     Canary("coverage", "double_pendulum", 0, "", "sliver", index=1, key="sliver"),
     Canary("coverage", "spatial_arm", 0, "", "band", index=2, key="band"),
     Canary("coverage", "spatial_arm", 0, "", "repeated", key="repeat"),
+    Canary("coverage", "panda", 0, "", "at the limits", index=3, key="limits"),
+    Canary("coverage", "urdf_gripper", 0, "", "limits misread", index=2, key="loader finding"),
     Canary("coverage", "double_pendulum_circle", 0, "", "rates never sampled", key="rate"),
 )
 
@@ -384,13 +391,28 @@ def _coverage_canary(canary: Canary) -> CanaryResult:
 
     model = cases.load(canary.case)
     states = sample_states(model, DEFAULT_SAMPLES, SEED, canary.case)
-    states = [_degenerate(canary, states, s) for s in states]
+    states = [_degenerate(canary, model, states, s) for s in states]
+    if canary.kind == "limits misread":
+        body = model.bodies[canary.index]
+        bodies = list(model.bodies)
+        bodies[canary.index] = dataclasses.replace(body, limits=tuple(np.degrees(body.limits)))
+        model = dataclasses.replace(model, bodies=tuple(bodies))
     problems = [p for p in coverage.measure(model, states).problems if canary.key in p]
     return CanaryResult(canary, bool(problems), bool(problems), float(len(problems)),
                         problems[0] if problems else "-")
 
 
-def _degenerate(canary: Canary, states: Sequence[State], s: State) -> State:
+def _degenerate(canary: Canary, model, states: Sequence[State], s: State) -> State:
+    if canary.kind == "limits misread":
+        return s
+    if canary.kind == "at the limits":
+        if s.index % AT_LIMITS_EVERY != 1:
+            return s
+        k = model.q_index[canary.index]
+        lower, upper = model.bodies[canary.index].limits
+        q = list(s.q)
+        q[k] = lower if s.index % 2 else upper
+        return dataclasses.replace(s, q=tuple(q))
     if canary.kind == "repeated":
         return dataclasses.replace(states[1], index=s.index)
     if canary.kind == "rates never sampled":

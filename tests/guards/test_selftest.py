@@ -95,7 +95,8 @@ BREAKS = {
                         "lam", "lam_drift", "constraint_force", "power_constr") else factor)
                         for q, (kind, factor) in t.items()})),
     "coverage": ((coverage, "measure", _no_problems), (coverage, "SLIVER", lambda value: value / 10.0),
-                 (coverage, "BAND", lambda value: 10.0 * value)),
+                 (coverage, "BAND", lambda value: 10.0 * value),
+                 (coverage, "limit_allowance", lambda f: lambda states: 10 * f(states))),
 }
 
 
@@ -108,7 +109,7 @@ def test_every_check_has_a_break_below():
 def test_a_check_switched_off_or_loosened_fails_its_canaries(monkeypatch, check, how):
     patches = BREAKS[check][:1] if how == "off" else BREAKS[check][1:]
     if check == "coverage" and how != "off":
-        canaries = [c for c in of(check) if c.kind in ("sliver", "band")]    # the canaries of coverage with bounds
+        canaries = [c for c in of(check) if c.kind in ("sliver", "band", "at the limits")]    # those with bounds
     else:
         canaries = of(check)
     monkeypatch.setattr(build, "_CACHE", {})              # no reference built before the break is reused
