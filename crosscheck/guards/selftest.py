@@ -433,7 +433,8 @@ def _one(canary: Canary, chosen: Sequence[Formalism], evaluated: dict) -> Canary
     if canary.check == "coverage":
         return _coverage_canary(canary)
     setup = _setup(canary)
-    state = sample_states(setup.model, STATES, SEED, canary.case)[canary.state]
+    state = sample_states(setup.model, canary.state + 1, SEED, canary.case)[canary.state]   # the first states of
+    #                                                                       STATES: the draws are sequential
     if canary.check in ("closed forms", "file reference"):
         return _model_canary(canary, setup, state, chosen)
     key = (canary.case, canary.state, canary.check)
