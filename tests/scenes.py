@@ -14,3 +14,15 @@ def panda_arm():
     panda = cases.load("panda")
     return build_model("panda_arm", panda.bodies, panda.gravity, input_map=panda.input_map,
                        task_points=panda.task_points)
+
+
+def chain_urdf(path, joints) -> str:
+    """Write a URDF chain to ``path`` and return it as a string: a base link and one link per joint (mass 1, COM 0.3 m
+    along x, inertia 0.01 I), each joint ``(name, parent, child, type, limit XML)`` about y, 0.6 m along x."""
+    links = "".join(f'<link name="{child}"><inertial><mass value="1"/><origin xyz="0.3 0 0"/><inertia ixx="0.01" '
+                    'iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>' for _, _, child, _, _ in joints)
+    text = '<robot name="r"><link name="base"/>' + links + "".join(
+        f'<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0.6 0 0"/>'
+        f'<axis xyz="0 1 0"/>{limit}</joint>' for n, p, c, t, limit in joints) + "</robot>"
+    path.write_text(text)
+    return str(path)

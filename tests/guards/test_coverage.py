@@ -15,6 +15,7 @@ from crosscheck.guards import coverage
 from crosscheck.core import sampling
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_case
+from scenes import chain_urdf
 
 
 def _states(model, count=20, seed=0, name="x"):
@@ -114,22 +115,12 @@ def test_the_allowances_are_the_binomial_tails_the_docstring_states():
 
 # -- the limits, read from the file
 
-def _link(name: str) -> str:
-    return (f'<link name="{name}"><inertial><mass value="1"/><origin xyz="0.3 0 0"/><inertia ixx="0.01" iyy="0.01" '
-            'izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
-
-
 def _urdf(tmp_path):
     """A chain of a continuous, a revolute (limits -1, 0.5 rad) and a prismatic joint (limits 0.1, 0.3 m)."""
     joints = [("spin", "base", "l1", "continuous", ""),
               ("elbow", "l1", "l2", "revolute", '<limit lower="-1" upper="0.5" effort="1" velocity="1"/>'),
               ("slide", "l2", "l3", "prismatic", '<limit lower="0.1" upper="0.3" effort="1" velocity="1"/>')]
-    text = '<robot name="r"><link name="base"/>' + "".join(_link(f"l{i}") for i in (1, 2, 3)) + "".join(
-        f'<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0.6 0 0"/>'
-        f'<axis xyz="0 1 0"/>{limit}</joint>' for n, p, c, t, limit in joints) + "</robot>"
-    path = tmp_path / "r.urdf"
-    path.write_text(text)
-    return cases.from_file(str(path), base="fixed")
+    return cases.from_file(chain_urdf(tmp_path / "r.urdf", joints), base="fixed")
 
 
 def _with_limits(model, body, limits):

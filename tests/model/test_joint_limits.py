@@ -20,6 +20,7 @@ from cases.serialize import model_from_dict, model_to_dict
 from crosscheck import cli
 from crosscheck.core import sampling
 from crosscheck.references.pinocchio import build
+from scenes import chain_urdf
 
 Z = (0.0, 0.0, 1.0)
 
@@ -99,23 +100,13 @@ def test_coverage_measures_a_limited_joint_against_its_limits():
     assert "q0 (a) spans 0.00967 of 0.75" in coverage.measure(model, stuck).problems[0]
 
 
-def _link(name: str) -> str:
-    return (f'<link name="{name}"><inertial><mass value="1"/><origin xyz="0.3 0 0"/><inertia ixx="0.01" iyy="0.01" '
-            'izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
-
-
 def test_a_urdf_limit_without_lower_and_upper_is_no_limit(tmp_path):
     """URDF reads ``<limit effort velocity/>`` without lower and upper as (0, 0): taken as the joint held at 0 it
     would never move in a sampled state, so it is no limit (drawn freely); a file's lower > upper is none either."""
     joints = [("j1", "base", "l1", "revolute", '<limit effort="1" velocity="1"/>'),
               ("j2", "l1", "l2", "revolute", '<limit lower="-1" upper="0.5" effort="1" velocity="1"/>'),
               ("j3", "l2", "l3", "prismatic", '<limit lower="0.2" upper="0.1" effort="1" velocity="1"/>')]
-    text = '<robot name="r"><link name="base"/>' + "".join(_link(f"l{i}") for i in (1, 2, 3)) + "".join(
-        f'<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0.6 0 0"/>'
-        f'<axis xyz="0 1 0"/>{limit}</joint>' for n, p, c, t, limit in joints) + "</robot>"
-    path = tmp_path / "r.urdf"
-    path.write_text(text)
-    model = cases.from_urdf(str(path), base="fixed")
+    model = cases.from_urdf(chain_urdf(tmp_path / "r.urdf", joints), base="fixed")
     assert [b.limits for b in model.bodies] == [None, (-1.0, 0.5), None]
     assert len(build.joint_map(model)) == 3          # the reference reads the file's limits the same way
 
