@@ -117,23 +117,32 @@ def _limits(root: ET.Element, pin, pm) -> None:
             cls = parent.get(cls)
         return None
 
-    def visit(body: ET.Element, childclass: str) -> None:
+    def joints(body: ET.Element, childclass: str):
+        """(element, class) of every joint in document order: a body's own, then its children's (Pinocchio's
+        order)."""
         childclass = body.get("childclass", childclass)
-        for joint in body.findall("joint"):
-            cls = joint.get("class", childclass)
-            kind, name = attribute(joint, cls, "type") or "hinge", joint.get("name")
-            if kind not in ("hinge", "slide") or name is None or not pm.existJointName(name):
-                continue
-            iq = pm.joints[pm.getJointId(name)].idx_q
-            limited = attribute(joint, cls, "limited") or "auto"
-            if limited == "false" or (limited == "auto" and not auto):
-                lower[iq], upper[iq] = -np.inf, np.inf
-            elif kind == "slide" and degrees:
-                lower[iq], upper[iq] = np.degrees(lower[iq]), np.degrees(upper[iq])
+        for joint in body:
+            if joint.tag in ("joint", "freejoint"):
+                yield joint, joint.get("class", childclass)
         for child in body.findall("body"):
-            visit(child, childclass)
+            yield from joints(child, childclass)
 
-    for world in root.findall("worldbody"):
-        for body in world.findall("body"):
-            visit(body, "main")
+    found = [j for world in root.findall("worldbody") for body in world.findall("body") for j in joints(body, "main")]
+    in_order = len(found) == pm.njoints - 1          # an unnamed joint is matched by its place, when all are parsed
+    for k, (joint, cls) in enumerate(found):
+        kind, name = "free" if joint.tag == "freejoint" else attribute(joint, cls, "type") or "hinge", joint.get("name")
+        if kind not in ("hinge", "slide"):
+            continue
+        if name is not None and pm.existJointName(name):
+            iq = pm.joints[pm.getJointId(name)].idx_q
+        elif in_order:
+            iq = pm.joints[k + 1].idx_q
+        else:
+            continue
+        limited = attribute(joint, cls, "limited") or "auto"
+        if limited == "false" or (limited == "auto" and not auto):
+            lower[iq], upper[iq] = -np.inf, np.inf
+        elif kind == "slide" and degrees:
+            lower[iq], upper[iq] = np.degrees(lower[iq]), np.degrees(upper[iq])
     pm.lowerPositionLimit, pm.upperPositionLimit = lower, upper
+

@@ -220,3 +220,21 @@ def test_property_tests_draw_within_the_limits_too(data):
     state = data.draw(testing.states(_arm()))
     assert -0.5 <= state.q[0] <= 0.25 and 0.1 <= state.q[1] <= 0.3
     assert all(b.limits is None for b in data.draw(testing.models(max_bodies=3)).bodies)
+
+
+def test_an_unnamed_joint_gets_its_range_as_mujoco_reads_it(tmp_path):
+    """A joint without a name is matched to Pinocchio's by its place in the document: an unnamed slide's range is in
+    metres (Pinocchio converts it as degrees), an unnamed hinge's in degrees; the coverage, reading the file apart from
+    the loader, finds no difference (before, the slide kept (-0.0087, 0.0044))."""
+    from cases.mjcf import from_mjcf
+    from crosscheck.guards import coverage
+
+    path = tmp_path / "u.xml"
+    path.write_text('<mujoco model="u"><worldbody><body name="b1"><joint type="hinge" axis="0 0 1" range="-90 45"/>'
+                    '<geom size="0.1" pos="0.3 0 0" mass="1"/><body name="b2" pos="0.6 0 0"><joint type="slide" '
+                    'axis="1 0 0" range="-0.5 0.25"/><geom size="0.1" pos="0.3 0 0" mass="1"/></body></body>'
+                    '</worldbody></mujoco>')
+    model = from_mjcf(path)
+    np.testing.assert_allclose(model.bodies[0].limits, np.radians([-90.0, 45.0]), rtol=1e-15)
+    assert model.bodies[1].limits == (-0.5, 0.25)
+    assert not coverage.measure(model, sampling.sample_states(model, 20, 0, "u")).problems
