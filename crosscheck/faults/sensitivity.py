@@ -245,7 +245,7 @@ class Table:
 
     def claim_met(self) -> bool:
         """Whether on each :data:`CLAIMED` case every backend's every term is caught at :data:`CLAIM`."""
-        pairs = {(m.backend, m.term) for m in self.measurements}
+        pairs = {(m.backend, m.term) for m in self.measurements if m.term in TERMS}
         return all((m := self.smallest(b, t, (case,))) is not None and m.caught <= CLAIM and m.confirmed
                    for b, t in pairs for case in CLAIMED)
 
@@ -280,7 +280,7 @@ def _size(m: Measurement | None) -> str:
 def render(table: Table) -> list[str]:
     """Markdown lines of the table: per backend and term, the smallest relative error caught per family, and on
     the claimed 3-D cases with the claim's verdict."""
-    backends = list(dict.fromkeys(m.backend for m in table.measurements))
+    backends = list(dict.fromkeys(m.backend for m in table.measurements if m.term in TERMS))
     lines = ["## Sensitivity: the smallest relative error the default gate catches", "",
              f"Each backend's M, C qd or g scaled by 1 + e where it forms it (`crosscheck.faults.sensitivity`); e is the "
              f"smallest that fails a state of the gate (every comparison and check), measured on the first "

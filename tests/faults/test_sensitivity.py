@@ -86,7 +86,11 @@ def test_a_relative_error_in_the_multipliers_is_caught_on_a_multi_row_case():
         assert m.caught <= 1e-9 and m.confirmed and m.key.startswith("lam"), (name, m)
 
 
-def test_the_multipliers_table_renders():
-    m = sensitivity.Measurement("screw", sensitivity.MULTIPLIERS, "four_bar", 20, 4e3, 2, "lam", 2.5e-12, True)
-    text = "\n".join(sensitivity.render(sensitivity.Table((m,), 20)))
-    assert "| backend | four_bar |" in text and "| screw | 2e-12 |" in text
+def test_the_multipliers_table_renders_apart_from_the_terms_and_their_claim():
+    m = sensitivity.Measurement("pinocchio", sensitivity.MULTIPLIERS, "four_bar", 20, 4e3, 2, "lam", 2.5e-12, True)
+    terms = [sensitivity.Measurement("screw", term, case, 20, 1e3, 1, "drift", 1e-12, True)
+             for term in sensitivity.TERMS for case in sensitivity.CLAIMED]
+    table = sensitivity.Table((m, *terms), 20)
+    text = "\n".join(sensitivity.render(table))
+    assert "| backend | four_bar |" in text and "| pinocchio | 2e-12 |" in text
+    assert "| pinocchio | M |" not in text and table.claim_met()
