@@ -37,7 +37,7 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   them;
 * in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
   ``band``, four states of five squeezed so (the others keep the full range); ``at the limits``, one state of eight with a
-  limited coordinate at one of its limits; ``limits misread``, a limited body's limits in the model converted
+  limited coordinate at one of the file's limits (read apart from the loader, as the coverage reads them); ``limits misread``, a limited body's limits in the model converted
   from degrees once more (a loader's slip: the file's limits, read apart from the loader, differ); ``repeated``,
   every state a copy of one; ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
   the problem's text).
@@ -63,7 +63,7 @@ from crosscheck.core.sampling import State, sample_states
 from crosscheck.engine import internal
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.specs import CaseSpec, Checks
-from crosscheck.guards import coverage
+from crosscheck.guards import coverage, file_limits
 from formalisms.interface import Formalism, Linearization
 
 #: The seed of the canaries' states (fixed: the canaries are calibrated on these states, whatever the run's seed).
@@ -409,7 +409,8 @@ def _degenerate(canary: Canary, model, states: Sequence[State], s: State) -> Sta
         if s.index % AT_LIMITS_EVERY != 1:
             return s
         k = model.q_index[canary.index]
-        lower, upper = model.bodies[canary.index].limits
+        read = file_limits.read(model)            # the limits the coverage judges against: the file's, read apart
+        lower, upper = read.limits[canary.index] if read and read.limits else model.bodies[canary.index].limits
         q = list(s.q)
         q[k] = lower if s.index % 2 else upper
         return dataclasses.replace(s, q=tuple(q))
