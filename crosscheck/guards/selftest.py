@@ -110,6 +110,8 @@ class Canary:
         place = {"charts": " in a chart", "frames": " in a moved scene"}.get(self.check, "")
         if self.check == "coverage":
             return f"{fault} in the sample of {self.case}"
+        if not self.backend:                            # a fault in the model every backend reads
+            return f"{fault} at {self.case} #{self.state}"
         return f"{fault}{place} of {self.backend} at {self.case} #{self.state}"
 
 
