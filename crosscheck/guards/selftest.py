@@ -68,8 +68,6 @@ from formalisms.interface import Formalism, Linearization
 
 #: The seed of the canaries' states (fixed: the canaries are calibrated on these states, whatever the run's seed).
 SEED = 0
-#: States drawn per canary case (the canaries use some of them).
-STATES = 30
 #: A coverage canary's squeezed coordinate spans this share of its span: a third of the sliver bound and of the band
 #: rule's window (0.1 each). Written here, not read from ``crosscheck.guards.coverage``, so that a bound loosened
 #: tenfold misses it.
@@ -87,7 +85,8 @@ AT_LIMITS_EVERY = 8
 class Canary:
     """A known fault for the check ``check``: ``kind`` (module doc) of relative ``size`` (``quantity`` and ``index``
     where the kind needs them) in ``backend``'s answer at state ``state`` of the built-in case ``case``
-    (``sample_states(model, STATES, SEED, case)``); ``key``, when given, a part of the name of the comparison of the
+    (``sample_states(model, state + 1, SEED, case)[state]``: the draws are sequential, so a state is the same
+    however many are drawn); ``key``, when given, a part of the name of the comparison of the
     check that must catch it (``"momentum"``: the momentum rows of the conservation checks)."""
 
     check: str
@@ -232,8 +231,9 @@ class SelfTest:
             elif r.skipped:
                 continue
             elif not r.caught:
-                out.append(f"the {check} check has lost its power: {r.canary.describe()} was not caught (worst "
-                           f"error/tolerance {r.ratio:.3g}); a check switched off, compared with itself, or loosened")
+                worst = "" if check == "coverage" else f" (worst error/tolerance {r.ratio:.3g})"
+                out.append(f"the {check} check has lost its power: {r.canary.describe()} was not caught{worst}; a "
+                           "check switched off, compared with itself, or loosened")
             elif not r.named:
                 out.append(f"the vote failed in the {check} check: {r.canary.describe()} was caught ({r.where}, ratio "
                            f"{r.ratio:.3g}) but {_faulty_voter(r.canary)} was not named as its outlier")
@@ -393,41 +393,36 @@ def _coverage_canary(canary: Canary) -> CanaryResult:
 
     model = cases.load(canary.case)
     states = sample_states(model, DEFAULT_SAMPLES, SEED, canary.case)
-    states = [_degenerate(canary, model, states, s) for s in states]
     if canary.kind == "limits misread":
         body = model.bodies[canary.index]
         bodies = list(model.bodies)
         bodies[canary.index] = dataclasses.replace(body, limits=tuple(np.degrees(body.limits)))
         model = dataclasses.replace(model, bodies=tuple(bodies))
+    else:
+        states = _degenerate(canary, model, states)
     problems = [p for p in coverage.measure(model, states).problems if canary.key in p]
-    return CanaryResult(canary, bool(problems), bool(problems), float(len(problems)),
-                        problems[0] if problems else "-")
+    return CanaryResult(canary, bool(problems), bool(problems), 0.0, problems[0] if problems else "-")
 
 
-def _degenerate(canary: Canary, model, states: Sequence[State], s: State) -> State:
-    if canary.kind == "limits misread":
-        return s
-    if canary.kind == "at the limits":
-        if s.index % AT_LIMITS_EVERY != 1:
-            return s
-        k = model.q_index[canary.index]
-        read = file_limits.read(model)            # the limits the coverage judges against: the file's, read apart
-        lower, upper = read.limits[canary.index] if read and read.limits else model.bodies[canary.index].limits
-        q = list(s.q)
-        q[k] = lower if s.index % 2 else upper
-        return dataclasses.replace(s, q=tuple(q))
+def _degenerate(canary: Canary, model, states: Sequence[State]) -> list[State]:
+    """``states`` made degenerate by the canary's kind (module doc)."""
+    k = canary.index
     if canary.kind == "repeated":
-        return dataclasses.replace(states[1], index=s.index)
+        return [dataclasses.replace(states[1], index=s.index) for s in states]
     if canary.kind == "rates never sampled":
-        return dataclasses.replace(s, qd=(0.0,) * len(s.qd))
+        return [dataclasses.replace(s, qd=(0.0,) * len(s.qd)) for s in states]
+    if canary.kind == "at the limits":
+        read = file_limits.read(model)            # the limits the coverage judges against: the file's, read apart
+        lower, upper = read.limits[k] if read and read.limits else model.bodies[k].limits
+        iq = model.q_index[k]
+        return [dataclasses.replace(s, q=s.q[:iq] + (lower if s.index % 2 else upper,) + s.q[iq + 1:])
+                if s.index % AT_LIMITS_EVERY == 1 else s for s in states]
     if canary.kind in ("sliver", "band"):
-        if canary.kind == "band" and s.index % BAND_SPREAD == 0:
-            return s                                   # these states keep the full range
-        k, centre = canary.index, states[0].q[canary.index]
-        span = coverage.REVOLUTE_SPAN
-        q = list(s.q)
-        q[k] = centre + (q[k] - centre) * SLIVER_WIDTH * span / max(np.ptp([t.q[k] for t in states]), 1e-300)
-        return dataclasses.replace(s, q=tuple(q))
+        centre = states[0].q[k]
+        shrink = SLIVER_WIDTH * coverage.REVOLUTE_SPAN / max(np.ptp([s.q[k] for s in states]), 1e-300)
+        kept = (lambda s: s.index % BAND_SPREAD == 0) if canary.kind == "band" else (lambda s: False)
+        return [s if kept(s) else dataclasses.replace(s, q=s.q[:k] + (centre + (s.q[k] - centre) * shrink,)
+                                                      + s.q[k + 1:]) for s in states]
     raise ValueError(f"unknown coverage canary kind '{canary.kind}'")
 
 
@@ -436,8 +431,7 @@ def _one(canary: Canary, chosen: Sequence[Formalism], evaluated: dict) -> Canary
     if canary.check == "coverage":
         return _coverage_canary(canary)
     setup = _setup(canary)
-    state = sample_states(setup.model, canary.state + 1, SEED, canary.case)[canary.state]   # the first states of
-    #                                                                       STATES: the draws are sequential
+    state = sample_states(setup.model, canary.state + 1, SEED, canary.case)[canary.state]
     if canary.check in ("closed forms", "file reference"):
         return _model_canary(canary, setup, state, chosen)
     key = (canary.case, canary.state, canary.check)
