@@ -257,22 +257,54 @@ def _import(module_name: str, spec: str):
                           f"{exc}") from exc
 
 
+def _defaults_named(spec: str, attr: str) -> tuple[str, tuple[str, ...]]:
+    """The object's path and the defaults named in brackets after it (``BACKEND[damping,springs]``)."""
+    if not attr.endswith("]"):
+        return attr, ()
+    path, bracket, names = attr[:-1].partition("[")
+    if not bracket or not path:
+        raise PluginError(f"plugin '{spec}': defaults are named in brackets after the object, as in "
+                          "crosscheck.adapters.mujoco:BACKEND[damping]")
+    return path, tuple(n.strip() for n in names.split(",") if n.strip())
+
+
 def load_plugin(spec: str) -> Formalism:
     """Load and register the backend ``"module:object"`` or ``"path/to/file.py:object"`` (``object`` may be dotted);
-    loading it again is a no-op."""
+    a module alone loads its ``BACKEND``; ``object[a,b]`` is ``object.with_defaults("a", "b")`` (an adapter with
+    those defaults of its library left on, ``crosscheck.adapters``). Loading it again is a no-op."""
     module_name, sep, attr = spec.rpartition(":")
-    if not sep or not module_name or not attr:
+    if not sep and spec and not spec.endswith(".py"):
+        module_name, attr = spec, "BACKEND"
+    if not module_name or not attr:
         raise PluginError(f"a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
-                          f"examples/mujoco_plugin.py:MUJOCO), got '{spec}'")
+                          f"crosscheck.adapters.mujoco:BACKEND), got '{spec}'")
     _discover()
     obj = _import(module_name, spec)
+    attr, defaults = _defaults_named(spec, attr)
     for part in attr.split("."):
         if not hasattr(obj, part):
             candidates = sorted(k for k, v in vars(obj).items() if not _problems(v)) if hasattr(obj, "__dict__") else []
             raise PluginError(f"plugin '{spec}': '{module_name}' has no attribute '{attr}' (backends defined there: "
                               f"{', '.join(candidates) or 'none'})")
         obj = getattr(obj, part)
+    if defaults:
+        obj = _with_defaults(spec, obj, defaults)
     return _add(obj, f"plugin '{spec}'", spec)
+
+
+_CONFIGURED: dict[str, Any] = {}
+
+
+def _with_defaults(spec: str, obj, defaults: tuple[str, ...]):
+    """``obj.with_defaults(*defaults)``, one object per spec (loading it again is a no-op)."""
+    if spec not in _CONFIGURED:
+        if not callable(getattr(obj, "with_defaults", None)):
+            raise PluginError(f"plugin '{spec}': {type(obj).__name__} has no defaults to leave on (no with_defaults)")
+        try:
+            _CONFIGURED[spec] = obj.with_defaults(*defaults)
+        except ValueError as exc:
+            raise PluginError(f"plugin '{spec}': {exc}") from exc
+    return _CONFIGURED[spec]
 
 
 def load_plugins(specs: Sequence[str]) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import cases
-from crosscheck import backends
+from crosscheck import adapters, backends
 from crosscheck.engine import divergences
 from crosscheck.engine.specs import CaseSpec
 from crosscheck.guards import preflight
@@ -172,6 +172,19 @@ def add_plugin_option(parser: argparse.ArgumentParser) -> None:
     ``backends.plugin_specs()``."""
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE:OBJECT",
                         help="also evaluate your own backend, e.g. mypkg.dynamics:BACKEND (repeatable)")
+    parser.add_argument("--simulator", action="append", dest="plugin", type=_simulator,
+                        metavar="NAME[:DEFAULT,...]",
+                        help=f"also evaluate a simulator reading the model file ({', '.join(adapters.SIMULATORS)}), "
+                        "every model-changing default off but those named, e.g. mujoco:damping (repeatable; "
+                        "docs/simulators.md)")
+
+
+def _simulator(text: str) -> str:
+    """``--simulator NAME[:DEFAULT,...]`` as the ``--plugin`` spec of that adapter (``crosscheck.adapters``)."""
+    try:
+        return adapters.plugin_spec(text)
+    except adapters.SimulatorError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_task_point_option(parser: argparse.ArgumentParser) -> None:

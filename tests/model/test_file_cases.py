@@ -215,7 +215,7 @@ def test_mujoco_reads_the_mjcf_files_as_the_loader_does(monkeypatch, tmp_path):
     monkeypatch.chdir(ROOT)
     backends.reset()
     try:
-        code = cli.main(["gate", "--plugin", "examples/mujoco_plugin.py:MUJOCO", "--case", "mjcf_floating", "--case",
+        code = cli.main(["gate", "--plugin", "crosscheck.adapters.mujoco:BACKEND", "--case", "mjcf_floating", "--case",
                          "mjcf_ball_slide", "--samples", "4", "--workers", "0", "--report", str(tmp_path / "g.md")])
     finally:
         backends.reset()

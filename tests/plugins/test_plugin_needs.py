@@ -1,11 +1,12 @@
 """What a plugin needs (``crosscheck.needs``): crosscheck's Model, the source file and the scene's placement, or a
 Pinocchio model of the same source; given for every scene ``split`` is called on (the case, moved scenes, gravity-free
-copies). The MuJoCo example (``examples/mujoco_plugin.py``, loaded by its file path) reads the URDF itself, passes
+copies). The MuJoCo adapter (``crosscheck.adapters.mujoco``, loaded by its spec) reads the URDF itself, passes
 the gate, and its copy with joint damping left on fails it, named as the outlier.
 """
 
 from __future__ import annotations
 
+import shlex
 import multiprocessing
 import operator
 import pickle
@@ -31,7 +32,7 @@ from crosscheck.needs import PinocchioScene, SourceScene
 #: A state of the chain (revolute, continuous, prismatic): q, qd, u.
 STATE = ([0.3, -0.7, 0.05], [1.0, -2.0, 0.3], [0.5, -0.2, 0.1])
 ROOT = Path(__file__).resolve().parents[2]
-MUJOCO, DAMPED = "examples/mujoco_plugin.py:MUJOCO", "examples/mujoco_plugin.py:DAMPING_LEFT_ON"
+MUJOCO, DAMPED = "crosscheck.adapters.mujoco:BACKEND", "crosscheck.adapters.mujoco:BACKEND[damping]"
 
 INERTIA = 'ixx="0.02" ixy="0.001" ixz="-0.002" iyy="0.03" iyz="0.0015" izz="0.025"'
 #: Three joints (revolute, continuous about an unaligned axis, prismatic) with limits, damping and friction in
@@ -124,9 +125,9 @@ def test_mujoco_with_damping_left_on_fails_and_is_named(chain_path):
     text = report.read_text()
     assert code == 1 and "**FAIL**" in text
     blamed = [line for line in text.splitlines() if "outlier **" in line]
-    assert blamed and all("outlier **mujoco_damping_left_on**" in line for line in blamed)
+    assert blamed and all("outlier **mujoco_with_damping**" in line for line in blamed)
     commands = [line for line in text.splitlines() if "reproduce: `crosscheck eval" in line]
-    assert commands and all(f"--plugin {DAMPED}" in line for line in commands)
+    assert commands and all(f"--plugin {shlex.quote(DAMPED)}" in line for line in commands)
     hints = [line for line in text.splitlines() if "a force linear in qd" in line]
     assert hints and "mass matrix" not in " ".join(hints)
 

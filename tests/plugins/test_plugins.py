@@ -190,9 +190,12 @@ def test_moved_scene_and_two_link_chain_are_supported():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ("closed_form_pendulum", "a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
-                             "examples/mujoco_plugin.py:MUJOCO), got "
-                             "'closed_form_pendulum'"),
+    ("closed_form_pendulum", "plugin 'closed_form_pendulum': 'closed_form_pendulum' has no attribute 'BACKEND' "
+                             "(backends defined there: CLOSED_FORM, SIGN_ERROR)"),
+    (":X", "a plugin is given as MODULE:OBJECT or FILE.py:OBJECT (e.g. mypkg.dynamics:BACKEND, "
+           "crosscheck.adapters.mujoco:BACKEND), got ':X'"),
+    ("closed_form_pendulum:CLOSED_FORM[a]", "plugin 'closed_form_pendulum:CLOSED_FORM[a]': Formalism has no "
+                                            "defaults to leave on (no with_defaults)"),
     ("no_such_module_abc:X", "plugin 'no_such_module_abc:X': module 'no_such_module_abc' not found"),
     ("raises_on_import:X", "plugin 'raises_on_import:X': importing module 'raises_on_import' failed: "
                            "ModuleNotFoundError: No module named 'no_such_dependency_xyz'"),
