@@ -328,6 +328,14 @@ def plugin_specs() -> tuple[str, ...]:
     return tuple(p.spec for p in _plugins.values() if p.spec is not None)
 
 
+def plugin_object(name: str):
+    """The object a plugin was loaded or registered as (an adapter's ``DEFAULTS`` and ``library()`` are read off it)."""
+    _discover()
+    if name not in _plugins:
+        raise formalisms.UnknownFormalism(f"no plugin '{name}'; plugins: {', '.join(_plugins) or 'none'}")
+    return _plugins[name].obj
+
+
 def plugin_sources() -> dict[str, str]:
     """Plugin name -> where it came from (entry point, ``--plugin`` spec or register())."""
     _discover()

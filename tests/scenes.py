@@ -26,3 +26,22 @@ def chain_urdf(path, joints) -> str:
         f'<axis xyz="0 1 0"/>{limit}</joint>' for n, p, c, t, limit in joints) + "</robot>"
     path.write_text(text)
     return str(path)
+
+
+DAMPED_INERTIA = 'ixx="0.02" ixy="0.001" ixz="-0.002" iyy="0.03" iyz="0.0015" izz="0.025"'
+#: Three joints (revolute, continuous about an unaligned axis, prismatic) with limits, damping and friction in
+#: <dynamics>, and collision geometry: everything a rigid-body backend must ignore and MuJoCo reads.
+DAMPED_CHAIN = "\n".join([
+    '<?xml version="1.0"?>', '<robot name="damped_chain">',
+    '<link name="base"/>',
+    *[f'<link name="{name}"><inertial><origin xyz="{com}" rpy="0.1 -0.2 0.3"/><mass value="{mass}"/>'
+      f'<inertia {DAMPED_INERTIA}/></inertial><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>'
+      for name, mass, com in (("a", 1.5, "0.1 0 0"), ("b", 0.8, "0 0.1 0.02"), ("c", 0.4, "0.02 0 0.03"))],
+    '<joint name="j_a" type="revolute"><parent link="base"/><child link="a"/><origin xyz="0 0 0.1" rpy="0.1 0.2 0.3"/>'
+    '<axis xyz="0 0 1"/><limit lower="-0.5" upper="0.5" effort="10" velocity="5"/>'
+    '<dynamics damping="0.7" friction="0.3"/></joint>',
+    '<joint name="j_b" type="continuous"><parent link="a"/><child link="b"/><origin xyz="0.3 0 0" rpy="0.3 0 0"/>'
+    '<axis xyz="0.6 0 0.8"/><dynamics damping="0.4"/></joint>',
+    '<joint name="j_c" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.2 0" rpy="0 0.4 0"/>'
+    '<axis xyz="0 1 0"/><limit lower="-0.1" upper="0.1" effort="10" velocity="5"/><dynamics damping="0.2"/></joint>',
+    "</robot>", ""])

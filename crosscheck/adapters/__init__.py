@@ -32,7 +32,7 @@ class SimulatorError(ValueError):
 
 
 def installed() -> list[str]:
-    """The adapters whose library imports here (found, not imported), in :data:`SIMULATORS` order."""
+    """The adapters whose library is installed here (found, not imported), in :data:`SIMULATORS` order."""
     return [name for name, (_, _, module) in SIMULATORS.items() if importlib.util.find_spec(module) is not None]
 
 

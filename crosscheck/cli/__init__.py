@@ -34,7 +34,8 @@ from cases.model import ModelError
 import cases.urdf
 from crosscheck import backends
 from crosscheck.checks import charts
-from crosscheck.cli import bench, cache, eval, faults, fuzz, gate, listing, options, reports, stability, trajectory
+from crosscheck.cli import (bench, cache, eval, faults, fuzz, gate, listing, options, reports, simulators, stability,
+                            trajectory)
 from crosscheck.cli.options import BLAS_THREADS, _interrupted, _one_line, _Parser, UsageError
 from crosscheck.core import sampling
 from crosscheck.engine.run import PreparationNotice
@@ -44,7 +45,7 @@ from formalisms.cache import cache_limit
 from formalisms.interface import StateError
 
 #: The command modules in the order ``crosscheck --help`` lists their subcommands.
-COMMANDS = (listing, gate, eval, faults, fuzz, bench, stability, trajectory, reports, cache)
+COMMANDS = (listing, gate, simulators, eval, faults, fuzz, bench, stability, trajectory, reports, cache)
 
 
 def _version() -> str:

@@ -63,6 +63,12 @@ def _model_findings(model, strict: bool) -> None:
 
 
 def cmd_gate(args) -> int:
+    return gated(args)[0]
+
+
+def gated(args) -> tuple[int, GateResult]:
+    """Run the gate of ``args`` (the ``gate`` subcommand's options), write its report and lines: the exit code and
+    the result (``crosscheck simulators`` reads it further)."""
     if args.samples < 1:
         raise UsageError("--samples must be at least 1")
     if not 0 <= args.frames <= MAX_FRAMES:
@@ -97,7 +103,7 @@ def cmd_gate(args) -> int:
     command = "crosscheck " + " ".join(shlex.quote(a) for a in args.argv)
     written: list[bool] = []
     try:
-        return _report(args, result, chosen, known, report, command, written)
+        return _report(args, result, chosen, known, report, command, written), result
     except Exception as exc:  # noqa: BLE001 - the report is written whatever happens, and the exit says why
         check = "terminal lines" if written else "report"
         result.internal.setdefault(check, internal.of(exc))
@@ -105,7 +111,7 @@ def cmd_gate(args) -> int:
             report.write_text(gate_summary.write_fallback(result, command))
         print(f"FAIL {internal.Occurrence(check, result.internal[check]).describe()}")
         print(f"FAIL: the harness itself failed; report written to {report}")
-        return INTERNAL_ERROR
+        return INTERNAL_ERROR, result
 
 
 def _report(args, result: GateResult, chosen, known, report, command: str, written: list[bool]) -> int:

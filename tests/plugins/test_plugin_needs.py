@@ -6,7 +6,6 @@ the gate, and its copy with joint damping left on fails it, named as the outlier
 
 from __future__ import annotations
 
-import shlex
 import multiprocessing
 import operator
 import pickle
@@ -27,31 +26,13 @@ from crosscheck.assemble import Sizes, unconstrained_split
 from crosscheck.core.compare import NOT_COMPARED, suspect
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
+from scenes import DAMPED_CHAIN
 from crosscheck.needs import PinocchioScene, SourceScene
 
 #: A state of the chain (revolute, continuous, prismatic): q, qd, u.
 STATE = ([0.3, -0.7, 0.05], [1.0, -2.0, 0.3], [0.5, -0.2, 0.1])
 ROOT = Path(__file__).resolve().parents[2]
 MUJOCO, DAMPED = "crosscheck.adapters.mujoco:BACKEND", "crosscheck.adapters.mujoco:BACKEND[damping]"
-
-INERTIA = 'ixx="0.02" ixy="0.001" ixz="-0.002" iyy="0.03" iyz="0.0015" izz="0.025"'
-#: Three joints (revolute, continuous about an unaligned axis, prismatic) with limits, damping and friction in
-#: <dynamics>, and collision geometry: everything a rigid-body backend must ignore and MuJoCo reads.
-DAMPED_CHAIN = "\n".join([
-    '<?xml version="1.0"?>', '<robot name="damped_chain">',
-    '<link name="base"/>',
-    *[f'<link name="{name}"><inertial><origin xyz="{com}" rpy="0.1 -0.2 0.3"/><mass value="{mass}"/>'
-      f'<inertia {INERTIA}/></inertial><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>'
-      for name, mass, com in (("a", 1.5, "0.1 0 0"), ("b", 0.8, "0 0.1 0.02"), ("c", 0.4, "0.02 0 0.03"))],
-    '<joint name="j_a" type="revolute"><parent link="base"/><child link="a"/><origin xyz="0 0 0.1" rpy="0.1 0.2 0.3"/>'
-    '<axis xyz="0 0 1"/><limit lower="-0.5" upper="0.5" effort="10" velocity="5"/>'
-    '<dynamics damping="0.7" friction="0.3"/></joint>',
-    '<joint name="j_b" type="continuous"><parent link="a"/><child link="b"/><origin xyz="0.3 0 0" rpy="0.3 0 0"/>'
-    '<axis xyz="0.6 0 0.8"/><dynamics damping="0.4"/></joint>',
-    '<joint name="j_c" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.2 0" rpy="0 0.4 0"/>'
-    '<axis xyz="0 1 0"/><limit lower="-0.1" upper="0.1" effort="10" velocity="5"/><dynamics damping="0.2"/></joint>',
-    "</robot>", ""])
-
 
 @pytest.fixture(autouse=True)
 def fresh(monkeypatch):

@@ -1,0 +1,99 @@
+"""``crosscheck simulators`` and its conformance report: an adapter that agrees, one left with a default on that
+changes the model (named, with the hint and the state), one that cannot read the model (NOT COMPARED, with the
+reason), and ``--simulator`` errors."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from crosscheck import adapters, backends, cli
+from crosscheck.reports import conformance, diagnosis
+from scenes import DAMPED_CHAIN
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: A plugin that reads nothing: NOT COMPARED on every model, with its reason.
+DECLINING = '''
+from formalisms.interface import ModelNotSupported
+
+class Declining:
+    name, needs = "declining_sim", "source"
+
+    def split(self, scene, q, qd, u):
+        raise ModelNotSupported("this simulator reads no " + scene.kind.upper() + " file")
+
+BACKEND = Declining()
+'''
+
+
+@pytest.fixture(autouse=True)
+def fresh(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    backends.reset()
+    yield
+    backends.reset()
+
+
+@pytest.fixture
+def damped(tmp_path) -> str:
+    path = tmp_path / "damped_chain.urdf"
+    path.write_text(DAMPED_CHAIN)
+    return str(path)
+
+
+def _run(tmp_path, *argv) -> tuple[int, str]:
+    report = tmp_path / "sim.md"
+    code = cli.main(["simulators", *argv, "--samples", "3", "--report", str(report), "--quiet"])
+    return code, report.read_text()
+
+
+def test_a_conforming_simulator_and_one_with_a_default_left_on(tmp_path, damped, capsys):
+    """MuJoCo with every default off agrees in every family it supplies; with joint damping left on (the file
+    declares it) it is the drift's outlier, with the damping hint, the state and the command to reproduce it; ctrl
+    (M^-1 B u, no damping in it) still agrees."""
+    code, text = _run(tmp_path, "--model", damped, "--simulator", "mujoco", "--simulator", "mujoco:damping")
+    out = capsys.readouterr().out
+    assert code == 1
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| mujoco")}
+    assert "FINDING" not in rows["mujoco"] and "agrees" in rows["mujoco"]
+    cells = dict(zip(conformance.FAMILIES, rows["mujoco_with_damping"].split(" | ")[2:]))
+    assert "**FINDING** (3 states)" in cells["drift"] and cells["ctrl"].startswith("agrees")
+    section = text.split("## mujoco_with_damping")[1]
+    assert "outlier **mujoco_with_damping** at 3 states" in section
+    assert "hint: mujoco_with_damping" in section and diagnosis.DAMPING[:40] in section
+    assert "reproduce: `crosscheck eval --model" in section and "Defaults left on: damping." in section
+    assert "- `damping`" not in section and "- `damping`" in text.split("## mujoco_with_damping")[0]
+    assert re.search(r"^simulator mujoco +agrees", out, re.M)
+    assert re.search(r"^simulator mujoco_with_damping +FINDING in drift \(3 states\)", out, re.M)
+    assert (tmp_path / "sim-gate.md").is_file()
+
+
+def test_a_simulator_that_cannot_read_the_file_is_not_compared_with_its_reason(tmp_path, damped):
+    plugin = tmp_path / "declining.py"
+    plugin.write_text(DECLINING)
+    code, text = _run(tmp_path, "--model", damped, "--simulator", "mujoco", "--plugin", f"{plugin}:BACKEND")
+    assert code == 0, text
+    assert "| declining_sim |" in text and "NOT COMPARED: this simulator reads no URDF file" in text
+
+
+def test_simulator_errors_are_one_line_and_exit_2(tmp_path, damped, capsys):
+    assert cli.main(["gate", "--simulator", "nope", "--model", damped]) == 2
+    assert "no adapter 'nope'; adapters: mujoco, drake, pybullet, idyntree, roboticstoolbox" in capsys.readouterr().err
+    assert cli.main(["gate", "--simulator", "mujoco:bogus", "--model", damped]) == 2
+    assert "mujoco has no default 'bogus'; its defaults: constraint_solver, damping" in capsys.readouterr().err
+
+
+def test_every_adapter_is_installed_here_and_states_its_defaults():
+    """CI installs every library (the test extras): each adapter loads, and each default says what it adds."""
+    assert adapters.installed() == list(adapters.SIMULATORS)
+    for name in adapters.SIMULATORS:
+        adapter = backends.load_plugin(adapters.plugin_spec(name))
+        obj = backends.plugin_object(adapter.name)
+        assert obj.name == name and obj.needs == "source" and obj.library()
+        assert all(isinstance(what, str) and what for what in obj.DEFAULTS.values())
+        every = obj.with_defaults(*obj.DEFAULTS)
+        assert every.on == set(obj.DEFAULTS) and every.name == "_with_".join([name, *(
+            ["_".join(sorted(obj.DEFAULTS))] if obj.DEFAULTS else [])])
