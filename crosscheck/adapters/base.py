@@ -202,6 +202,11 @@ class Adapter:
         """The library and its version."""
         raise NotImplementedError
 
+    def in_file(self, scene) -> dict[str, str]:
+        """Which of :attr:`DEFAULTS` the file itself sets (default -> where, e.g. "damping on 3 joints"): those that
+        had to be off for this model. Empty when the adapter cannot tell."""
+        return {}
+
     def build(self, scene):
         """The library's model of ``scene`` (any object :meth:`terms` reads); ModelNotSupported for what the library
         cannot hold."""

@@ -121,6 +121,23 @@ class MuJoCo(Adapter):
             roots[0].add_freejoint()
         return spec
 
+    def in_file(self, scene) -> dict[str, str]:
+        """The defaults the file sets, read off MuJoCo's model of it compiled with every default as MuJoCo has it."""
+        m = self._spec(scene).compile()
+        counts = {"damping": int(np.count_nonzero(m.dof_damping)), "springs": int(np.count_nonzero(m.jnt_stiffness)),
+                  "gravcomp": int(np.count_nonzero(m.body_gravcomp))}
+        found = {name: f"on {k} {'joints' if name != 'gravcomp' else 'bodies'}" for name, k in counts.items() if k}
+        solver = [f"{k} {what}" for k, what in ((int(m.jnt_limited.sum()), "limited joints"),
+                                                 (int(np.count_nonzero(m.dof_frictionloss)), "joints with friction loss"),
+                                                 (m.ngeom, "geoms (contacts)"), (m.neq, "equality constraints")) if k]
+        if solver:
+            found["constraint_solver"] = ", ".join(solver)
+        if m.opt.density or m.opt.viscosity or np.any(m.opt.wind):
+            found["fluid"] = "density, viscosity or wind set"
+        if m.nu:
+            found["actuators"] = f"{m.nu} actuators"
+        return found
+
     def build(self, scene) -> _Compiled:
         """The scene's MjModel: the file's bodies in a frame at the scene's placement, gravity turned with it (or
         zero), every default not named off; crosscheck's bodies found by name, their joint types checked."""

@@ -18,6 +18,7 @@ from crosscheck.cli import gate
 from crosscheck.cli.options import OUTPUT_DIR, UsageError, _Parser, add_plugin_option, add_quiet_option
 from crosscheck.engine.outcomes import GateResult
 from crosscheck.guards import preflight
+from crosscheck.needs import source_scene
 from crosscheck.reports import conformance
 from formalisms.interface import ModelNotSupported
 
@@ -62,8 +63,21 @@ def _info(result: GateResult, name: str) -> dict:
     defaults = getattr(obj, "DEFAULTS", {})
     on = sorted(getattr(obj, "on", ()))
     library = obj.library() if hasattr(obj, "library") else getattr(obj, "summary", "") or name
-    return {"library": library, "off": [(d, what) for d, what in defaults.items() if d not in on], "on": on,
-            "reason": _reason(result, name)}
+    reason = _reason(result, name)
+    used = _in_file(obj, result, name) if not reason else {}
+    return {"library": library, "on": on, "reason": reason,
+            "off": [(d, what + (f" **(this file: {used[d]})**" if d in used else "")) for d, what in defaults.items()
+                    if d not in on]}
+
+
+def _in_file(obj, result: GateResult, name: str) -> dict[str, str]:
+    """The defaults the run's file sets (``Adapter.in_file``), or none when the adapter cannot tell."""
+    if not callable(getattr(obj, "in_file", None)) or not result.cases:
+        return {}
+    try:
+        return obj.in_file(source_scene(result.cases[0].model, name))
+    except Exception:  # noqa: BLE001 - a note of the report, never its failure
+        return {}
 
 
 def cmd_simulators(args) -> int:

@@ -8,8 +8,8 @@ A simulator's cell in a family says one of:
   one-backend check) of a disagreement at some states; the section below the table gives the size (error/tolerance),
   the state, the hint the error's shape suggests (``crosscheck.reports.diagnosis``) and the command that reproduces
   it;
-* ``disagrees, not named``: a disagreement it voted in that the vote blames on no one or on another voter (read the
-  gate report);
+* ``disagrees, not named``: a disagreement it voted in that the vote blames on no one (read the gate report); one
+  blamed on another voter is that voter's (the others, this simulator among them, agree);
 * ``not supplied``: it voted in no comparison of the family (the quantity is not computed by that library, or the
   model is NOT COMPARED: the reason is given).
 """
@@ -86,8 +86,11 @@ def cells(case: CaseOutcome, simulator: str) -> dict[str, Cell]:
             cell.voted = True
             mine = [r for v, r in comp.closeness().items() if backend_of(v) == simulator]
             cell.closeness = worst_of([cell.closeness, *mine])
-            if comp.verdict == DISAGREE:
-                (cell.findings if suspect(comp) == simulator else cell.unnamed).append((state, key, comp))
+            blamed = suspect(comp) if comp.verdict == DISAGREE else simulator
+            if blamed == simulator and comp.verdict == DISAGREE:
+                cell.findings.append((state, key, comp))
+            elif blamed is None:            # no one named: the others agree with each other only if one is named
+                cell.unnamed.append((state, key, comp))
     return out
 
 
