@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import cases
-from crosscheck import backends, cli
+from crosscheck import backends, cli, isolation
 from crosscheck.adapters.base import free_pose
 from crosscheck.adapters.pybullet import BACKEND, PyBullet
 from crosscheck.needs import pinocchio_scene, source_scene
@@ -86,9 +86,13 @@ def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     return str(path)
 
 
-def _gate(tmp_path, path: str, *args: str) -> tuple[int, str]:
+def _gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int, str]:
+    """The gate's exit code and report; the adapter in the gate's process unless ``isolated`` (its own child
+    process, as a user runs it: a second import of the library, some seconds)."""
     report = tmp_path / "gate.md"
-    code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(isolation.ENV, "1" if isolated else "0")
+        code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
     return code, gate_summary.read(report)
 
 
@@ -115,7 +119,7 @@ def _reference(model, q, qd):
 def test_pybullet_passes_on_a_chain_with_every_inertial(tmp_path):
     """Turned, off-origin inertias (diagonalized by pybullet), an unaligned axis, a prismatic joint, damping in the
     file and collision boxes: pybullet agrees with the five formalisms and Pinocchio on the unmoved scene."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "0")
+    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "0", isolated=True)
     assert code == 0 and "**PASS**" in text and "pinocchio, pybullet)" in text, text
 
 
