@@ -50,7 +50,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import (BallRpyJoint, BodyIndex, FixedOffsetFrame, MultibodyForces, PrismaticJoint,
-                                    QuaternionFloatingJoint, RevoluteJoint, WeldJoint)
+                                    QuaternionFloatingJoint, RevoluteJoint, SpatialInertia, UnitInertia, WeldJoint)
 
 from crosscheck.adapters.base import (Adapter, FreeVelocity, Terms, accel_in_ours, in_ours, quaternion_matrix,
                                       scene_gravity, urdf_without_geometry, velocity_map)
@@ -71,20 +71,60 @@ def _transform(R, t) -> RigidTransform:
 
 
 def _urdf_text(scene) -> str:
-    """The URDF without geometry, its root link renamed from ``world`` if so named (module docstring)."""
-    text = urdf_without_geometry(scene.path)
-    if scene.root_link != "world":
-        return text
-    robot = ET.fromstring(text)
-    for link in robot.iter("link"):
-        if link.get("name") == "world":
-            link.set("name", RENAMED_WORLD)
-    for joint in robot.iter("joint"):
-        for end in ("parent", "child"):
-            element = joint.find(end)
-            if element is not None and element.get("link") == "world":
-                element.set("link", RENAMED_WORLD)
+    """The URDF as Drake is given it: without geometry, its root link renamed from ``world`` if so named, and without
+    two things Drake refuses and no other reader uses, which change no dynamics: the ``<mimic>`` tags of fixed joints
+    (crosscheck, as Pinocchio, ignores them: a fixed joint has no coordinate to couple) and the ``<transmission>``s
+    that name a joint the file does not have (a partial robot's file, e.g. TALOS's arm)."""
+    robot = ET.fromstring(urdf_without_geometry(scene.path))
+    for joint in robot.findall("joint"):
+        if joint.get("type") == "fixed":
+            for mimic in joint.findall("mimic"):
+                joint.remove(mimic)
+    joints = {joint.get("name") for joint in robot.findall("joint")}
+    for transmission in robot.findall("transmission"):
+        if any(j.get("name") not in joints for j in transmission.findall("joint")):
+            robot.remove(transmission)
+    if scene.root_link == "world":
+        for link in robot.iter("link"):
+            if link.get("name") == "world":
+                link.set("name", RENAMED_WORLD)
+        for joint in robot.findall("joint"):
+            for end in ("parent", "child"):
+                element = joint.find(end)
+                if element is not None and element.get("link") == "world":
+                    element.set("link", RENAMED_WORLD)
     return ET.tostring(robot, encoding="unicode")
+
+
+def _numbers(element, attribute: str, default: str) -> np.ndarray:
+    return np.array([float(x) for x in (element.get(attribute) or default).split()]) if element is not None \
+        else np.array([float(x) for x in default.split()])
+
+
+def _file_inertias(text: str) -> dict[str, SpatialInertia]:
+    """Each URDF link's spatial inertia about its origin as the file gives it (``<inertial>``: mass, the COM frame's
+    ``<origin xyz rpy>`` and the inertia about the COM in that frame), built without Drake's validity check."""
+    out = {}
+    for link in ET.fromstring(text).iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None or inertial.find("mass") is None:
+            continue
+        mass = float(inertial.find("mass").get("value"))
+        if mass <= 0.0:
+            continue
+        origin, tensor = inertial.find("origin"), inertial.find("inertia")
+        c, rpy = _numbers(origin, "xyz", "0 0 0"), _numbers(origin, "rpy", "0 0 0")
+        moments = {k: float(tensor.get(k, 0.0)) if tensor is not None else 0.0
+                   for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
+        I = np.array([[moments["ixx"], moments["ixy"], moments["ixz"]],
+                      [moments["ixy"], moments["iyy"], moments["iyz"]],
+                      [moments["ixz"], moments["iyz"], moments["izz"]]])
+        R = RollPitchYaw(rpy).ToRotationMatrix().matrix()
+        I_o = R @ I @ R.T + mass * (c @ c * np.eye(3) - np.outer(c, c))       # about the link origin
+        G = I_o / mass
+        out[link.get("name")] = SpatialInertia(mass, c, UnitInertia(G[0, 0], G[1, 1], G[2, 2], G[0, 1], G[0, 2],
+                                                                      G[1, 2]), skip_validity_check=True)
+    return out
 
 
 def _remake(plant: MultibodyPlant, joint, parent_frame):
@@ -134,6 +174,7 @@ class _Built:
     qpos: tuple[int, ...]        # position_start of each body's joint
     dof: tuple[int, ...]         # velocity_start of each body's joint
     mass: float                  # the moving bodies' mass
+    inertias: tuple = ()         # (body index, the file's spatial inertia) of each body whose inertia Drake replaced
 
 
 class Drake(Adapter):
@@ -144,7 +185,9 @@ class Drake(Adapter):
     DEFAULTS = {
         "damping": "joint damping, a force -d qd (Joint.default_damping: URDF <dynamics damping>, MJCF damping)",
         "reflected_inertia": "an actuator's reflected rotor inertia rho G^2 on M's diagonal (a URDF <transmission> "
-                             "actuator's <drake:rotor_inertia>, <drake:gear_ratio>)",
+                             "actuator's <drake:rotor_inertia>, <drake:gear_ratio>; an MJCF actuated joint's armature)",
+        "repaired_inertia": "a URDF <inertia> that fails Drake's physical-validity test (the triangle inequality) "
+                            "replaced by a solid sphere's of the same mass, with a warning",
     }
 
     @staticmethod
@@ -163,7 +206,8 @@ class Drake(Adapter):
     @staticmethod
     def _place(plant: MultibodyPlant, scene) -> None:
         """The file's world put at the scene's placement X (module docstring): a URDF root link welded there or floated
-        from there; an MJCF's joints to the world made again from X times their frame, each free body (an MJCF
+        from there, a URDF ``floating`` joint (which Drake's parser does not hold: it warns and leaves the child body
+        free) made a free joint from its ``<origin>`` in its parent link; an MJCF's joints to the world made again from X times their frame, each free body (an MJCF
         ``<freejoint>``) given a free joint from X times its pose in the file."""
         X = _transform(scene.rotation, scene.translation)
         world = plant.world_frame()
@@ -174,6 +218,16 @@ class Drake(Adapter):
                 plant.AddJoint(QuaternionFloatingJoint("crosscheck_free_base", placed, root.body_frame()))
             else:
                 plant.WeldFrames(world, root.body_frame(), X)
+            for joint in ET.fromstring(_urdf_text(scene)).findall("joint"):    # Drake leaves these bodies free
+                if joint.get("type") == "floating":
+                    origin = joint.find("origin")
+                    X_PF = RigidTransform(RollPitchYaw(_numbers(origin, "rpy", "0 0 0")),
+                                          _numbers(origin, "xyz", "0 0 0"))
+                    parent = plant.GetBodyByName(joint.find("parent").get("link"))
+                    child = plant.GetBodyByName(joint.find("child").get("link"))
+                    frame = plant.AddFrame(FixedOffsetFrame(f"crosscheck_{joint.get('name')}_frame",
+                                                            parent.body_frame(), X_PF))
+                    plant.AddJoint(QuaternionFloatingJoint(joint.get("name"), frame, child.body_frame()))
             return
         for index in list(plant.GetJointIndices()):
             joint = plant.get_joint(index)
@@ -209,6 +263,7 @@ class Drake(Adapter):
         self._rigid_body_only(plant)
         plant.mutable_gravity_field().set_gravity_vector(scene_gravity(scene))
         plant.Finalize()
+        inertias = () if scene.kind != "urdf" or "repaired_inertia" in self.on else self._replaced(plant, scene)
         qpos, dof = [], []
         for name, joint_name, kind in zip(scene.bodies, scene.joint_names, scene.joints):
             joint = self._joint(plant, models, scene, name, joint_name, kind)
@@ -224,7 +279,21 @@ class Drake(Adapter):
         welded = {int(b.index()) for b in plant.GetBodiesWeldedTo(plant.world_body())}
         mass = sum(plant.get_body(BodyIndex(i)).default_mass() for i in range(plant.num_bodies())
                    if i not in welded)
-        return _Built(plant, tuple(qpos), tuple(dof), float(mass))
+        return _Built(plant, tuple(qpos), tuple(dof), float(mass), inertias)
+
+    @staticmethod
+    def _replaced(plant: MultibodyPlant, scene) -> tuple:
+        """The bodies whose inertia Drake's parser replaced (one that fails its physical-validity test becomes a
+        solid sphere's of the same mass, with a warning), each with the file's inertia to put back in a context."""
+        out = []
+        for name, M_file in _file_inertias(_urdf_text(scene)).items():
+            if not plant.HasBodyNamed(name):
+                continue
+            body = plant.GetBodyByName(name)
+            M, want = body.default_spatial_inertia().CopyToFullMatrix6(), M_file.CopyToFullMatrix6()
+            if np.abs(M - want).max() > 1e-12 * max(1.0, np.abs(want).max()):
+                out.append((body.index(), M_file))
+        return tuple(out)
 
     @staticmethod
     def _joint(plant, models, scene, body: str, joint_name, kind: str):
@@ -277,6 +346,8 @@ class Drake(Adapter):
         q_L, T, c = self.velocity_map(b, scene, q, qd)
         tau_L = np.linalg.solve(T.T, tau)
         context = plant.CreateDefaultContext()
+        for index, inertia in b.inertias:           # the file's inertias where Drake's parser replaced them
+            plant.get_body(index).SetSpatialInertiaInBodyFrame(context, inertia)
         plant.SetPositions(context, q_L)
         plant.SetVelocities(context, T @ qd)
         M_L = plant.CalcMassMatrix(context)

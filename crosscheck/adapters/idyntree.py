@@ -10,7 +10,10 @@ Conventions (docs/simulators.md has the matrix of every adapter):
   ``BODY_FIXED_REPRESENTATION`` the base velocity is the body twist of the base link, linear then angular, both in
   the base frame, and the base acceleration its time derivative: ours exactly. iDynTree's model is always free
   floating (6 base velocities, then the joints'): on a fixed base the base pose is the root link's placement in the
-  scene, its velocity zero, and the joint block of ``M``, ``h``, ``g`` is the fixed-base dynamics;
+  scene, its velocity zero, and the joint block of ``M``, ``h``, ``g`` is the fixed-base dynamics. A URDF
+  ``floating`` joint, which iDynTree's parser does not hold (it reports two root links and loads an empty model), is
+  taken when it hangs alone from the root link: that link and joint are removed, and the base floats from the joint's
+  ``<origin>`` placed by the scene;
 * joints are found by the file's joint name (``getJointIndex``), their velocity at ``6 + getDOFsOffset()``; a URDF
   ``continuous`` joint is a ``RevoluteJoint``;
 * fixed joints are kept as ``FixedJoint`` between links (no link is merged); a massless link that hangs by a fixed
@@ -24,15 +27,18 @@ Conventions (docs/simulators.md has the matrix of every adapter):
 Defaults: none. ``KinDynComputations`` computes rigid-body dynamics only: the joints' ``<dynamics damping
 friction>`` and ``<limit>`` are read into the model but enter none of these terms; the parser's option
 ``convertThreeRevoluteJointsToSphericalJoint`` is off by default (it would change the coordinates) and is left off;
-the fake-link removal above changes no dynamics. So :attr:`IDynTree.DEFAULTS` is empty. iDynTree has no forward
-dynamics here and no kinetic energy: the drift, ctrl and total are solves of its own ``M`` and ``h`` (eq. 9), the
-kinetic energy is not supplied. NOT COMPARED: MJCF files (iDynTree reads URDF and SDF); a model with constraint rows
-(a URDF ``<mimic>``: iDynTree ignores the tag); a URDF ``floating`` joint in the file (iDynTree's URDF parser does
-not hold one: load the file with ``--base free`` from the link below it); a joint iDynTree reads as another type.
+the fake-link removal above changes no dynamics; an inertia is taken as the file gives it, even one that fails the
+triangle inequality. So :attr:`IDynTree.DEFAULTS` is empty. ``KinDynComputations`` has no forward dynamics (the
+library's ``ArticulatedBodyAlgorithm`` is a free-floating one with gravity as link wrenches, not used) and no kinetic
+energy: the drift, ctrl and total are solves of its own ``M`` and ``h`` (eq. 9), the kinetic energy is not supplied.
+NOT COMPARED: MJCF files (iDynTree's ``ModelLoader`` reads URDF only); a model with constraint rows
+(a URDF ``<mimic>``: iDynTree ignores the tag); a URDF ``floating`` joint elsewhere than alone below the root link;
+a joint iDynTree reads as another type.
 """
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from collections import deque
 from dataclasses import dataclass
 from importlib import metadata
@@ -40,7 +46,7 @@ from importlib import metadata
 import idyntree.swig as idt
 import numpy as np
 
-from crosscheck.adapters.base import (BODY_TWIST, Adapter, Terms, free_pose, in_ours, scene_gravity,
+from crosscheck.adapters.base import (BODY_TWIST, Adapter, Terms, in_ours, quaternion_matrix, scene_gravity,
                                       urdf_without_geometry, velocity_map)
 from formalisms.interface import ModelNotSupported
 
@@ -64,8 +70,10 @@ class _Built:
     kd: object
     model: object
     base_H_root: np.ndarray      # the root link's frame in the base link (identity unless the root link is a frame)
+    world_H_F: np.ndarray        # a free base's joint frame in the file's world (a URDF floating joint's origin)
     dof: tuple[int, ...]         # iDynTree's velocity index of each body's joint (the base's is 0)
     mass: float
+    free: bool                   # body 0 is on a free joint (--base free, or the file's floating joint)
 
 
 class IDynTree(Adapter):
@@ -82,17 +90,18 @@ class IDynTree(Adapter):
     def build(self, scene) -> _Built:
         """The scene's KinDynComputations: the file's full model (fixed joints kept), the base the link that carries
         the root link's frame, the body-fixed representation; crosscheck's joints found by name, types checked."""
+        text, root_name, world_H_F = urdf_without_geometry(scene.path), scene.root_link, np.eye(4)
+        if any(kind == "free" and name is not None for kind, name in zip(scene.joints, scene.joint_names)):
+            text, world_H_F = self._unfloated(text, scene)
+            root_name = scene.bodies[0]
         loader = idt.ModelLoader()
-        if not loader.loadModelFromString(urdf_without_geometry(scene.path)):
+        if not loader.loadModelFromString(text) or loader.model().getNrOfLinks() == 0:
             raise ModelNotSupported(f"{self.library()} does not load '{scene.path}' (its parser's messages are on "
                                     "stderr)")
         model = loader.model().copy()
-        if any(joint == "free" and name is not None for joint, name in zip(scene.joints, scene.joint_names)):
-            raise ModelNotSupported(f"'{scene.path}' has a floating joint in the file, which iDynTree's URDF parser "
-                                    "does not hold")
-        root = model.getFrameIndex(scene.root_link)
+        root = model.getFrameIndex(root_name)
         if root < 0:
-            raise ModelNotSupported(f"iDynTree's model of '{scene.path}' has no frame '{scene.root_link}'")
+            raise ModelNotSupported(f"iDynTree's model of '{scene.path}' has no frame '{root_name}'")
         base = model.getFrameLink(root)
         base_H_root = model.getFrameTransform(root).asHomogeneousTransform().toNumPy()
         kd = idt.KinDynComputations()
@@ -115,11 +124,35 @@ class IDynTree(Adapter):
                 raise ModelNotSupported(f"iDynTree reads joint '{name}' of '{scene.path}' as another type than "
                                         f"crosscheck's {kind} moving '{body}'")
             dof.append(6 + joint.getDOFsOffset())
-        if model.getNrOfDOFs() + (6 if scene.root == "free" else 0) != scene.nv:
+        if model.getNrOfDOFs() + (6 if "free" in scene.joints else 0) != scene.nv:
             raise ModelNotSupported(f"iDynTree's model of '{scene.path}' has {model.getNrOfDOFs()} joint velocities, "
                                     f"the scene {scene.nv}")
-        mass = model.getTotalMass() - (0.0 if scene.root == "free" else self._welded_mass(model, base))
-        return _Built(kd, model, base_H_root, tuple(dof), float(mass))
+        free = bool(scene.joints) and scene.joints[0] == "free"
+        mass = model.getTotalMass() - (0.0 if free else self._welded_mass(model, base))
+        return _Built(kd, model, base_H_root, world_H_F, tuple(dof), float(mass), free)
+
+    @staticmethod
+    def _unfloated(text: str, scene) -> tuple[str, np.ndarray]:
+        """A URDF whose root link hangs the base by a ``floating`` joint (iDynTree's parser does not hold one) without
+        that root link and joint, and the joint's frame F in the file's world (its ``<origin>``): the base then floats
+        from F. Only a floating joint from a root link with no other joint is taken so (else ModelNotSupported)."""
+        robot = ET.fromstring(text)
+        joints = robot.findall("joint")
+        floating = [j for j in joints if j.get("type") == "floating"]
+        hanging = [j for j in joints if j.find("parent").get("link") == scene.root_link]
+        if scene.joints[0] != "free" or len(floating) != 1 or hanging != floating \
+                or floating[0].get("name") != scene.joint_names[0]:
+            raise ModelNotSupported(f"'{scene.path}' has a floating joint, which iDynTree's URDF parser does not hold, "
+                                    "elsewhere than alone below its root link")
+        origin = floating[0].find("origin")
+        xyz = [float(x) for x in (origin.get("xyz") if origin is not None and origin.get("xyz") else "0 0 0").split()]
+        rpy = [float(x) for x in (origin.get("rpy") if origin is not None and origin.get("rpy") else "0 0 0").split()]
+        robot.remove(floating[0])
+        for link in robot.findall("link"):
+            if link.get("name") == scene.root_link:
+                robot.remove(link)
+        R = idt.Rotation.RPY(*rpy).toNumPy()
+        return ET.tostring(robot, encoding="unicode"), _homogeneous(R, np.array(xyz))
 
     @staticmethod
     def _welded_mass(model, base: int) -> float:
@@ -136,7 +169,7 @@ class IDynTree(Adapter):
 
     def terms(self, b: _Built, scene, q, qd, tau) -> Terms:
         """``M``, ``h``, ``g`` of the free-floating model at the state (the joint block on a fixed base)."""
-        free, n = scene.root == "free", b.model.getNrOfDOFs()
+        free, n = b.free, b.model.getNrOfDOFs()
         offset = 0 if free else 6                       # a fixed base's joints without the base's 6 velocities
         T, c = velocity_map(scene, q, qd, [d - offset for d in b.dof], BODY_TWIST)
         s = np.zeros(n)
@@ -146,7 +179,9 @@ class IDynTree(Adapter):
         if free:
             iv = scene.v_index[0]
             T[0:6, iv:iv + 6] = self._adjoint(b.base_H_root)
-            world_H_root = _homogeneous(*free_pose(scene, q, 0))
+            iq = scene.q_index[0]
+            world_H_root = _homogeneous(scene.rotation, scene.translation) @ b.world_H_F @ \
+                _homogeneous(quaternion_matrix(*q[iq + 3:iq + 7]), q[iq:iq + 3])
         else:
             world_H_root = _homogeneous(scene.rotation, scene.translation)
         v_L = np.concatenate([np.zeros(offset), T @ qd])            # (base twist, joint velocities)
