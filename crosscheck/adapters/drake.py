@@ -239,7 +239,7 @@ class Drake(Adapter):
         for index in range(1, plant.num_bodies()):
             body = plant.get_body(BodyIndex(index))
             if body.index() not in jointed:
-                X_WB = plant.GetDefaultFreeBodyPose(body)
+                X_WB = plant.GetDefaultFloatingBaseBodyPose(body)
                 placed = plant.AddFrame(FixedOffsetFrame(f"crosscheck_placement_{body.name()}", world, X @ X_WB))
                 plant.AddJoint(QuaternionFloatingJoint(body.name(), placed, body.body_frame()))
 

@@ -65,3 +65,49 @@ def write(tmp_path, name: str, text: str) -> str:
     path = tmp_path / name
     path.write_text(text)
     return str(path)
+
+#: An MJCF arm: a hinge on a body hanging from the world (placed in the file) and a slider.
+MJCF_ARM = """<mujoco model="mjcf_arm">
+  <worldbody>
+    <body name="upper" pos="0.3 0 0.5" euler="0 0.4 0.2">
+      <joint name="shoulder" type="hinge" axis="1 0 0"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03" mass="0.7"/>
+      <body name="tip" pos="0 0 -0.3">
+        <joint name="slide" type="slide" axis="0 0 1"/>
+        <geom type="sphere" size="0.05" mass="0.2"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+#: An MJCF torso on a ``<freejoint>`` (placed in the file), a ball shoulder (turned in the file), a hinge elbow and
+#: a slider. (Not the torso turned: Pinocchio 4.1's MJCF parser drops a free body's rotation, which MuJoCo and Drake
+#: both read.)
+MJCF_LIMB = """<mujoco model="mjcf_limb">
+  <worldbody>
+    <body name="torso" pos="0.1 0 1">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.1 0.05" mass="3"/>
+      <body name="upper" pos="0.2 0 0" euler="30 0 20">
+        <joint name="shoulder" type="ball"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03" mass="0.5"/>
+        <body name="lower" pos="0 0 -0.3">
+          <joint name="elbow" type="hinge" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025" mass="0.3"/>
+          <body name="slider" pos="0 0 -0.25">
+            <joint name="s" type="slide" axis="1 0 0"/>
+            <geom type="sphere" size="0.02" mass="0.1"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+#: The walker's torso on a URDF ``floating`` joint from a ``world`` link, placed by the joint's origin (Drake's and
+#: iDynTree's parsers hold no floating joint: the adapters make it).
+FLOATING = WALKER.replace('<link name="torso">', '<link name="world"/><joint name="float" type="floating">'
+                          '<parent link="world"/><child link="torso"/><origin xyz="0.1 0.2 0.8" rpy="0.3 0.2 0.1"/>'
+                          '</joint><link name="torso">')

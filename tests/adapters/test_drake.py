@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adapter_files import ARM, IN_WORLD, WALKER, write
+from adapter_files import ARM, FLOATING, IN_WORLD, MJCF_ARM, MJCF_LIMB, WALKER, write
 
 import cases
 from crosscheck import backends, cli
@@ -90,11 +90,16 @@ def test_drake_agrees_on_a_fixed_and_a_free_base_and_on_moved_scenes(path, base,
     assert float(row["drift, ctrl, total"]) < 0.05 and float(row["frames"]) < 0.05, row
 
 
-def test_moved_scenes_and_gravity_free_copies_are_the_references(walker, tmp_path):
+def test_moved_scenes_and_gravity_free_copies_are_the_references(tmp_path):
     """Drake's answer on a scene, on the scene moved by two frames and on a gravity-free copy is Pinocchio's on the
-    same scene: a free base (its pose composed with the placement), and a root link named ``world``."""
+    same scene: a free base (its pose composed with the placement), a root link named ``world``, a URDF ``floating``
+    joint, and MJCF files: a hinge hanging from the world, a ``<freejoint>`` and a ball joint (Drake's roll-pitch-yaw
+    ball)."""
     adapter, reference = Drake(), backends.get("pinocchio")
-    for path, base in ((walker, "free"), (write(tmp_path, "in_world.urdf", IN_WORLD), "fixed")):
+    for name, text, base in (("walker.urdf", WALKER, "free"), ("in_world.urdf", IN_WORLD, "fixed"),
+                             ("floating.urdf", FLOATING, None), ("arm.xml", MJCF_ARM, None),
+                             ("limb.xml", MJCF_LIMB, None)):
+        path = write(tmp_path, name, text)
         model = cases.from_file(path, base=base)
         scenes = [model] + [frames.move_scene(model, f) for f in frames.sampled(5, model.name)]
         scenes.append(diagnosis.without_gravity(scenes[-1]))
