@@ -19,24 +19,39 @@ Conventions (docs/simulators.md has the matrix of every adapter):
   ``revolute``), the free joints by their body; each one's ``position_start`` and ``velocity_start`` place it;
 * the file's world: a URDF root link is welded to the world at the scene's placement (``WeldFrames``) or floated from
   it; a root link named ``world``, which Drake's URDF parser takes for its own world body, is renamed first so that
-  it too can be placed (the joints hanging from it keep their offsets); an MJCF's bodies hanging from ``<worldbody>``
-  have their joints to the world made again from a frame at the scene's placement;
-* fixed URDF joints are welds (``WeldJoint``), their links kept as bodies: nothing is merged or changed; a link
-  without ``<inertial>`` is massless; inertias are used as the file gives them (an MJCF body without ``<inertial>``
-  gets the inertia of its geoms, as MuJoCo computes it);
+  it too can be placed (the joints hanging from it keep their offsets); a URDF ``floating`` joint, which Drake's
+  parser does not hold (it warns and leaves the child body free), is made a ``QuaternionFloatingJoint`` from its
+  ``<origin>`` in its parent link; an MJCF's joints to the world (its top bodies' hinges, slides, balls and welds) are
+  made again from a frame at the scene's placement;
+* fixed URDF joints are welds (``WeldJoint``), their links kept as bodies: nothing is merged; a link without
+  ``<inertial>`` is massless; an MJCF body without ``<inertial>`` gets the inertia of its geoms (as MuJoCo's and
+  Pinocchio's readings do on boxes, capsules and spheres); inertias are used as the file gives them, also one that
+  fails Drake's physical-validity test (default ``repaired_inertia`` below);
 * limits are not enforced by a continuous plant (only a discrete one), so ``<limit>`` changes nothing here; URDF
-  ``<dynamics friction>`` and ``<mechanicalReduction>`` are not supported by Drake (it warns and ignores them);
-  contact needs geometry registered with a SceneGraph, and none is (URDF ``<visual>``, ``<collision>`` are dropped
-  before Drake reads the file); the inputs enter as the plant's applied generalized force ``tau_L`` (the actuation
-  port is held at zero, so actuator effort limits and PD gains never act).
+  ``<dynamics friction>``, ``<mechanicalReduction>`` and ``<safety_controller>`` are not supported by Drake (it warns
+  and ignores them); contact needs geometry registered with a SceneGraph, and none is (URDF ``<visual>``,
+  ``<collision>`` are dropped before Drake reads the file); the inputs enter as the plant's applied generalized force
+  ``tau_L`` (the actuation port is held at zero, so actuator effort limits, gears and PD gains never act);
+* two things Drake's URDF parser refuses (the whole file) are dropped from the text it is given, since no other reader
+  uses them and they change no dynamics: a ``<mimic>`` tag on a fixed joint (crosscheck ignores it, as Pinocchio
+  does: TALOS's grippers) and a ``<transmission>`` naming a joint the file does not have (TALOS's arm file).
 
-Off unless named (:attr:`Drake.DEFAULTS`): joint damping (``Joint.default_damping``: URDF ``<dynamics damping>``,
-MJCF joint ``damping``; in ``CalcForceElementsContribution`` and so in Drake's forward dynamics, not in ``M`` or
-``CalcBiasTerm``) and the reflected rotor inertia of an actuator (a URDF ``<transmission>``'s ``<actuator>`` with
-``<drake:rotor_inertia>`` and ``<drake:gear_ratio>``: ``rho G^2`` added to ``M``'s diagonal). Left on, each is in
-Drake's ``M``, ``h``, forward dynamics and kinetic energy. NOT COMPARED: a model with constraint rows (a URDF
-``<mimic>``: Drake holds it as a coupler constraint, which only a discrete plant enforces); a file Drake refuses (its
-reason); a joint Drake reads as another type than crosscheck (e.g. a URDF ``planar`` joint).
+Off unless named (:attr:`Drake.DEFAULTS`):
+
+* ``damping``: joint damping (``Joint.default_damping``: URDF ``<dynamics damping>``, MJCF joint ``damping``); it
+  enters through ``CalcForceElementsContribution``, so Drake's forward dynamics and ``h`` here (inverse dynamics with
+  the force elements' forces), not ``M`` or ``CalcBiasTerm``;
+* ``reflected_inertia``: an actuator's reflected rotor inertia ``rho G^2`` added to ``M``'s diagonal (a URDF
+  ``<transmission>``'s ``<actuator>`` with ``<drake:rotor_inertia>`` and ``<drake:gear_ratio>``; an MJCF joint's
+  ``armature`` when an actuator drives it, read as ``rho = armature / gear^2``); it is in ``M`` and the kinetic
+  energy;
+* ``repaired_inertia``: a URDF ``<inertia>`` that fails Drake's physical-validity test (the triangle inequality; e.g.
+  ANYmal's ``base`` link, all six entries 1e-6) is replaced by the parser with a solid sphere's of the same mass
+  (with a warning); off, the file's inertia is put back in each context (``SetSpatialInertiaInBodyFrame``).
+
+NOT COMPARED: a model with constraint rows (a URDF ``<mimic>`` on a moving joint: Drake's parser makes a coupler
+constraint, which Drake enforces in a discrete SAP plant only); a file Drake refuses (ModelNotSupported with Drake's
+reason); a joint Drake reads as another type than crosscheck.
 """
 
 from __future__ import annotations
