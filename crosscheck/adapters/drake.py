@@ -222,8 +222,9 @@ class Drake(Adapter):
     def _place(plant: MultibodyPlant, scene) -> None:
         """The file's world put at the scene's placement X (module docstring): a URDF root link welded there or floated
         from there, a URDF ``floating`` joint (which Drake's parser does not hold: it warns and leaves the child body
-        free) made a free joint from its ``<origin>`` in its parent link; an MJCF's joints to the world made again from X times their frame, each free body (an MJCF
-        ``<freejoint>``) given a free joint from X times its pose in the file."""
+        free) made a free joint from its ``<origin>`` in its parent link; an MJCF's joints to the world made again from
+        X times their frame, each free body (an MJCF ``<freejoint>``) given a free joint from X times its pose in the
+        file."""
         X = _transform(scene.rotation, scene.translation)
         world = plant.world_frame()
         if scene.kind == "urdf":
@@ -250,10 +251,10 @@ class Drake(Adapter):
                 X_WF = joint.frame_on_parent().GetFixedPoseInBodyFrame()
                 placed = plant.AddFrame(FixedOffsetFrame(f"crosscheck_placement_{joint.name()}", world, X @ X_WF))
                 _remake(plant, joint, placed)
-        jointed = {plant.get_joint(j).child_body().index() for j in plant.GetJointIndices()}
+        jointed = {int(plant.get_joint(j).child_body().index()) for j in plant.GetJointIndices()}
         for index in range(1, plant.num_bodies()):
             body = plant.get_body(BodyIndex(index))
-            if body.index() not in jointed:
+            if index not in jointed:
                 X_WB = plant.GetDefaultFloatingBaseBodyPose(body)
                 placed = plant.AddFrame(FixedOffsetFrame(f"crosscheck_placement_{body.name()}", world, X @ X_WB))
                 plant.AddJoint(QuaternionFloatingJoint(body.name(), placed, body.body_frame()))
