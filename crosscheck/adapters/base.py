@@ -125,9 +125,20 @@ def scene_gravity(scene) -> np.ndarray:
     return np.asarray(scene.rotation, dtype=float) @ file_gravity(scene) if scene.gravity else np.zeros(3)
 
 
+def _keep_prefixes(path: str) -> None:
+    """Have ElementTree write the file's namespace prefixes as the file declares them (``xmlns:drake``), not as
+    ``ns0``, ``ns1``: a reader that matches prefixed tags (Drake's ``<drake:rotor_inertia>``) would miss them."""
+    for _, (prefix, uri) in ET.iterparse(path, events=("start-ns",)):
+        try:
+            ET.register_namespace(prefix, uri)
+        except ValueError:            # a prefix ElementTree reserves (ns0, ...): written as ElementTree names it
+            pass
+
+
 def urdf_without_geometry(path: str) -> str:
     """The URDF's text with every ``<visual>`` and ``<collision>`` removed: their meshes need not be found, and with
-    the inertias given in ``<inertial>`` they add nothing to the dynamics."""
+    the inertias given in ``<inertial>`` they add nothing to the dynamics. Namespace prefixes are kept."""
+    _keep_prefixes(path)
     robot = ET.parse(path).getroot()
     for link in robot.iter("link"):
         for tag in ("visual", "collision"):
