@@ -20,6 +20,7 @@ c`` with ``c = Tdot v``. By the power ``tau_L . v_L = tau . v`` its equation ``M
 from __future__ import annotations
 
 import functools
+import os
 import tempfile
 import threading
 import xml.etree.ElementTree as ET
@@ -147,10 +148,20 @@ def urdf_without_geometry(path: str) -> str:
     return ET.tostring(robot, encoding="unicode")
 
 
-@functools.lru_cache(maxsize=64)
+def file_version(path: str) -> tuple[int, int]:
+    """What tells a file rewritten in place from its earlier text: its modification time and size."""
+    stat = os.stat(path)
+    return stat.st_mtime_ns, stat.st_size
+
+
 def urdf_file_without_geometry(path: str) -> str:
     """:func:`urdf_without_geometry` written to a file of its own (for a library that reads a path only), beside no
-    mesh: one per file and process."""
+    mesh: one per version of the file and process."""
+    return _written_without_geometry(path, file_version(path))
+
+
+@functools.lru_cache(maxsize=64)
+def _written_without_geometry(path: str, version: tuple[int, int]) -> str:
     folder = Path(tempfile.mkdtemp(prefix="crosscheck-adapter-"))
     out = folder / Path(path).name
     out.write_text(urdf_without_geometry(path))
@@ -158,9 +169,11 @@ def urdf_file_without_geometry(path: str) -> str:
 
 
 def scene_key(scene) -> tuple:
-    """What tells one scene of a file from another (the library model is built once per key)."""
-    return (scene.kind, scene.path, scene.root, scene.gravity, np.asarray(scene.rotation, dtype=float).tobytes(),
-            np.asarray(scene.translation, dtype=float).tobytes(), scene.joint_names)
+    """What tells one scene of a file from another (the library model is built once per key); the file's version
+    too, so a file rewritten in place is read again."""
+    return (scene.kind, scene.path, file_version(scene.path), scene.root, scene.gravity,
+            np.asarray(scene.rotation, dtype=float).tobytes(), np.asarray(scene.translation, dtype=float).tobytes(),
+            scene.joint_names)
 
 
 @dataclass(frozen=True)

@@ -58,6 +58,15 @@ def _matrix(quat: np.ndarray) -> np.ndarray:
     return R.reshape(3, 3)
 
 
+def _compiled(spec: mujoco.MjSpec, scene) -> mujoco.MjModel:
+    """``spec`` compiled; a file MuJoCo's compiler refuses (an inertia it finds invalid, say) is NOT COMPARED with
+    MuJoCo's reason: its users could not load it either (``balanceinertia`` would change the file's inertias)."""
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise ModelNotSupported(f"MuJoCo's compiler refuses '{scene.path}': {exc}") from None
+
+
 @dataclass(frozen=True)
 class _Compiled:
     """One scene's MjModel and where each of crosscheck's bodies sits in it."""
@@ -123,7 +132,7 @@ class MuJoCo(Adapter):
 
     def in_file(self, scene) -> dict[str, str]:
         """The defaults the file sets, read off MuJoCo's model of it compiled with every default as MuJoCo has it."""
-        m = self._spec(scene).compile()
+        m = _compiled(self._spec(scene), scene)
         counts = {"damping": int(np.count_nonzero(m.dof_damping)), "springs": int(np.count_nonzero(m.jnt_stiffness)),
                   "gravcomp": int(np.count_nonzero(m.body_gravcomp))}
         found = {name: f"on {k} {'joints' if name != 'gravcomp' else 'bodies'}" for name, k in counts.items() if k}
@@ -148,7 +157,7 @@ class MuJoCo(Adapter):
             body.set_frame(frame)
         spec.option.gravity = scene_gravity(scene)
         self._rigid_body_only(spec)
-        model = spec.compile()
+        model = _compiled(spec, scene)
         qpos, dof = [], []
         for name, joint in zip(scene.bodies, scene.joints):
             body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)

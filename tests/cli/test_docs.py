@@ -51,7 +51,9 @@ RUN = [
 PARSE_ONLY = [
     ("crosscheck gate --plugin mypkg", "a placeholder plugin package (mypkg) the reader supplies"),
     ("crosscheck gate --plugin path/to", "a placeholder path the reader supplies"),
-    ("crosscheck gate --plugin examples/mujoco_plugin.py", "needs MuJoCo and a robot file of the reader's"),
+    ("crosscheck gate --plugin crosscheck.adapters", "a simulator on a robot file of the reader's"),
+    ("crosscheck gate --simulator", "a simulator on a robot file of the reader's"),
+    ("crosscheck simulators", "every installed simulator on a robot file: tens of seconds to minutes"),
     ("crosscheck gate --plugin closed_form_pendulum", "runs in examples/closed_form_plugin, where its module is found"),
     ("crosscheck gate --model path/to", "a placeholder path the reader supplies"),
     ("crosscheck gate --model robot.urdf", "a placeholder path the reader supplies"),
