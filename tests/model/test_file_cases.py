@@ -314,8 +314,8 @@ def _slide_in_degrees(root, pm, lower, upper, real):
     pm.lowerPositionLimit, pm.upperPositionLimit = lower, upper
 
 
-#: fault -> (case, how it is injected, "outlier" (the vote names the reference), "coverage JOINT" (the coverage's loader
-#: finding names that joint of the file) or a fragment of the refusal)
+#: fault -> (case, how it is injected, "outlier" (the vote names the reference), "loader JOINT" (a loader finding names
+#: the limits of that joint of the file: ``crosscheck.guards.loader``) or a fragment of the refusal)
 FAULTS = {
     "mimic multiplier read as 1": ("urdf_gripper", _patched(cases.urdf, "_mimic_number", _mimic_number("multiplier")),
                                    r"joint 'finger_right' mimics 'finger_left' \(q = -0.8 q \+ 0.05\)"),
@@ -380,8 +380,8 @@ def test_a_loader_fault_fails_the_gate_on_its_file_case(fault, monkeypatch, isol
             assert "drift" in {c.quantity for c in failing}, (fault, state.index, state.errors)
             assert all(c.outlier == "pinocchio" for c in failing if c.quantity in ("drift", "total"))
             assert {suspect(c) for c in failing} == {"pinocchio"}
-        elif expected.startswith("loader "):           # a limit: a loader finding names the body and its limits
+        elif expected.startswith("loader "):           # a limit: a loader finding names the joint's limits
             found = [str(f) for f in result.cases[0].loader_findings]
-            assert any(f"link '{expected.split()[1]}' limits" in f for f in found), found
+            assert any(f"limits (joint '{expected.split()[1]}'" in f for f in found), found
         else:
             assert re.search(expected, state.errors["pinocchio"]), state.errors["pinocchio"]
