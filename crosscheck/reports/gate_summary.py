@@ -187,8 +187,8 @@ def _worst_line(result: GateResult) -> str:
 
 
 def _run_lines(result: GateResult, command: str, applied: Applied | None) -> list[str]:
-    """What was run: the command, seed and sample size, the joint limits the states keep, the self-test and the
-    divergence registry."""
+    """What was run: the command, seed and sample size, the joint limits the states keep, what the model files read
+    apart from the loader were compared on, the self-test and the divergence registry."""
     return [f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
             *limits_line(result), *_loader_lines(result), self_test_line(result), registry_line(applied)]
 
@@ -205,8 +205,8 @@ def _failures_section(result: GateResult) -> list[str]:
     backends that compared nothing, missed canaries."""
     loader = [f"- **{case.spec.name}**: {finding}" for case in result.cases for finding in case.loader_findings]
     lines = ["## Loader findings", "", "The model file, read a second time apart from the loader "
-             "(`crosscheck/guards/loader.py`), says something else than the model every backend and the reference "
-             "were given: the vote cannot see this, so the case fails.", "", *loader, ""] if loader else []
+             "(`crosscheck/guards/loader.py`), disagrees with the model every backend and the reference were given: "
+             "the vote cannot see this, so the case fails.", "", *loader, ""] if loader else []
     errors = [line for case in result.cases for line in backend_errors(case)]
     lines += ["## Backend errors", "", *errors, ""] if errors else []
     failed = [(case, state) for case, state in failed_states(result)      # not the states that only raised: above
