@@ -84,7 +84,7 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     model = spec.build()                 # bad input raises here (the command line refused it before the run)
     internal: dict[str, InternalError] = {}
     checked = None
-    with guarded(internal, "file reading"):  # the model against its file read apart from the loader, before any dynamics
+    with guarded(internal, "file reading"):  # the model against its file read apart from the loader, before dynamics
         checked = loader.check(model)
     with guarded(internal, "case setup"):
         setup = CaseSetup.build(spec, seed, checks, model)

@@ -210,8 +210,8 @@ def _inertial(link: ET.Element) -> _Link:
 class FileBody:
     """What the file says one body of the model must be (module doc): the ``link`` its joint moves (the body's name),
     the file's ``joint`` (None for the free joint a free base adds) of URDF type ``urdf_type`` and model joint type
-    ``kind`` (:data:`JOINT_TYPES`; None: no equivalent), the ``parent`` body's link (None: the world), the joint placement ``(rotation,
-    translation)`` in the parent body frame and ``length`` (the summed translations composed into it), the unit
+    ``kind`` (:data:`JOINT_TYPES`; None: no equivalent), the ``parent`` body's link (None: the world), the joint
+    placement ``(rotation, translation)`` in the parent body frame and ``length`` (the summed translations composed into it), the unit
     ``axis`` (zeros for a free joint), the ``limits``, the mass, COM and inertia about the COM in the body frame with
     their scales (module doc), and the links ``welded`` into it by fixed joints."""
 

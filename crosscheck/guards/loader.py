@@ -68,8 +68,8 @@ def check(model: Model) -> LoaderCheck | None:
         return LoaderCheck("urdf", source.path, what, len(model.bodies), tuple(file_reading.compare(model, reading)))
     read = file_limits.read(model)
     if read.limits is None:
-        return LoaderCheck(source.kind, source.path, f"the joint limits (not read apart from the loader: {read.reason})",
-                           0, ())
+        return LoaderCheck(source.kind, source.path,
+                           f"the joint limits (not read apart from the loader: {read.reason})", 0, ())
     return LoaderCheck(source.kind, source.path, "the joint limits", len(model.bodies), tuple(_limits(model, read)))
 
 

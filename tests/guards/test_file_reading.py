@@ -1,5 +1,5 @@
-"""The second reading of a URDF file (crosscheck.guards.file_reading) and the loader findings (crosscheck.guards.loader):
-closed forms of the reading on small files written here, the fixed-joint merge against the parallel-axis theorem done
+"""The second reading of a URDF file (crosscheck.guards.file_reading) and the loader findings
+(crosscheck.guards.loader): closed forms of the reading on small files written here, the fixed-joint merge against the parallel-axis theorem done
 by hand, every kind of misread in a converted model named with its link and field, no finding on real robots, and a
 finding failing the gate's case before any dynamics runs."""
 
@@ -386,7 +386,8 @@ def test_a_correct_file_reports_what_was_compared(tmp_path, capsys):
                      "newton_euler", "--report", str(report)])
     assert code == 0, capsys.readouterr()
     assert (f"- r: read apart from the loader: every field (mass, COM, inertia, placement, axis, type, parent, "
-            f"limits, mimic) of 1 bodies against the URDF file {Path(path).resolve()}: no finding") in report.read_text()
+            f"limits, mimic) of 1 bodies against the URDF file {Path(path).resolve()}: no finding"
+            ) in report.read_text()
 
 
 # ---------------------------------------------------------------------------------------------- MJCF limits
