@@ -142,7 +142,7 @@ def _report(args, result: GateResult, chosen, known, report, command: str, writt
         broken = sum(bool(s.breakdowns) for s in case.states)
         worst = worst_of(s.worst_ratio for s in case.states)
         checked = [c.worst_ratio for s in case.states for c in s.checks.values()]
-        status = "FAIL" if bad or case.internal or case.spec.name in result.broken else "ok"
+        status = "FAIL" if bad or case.internal or case.loader_findings or case.spec.name in result.broken else "ok"
         known_here = sum(c.verdict == KNOWN for s in case.states for c in [*s.comparisons.values(),
                                                                            *s.checks.values()])
         print(f"{status:4s} {case.spec.name:18s} {len(case.states)} states, {bad} failing, {known_here} known, "
@@ -155,6 +155,9 @@ def _report(args, result: GateResult, chosen, known, report, command: str, writt
     for case in result.cases:
         for why in task_point_lines(case)[1:]:   # a task condition in BREAKDOWN at most states: say why
             print(f"note {case.spec.name}: {why.strip(' -')}", file=sys.stderr)
+    for case in result.cases:
+        for finding in case.loader_findings:
+            print(f"FAIL {case.spec.name}: {finding}", file=sys.stderr)
     for case in result.cases:
         for problem in case.coverage.problems if case.coverage else ():
             print(f"FAIL {case.spec.name}: degenerate sample: {problem}", file=sys.stderr)

@@ -9,7 +9,7 @@ own code failing: a tolerance, a chart map, a frame move, a comparison, the cove
 
 Each guarded place records under the name of its check: at a state ``comparisons``,
 ``conditions audit``, ``chart zyx``, ``frame g1``, ``conservation``, ``linearization``, ``equilibria``, ``breakdown
-conditions``; for a case ``case setup``, ``sampling``, ``coverage`` or ``case`` (anything else in running it); for the
+conditions``; for a case ``file reading``, ``case setup``, ``sampling``, ``coverage`` or ``case`` (anything else in running it); for the
 run ``self-test`` and the report's own sections (``report: <section>``). Only ``Exception`` is caught: Ctrl-C
 (KeyboardInterrupt) and SystemExit still end the run.
 """

@@ -6,13 +6,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from cases.model import Model
-from crosscheck.checks import frames
+from crosscheck.checks.frames import Frame
 from crosscheck.core import tolerance
 from crosscheck.core.compare import DISAGREE, backend_of, Comparison, worst_of
 from crosscheck.core.sampling import State
 from crosscheck.engine.internal import InternalError
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.guards import coverage as coverage_of
+from crosscheck.guards.loader import LoaderCheck
 from formalisms.interface import Split
 
 
@@ -59,8 +60,10 @@ class StateOutcome:
 @dataclass
 class CaseOutcome:
     """One case's states and timings (first call includes one-off preparation such as symbolic derivation);
-    ``internal``, the harness's own failures in setting up or running the case outside its states, by check (``case
-    setup``, ``sampling``, ``coverage``, ``case``: ``crosscheck.engine.internal``), each failing the case."""
+    ``internal``, the harness's own failures in setting up or running the case outside its states, by check (``file
+    reading``, ``case setup``, ``sampling``, ``coverage``, ``case``: ``crosscheck.engine.internal``), each failing the
+    case; ``loader``, the model checked against its file read apart from the loader (``crosscheck.guards.loader``;
+    None: no file, or not checked), each of whose findings fails the case."""
 
     spec: CaseSpec
     model: Model
@@ -68,15 +71,21 @@ class CaseOutcome:
     first_call_s: dict[str, float] = field(default_factory=dict)
     per_state_s: dict[str, float] = field(default_factory=dict)
     charts: tuple[str, ...] = ()
-    frames: tuple[frames.Frame, ...] = ()
+    frames: tuple[Frame, ...] = ()
     coverage: coverage_of.Coverage | None = None
     closed_form: str = ""
     internal: dict[str, InternalError] = field(default_factory=dict)
+    loader: LoaderCheck | None = None
+
+    @property
+    def loader_findings(self) -> tuple:
+        """The loader findings of the case's model (``crosscheck.guards.loader``), each failing the case."""
+        return self.loader.findings if self.loader is not None else ()
 
     @property
     def failed(self) -> bool:
         return (any(s.failed for s in self.states) or (self.coverage is not None and self.coverage.degenerate)
-                or bool(self.internal))
+                or bool(self.internal) or bool(self.loader_findings))
 
     def mostly_broken(self) -> dict[str, int]:
         """The backends wholly in BREAKDOWN (``tolerance.whole``: out of the vote) at more than half of this case's

@@ -2,6 +2,10 @@
 blocks (``crosscheck.engine.evaluation``), the self-test canaries after the cases (``crosscheck.guards.selftest``), and
 the result (``crosscheck.engine.outcomes.GateResult``).
 
+A model loaded from a file is checked against its file read apart from the loader as soon as it is built, before any
+dynamics runs (``crosscheck.guards.loader``: ``CaseOutcome.loader``); a loader finding fails the case, whose states
+are still evaluated (what they show is reported as well).
+
 ``run_gate(..., workers=W)`` runs the cases in W spawned processes (``crosscheck.engine.pool``) with the same
 outcomes, in case order. ``run_gate(..., progress=...)`` tells a progress display where the run is
 (``crosscheck.engine.phases.Step``: the case, the states evaluated, what runs now). Ctrl-C (KeyboardInterrupt) ends
@@ -10,8 +14,9 @@ interrupted, never passing.
 
 The harness's own failures do not end the run (``crosscheck.engine.internal``): an exception its code raises in a
 check at a state is an internal error of that check there (``CaseSetup.evaluate_block(..., guard=True)``); one in
-setting up a case (its charts, moved scenes, closed form), drawing its states or measuring their coverage, or anywhere
-else in running it, is the case's (the case fails, the other cases run); one in the self-test is the run's. A model
+reading a case's file apart from the loader, setting up a case (its charts, moved scenes, closed form), drawing its
+states or measuring their coverage, or anywhere else in running it, is the case's (the case fails, the other cases
+run); one in the self-test is the run's. A model
 that is bad input (``cases.CaseError``, ``cases.model.ModelError``, ...: :data:`INPUT_ERRORS`) still raises, as
 before: the command line refuses it before the run.
 """
@@ -32,7 +37,8 @@ from crosscheck.engine.internal import guarded, InternalError, of as internal_er
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.engine.phases import DONE, EVALUATING, SELF_TEST, SETTING_UP, _ignore, Clock, Step
 from crosscheck.engine.specs import CaseSpec, Checks
-from crosscheck.guards import coverage as coverage_of, selftest
+from crosscheck.guards import coverage as coverage_of, loader, selftest
+from crosscheck.guards.loader import LoaderCheck
 from crosscheck.references import closed_forms
 from formalisms.interface import Formalism, ModelNotSupported, StateError
 
@@ -77,23 +83,28 @@ def run_case(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: 
     isolation.new_case()
     model = spec.build()                 # bad input raises here (the command line refused it before the run)
     internal: dict[str, InternalError] = {}
+    checked = None
+    with guarded(internal, "file reading"):  # the model against its file read apart from the loader, before dynamics
+        checked = loader.check(model)
     with guarded(internal, "case setup"):
         setup = CaseSetup.build(spec, seed, checks, model)
-    if internal:
+    if "case setup" in internal:
         tell(Step(spec.name, 0, 0, DONE))
-        return CaseOutcome(spec, model, [], internal=internal)
+        return CaseOutcome(spec, model, [], internal=internal, loader=checked)
     seconds = announce_preparation(setup, backends)
     helper = prepare.ahead(setup, backends, seconds, checks, seed) if derive_ahead else None
     try:
-        return _run_case(setup, backends, samples, seed, tell, checks)
+        return _run_case(setup, backends, samples, seed, tell, checks, internal, checked)
     finally:
         prepare.stop(helper)
 
 
 def _run_case(setup: CaseSetup, backends: Sequence[Formalism], samples: int, seed: int,
-              tell: Callable[[Step], None], checks: Checks) -> CaseOutcome:
+              tell: Callable[[Step], None], checks: Checks, internal: dict[str, InternalError],
+              checked: LoaderCheck | None) -> CaseOutcome:
+    """The case's states evaluated (:func:`run_case`); ``internal`` holds the case's internal errors so far and
+    ``checked`` its loader check (``crosscheck.guards.loader``), both carried into its outcome."""
     spec = setup.spec
-    internal: dict[str, InternalError] = {}
     states: list[State] = []
     with guarded(internal, "sampling", passing=INPUT_ERRORS):
         states = sample_states(setup.model, samples, seed, spec.name, limits=checks.joint_limits)
@@ -111,12 +122,12 @@ def _run_case(setup: CaseSetup, backends: Sequence[Formalism], samples: int, see
                 if len(outcomes) < len(states):
                     at(EVALUATING)
     except KeyboardInterrupt:
-        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks, internal)) from None
+        raise _CaseInterrupted(_case_outcome(setup, outcomes, clock, None, checks, internal, checked)) from None
     at(DONE)
     coverage = None
     with guarded(internal, "coverage"):
         coverage = coverage_of.measure(setup.model, states) if states else None
-    return _case_outcome(setup, outcomes, clock, coverage, checks, internal)
+    return _case_outcome(setup, outcomes, clock, coverage, checks, internal, checked)
 
 
 #: CPU seconds of one-off preparation of one backend on one case above which the gate says so before it starts.
@@ -162,12 +173,12 @@ def announce_preparation(setup: CaseSetup, backends: Sequence[Formalism]) -> flo
 
 def _case_outcome(setup: CaseSetup, outcomes: list[StateOutcome], clock: Clock,
                   coverage: coverage_of.Coverage | None, checks: Checks,
-                  internal: dict[str, InternalError] | None = None) -> CaseOutcome:
+                  internal: dict[str, InternalError] | None = None, checked: LoaderCheck | None = None) -> CaseOutcome:
     """The case's outcome from its evaluated states (coverage None: not measured, for an interrupted case);
-    ``internal`` the case's own internal errors."""
+    ``internal`` the case's own internal errors, ``checked`` its loader check."""
     return CaseOutcome(setup.spec, setup.model, outcomes, clock.first(), clock.per_state(),
                        tuple(c.name for c in setup.charts), tuple(frame for frame, _ in setup.scenes), coverage,
-                       _closed_form_coverage(setup.spec, checks), dict(internal or {}))
+                       _closed_form_coverage(setup.spec, checks), dict(internal or {}), checked)
 
 
 def run_case_guarded(spec: CaseSpec, backends: Sequence[Formalism], samples: int, seed: int,

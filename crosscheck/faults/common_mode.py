@@ -4,25 +4,34 @@ code that cannot be avoided ... is guarded by something outside the vote").
 A bug in the model language, a URDF conversion, a case factory, a constraint declaration, the sampler, the charts,
 the frames, the comparison or the tolerance moves all voters together: they agree on the wrong answer, or the check
 that should have failed cannot. The gate guards each of these places with something outside the vote: the reference
-built from the model file (``crosscheck.references.pinocchio.reference``), the closed forms bound to a case's parameters
+built from the model file (``crosscheck.references.pinocchio.reference``), the second reading of a model file apart
+from the loader and its parser (``crosscheck.guards.loader``), the closed forms bound to a case's parameters
 (``crosscheck.references.closed_forms``), the exact values (``H_t``, phi, constraint power), the chart and frame
 invariance checks, the conditions audit (``crosscheck.guards.conditioning``), the sampling coverage
 (``crosscheck.guards.coverage``) and the self-test canaries (``crosscheck.guards.selftest``). :data:`CATALOG` lists such
 bugs, each with the guard expected to catch it; :func:`hunt` runs everything ``crosscheck gate`` runs under the bug,
-cheapest first (the self-test, building the cases, their coverage, then the states round robin, as
-``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/faults/test_common_mode.py`` checks that
+cheapest first (the self-test, building the cases, their files read apart from the loader, their coverage, then the
+states round robin, as ``crosscheck.faults.injection.hunt`` does), and says what caught it. ``tests/faults/test_common_mode.py`` checks that
 every entry is caught, and by its guard.
 
 A fault is injected as in ``crosscheck.faults.injection`` (one attribute replaced, restored on exit), possibly at
 several targets (a constant imported by every backend is one bug at every import); a fault in code a cached derivation
 reads runs on fresh derivation caches, discarded afterwards (:data:`DERIVATION_INPUTS`), so that it cannot outlive the
 hunt.
+
+A bug in Pinocchio's parser of a model file (``cases.urdf.read_file``, which the URDF loader and the reference share)
+moves the reference with the backends: the reference cannot catch it. It is injected at both places the parser is
+looked up (:data:`_PARSERS`), on a copy of the file changed as the bug would read it, and only the second reading of
+the file catches it (``crosscheck.guards.loader``), when the cases are built, before any state.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import tempfile
 import time
+import xml.etree.ElementTree as ET
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
@@ -34,7 +43,7 @@ from crosscheck.core.sampling import sample_states
 from crosscheck.engine import divergences
 from crosscheck.engine.specs import DEFAULT_SAMPLES, CaseSpec, Checks
 from crosscheck.faults import injection
-from crosscheck.guards import coverage, selftest
+from crosscheck.guards import coverage, loader, selftest
 from crosscheck.references.pinocchio.kinematics import constraint_kinematics
 
 
@@ -109,6 +118,10 @@ def hunt(fault: SharedFault, specs: Sequence[CaseSpec] | None = None, backends=N
         except Exception as exc:  # the gate refuses bad input: it does not pass
             return done("model build", f"{type(exc).__name__}: {exc}")
         for case in setups:
+            checked = loader.check(case.setup.model)
+            if checked is not None and checked.findings:
+                return done(f"loader {case.setup.spec.name}", str(checked.findings[0]))
+        for case in setups:
             problems = coverage.measure(case.setup.model, sample_states(case.setup.model, samples, seed,
                                                                            case.setup.spec.name)).problems
             if problems:
@@ -138,8 +151,8 @@ def render(hunts: Sequence[SharedHunt]) -> str:
         return ""
     caught = sum(h.caught for h in hunts)
     lines = ["", "## Common-mode faults in shared code", "",
-             f"Caught {caught}/{len(hunts)} by `crosscheck gate` itself (the self-test, the model build, the sampling "
-             "coverage, then the states round robin). The vote cannot see these: each is caught by the guard outside "
+             f"Caught {caught}/{len(hunts)} by `crosscheck gate` itself (the self-test, the model build, the model "
+             "files read apart from the loader, the sampling coverage, then the states round robin). The vote cannot see these: each is caught by the guard outside "
              "it.", "",
              "| fault | shared code | caught | by | states | first failure | guard | bug |",
              "|---|---|---|---|---|---|---|---|"]
@@ -275,6 +288,40 @@ def _limits_in_degrees(position_limits):
     return faulty
 
 
+def _parsed_edited(edit):
+    """A replacement for ``read_file`` (Pinocchio's reading of a model file, which the URDF loader and the reference
+    share: ``cases.urdf.read_file``) that parses a copy of a URDF file changed by ``edit(robot element)``: a bug of
+    the parser, which every voter reads the same way."""
+    def replace(read_file):
+        def faulty(pin, kind, path, root="fixed"):
+            if kind != "urdf":
+                return read_file(pin, kind, path, root)
+            tree = ET.parse(path)
+            edit(tree.getroot())
+            with tempfile.TemporaryDirectory() as folder:
+                copy = os.path.join(folder, os.path.basename(path))
+                tree.write(copy)
+                return read_file(pin, kind, copy, root)
+        return faulty
+    return replace
+
+
+def _inertial_rpy_dropped(robot: ET.Element) -> None:
+    for origin in robot.iterfind("link/inertial/origin"):
+        origin.attrib.pop("rpy", None)
+
+
+def _fixed_origins_dropped(robot: ET.Element) -> None:
+    for joint in robot.iterfind("joint"):
+        origin = joint.find("origin")
+        if joint.get("type") == "fixed" and origin is not None:
+            joint.remove(origin)
+
+
+#: Where Pinocchio's reading of a model file is looked up: by the URDF loader and by the reference.
+_PARSERS = ("cases.urdf:read_file", "crosscheck.references.pinocchio.build:read_file")
+
+
 def _to_the_ends(within_limits):
     """``sampling.within_limits`` sending each limited coordinate to the nearer of its limits."""
     def faulty(model, q, home=False):
@@ -304,11 +351,15 @@ CATALOG: list[SharedFault] = [
     SharedFault("urdf-joint-rotation-transposed", "URDF conversion",
                 "The URDF loader stores each joint placement's rotation transposed (parent <- child read as child "
                 "<- parent).",
-                ("cases.urdf:Body",), _body_with(_transposed_rotation), "the reference built from the file"),
+                ("cases.urdf:Body",), _body_with(_transposed_rotation),
+                "the second reading of the file (before any state; then the reference built from the file, at every "
+                "state)"),
     SharedFault("urdf-inertia-about-joint-origin", "URDF conversion",
                 "The URDF loader takes the link inertia about the joint origin for the inertia about the COM (the "
                 "parallel-axis term m [c]^T [c] added twice).",
-                ("cases.urdf:Body",), _body_with(_inertia_about_origin), "the reference built from the file"),
+                ("cases.urdf:Body",), _body_with(_inertia_about_origin),
+                "the second reading of the file (before any state; then the reference built from the file, at every "
+                "state)"),
     SharedFault("factory-inertia-transposed-rotation", "case factories",
                 "The case factories rotate a principal inertia as R^T diag(I) R instead of R diag(I) R^T.",
                 ("cases.factories:_inertia",), lambda f: lambda principal, rotation: f(principal,
@@ -471,7 +522,18 @@ CATALOG: list[SharedFault] = [
                 "The URDF loader converts the joint limits from degrees to radians, though a URDF's are in radians "
                 "already (a limit of 2.9 becomes 166).",
                 ("cases.urdf:_position_limits",), _limits_in_degrees,
-                "the sampling coverage (the limits read from the file)"),
+                "the second reading of the file (a loader finding: the limits)"),
+    SharedFault("urdf-inertial-rpy-ignored", "URDF parsing",
+                "Pinocchio's URDF parser ignores the rotation (rpy) of each link's inertial frame, taking every "
+                "inertia tensor as given in the link frame: the loader and the reference read the same wrong model.",
+                _PARSERS, _parsed_edited(_inertial_rpy_dropped),
+                "the second reading of the file (a loader finding: an inertia)"),
+    SharedFault("urdf-fixed-joint-placement-dropped", "URDF parsing",
+                "Pinocchio's URDF parser drops the origin of every fixed joint when it welds the child link into its "
+                "parent: the welded masses and the joints below sit at the parent's origin, for the loader and the "
+                "reference alike.",
+                _PARSERS, _parsed_edited(_fixed_origins_dropped),
+                "the second reading of the file (a loader finding: a COM, an inertia, a placement)"),
     SharedFault("sampling-limited-joints-at-their-ends", "sampling",
                 "The sampler maps each limited joint's draw onto the nearer of its limits instead of into the range "
                 "between them.",

@@ -10,11 +10,11 @@ the gate promises, never against the sampler's own inputs:
 * **The limits, from the file.** A model loaded from a URDF or MJCF file (``model.source``) is measured against the
   joint limits its file declares, read apart from the loaders (``crosscheck.guards.file_limits``: the XML by the
   format's rules, paired with our coordinates by the Pinocchio reference's joint map), not against ``Body.limits``,
-  which the sampler draws from. A joint whose converted limits differ from the file's (beyond
-  :data:`LIMIT_ROUNDING`: a degree/radian slip, swapped or dropped limits, limits invented) is a **loader finding**
-  and fails the case. No limits on both sides agree (a continuous, ball or free joint; an MJCF joint not limited).
-  A model without a file, or whose file cannot be read apart from the loaders (the report says why), is measured
-  against ``Body.limits``.
+  which the sampler draws from. Converted limits that differ from the file's (a degree/radian slip, swapped or
+  dropped limits, limits invented) are a **loader finding**, found when the case is set up, before its states are
+  drawn (``crosscheck.guards.loader``), and fail the case there; the states, drawn within the model's limits, are
+  still measured against the file's. A model without a file, or whose file cannot be read apart from the loaders
+  (the report says why), is measured against ``Body.limits``.
 * **The span** the gate promises for a coordinate: the width of the joint's limits where it has limits, else one
   turn of a revolute joint (:data:`REVOLUTE_SPAN`), a metre of a prismatic one or of a free base's position
   (:data:`PRISMATIC_SPAN`), 2 for a quaternion component. Written here, not read from the sampler.
@@ -119,8 +119,6 @@ NULL_TOL = 1e-6
 RANK_RCOND = 1e-9
 #: Two states agreeing to this (relative to their largest entry) are one state.
 REPEAT = 1e-12
-#: Converted limits that differ from the file's by more than this (relative, at least absolute) are a loader finding.
-LIMIT_ROUNDING = 1e-9
 
 
 @dataclass(frozen=True)
@@ -182,34 +180,16 @@ def limit_allowance(states: int) -> int:
 # ------------------------------------------------------------------------------------------------- the limits
 
 
-def _same(ours, theirs) -> bool:
-    if ours is None or theirs is None:
-        return ours is None and theirs is None
-    return all(abs(a - b) <= LIMIT_ROUNDING * max(1.0, abs(b)) for a, b in zip(ours, theirs))
-
-
-def _pair(limits) -> str:
-    return "no limits" if limits is None else f"[{limits[0]:.10g}, {limits[1]:.10g}]"
-
-
-def _limits(model: Model) -> tuple[tuple, str, list[str]]:
-    """The limits per body the sample is measured against, where they come from, and the loader findings."""
+def _limits(model: Model) -> tuple[tuple, str]:
+    """The limits per body the sample is measured against, and where they come from."""
     ours = tuple(b.limits for b in model.bodies)
     read = file_limits.read(model)
     if read is None:
-        return ours, "the model's joint limits (built in code: no file)", []
+        return ours, "the model's joint limits (built in code: no file)"
     where = f"the {read.kind.upper()} file {read.path}"
     if read.limits is None:
-        return ours, (f"the model's joint limits: {where} could not be read apart from the loader ({read.reason})"), []
-    findings = []
-    for i, (body, theirs) in enumerate(zip(model.bodies, read.limits)):
-        if not _same(body.limits, theirs):
-            joint = f" (file joint '{read.joints[i]}')" if read.joints else ""
-            findings.append(f"loader finding: joint of q{model.q_index[i]} ({body.name}, {body.joint}){joint}: the "
-                            f"converted model has {_pair(body.limits)}, {where} has {_pair(theirs)} (read apart from "
-                            "the loader); the states were drawn within the model's, and are measured against the "
-                            "file's")
-    return read.limits, f"{where}, read apart from the loader", findings
+        return ours, (f"the model's joint limits: {where} could not be read apart from the loader ({read.reason})")
+    return read.limits, f"{where}, read apart from the loader"
 
 
 def _promised(body, limits) -> tuple[float, ...]:
@@ -328,8 +308,8 @@ def measure(model: Model, states: Sequence[sampling.State]) -> Coverage:
     """The coverage of ``states`` of ``model`` and its problems (module doc)."""
     Q, QD, U = (np.array([getattr(s, name) for s in states], dtype=float).reshape(len(states), size)
                 for name, size in (("q", model.nq), ("qd", model.nv), ("u", model.m)))
-    limits, source, problems = _limits(model)
-    problems = list(problems)
+    limits, source = _limits(model)
+    problems: list[str] = []
     span = np.array([span for b, lim in zip(model.bodies, limits) for span in _promised(b, lim)])
     kinds = [kind for b in model.bodies for kind in _KINDS[b.joint]]
     owner = [b.name for b in model.bodies for _ in _KINDS[b.joint]]

@@ -18,9 +18,10 @@ our coordinates are paired with the file's joints by the Pinocchio reference's j
   none. ``<include file>`` is spliced in. Pinocchio's joint ``k`` is paired with the file's ``k``-th joint in document
   order (Pinocchio's MJCF parser adds them so), checked by type and, where the file names the joint, by name.
 
-A pair is a limit only when both bounds are finite and below :data:`UNLIMITED` in size, and ``lower < upper``: an
+A pair is a limit only when both bounds are finite and below ``file_reading.UNLIMITED`` in size, and ``lower < upper``: an
 empty or reversed range, or one a file writes as "huge", is no limit (the loaders drop those too, by the same rule
-stated in docs/faults.md, "Joint limits"). When the file cannot be read or paired, :func:`read` says why and the
+stated in docs/faults.md, "Joint limits"). The rule, and the URDF reading of a joint's limits, are those of the second
+reading of a URDF file (``crosscheck.guards.file_reading.limit``, ``joint_limits``), stated once. When the file cannot be read or paired, :func:`read` says why and the
 coverage falls back on ``Body.limits`` (and says so in the report).
 """
 
@@ -32,10 +33,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 from cases.model import Model
+from crosscheck.guards.file_reading import joint_limits, limit
 from crosscheck.references.pinocchio.build import reference_model
-
-#: A bound this large or larger is "no limit" (a file's way of writing none; Pinocchio fills the largest double).
-UNLIMITED = 1e10
 
 Limits = tuple[float, float] | None
 
@@ -53,30 +52,13 @@ class FileLimits:
     joints: tuple[str, ...] = ()
 
 
-def _limit(lower: float, upper: float) -> Limits:
-    """``(lower, upper)`` if that is a limit (module doc), else None."""
-    if not (math.isfinite(lower) and math.isfinite(upper)) or max(abs(lower), abs(upper)) >= UNLIMITED:
-        return None
-    return (float(lower), float(upper)) if lower < upper else None
-
-
-def _number(text: str | None, default: float = 0.0) -> float:
-    return default if text is None or not text.strip() else float(text)
-
-
 # ------------------------------------------------------------------------------------------------------ URDF
 
 
 def _urdf_joints(path: str) -> dict[str, Limits]:
-    """URDF joint name -> its limits (module doc)."""
-    out = {}
-    for joint in ET.parse(path).getroot().findall("joint"):    # not those <transmission> and <gazebo> name
-        name, kind, limit = joint.get("name"), joint.get("type"), joint.find("limit")
-        if kind in ("revolute", "prismatic") and limit is not None:
-            out[name] = _limit(_number(limit.get("lower")), _number(limit.get("upper")))
-        else:
-            out[name] = None
-    return out
+    """URDF joint name -> its limits (module doc; the rule of ``file_reading.joint_limits``)."""
+    return {joint.get("name"): joint_limits(joint)                     # not those <transmission> and <gazebo> name
+            for joint in ET.parse(path).getroot().findall("joint")}
 
 
 def _urdf(model: Model, rows) -> tuple[Limits, ...]:
@@ -158,7 +140,7 @@ def _mjcf_joints(path: str) -> list[tuple[str | None, str, Limits]]:
                             limited == "true" or (limited == "auto" and auto)):
                         lower, upper = (float(x) for x in given.split())
                         factor = scale if kind == "hinge" else 1.0
-                        limits = _limit(lower * factor, upper * factor)
+                        limits = limit(lower * factor, upper * factor)
                     out.append((joint.get("name"), kind, limits))
         for child in element:
             if child.tag in ("body", "frame"):

@@ -2,8 +2,8 @@
 check that cannot fail").
 
 The code every backend shares (the model language, sampling, tolerances, the comparison, the vote, and the checks
-themselves: charts, frames, conservation, linearization, equilibria, the conditions audit, coverage, the closed forms)
-is outside the vote: a check that silently stops comparing (compares a scene with itself, drops a term, returns ratio
+themselves: charts, frames, conservation, linearization, equilibria, the conditions audit, coverage, the closed forms,
+the second reading of a model file) is outside the vote: a check that silently stops comparing (compares a scene with itself, drops a term, returns ratio
 0) or a tolerance loosened tenfold leaves every run green. So the gate injects a tiny known fault per check at fixed
 states of fixed built-in cases, runs that check as the gate runs it (``crosscheck.engine.evaluation.CaseSetup``, with
 the check switched on), and demands that the check itself catches the fault (a DISAGREE among its own comparisons,
@@ -37,15 +37,20 @@ A canary (:class:`Canary`) is a fault of known size in one place:
   them;
 * in the sample (check ``coverage``): ``sliver``, coordinate ``index`` squeezed to :data:`SLIVER_WIDTH` of its span;
   ``band``, four states of five squeezed so (the others keep the full range); ``at the limits``, one state of eight with a
-  limited coordinate at one of the file's limits (read apart from the loader, as the coverage reads them); ``limits misread``, a limited body's limits in the model converted
-  from degrees once more (a loader's slip: the file's limits, read apart from the loader, differ); ``repeated``,
-  every state a copy of one; ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own rule of the coverage (``key``: a part of
-  the problem's text).
+  limited coordinate at one of the file's limits (read apart from the loader, as the coverage reads them);
+  ``repeated``, every state a copy of one; ``rates never sampled``, qd = 0 everywhere. Each must be caught by its own
+  rule of the coverage (``key``: a part of the problem's text);
+* in the model converted from a file (check ``file reading``: the model against its file read apart from the loader,
+  ``crosscheck.guards.loader``), as a parser's misreading every backend and the reference would share:
+  ``inertia turned``, body ``index``'s inertia about its COM turned by ``size`` rad (about a fixed oblique axis);
+  ``placement turned``, its joint placement's rotation turned so; ``limits misread``, its limits converted from
+  degrees once more (a loader's slip). Each must be a loader finding naming that body's link and the field (``key``).
 
 Sizes are calibrated (:data:`CANARIES`; ``tests/guards/test_selftest.py`` re-measures every ratio): each sized canary
 is caught with an error/tolerance ratio between 2 and :data:`CALIBRATED`, so that a check loosened tenfold misses it,
-while rounding (ratios below 0.1 on these states) cannot fake a catch. A coverage canary's margin is its
-construction: a coordinate spread over :data:`SLIVER_WIDTH` of its span is a third of the sliver bound.
+while rounding (ratios below 0.1 on these states; below 6e-4 for the file reading over every URDF of
+example-robot-data) cannot fake a catch. A coverage canary's margin is its construction: a coordinate spread over
+:data:`SLIVER_WIDTH` of its span is a third of the sliver bound.
 """
 
 from __future__ import annotations
@@ -63,7 +68,7 @@ from crosscheck.core.sampling import State, sample_states
 from crosscheck.engine import internal
 from crosscheck.engine.evaluation import CaseSetup
 from crosscheck.engine.specs import CaseSpec, Checks
-from crosscheck.guards import coverage, file_limits
+from crosscheck.guards import coverage, file_limits, loader
 from formalisms.interface import Formalism, Linearization
 
 #: The seed of the canaries' states (fixed: the canaries are calibrated on these states, whatever the run's seed).
@@ -109,6 +114,9 @@ class Canary:
         place = {"charts": " in a chart", "frames": " in a moved scene"}.get(self.check, "")
         if self.check == "coverage":
             return f"{fault} in the sample of {self.case}"
+        if self.check == "file reading":
+            turned = f" by {self.size:.2g} rad" if self.size else ""
+            return f"{self.kind}{turned} (body {self.index}) in the model converted from the file of {self.case}"
         if not self.backend:                            # a fault in the model every backend reads
             return f"{fault} at {self.case} #{self.state}"
         return f"{fault}{place} of {self.backend} at {self.case} #{self.state}"
@@ -156,8 +164,10 @@ CANARIES: tuple[Canary, ...] = (
     Canary("coverage", "spatial_arm", 0, "", "band", index=2, key="band"),
     Canary("coverage", "spatial_arm", 0, "", "repeated", key="repeat"),
     Canary("coverage", "panda", 0, "", "at the limits", index=3, key="limits"),
-    Canary("coverage", "urdf_gripper", 0, "", "limits misread", index=2, key="loader finding"),
     Canary("coverage", "double_pendulum_circle", 0, "", "rates never sampled", key="rate"),
+    Canary("file reading", "urdf_gripper", 0, "", "inertia turned", 1e-10, index=1, key="inertia"),
+    Canary("file reading", "urdf_gripper", 0, "", "placement turned", 6e-12, index=2, key="placement rotation"),
+    Canary("file reading", "urdf_gripper", 0, "", "limits misread", index=2, key="limits"),
 )
 
 #: Which comparisons of a state each check owns: a predicate on the key of ``outcome.comparisons`` (the quantities)
@@ -174,7 +184,7 @@ FAMILIES: dict[str, tuple[str, Callable[[str, Canary], bool]]] = {
     "linearization": ("checks", lambda key, c: key.startswith("linearization: ")),
     "equilibria": ("checks", lambda key, c: key.startswith("equilibrium ")),
 }
-CHECKS = (*FAMILIES, "coverage")
+CHECKS = (*FAMILIES, "coverage", "file reading")
 
 #: A caught canary's error/tolerance ratio must stay below this: a check loosened by this factor misses it.
 CALIBRATED = 10.0
@@ -392,16 +402,48 @@ def _coverage_canary(canary: Canary) -> CanaryResult:
     from crosscheck.engine.specs import DEFAULT_SAMPLES
 
     model = cases.load(canary.case)
-    states = sample_states(model, DEFAULT_SAMPLES, SEED, canary.case)
-    if canary.kind == "limits misread":
-        body = model.bodies[canary.index]
-        bodies = list(model.bodies)
-        bodies[canary.index] = dataclasses.replace(body, limits=tuple(np.degrees(body.limits)))
-        model = dataclasses.replace(model, bodies=tuple(bodies))
-    else:
-        states = _degenerate(canary, model, states)
+    states = _degenerate(canary, model, sample_states(model, DEFAULT_SAMPLES, SEED, canary.case))
     problems = [p for p in coverage.measure(model, states).problems if canary.key in p]
     return CanaryResult(canary, bool(problems), bool(problems), 0.0, problems[0] if problems else "-")
+
+
+#: The axis a ``file reading`` canary turns an inertia or a placement about (oblique: every entry moves).
+TURN_AXIS = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
+
+
+def _turn(angle: float) -> np.ndarray:
+    """The rotation by ``angle`` about :data:`TURN_AXIS` (Rodrigues' formula)."""
+    K = np.array([[0.0, -TURN_AXIS[2], TURN_AXIS[1]], [TURN_AXIS[2], 0.0, -TURN_AXIS[0]],
+                  [-TURN_AXIS[1], TURN_AXIS[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def _misread(canary: Canary, body):
+    """``body`` as a loader that misreads it by the canary's kind would convert it (module doc)."""
+    if canary.kind == "inertia turned":
+        Q = _turn(canary.size)
+        return dataclasses.replace(body, inertia=Q @ body.inertia @ Q.T)
+    if canary.kind == "placement turned":
+        return dataclasses.replace(body, rotation=_turn(canary.size) @ body.rotation)
+    if canary.kind == "limits misread":
+        return dataclasses.replace(body, limits=tuple(np.degrees(body.limits)))
+    raise ValueError(f"unknown file reading canary kind '{canary.kind}'")
+
+
+def _file_reading_canary(canary: Canary) -> CanaryResult:
+    """A file reading canary: the case's model with body ``index`` misread (:func:`_misread`), checked against its
+    file read apart from the loader as the gate checks it (``crosscheck.guards.loader``); caught when a loader finding
+    concerns the field ``key``, named when it names the body's link."""
+    model = cases.load(canary.case)
+    bodies = list(model.bodies)
+    body = bodies[canary.index]
+    bodies[canary.index] = _misread(canary, body)
+    checked = loader.check(dataclasses.replace(model, bodies=tuple(bodies)))
+    found = [f for f in (checked.findings if checked else ()) if canary.key in f.field]
+    named = [f for f in found if f.link == body.name]
+    ratio = max((f.ratio for f in named or found), default=0.0)
+    where = str((named or found)[0]) if found else "-"
+    return CanaryResult(canary, bool(found), bool(named), ratio, where)
 
 
 def _degenerate(canary: Canary, model, states: Sequence[State]) -> list[State]:
@@ -430,6 +472,8 @@ def _one(canary: Canary, chosen: Sequence[Formalism], evaluated: dict) -> Canary
     """The canary's result, or the name of its state when the state is unusable."""
     if canary.check == "coverage":
         return _coverage_canary(canary)
+    if canary.check == "file reading":
+        return _file_reading_canary(canary)
     setup = _setup(canary)
     state = sample_states(setup.model, canary.state + 1, SEED, canary.case)[canary.state]
     if canary.check in ("closed forms", "file reference"):

@@ -187,17 +187,28 @@ def _worst_line(result: GateResult) -> str:
 
 
 def _run_lines(result: GateResult, command: str, applied: Applied | None) -> list[str]:
-    """What was run: the command, seed and sample size, the joint limits the states keep, the self-test and the
-    divergence registry."""
+    """What was run: the command, seed and sample size, the joint limits the states keep, what the model files read
+    apart from the loader were compared on, the self-test and the divergence registry."""
     return [f"- command: `{command}`", f"- seed {result.seed}, {result.samples} states per case",
-            *limits_line(result), self_test_line(result), registry_line(applied)]
+            *limits_line(result), *_loader_lines(result), self_test_line(result), registry_line(applied)]
+
+
+def _loader_lines(result: GateResult) -> list[str]:
+    """Per case loaded from a file: what was compared with the file read apart from the loader, and what it found."""
+    return [f"- {case.spec.name}: read apart from the loader: {case.loader.line()}"
+            for case in result.cases if case.loader is not None]
 
 
 def _failures_section(result: GateResult) -> list[str]:
-    """What failed the run, first: what the backends raised (once per backend and message), the disagreeing states
-    with their reproduce commands, degenerate samples, required backends that compared nothing, missed canaries."""
+    """What failed the run, first: the loader findings (``crosscheck.guards.loader``), what the backends raised (once
+    per backend and message), the disagreeing states with their reproduce commands, degenerate samples, required
+    backends that compared nothing, missed canaries."""
+    loader = [f"- **{case.spec.name}**: {finding}" for case in result.cases for finding in case.loader_findings]
+    lines = ["## Loader findings", "", "The model file, read a second time apart from the loader "
+             "(`crosscheck/guards/loader.py`), disagrees with the model every backend and the reference were given: "
+             "the vote cannot see this, so the case fails.", "", *loader, ""] if loader else []
     errors = [line for case in result.cases for line in backend_errors(case)]
-    lines = ["## Backend errors", "", *errors, ""] if errors else []
+    lines += ["## Backend errors", "", *errors, ""] if errors else []
     failed = [(case, state) for case, state in failed_states(result)      # not the states that only raised: above
               if any(c.verdict == DISAGREE for c in all_comparisons(state))]
     if failed:

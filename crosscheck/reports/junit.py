@@ -6,7 +6,9 @@ and the worst state (error/tolerance, severity, vote), its text one line per fai
 command. KNOWN comparisons (``crosscheck.engine.divergences``) pass, with the registry's reason in ``<system-out>``; a
 testcase whose every comparison is NOT COMPARED is ``<skipped>``. Backend errors are an ``<error>`` testcase;
 states with a backend in BREAKDOWN are listed in the testsuite's ``<system-out>``. Each case also has a ``sampling
-coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``) and a ``backends compared`` one
+coverage`` testcase (failing on a degenerate sample, ``crosscheck.guards.coverage``), for a model loaded from a file
+a ``model file read apart from the loader`` one (failing on a loader finding, ``crosscheck.guards.loader``), and a
+``backends compared`` one
 (failing when a backend sat out most states in BREAKDOWN: ``GateResult.broken``), and the run a ``self-test`` suite
 (one testcase per canary, ``crosscheck.guards.selftest``) and a ``backends`` suite (a required backend that took part in
 no comparison fails), so that every reason the gate fails shows on a dashboard. The harness's own failures
@@ -100,6 +102,9 @@ def _suite(root: ET.Element, case: CaseOutcome, result: GateResult) -> dict[str,
                         ("case", case.spec.cli_args())):
         ET.SubElement(properties, "property", name=name, value=str(value))
     outcomes = [_testcase(suite, case, name, found, result.seed) for name, found in _groups(case).items()]
+    if case.loader is not None:
+        outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "model file read apart from the loader",
+                                "; ".join(map(str, case.loader.findings))))
     if case.coverage is not None:
         outcomes.append(_simple(suite, f"crosscheck.{case.spec.name}", "sampling coverage",
                                 "; ".join(case.coverage.problems)))

@@ -314,8 +314,8 @@ def _slide_in_degrees(root, pm, lower, upper, real):
     pm.lowerPositionLimit, pm.upperPositionLimit = lower, upper
 
 
-#: fault -> (case, how it is injected, "outlier" (the vote names the reference), "coverage JOINT" (the coverage's loader
-#: finding names that joint of the file) or a fragment of the refusal)
+#: fault -> (case, how it is injected, "outlier" (the vote names the reference), "loader JOINT" (a loader finding names
+#: the limits of that joint of the file: ``crosscheck.guards.loader``) or a fragment of the refusal)
 FAULTS = {
     "mimic multiplier read as 1": ("urdf_gripper", _patched(cases.urdf, "_mimic_number", _mimic_number("multiplier")),
                                    r"joint 'finger_right' mimics 'finger_left' \(q = -0.8 q \+ 0.05\)"),
@@ -331,13 +331,13 @@ FAULTS = {
         "RUB", ("revolute", np.array([0.0, 0.0, 1.0])))), "outlier"),
     "continuous joint given limits": ("urdf_gripper", _patched(cases.urdf, "_position_limits", lambda real: (
         lambda pm, j, jm: (-np.pi, np.pi) if "RUB" in jm.shortname() else real(pm, j, jm))),
-        "coverage wrist_roll"),
+        "loader wrist_roll"),
     "revolute limits read in degrees": ("urdf_gripper", _patched(cases.urdf, "_position_limits", _limits_of(
-        "RZ", lambda limits: tuple(np.degrees(limits)))), "coverage finger_left"),
+        "RZ", lambda limits: tuple(np.degrees(limits)))), "loader finger_left"),
     "prismatic limits dropped": ("urdf_gripper", _patched(cases.urdf, "_position_limits", _limits_of(
-        "PX", lambda limits: None)), "coverage extend"),
+        "PX", lambda limits: None)), "loader extend"),
     "hinge range in degrees read as radians": ("mjcf_floating", _patched(cases.mjcf, "_limits", _mjcf_limits(
-        _hinge_in_radians)), "coverage shoulder"),
+        _hinge_in_radians)), "loader shoulder"),
     "body euler ignored": ("mjcf_floating", _misread(cases.mjcf, lambda s: s.replace(' euler="20 -30 45"', "")),
                            "outlier"),
     "inertial quat ignored": ("mjcf_floating", _misread(cases.mjcf, lambda s: s.replace(' quat="0.9 0.1 0.3 0.2"', "")),
@@ -349,7 +349,7 @@ FAULTS = {
     "free joint read as a ball": ("mjcf_floating", _patched(cases.urdf, "_joint_kind", _joint_kind(
         "FreeFlyer", ("spherical", np.zeros(3)))), r"joint 'root' of .* is a JointModelFreeFlyer"),
     "slide range left in Pinocchio's degrees": ("mjcf_ball_slide", _patched(cases.mjcf, "_limits", _mjcf_limits(
-        _slide_in_degrees)), "coverage slide"),
+        _slide_in_degrees)), "loader slide"),
     "body quat ignored": ("mjcf_ball_slide", _misread(cases.mjcf, lambda s: s.replace(' quat="0.9 0.3 0.1 -0.2"', "")),
                           "outlier"),
     "ball joint read as free": ("mjcf_ball_slide", _patched(cases.urdf, "_joint_kind", _joint_kind(
@@ -380,8 +380,8 @@ def test_a_loader_fault_fails_the_gate_on_its_file_case(fault, monkeypatch, isol
             assert "drift" in {c.quantity for c in failing}, (fault, state.index, state.errors)
             assert all(c.outlier == "pinocchio" for c in failing if c.quantity in ("drift", "total"))
             assert {suspect(c) for c in failing} == {"pinocchio"}
-        elif expected.startswith("coverage "):         # a limit: the coverage's loader finding names the joint
-            found = [p for p in result.cases[0].coverage.problems if p.startswith("loader finding")]
-            assert any(expected.split()[1] in f for f in found), result.cases[0].coverage.problems
+        elif expected.startswith("loader "):           # a limit: a loader finding names the joint's limits
+            found = [str(f) for f in result.cases[0].loader_findings]
+            assert any(f"limits (joint '{expected.split()[1]}'" in f for f in found), found
         else:
             assert re.search(expected, state.errors["pinocchio"]), state.errors["pinocchio"]

@@ -165,31 +165,29 @@ def _with_limits(model: cases.Model, body: str, limits) -> cases.Model:
 ])
 def test_limits_that_are_not_the_mjcf_files_are_a_loader_finding(tmp_path, compiler, body, limits):
     """The limits bound the states the gate samples and enter no equation, so the vote cannot see a misread one: the
-    coverage reads them from the XML apart from the loader (``crosscheck.guards.file_limits``) and names the joint."""
+    loader check reads them from the XML apart from the loader (``crosscheck.guards.loader``, through
+    ``crosscheck.guards.file_limits``) and names the body and the joint."""
     from cases.mjcf import from_mjcf
-    from crosscheck.guards import coverage
+    from crosscheck.guards import loader
 
     path = tmp_path / "m.xml"
     path.write_text(MJCF.format(compiler=compiler))
     model = from_mjcf(path)
     changed = _with_limits(model, body, limits)
-    states = sampling.sample_states(changed, 10, 0, "m")
-    assert not [p for p in coverage.measure(model, sampling.sample_states(model, 10, 0, "m")).problems
-                if "loader finding" in p]
-    found = [p for p in coverage.measure(changed, states).problems if "loader finding" in p]
-    assert len(found) == 1 and f"({body}, " in found[0], found
+    assert not loader.check(model).findings
+    found = [str(f) for f in loader.check(changed).findings]
+    assert len(found) == 1 and f"link '{body}' limits" in found[0] and found[0].startswith("loader finding"), found
 
 
 def test_limits_that_are_not_the_urdf_files_are_a_loader_finding():
-    from crosscheck.guards import coverage
+    from crosscheck.guards import loader
 
     model = cases.load("panda")
     changed = _with_limits(model, "panda_link4", (-3.0718, 0.0698))
-    found = [p for p in coverage.measure(changed, sampling.sample_states(changed, 10, 0, "panda")).problems
-             if "loader finding" in p]
+    found = [str(f) for f in loader.check(changed).findings]
     assert len(found) == 1 and "panda_link4" in found[0] and "panda_joint4" in found[0], found
     rounding = _with_limits(model, "panda_link4", (-3.0718, -0.0698 + 1e-14))
-    assert not coverage.measure(rounding, sampling.sample_states(rounding, 10, 0, "panda")).problems
+    assert not loader.check(rounding).findings
 
 
 def test_eval_warns_of_a_q_outside_the_limits_and_evaluates_it(capsys):
