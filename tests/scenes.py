@@ -45,3 +45,27 @@ DAMPED_CHAIN = "\n".join([
     '<joint name="j_c" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.2 0" rpy="0 0.4 0"/>'
     '<axis xyz="0 1 0"/><limit lower="-0.1" upper="0.1" effort="10" velocity="5"/><dynamics damping="0.2"/></joint>',
     "</robot>", ""])
+
+
+#: An MJCF torso on a free joint placed above the world, a ball shoulder, a hinge and a slider.
+LIMB_MJCF = """<mujoco model="limb">
+  <worldbody>
+    <body name="torso" pos="0 0 1">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.1 0.05" mass="3"/>
+      <body name="upper" pos="0.2 0 0">
+        <joint name="shoulder" type="ball"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03" mass="0.5"/>
+        <body name="lower" pos="0 0 -0.3">
+          <joint name="elbow" type="hinge" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025" mass="0.3"/>
+          <body name="slider" pos="0 0 -0.25">
+            <joint name="s" type="slide" axis="1 0 0"/>
+            <geom type="sphere" size="0.02" mass="0.1"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""

@@ -26,6 +26,8 @@ from crosscheck.core import sampling
 from crosscheck.core.compare import AGREE, DISAGREE
 from formalisms.interface import StateError, check_state
 
+from scenes import LIMB_MJCF as MJCF
+
 ROBOTS = "cmeel.prefix/share/example-robot-data/robots"
 
 FLOATING = """<robot name="floating">
@@ -40,27 +42,7 @@ FLOATING = """<robot name="floating">
 </robot>
 """
 
-MJCF = """<mujoco model="limb">
-  <worldbody>
-    <body name="torso" pos="0 0 1">
-      <freejoint name="root"/>
-      <geom type="box" size="0.2 0.1 0.05" mass="3"/>
-      <body name="upper" pos="0.2 0 0">
-        <joint name="shoulder" type="ball"/>
-        <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03" mass="0.5"/>
-        <body name="lower" pos="0 0 -0.3">
-          <joint name="elbow" type="hinge" axis="0 1 0"/>
-          <geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025" mass="0.3"/>
-          <body name="slider" pos="0 0 -0.25">
-            <joint name="s" type="slide" axis="1 0 0"/>
-            <geom type="sphere" size="0.02" mass="0.1"/>
-          </body>
-        </body>
-      </body>
-    </body>
-  </worldbody>
-</mujoco>
-"""
+
 
 
 def _robot(name: str) -> str:

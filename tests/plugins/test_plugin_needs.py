@@ -26,7 +26,7 @@ from crosscheck.assemble import Sizes, unconstrained_split
 from crosscheck.core.compare import NOT_COMPARED, suspect
 from crosscheck.engine.specs import CaseSpec, Checks
 from crosscheck.engine.run import run_gate
-from scenes import DAMPED_CHAIN
+from scenes import DAMPED_CHAIN, LIMB_MJCF
 from crosscheck.needs import PinocchioScene, SourceScene
 
 #: A state of the chain (revolute, continuous, prismatic): q, qd, u.
@@ -89,10 +89,8 @@ def test_mujoco_example_passes_on_a_urdf_with_damping_limits_and_geometry(chain_
 def test_mujoco_example_passes_on_free_and_ball_joints_of_an_mjcf(tmp_path):
     """An MJCF torso on a free joint placed above the world, a ball shoulder, a hinge and a slider: MuJoCo's free
     joint is relative to the world and its linear velocity is in the world frame, converted to crosscheck's."""
-    from test_floating_loaders import MJCF
-
     path, report = tmp_path / "limb.xml", tmp_path / "limb.md"
-    path.write_text(MJCF)
+    path.write_text(LIMB_MJCF)
     code = cli.main(["gate", "--plugin", MUJOCO, "--model", str(path), "--samples", "2", "--report", str(report),
                      "--quiet", "--no-linearization"])
     text = report.read_text()
