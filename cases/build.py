@@ -122,6 +122,13 @@ def _armature(problems: list[str], where: str, body: Body) -> float:
         problems.append(f"{where} armature {armature} must be finite and >= 0 (the rotor inertia added to the "
                         "joint's diagonal entries of M; 0 for none)")
         return 0.0
+    if armature and body.joint == "free":
+        problems.append(f"{where} has a free joint with armature {armature}; armature on a free joint is not "
+                        "supported: MuJoCo's and Pinocchio's (a I added to the 6x6 block of M, no velocity term) is "
+                        "the kinetic energy of no rotor (1/2 a |v|^2 over the body twist brings the gyroscopic force "
+                        "a w x v), so the energy-based formalisms cannot state it; a floating base has no motor to the "
+                        "world: give it armature 0")
+        return 0.0
     return armature + 0.0                           # -0.0 becomes 0.0: the same model, the same digest
 
 

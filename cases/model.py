@@ -99,9 +99,10 @@ class Body:
     #: (``crosscheck.core.sampling``).
     limits: tuple[float, float] | None = None
     #: Armature (rotor inertia reflected through the joint's gearing; kg m^2 for a revolute joint, kg for a prismatic
-    #: one), added to each of the joint's diagonal entries of M (every one of a spherical joint's 3 and a free joint's
-    #: 6: MuJoCo's ``<joint armature>``, Pinocchio's ``model.armature``): ``M(q) = M_bodies(q) + diag(a)``, and the
-    #: kinetic energy gains ``1/2 a |v_i|^2``. Physics (in the digest); finite and >= 0.
+    #: one), added to each of the joint's diagonal entries of M (each of a spherical joint's 3: MuJoCo's ``<joint
+    #: armature>``, Pinocchio's ``model.armature``): ``M(q) = M_bodies(q) + diag(a)``, and the kinetic energy gains
+    #: ``1/2 a |v_i|^2``. Physics (in the digest); finite and >= 0, and 0 on a free joint (``cases.build``: there
+    #: MuJoCo's and Pinocchio's definition is no rotor's kinetic energy).
     armature: float = 0.0
 
 
