@@ -593,13 +593,6 @@ def _sqrt(x):
     return _Dual(root, x.tan / (2.0 * root))
 
 
-def _reciprocal(x):
-    """``1 / x`` of an array or a dual number (``d (1/x) = -dx / x^2``)."""
-    if not isinstance(x, _Dual):
-        return 1.0 / x
-    return _Dual(1.0 / x.val, -x.tan / (x.val * x.val))
-
-
 def _spring_force(load, p):
     """The world force ``-k (|d| - L0) d / |d|`` of a :class:`~cases.loads.PointSpring` at its point ``p`` (..., 3)
     (an array or a dual number), ``d = p - anchor``; ``-k d`` when ``L0 = 0``."""
