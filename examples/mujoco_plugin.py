@@ -20,11 +20,14 @@ equation). :func:`rigid_body_only` turns off, before compiling:
   linear in the velocity, which the gate's hint names as such) and joint springs (``stiffness``), by the flags
   ``mjDSBL_DAMPER`` and ``mjDSBL_SPRING`` and by zeroing ``damping`` and ``stiffness`` of every joint; gravity
   compensation (``gravcomp``); the fluid model (``density``, ``viscosity``, ``wind``);
-* the rotor inertia ``armature``, which MuJoCo adds to M's diagonal;
 * actuators (``mjDSBL_ACTUATION``): their gains, biases, activation dynamics and control clamping are MuJoCo's
   actuator model, not ``B u``; the inputs enter as ``qfrc_applied = B u`` instead;
 * geometry (URDF ``<visual>`` and ``<collision>`` are dropped before MuJoCo reads the file: meshes need not be
   found, and with the inertias given in the file they add nothing to the dynamics).
+
+The rotor inertia ``armature``, which MuJoCo adds to M's diagonal, is part of the equation (crosscheck's
+``Body.armature``): an MJCF file's is kept as MuJoCo reads it, and a URDF's, which the file cannot say, is set on the
+joints the user declared it for (``scene.armature``, from ``--armature``; :func:`_declared_armature`).
 
 Left as the file says, and they must stay so: ``balanceinertia``, ``boundmass``, ``boundinertia``,
 ``settotalmass`` (each would change the file's inertias), and ``inertiafromgeom`` (MuJoCo fills in a body without
@@ -106,11 +109,21 @@ def rigid_body_only(spec: mujoco.MjSpec, damping: bool = False) -> None:
     spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY          # kinetic energy in data.energy[1]
     for joint in spec.joints:      # damping and stiffness are polynomial coefficients (arrays) in MuJoCo 4
         joint.stiffness, joint.springdamper = np.zeros_like(joint.stiffness), np.zeros_like(joint.springdamper)
-        joint.armature, joint.frictionloss = 0.0, 0.0
+        joint.frictionloss = 0.0
         if not damping:
             joint.damping = np.zeros_like(joint.damping)
     for body in spec.bodies:
         body.gravcomp = 0.0
+
+
+def _declared_armature(spec: mujoco.MjSpec, scene) -> None:
+    """Set the armature the user declared for the file's joints (``scene.armature``: joint name, value; a URDF has no
+    tag for it) on those joints, by name (module docstring)."""
+    for name, value in scene.armature:
+        joint = spec.joint(name)
+        if joint is None:
+            raise ModelNotSupported(f"MuJoCo's model of '{scene.path}' has no joint '{name}' to set its armature on")
+        joint.armature = float(value)
 
 
 def _spec(scene) -> mujoco.MjSpec:
@@ -160,6 +173,7 @@ class MuJoCo:
             body.set_frame(frame)
         spec.option.gravity = R @ np.asarray(spec.option.gravity) if scene.gravity else np.zeros(3)
         rigid_body_only(spec, self.damping)
+        _declared_armature(spec, scene)
         model = spec.compile()
         qpos, dof = [], []
         for name, joint in zip(scene.bodies, scene.joints):
