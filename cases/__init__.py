@@ -118,14 +118,13 @@ def parameters(name: str, **params) -> dict:
     overridden by ``params`` converted as :func:`load` converts them. Raises :class:`CaseError` as :func:`load` does.
 
         >>> cases.parameters("n_link_pendulum", n="3")
-        {'n': 3, 'm': 1.0, 'l': 1.0, 'g': 9.81}
+        {'n': 3, 'm': 1.0, 'l': 1.0, 'g': 9.81, 'a': 0.0}
     """
     info, kwargs = _overrides(name, params)
     return {**info.parameters, **kwargs}
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
-           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model",
-           "catalog", "constrained", "from_file",
-           "from_urdf", "load", "model_file",
-           "names", "parameters"]
+__all__ = ["Body", "CaseError", "CaseInfo", "ExternalForce", "ExternalWrench", "JointCoupling", "KnifeEdge", "Model",
+           "ModelError", "PointOnCircle", "PointOnLine", "PointSpring", "PointVelocity", "PointsCoincide",
+           "RollingContact", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "file_cases",
+           "floating", "from_file", "from_urdf", "load", "model_file", "names", "nonholonomic", "parameters"]
