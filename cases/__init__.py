@@ -29,11 +29,12 @@ from cases.build import build_model
 from cases.urdf import UrdfError, from_urdf
 
 
-def from_file(path, name: str | None = None, base: str | None = None, actuated=None) -> Model:
+def from_file(path, name: str | None = None, base: str | None = None, actuated=None, armature=None) -> Model:
     """A model file by its extension: ``.urdf`` through :func:`from_urdf` (with ``base`` "fixed" or "free"; None: as
     the file says, with a notice when it is fixed; ``actuated``: the URDF joints driven by u, in order; None: every
-    joint but a free base's), ``.xml`` or ``.mjcf`` through ``cases.mjcf.from_mjcf`` (whose free joints are in the
-    file: ``base`` and ``actuated`` must be None). Anything else is a UrdfError naming the extensions."""
+    joint but a free base's; ``armature``: URDF joint name -> rotor inertia, which a URDF cannot say), ``.xml`` or
+    ``.mjcf`` through ``cases.mjcf.from_mjcf`` (whose free joints and armature are in the file: ``base``, ``actuated``
+    and ``armature`` must be None). Anything else is a UrdfError naming the extensions."""
     from pathlib import Path
 
     suffix = Path(path).suffix.lower()
@@ -46,10 +47,13 @@ def from_file(path, name: str | None = None, base: str | None = None, actuated=N
         if actuated is not None:
             raise UrdfError(f"'{path}' is an MJCF file; actuated joints apply to URDF files only (an MJCF file is "
                             "driven at every joint but a free one)")
+        if armature is not None:
+            raise UrdfError(f"'{path}' is an MJCF file, which declares its joints' armature itself (<joint "
+                            "armature=\"...\">, read by the loader); armature applies to URDF files only")
         return from_mjcf(path, name=name)
     if suffix != ".urdf":
         raise UrdfError(f"'{path}' is not a model file this loads: give a .urdf (URDF) or a .xml / .mjcf (MJCF) file")
-    return from_urdf(path, name=name, base=base, actuated=actuated)
+    return from_urdf(path, name=name, base=base, actuated=actuated, armature=armature)
 
 
 def names() -> list[str]:
@@ -114,14 +118,13 @@ def parameters(name: str, **params) -> dict:
     overridden by ``params`` converted as :func:`load` converts them. Raises :class:`CaseError` as :func:`load` does.
 
         >>> cases.parameters("n_link_pendulum", n="3")
-        {'n': 3, 'm': 1.0, 'l': 1.0, 'g': 9.81}
+        {'n': 3, 'm': 1.0, 'l': 1.0, 'g': 9.81, 'a': 0.0}
     """
     info, kwargs = _overrides(name, params)
     return {**info.parameters, **kwargs}
 
 
-__all__ = ["Body", "CaseError", "CaseInfo", "JointCoupling", "KnifeEdge", "Model", "ModelError", "PointOnCircle",
-           "PointOnLine", "PointVelocity", "PointsCoincide", "RollingContact", "TaskPoint", "UrdfError", "build_model",
-           "catalog", "constrained", "from_file",
-           "from_urdf", "load", "model_file",
-           "names", "parameters"]
+__all__ = ["Body", "CaseError", "CaseInfo", "ExternalForce", "ExternalWrench", "JointCoupling", "KnifeEdge", "Model",
+           "ModelError", "PointOnCircle", "PointOnLine", "PointSpring", "PointVelocity", "PointsCoincide",
+           "RollingContact", "TaskPoint", "UrdfError", "build_model", "catalog", "constrained", "file_cases",
+           "floating", "from_file", "from_urdf", "load", "model_file", "names", "nonholonomic", "parameters"]

@@ -95,11 +95,41 @@ def _validate_body(problems: list[str], findings: list[str], body: Body) -> Body
                             f"(|R^T R - I| = {err:.2e}, det = {np.linalg.det(rotation):.6f})")
     translation = as_array(problems, f"{where} joint placement translation", body.translation, (3,))
     limits = _limits(problems, where, body)
+    armature = _armature(problems, where, body)
     if len(problems) > n_before:
         return None
     return Body(name=body.name, parent=body.parent, joint=body.joint, axis=frozen(axis, 3), mass=mass,
                 com=frozen(com, 3), inertia=frozen(0.5 * (inertia + inertia.T), (3, 3)),
-                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3), limits=limits)
+                rotation=frozen(rotation, (3, 3)), translation=frozen(translation, 3), limits=limits,
+                armature=armature)
+
+
+def _armature(problems: list[str], where: str, body: Body) -> float:
+    """The body's joint armature as a float (``cases.model.Body.armature``); a problem for one that is not a finite
+    number >= 0."""
+    value = body.armature
+    if isinstance(value, (bool, np.bool_)):
+        problems.append(f"{where} armature {value!r} is not a number; give the rotor inertia (kg m^2 for a revolute "
+                        "joint, kg for a prismatic one), >= 0")
+        return 0.0
+    try:
+        armature = float(value)
+    except (TypeError, ValueError):
+        problems.append(f"{where} armature {value!r} is not a number; give the rotor inertia (kg m^2 for a revolute "
+                        "joint, kg for a prismatic one), >= 0")
+        return 0.0
+    if not np.isfinite(armature) or armature < 0.0:
+        problems.append(f"{where} armature {armature} must be finite and >= 0 (the rotor inertia added to the "
+                        "joint's diagonal entries of M; 0 for none)")
+        return 0.0
+    if armature and body.joint == "free":
+        problems.append(f"{where} has a free joint with armature {armature}; armature on a free joint is not "
+                        "supported: MuJoCo's and Pinocchio's (a I added to the 6x6 block of M, no velocity term) is "
+                        "the kinetic energy of no rotor (1/2 a |v|^2 over the body twist brings the gyroscopic force "
+                        "a w x v), so the energy-based formalisms cannot state it; a floating base has no motor to the "
+                        "world: give it armature 0")
+        return 0.0
+    return armature + 0.0                           # -0.0 becomes 0.0: the same model, the same digest
 
 
 def _limits(problems: list[str], where: str, body: Body) -> tuple[float, float] | None:
@@ -227,10 +257,36 @@ def _validate_source(problems: list[str], source) -> ModelSource | None:
     translation = as_array(problems, "source translation", source.translation, (3,))
     if not isinstance(source.gravity, bool):
         problems.append(f"source gravity must be True (the file's gravity acts) or False, got {source.gravity!r}")
+    armature = _declared_armature(problems, source.armature)
     if len(problems) > n_before:
         return None
     return ModelSource(source.kind, source.path, frozen(rotation, (3, 3)), frozen(translation, 3), source.root,
-                       source.gravity)
+                       source.gravity, armature)
+
+
+def _declared_armature(problems: list[str], declared) -> tuple[tuple[str, float], ...]:
+    """A source's declared armature (``ModelSource.armature``) as ``(joint name, float)`` pairs; a problem for
+    anything but pairs of a name (once each) and a finite value >= 0."""
+    try:
+        pairs = [(name, value) for name, value in declared]
+    except (TypeError, ValueError):
+        problems.append(f"source armature must be (joint name, value) pairs, got {declared!r}")
+        return ()
+    out = []
+    for name, value in pairs:
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = float("nan")
+        if not isinstance(name, str) or not name or isinstance(value, bool) or not (np.isfinite(number)
+                                                                                     and number >= 0.0):
+            problems.append(f"source armature ({name!r}, {value!r}) must be a joint name and a finite value >= 0")
+        else:
+            out.append((name, number + 0.0))
+    names = [name for name, _ in out]
+    if len(set(names)) < len(names):
+        problems.append(f"source armature names a joint more than once: {names}")
+    return tuple(out)
 
 
 def build_model(name: str, bodies: Iterable[Body], gravity=(0.0, 0.0, -9.81), input_map=None,

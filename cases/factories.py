@@ -116,18 +116,20 @@ MAX_LINKS = 60
 
 @register
 def double_pendulum(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 1.0,
-                    g: float = 9.81, I1: float = 0.0, I2: float = 0.0) -> Model:  # noqa: N803
+                    g: float = 9.81, I1: float = 0.0, I2: float = 0.0, a1: float = 0.0,  # noqa: N803
+                    a2: float = 0.0) -> Model:
     """Planar double pendulum of article section 3: point masses at the link ends, relative angles from hanging down.
 
     q = (theta1, theta2): theta1 of link 1 from the downward vertical, theta2 of link 2 relative to link 1.
     Mass 1 at (l1 sin t1, -l1 cos t1), mass 2 (task point ``tip``) at eq. (4). ``I1``, ``I2`` (default 0, the
-    article's point masses) give each mass a rotational inertia about z (:func:`planar_disk`).
+    article's point masses) give each mass a rotational inertia about z (:func:`planar_disk`); ``a1``, ``a2``
+    (default 0) give each joint an armature, a rotor's inertia on M's diagonal (``Body.armature``).
     """
     _positive("double_pendulum", m1=m1, m2=m2, l1=l1, l2=l2)
     bodies = [
-        Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0), inertia=planar_disk(I1)),
+        Body("link1", None, "revolute", _Z, m1, com=(0.0, -l1, 0.0), inertia=planar_disk(I1), armature=a1),
         Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -l2, 0.0), inertia=planar_disk(I2),
-             translation=(0.0, -l1, 0.0)),
+             translation=(0.0, -l1, 0.0), armature=a2),
     ]
     return build_model("double_pendulum", bodies, gravity=(0.0, -g, 0.0),
                        task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])
@@ -172,10 +174,12 @@ def double_pendulum_spring(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2
 
 
 @register
-def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81) -> Model:  # noqa: E741
+def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81,  # noqa: E741
+                    a: float = 0.0) -> Model:
     """Planar chain of n equal point masses at the link ends, relative angles from hanging down (n >= 1).
 
-    Body ``link{i}`` (i = 1..n) is placed at the previous link's end; task point ``tip`` is the last mass.
+    Body ``link{i}`` (i = 1..n) is placed at the previous link's end; task point ``tip`` is the last mass. ``a``
+    (default 0): every joint's armature, a rotor's inertia on M's diagonal (``Body.armature``).
     """
     _require(isinstance(n, (int, np.integer)) and not isinstance(n, bool),
              f"n_link_pendulum: n must be an integer, got {n!r}")
@@ -184,26 +188,29 @@ def n_link_pendulum(n: int = 5, m: float = 1.0, l: float = 1.0, g: float = 9.81)
     bodies = []
     for i in range(1, n + 1):
         bodies.append(Body(f"link{i}", None if i == 1 else f"link{i - 1}", "revolute", _Z, m,
-                           com=(0.0, -l, 0.0), translation=(0.0, 0.0, 0.0) if i == 1 else (0.0, -l, 0.0)))
+                           com=(0.0, -l, 0.0), translation=(0.0, 0.0, 0.0) if i == 1 else (0.0, -l, 0.0),
+                           armature=a))
     return build_model("n_link_pendulum", bodies, gravity=(0.0, -g, 0.0),
                        task_points=[TaskPoint("tip", f"link{n}", (0.0, -l, 0.0), _PLANE)])
 
 
 @register
 def acrobot(m1: float = 1.0, m2: float = 1.0, l1: float = 1.0, l2: float = 2.0, lc1: float = 0.5,
-            lc2: float = 1.0, I1: float = 0.083, I2: float = 0.33, g: float = 9.81) -> Model:  # noqa: N803
+            lc2: float = 1.0, I1: float = 0.083, I2: float = 0.33, g: float = 9.81, a1: float = 0.0,  # noqa: N803
+            a2: float = 0.0) -> Model:
     """Spong's acrobot: two links with distributed inertia, only the elbow actuated (B = [[0], [1]]).
 
     Link i has its COM at distance lci along the link and rotational inertia Ii about the COM and the joint
     axis z (defaults: Spong 1995, uniform rods). The COM inertia tensor is that of a slender rod along the link
-    (y): diag(Ii, 0, Ii), which is positive semi-definite and satisfies the triangle inequality.
+    (y): diag(Ii, 0, Ii), which is positive semi-definite and satisfies the triangle inequality. ``a1``, ``a2``
+    (default 0): the joints' armature, a rotor's inertia on M's diagonal (``Body.armature``).
     Task point ``tip``: the end of link 2.
     """
     _positive("acrobot", m1=m1, m2=m2, l1=l1, l2=l2)
     bodies = [
-        Body("link1", None, "revolute", _Z, m1, com=(0.0, -lc1, 0.0), inertia=np.diag([I1, 0.0, I1])),
+        Body("link1", None, "revolute", _Z, m1, com=(0.0, -lc1, 0.0), inertia=np.diag([I1, 0.0, I1]), armature=a1),
         Body("link2", "link1", "revolute", _Z, m2, com=(0.0, -lc2, 0.0), inertia=np.diag([I2, 0.0, I2]),
-             translation=(0.0, -l1, 0.0)),
+             translation=(0.0, -l1, 0.0), armature=a2),
     ]
     return build_model("acrobot", bodies, gravity=(0.0, -g, 0.0), input_map=[[0.0], [1.0]],
                        task_points=[TaskPoint("tip", "link2", (0.0, -l2, 0.0), _PLANE)])

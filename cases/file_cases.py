@@ -1,8 +1,8 @@
 """Built-in cases loaded from small model files shipped with the package (``cases/files/``), one per loader path.
 
 The other built-in cases are built in code (``cases.factories`` and its siblings) or loaded from example-robot-data's
-robots (``panda``, ``solo12``), none of which has a mimic multiplier other than 1, a continuous joint or an MJCF
-file. These cases put every path of the loaders (``cases.urdf``, ``cases.mjcf``) in every default gate run: each is
+robots (``panda``, ``solo12``), none of which has a mimic multiplier other than 1, a continuous joint, an MJCF
+file or joint armature. These cases put every path of the loaders (``cases.urdf``, ``cases.mjcf``) in every default gate run: each is
 loaded through the loader, so its model carries the file as its ``source`` and the Pinocchio reference is built
 from the file itself (``crosscheck.references.pinocchio.build``): a conversion fault moves the five formalisms and
 not the reference. They have no closed form; the file-built reference is their independent voter. They are built-in
@@ -28,6 +28,10 @@ mjcf_ball_slide    ``cases/files/ball_slide.xml``       a ball joint; a slide wi
                                                         Pinocchio's parser reads as degrees and the loader undoes);
                                                         a body turned by ``quat``, one by ``euler``; ``diaginertia
                                                         quat`` and ``fullinertia``
+mjcf_armature      ``cases/files/armature_arm.xml``     joint ``armature`` (rotor inertia on M's diagonal): on a
+                                                        hinge itself, from a ``<default>`` class, a class's value
+                                                        overridden on the joint, on a slide; a different value on
+                                                        every joint; ranges in degrees and metres
 =================  ===================================  ===========================================================
 
 Each file is small (2 to 4 joints) because every default gate run evaluates it at every state with every check; the
@@ -99,4 +103,18 @@ def mjcf_ball_slide() -> Model:
     return from_mjcf(file_path("ball_slide.xml"), name="mjcf_ball_slide")
 
 
-__all__ = ["FILES", "file_path", "mjcf_ball_slide", "mjcf_floating", "urdf_gripper"]
+@register
+@loaded_from("cases/files/armature_arm.xml, shipped with crosscheck")
+def mjcf_armature() -> Model:
+    """A three-hinge arm with a sliding tool from the shipped MJCF cases/files/armature_arm.xml: armature on every joint.
+
+    Armature 0.12 (shoulder, on the joint), 0.045 (upper, from the default class ``motor``), 0.02 (fore, the class's
+    value overridden), 0.3 kg (tool, a slide): ``M = M_links + diag(0.12, 0.045, 0.02, 0.3)``. nq = nv = 4, every
+    joint driven; the base welded to the world. Module docstring: what each element of the file exercises.
+    """
+    from cases.mjcf import from_mjcf
+
+    return from_mjcf(file_path("armature_arm.xml"), name="mjcf_armature")
+
+
+__all__ = ["FILES", "file_path", "mjcf_armature", "mjcf_ball_slide", "mjcf_floating", "urdf_gripper"]

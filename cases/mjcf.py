@@ -6,10 +6,16 @@ is a revolute joint, ``slide`` a prismatic one, ``ball`` a spherical one and ``f
 with Pinocchio's conventions, which are ours (``cases.model``: quaternion ``(x, y, z, w)``, body-frame velocities).
 The source is ``ModelSource("mjcf", <absolute path>)``, so the reference reads the file itself.
 
+Joint ``armature`` (rotor inertia, MuJoCo's ``dof_armature``: added to each of the joint's diagonal entries of M) is
+read: Pinocchio's parser puts it in ``model.armature`` per velocity (a ``<default>`` class's value included), and
+each body takes its joint's (``Body.armature``; ``M = M_bodies + diag(a)``, docs/concepts.md, "Armature"). The
+reference reads it from the file itself. A joint whose velocities have different values there is refused, naming it
+(the model language holds one value per joint; an MJCF joint has one).
+
 What the model language has no word for is refused, naming it (:class:`~cases.model.ModelError`), never dropped:
-a body with several joints (Pinocchio makes one composite joint of them), ``<equality>`` constraints, and joint
-``armature`` (rotor inertia added to M). Contacts, actuators and damping do not enter the dynamics the harness checks
-(``M qdd + h = B u``, fully actuated by default) and are not read.
+a body with several joints (Pinocchio makes one composite joint of them) and ``<equality>`` constraints. Contacts,
+actuators, damping and friction loss do not enter the dynamics the harness checks (``M qdd + h = B u``, fully
+actuated by default) and are not read.
 
 Joint limits do not enter the dynamics either; they bound the states the gate samples (``Body.limits``,
 ``crosscheck.core.sampling``). A hinge or slide joint's ``range`` is read as MuJoCo reads it (:func:`_limits`): in
@@ -47,14 +53,10 @@ def _read(path: Path) -> ET.Element:
     return root
 
 
-def _unsupported(root: ET.Element, pm) -> list[str]:
+def _unsupported(root: ET.Element) -> list[str]:
     """What the file says that the model language cannot hold (module docstring)."""
-    problems = [f"<equality> constraint <{e.tag}> '{e.get('name', '')}' is not read; declare it with "
-                "cases.constraints instead" for eq in root.iter("equality") for e in eq]
-    armature = np.asarray(getattr(pm, "armature", np.zeros(0)), dtype=float)
-    problems += [f"velocity {k} has armature (rotor inertia) {a:g}, which the model language has no field for"
-                 for k, a in enumerate(armature) if a != 0.0]
-    return problems
+    return [f"<equality> constraint <{e.tag}> '{e.get('name', '')}' is not read; declare it with "
+            "cases.constraints instead" for eq in root.iter("equality") for e in eq]
 
 
 def from_mjcf(path, name: str | None = None) -> Model:
@@ -72,7 +74,7 @@ def from_mjcf(path, name: str | None = None) -> Model:
             pm = read_file(pin, "mjcf", str(path))
         except Exception as exc:  # noqa: BLE001 - Pinocchio raises ValueError/RuntimeError/... for bad files
             raise MjcfError(f"could not parse MJCF file '{path}': {' '.join(str(exc).split())}") from None
-    problems = _unsupported(root, pm)
+    problems = _unsupported(root)
     if problems:
         raise ModelError(model_name, problems, f"MJCF file '{path}'")
     _limits(root, pin, pm)

@@ -28,6 +28,9 @@ Frames and conventions
   (they have none). ``cases.configuration`` holds the group operations (neutral configuration, integration).
 * ``com`` (centre of mass) and ``inertia`` (3x3 rotational inertia about the COM) are in the body frame.
   A point mass has ``inertia = 0``.
+* ``armature`` (rotor inertia, >= 0) is added to each of the joint's velocity entries on M's diagonal:
+  ``M(q) = M_bodies(q) + diag(Model.armature_vector)``, ``T = 1/2 v^T M v`` (docs/concepts.md, "Armature"). It is
+  no body: it moves with the joint velocity alone, so C and g are those of the bodies.
 * The coordinates ``q`` (``nq`` of them) and the velocities ``v`` (``nv = n``, the degrees of freedom) are the
   bodies' joint blocks in the order the bodies are given: body ``i``'s are ``q[q_index[i] : q_index[i] + nq_i]``
   and ``v[v_index[i] : v_index[i] + nv_i]``. With revolute and prismatic joints only, ``nq = nv = n`` and body
@@ -95,6 +98,12 @@ class Body:
     #: None: unlimited. Not physics (left out of the digest): the sampler draws within them
     #: (``crosscheck.core.sampling``).
     limits: tuple[float, float] | None = None
+    #: Armature (rotor inertia reflected through the joint's gearing; kg m^2 for a revolute joint, kg for a prismatic
+    #: one), added to each of the joint's diagonal entries of M (each of a spherical joint's 3: MuJoCo's ``<joint
+    #: armature>``, Pinocchio's ``model.armature``): ``M(q) = M_bodies(q) + diag(a)``, and the kinetic energy gains
+    #: ``1/2 a |v_i|^2``. Physics (in the digest); finite and >= 0, and 0 on a free joint (``cases.build``: there
+    #: MuJoCo's and Pinocchio's definition is no rotor's kinetic energy).
+    armature: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -126,7 +135,11 @@ class ModelSource:
     has it, or ``"free"``: on a free joint (``JointModelFreeFlyer``) the loader added above it.
     A point ``x`` of the file's world is at ``rotation @ x + translation`` in the model's world, and the file's
     gravity ``g`` is ``rotation @ g``; ``gravity`` False: the scene is the file's without gravity (a gravity-free
-    copy, ``crosscheck.reports.diagnosis.without_gravity``), so whatever is built from the file sets gravity to zero."""
+    copy, ``crosscheck.reports.diagnosis.without_gravity``), so whatever is built from the file sets gravity to zero.
+    ``armature``: ``(joint name, value)`` pairs the user declared when loading (``cases.from_urdf(...,
+    armature={...})``, the command line's ``--armature``), which the file does not say (a URDF has no armature tag):
+    whatever is built from the file sets each named joint's armature to its value after reading the file (an MJCF
+    file's own ``<joint armature>`` is read from the file itself)."""
 
     kind: str
     path: str
@@ -134,15 +147,17 @@ class ModelSource:
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     root: str = "fixed"
     gravity: bool = True
+    armature: tuple[tuple[str, float], ...] = ()
 
     def moved(self, rotation: np.ndarray, translation: np.ndarray) -> "ModelSource":
         """The source of the scene moved by ``g = (rotation, translation)``: placement ``g * (R, t)``."""
         R, t = np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float)
-        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root, self.gravity)
+        return ModelSource(self.kind, self.path, R @ self.rotation, R @ self.translation + t, self.root, self.gravity,
+                           self.armature)
 
     def without_gravity(self) -> "ModelSource":
         """The same file and placement with gravity switched off."""
-        return ModelSource(self.kind, self.path, self.rotation, self.translation, self.root, False)
+        return ModelSource(self.kind, self.path, self.rotation, self.translation, self.root, False, self.armature)
 
     @property
     def is_identity(self) -> bool:
@@ -153,7 +168,8 @@ class ModelSource:
         """A stable text of every field (for caches of whatever is built from the file)."""
         placement = np.concatenate([np.ravel(self.rotation), np.ravel(self.translation)]).astype("<f8")
         weight = "" if self.gravity else ":no-gravity"
-        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}{weight}"
+        declared = "".join(f":armature:{name}={np.float64(value).tobytes().hex()}" for name, value in self.armature)
+        return f"{self.kind}:{self.root}:{self.path}:{placement.tobytes().hex()}{weight}{declared}"
 
     def __eq__(self, other) -> bool:
         return isinstance(other, ModelSource) and self.key() == other.key()
@@ -217,6 +233,19 @@ class Model:
                      for label in ([f"{b.name}.{p}" for p in parts[b.joint]] if b.joint in parts else [b.name]))
 
     @functools.cached_property
+    def armature_vector(self) -> np.ndarray:
+        """The armature per velocity coordinate (nv, read-only): each body's ``armature`` repeated over its joint's
+        velocities (module docstring), so ``M = M_bodies + diag(armature_vector)``."""
+        a = np.array([b.armature for b in self.bodies for _ in range(JOINT_DOF[b.joint][1])], dtype=float)
+        a.setflags(write=False)
+        return a
+
+    @property
+    def has_armature(self) -> bool:
+        """Whether any joint has a non-zero armature."""
+        return any(b.armature != 0.0 for b in self.bodies)
+
+    @functools.cached_property
     def group_joints(self) -> tuple[int, ...]:
         """The bodies on a spherical or free joint (a configuration on a Lie group), in body order."""
         return tuple(i for i, b in enumerate(self.bodies) if b.joint in GROUP_JOINTS)
@@ -251,10 +280,10 @@ class Model:
 
     @functools.cached_property
     def inertia_scale(self) -> float:
-        """``sum_k (m_k L^2 + tr I_k)`` with L the length scale: the size of M's entries (about its largest
-        eigenvalue, up to a factor of the number of joints)."""
+        """``sum_k (m_k L^2 + tr I_k)`` with L the length scale, plus the armature of every velocity: the size of M's
+        entries (about its largest eigenvalue, up to a factor of the number of joints)."""
         L = self.length_scale
-        return float(sum(b.mass * L**2 + np.trace(b.inertia) for b in self.bodies))
+        return float(sum(b.mass * L**2 + np.trace(b.inertia) for b in self.bodies) + self.armature_vector.sum())
 
     def body_index(self, name: str) -> int:
         for i, body in enumerate(self.bodies):
@@ -286,6 +315,8 @@ class Model:
             for arr in (b.axis, b.com, b.inertia, b.rotation, b.translation):
                 h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
             h.update(np.float64(b.mass).tobytes())
+            if b.armature:            # nothing without armature: such a model's digest is what it was before it
+                h.update(b"armature:" + np.float64(b.armature).tobytes())
         for arr in (self.gravity, self.input_map):
             h.update(repr(arr.shape).encode())
             h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())

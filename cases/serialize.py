@@ -6,7 +6,8 @@ rebuilt model has the same ``digest()`` and every backend gives it the same spli
     >>> model_from_dict(json.loads(json.dumps(d))).digest() == cases.load("four_bar").digest()
     True
 
-The dict holds the bodies (joint, axis, placement, mass, centre of mass, inertia), gravity, the input map, the task
+The dict holds the bodies (joint, axis, placement, mass, centre of mass, inertia; ``limits`` and ``armature`` written
+only when set, so a dict without them reads as unlimited and armature 0), gravity, the input map, the task
 points, the constraint declarations of every type in :mod:`cases.constraints`, the external loads of every type in
 :mod:`cases.loads` (a field written only when there are loads; a RollingContact's ``lateral`` is written only when
 False, so an older dict reads as the two-row default) and, for a model loaded from a file,
@@ -66,7 +67,8 @@ def model_to_dict(model: Model) -> dict:
         "name": model.name,
         "bodies": [{"name": b.name, "parent": b.parent, "joint": b.joint, "mass": float(b.mass),
                     **{key: _plain(getattr(b, key)) for key in _BODY_ARRAYS},
-                    **({} if b.limits is None else {"limits": list(b.limits)})} for b in model.bodies],
+                    **({} if b.limits is None else {"limits": list(b.limits)}),
+                    **({"armature": float(b.armature)} if b.armature else {})} for b in model.bodies],
         "gravity": _plain(model.gravity),
         "input_map": _plain(model.input_map),
         "task_points": [{"name": tp.name, "body": tp.body, "offset": _plain(tp.offset),
@@ -86,6 +88,8 @@ def model_to_dict(model: Model) -> dict:
             d["source"]["root"] = model.source.root
         if not model.source.gravity:          # likewise: a gravity-free copy (ModelSource.without_gravity)
             d["source"]["gravity"] = False
+        if model.source.armature:             # likewise: the armature the user declared for the file's joints
+            d["source"]["armature"] = [[name, float(value)] for name, value in model.source.armature]
     return d
 
 
@@ -135,10 +139,11 @@ def _items(d, key: str, where: str) -> list:
 
 def _body(d, where: str) -> Body:
     limits = _numbers(d, "limits", where) if isinstance(d, dict) and d.get("limits") is not None else None
+    armature = _numbers(d, "armature", where) if isinstance(d, dict) and "armature" in d else 0.0
     return Body(name=_text(d, "name", where), parent=_text(d, "parent", where, optional=True),
                 joint=_text(d, "joint", where), mass=_numbers(d, "mass", where),
                 **{key: _numbers(d, key, where) for key in _BODY_ARRAYS},
-                limits=None if limits is None else tuple(np.atleast_1d(limits).tolist()))
+                limits=None if limits is None else tuple(np.atleast_1d(limits).tolist()), armature=armature)
 
 
 def _task_point(d, where: str) -> TaskPoint:
@@ -191,9 +196,18 @@ def _source(d: dict) -> ModelSource | None:
     value = d.get("source")
     if value is None:
         return None
+    armature = _items(value, "armature", "source") if "armature" in value else []
+    pairs = []
+    for k, pair in enumerate(armature):
+        if not isinstance(pair, list) or len(pair) != 2:
+            raise SerializeError(f"serialized model: field 'source.armature[{k}]' must be [joint name, value], got "
+                                 f"{pair!r}")
+        pairs.append((_text(dict(enumerate(pair)), 0, f"source.armature[{k}]"),
+                      _numbers(dict(enumerate(pair)), 1, f"source.armature[{k}]")))
     return ModelSource(_text(value, "kind", "source"), _text(value, "path", "source"),
                        _numbers(value, "rotation", "source"), _numbers(value, "translation", "source"),
-                       _text(value, "root", "source") if "root" in value else "fixed", value.get("gravity", True))
+                       _text(value, "root", "source") if "root" in value else "fixed", value.get("gravity", True),
+                       tuple(pairs))
 
 
 def model_from_dict(d: dict) -> Model:

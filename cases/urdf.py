@@ -48,6 +48,14 @@ point is the first leaf that lies on no joint axis of its chain, with the task d
 is rank-deficient at every state; then the leaf's COM (or an offset point of it) is the default, named
 ``LINK:com`` (``LINK:offset``), and a planar chain's task directions are its plane.
 
+Armature: a URDF has no standard tag for a joint's rotor inertia, so ``armature`` (URDF joint name -> value, kg m^2
+for a revolute or continuous joint, kg for a prismatic one; the command line's ``--armature JOINT=VALUE,...``) declares
+it: the loader sets Pinocchio's ``model.armature`` of those joints' velocities and each body takes its joint's
+(``Body.armature``, added to M's diagonal), and the source records the declaration (``ModelSource.armature``), so
+the reference, which reads the file itself, sets the same. A name that is not a movable joint of the file (unknown
+or fixed) or a value that is not finite and >= 0 is a :class:`~cases.model.ModelError` listing the movable joints.
+A joint whose velocities have different armature in Pinocchio's model (not one value) is refused, naming it.
+
 Mimic joints: a joint ``A`` with ``<mimic joint="J" multiplier="m" offset="o"/>`` (defaults m = 1, o = 0) keeps its
 own coordinate and gets the coupling ``q_A = m q_J + o`` as a constraint,
 ``JointCoupling("mimic:A", (body of A, body of J), (1, -m), o)`` (``cases.constraints``), in Pinocchio's joint
@@ -391,8 +399,31 @@ def _bodies(pm, link_of: dict, problems: list[str]) -> list[Body]:
         bodies.append(Body(name=link_of[j], parent=link_of[pm.parents[j]], joint=joint, axis=axis,
                            mass=float(inertia.mass), com=np.array(inertia.lever),
                            inertia=np.array(inertia.inertia), rotation=np.array(placement.rotation),
-                           translation=np.array(placement.translation), limits=_position_limits(pm, j, jm)))
+                           translation=np.array(placement.translation), limits=_position_limits(pm, j, jm),
+                           armature=_joint_armature(pm, j, jm, problems)))
     return bodies
+
+
+def _joint_armature(pm, j: int, jm, problems: list[str]) -> float:
+    """The armature of Pinocchio joint ``j`` (``pm.armature`` over its velocities: an MJCF file's ``<joint
+    armature>``, or what :func:`apply_armature` declared), one value for the joint (``Body.armature``); a problem
+    naming the joint when its velocities have different values, which the model language cannot hold."""
+    values = np.asarray(pm.armature, dtype=float)[jm.idx_v:jm.idx_v + jm.nv]
+    if values.size and np.any(values != values[0]):
+        problems.append(f"joint '{pm.names[j]}' has armature {values.tolist()} over its {jm.nv} velocities; the model "
+                        "language holds one armature per joint, added to each of its velocities")
+        return 0.0
+    return float(values[0]) if values.size else 0.0
+
+
+def apply_armature(pm, armature: Sequence[tuple[str, float]]) -> None:
+    """Set ``pm.armature`` of each named joint's velocities to its value (``ModelSource.armature``: what the user
+    declared for a file that cannot say it)."""
+    values = np.array(pm.armature, dtype=float)
+    for name, value in armature:
+        jm = pm.joints[pm.getJointId(name)]
+        values[jm.idx_v:jm.idx_v + jm.nv] = value
+    pm.armature = values
 
 
 #: Beyond this a position limit is taken as none: Pinocchio fills a joint without limits with the largest double.
@@ -440,6 +471,39 @@ def _named_inputs(robot: ET.Element, actuated, problems: list[str]) -> list[str]
                             f"{movable}")
     links = _joint_links(robot)
     return [] if len(problems) > n_before else [links[name][1] for name in actuated]
+
+
+def _declared(robot: ET.Element, armature, problems: list[str]) -> tuple[tuple[str, float], ...]:
+    """The ``armature`` argument of :func:`from_urdf` (URDF joint name -> rotor inertia; module docstring,
+    "Armature") as ``(name, value)`` pairs in the file's joint order; a problem for a name that is not a movable joint
+    of the file and for a value that is not a finite number >= 0."""
+    if armature is None:
+        return ()
+    if not isinstance(armature, dict):
+        problems.append(f"armature must be a dict of URDF joint name -> rotor inertia, got {armature!r}")
+        return ()
+    types = {j.get("name"): j.get("type") for j in robot.findall("joint")}
+    movable = sorted(name for name, kind in types.items() if kind in ("revolute", "continuous", "prismatic",
+                                                                      "floating"))
+    n_before = len(problems)
+    for name, value in armature.items():
+        if name not in types:
+            problems.append(f"armature names joint '{name}', which is not a joint of the file; movable joints: "
+                            f"{movable}")
+        elif name not in movable:
+            problems.append(f"armature names joint '{name}', which is {types[name]} (it has no velocity to add a "
+                            f"rotor inertia to); movable joints: {movable}")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = math.nan
+        if isinstance(value, bool) or not (math.isfinite(number) and number >= 0.0):
+            problems.append(f"armature of joint '{name}' is {value!r}; give a finite rotor inertia >= 0 (kg m^2 for "
+                            "a revolute joint, kg for a prismatic one)")
+    if len(problems) > n_before:
+        return ()
+    order = list(types)
+    return tuple((name, float(armature[name]) + 0.0) for name in sorted(armature, key=order.index))
 
 
 def _input_map(bodies: list[Body], driven_links: list[str] | None) -> np.ndarray:
@@ -542,10 +606,11 @@ def read_file(pin, kind: str, path: str, root: str = "fixed"):
     return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if root == "free" else pin.buildModelFromUrdf(path)
 
 
-def from_urdf(path, name: str | None = None, base: str | None = None, actuated=None) -> Model:
+def from_urdf(path, name: str | None = None, base: str | None = None, actuated=None, armature=None) -> Model:
     """Load the URDF at ``path`` as a :class:`Model` (joint order = Pinocchio's; see the module docstring), with a
-    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`) and, with
-    ``actuated`` (URDF joint names), the input map of those joints only (module docstring, "Inputs").
+    ``base`` "fixed" or "free" (module docstring, "The base"; left out: fixed, with a :class:`BaseNotice`), with
+    ``actuated`` (URDF joint names) the input map of those joints only (module docstring, "Inputs") and with
+    ``armature`` (URDF joint name -> rotor inertia) those joints' armature (module docstring, "Armature").
 
     Raises :class:`FileNotFoundError` if the path does not exist, :class:`UrdfError` if it cannot be read or
     parsed, and :class:`~cases.model.ModelError` naming every joint whose type has no equivalent here (planar,
@@ -559,6 +624,7 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
     mimics = _mimics(robot, problems, findings)
     driven = None if actuated is None or problems else _named_inputs(
         robot, actuated if isinstance(actuated, str) else list(actuated), problems)
+    declared = _declared(robot, armature, problems) if not problems else ()
     root, notice = _base(path, robot, base, problems) if not problems else ("fixed", None)
     if problems:
         raise ModelError(model_name, problems, f"URDF file '{path}'")
@@ -567,8 +633,10 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
     except ImportError as exc:  # pragma: no cover - pin is a declared dependency
         raise ImportError("reading URDF files needs Pinocchio: install the 'pin' package "
                           "(pip install pin)") from exc
-    source = ModelSource("urdf", str(path.resolve()), root=root)
-    model = convert(pin, _parse(pin, path, root), model_name, source, mimics, driven, findings)
+    source = ModelSource("urdf", str(path.resolve()), root=root, armature=declared)
+    pm = _parse(pin, path, root)
+    apply_armature(pm, declared)
+    model = convert(pin, pm, model_name, source, mimics, driven, findings)
     if notice is not None:
         warnings.warn(BaseNotice(notice), stacklevel=2)
     return model

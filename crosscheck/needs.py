@@ -55,7 +55,10 @@ class SourceScene:
     free joint ``root = "free"`` adds (it is not in the file); ``root_link`` is the file's root link (URDF: the link
     no joint has as child) or root body (MJCF: the first body of ``<worldbody>``), the first body Pinocchio reads:
     welded to the world on a fixed base, moved by ``joints[0]`` on a free one. ``input_map`` is B of ``tau = B
-    u``; ``constraints`` are the model's declarations (a URDF ``<mimic>``: ``cases.constraints.JointCoupling``)."""
+    u``; ``constraints`` are the model's declarations (a URDF ``<mimic>``: ``cases.constraints.JointCoupling``).
+    ``armature`` holds the ``(joint name, value)`` pairs the user declared for the file's joints when loading it
+    (``ModelSource.armature``, ``--armature``: a URDF cannot say a joint's rotor inertia), which the plugin sets
+    after reading the file; an MJCF file's own ``<joint armature>`` is in the file."""
 
     name: str
     kind: str
@@ -74,6 +77,7 @@ class SourceScene:
     constraints: tuple
     joint_names: tuple[str | None, ...]
     root_link: str
+    armature: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +147,7 @@ def source_scene(model: Model, plugin: str) -> SourceScene:
     return SourceScene(model.name, src.kind, src.path, src.root, np.array(src.rotation), np.array(src.translation),
                        src.gravity, tuple(b.name for b in model.bodies), tuple(b.joint for b in model.bodies),
                        model.q_index, model.v_index, model.nq, model.nv, np.array(model.input_map), model.constraints,
-                       names, root_link)
+                       names, root_link, tuple(src.armature))
 
 
 _COPIES: dict[tuple, object] = {}

@@ -16,7 +16,8 @@ Strategies: :func:`models` (random kinematic trees, optionally constrained), :fu
 ``crosscheck.core.sampling.State``), :func:`charts` (``crosscheck.checks.charts``), :func:`frames` (rigid transforms,
 ``crosscheck.checks.frames``), and the pieces they are built from (:func:`unit_vectors`, :func:`axes`,
 :func:`rotations`, :func:`inertias`). Everything a failing example shrinks toward is the simplest mechanism of its kind:
-fewer bodies, a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers.
+fewer bodies, a serial chain, revolute joints about z, identity placements, point masses of 1 kg, round numbers, no
+armature.
 
 Assertions: :func:`assert_backends_agree` runs the gate's comparison at one state (and the chart, frame and
 conservation checks); :func:`assert_split_close` compares two splits with the tolerance policy. Both raise
@@ -25,6 +26,7 @@ conservation checks); :func:`assert_split_close` compares two splits with the to
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Sequence
 
@@ -355,7 +357,8 @@ def _load(draw, model: Model, name: str):
 
 @st.composite
 def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodies: int = 1,
-           name: str = "drawn", group: bool = False, loads: bool | None = False, pfaffian: bool = False) -> Model:
+           name: str = "drawn", group: bool = False, loads: bool | None = False, pfaffian: bool = False,
+           armature: bool | None = None) -> Model:
     """Random valid models: kinematic trees of ``min_bodies`` to ``max_bodies`` bodies.
 
     Each body hangs from the previous one, an earlier one or the world, by a revolute or prismatic joint about an
@@ -375,6 +378,10 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
 
     ``loads``: external loads (``cases.loads``, :func:`_load`): False none, True one or two, None either (drawn
     last, so the rest of a model is drawn as without them).
+
+    ``armature``: the joints' armature (``Body.armature``, a rotor's inertia on M's diagonal, :func:`_armature`):
+    False none, True on some joints, None (the default) on some joints of one model in four; drawn after everything
+    else, so the rest of a model is drawn as without it, and shrinking toward none.
     """
     if constraints and max_bodies < 2:
         raise ValueError("models(constraints=True) needs max_bodies >= 2 (a constraint leaves fewer rows than joints)")
@@ -389,8 +396,34 @@ def models(draw, max_bodies: int = 5, constraints: bool | None = False, min_bodi
     declared = draw(_constraints(base, constraints is True, pfaffian)) if wanted and n >= 2 else []
     loaded = draw(st.booleans()) if loads is None else loads
     applied = [draw(_load(base, f"load{i}")) for i in range(draw(st.integers(1, 2)))] if loaded else []
+    armed = draw(st.integers(0, 3)) == 3 if armature is None else armature
+    if armed:
+        bodies = draw(_armature(bodies, at_least_one=armature is True))
     return build_model(name, bodies, gravity=gravity, input_map=input_map, task_points=[task], constraints=declared,
                        loads=applied)
+
+
+#: The armature :func:`models` draws, relative to the body's mass (kg m^2 per kg for a revolute or spherical joint, kg
+#: per kg for a prismatic one): log-uniform over these decades, from a rotor far lighter than its link to one as heavy
+#: (a geared motor's reflected inertia can exceed the link's own).
+ARMATURE_DECADES = (-3.0, 0.5)
+
+
+@st.composite
+def _armature(draw, bodies: list[Body], at_least_one: bool = False) -> list[Body]:
+    """``bodies`` with an armature drawn for each joint but a free one (which has none: ``cases.build``): 0 (shrinking
+    toward it) or ``mass 10^e`` with e in :data:`ARMATURE_DECADES`; ``at_least_one``: a first joint that can have one
+    always does."""
+    out, first = [], at_least_one
+    for b in bodies:
+        if b.joint == "free":
+            out.append(b)
+            continue
+        value = _floats(*ARMATURE_DECADES).map(lambda e, m=b.mass: m * 10.0 ** e)
+        a = draw(value if first else st.one_of(st.just(0.0), value))
+        first = False
+        out.append(dataclasses.replace(b, armature=a))
+    return out
 
 
 #: A drawn state whose rolling disk is flatter than this (the sine of its axle against the ground normal) is rejected:

@@ -13,7 +13,10 @@ Derivation (symbolic, from the model data and the chart alone), in coordinates `
      intermediate's rate is the product and chain rule applied to its definition, one named symbol per
      intermediate, so the joint rates enter as ``qd = Dpsi pd``: the Lagrangian with ``q = psi(p)`` substituted) and
      ``J_i = 1/2 tr(I_i) 1 - I_i`` (the rotational energy ``1/2 w^T I w`` written with the rotation matrix's rate,
-     so no angular velocity is formed). Potential energy ``V = -sum_i m_i gravity . c_i``.
+     so no angular velocity is formed), plus each joint's rotor ``1/2 a_i |v_i|^2`` (``Body.armature``; the rate of
+     the joint's coordinate, or of its motion for a group joint: :func:`_rotor_energy`), which puts ``a_i`` on M's
+     diagonal. Potential energy ``V = -sum_i m_i gravity . c_i``. The armature is a number of the derivation (the
+     cache key's model digest covers it).
   3. Lagrange's equation (lagrangian chapter, "Euler–Lagrange turns energy into motion";
      ``d/dt dL/dpd - dL/dp = tau``), with the momenta ``P = dT/dpd``: ``M = dP/dpd = d^2 T / d pd^2`` (section 4.7.1
      step 1, eq. 6), ``g = dV/dp`` (step 2, eq. 8) and the velocity-product vector ``C pd = d/dt P - dT/dp`` at
@@ -611,9 +614,10 @@ def _pseudo_inertia(inertia: np.ndarray) -> np.ndarray:
     return 0.5 * np.trace(inertia) * np.eye(3) - inertia
 
 
-def _energies(model: Model, st: _Staged, poses) -> tuple[sp.Expr, sp.Expr]:
+def _energies(model: Model, st: _Staged, poses, motions: dict | None = None) -> tuple[sp.Expr, sp.Expr]:
     """Kinetic energy T(p, pd) and potential energy V(p) of the whole tree (module docstring, step 2); the body
-    velocities ``c_dot`` and ``R_dot`` are the staged time derivatives of the poses (:meth:`_Staged.dt`)."""
+    velocities ``c_dot`` and ``R_dot`` are the staged time derivatives of the poses (:meth:`_Staged.dt`). The joints'
+    rotors add their own energy (:func:`_rotor_energy`)."""
     T, V = ZERO, ZERO
     gravity = st.world.matrix("gravity")
     for body, (R, p) in zip(model.bodies, poses):
@@ -626,7 +630,33 @@ def _energies(model: Model, st: _Staged, poses) -> tuple[sp.Expr, sp.Expr]:
             RJR = R_dot * J * R_dot.T
             T += HALF * (RJR[0, 0] + RJR[1, 1] + RJR[2, 2])
         V -= _exact(body.mass) * (gravity.T * c)[0]
-    return T, V
+    return T + _rotor_energy(model, st, motions or {}), V
+
+
+def _rotor_energy(model: Model, st: _Staged, motions: dict) -> sp.Expr:
+    """The kinetic energy of the joints' rotors (``Body.armature`` a, module docstring, step 2): ``1/2 a qd_i^2`` of a
+    revolute or prismatic joint, ``qd_i`` the time derivative of its coordinate (in a chart, of ``psi_i(p)``); for a
+    spherical or free joint, ``1/2 a |v_i|^2`` of its whole velocity block, formed from the joint's own motion
+    ``(R_m, p_m)`` (:func:`_local_motions`, :func:`_chart_motions`) as ``1/2 a (1/2 tr(R_m_dot R_m_dot^T) +
+    |p_m_dot|^2)``: ``R_m_dot = R_m [w]x`` gives ``tr = 2 |w|^2`` and ``|R_m^T p_m_dot| = |p_m_dot|``, so it is the same
+    energy in every chart and representation. With it in the Lagrangian, M gains ``a`` on the joint's diagonal and C qd
+    and g nothing (the energy is a constant quadratic form in v)."""
+    T = ZERO
+    index = model.v_index if st.joint_index is None else st.joint_index
+    for i, body in enumerate(model.bodies):
+        if not body.armature:
+            continue
+        a = _exact(body.armature)
+        if i in motions:
+            R_m, p_m = motions[i]
+            R_dot, p_dot = R_m.applyfunc(st.dt), p_m.applyfunc(st.dt)
+            square = HALF * sum((R_dot[r, k] ** 2 for r in range(3) for k in range(3)), ZERO)
+            square += sum((p_dot[r] ** 2 for r in range(3)), ZERO)
+            T += HALF * a * st.name(square)
+        else:
+            rate = st.dt(st.joint[index[i]])
+            T += HALF * a * rate * rate
+    return T
 
 
 def _point(model: Model, st: _Staged, poses, body: str, offset) -> sp.DenseMatrix:
@@ -915,7 +945,7 @@ def derivation(model: Model, chart: Chart | None = None, order: int | None = Non
     elif local:
         motions = _local_motions(model, st, configuration, order)
     poses = _poses(model, st, motions)
-    T, V = _energies(model, st, poses)
+    T, V = _energies(model, st, poses, motions)
     momenta = [st.diff(T, n + i) for i in range(n)]
     M = sp.zeros(n, n)
     for i in range(n):

@@ -10,9 +10,14 @@ joint chart ``p = q``, or any ``q = psi(p)`` from the harness) this backend buil
   ``c_i = o_i + R_i com_i`` are expressions of ``p``.
 * Energies: ``T(p, pd) = sum_i 1/2 m_i |c_i'|^2 + 1/2 w_i^T I_i w_i`` with ``c_i' = Jc_i pd`` (``Jc_i = dc_i/dp``,
   i.e. ``jtimes(c_i, p, pd)``) and the body angular velocity ``w_i = vee(R_i^T R_i')``, ``R_i' = (dR_i/dp) pd``
-  (``I_i`` about the COM, body frame); ``V(p) = -sum_i m_i gravity . c_i``.
+  (``I_i`` about the COM, body frame); ``V(p) = -sum_i m_i gravity . c_i``. A joint with armature a (a rotor geared
+  to it) adds ``1/2 a (|w_m|^2 + |p_m'|^2)`` of the joint's own motion, the body frame relative to its joint frame
+  (:func:`_rotor`): ``1/2 a qd_i^2`` for a revolute or prismatic joint, ``1/2 a |v_i|^2`` over a ball's or a free
+  joint's velocities, in any chart.
 * The metric (6.4.3) ``M_p = d^2 T / dpd^2``: since ``c_i'`` and ``w_i = Jw_i pd`` are linear in pd, the Hessian is
-  ``sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i`` exactly, and it is formed that way (``casadi.hessian`` of T gives the
+  ``sum_i m_i Jc_i^T Jc_i + Jw_i^T I_i Jw_i`` (plus the rotors' ``a (Jw_m^T Jw_m + Jp_m^T Jp_m)``: in the joint chart
+  the constant diagonal ``diag(a)``, so the Christoffel symbols of the first kind are unchanged and those of the
+  second kind change through ``M^-1``) exactly, and it is formed that way (``casadi.hessian`` of T gives the
   same matrix with 50 % more operations once dM is differentiated from it; the tests check ``M pd = dT/dpd`` and
   ``T = 1/2 pd^T M pd`` against the automatic differentiation of T). Its partial derivatives
   ``dM[k] = d M_p / dp_k`` (of the upper triangle; M is symmetric) and the differential ``dV/dp`` by automatic
@@ -663,6 +668,31 @@ def _chart_group_frames(model: Model, q: list, world: _World | None = None) -> t
     return _walk(model, motion, world)
 
 
+def _rotor(model: Model, i: int, R: list, o: list, p: ca.SX, pd: ca.SX, world: _World) -> tuple[ca.SX, ca.SX]:
+    """``(T, M)`` of body ``i``'s joint rotor (``Body.armature`` a; module docstring, "Armature"): the rotor turns or
+    slides with the joint's own motion, the body frame relative to its joint frame, ``(R_m, p_m) = (R_j^T R_i,
+    R_j^T (o_i - o_j))`` with the joint frame ``(R_j, o_j)`` the parent's frame moved by the placement (a root's: the
+    world data), so ``T = 1/2 a (|w_m|^2 + |p_m'|^2)``, ``[w_m]x = R_m^T R_m'`` (a revolute joint: ``qd^2``; a prismatic
+    one: ``qd^2``; a ball: ``|v|^2``; a free joint: ``|v|^2`` over its six) in any chart. Both are linear in pd, so its
+    metric is ``a (Jw^T Jw + Jp^T Jp)`` exactly (``Jw = dw_m/dpd``, ``Jp = dp_m/dp``): in the joint chart of revolute
+    and prismatic joints the constant ``a`` on the joint's diagonal entry."""
+    body, parent = model.bodies[i], model.parent_index[i]
+    if parent < 0:
+        Rj, oj = world.matrix(f"root{i}.rotation"), world.matrix(f"root{i}.translation")
+    else:
+        Rj = ca.mtimes(R[parent], ca.DM(body.rotation))
+        oj = o[parent] + ca.mtimes(R[parent], ca.DM(body.translation))
+    R_m, p_m = ca.mtimes(Rj.T, R[i]), ca.mtimes(Rj.T, o[i] - oj)
+    R_m_dot = ca.reshape(ca.mtimes(ca.jacobian(ca.vec(R_m), p), pd), 3, 3)
+    W = ca.mtimes(R_m.T, R_m_dot)
+    w = ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+    Jw, Jp = ca.jacobian(w, pd), ca.jacobian(p_m, p)
+    p_m_dot = ca.mtimes(Jp, pd)
+    a = float(body.armature)
+    return (0.5 * a * (ca.dot(w, w) + ca.dot(p_m_dot, p_m_dot)),
+            a * (ca.mtimes(Jw.T, Jw) + ca.mtimes(Jp.T, Jp)))
+
+
 def _point(model: Model, R: list, o: list, body: str, offset) -> ca.SX:
     """World position ``o_b + R_b offset`` of the point ``offset`` (body frame) of ``body`` (SX 3-vector)."""
     b = model.body_index(body)
@@ -1156,6 +1186,10 @@ def _compile(model: Model, chart, exp_order: int = EXP_ORDER) -> _Compiled:
             Jw = ca.jacobian(w, pd)
             M += ca.mtimes(Jw.T, ca.mtimes(inertia, Jw))
         V -= body.mass * ca.dot(gravity, c)
+    for i, body in enumerate(model.bodies):
+        if body.armature:
+            T_rotor, M_rotor = _rotor(model, i, R, o, p, pd, world)
+            T, M = T + T_rotor, M + M_rotor
     rows, cols = np.triu_indices(n)
     M_upper = ca.vertcat(*[M[int(r), int(c)] for r, c in zip(rows, cols)])
     dM_upper = ca.jacobian(M_upper, p)  # column k = d M_upper / dp_k (so vec(dM_upper) is [k, upper entry])

@@ -44,6 +44,12 @@ backward pass at ``qdd = 0`` with them applied is ``h - tau_ext`` (and at rest `
 part at rest include them (eq. 14); the joint reactions carry them; ``tau_ext`` itself, reported, is the backward
 pass of the loads alone (no motion, no gravity), negated.
 
+Armature (``Body.armature`` a: a rotor geared to the joint, moving with the joint velocity alone). The actuator's
+generalized force first accelerates the rotor, ``a_k qdd_k`` per velocity, and the rest is the axis component of
+the joint load the backward pass gives: ``tau_k = S_k^T (f, n) + a_k qdd_k``. The rotor has no velocity-product or
+gravity term, so ``h`` is the passes' alone, ``M``'s column ``k`` gains ``a_k`` on the diagonal (the rotor's torque
+under ``vdot = e_k``), and the joint reactions are the links' loads (without the rotor's torque).
+
 The drift–control split (eq. 9, 10) solves ``M qdd = B u - h`` with one Cholesky factor of ``M``. The drift's parts
 (4.5-4.6) are solved directly on the same factor: the zero-velocity counterfactual ``zvcf = -M^-1 g`` and
 ``drift_velocity = -M^-1 C qd`` (``g`` the backward pass at rest, ``C qd`` the pass at ``qdd = 0`` without gravity), so
@@ -438,7 +444,7 @@ def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarr
     derivatives, module docstring); the result has ``nv``."""
     q, qd, qdd = joint_vectors(model, q, qd, qdd)
     f, n = _recursion(model, _placements(model, q), qd, qdd, gravity)
-    return _joint_torques(model, f, n)
+    return _joint_torques(model, f, n) + _rotor_torques(model, qdd)
 
 
 def _mass_matrix(model: Model, kin, units) -> np.ndarray:
@@ -476,7 +482,16 @@ def _mass_matrix(model: Model, kin, units) -> np.ndarray:
             fp = _mv(E, f_i[:, :-own])
             f[p] = f[p] + fp
             n[p] = n[p] + _mv(E, n_i[:, :-own]) + _cross(r_i, fp)
+        if b.armature:                                       # the rotor's torque a vdot_k under vdot = e_k
+            for k_own in range(k, k + own):
+                M[k_own, k_own] = M[k_own, k_own] + b.armature
     return M
+
+
+def _rotor_torques(model: Model, qdd: np.ndarray) -> np.ndarray:
+    """The torques that accelerate the joints' rotors, ``a_k qdd_k`` per velocity (module docstring, "Armature"):
+    what a joint's actuator spends on its rotor before the link feels it."""
+    return np.concatenate([np.full(_NV[b.joint], b.armature) for b in model.bodies]) * qdd
 
 
 def mass_matrix(model: Model, q) -> np.ndarray:

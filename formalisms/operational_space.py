@@ -58,9 +58,14 @@ form of ``split``, ``formalisms.interface.with_block_form``) the whole split of 
 
 Joint-space terms by projection (Kane's form), from the COM Jacobians ``J_v,i`` and ``J_w,i``:
 
-    M    = sum_i m_i J_v,i^T J_v,i + J_w,i^T I_i J_w,i                       (I_i: COM inertia, world)
+    M    = sum_i m_i J_v,i^T J_v,i + J_w,i^T I_i J_w,i + diag(a)               (I_i: COM inertia, world)
     C qd = sum_i m_i J_v,i^T (Jdot_v,i qd) + J_w,i^T (I_i Jdot_w,i qd + w_i x I_i w_i)
     g    = -sum_i m_i J_v,i^T gravity
+
+Armature: ``a`` holds each joint's rotor inertia (``Body.armature``) on every one of its columns; a rotor geared to
+the joint moves with that column's rate alone (a constant Jacobian, the unit column), so Kane's projection adds
+``diag(a)`` to M and nothing to C qd or g. Everything below that uses M (its inverse, the task-space ``Lambda``,
+``mu``, ``p``, the dynamically consistent inverse, the constraint space) uses this M.
 
 External loads (``cases.loads``; article 2.3, eq. 12) by virtual work through the same point Jacobians:
 ``tau_ext = sum J_v(p)^T f + J_w^T m`` (:func:`_external_force`; ``f``, ``m`` in the world: a body-frame vector is
@@ -570,7 +575,14 @@ def _terms(model: Model, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.nd
     M = JvT @ Jv + _t(Jw_flat) @ _flat(I_world @ Jw)
     Cqd = _mv(JvT, _flat(a_bias[..., None])[..., 0]) + _mv(_t(Jw_flat), _flat(torque[..., None])[..., 0])
     g = -(root_m * model.gravity).reshape(-1) @ Jv
-    return 0.5 * (M + _t(M)), Cqd, g
+    return 0.5 * (M + _t(M)) + np.diag(_rotor_inertias(model)), Cqd, g
+
+
+def _rotor_inertias(model: Model) -> np.ndarray:
+    """The joints' rotors (module docstring, "Armature"): each body's ``armature`` on every column of its joint
+    (one for a revolute or prismatic joint, three for a ball, six for a free joint), in the velocities' order."""
+    columns = {"revolute": 1, "prismatic": 1, "spherical": 3, "free": 6}
+    return np.repeat([b.armature for b in model.bodies], [columns[b.joint] for b in model.bodies]).astype(float)
 
 
 def _sqrt(x):
@@ -579,13 +591,6 @@ def _sqrt(x):
         return np.sqrt(x)
     root = np.sqrt(x.val)
     return _Dual(root, x.tan / (2.0 * root))
-
-
-def _reciprocal(x):
-    """``1 / x`` of an array or a dual number (``d (1/x) = -dx / x^2``)."""
-    if not isinstance(x, _Dual):
-        return 1.0 / x
-    return _Dual(1.0 / x.val, -x.tan / (x.val * x.val))
 
 
 def _spring_force(load, p):

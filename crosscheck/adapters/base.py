@@ -203,6 +203,9 @@ class Adapter:
     DEFAULTS: dict[str, str] = {}
     #: The file formats the library reads.
     KINDS: tuple[str, ...] = ("urdf",)
+    #: Whether the adapter gives the library the armature (rotor inertia) the user declared for a URDF's joints
+    #: (``SourceScene.armature``); one that cannot is NOT COMPARED on such a scene.
+    ARMATURE = False
 
     def __init__(self, on=()):
         on = tuple(on)
@@ -257,6 +260,9 @@ class Adapter:
             raise ModelNotSupported(f"model '{scene.name}' has constraint rows "
                                     f"({', '.join(c.name for c in scene.constraints)}); {self.simulator} is compared "
                                     "on unconstrained models only")
+        if scene.armature and not self.ARMATURE:
+            raise ModelNotSupported(f"{self.library()} is not given the armature (rotor inertia) declared for "
+                                    f"{', '.join(name for name, _ in scene.armature)} here: it has no such term")
         q, qd, u = (np.asarray(x, dtype=float) for x in (q, qd, u))
         tau = np.asarray(scene.input_map, dtype=float) @ u
         t = self.terms(self.built(scene), scene, q, qd, tau)

@@ -13,8 +13,9 @@ Conventions (docs/simulators.md has the matrix of every adapter):
 * fixed URDF links are merged into their parent by MuJoCo's URDF compiler (``fusestatic``); a link without
   ``<inertial>`` is massless (its geoms are dropped here, so ``inertiafromgeom`` adds nothing);
 * inertias are used as the file gives them (``balanceinertia``, ``boundmass``, ``boundinertia`` stay off);
-* ``armature`` (rotor inertia) is part of the model (``cases.model.Body.armature``): the MJCF's is kept, a URDF's is
-  set from the scene.
+* ``armature`` (rotor inertia, added to M's diagonal) is part of the model (``cases.model.Body.armature``): an
+  MJCF's is kept as MuJoCo reads it, a URDF's (which the file cannot say) is set on the joints the user declared it
+  for (``scene.armature``, from ``--armature``).
 
 Off unless named (:attr:`MuJoCo.DEFAULTS`): the constraint solver (``mjDSBL_CONSTRAINT``: contacts, joint limits,
 equality constraints, friction loss), joint damping and springs (``mjDSBL_DAMPER``, ``mjDSBL_SPRING``; a URDF
@@ -81,6 +82,7 @@ class MuJoCo(Adapter):
 
     simulator = "mujoco"
     KINDS = ("urdf", "mjcf")
+    ARMATURE = True
     DEFAULTS = {
         "constraint_solver": "contacts, joint limits, equality constraints and friction loss (mjDSBL_CONSTRAINT)",
         "damping": "joint damping, a force -c qd (mjDSBL_DAMPER; URDF <dynamics damping>)",
@@ -123,6 +125,12 @@ class MuJoCo(Adapter):
             spec = mujoco.MjSpec.from_string(urdf_without_geometry(scene.path))
         else:
             spec = mujoco.MjSpec.from_file(scene.path)
+        for name, value in scene.armature:          # a URDF cannot say it: the user declared it (--armature)
+            joint = spec.joint(name)
+            if joint is None:
+                raise ModelNotSupported(f"MuJoCo's model of '{scene.path}' has no joint '{name}' to set its "
+                                        "armature on")
+            joint.armature = float(value)
         if scene.root == "free":
             roots = list(spec.worldbody.bodies)
             if len(roots) != 1:

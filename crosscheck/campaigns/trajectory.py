@@ -526,6 +526,9 @@ def reference_trajectory(model: Model, q0, v0, horizon: float, H: float, schedul
     use the article's equations (:class:`_PendulumField`) instead of the generic multiprecision split."""
     if closed_form is not None and (model.name != "double_pendulum" or model.n != 2):
         raise TrajectoryError(f"the closed-form reference is the double pendulum's, not model '{model.name}'")
+    if closed_form is not None and model.has_armature:
+        raise TrajectoryError(f"the closed-form reference (eqs. 6-8, point masses) has no armature; model "
+                              f"'{model.name}' has {model.armature_vector.tolist()}: use the generic reference")
     start = time.perf_counter()
     steps = int(round(horizon / H))
     x0 = np.concatenate([np.asarray(q0, float), np.asarray(v0, float)])

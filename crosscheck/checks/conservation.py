@@ -24,6 +24,13 @@ of mass, ``P`` the linear momentum and ``L_G`` the angular momentum about c (wor
   (``L_O = L_G + (c - O) x P``), conserved when ``a`` is parallel to gravity; on a spherical joint centred at O, the
   whole ``dL_O/dt = (c - O) x m g``; on a prismatic joint along ``a``: ``d/dt a . P = m a . g``.
 
+Armature (``Body.armature`` a: a rotor geared to the joint, outside the bodies). A rotor on a joint below the root
+turns with that joint's rate alone, so it adds nothing to the root's law; the root's own rotor is held by the world
+(its stator) and spins with the root's freedom, so its momentum ``a v_root`` joins the conserved quantity: ``d/dt (a .
+L_O) + a_root qdd_root`` (revolute), ``d/dt (a . P) + a_root qdd_root`` (prismatic), ``dL_O/dt + a_root R wdot``
+(spherical: the rotor's angular momentum ``a R w`` in the world, ``R`` the ball's world rotation; ``d/dt (R w) = R
+wdot`` since ``w x w = 0``). A free joint has no armature (``cases.build``).
+
 Each backend's drift is put through one momentum bookkeeping, the harness's ``dh_G/dt = A_G qdd + b`` (Pinocchio's
 centroidal map on the model's data, ``crosscheck.references.pinocchio.kinematics.centroidal_momentum_map``), and the
 exact rates vote with them. A drift the comparison accepts moves the rate by up to ``|A_G|`` times its tolerance, and
@@ -157,6 +164,25 @@ def _momentum_rows(model: Model, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return None
 
 
+def _root_rotor(model: Model, q: np.ndarray, rows: int) -> np.ndarray:
+    """The rate of the root joint's rotor momentum as rows over the accelerations (module doc, "Armature"): zero
+    without armature on the (single) root; ``a_root`` at the root's velocity for a revolute or prismatic root, ``a_root
+    R`` over a spherical root's three, ``R = rotation @ R(quat)`` its world rotation."""
+    out = np.zeros((rows, model.nv))
+    roots = [i for i, p in enumerate(model.parent_index) if p < 0]
+    if len(roots) != 1 or not model.bodies[roots[0]].armature:
+        return out
+    i = roots[0]
+    root, k = model.bodies[i], model.v_index[roots[0]]
+    if root.joint == "spherical":
+        x, y, z, w = (float(v) for v in q[model.q_index[i]:model.q_index[i] + 4])
+        K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        out[:, k:k + 3] = root.armature * (np.asarray(root.rotation, dtype=float) @ (np.eye(3) + 2 * w * K + 2 * K @ K))
+    else:
+        out[:, k] = root.armature
+    return out
+
+
 def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
                     at: tolerance.Scales | None = None) -> dict[str, Comparison]:
     """The momentum law of the model's roots under each backend's drift (module doc, "Momentum"); empty when no
@@ -170,6 +196,7 @@ def momentum_checks(model: Model, state: State, splits: Mapping[str, Split],
     if at is None:
         at = tolerance.scales(splits.values(), model, q, qd, u=state.u)
     Q, bias = R @ A, R @ b
+    Q = Q + _root_rotor(model, q, len(exact))
     rates = {name: Q @ s.drift + bias if np.all(np.isfinite(s.drift)) else np.full(len(exact), np.nan)
              for name, s in splits.items()}
     size = np.max([np.abs(Q) @ np.abs(s.drift) for s in splits.values() if np.all(np.isfinite(s.drift))]

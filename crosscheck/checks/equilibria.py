@@ -8,7 +8,8 @@ unstable one. M0 and K are written here from the cases' typed parameters (their 
 * the double pendulum (``cases.factories.double_pendulum``, point masses plus optional rotational inertias, relative
   angles from hanging down): ``V = -g ((m1 + m2) l1 cos t1 + m2 l2 cos(t1 + t2))``; at ``(t1, t2) = (s, 0)`` with
   ``c = cos s = +-1`` (hanging: s = 0, inverted: s = pi) ``K = c g [[(m1 + m2) l1 + m2 l2, m2 l2], [m2 l2, m2 l2]]``
-  and ``M0 = [[m1 l1^2 + m2 (l1^2 + l2^2 + 2 l1 l2) + I1 + I2, m2 (l2^2 + l1 l2) + I2], [., m2 l2^2 + I2]]``;
+  and ``M0 = [[m1 l1^2 + m2 (l1^2 + l2^2 + 2 l1 l2) + I1 + I2 + a1, m2 (l2^2 + l1 l2) + I2], [., m2 l2^2 + I2 +
+  a2]]`` (a1, a2 the joints' armature, a rotor's inertia on M's diagonal);
 * the spherical pendulum hanging (``spherical_pendulum`` at q = 0): the axes decouple, ``omega_k^2 = m g l / (m l^2 +
   I_k)`` about x (k = x) and y;
 * the parallelogram four-bar at rest (``four_bar`` with crank = rocker = a, coupler = ground, uniform rods of mass m:
@@ -54,6 +55,9 @@ class Equilibrium:
     q: Callable[[Model], np.ndarray]
     stiffness: Callable[[dict], tuple[np.ndarray, np.ndarray]]
     applies: Callable[[dict], bool] = lambda params: True
+    #: The joints' armature its M0 adds (``Body.armature``, per velocity) from the parameters; None: M0 has none, and a
+    #: model with armature is refused (:func:`checks`), never checked against an M0 that drops it.
+    armature: Callable[[dict], np.ndarray] | None = None
 
     def eigenvalues(self, params: dict) -> np.ndarray:
         """The closed-form eigenvalues of A: ``+-sqrt(-mu)``, mu the roots of ``det(K - mu M0)`` (module doc)."""
@@ -71,9 +75,9 @@ def sort(w: np.ndarray) -> np.ndarray:
 
 def _double_pendulum(c: float) -> Callable[[dict], tuple[np.ndarray, np.ndarray]]:
     def stiffness(p: dict) -> tuple[np.ndarray, np.ndarray]:
-        m1, m2, l1, l2, g, I1, I2 = (p[k] for k in ("m1", "m2", "l1", "l2", "g", "I1", "I2"))
-        M0 = np.array([[m1 * l1**2 + m2 * (l1**2 + l2**2 + 2 * l1 * l2) + I1 + I2, m2 * (l2**2 + l1 * l2) + I2],
-                       [m2 * (l2**2 + l1 * l2) + I2, m2 * l2**2 + I2]])
+        m1, m2, l1, l2, g, I1, I2, a1, a2 = (p[k] for k in ("m1", "m2", "l1", "l2", "g", "I1", "I2", "a1", "a2"))
+        M0 = np.array([[m1 * l1**2 + m2 * (l1**2 + l2**2 + 2 * l1 * l2) + I1 + I2 + a1, m2 * (l2**2 + l1 * l2) + I2],
+                       [m2 * (l2**2 + l1 * l2) + I2, m2 * l2**2 + I2 + a2]])
         K = c * g * np.array([[(m1 + m2) * l1 + m2 * l2, m2 * l2], [m2 * l2, m2 * l2]])
         return M0, K
     return stiffness
@@ -90,8 +94,10 @@ def _parallelogram(p: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 EQUILIBRIA: tuple[Equilibrium, ...] = (
-    Equilibrium("hanging", "double_pendulum", lambda model: np.zeros(2), _double_pendulum(1.0)),
-    Equilibrium("inverted", "double_pendulum", lambda model: np.array([np.pi, 0.0]), _double_pendulum(-1.0)),
+    Equilibrium("hanging", "double_pendulum", lambda model: np.zeros(2), _double_pendulum(1.0),
+                armature=lambda p: np.array([p["a1"], p["a2"]], dtype=float)),
+    Equilibrium("inverted", "double_pendulum", lambda model: np.array([np.pi, 0.0]), _double_pendulum(-1.0),
+                armature=lambda p: np.array([p["a1"], p["a2"]], dtype=float)),
     Equilibrium("hanging", "spherical_pendulum", lambda model: np.zeros(2), _spherical_pendulum),
     Equilibrium("at rest", "four_bar", lambda model: np.array([0.0, np.pi / 2, 0.0]), _parallelogram,
                 lambda p: p["crank"] == p["rocker"] and p["coupler"] == p["ground"]),
@@ -130,6 +136,11 @@ def checks(equilibrium: Equilibrium, params: dict, model: Model, backends: Seque
     """Every backend's eigenvalues of A at the equilibrium against the closed form (voter ``closed_form``), and for
     each chart and backend with ``linearize_chart`` the eigenvalues in the chart and the similarity
     ``A_p = T^-1 A_q T`` (module doc); and the errors the backends raised, by name."""
+    expected = np.zeros(model.nv) if equilibrium.armature is None else equilibrium.armature(params)
+    if not np.array_equal(np.asarray(expected, dtype=float), model.armature_vector):
+        return {}, {f"closed_form (equilibrium {equilibrium.name})": (
+            f"ClosedFormMismatch: the model's armature is {model.armature_vector.tolist()}, the closed-form M0's "
+            f"{np.asarray(expected, dtype=float).tolist()}: the equilibrium's eigenvalues are not checked")}
     q = equilibrium.q(model)
     zero_v, zero_u = np.zeros(model.nv), np.zeros(model.m)
     state = State(index=0, q=tuple(q), qd=tuple(zero_v), u=tuple(zero_u))

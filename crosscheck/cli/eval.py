@@ -147,8 +147,8 @@ def cmd_eval(args) -> int:
     if not args.case and not args.model:
         raise UsageError("eval needs --case NAME or --model PATH")
     spec = _specs(argparse.Namespace(case=[args.case] if args.case else [], model=[args.model] if args.model else [],
-                                     base=args.base, actuated=args.actuated, task_point=args.task_point,
-                                     param=args.param))[0]
+                                     base=args.base, actuated=args.actuated, armature=args.armature,
+                                     task_point=args.task_point, param=args.param))[0]
     model = spec.build()
     preflight.check_model(model)
     if args.frame is not None:
@@ -341,6 +341,8 @@ def add_parser(sub) -> None:
                     help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     ev.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
                     "of u (default: every joint but a free base's; \"\": none, a passive model)")
+    ev.add_argument("--armature", metavar="JOINT=VALUE[,...]",
+                    help="a URDF's joints' armature (rotor inertia on M's diagonal; kg m^2, kg for a slide), e.g. shoulder=0.01,elbow=0.005 (an MJCF file declares its own)")
     ev.add_argument("--q", required=True, help="positions in the chart (joint positions by default; q itself with "
                     "--chart world or mixed), comma-separated")
     ev.add_argument("--qd", help="velocities in the chart (default zeros; with --chart world or mixed the base "

@@ -215,6 +215,8 @@ def add_parser(sub) -> None:
                       help="a URDF's base: welded to the world, or on a free joint (default: as the file says)")
     gate.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated, in the order "
                       "of u (default: every joint but a free base's; \"\": none, a passive model)")
+    gate.add_argument("--armature", metavar="JOINT=VALUE[,...]",
+                      help="a URDF's joints' armature (rotor inertia on M's diagonal; kg m^2, kg for a slide), e.g. shoulder=0.01,elbow=0.005 (an MJCF file declares its own)")
     gate.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
                       help=f"states per case (default {DEFAULT_SAMPLES})")
     gate.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")

@@ -137,6 +137,28 @@ def _params(pairs: list[str]) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
+def _armature(text: str) -> tuple[tuple[str, float], ...]:
+    """``--armature JOINT=VALUE[,JOINT=VALUE...]`` as (joint, value) pairs; a UsageError for anything else (the
+    loader checks the names against the file and the values' range)."""
+    pairs = []
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        joint, sep, value = item.partition("=")
+        try:
+            number = float(value)
+        except ValueError:
+            number = None
+        if not sep or not joint.strip() or number is None:
+            raise UsageError(f"--armature takes JOINT=VALUE[,JOINT=VALUE...] (a URDF joint's rotor inertia: kg m^2 for "
+                             f"a revolute joint, kg for a prismatic one), got '{item}'")
+        pairs.append((joint.strip(), number))
+    if not pairs:
+        raise UsageError("--armature takes JOINT=VALUE[,JOINT=VALUE...], got nothing")
+    names = [joint for joint, _ in pairs]
+    if len(set(names)) < len(names):
+        raise UsageError(f"--armature names a joint more than once: {', '.join(names)}")
+    return tuple(pairs)
+
+
 def _specs(args) -> list[CaseSpec]:
     params = _params(args.param)
     names = args.case or ([] if args.model else cases.names())
@@ -155,7 +177,13 @@ def _specs(args) -> list[CaseSpec]:
         raise UsageError("--actuated applies to a --model URDF file (its joint names, e.g. --actuated joint1,joint3); "
                          "a built-in case has its own input map")
     actuated = None if actuated is None else tuple(filter(None, (name.strip() for name in actuated.split(","))))
-    specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated) for path in args.model]
+    armature = getattr(args, "armature", None)
+    if armature is not None and not args.model:
+        raise UsageError("--armature applies to a --model URDF file (its joint names, e.g. --armature "
+                         "shoulder=0.01,elbow=0.005); a built-in case has its own (the pendulums: --param a1=...)")
+    armature = None if armature is None else _armature(armature)
+    specs += [CaseSpec(Path(path).stem, path=path, base=base, actuated=actuated, armature=armature)
+              for path in args.model]
     point = getattr(args, "task_point", None)
     if point is not None and len(specs) != 1:
         raise UsageError("--task-point needs exactly one --case or --model (a body of that model)")

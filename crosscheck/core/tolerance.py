@@ -487,7 +487,8 @@ def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
     origin is at most ``O_i`` from the origin, body k's COM at most ``P_k``, and its lever about joint i at most
     ``l_ik = P_k - O_i``. A revolute joint i rounds body k's terms on ``rho_ik = P_k`` (world positions) and turns
     them by ``l_ik``; a prismatic one by 1 and 1. ``Mterm_ij = sum_k m_k (rho_ik l_jk + l_ik rho_jk) + tr I_k`` over
-    the bodies both joints move; ``f_i = sum_k rho_ik m_k (2 W_k V_k + |gravity|) + tr I_k W_k^2`` over the bodies
+    the bodies both joints move, plus joint i's armature on the diagonal (``Body.armature``, a term of ``M_ii``);
+    ``f_i = sum_k rho_ik m_k (2 W_k V_k + |gravity|) + tr I_k W_k^2`` over the bodies
     joint i moves, with ``W_k`` the angular rates and ``V_k = P_k W_k`` plus the sliding rates on k's path, and for a
     revolute joint also ``m_k V_k^2``: a moment of the momentum about its own velocity, ``v x (m v)``, is zero only
     up to ``eps m |v|^2`` (a fuzz finding: a body sliding at 1 m/s and not turning, drift 2e-16 from 0 in two
@@ -502,7 +503,7 @@ def _entry_terms(model, q, qd) -> tuple[np.ndarray, np.ndarray]:
     angular = geo.moves.T @ np.where(geo.revolute, rates, 0.0)
     speed = P * angular + geo.moves.T @ np.where(geo.revolute, 0.0, rates)
     spin = geo.moves * geo.inertia
-    Mterm = (rho * geo.mass) @ lever.T + (lever * geo.mass) @ rho.T + spin @ geo.moves.T
+    Mterm = (rho * geo.mass) @ lever.T + (lever * geo.mass) @ rho.T + spin @ geo.moves.T + np.diag(model.armature_vector)
     f = (rho @ (geo.mass * (2.0 * angular * speed + float(np.linalg.norm(model.gravity)))) + spin @ angular**2
          + np.where(geo.revolute, geo.moves @ (geo.mass * speed**2), 0.0))
     if model.loads:

@@ -40,8 +40,9 @@ class Checks:
 @dataclass(frozen=True)
 class CaseSpec:
     """How to build one case: a built-in factory with parameters, or a model file (URDF or MJCF, ``path``) with the
-    URDF ``base`` ("fixed", "free", or None: the file's own) and ``actuated`` joints (None: every joint but a free
-    base's; ``cases.from_file``); ``task_point``, when given, the default task point as ``BODY[:x,y,z]``
+    URDF ``base`` ("fixed", "free", or None: the file's own), ``actuated`` joints (None: every joint but a free
+    base's) and ``armature`` (URDF joint name, rotor inertia) pairs (None: none declared; ``cases.from_file``);
+    ``task_point``, when given, the default task point as ``BODY[:x,y,z]``
     (``cases.build.with_task_point``; a ``cases.build.TaskPointError`` for an unknown body or bad numbers)."""
 
     name: str
@@ -50,10 +51,12 @@ class CaseSpec:
     base: str | None = None
     actuated: tuple[str, ...] | None = None
     task_point: str | None = None
+    armature: tuple[tuple[str, float], ...] | None = None
 
     def build(self) -> Model:
         if self.path is not None:
-            model = cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated)
+            model = cases.from_file(self.path, name=self.name, base=self.base, actuated=self.actuated,
+                                    armature=None if self.armature is None else dict(self.armature))
         else:
             model = cases.load(self.name, **dict(self.params))
         return model if self.task_point is None else build.with_task_point(model, *build.parse(
@@ -79,6 +82,7 @@ class CaseSpec:
         if self.path is not None:
             return (f"--model {self.path}" + (f" --base {self.base}" if self.base else "")
                     + (f" --actuated {','.join(self.actuated) or chr(39) * 2}" if self.actuated is not None else "")
+                    + (f" --armature {','.join(f'{j}={v!r}' for j, v in self.armature)}" if self.armature else "")
                     + point)
         return " ".join([f"--case {self.name}"] + [f"--param {k}={v}" for k, v in self.params]) + point
 

@@ -24,8 +24,8 @@ EL, NE, SCREW, OSC, GEO = "euler_lagrange", "newton_euler", "screw", "operationa
 
 
 def _kinetic_energy_doubled(energies):
-    def faulty(model, st, poses):
-        T, V = energies(model, st, poses)
+    def faulty(model, st, poses, motions=None):
+        T, V = energies(model, st, poses, motions)
         return 2 * T, V
     return faulty
 
@@ -101,6 +101,14 @@ def _prismatic_axis_in_parent_frame(placements):
             if body.joint == "prismatic":
                 r[i] = body.translation + q[model.q_index[i]] * body.axis
         return P, r, W
+    return faulty
+
+
+def _armature_dropped(mass_matrix):
+    """``M`` of the backward passes alone: the joints' rotors (``Body.armature``) left off its diagonal."""
+    def faulty(model, kin, units):
+        bare = tuple(dataclasses.replace(b, armature=0.0) for b in model.bodies)
+        return mass_matrix(dataclasses.replace(model, bodies=bare), kin, units)
     return faulty
 
 
@@ -203,6 +211,10 @@ NEWTON_EULER = [
           "A world-frame external force (or couple) is applied in the backward pass as if it were given in the body "
           "frame: the rotation W^T into body frame i is left out.",
           "formalisms.newton_euler:_external_loads", _world_loads_as_body),
+    Fault("ne-armature-dropped", NE,
+          "M is built from the links alone: each joint's armature (a rotor's inertia, MuJoCo's <joint armature>) is "
+          "left off its diagonal, so the rotor's torque a qdd is missing.",
+          "formalisms.newton_euler:_mass_matrix", _armature_dropped),
     Fault("ne-external-moment-shift-sign", NE,
           "The moment about the body origin of an external force at a body point is taken as f x offset, the lever "
           "crossed the wrong way round.",

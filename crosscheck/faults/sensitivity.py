@@ -46,7 +46,7 @@ FAMILIES = {"planar": ("double_pendulum", "n_link_pendulum", "acrobot"),
                            "solo12_standing"),
             "external loads": ("double_pendulum_tip_force", "double_pendulum_spring"),
             "nonholonomic": ("knife_edge", "rolling_disk", "differential_drive"),
-            "model files": ("urdf_gripper", "mjcf_floating", "mjcf_ball_slide")}
+            "model files": ("urdf_gripper", "mjcf_floating", "mjcf_ball_slide", "mjcf_armature")}
 #: The 3-D cases of the claim (a relative 1e-10 error in any backend's M, C qd or g is caught).
 CLAIMED = ("spatial_arm", "panda")
 CLAIM = 1e-10

@@ -74,6 +74,7 @@ def _magnitudes(model: Model) -> list[str]:
         problems += _too_large(f"{where} centre of mass", "length", b.com)
         problems += _too_large(f"{where} joint placement translation", "length", b.translation)
         problems += _too_large(f"{where} inertia", "inertia", b.inertia)
+        problems += _too_large(f"{where} armature", "inertia", [b.armature])
     for tp in model.task_points:
         problems += _too_large(f"task point '{tp.name}' offset", "length", tp.offset)
     problems += _too_large("gravity", "gravity", model.gravity)

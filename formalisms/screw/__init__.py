@@ -111,9 +111,10 @@ def _joint_wrenches(kin: Kinematics, F_body: np.ndarray, torques: np.ndarray | N
     return np.concatenate([F_body[..., 3:], F_body[..., :3]], axis=-1)
 
 
-def _kinetic_energy(G: dynamics.Inertias, twists_body: np.ndarray) -> float:  # noqa: N803
-    """``T = sum_i 1/2 V_b,i^T G_i V_b,i`` with ``G_i`` the spatial inertia in body frame ``i``."""
-    return 0.5 * float(np.sum(twists_body * G.apply(twists_body)))
+def _kinetic_energy(G: dynamics.Inertias, twists_body: np.ndarray, qd: np.ndarray) -> float:  # noqa: N803
+    """``T = sum_i 1/2 V_b,i^T G_i V_b,i + sum_j 1/2 a_j qd_j^2`` with ``G_i`` the spatial inertia in body frame ``i``
+    and ``a_j`` the rotors' armature (:mod:`~formalisms.screw.dynamics`, "Armature")."""
+    return 0.5 * float(np.sum(twists_body * G.apply(twists_body))) + 0.5 * float(G.rotors @ (qd * qd))
 
 
 def _extras(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, total: np.ndarray, drift: np.ndarray,  # noqa: N803
@@ -175,7 +176,7 @@ def _reported(kin: Kinematics, G: dynamics.Inertias, qd: np.ndarray, drift: np.n
     """The Split fields read off the extras: ``task_drift``, the kinetic energy and the joint wrenches (with the
     coupling ``torques`` at the total and at the drift, :func:`_joint_wrenches`)."""
     return dict(extras=extras, task_drift=_task_drift(kin, qd, drift),
-                kinetic_energy=_kinetic_energy(G, extras["twists_body"]),
+                kinetic_energy=_kinetic_energy(G, extras["twists_body"], qd),
                 joint_wrenches=_joint_wrenches(kin, extras["wrenches_body"], torques[0]),
                 joint_wrenches_drift=_joint_wrenches(kin, extras["wrenches_body_drift"], torques[1]))
 
@@ -240,7 +241,7 @@ def _unconstrained_splits(model: Model, Q: np.ndarray, QD: np.ndarray, U: np.nda
         out.append(Split(drift=drift[i], ctrl=ctrl[i], total=total[i], lam=None, lam_drift=None, power_constr=None,
                          power_constr_per_coord=None, accel_scale=mass.accel_scale,
                          conditions={"task_inertia": task_cond}, extras=own, task_drift=task_drift[i],
-                         kinetic_energy=_kinetic_energy(G, own["twists_body"]), joint_wrenches=wrenches[0][i],
+                         kinetic_energy=_kinetic_energy(G, own["twists_body"], qd), joint_wrenches=wrenches[0][i],
                          joint_wrenches_drift=wrenches[1][i], cond_M=mass.cond, task_inertia=Lambda,
                          **{key: value[i] for key, value in parts.items()}, **_power(model, u, qd),
                          **_external_fields(None if tau_ext is None else tau_ext[i], qd)))

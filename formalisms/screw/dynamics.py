@@ -33,6 +33,11 @@ spring's force formed from the point ``p_i + R_i offset``); they enter eq. (27) 
 force is ``tau_ext = sum_i J_b,i^T W_ext,i`` through the body Jacobians (:func:`external_forces`), the dual of the
 body twists ``V_b,i = J_b,i qd``: no pass over the tree.
 
+Armature (``Body.armature`` a, a rotor geared to the joint): its kinetic energy ``1/2 a |v_j|^2`` is a constant
+metric on the joint's velocity columns, so ``M = sum_i J_b,i^T G_i J_b,i + diag(a)`` and the joint's generalized
+force gains ``a_j qdd_j`` (:class:`Inertias` ``rotors``); it has no twist of its own, so the wrench recursion, ``h``
+and the joint wrenches are the links' alone.
+
 Sign convention: the article writes eq. (27) as ``I Vdot + ad*_V (I V) + W_g = W_ctrl + ...`` with the coadjoint
 ``ad*_V = -ad_V^T`` (Featherstone's ``V x*``) and ``W_g`` the gravity load moved to the left side (``-W_gravity``);
 with the transpose ``ad_V^T`` it reads ``G Vdot - ad_V^T (G V) - W_gravity``, as here.
@@ -45,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cases.loads import ExternalWrench, PointSpring
-from cases.model import Model
+from cases.model import JOINT_DOF, Model
 from formalisms.interface import joint_vectors
 from formalisms.screw import kinematics, lie
 from formalisms.screw.kinematics import Kinematics
@@ -67,18 +72,21 @@ def spatial_inertias(model: Model) -> np.ndarray:
 @dataclass(frozen=True)
 class Inertias:
     """The ``G_i`` of :func:`spatial_inertias`: ``matrix`` (n, 6, 6) and its blocks (module docstring), ``rotational``
-    ``I_o`` (n, 3, 3), ``first_moment`` ``m c`` (n, 3), ``mass`` (n,)."""
+    ``I_o`` (n, 3, 3), ``first_moment`` ``m c`` (n, 3), ``mass`` (n,); and the joints' rotors, ``rotors`` (nv,): each
+    velocity's armature (module docstring, "Armature")."""
 
     matrix: np.ndarray
     rotational: np.ndarray
     first_moment: np.ndarray
     mass: np.ndarray
+    rotors: np.ndarray
 
     @classmethod
     def of(cls, model: Model) -> "Inertias":
-        """``spatial_inertias(model)`` and its blocks."""
+        """``spatial_inertias(model)`` and its blocks, and the rotors of the joints' velocity columns."""
         G = spatial_inertias(model)
-        return cls(G, G[:, :3, :3], lie.vee3(G[:, :3, 3:]), G[:, 3, 3])
+        rotors = np.array([b.armature for b in model.bodies for _ in range(JOINT_DOF[b.joint][1])], dtype=float)
+        return cls(G, G[:, :3, :3], lie.vee3(G[:, :3, 3:]), G[:, 3, 3], rotors)
 
     def apply(self, V: np.ndarray) -> np.ndarray:  # noqa: N803
         """``G_i V_i = (I_o w + h x v, m v - h x w)``, ``h = m c``, for twists ``V = (w, v)`` (..., nb, 6) in the body
@@ -93,7 +101,7 @@ def mass_matrix_of(kin: Kinematics, G: Inertias) -> np.ndarray:  # noqa: N803
     columns = kin.body_columns                                   # [..., i, j, :] = J_b,i e_j
     momenta = columns @ np.swapaxes(G.matrix, -1, -2)            # [..., i, j, :] = G_i J_b,i e_j
     P = (columns @ np.swapaxes(momenta, -1, -2)).sum(axis=-3)
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
+    return 0.5 * (P + np.swapaxes(P, -1, -2)) + np.diag(G.rotors)
 
 
 def gravity_wrenches(model: Model, kin: Kinematics) -> np.ndarray:
@@ -195,8 +203,8 @@ def terms(kin: Kinematics, G: Inertias,  # noqa: N803
 def inverse_dynamics(model: Model, q, qd, qdd, gravity: bool = True) -> np.ndarray:
     """The generalized force ``M qdd + C qd (+ g)`` of eq. (2), from the wrench balance of eq. (27)."""
     q, qd, qdd = joint_vectors(model, q, qd, qdd)
-    kin = kinematics.forward_kinematics(model, q)
-    return generalized_forces(kin, wrenches(kin, Inertias.of(model), qd, qdd, float(gravity)))
+    kin, G = kinematics.forward_kinematics(model, q), Inertias.of(model)
+    return generalized_forces(kin, wrenches(kin, G, qd, qdd, float(gravity))) + G.rotors * qdd
 
 
 def mass_matrix(model: Model, q) -> np.ndarray:

@@ -118,8 +118,8 @@ def test_every_replacement_can_be_called_as_its_target(fault):
 
 
 def test_a_replacement_for_an_older_signature_is_refused():
-    stale = Fault("el-stale-signature", "euler_lagrange", "written for _energies(model, st, poses, pd)",
-                  "formalisms.euler_lagrange:_energies", lambda energies: lambda model, st, poses, pd: None)
+    stale = Fault("el-stale-signature", "euler_lagrange", "written for _energies(model, st, poses, pd, world)",
+                  "formalisms.euler_lagrange:_energies", lambda energies: lambda model, st, poses, pd, world: None)
     with pytest.raises(FaultError, match="el-stale-signature.*cannot be called as formalisms.euler_lagrange:_energies"):
         with injected(stale):
             pass

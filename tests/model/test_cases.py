@@ -20,7 +20,7 @@ ALL = ["double_pendulum", "double_pendulum_tip_force", "double_pendulum_spring",
        "slider_crank", "cartesian_pendulum", "double_pendulum_absolute_loop", "double_pendulum_rail",
        "geared_pendulums", "free_body", "ball_pendulum", "ball_double_pendulum", "satellite_arm", "solo12",
        "solo12_standing", "knife_edge", "rolling_disk", "differential_drive", "urdf_gripper", "mjcf_floating",
-       "mjcf_ball_slide"]
+       "mjcf_ball_slide", "mjcf_armature"]
 
 
 def _rodrigues(axis, angle):
@@ -62,9 +62,9 @@ def test_names_and_catalog():
     cat = {c.name: c for c in cases.catalog()}
     assert list(cat) == ALL
     assert cat["double_pendulum"].parameters == {"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "I1": 0.0,
-                                                 "I2": 0.0}
-    assert cat["n_link_pendulum"].parameters == {"n": 5, "m": 1.0, "l": 1.0, "g": 9.81}
-    assert set(cat["acrobot"].parameters) == {"m1", "m2", "l1", "l2", "lc1", "lc2", "I1", "I2", "g"}
+                                                 "I2": 0.0, "a1": 0.0, "a2": 0.0}
+    assert cat["n_link_pendulum"].parameters == {"n": 5, "m": 1.0, "l": 1.0, "g": 9.81, "a": 0.0}
+    assert set(cat["acrobot"].parameters) == {"m1", "m2", "l1", "l2", "lc1", "lc2", "I1", "I2", "g", "a1", "a2"}
     assert cat["spatial_arm"].parameters == {} and cat["panda"].parameters == {}
     for c in cat.values():
         assert c.summary and "\n" not in c.summary

@@ -39,7 +39,8 @@ from crosscheck.reports import gate_lines, gate_summary
 ROOT = Path(__file__).resolve().parents[2]
 #: The loaders' and the reference's reader of a file (``cases.urdf.read_file``), before any test patches the loaders'.
 READ_FILE = cases.urdf.read_file
-FILE_CASES = {"urdf_gripper": "gripper.urdf", "mjcf_floating": "floating.xml", "mjcf_ball_slide": "ball_slide.xml"}
+FILE_CASES = {"urdf_gripper": "gripper.urdf", "mjcf_floating": "floating.xml", "mjcf_ball_slide": "ball_slide.xml",
+              "mjcf_armature": "armature_arm.xml"}
 ALL = [backends.get(name) for name in backends.builtin_names()]
 NUMERIC = [b for b in ALL if b.name not in ("euler_lagrange", "geometric")]
 
@@ -86,7 +87,7 @@ def _off_diagonal(inertia) -> float:
 
 
 def test_the_file_cases_are_registered_last_and_load_from_the_shipped_files():
-    assert cases.names()[-3:] == list(FILE_CASES)
+    assert cases.names()[-len(FILE_CASES):] == list(FILE_CASES)
     catalog = {c.name: c for c in cases.catalog()}
     for name, file in FILE_CASES.items():
         model = cases.load(name)
@@ -212,11 +213,14 @@ def test_mujoco_reads_the_mjcf_files_as_the_loader_does(monkeypatch, tmp_path):
                 else None
             assert (b.limits is None) == (expected is None) and np.allclose(b.limits or 0, expected or 0, rtol=1e-12)
         assert sum(b.mass for b in model.bodies) == pytest.approx(float(mj.body_mass.sum()), rel=1e-14)
+        assert [b.armature for b in model.bodies] == [float(mj.dof_armature[mj.jnt_dofadr[mj.body_jntadr[
+            mj.body(b.name).id]]]) for b in model.bodies]
     monkeypatch.chdir(ROOT)
     backends.reset()
     try:
         code = cli.main(["gate", "--plugin", "crosscheck.adapters.mujoco:BACKEND", "--case", "mjcf_floating", "--case",
-                         "mjcf_ball_slide", "--samples", "4", "--workers", "0", "--report", str(tmp_path / "g.md")])
+                         "mjcf_ball_slide", "--case", "mjcf_armature", "--samples", "4", "--workers", "0", "--report",
+                         str(tmp_path / "g.md")])
     finally:
         backends.reset()
     report = gate_summary.read(tmp_path / "g.md")

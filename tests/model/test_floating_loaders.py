@@ -203,8 +203,7 @@ def test_mjcf_hinge_slide_ball_free(tmp_path):
       '<joint name="elbow" type="hinge" axis="0 1 0"/><joint name="twist" type="hinge" axis="0 0 1"/>'),
      "Composite"),
     (("</worldbody>", '</worldbody><equality><joint joint1="elbow" joint2="s"/></equality>'), "<equality>"),
-    (('<joint name="elbow" type="hinge" axis="0 1 0"/>', '<joint name="elbow" type="hinge" axis="0 1 0" '
-      'armature="0.1"/>'), "armature"),
+    (('<freejoint name="root"/>', '<joint name="root" type="free" armature="0.1"/>'), "free joint with armature 0.1"),
 ])
 def test_mjcf_what_the_model_language_cannot_hold_is_refused(tmp_path, change, reason):
     path = _write(tmp_path, "bad.xml", MJCF.replace(*change))

@@ -220,7 +220,9 @@ def test_a_plugin_finding_prints_a_replay_command_that_runs_as_printed(tmp_path,
     spec = f"{tmp_path / 'viscous_plugin.py'}:BACKEND"
     out = tmp_path / "campaign"
     backends.load_plugin(spec)
-    cfg = settings.config(seed=0, examples=4, workers=0, out=str(out), backends=("pinocchio", "newton_euler", "viscous"),
+    # 8 examples: since the model strategy also draws armature (testing.models), seed 0's first 6 examples miss the
+    # viscous force (measured: none of 4 or 6 fails, 8 do); a state at rest, the first drawn, cannot show it
+    cfg = settings.config(seed=0, examples=8, workers=0, out=str(out), backends=("pinocchio", "newton_euler", "viscous"),
                       plugins=backends.plugin_specs(), constraints=False, group_joints=False, max_bodies=2,
                       max_states=1, shrink_calls=0, charts=False, frames=False, conservation=False,
                       linearization=False)

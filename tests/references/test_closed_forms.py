@@ -142,10 +142,14 @@ FORCE = _floats(-20.0, 20.0, testing.MIN_VALUE)
 PARAMETERS = {
     "double_pendulum": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "g": GRAVITY,
                                               "I1": st.one_of(st.just(0.0), INERTIA),
-                                              "I2": st.one_of(st.just(0.0), INERTIA)}),
-    "n_link_pendulum": st.fixed_dictionaries({"n": st.integers(1, 6), "m": MASS, "l": LENGTH, "g": GRAVITY}),
+                                              "I2": st.one_of(st.just(0.0), INERTIA),
+                                              "a1": st.one_of(st.just(0.0), INERTIA),
+                                              "a2": st.one_of(st.just(0.0), INERTIA)}),
+    "n_link_pendulum": st.fixed_dictionaries({"n": st.integers(1, 6), "m": MASS, "l": LENGTH, "g": GRAVITY,
+                                              "a": st.one_of(st.just(0.0), INERTIA)}),
     "acrobot": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH, "lc1": _floats(0.1, 1.5),
-                                      "lc2": _floats(0.1, 1.5), "I1": INERTIA, "I2": INERTIA, "g": GRAVITY}),
+                                      "lc2": _floats(0.1, 1.5), "I1": INERTIA, "I2": INERTIA, "g": GRAVITY,
+                                      "a1": st.one_of(st.just(0.0), INERTIA), "a2": st.one_of(st.just(0.0), INERTIA)}),
     "double_pendulum_circle": _circle(),
     "cartesian_pendulum": st.fixed_dictionaries({"m": MASS, "L": _floats(0.3, 2.0), "g": GRAVITY}),
     "double_pendulum_absolute_loop": st.fixed_dictionaries({"m1": MASS, "m2": MASS, "l1": LENGTH, "l2": LENGTH,
@@ -548,7 +552,7 @@ def test_gate_with_the_loops_rail_and_gear_closed_forms_passes(tmp_path):
 
 def test_case_parameters_are_typed_with_the_defaults_merged():
     """``cases.parameters``, what the voter is bound to: CLI strings converted by the defaults' types, as ``load``."""
-    assert cases.parameters("n_link_pendulum", n="3", l="0.5") == {"n": 3, "m": 1.0, "l": 0.5, "g": 9.81}
+    assert cases.parameters("n_link_pendulum", n="3", l="0.5") == {"n": 3, "m": 1.0, "l": 0.5, "g": 9.81, "a": 0.0}
     assert cases.parameters("cartesian_pendulum") == {"m": 1.0, "L": 1.0, "g": 9.81}
     with pytest.raises(cases.CaseError, match="not a valid int"):
         cases.parameters("n_link_pendulum", n="2.5")

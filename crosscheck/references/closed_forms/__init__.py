@@ -5,9 +5,11 @@ factory or in the model language (an inertia rotated the wrong way, a length rea
 six together, and their vote cannot see it. A closed form does not read the model: it is bound to the case BY NAME
 and computes every quantity from the case's TYPED PARAMETERS (``cases.parameters``) and the state alone, from
 equations typed in from the article or derived by hand in the docstrings below. The only things it reads off the
-model are its shape (coordinates n, inputs m, constraint rows k) and its name, to refuse a model that is not the case
-it was written for (:class:`ClosedFormMismatch`, an error of the voter: a failure of the gate, never a silent NOT
-COMPARED).
+model are its shape (coordinates n, inputs m, constraint rows k), its name and its armature (``Body.armature``, a
+rotor's inertia on M's diagonal), to refuse a model that is not the case it was written for
+(:class:`ClosedFormMismatch`, an error of the voter: a failure of the gate, never a silent NOT COMPARED): the armature
+is compared with the one its parameters give (the pendulums: ``a1``, ``a2``, ``a``; :func:`rotor_inertia`), and a
+closed form without armature refuses a model that has some, rather than drop it from M.
 
     >>> from crosscheck.engine import evaluation
     >>> from crosscheck.references import closed_forms
@@ -17,9 +19,11 @@ COMPARED).
 Cases and their equations (:func:`coverage` says the same for one case):
 
 =============================  =====================================================================================
-double_pendulum                article section 3: eqs. (4)-(9), point masses plus planar disk inertias I1, I2
-n_link_pendulum                the Lagrangian in absolute angles (:func:`chain_terms`) mapped to relative angles
-acrobot                        Spong's equations, angles from hanging down (:func:`acrobot_terms`)
+double_pendulum                article section 3: eqs. (4)-(9), point masses plus planar disk inertias I1, I2, the
+                               joints' armature a1, a2 (:func:`rotor_inertia`)
+n_link_pendulum                the Lagrangian in absolute angles (:func:`chain_terms`) mapped to relative angles, the
+                               joints' armature a
+acrobot                        Spong's equations, angles from hanging down (:func:`acrobot_terms`), armature a1, a2
 double_pendulum_circle         article 5.6: eqs. (12)-(17) with one circle row (:func:`circle_terms`)
 cartesian_pendulum             the multiplier of eqs. (12)-(13) solved by hand (:func:`cartesian_lam`)
 double_pendulum_absolute_loop  the double pendulum's accelerations in the loop's coordinates, its multipliers the pins'
@@ -110,6 +114,9 @@ class ClosedForm:
     split: Callable[[dict, np.ndarray, np.ndarray, np.ndarray], Split]
     rule: Callable[[dict], Rule] | None = None
     loaded: bool = False
+    #: The armature per velocity its parameters give (``Body.armature``, on M's diagonal), for a closed form that
+    #: adds the joints' rotors to M; None: it has none, and refuses a model with armature (:func:`_checked_split`).
+    armature: Callable[[dict], np.ndarray] | None = None
 
     def supplies(self, params: dict) -> tuple[str, ...]:
         """The compared quantities it supplies (the joint loads are not among them)."""
@@ -117,11 +124,14 @@ class ClosedForm:
 
 
 CLOSED_FORMS: dict[str, ClosedForm] = {
-    "double_pendulum": ClosedForm("article section 3, eqs. (4)-(9), with planar disk inertias I1, I2",
-                                  lambda p: (2, 2, 0), double_pendulum),
-    "n_link_pendulum": ClosedForm("the Lagrangian of n point masses in absolute angles, mapped to relative angles",
-                                  lambda p: (p["n"], p["n"], 0), n_link_pendulum),
-    "acrobot": ClosedForm("Spong's acrobot equations, angles from hanging down", lambda p: (2, 1, 0), acrobot),
+    "double_pendulum": ClosedForm("article section 3, eqs. (4)-(9), with planar disk inertias I1, I2 and the joints' "
+                                  "armature a1, a2", lambda p: (2, 2, 0), double_pendulum,
+                                  armature=lambda p: np.array([p["a1"], p["a2"]], dtype=float)),
+    "n_link_pendulum": ClosedForm("the Lagrangian of n point masses in absolute angles, mapped to relative angles, "
+                                  "with the joints' armature a", lambda p: (p["n"], p["n"], 0), n_link_pendulum,
+                                  armature=lambda p: np.full(p["n"], p["a"], dtype=float)),
+    "acrobot": ClosedForm("Spong's acrobot equations, angles from hanging down, with the joints' armature a1, a2",
+                          lambda p: (2, 1, 0), acrobot, armature=lambda p: np.array([p["a1"], p["a2"]], dtype=float)),
     "double_pendulum_circle": ClosedForm("article 5.6, eqs. (4)-(8), (12)-(17), one circle row",
                                          lambda p: (2, 2, 1), double_pendulum_circle, double_pendulum_rule),
     "cartesian_pendulum": ClosedForm("the multiplier of eqs. (12)-(13) by hand, M = m I",
@@ -177,11 +187,27 @@ def _checked_split(case: str, form: ClosedForm, params: dict, model, q, qd, u) -
     problems = [f"{label} is {got}, the closed form's is {want}" for label, got, want in shapes if got != want]
     if model.name.split("@")[0] != case:
         problems.insert(0, f"the model is named '{model.name}', not '{case}'")
+    if not problems:
+        problems += _armature_mismatch(form, params, model)
     if problems:
         raise ClosedFormMismatch(f"the closed form of case '{case}' ({_describe(params)}) does not match the model it "
                                  f"was given: {'; '.join(problems)}")
     q, qd, u = check_state(model, q, qd, u)
     return form.split(params, q, qd, u)
+
+
+def _armature_mismatch(form: ClosedForm, params: dict, model) -> list[str]:
+    """The armature (``Body.armature``) is part of M, so a closed form that does not add it cannot vote on a model
+    that has it (it would silently drop it), and one that does must add the model's: compared, not used."""
+    armature = np.asarray(model.armature_vector, dtype=float)
+    if form.armature is None:
+        return [] if not armature.any() else [
+            f"the model has armature {armature.tolist()} (a rotor's inertia on M's diagonal), which this closed form "
+            "does not add to M"]
+    expected = np.asarray(form.armature(params), dtype=float)
+    if expected.shape == armature.shape and np.array_equal(expected, armature):
+        return []
+    return [f"the model's armature is {armature.tolist()}, the closed form's (from its parameters) {expected.tolist()}"]
 
 
 def voter(case: str, params: Mapping[str, object] | None = None) -> Formalism | None:

@@ -16,7 +16,7 @@ from crosscheck.references.closed_forms.nonholonomic import (disk_center, disk_t
                                                              drive_terms, sleigh_motion, sleigh_terms)
 from crosscheck.references.closed_forms.pendulums import (acrobot_terms, chain_terms, chain_tip, disk_inertia,
                                                           endpoint_jacobian, pendulum_terms, relative_to_absolute,
-                                                          tip_bias, tip_force, tip_spring, to_joint)
+                                                          rotor_inertia, tip_bias, tip_force, tip_spring, to_joint)
 from crosscheck.references.closed_forms.spatial import free_body_terms, rotor_terms, slider_terms, spherical_terms
 from formalisms.interface import Split
 
@@ -25,10 +25,11 @@ from formalisms.interface import Split
 
 
 def double_pendulum(p, q, qd, u) -> Split:
-    """Article section 3: M (eq. 6, plus :func:`disk_inertia`), C qd (7), g (8), the split (9), the tip (4, 5)."""
+    """Article section 3: M (eq. 6, plus :func:`disk_inertia` and the joints' :func:`rotor_inertia`), C qd (7),
+    g (8), the split (9), the tip (4, 5)."""
     l1, l2 = p["l1"], p["l2"]
     M, Cqd, grav = pendulum_terms(q, qd, p["m1"], p["m2"], l1, l2, p["g"])
-    M = M + disk_inertia(p["I1"], p["I2"])
+    M = M + disk_inertia(p["I1"], p["I2"]) + rotor_inertia(p["a1"], p["a2"])
     t = Terms(M, inv2(M), Cqd, grav, u, p["m1"] + p["m2"], abs(p["g"]))
     drift, ctrl, total = t.accelerations()
     J = endpoint_jacobian(q, l1, l2)
@@ -64,6 +65,7 @@ def n_link_pendulum(p, q, qd, u) -> Split:
     T = relative_to_absolute(n)
     phi, phid = T @ q, T @ qd
     M, Cqd, grav = to_joint(T, *chain_terms(phi, phid, [m] * n, [l] * n, p["g"]))
+    M = M + rotor_inertia(*[p["a"]] * n)              # the rotors turn at the RELATIVE rates: diagonal in q
     t = Terms(M, np.linalg.inv(M), Cqd, grav, u, n * m, abs(p["g"]))
     drift, ctrl, total = t.accelerations()
     J_phi, bias = chain_tip(phi, phid, [l] * n)
@@ -74,6 +76,7 @@ def n_link_pendulum(p, q, qd, u) -> Split:
 def acrobot(p, q, qd, u) -> Split:
     """Spong's equations (:func:`acrobot_terms`), B = [[0], [1]], the tip of link 2 by eqs. (4), (5)."""
     M, Cqd, grav = acrobot_terms(q, qd, p["m1"], p["m2"], p["l1"], p["lc1"], p["lc2"], p["I1"], p["I2"], p["g"])
+    M = M + rotor_inertia(p["a1"], p["a2"])
     t = Terms(M, inv2(M), Cqd, grav, np.array([0.0, u[0]]), p["m1"] + p["m2"], abs(p["g"]))
     drift, ctrl, total = t.accelerations()
     J = endpoint_jacobian(q, p["l1"], p["l2"])

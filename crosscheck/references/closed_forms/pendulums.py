@@ -79,6 +79,13 @@ def disk_inertia(I1=0.0, I2=0.0):  # noqa: N803
     return np.array([[I1 + I2, I2], [I2, I2]])
 
 
+def rotor_inertia(*armature) -> np.ndarray:
+    """What the joints' rotors (armature a_i, ``Body.armature``) add to M in the joint coordinates: each rotor turns at
+    its own joint's (relative) rate, T gains ``1/2 sum a_i qd_i^2``, so M gains ``diag(a_1, ..., a_n)`` (C qd and g are
+    unchanged: the rotor's energy does not depend on q)."""
+    return np.diag(np.array(armature, dtype=float))
+
+
 # ------------------------------------------------------------------------ planar chains in absolute angles
 
 

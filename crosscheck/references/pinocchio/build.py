@@ -11,7 +11,10 @@ Which Pinocchio model
   conversion's bodies is read: not their placements, axes, masses, centres of mass or inertias, nor our gravity. From
   our model it takes only what a state means and what is asked: the coordinate order (by body name, the explicit
   joint map below), the input map B, the task point (by name; see :func:`_task_frame`) and its directions, and
-  the constraint declarations. A bug in our URDF or MJCF conversion then moves the five formalisms and not the
+  the constraint declarations. Armature (rotor inertia on M's diagonal) is the file's as Pinocchio's parser reads it
+  (an MJCF ``<joint armature>``), and for the joints the user declared it for when loading (``ModelSource.armature``:
+  a URDF has no tag for it) that value, set by joint name after reading the file (:func:`_declared_armature`); never
+  our bodies' ``armature``. A bug in our URDF or MJCF conversion then moves the five formalisms and not the
   reference, and the vote names the reference as the outlier. The file's ``<mimic>`` tags (Pinocchio is asked to
   ignore them) are read from the XML here too: each must be declared on the model as the loader's coupling
   ``mimic:<joint>`` of the two joints the joint map gives, else the reference refuses the model
@@ -21,7 +24,7 @@ Which Pinocchio model
   against them: a limit the conversion misreads is a loader finding there.
 * A model without a source (factories, fuzz, a moved copy built in code) is checked against a ``pinocchio.Model``
   built from OUR model data (:func:`to_pinocchio`): joints added in a depth-first order of ``model.bodies``,
-  each with its placement, axis and inertia.
+  each with its placement, axis and inertia, and ``model.armature`` from each body's ``armature``.
 The joint map (file-built reference)
 ------------------------------------
 Our coordinate ``i`` belongs to body ``model.bodies[i].name``, which the loader names after the URDF link the joint
@@ -175,6 +178,10 @@ def _build_from_data(model: Model) -> Compiled:
         jid = pm.addJoint(parent, _joint_model(b.joint, b.axis), placement, b.name)
         pm.appendBodyToJoint(jid, _inertia(b), pin.SE3.Identity())
         joint_id[i] = jid
+    armature = np.zeros(pm.nv)      # Pinocchio's own armature: crba, rnea, aba, computeMinverse, the kinetic energy
+    for i, jid in joint_id.items():  # and the ABA derivatives honour it (4.1, checked in tests/references)
+        armature[pm.joints[jid].idx_v:pm.joints[jid].idx_v + pm.joints[jid].nv] = model.bodies[i].armature
+    pm.armature = armature
     pm.gravity = pin.Motion(np.array(model.gravity), np.zeros(3))
     order, q_pin, q_ours = np.empty(model.nv, dtype=int), np.empty(model.nq, dtype=int), np.empty(model.nq, dtype=int)
     for i, jid in joint_id.items():     # joint blocks map as wholes: same conventions (cases.model)
@@ -252,7 +259,24 @@ def _read_file(source: ModelSource) -> pin.Model:
             frame.placement = pin.SE3(R @ frame.placement.rotation, R @ frame.placement.translation + t)
             pm.frames[k] = frame
     pm.gravity = pin.Motion(R @ np.array(pm.gravity.linear) if source.gravity else np.zeros(3), np.zeros(3))
+    _declared_armature(pm, source)
     return pm
+
+
+def _declared_armature(pm: pin.Model, source: ModelSource) -> None:
+    """Set the armature the user declared for the file's joints (``ModelSource.armature``: a URDF cannot say it) on
+    each named joint's velocities, by the joint's name in the file; the file's own (an MJCF ``<joint armature>``) is
+    what Pinocchio's parser read. A name that is no joint of the file is a ValueError."""
+    if not source.armature:
+        return
+    armature = np.array(pm.armature, dtype=float)
+    for name, value in source.armature:
+        if not pm.existJointName(name):
+            raise ValueError(f"the reference cannot set the armature of joint '{name}': '{source.path}' has no such "
+                             f"joint (its joints: {list(pm.names)[1:]})")
+        joint = pm.joints[pm.getJointId(name)]
+        armature[joint.idx_v:joint.idx_v + joint.nv] = float(value)
+    pm.armature = armature
 
 
 def _moving_joint(pm: pin.Model, model: Model, i: int, path: str) -> int:
@@ -357,7 +381,9 @@ def _file_scales(pm: pin.Model, rows: tuple[JointMapRow, ...]) -> _Scales:
     mass = float(sum(pm.inertias[j].mass for j in joints))
     length = 1.0 + float(sum(np.linalg.norm(pm.jointPlacements[j].translation) + np.linalg.norm(pm.inertias[j].lever)
                              for j in joints))
-    inertia = float(sum(pm.inertias[j].mass * length**2 + np.trace(pm.inertias[j].inertia) for j in joints))
+    inertia = float(sum(pm.inertias[j].mass * length**2 + np.trace(pm.inertias[j].inertia) for j in joints)
+                    + sum(float(np.sum(pm.armature[pm.joints[j].idx_v:pm.joints[j].idx_v + pm.joints[j].nv]))
+                          for j in joints))
     return _Scales(mass, length, inertia, np.array(pm.gravity.linear))
 
 

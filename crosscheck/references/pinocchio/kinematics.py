@@ -24,8 +24,8 @@ from crosscheck.references.pinocchio.build import Compiled, coupling_row, from_d
 
 
 def mass_matrix(model: Model, q) -> np.ndarray:
-    """``M(q)`` from Pinocchio's CRBA on the model of our data (:func:`to_pinocchio`), in our coordinate order: the
-    problem the formalisms are given, for the harness's tolerance scales."""
+    """``M(q)`` from Pinocchio's CRBA on the model of our data (:func:`to_pinocchio`; the joints' armature on its
+    diagonal), in our coordinate order: the problem the formalisms are given, for the harness's tolerance scales."""
     c = from_data(model)
     M_p = symmetric(np.array(pin.crba(c.model, c.model.createData(), c.configuration(np.asarray(q, dtype=float)))))
     return ours_matrix(c.order, M_p)

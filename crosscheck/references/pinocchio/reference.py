@@ -14,7 +14,12 @@ own (no numerics from ``formalisms.interface``), with the definitions every back
   the rank, ``lam_scale`` and the accelerations the constraint force can produce, added to ``accel_scale``) from
   the SVD of ``L^-1 Jc^T`` (L the Cholesky factor of M), whose squared singular values are the eigenvalues of
   ``S = Jc M^-1 Jc^T`` (:class:`_Gram`);
-* the task inertia ``(J M^-1 J^T)^-1`` and ``conditions["task_inertia"]`` likewise from the SVD of ``L^-1 J^T``.
+* the task inertia ``(J M^-1 J^T)^-1`` and ``conditions["task_inertia"]`` likewise from the SVD of ``L^-1 J^T``;
+* the kinetic energy from the bodies' spatial velocities and inertias plus the joints' armature (:func:`_kinetic_energy`:
+  Pinocchio 4.1's ``computeKineticEnergy`` drops the armature of an unaligned revolute joint).
+
+Armature (``model.armature``, from the model's bodies or the file, ``build``): Pinocchio's crba, rnea, aba,
+computeMinverse, forwardDynamics (on crba's M) and the ABA derivatives add it to M's diagonal themselves.
 
 The constrained split uses Pinocchio's own KKT solver (``pinocchio.forwardDynamics(q, v, tau, J, gamma)``) for
 total / lam and drift / lam_drift. At a degenerate state (S singular up to ``CONSTRAINT_RCOND``) Pinocchio's
@@ -220,6 +225,17 @@ def _external_force(model: Model, c: Compiled, q_p: np.ndarray, fext: list) -> n
     return -np.array(pin.rnea(still, still.createData(), q_p, zero, zero, fext))
 
 
+def _kinetic_energy(pm: pin.Model, data, qp: np.ndarray, vp: np.ndarray) -> float:
+    """``T = sum_j 1/2 v_j . (I_j v_j)`` over Pinocchio's bodies (their spatial velocities and inertias after
+    ``forwardKinematics``) plus the joints' rotors ``1/2 sum a_k v_k^2`` (``model.armature``), added here: Pinocchio
+    4.1's ``computeKineticEnergy`` leaves out the armature of a ``JointModelRevoluteUnaligned`` joint (a revolute joint
+    about an axis that is not x, y or z), while crba, rnea, aba, computeMinverse and the ABA derivatives honour it on
+    every joint (``tests/references/test_armature_pinocchio.py`` measures both). Moves ``data``'s kinematics."""
+    pin.forwardKinematics(pm, data, qp, vp)
+    bodies = sum(float(pm.inertias[j].vtiv(data.v[j])) for j in range(1, pm.njoints))
+    return 0.5 * (bodies + float(np.asarray(pm.armature, dtype=float) @ (vp * vp)))
+
+
 def split(model: Model, q, qd, u) -> Split:
     """Drift / control / total accelerations from Pinocchio (ABA twice; ``M^-1 B u`` by a Cholesky solve on CRBA's M:
     computeMinverse lost 256 eps on a single rotor, a fuzz finding); task drift from the classical acceleration of
@@ -256,7 +272,7 @@ def split(model: Model, q, qd, u) -> Split:
                  power_ctrl=power, power_ctrl_per_coord=power_per, power_constr=None, power_constr_per_coord=None,
                  cond_M=cond_M, accel_scale=accel_scale, extras={"M": M, "Cqd": Cqd, "g": g},
                  task_drift=model.task_point().directions @ np.array(task_accel), conditions=inertia["conditions"],
-                 kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)),
+                 kinetic_energy=_kinetic_energy(pm, data, qp, vp),
                  joint_wrenches=_joint_wrenches(c, data, qp, vp, total_p, fext),
                  joint_wrenches_drift=_joint_wrenches(c, data, qp, vp, drift_p, fext), task_inertia=inertia["task_inertia"],
                  zvcf=ours(order, zvcf_p), drift_velocity=ours(order, velocity_p), external_force=tau_ext,
@@ -419,7 +435,7 @@ def _constrained_split(model: Model, q, qd, u) -> Split:
         accel_scale=accel_scale + cc.force_scale, extras={"M": ours_matrix(order, dyn.M), "Cqd": Cqd, "g": g},
         task_drift=model.task_point().directions @ np.array(task_accel),
         conditions={**inertia["conditions"], **cc.conditions},
-        kinetic_energy=float(pin.computeKineticEnergy(pm, data, qp, vp)), joint_wrenches=wrenches[0],
+        kinetic_energy=_kinetic_energy(pm, data, qp, vp), joint_wrenches=wrenches[0],
         joint_wrenches_drift=wrenches[1], task_inertia=inertia["task_inertia"], constraint_value=phi,
         constraint_jacobian=Jc, constraint_bias=bias, constraint_velocity=velocity, constraint_force=force,
         constraint_force_drift=force_drift, constraint_rank=cc.rank, lam_scale=cc.lam_scale,

@@ -13,6 +13,8 @@ public API, the charts and the linearization here):
   ``S = (a, o x a)`` (revolute) or ``(0, a)`` (prismatic); spherical and free joints below;
 * ``M`` from composite bodies (CRBA): the momentum ``(L, P)`` of body i's subtree moving with ``S_c`` (c a column of
   body i) paired with ``S_d`` for each column d of i and of its ancestors, ``M_cd = a_d . L + v_d . P``;
+* each joint's armature (``Body.armature``) added exactly to its velocities' diagonal entries of ``M`` (the rotor
+  has no velocity-product or gravity term);
 * ``h = C qd + g`` by a recursive Newton–Euler pass at ``qdd = 0``: each body's ``m (a_com - gravity)`` and
   ``I alpha + w x I w``, summed over subtrees as wrenches about the world origin and paired with ``S_c``;
 * each declaration's ``phi``, ``Jc`` and ``Jcdot qd`` row by row as ``cases.constraints`` defines them, from point

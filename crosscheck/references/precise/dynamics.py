@@ -17,7 +17,8 @@ from crosscheck.references.precise.kinematics import ancestors, Data, Kin
 def composite_mass_matrix(data: Data, kin: Kin) -> list:
     """CRBA: composite mass, first moment h = sum m c and inertia about the world origin per subtree; then
     ``M_ij = a_j . L + v_j . P`` with ``(L, P) = (I_o a_i + h x v_i, m v_i + a_i x h)`` the subtree's momentum at
-    unit rate of velocity column i (``S_i = (a_i, v_i)``), for every column j of the body or of its ancestors."""
+    unit rate of velocity column i (``S_i = (a_i, v_i)``), for every column j of the body or of its ancestors; then
+    each joint's armature (``Body.armature``, a rotor on the joint) added to its columns' diagonal entries."""
     n = len(data.bodies)
     mass, first, second = [None] * n, [None] * n, [None] * n
     for i, b in enumerate(data.bodies):
@@ -43,6 +44,9 @@ def composite_mass_matrix(data: Data, kin: Kin) -> list:
                 for cj in data.cols[j]:
                     wj, vj = kin.S[cj]
                     M[ci][cj] = M[cj][ci] = dot3(wj, L) + dot3(vj, P)
+    for i, b in enumerate(data.bodies):         # the joint's rotor: its armature on each of its columns, exactly
+        for c in data.cols[i]:
+            M[c][c] += b.armature
     return M
 
 

@@ -36,6 +36,7 @@ class _Body:
     rotation: tuple
     translation: tuple
     joint: str        # cases.model joint type (spherical and free: group joints)
+    armature: mpf = mpf(0)   # the joint's rotor inertia, on each of its velocities' diagonal entries of M
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,8 @@ def prepare(model: Model, prec: int) -> Data:
     """The model's data at binary precision ``prec`` (the mpmath context must be at that precision)."""
     bodies = tuple(_Body(int(model.parent_index[i]), b.joint == "revolute",
                          ZERO3 if b.joint in GROUP_JOINTS else _unit(b.axis), mpf(b.mass), _vec(b.com),
-                         _mat(b.inertia), _nearest_rotation(_mat(b.rotation)), _vec(b.translation), b.joint)
+                         _mat(b.inertia), _nearest_rotation(_mat(b.rotation)), _vec(b.translation), b.joint,
+                         mpf(b.armature))
                    for i, b in enumerate(model.bodies))
     cols = tuple(tuple(range(v, v + JOINT_DOF[b.joint][1])) for v, b in zip(model.v_index, model.bodies))
     return Data(bodies, tuple(model.topological_order), _vec(model.gravity), _mat(model.input_map),
