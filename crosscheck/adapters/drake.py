@@ -192,11 +192,28 @@ class _Built:
     inertias: tuple = ()         # (body index, the file's spatial inertia) of each body whose inertia Drake replaced
 
 
+def _declared_armature(plant: MultibodyPlant, scene) -> None:
+    """The armature the user declared for a URDF's joints (``scene.armature``) as Drake holds a rotor inertia: an
+    actuator's reflected inertia ``rho G^2`` with ``rho`` the armature and ``G = 1`` (the joint's own actuator, or one
+    added for it). An MJCF file's armature Drake keeps only on a joint an actuator drives: such a file is NOT
+    COMPARED (MuJoCo reads it)."""
+    if scene.kind == "mjcf" and any(e.get("armature") not in (None, "0") for e in ET.parse(scene.path).iter()):
+        raise ModelNotSupported(f"'{scene.path}' declares armature: Drake's MJCF parser keeps it only as the reflected "
+                                "rotor inertia of an actuated joint and drops it elsewhere (compare it with MuJoCo)")
+    driven = {plant.get_joint_actuator(i).joint().name(): plant.get_joint_actuator(i)
+              for i in plant.GetJointActuatorIndices()}
+    for name, value in scene.armature:
+        actuator = driven.get(name) or plant.AddJointActuator(f"crosscheck_rotor_{name}", plant.GetJointByName(name))
+        actuator.set_default_rotor_inertia(float(value))
+        actuator.set_default_gear_ratio(1.0)
+
+
 class Drake(Adapter):
     """The Drake adapter (module docstring)."""
 
     simulator = "drake"
     KINDS = ("urdf", "mjcf")
+    ARMATURE = True
     DEFAULTS = {
         "damping": "joint damping, a force -d qd (Joint.default_damping: URDF <dynamics damping>, MJCF damping)",
         "reflected_inertia": "an actuator's reflected rotor inertia rho G^2 on M's diagonal (a URDF <transmission> "
@@ -277,6 +294,7 @@ class Drake(Adapter):
         models = self._parse(plant, scene)
         self._place(plant, scene)
         self._rigid_body_only(plant)
+        _declared_armature(plant, scene)
         plant.mutable_gravity_field().set_gravity_vector(scene_gravity(scene))
         plant.Finalize()
         inertias = () if scene.kind != "urdf" or "repaired_inertia" in self.on else self._replaced(plant, scene)
