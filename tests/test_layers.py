@@ -20,7 +20,7 @@ LAYER = {
     "crosscheck.core": 2,
     "crosscheck.checks": 3, "crosscheck.guards": 3,
     "crosscheck.engine": 4, "crosscheck.guards.selftest": 4, "crosscheck.assemble": 4,
-    "crosscheck.gate": 5, "crosscheck.testing": 5,
+    "crosscheck.gate": 5, "crosscheck.testing": 5, "crosscheck.adapters": 5,
     "crosscheck.faults": 6, "crosscheck.campaigns": 6, "crosscheck.reports": 6,
     "crosscheck.cli": 7, "crosscheck.bench_report": 7,
 }

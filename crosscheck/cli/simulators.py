@@ -15,7 +15,8 @@ from pathlib import Path
 
 from crosscheck import adapters, backends
 from crosscheck.cli import gate
-from crosscheck.cli.options import OUTPUT_DIR, UsageError, _Parser, add_plugin_option, add_quiet_option
+from crosscheck.cli.options import (OUTPUT_DIR, UsageError, _Parser, add_plugin_option, add_quiet_option,
+                                    add_workers_option)
 from crosscheck.engine.outcomes import GateResult
 from crosscheck.guards import preflight
 from crosscheck.needs import source_scene
@@ -29,7 +30,7 @@ def _gate_args(args, specs: list[str], names: list[str], gate_report: Path) -> a
     """The ``gate`` options of this run: the file, the simulators as optional plugins, the gate report's path."""
     argv = ["gate", "--model", args.model, "--samples", str(args.samples), "--seed", str(args.seed),
             "--report", str(gate_report)]
-    for flag in ("base", "actuated", "workers"):
+    for flag in ("base", "actuated", "armature", "workers"):
         if getattr(args, flag) is not None:
             argv += [f"--{flag}", str(getattr(args, flag))]
     argv += ["--quiet"] * args.quiet
@@ -122,11 +123,13 @@ def add_parser(sub) -> None:
     p.add_argument("--model", required=True, metavar="PATH", help="a URDF (.urdf) or MJCF (.xml) file")
     p.add_argument("--base", choices=("fixed", "free"), help="a URDF's base (default: as the file says)")
     p.add_argument("--actuated", metavar="JOINTS", help="a URDF's actuated joints, comma-separated")
+    p.add_argument("--armature", metavar="JOINT=VALUE[,...]", help="a URDF's joints' armature (rotor inertia on M's "
+                   "diagonal), given to each simulator that can hold it (an MJCF file declares its own)")
     p.add_argument("--samples", type=int, default=20, help="states (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--report", default=DEFAULT_REPORT, metavar="PATH",
                    help=f"the conformance report (default {DEFAULT_REPORT}); the gate's goes beside it, NAME-gate.md")
-    p.add_argument("--workers", type=int, help="worker processes (default: as the gate chooses)")
+    add_workers_option(p, "case")
     add_plugin_option(p)
     add_quiet_option(p)
     p.set_defaults(run=cmd_simulators)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -111,3 +113,16 @@ MJCF_LIMB = """<mujoco model="mjcf_limb">
 FLOATING = WALKER.replace('<link name="torso">', '<link name="world"/><joint name="float" type="floating">'
                           '<parent link="world"/><child link="torso"/><origin xyz="0.1 0.2 0.8" rpy="0.3 0.2 0.1"/>'
                           '</joint><link name="torso">')
+
+
+def outliers(text: str) -> set[str]:
+    """Every outlier a gate report names."""
+    return set(re.findall(r"outlier \*\*([^*]+)\*\*", text))
+
+
+def closeness_row(text: str, backend: str) -> dict[str, str]:
+    """The report's "How close each backend came" row of ``backend``, by column."""
+    lines = text.splitlines()
+    header = next(line for line in lines if line.startswith("| backend |"))
+    row = next(line for line in lines if line.startswith(f"| {backend} |"))
+    return dict(zip([c.strip() for c in header.split("|")[1:-1]], [c.strip() for c in row.split("|")[1:-1]]))

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adapter_files import ARM, FLOATING, IN_WORLD, MJCF_ARM, MJCF_LIMB, WALKER, write
+from adapter_files import outliers, closeness_row, ARM, FLOATING, IN_WORLD, MJCF_ARM, MJCF_LIMB, WALKER, write
 
 import cases
 from crosscheck import backends, cli
@@ -53,28 +53,9 @@ class NoVelocityBias(Drake):
 SWAPPED_QUATERNION, NO_VELOCITY_BIAS = SwappedQuaternion(), NoVelocityBias()
 
 
-@pytest.fixture(autouse=True)
-def fresh():
-    backends.reset()
-    yield
-    backends.reset()
-
-
 @pytest.fixture
 def walker(tmp_path) -> str:
     return write(tmp_path, "walker.urdf", WALKER)
-
-
-def _row(text: str, backend: str) -> dict[str, str]:
-    """The report's "How close each backend came" row of ``backend``, by column."""
-    lines = text.splitlines()
-    header = next(line for line in lines if line.startswith("| backend |"))
-    row = next(line for line in lines if line.startswith(f"| {backend} |"))
-    return dict(zip([c.strip() for c in header.split("|")[1:-1]], [c.strip() for c in row.split("|")[1:-1]]))
-
-
-def _outliers(text: str) -> set[str]:
-    return {line.split("outlier **")[1].split("**")[0] for line in text.splitlines() if "outlier **" in line}
 
 
 @pytest.mark.parametrize("path, base", [(ARM, "fixed"), ("walker", "free")])
@@ -86,7 +67,7 @@ def test_drake_agrees_on_a_fixed_and_a_free_base_and_on_moved_scenes(path, base,
                      "--samples", "3", "--report", str(report), "--quiet", "--no-linearization", "--no-self-test"])
     text = report.read_text()
     assert code == 0 and "**PASS**" in text and "took part in no comparison" not in text
-    row = _row(text, "drake")
+    row = closeness_row(text, "drake")
     assert float(row["drift, ctrl, total"]) < 0.05 and float(row["frames"]) < 0.05, row
 
 
@@ -148,7 +129,7 @@ def test_each_default_left_on_fails_the_gate_named(default, walker, tmp_path):
                      "--report", str(report), *FAST])
     text = report.read_text()
     assert code == 1 and "**FAIL**" in text
-    assert _outliers(text) == {f"drake_with_{default}"}
+    assert outliers(text) == {f"drake_with_{default}"}
 
 
 @pytest.mark.parametrize("broken", ["SWAPPED_QUATERNION", "NO_VELOCITY_BIAS"])
@@ -158,4 +139,4 @@ def test_a_broken_copy_of_the_adapter_fails_the_gate_named(broken, walker, tmp_p
                      "--report", str(report), *FAST])
     text = report.read_text()
     assert code == 1 and "**FAIL**" in text
-    assert _outliers(text) == {globals()[broken].name}
+    assert outliers(text) == {globals()[broken].name}

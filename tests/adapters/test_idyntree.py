@@ -9,7 +9,7 @@ from __future__ import annotations
 import idyntree.swig as idt
 import numpy as np
 import pytest
-from adapter_files import ARM, FLOATING, IN_WORLD, MJCF_ARM, WALKER, write
+from adapter_files import outliers, closeness_row, ARM, FLOATING, IN_WORLD, MJCF_ARM, WALKER, write
 
 import cases
 from crosscheck import backends, cli
@@ -51,28 +51,9 @@ class NoVelocityBias(IDynTree):
 MIXED_REPRESENTATION, NO_VELOCITY_BIAS = MixedRepresentation(), NoVelocityBias()
 
 
-@pytest.fixture(autouse=True)
-def fresh():
-    backends.reset()
-    yield
-    backends.reset()
-
-
 @pytest.fixture
 def walker(tmp_path) -> str:
     return write(tmp_path, "walker.urdf", WALKER)
-
-
-def _row(text: str, backend: str) -> dict[str, str]:
-    """The report's "How close each backend came" row of ``backend``, by column."""
-    lines = text.splitlines()
-    header = next(line for line in lines if line.startswith("| backend |"))
-    row = next(line for line in lines if line.startswith(f"| {backend} |"))
-    return dict(zip([c.strip() for c in header.split("|")[1:-1]], [c.strip() for c in row.split("|")[1:-1]]))
-
-
-def _outliers(text: str) -> set[str]:
-    return {line.split("outlier **")[1].split("**")[0] for line in text.splitlines() if "outlier **" in line}
 
 
 @pytest.mark.parametrize("path, base", [(ARM, "fixed"), ("walker", "free")])
@@ -83,7 +64,7 @@ def test_idyntree_agrees_on_a_fixed_and_a_free_base_and_on_moved_scenes(path, ba
                      "--no-self-test"])
     text = report.read_text()
     assert code == 0 and "**PASS**" in text and "took part in no comparison" not in text
-    row = _row(text, "idyntree")
+    row = closeness_row(text, "idyntree")
     assert float(row["drift, ctrl, total"]) < 0.05 and float(row["frames"]) < 0.05, row
 
 
@@ -123,4 +104,4 @@ def test_a_broken_copy_of_the_adapter_fails_the_gate_named(broken, walker, tmp_p
                      "--report", str(report), *FAST])
     text = report.read_text()
     assert code == 1 and "**FAIL**" in text
-    assert _outliers(text) == {globals()[broken].name}
+    assert outliers(text) == {globals()[broken].name}

@@ -8,14 +8,15 @@ a link without ``<inertial>``: 1 kg and unit inertia); its one default left on; 
 from __future__ import annotations
 
 import dataclasses
-import re
+
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import cases
-from crosscheck import backends, cli, isolation
+from adapter_files import outliers
+from crosscheck import cli, isolation
 from crosscheck.adapters.base import free_pose
 from crosscheck.adapters.pybullet import BACKEND, PyBullet
 from crosscheck.needs import pinocchio_scene, source_scene
@@ -72,14 +73,6 @@ TORSO = _urdf("torso", [_link("torso", 3.0, "0.05 -0.02 0.03", rpy="0.2 0.1 -0.3
 QUICK = ["--samples", "3", "--quiet", "--no-linearization", "--no-charts", "--no-self-test"]
 
 
-@pytest.fixture(autouse=True)
-def fresh(monkeypatch):
-    monkeypatch.chdir(ROOT)
-    backends.reset()
-    yield
-    backends.reset()
-
-
 def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     path = tmp_path / name
     path.write_text(text)
@@ -94,10 +87,6 @@ def _gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int,
         patch.setenv(isolation.ENV, "1" if isolated else "0")
         code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
     return code, gate_summary.read(report)
-
-
-def _outliers(text: str) -> set[str]:
-    return set(re.findall(r"outlier \*\*([^*]+)\*\*", text))
 
 
 def _hints(text: str) -> list[str]:
@@ -133,7 +122,7 @@ def test_diagonalized_inertias_move_m_past_the_tolerance_and_pybullet_is_named(t
     M = _reference(model, q, qd)[0]
     assert 1e-13 < np.linalg.norm(t.M - M) / np.linalg.norm(M) < 1e-8
     code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet"}, text
+    assert code == 1 and outliers(text) == {"pybullet"}, text
     assert any("mass matrix" in h or "M^-1 B u" in h for h in _hints(text)), _hints(text)
 
 
@@ -141,12 +130,12 @@ def test_a_fixed_base_turned_relative_to_gravity_is_caught_and_pybullet_named(tm
     """pybullet's inverse dynamics puts a fixed base at the identity and sets gravity in the world frame: the moved
     scenes (frame checks) and a root link with a turned <inertial> put gravity in a wrong frame; M agrees."""
     code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "1")
-    assert code == 1 and _outliers(text) == {"pybullet@g0"}, text
+    assert code == 1 and outliers(text) == {"pybullet@g0"}, text
     assert all("the moved scene" in h for h in _hints(text))
 
-    path = _file(tmp_path, TURNED_ROOT, "turned_root.urdf")    # a file of its own: a path is read once per process
+    path = _file(tmp_path, TURNED_ROOT, "turned_root.urdf")
     code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet"}, text
+    assert code == 1 and outliers(text) == {"pybullet"}, text
     assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
     model = cases.from_urdf(path, base="fixed")
     scene, q, qd = source_scene(model, "test"), np.array([0.3, -0.7, 0.05]), np.array([1.0, -2.0, 0.3])
@@ -198,7 +187,7 @@ def test_a_free_base_tilted_about_x_and_y_has_gravity_wrong_and_pybullet_named(t
     np.testing.assert_allclose(t.g, _reference(model, q_applied, qd)[2], rtol=1e-9, atol=1e-10)
 
     code, text = _gate(tmp_path, path, "--base", "free", "--simulator", "pybullet", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet"}, text
+    assert code == 1 and outliers(text) == {"pybullet"}, text
     assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
 
 
@@ -215,7 +204,7 @@ def test_a_link_without_inertial_weighs_one_kg_and_pybullet_is_named(tmp_path):
     scene = source_scene(cases.from_urdf(path, base="fixed"), "test")
     assert BACKEND.built(scene).mass == pytest.approx(1.5 + 0.8 + 0.4 + 1.0)
     code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet"}, text
+    assert code == 1 and outliers(text) == {"pybullet"}, text
     assert any("inertia / mass matrix" in h for h in _hints(text)), _hints(text)
 
 
@@ -224,7 +213,7 @@ def test_inertia_from_collision_left_on_is_named(tmp_path):
     named, the adapter keeps them and the gate names pybullet_with_inertia_from_collision."""
     code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet:inertia_from_collision",
                        "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet_with_inertia_from_collision"}, text
+    assert code == 1 and outliers(text) == {"pybullet_with_inertia_from_collision"}, text
     with pytest.raises(ValueError, match="no default 'damping'"):
         PyBullet(["damping"])
 
@@ -251,7 +240,7 @@ BACKEND = Broken()
 def test_a_broken_copy_is_caught_and_named(tmp_path):
     plugin = _file(tmp_path, BROKEN, "broken_pybullet.py")
     code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"pybullet_broken"}, text
+    assert code == 1 and outliers(text) == {"pybullet_broken"}, text
     assert any("velocity" in h for h in _hints(text)), _hints(text)
 
 

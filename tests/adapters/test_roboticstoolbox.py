@@ -9,20 +9,19 @@ free base and an MJCF not compared; a deliberately broken copy named.
 from __future__ import annotations
 
 import dataclasses
-import re
-from pathlib import Path
+
 
 import numpy as np
 import pytest
 
 import cases
-from crosscheck import backends, cli, isolation
+from adapter_files import outliers
+from crosscheck import cli, isolation
 from crosscheck.adapters.roboticstoolbox import BACKEND, RoboticsToolbox
 from crosscheck.needs import source_scene
 from crosscheck.reports import gate_summary
 from formalisms.interface import ModelNotSupported
 
-ROOT = Path(__file__).resolve().parents[2]
 
 INERTIA = 'ixx="0.02" ixy="0.001" ixz="-0.002" iyy="0.03" iyz="0.0015" izz="0.025"'
 
@@ -71,14 +70,6 @@ OBLIQUE_AXIS = CHAIN.replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0.6 0.8"/>')
 QUICK = ["--samples", "3", "--quiet", "--no-linearization", "--no-charts", "--no-self-test"]
 
 
-@pytest.fixture(autouse=True)
-def fresh(monkeypatch):
-    monkeypatch.chdir(ROOT)
-    backends.reset()
-    yield
-    backends.reset()
-
-
 def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     path = tmp_path / name
     path.write_text(text)
@@ -93,10 +84,6 @@ def _gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int,
         patch.setenv(isolation.ENV, "1" if isolated else "0")
         code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
     return code, gate_summary.read(report)
-
-
-def _outliers(text: str) -> set[str]:
-    return set(re.findall(r"outlier \*\*([^*]+)\*\*", text))
 
 
 def _hints(text: str) -> list[str]:
@@ -117,7 +104,7 @@ def test_rne_misplacing_static_links_is_caught_and_roboticstoolbox_named(tmp_pat
     """rtb's rne places a joint below a static link from the joint above it (the static link's origin dropped) and
     static links side by side one after the other: M is off, rtb is named, the hint at the mass matrix."""
     code, text = _gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"roboticstoolbox"}, text
+    assert code == 1 and outliers(text) == {"roboticstoolbox"}, text
     assert any("inertia / mass matrix" in h for h in _hints(text)), _hints(text)
 
 
@@ -126,14 +113,14 @@ def test_rtb_reading_of_joint_axes_is_caught_and_roboticstoolbox_named(tmp_path,
     """An axis -y: rtb reverses the joint's transform (ET.Ry(flip=True)) but not the motion subspace rne uses; an
     axis (0, 0.6, 0.8): rtb turns the child's frame by the axis-angle of that vector. Both are named."""
     code, text = _gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"roboticstoolbox"}, text
+    assert code == 1 and outliers(text) == {"roboticstoolbox"}, text
 
 
 def test_friction_left_on_is_named_with_a_force_linear_in_qd(tmp_path):
     """rtb reads <dynamics friction> as the motor's viscous friction B: left on, rne adds B qd to h, the gate names
     roboticstoolbox_with_friction and hints at a force linear in qd."""
     code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "roboticstoolbox:friction", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"roboticstoolbox_with_friction"}, text
+    assert code == 1 and outliers(text) == {"roboticstoolbox_with_friction"}, text
     assert any("a force linear in qd" in h for h in _hints(text)), _hints(text)
     with pytest.raises(ValueError, match="no default 'damping'"):
         RoboticsToolbox(["damping"])
@@ -161,7 +148,7 @@ BACKEND = Broken()
 def test_a_broken_copy_is_caught_and_named(tmp_path):
     plugin = _file(tmp_path, BROKEN, "broken_roboticstoolbox.py")
     code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
-    assert code == 1 and _outliers(text) == {"roboticstoolbox_broken"}, text
+    assert code == 1 and outliers(text) == {"roboticstoolbox_broken"}, text
     assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
 
 

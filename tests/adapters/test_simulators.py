@@ -5,7 +5,6 @@ reason), and ``--simulator`` errors."""
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import pytest
 
@@ -13,7 +12,6 @@ from crosscheck import adapters, backends, cli
 from crosscheck.reports import conformance, diagnosis
 from scenes import DAMPED_CHAIN
 
-ROOT = Path(__file__).resolve().parents[2]
 
 #: A plugin that reads nothing: NOT COMPARED on every model, with its reason.
 DECLINING = '''
@@ -27,14 +25,6 @@ class Declining:
 
 BACKEND = Declining()
 '''
-
-
-@pytest.fixture(autouse=True)
-def fresh(monkeypatch):
-    monkeypatch.chdir(ROOT)
-    backends.reset()
-    yield
-    backends.reset()
 
 
 @pytest.fixture
@@ -97,3 +87,21 @@ def test_every_adapter_is_installed_here_and_states_its_defaults():
         every = obj.with_defaults(*obj.DEFAULTS)
         assert every.on == set(obj.DEFAULTS) and every.name == "_with_".join([name, *(
             ["_".join(sorted(obj.DEFAULTS))] if obj.DEFAULTS else [])])
+
+
+def test_armature_is_given_to_the_simulators_that_hold_it_and_the_others_are_not_compared(tmp_path):
+    """A URDF's declared armature reaches MuJoCo (joint armature) and Drake (an actuator's reflected rotor inertia),
+    which agree; iDynTree, pybullet and roboticstoolbox have no such term and are NOT COMPARED, saying so. The shipped
+    MJCF with armature is checked by MuJoCo; Drake, which keeps an MJCF's armature only on actuated joints, is NOT
+    COMPARED with that reason."""
+    code, text = _run(tmp_path, "--model", "examples/arm.urdf", "--armature", "shoulder_yaw=0.01,elbow=0.02",
+                      "--simulator", "mujoco", "--simulator", "drake", "--simulator", "idyntree")
+    assert code == 0, text
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
+    assert "agrees" in rows["mujoco"] and "agrees" in rows["drake"] and "NOT COMPARED" in rows["idyntree"]
+    assert "is not given the armature (rotor inertia) declared for shoulder_yaw, elbow here" in text
+    code, text = _run(tmp_path, "--model", "cases/files/armature_arm.xml", "--simulator", "mujoco",
+                      "--simulator", "drake")
+    assert code == 0, text
+    assert "| mujoco | MuJoCo" in text and "agrees" in text.split("| mujoco |")[1].splitlines()[0]
+    assert "declares armature: Drake's MJCF parser keeps it only as the reflected rotor inertia" in text

@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import assume, given, strategies as st
 
 import cases
 import formalisms
@@ -62,7 +62,8 @@ def test_every_backends_M_is_the_bodies_M_plus_the_armature_and_the_backends_agr
     state = data.draw(testing.states(model))
     q, v = np.array(state.q), np.array(state.qd)
     a = model.armature_vector
-    assert a.any() and not without_armature(model).armature_vector.any()
+    assume(a.any())                 # a model of free joints only has no joint that can hold armature
+    assert not without_armature(model).armature_vector.any()
     bare = without_armature(model)
     for name, mass_matrix in MASS_MATRICES.items():
         M, M0 = mass_matrix(model, q, v), mass_matrix(bare, q, v)

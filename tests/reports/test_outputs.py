@@ -51,7 +51,7 @@ def test_no_default_output_is_under_reports():
             if action is not None and (action.default or action.const) not in (None, False):
                 defaults[f"{name} --{dest}"] = action.const if action.nargs == "?" else action.default
     assert set(defaults) == {"gate --report", "faults --report", "fuzz --out", "replay --dir", "bench --out",
-                             "stability --out", "trajectory --report"}
+                             "stability --out", "trajectory --report", "simulators --report"}
     for option, default in defaults.items():
         assert Path(default).parts[0] == options.OUTPUT_DIR and options.REPORTS_DIR not in Path(default).parts, option
     assert settings.DEFAULT_DIR == cli.fuzz.DEFAULT_FUZZ_DIR == _option(_subcommands()["replay"], "dir").default
@@ -153,11 +153,11 @@ def test_a_failing_gate_report_leads_with_the_failures(tmp_path, dropped_corioli
 
 
 def test_every_workers_option_has_one_meaning_and_one_default():
-    """Each ``--workers`` (gate, fuzz, faults, trajectory --report) is ``options.add_workers_option``'s: default
+    """Each ``--workers`` (gate, simulators, fuzz, faults, trajectory --report) is ``options.add_workers_option``'s: default
     None, resolved by ``options.workers``, and the same help."""
     found = {name: _option(parser, "workers") for name, parser in _subcommands().items()}
     found = {name: action for name, action in found.items() if action is not None}
-    assert set(found) == {"gate", "fuzz", "faults", "trajectory"}
+    assert set(found) == {"gate", "fuzz", "faults", "trajectory", "simulators"}
     for name, action in found.items():
         assert action.default is None and action.type is int, name
         assert action.help.startswith("0: run in this process; N >= 1: N worker processes, at most one per "), name
