@@ -5,11 +5,12 @@ A simulator's cell in a family says one of:
 * ``agrees (r)``: it voted in every comparison of the family it supplies and was never the suspect of a
   disagreement; ``r`` is its worst closeness (its error/tolerance against the others, ``Comparison.closeness``);
 * ``FINDING``: it is the suspect (``crosscheck.core.compare.suspect``: the outlier, or the one backend behind a
-  one-backend check) of a disagreement at some states; the section below the table gives the size (error/tolerance),
+  one-backend check) of a disagreement at some states, or, where the vote names no one (two simulators wrong at
+  once), it disagrees with every built-in voter while those agree with each other; the section below the table gives the size (error/tolerance),
   the state, the hint the error's shape suggests (``crosscheck.reports.diagnosis``) and the command that reproduces
   it;
-* ``disagrees, not named``: a disagreement it voted in that the vote blames on no one (read the gate report); one
-  blamed on another voter is that voter's (the others, this simulator among them, agree);
+* ``disagrees, not named``: a disagreement it voted in that neither rule blames on it or clears it of (read the gate
+  report); one blamed on another voter, or where it agrees with every built-in voter, is not its own;
 * ``not supplied``: it voted in no comparison of the family (the quantity is not computed by that library, or the
   model is NOT COMPARED: the reason is given).
 """
@@ -18,7 +19,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from crosscheck.core.compare import DISAGREE, backend_of, Comparison, suspect, worst_of
+from crosscheck import backends
+from crosscheck.core.compare import DISAGREE, NOT_BACKENDS, backend_of, Comparison, suspect, worst_of
 from crosscheck.engine.outcomes import CaseOutcome, GateResult, StateOutcome
 from crosscheck.reports.gate_lines import check_reproduce_command, reproduce_command
 
@@ -86,22 +88,54 @@ def cells(case: CaseOutcome, simulator: str) -> dict[str, Cell]:
             cell.voted = True
             mine = [r for v, r in comp.closeness().items() if backend_of(v) == simulator]
             cell.closeness = worst_of([cell.closeness, *mine])
-            blamed = suspect(comp) if comp.verdict == DISAGREE else simulator
-            if blamed == simulator and comp.verdict == DISAGREE:
+            if comp.verdict != DISAGREE:
+                continue
+            blamed = suspect(comp)
+            if blamed is None:
+                blamed = _against_builtins(comp, simulator)
+            if blamed == simulator:
                 cell.findings.append((state, key, comp))
-            elif blamed is None:            # no one named: the others agree with each other only if one is named
+            elif blamed is None:
                 cell.unnamed.append((state, key, comp))
     return out
 
 
-def finding(case: CaseOutcome, seed: int, name: str, cell: Cell) -> Finding:
+def _against_builtins(comp: Comparison, simulator: str) -> str | None:
+    """Who a disagreement the vote names no one for is on, read against the built-in backends (the five formalisms,
+    the reference, the exact values): the simulator when one of its voters (``pybullet@g0``: a moved scene) disagrees
+    with every built-in voter it is paired with while those agree with each other (two simulators wrong at once leave
+    the vote without an outlier); "" (no one of its concern) when each of its voters agrees with every built-in voter
+    it is paired with; None otherwise."""
+    builtin = set(backends.builtin_names()) | set(NOT_BACKENDS) | {"closed_form"}
+    mine: dict[str, list[float]] = {}
+    theirs = []
+    for (a, b), ratio in comp.pairs.items():
+        for own, other in ((a, b), (b, a)):
+            if backend_of(own) == simulator and backend_of(other) in builtin:
+                mine.setdefault(own, []).append(ratio)
+        if backend_of(a) in builtin and backend_of(b) in builtin:
+            theirs.append(ratio)
+    if mine and all(r <= 1.0 for ratios in mine.values() for r in ratios):
+        return ""
+    if any(not any(r <= 1.0 for r in ratios) for ratios in mine.values()) and all(r <= 1.0 for r in theirs):
+        return simulator
+    return None
+
+
+def finding(case: CaseOutcome, seed: int, name: str, cell: Cell, simulator: str) -> Finding:
     """The worst of a cell's blamed disagreements, with its reproduce command."""
-    state, key, comp = max(cell.findings, key=lambda f: f[2].worst_ratio if f[2].worst_ratio == f[2].worst_ratio
-                           else float("inf"))
+    def size(found):
+        ratio = found[2].worst_ratio
+        return ratio if ratio == ratio else float("inf")
+
+    worst = max(cell.findings, key=size)
+    hinted = [f for f in cell.findings if simulator in f[0].hint]      # a hint on this simulator, not another's
+    state, key, comp = max(hinted, key=size) if hinted else worst
     is_check = key in state.checks
     command = (check_reproduce_command(case, state, key.split(":")[0], seed) if is_check
                else reproduce_command(case, state))
-    return Finding(name, len({id(s) for s, _, _ in cell.findings}), comp.worst_ratio, key, state, state.hint, command)
+    return Finding(name, len({id(s) for s, _, _ in cell.findings}), worst[2].worst_ratio, key, state,
+                   state.hint if hinted else "", command)
 
 
 def cell_text(cell: Cell, reason: str) -> str:
@@ -134,7 +168,7 @@ def render(result: GateResult, model_path: str, simulators: dict[str, dict], gat
         all_cells[name] = got
         lines.append(f"| {name} | {info['library']} | "
                      + " | ".join(cell_text(c, info["reason"]) for c in got.values()) + " |")
-        found = [finding(case, result.seed, fam, c) for fam, c in got.items() if c.findings]
+        found = [finding(case, result.seed, fam, c, name) for fam, c in got.items() if c.findings]
         unnamed = sum(len(c.unnamed) for c in got.values())
         conforms &= not found and not unnamed
         details += _simulator_section(name, info, found, unnamed, got)

@@ -105,3 +105,17 @@ def test_armature_is_given_to_the_simulators_that_hold_it_and_the_others_are_not
     assert code == 0, text
     assert "| mujoco | MuJoCo" in text and "agrees" in text.split("| mujoco |")[1].splitlines()[0]
     assert "declares armature: Drake's MJCF parser keeps it only as the reflected rotor inertia" in text
+
+
+def test_two_simulators_wrong_at_once_are_each_found_against_the_builtin_backends(tmp_path, damped):
+    """MuJoCo and Drake both with joint damping left on move together: the vote names no single outlier, and each is
+    still a FINDING, as it disagrees with every built-in backend while those agree; iDynTree, which has no damping
+    term, agrees."""
+    code, text = _run(tmp_path, "--model", damped, "--simulator", "mujoco:damping", "--simulator", "drake:damping",
+                      "--simulator", "idyntree")
+    assert code == 1
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
+    for name in ("mujoco_with_damping", "drake_with_damping"):
+        cells = dict(zip(conformance.FAMILIES, rows[name].split(" | ")[2:]))
+        assert cells["drift"].startswith("**FINDING**") and cells["ctrl"].startswith("agrees"), rows[name]
+    assert "FINDING" not in rows["idyntree"] and "not named" not in rows["idyntree"]
