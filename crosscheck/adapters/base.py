@@ -250,19 +250,26 @@ class Adapter:
                 self._built[key] = self.build(scene)
             return self._built[key]
 
+    def unsupported(self, scene) -> str:
+        """Why the library cannot be compared on ``scene`` (NOT COMPARED), or "": a file format it does not read,
+        constraint rows, armature it is not given. An adapter adds its own reasons before these."""
+        if scene.kind not in self.KINDS:
+            return (f"{self.library()} does not read {scene.kind.upper()} files here (it reads "
+                    f"{', '.join(k.upper() for k in self.KINDS)})")
+        if scene.constraints:
+            return (f"model '{scene.name}' has constraint rows ({', '.join(c.name for c in scene.constraints)}); "
+                    f"{self.simulator} is compared on unconstrained models only")
+        if scene.armature and not self.ARMATURE:
+            return (f"{self.library()} is not given the armature (rotor inertia) declared for "
+                    f"{', '.join(name for name, _ in scene.armature)} here: it has no such term")
+        return ""
+
     def split(self, scene, q, qd, u) -> Split:
         """drift ``-M^-1 h``, ctrl ``M^-1 B u``, total: the library's own solves where it has them, else of its own
         ``M`` and ``h`` (eq. 9); NOT COMPARED on what it cannot read."""
-        if scene.kind not in self.KINDS:
-            raise ModelNotSupported(f"{self.library()} does not read {scene.kind.upper()} files here "
-                                    f"(it reads {', '.join(k.upper() for k in self.KINDS)})")
-        if scene.constraints:
-            raise ModelNotSupported(f"model '{scene.name}' has constraint rows "
-                                    f"({', '.join(c.name for c in scene.constraints)}); {self.simulator} is compared "
-                                    "on unconstrained models only")
-        if scene.armature and not self.ARMATURE:
-            raise ModelNotSupported(f"{self.library()} is not given the armature (rotor inertia) declared for "
-                                    f"{', '.join(name for name, _ in scene.armature)} here: it has no such term")
+        why = self.unsupported(scene)
+        if why:
+            raise ModelNotSupported(why)
         q, qd, u = (np.asarray(x, dtype=float) for x in (q, qd, u))
         tau = np.asarray(scene.input_map, dtype=float) @ u
         t = self.terms(self.built(scene), scene, q, qd, tau)

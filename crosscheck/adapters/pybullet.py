@@ -157,13 +157,12 @@ class PyBullet(Adapter):
 
         return f"pybullet {version('pybullet')}"
 
-    def split(self, scene, q, qd, u):
+    def unsupported(self, scene) -> str:
         if scene.kind == "mjcf":
-            raise ModelNotSupported(
-                f"{self.library()} reads URDF files here: its loadMJCF reads a subset of MJCF (no euler, xyaxes or "
-                "zaxis frames, no fullinertia, no armature, no <option gravity>), so the model it builds is not "
-                f"the file's '{scene.path}'")
-        return super().split(scene, q, qd, u)
+            return (f"{self.library()} reads URDF files here: its loadMJCF reads a subset of MJCF (no euler, xyaxes or "
+                    "zaxis frames, no fullinertia, no armature, no <option gravity>), so the model it builds is not "
+                    f"the file's '{scene.path}'")
+        return super().unsupported(scene)
 
     def _connected(self) -> int:
         """This process's DIRECT client."""

@@ -88,14 +88,13 @@ class RoboticsToolbox(Adapter):
     def library() -> str:
         return f"roboticstoolbox-python {rtb.__version__}"
 
-    def split(self, scene, q, qd, u):
+    def unsupported(self, scene) -> str:
         if scene.root == "free":
-            raise ModelNotSupported(f"{self.library()} has no floating-base dynamics (Robot.rne, inertia and "
-                                    "gravload are a fixed base's): a free base is not compared")
+            return (f"{self.library()} has no floating-base dynamics (Robot.rne, inertia and gravload are a fixed "
+                    "base's): a free base is not compared")
         if scene.kind == "mjcf":
-            raise ModelNotSupported(f"{self.library()} reads URDF (and xacro) files only, not the MJCF file "
-                                    f"'{scene.path}'")
-        return super().split(scene, q, qd, u)
+            return f"{self.library()} reads URDF (and xacro) files only, not the MJCF file '{scene.path}'"
+        return super().unsupported(scene)
 
     def build(self, scene) -> _Built:
         """The scene's Robot: the file read by rtb's URDF reader, placed by ``robot.base``, ``B = 0`` unless
