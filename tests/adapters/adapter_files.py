@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -126,3 +128,25 @@ def closeness_row(text: str, backend: str) -> dict[str, str]:
     header = next(line for line in lines if line.startswith("| backend |"))
     row = next(line for line in lines if line.startswith(f"| {backend} |"))
     return dict(zip([c.strip() for c in header.split("|")[1:-1]], [c.strip() for c in row.split("|")[1:-1]]))
+
+
+#: The gate as a user runs it, a few states, the linearization and the charts left out (time).
+QUICK = ["--samples", "3", "--quiet", "--no-linearization", "--no-charts", "--no-self-test"]
+
+
+def quick_gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int, str]:
+    """The :data:`QUICK` gate's exit code and report; the adapter in the gate's process unless ``isolated`` (its own
+    child process, as a user runs it: a second import of the library, some seconds)."""
+    from crosscheck import cli, isolation
+    from crosscheck.reports import gate_summary
+
+    report = tmp_path / "gate.md"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(isolation.ENV, "1" if isolated else "0")
+        code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
+    return code, gate_summary.read(report)
+
+
+def hints(text: str) -> list[str]:
+    """The hint lines of a gate report."""
+    return [line for line in text.splitlines() if line.startswith("- hint:")]

@@ -15,12 +15,10 @@ import numpy as np
 import pytest
 
 import cases
-from adapter_files import outliers
-from crosscheck import cli, isolation
+from adapter_files import hints, outliers, quick_gate
 from crosscheck.adapters.base import free_pose
 from crosscheck.adapters.pybullet import BACKEND, PyBullet
 from crosscheck.needs import pinocchio_scene, source_scene
-from crosscheck.reports import gate_summary
 from formalisms.interface import ModelNotSupported
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -69,28 +67,11 @@ TORSO = _urdf("torso", [_link("torso", 3.0, "0.05 -0.02 0.03", rpy="0.2 0.1 -0.3
     '<joint name="knee" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 -0.2"/>'
     '<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="5"/></joint>'])
 
-#: The gate as a user runs it, a few states, the linearization and the charts left out (time).
-QUICK = ["--samples", "3", "--quiet", "--no-linearization", "--no-charts", "--no-self-test"]
-
 
 def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     path = tmp_path / name
     path.write_text(text)
     return str(path)
-
-
-def _gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int, str]:
-    """The gate's exit code and report; the adapter in the gate's process unless ``isolated`` (its own child
-    process, as a user runs it: a second import of the library, some seconds)."""
-    report = tmp_path / "gate.md"
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv(isolation.ENV, "1" if isolated else "0")
-        code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
-    return code, gate_summary.read(report)
-
-
-def _hints(text: str) -> list[str]:
-    return [line for line in text.splitlines() if line.startswith("- hint:")]
 
 
 def _reference(model, q, qd):
@@ -108,7 +89,7 @@ def _reference(model, q, qd):
 def test_pybullet_passes_on_a_chain_with_every_inertial(tmp_path):
     """Turned, off-origin inertias (diagonalized by pybullet), an unaligned axis, a prismatic joint, damping in the
     file and collision boxes: pybullet agrees with the five formalisms and Pinocchio on the unmoved scene."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "0", isolated=True)
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "0", isolated=True)
     assert code == 0 and "**PASS**" in text and "pinocchio, pybullet)" in text, text
 
 
@@ -121,22 +102,22 @@ def test_diagonalized_inertias_move_m_past_the_tolerance_and_pybullet_is_named(t
     t = BACKEND.terms(BACKEND.built(scene), scene, q, qd, np.zeros(3))
     M = _reference(model, q, qd)[0]
     assert 1e-13 < np.linalg.norm(t.M - M) / np.linalg.norm(M) < 1e-8
-    code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
+    code, text = quick_gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet"}, text
-    assert any("mass matrix" in h or "M^-1 B u" in h for h in _hints(text)), _hints(text)
+    assert any("mass matrix" in h or "M^-1 B u" in h for h in hints(text)), hints(text)
 
 
 def test_a_fixed_base_turned_relative_to_gravity_is_caught_and_pybullet_named(tmp_path):
     """pybullet's inverse dynamics puts a fixed base at the identity and sets gravity in the world frame: the moved
     scenes (frame checks) and a root link with a turned <inertial> put gravity in a wrong frame; M agrees."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "1")
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet", "--frames", "1")
     assert code == 1 and outliers(text) == {"pybullet@g0"}, text
-    assert all("the moved scene" in h for h in _hints(text))
+    assert all("the moved scene" in h for h in hints(text))
 
     path = _file(tmp_path, TURNED_ROOT, "turned_root.urdf")
-    code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
+    code, text = quick_gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet"}, text
-    assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
+    assert any(h.endswith(": gravity") for h in hints(text)), hints(text)
     model = cases.from_urdf(path, base="fixed")
     scene, q, qd = source_scene(model, "test"), np.array([0.3, -0.7, 0.05]), np.array([1.0, -2.0, 0.3])
     t = BACKEND.terms(BACKEND.built(scene), scene, q, qd, np.zeros(3))
@@ -186,9 +167,9 @@ def test_a_free_base_tilted_about_x_and_y_has_gravity_wrong_and_pybullet_named(t
     q_applied, _ = _free_state(model, applied @ R_c.T)
     np.testing.assert_allclose(t.g, _reference(model, q_applied, qd)[2], rtol=1e-9, atol=1e-10)
 
-    code, text = _gate(tmp_path, path, "--base", "free", "--simulator", "pybullet", "--frames", "0")
+    code, text = quick_gate(tmp_path, path, "--base", "free", "--simulator", "pybullet", "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet"}, text
-    assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
+    assert any(h.endswith(": gravity") for h in hints(text)), hints(text)
 
 
 def _zyx_angles(R: np.ndarray) -> tuple[float, float, float]:
@@ -203,15 +184,15 @@ def test_a_link_without_inertial_weighs_one_kg_and_pybullet_is_named(tmp_path):
     path = _file(tmp_path, TOOL)
     scene = source_scene(cases.from_urdf(path, base="fixed"), "test")
     assert BACKEND.built(scene).mass == pytest.approx(1.5 + 0.8 + 0.4 + 1.0)
-    code, text = _gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
+    code, text = quick_gate(tmp_path, path, "--simulator", "pybullet", "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet"}, text
-    assert any("inertia / mass matrix" in h for h in _hints(text)), _hints(text)
+    assert any("inertia / mass matrix" in h for h in hints(text)), hints(text)
 
 
 def test_inertia_from_collision_left_on_is_named(tmp_path):
     """Without URDF_USE_INERTIA_FROM_FILE pybullet computes each inertia from the collision boxes: with the default
     named, the adapter keeps them and the gate names pybullet_with_inertia_from_collision."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet:inertia_from_collision",
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "pybullet:inertia_from_collision",
                        "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet_with_inertia_from_collision"}, text
     with pytest.raises(ValueError, match="no default 'damping'"):
@@ -239,9 +220,9 @@ BACKEND = Broken()
 
 def test_a_broken_copy_is_caught_and_named(tmp_path):
     plugin = _file(tmp_path, BROKEN, "broken_pybullet.py")
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
     assert code == 1 and outliers(text) == {"pybullet_broken"}, text
-    assert any("velocity" in h for h in _hints(text)), _hints(text)
+    assert any("velocity" in h for h in hints(text)), hints(text)
 
 
 def test_mjcf_and_spherical_joints_are_not_compared(tmp_path):

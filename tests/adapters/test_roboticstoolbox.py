@@ -15,11 +15,9 @@ import numpy as np
 import pytest
 
 import cases
-from adapter_files import outliers
-from crosscheck import cli, isolation
+from adapter_files import hints, outliers, quick_gate
 from crosscheck.adapters.roboticstoolbox import BACKEND, RoboticsToolbox
 from crosscheck.needs import source_scene
-from crosscheck.reports import gate_summary
 from formalisms.interface import ModelNotSupported
 
 
@@ -66,9 +64,6 @@ SIDE_BY_SIDE = _urdf([_link("a", 1.5, "0.1 0 0"), _link("b", 0.8, "0.1 0 0"), _l
 NEGATIVE_AXIS = CHAIN.replace('<axis xyz="0 1 0"/>', '<axis xyz="0 -1 0"/>')
 OBLIQUE_AXIS = CHAIN.replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0.6 0.8"/>')
 
-#: The gate as a user runs it, a few states, the linearization and the charts left out (time).
-QUICK = ["--samples", "3", "--quiet", "--no-linearization", "--no-charts", "--no-self-test"]
-
 
 def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     path = tmp_path / name
@@ -76,24 +71,10 @@ def _file(tmp_path, text: str, name: str = "robot.urdf") -> str:
     return str(path)
 
 
-def _gate(tmp_path, path: str, *args: str, isolated: bool = False) -> tuple[int, str]:
-    """The gate's exit code and report; the adapter in the gate's process unless ``isolated`` (its own child
-    process, as a user runs it: a second import of the library, some seconds)."""
-    report = tmp_path / "gate.md"
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv(isolation.ENV, "1" if isolated else "0")
-        code = cli.main(["gate", "--model", path, *QUICK, "--report", str(report), *args])
-    return code, gate_summary.read(report)
-
-
-def _hints(text: str) -> list[str]:
-    return [line for line in text.splitlines() if line.startswith("- hint:")]
-
-
 def test_roboticstoolbox_passes_on_a_chain_moved_scenes_included(tmp_path):
     """Turned origins, general inertias off the links' origins, a prismatic joint; the moved scenes (robot.base and
     gravity turned with it) and the file's <dynamics friction> (B, set to 0): rtb agrees."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "roboticstoolbox", "--frames", "1",
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "roboticstoolbox", "--frames", "1",
                        isolated=True)
     assert code == 0 and "**PASS**" in text and "pinocchio, roboticstoolbox)" in text, text
 
@@ -103,25 +84,25 @@ def test_roboticstoolbox_passes_on_a_chain_moved_scenes_included(tmp_path):
 def test_rne_misplacing_static_links_is_caught_and_roboticstoolbox_named(tmp_path, urdf):
     """rtb's rne places a joint below a static link from the joint above it (the static link's origin dropped) and
     static links side by side one after the other: M is off, rtb is named, the hint at the mass matrix."""
-    code, text = _gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
+    code, text = quick_gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
     assert code == 1 and outliers(text) == {"roboticstoolbox"}, text
-    assert any("inertia / mass matrix" in h for h in _hints(text)), _hints(text)
+    assert any("inertia / mass matrix" in h for h in hints(text)), hints(text)
 
 
 @pytest.mark.parametrize("urdf", [NEGATIVE_AXIS, OBLIQUE_AXIS], ids=["negative_axis", "oblique_axis"])
 def test_rtb_reading_of_joint_axes_is_caught_and_roboticstoolbox_named(tmp_path, urdf):
     """An axis -y: rtb reverses the joint's transform (ET.Ry(flip=True)) but not the motion subspace rne uses; an
     axis (0, 0.6, 0.8): rtb turns the child's frame by the axis-angle of that vector. Both are named."""
-    code, text = _gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
+    code, text = quick_gate(tmp_path, _file(tmp_path, urdf), "--simulator", "roboticstoolbox", "--frames", "0")
     assert code == 1 and outliers(text) == {"roboticstoolbox"}, text
 
 
 def test_friction_left_on_is_named_with_a_force_linear_in_qd(tmp_path):
     """rtb reads <dynamics friction> as the motor's viscous friction B: left on, rne adds B qd to h, the gate names
     roboticstoolbox_with_friction and hints at a force linear in qd."""
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "roboticstoolbox:friction", "--frames", "0")
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--simulator", "roboticstoolbox:friction", "--frames", "0")
     assert code == 1 and outliers(text) == {"roboticstoolbox_with_friction"}, text
-    assert any("a force linear in qd" in h for h in _hints(text)), _hints(text)
+    assert any("a force linear in qd" in h for h in hints(text)), hints(text)
     with pytest.raises(ValueError, match="no default 'damping'"):
         RoboticsToolbox(["damping"])
 
@@ -147,9 +128,9 @@ BACKEND = Broken()
 
 def test_a_broken_copy_is_caught_and_named(tmp_path):
     plugin = _file(tmp_path, BROKEN, "broken_roboticstoolbox.py")
-    code, text = _gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
+    code, text = quick_gate(tmp_path, _file(tmp_path, CHAIN), "--plugin", f"{plugin}:BACKEND", "--frames", "0")
     assert code == 1 and outliers(text) == {"roboticstoolbox_broken"}, text
-    assert any(h.endswith(": gravity") for h in _hints(text)), _hints(text)
+    assert any(h.endswith(": gravity") for h in hints(text)), hints(text)
 
 
 def test_a_free_base_and_an_mjcf_are_not_compared(tmp_path):
@@ -162,6 +143,6 @@ def test_a_free_base_and_an_mjcf_are_not_compared(tmp_path):
         BACKEND.split(dataclasses.replace(scene, root="free"), *state)
     with pytest.raises(ModelNotSupported, match="URDF \\(and xacro\\) files only"):
         BACKEND.split(dataclasses.replace(scene, kind="mjcf"), *state)
-    code, text = _gate(tmp_path, path, "--base", "free", "--simulator", "roboticstoolbox", "--optional",
+    code, text = quick_gate(tmp_path, path, "--base", "free", "--simulator", "roboticstoolbox", "--optional",
                        "roboticstoolbox", "--frames", "0")
     assert code == 0 and "roboticstoolbox not compared" in text, text
