@@ -225,6 +225,32 @@ def _cycles(joints: dict, parent_joint: dict[str, list[str]]) -> list[str]:
     return problems
 
 
+def _massless_inertias(robot: ET.Element) -> list[str]:
+    """A model finding for each link welded by a fixed joint whose ``<inertial>`` has mass 0 and a rotational inertia:
+    physically impossible, and read differently by different tools. Pinocchio (so the model) keeps the rotational
+    inertia, adding it to the body the link is welded to; MuJoCo and iDynTree drop a massless link's; Drake's parser
+    makes it a 1 kg sphere. (A moving body with it is the model's own finding, ``cases.build``.)"""
+    welded = {j.find("child").get("link") for j in robot.iter("joint")
+              if j.get("type") == "fixed" and j.find("child") is not None}
+    out = []
+    for link in (link for link in robot.iter("link") if link.get("name") in welded):
+        inertial = link.find("inertial")
+        mass = None if inertial is None else inertial.find("mass")
+        tensor = None if inertial is None else inertial.find("inertia")
+        if mass is None or tensor is None:
+            continue
+        try:
+            moments = [float(tensor.get(k, 0.0)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")]
+            massless = float(mass.get("value", "nan")) == 0.0
+        except ValueError:
+            continue
+        if massless and any(moments):
+            out.append(f"link '{link.get('name')}' has mass 0 and a rotational inertia (ixx, iyy, izz = "
+                       f"{moments[0]:g}, {moments[1]:g}, {moments[2]:g}): no body has one without the other; the "
+                       "model keeps the inertia (Pinocchio's reading), other tools drop it or replace it")
+    return out
+
+
 def _mimics(robot: ET.Element, problems: list[str], findings: list[str]) -> list[Mimic]:
     """The ``<mimic>`` tags (module docstring), appending to ``problems`` the ones that cannot be a coupling and to
     ``findings`` the ones that name no joint of the file (ignored)."""
@@ -620,7 +646,7 @@ def from_urdf(path, name: str | None = None, base: str | None = None, actuated=N
     path = Path(path)
     robot = _read_robot(path)
     model_name = name if name is not None else robot.get("name") or path.stem
-    problems, findings = _tree_problems(robot), []
+    problems, findings = _tree_problems(robot), _massless_inertias(robot)
     mimics = _mimics(robot, problems, findings)
     driven = None if actuated is None or problems else _named_inputs(
         robot, actuated if isinstance(actuated, str) else list(actuated), problems)

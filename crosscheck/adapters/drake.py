@@ -126,6 +126,11 @@ def _file_inertias(text: str) -> dict[str, SpatialInertia]:
             continue
         mass = float(inertial.find("mass").get("value"))
         if mass <= 0.0:
+            tensor = inertial.find("inertia")
+            if tensor is not None and any(float(tensor.get(k, 0.0)) for k in ("ixx", "iyy", "izz")):
+                raise ModelNotSupported(f"link '{link.get('name')}' has mass 0 and a rotational inertia, which "
+                                        "Drake's spatial inertia cannot hold (its parser makes it a 1 kg sphere: "
+                                        "--simulator drake:repaired_inertia)")
             continue
         origin, tensor = inertial.find("origin"), inertial.find("inertia")
         c, rpy = _numbers(origin, "xyz", "0 0 0"), _numbers(origin, "rpy", "0 0 0")

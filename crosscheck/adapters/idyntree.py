@@ -18,7 +18,8 @@ Conventions (docs/simulators.md has the matrix of every adapter):
   ``continuous`` joint is a ``RevoluteJoint``;
 * fixed joints are kept as ``FixedJoint`` between links (no link is merged); a massless link that hangs by a fixed
   joint and carries nothing (e.g. a ``tool`` or ``world`` frame) is turned into an additional frame of its neighbour
-  link (iDynTree's fake-link removal: no dynamic effect), so the base is the link that carries the file's root link
+  link (iDynTree's fake-link removal: no dynamic effect, but for a link with mass 0 and a rotational inertia, whose
+  inertia is dropped: a model finding, ``cases.urdf``; bolt's feet), so the base is the link that carries the file's root link
   frame (a ``world`` root link is a frame of ``base_link`` then), placed so that this frame is where the scene puts
   the file's world;
 * inertias are used as the file gives them; a link without ``<inertial>`` is massless;
@@ -27,7 +28,7 @@ Conventions (docs/simulators.md has the matrix of every adapter):
 Defaults: none. ``KinDynComputations`` computes rigid-body dynamics only: the joints' ``<dynamics damping
 friction>`` and ``<limit>`` are read into the model but enter none of these terms; the parser's option
 ``convertThreeRevoluteJointsToSphericalJoint`` is off by default (it would change the coordinates) and is left off;
-the fake-link removal above changes no dynamics; an inertia is taken as the file gives it, even one that fails the
+the fake-link removal above changes no dynamics of a possible body; an inertia is taken as the file gives it, even one that fails the
 triangle inequality. So :attr:`IDynTree.DEFAULTS` is empty. ``KinDynComputations`` has no forward dynamics (the
 library's ``ArticulatedBodyAlgorithm`` is a free-floating one with gravity as link wrenches, not used) and no kinetic
 energy: the drift, ctrl and total are solves of its own ``M`` and ``h`` (eq. 9), the kinetic energy is not supplied.

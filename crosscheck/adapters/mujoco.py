@@ -11,7 +11,8 @@ Conventions (docs/simulators.md has the matrix of every adapter):
   by the scene) is composed in;
 * joints are found by the body they move (``scene.bodies``: the URDF link or MJCF body), the type checked;
 * fixed URDF links are merged into their parent by MuJoCo's URDF compiler (``fusestatic``); a link without
-  ``<inertial>`` is massless (its geoms are dropped here, so ``inertiafromgeom`` adds nothing);
+  ``<inertial>`` is massless (its geoms are dropped here, so ``inertiafromgeom`` adds nothing), and a link with mass
+  0 and a rotational inertia (a model finding, ``cases.urdf``) loses the inertia when it is merged;
 * inertias are used as the file gives them (``balanceinertia``, ``boundmass``, ``boundinertia`` stay off);
 * ``armature`` (rotor inertia, added to M's diagonal) is part of the model (``cases.model.Body.armature``): an
   MJCF's is kept as MuJoCo reads it, a URDF's (which the file cannot say) is set on the joints the user declared it

@@ -161,6 +161,10 @@ def render(result: GateResult, model_path: str, simulators: dict[str, dict], gat
               f"[{gate_report}]({gate_report}). Each cell: `agrees (worst error/tolerance)`, a **FINDING** (the "
               "simulator is the outlier: below), `not supplied` (the library does not compute it) or NOT COMPARED "
               "(the model is not supported: why, below).", ""]
+    if case.model.findings:
+        lines += ["Model findings: what the file says that no body can be, which tools may read differently (the "
+                  "backends follow Pinocchio's reading; a simulator reading it another way disagrees here):", ""]
+        lines += [f"- {finding}" for finding in case.model.findings] + [""]
     lines += ["| simulator | library | " + " | ".join(FAMILIES) + " |", "|---" * (len(FAMILIES) + 2) + "|"]
     all_cells, conforms, details = {}, True, []
     for name, info in simulators.items():

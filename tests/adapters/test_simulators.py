@@ -119,3 +119,20 @@ def test_two_simulators_wrong_at_once_are_each_found_against_the_builtin_backend
         cells = dict(zip(conformance.FAMILIES, rows[name].split(" | ")[2:]))
         assert cells["drift"].startswith("**FINDING**") and cells["ctrl"].startswith("agrees"), rows[name]
     assert "FINDING" not in rows["idyntree"] and "not named" not in rows["idyntree"]
+
+
+def test_a_massless_link_with_a_rotational_inertia_is_a_model_finding_and_drake_cannot_hold_it(tmp_path, damped):
+    """A foot welded to the chain's last link with mass 0 and a rotational inertia (bolt's feet): a model finding at
+    the top of the report; the model keeps the inertia (Pinocchio's reading), MuJoCo drops it (a finding against the
+    built-in backends), Drake's spatial inertia cannot hold it (NOT COMPARED, saying why)."""
+    foot = ('<link name="foot"><inertial><mass value="0"/><inertia ixx="0.004" iyy="0.006" izz="0.003" ixy="0" '
+            'ixz="0" iyz="0"/></inertial></link><joint name="ankle" type="fixed"><parent link="c"/>'
+            '<child link="foot"/><origin xyz="0 0 -0.2"/></joint></robot>')
+    path = tmp_path / "footed.urdf"
+    path.write_text(DAMPED_CHAIN.replace("</robot>", foot))
+    code, text = _run(tmp_path, "--model", str(path), "--simulator", "mujoco", "--simulator", "drake")
+    assert code == 1
+    assert "- link 'foot' has mass 0 and a rotational inertia (ixx, iyy, izz = 0.004, 0.006, 0.003)" in text
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
+    assert "**FINDING**" in rows["mujoco"].split(" | ")[3]          # ctrl: M^-1 B u, M without the foot's inertia
+    assert "NOT COMPARED: link 'foot' has mass 0 and a rotational inertia, which Drake's spatial inertia" in text
