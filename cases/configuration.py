@@ -65,7 +65,8 @@ def normalized(model: Model, q) -> np.ndarray:
     return q
 
 
-def _hat(w: np.ndarray) -> np.ndarray:
+def hat(w: np.ndarray) -> np.ndarray:
+    """The cross-product matrix: ``hat(w) @ x = w x x``."""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
@@ -87,7 +88,7 @@ def quaternion_exp(w: np.ndarray) -> np.ndarray:
 
 def rotation(quat: np.ndarray) -> np.ndarray:
     """``R(quat)`` of a unit quaternion ``(x, y, z, w)``."""
-    K = _hat(quat[:3])
+    K = hat(quat[:3])
     return np.eye(3) + 2.0 * quat[3] * K + 2.0 * K @ K
 
 
@@ -95,7 +96,7 @@ def _se3_translation(w: np.ndarray, v: np.ndarray) -> np.ndarray:
     """The translation of ``exp`` of the twist ``(v, w)``: ``V(w) v`` with ``V = I + (1 - cos t)/t^2 [w]x + (t - sin
     t)/t^3 [w]x^2`` (Lynch & Park 3.88), series near 0."""
     theta = float(np.linalg.norm(w))
-    K = _hat(w)
+    K = hat(w)
     if theta < 1e-4:
         a, b = 0.5 - theta**2 / 24.0, 1.0 / 6.0 - theta**2 / 120.0
     else:
@@ -121,7 +122,7 @@ def integrate(model: Model, q, v) -> np.ndarray:
 
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    K = _hat(axis)
+    K = hat(axis)
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cases.configuration import rotation
 from crosscheck.assemble import Sizes, unconstrained_split
 from formalisms.interface import UNSUPPORTED, ModelNotSupported, Split
 
@@ -50,22 +51,12 @@ class FreeVelocity:
 BODY_TWIST = FreeVelocity("body", "body", False)
 
 
-def _hat(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """``R(quat) = I + 2 w [x y z]x + 2 [x y z]x^2`` of a unit quaternion (``cases.model``)."""
-    s = _hat(np.array([x, y, z], dtype=float))
-    return np.eye(3) + 2.0 * w * s + 2.0 * s @ s
-
-
 def free_pose(scene, q: np.ndarray, body: int) -> tuple[np.ndarray, np.ndarray]:
     """The world pose ``(R, p)`` of free body ``body``: the scene's placement of the file's world composed with the
     joint's ``(p, quat)`` (a free base's joint frame is the file's world frame)."""
     iq = scene.q_index[body]
     R0, t0 = np.asarray(scene.rotation, dtype=float), np.asarray(scene.translation, dtype=float)
-    return R0 @ quaternion_matrix(*q[iq + 3:iq + 7]), R0 @ q[iq:iq + 3] + t0
+    return R0 @ rotation(q[iq + 3:iq + 7]), R0 @ q[iq:iq + 3] + t0
 
 
 def _free_block(R: np.ndarray, v_b: np.ndarray, w_b: np.ndarray, rep: FreeVelocity):

@@ -67,7 +67,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import (BallRpyJoint, BodyIndex, FixedOffsetFrame, MultibodyForces, PrismaticJoint,
                                     QuaternionFloatingJoint, RevoluteJoint, SpatialInertia, UnitInertia, WeldJoint)
 
-from crosscheck.adapters.base import (Adapter, FreeVelocity, Terms, accel_in_ours, in_ours, quaternion_matrix,
+from cases.configuration import rotation
+from crosscheck.adapters.base import (Adapter, FreeVelocity, Terms, accel_in_ours, in_ours,
                                       scene_gravity, urdf_without_geometry, velocity_map)
 from formalisms.interface import ModelNotSupported
 
@@ -358,10 +359,10 @@ class Drake(Adapter):
             if kind in ("revolute", "prismatic"):
                 q_L[a] = q[iq]
             elif kind == "spherical":
-                rotations[i] = quaternion_matrix(*q[iq:iq + 4])
+                rotations[i] = rotation(q[iq:iq + 4])
                 q_L[a:a + 3] = RollPitchYaw(RotationMatrix(rotations[i])).vector()
             else:                                 # free: (p, x, y, z, w) -> (w, x, y, z, p)
-                rotations[i] = quaternion_matrix(*q[iq + 3:iq + 7])
+                rotations[i] = rotation(q[iq + 3:iq + 7])
                 q_L[a:a + 4] = (q[iq + 6], *q[iq + 3:iq + 6])
                 q_L[a + 4:a + 7] = q[iq:iq + 3]
         return q_L, rotations

@@ -47,7 +47,8 @@ from importlib import metadata
 import idyntree.swig as idt
 import numpy as np
 
-from crosscheck.adapters.base import (BODY_TWIST, Adapter, Terms, in_ours, quaternion_matrix, scene_gravity,
+from cases.configuration import rotation
+from crosscheck.adapters.base import (BODY_TWIST, Adapter, Terms, in_ours, scene_gravity,
                                       urdf_without_geometry, velocity_map)
 from formalisms.interface import ModelNotSupported
 
@@ -182,7 +183,7 @@ class IDynTree(Adapter):
             T[0:6, iv:iv + 6] = self._adjoint(b.base_H_root)
             iq = scene.q_index[0]
             world_H_root = _homogeneous(scene.rotation, scene.translation) @ b.world_H_F @ \
-                _homogeneous(quaternion_matrix(*q[iq + 3:iq + 7]), q[iq:iq + 3])
+                _homogeneous(rotation(q[iq + 3:iq + 7]), q[iq:iq + 3])
         else:
             world_H_root = _homogeneous(scene.rotation, scene.translation)
         v_L = np.concatenate([np.zeros(offset), T @ qd])            # (base twist, joint velocities)

@@ -77,7 +77,8 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet
 
-from crosscheck.adapters.base import (Adapter, Terms, _hat, free_pose, in_ours, scene_gravity,
+from cases.configuration import hat
+from crosscheck.adapters.base import (Adapter, Terms, free_pose, in_ours, scene_gravity,
                                       urdf_file_without_geometry, velocity_map)
 from formalisms.interface import ModelNotSupported
 
@@ -118,7 +119,7 @@ def _free_block(R_c: np.ndarray, r: np.ndarray, v_b: np.ndarray, w_b: np.ndarray
     T = np.zeros((6, 6))
     T[0:3, 3:6] = R_c.T
     T[3:6, 0:3] = R_c.T
-    T[3:6, 3:6] = -R_c.T @ _hat(r)
+    T[3:6, 3:6] = -R_c.T @ hat(r)
     c = np.zeros(6)
     c[3:6] = R_c.T @ (np.cross(w_b, v_b) + np.cross(w_b, np.cross(w_b, r)))
     return T, c

@@ -91,29 +91,14 @@ def cmd_simulators(args) -> int:
     gate_report = report.with_name(f"{report.stem}-gate.md")
     code, result = gate.gated(_gate_args(args, specs, names, gate_report))
     info = {name: _info(result, name) for name in names}
-    text, conforms = conformance.render(result, args.model, info, os.path.relpath(gate_report, report.parent))
+    text, conforms, verdicts = conformance.render(result, args.model, info,
+                                                  os.path.relpath(gate_report, report.parent))
     report.write_text(text)
     for name in names:
-        state = "NOT COMPARED" if info[name]["reason"] else "conforms" if conforms else "see the report"
-        print(f"simulator {name:24s} {_line(result, name, state)}")
+        print(f"simulator {name:24s} {verdicts.get(name, 'not run: see the gate report')}")
     verdict = "PASS" if code == 0 and conforms else "FAIL"
     print(f"{verdict}: conformance report written to {report}")
     return code if code not in (0, 1) else 0 if verdict == "PASS" else 1
-
-
-def _line(result: GateResult, name: str, fallback: str) -> str:
-    """One terminal line per simulator: its findings by family, or that it agrees."""
-    if not result.cases:
-        return fallback
-    got = conformance.cells(result.cases[0], name)
-    blamed = [f"{fam} ({len({id(s) for s, _, _ in c.findings})} states)" for fam, c in got.items() if c.findings]
-    if blamed:
-        return "FINDING in " + ", ".join(blamed)
-    if any(c.unnamed for c in got.values()):
-        return "disagrees, not named (read the gate report)"
-    if not any(c.voted for c in got.values()):
-        return "NOT COMPARED"
-    return f"agrees (worst error/tolerance {max(c.closeness for c in got.values() if c.voted):.3g})"
 
 
 def add_parser(sub) -> None:

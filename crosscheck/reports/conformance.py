@@ -148,13 +148,16 @@ def cell_text(cell: Cell, reason: str) -> str:
     return "NOT COMPARED" if reason else "not supplied"
 
 
-def render(result: GateResult, model_path: str, simulators: dict[str, dict], gate_report: str) -> tuple[str, bool]:
-    """The markdown report and whether every simulator conforms. ``simulators``: name -> ``{"library": ...,
-    "off": [(default, what it adds), ...], "on": [...], "reason": why NOT COMPARED or ""}``."""
+def render(result: GateResult, model_path: str, simulators: dict[str, dict],
+           gate_report: str) -> tuple[str, bool, dict[str, str]]:
+    """The markdown report, whether every simulator conforms, and each simulator's verdict in one line (the
+    terminal's). ``simulators``: name -> ``{"library": ..., "off": [(default, what it adds), ...], "on": [...],
+    "reason": why NOT COMPARED or ""}``."""
     case = result.cases[0] if result.cases else None
     lines = [f"# Simulator conformance: `{model_path}`", ""]
     if case is None:
-        return "\n".join(lines + [f"The gate did not run a case; see [{gate_report}]({gate_report})."]) + "\n", False
+        return ("\n".join(lines + [f"The gate did not run a case; see [{gate_report}]({gate_report})."]) + "\n", False,
+                {})
     base = case.model.source.root if case.model.source is not None else "fixed"
     lines += [f"{len(case.states)} states (seed {result.seed}), base {base}; every simulator against the five "
               "formalisms, the Pinocchio reference and each other: the gate's full report is "
@@ -166,17 +169,29 @@ def render(result: GateResult, model_path: str, simulators: dict[str, dict], gat
                   "backends follow Pinocchio's reading; a simulator reading it another way disagrees here):", ""]
         lines += [f"- {finding}" for finding in case.model.findings] + [""]
     lines += ["| simulator | library | " + " | ".join(FAMILIES) + " |", "|---" * (len(FAMILIES) + 2) + "|"]
-    all_cells, conforms, details = {}, True, []
+    conforms, details, verdicts = True, [], {}
     for name, info in simulators.items():
         got = cells(case, name)
-        all_cells[name] = got
+        verdicts[name] = one_line(got)
         lines.append(f"| {name} | {info['library']} | "
                      + " | ".join(cell_text(c, info["reason"]) for c in got.values()) + " |")
         found = [finding(case, result.seed, fam, c, name) for fam, c in got.items() if c.findings]
         unnamed = sum(len(c.unnamed) for c in got.values())
         conforms &= not found and not unnamed
         details += _simulator_section(name, info, found, unnamed, got)
-    return "\n".join(lines + [""] + details) + "\n", conforms
+    return "\n".join(lines + [""] + details) + "\n", conforms, verdicts
+
+
+def one_line(got: dict[str, Cell]) -> str:
+    """A simulator's verdict in one line: its findings by family, or that it agrees."""
+    blamed = [f"{fam} ({len({id(s) for s, _, _ in c.findings})} states)" for fam, c in got.items() if c.findings]
+    if blamed:
+        return "FINDING in " + ", ".join(blamed)
+    if any(c.unnamed for c in got.values()):
+        return "disagrees, not named (read the gate report)"
+    if not any(c.voted for c in got.values()):
+        return "NOT COMPARED"
+    return f"agrees (worst error/tolerance {max(c.closeness for c in got.values() if c.voted):.3g})"
 
 
 def _simulator_section(name: str, info: dict, found: list[Finding], unnamed: int, got: dict[str, Cell]) -> list[str]:
